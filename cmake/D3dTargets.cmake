@@ -1,0 +1,51 @@
+# Helpers that give every target of ours the same warnings and layout.
+#
+# d3d_library(NAME SOURCES ... DEPS ...)      one CMake library per module
+# d3d_executable(NAME SOURCES ... DEPS ...)   thin executables, land in build/bin
+# d3d_test(NAME SOURCES ... DEPS ...)         GoogleTest binary registered with CTest
+
+function(d3d_warnings target)
+  target_compile_options(${target} PRIVATE -Wall -Wextra -Werror)
+endfunction()
+
+function(d3d_library name)
+  cmake_parse_arguments(ARG "" "" "SOURCES;DEPS;PRIVATE_DEPS" ${ARGN})
+  add_library(${name} STATIC ${ARG_SOURCES})
+  target_include_directories(${name} PUBLIC ${PROJECT_SOURCE_DIR})
+  target_link_libraries(${name} PUBLIC ${ARG_DEPS} PRIVATE ${ARG_PRIVATE_DEPS})
+  d3d_warnings(${name})
+endfunction()
+
+function(d3d_executable name)
+  cmake_parse_arguments(ARG "" "" "SOURCES;DEPS" ${ARGN})
+  add_executable(${name} ${ARG_SOURCES})
+  target_link_libraries(${name} PRIVATE ${ARG_DEPS})
+  d3d_warnings(${name})
+endfunction()
+
+function(d3d_test name)
+  cmake_parse_arguments(ARG "" "" "SOURCES;DEPS;LABELS" ${ARGN})
+  add_executable(${name} ${ARG_SOURCES})
+  target_link_libraries(${name} PRIVATE ${ARG_DEPS} GTest::gtest GTest::gtest_main GTest::gmock)
+  target_compile_definitions(${name} PRIVATE D3D_SHARED_DATA_DIR="${D3D_SHARED_DATA_DIR}")
+  set_target_properties(${name} PROPERTIES RUNTIME_OUTPUT_DIRECTORY ${CMAKE_BINARY_DIR}/tests)
+  d3d_warnings(${name})
+  gtest_discover_tests(${name} DISCOVERY_TIMEOUT 60 PROPERTIES LABELS "${ARG_LABELS}")
+endfunction()
+
+# d3d_fuzzer(NAME SOURCES ... DEPS ...): a libFuzzer + ASan executable, only with -DD3D_FUZZ=ON and
+# clang. List the parser's own sources in SOURCES so they get the coverage instrumentation.
+function(d3d_fuzzer name)
+  cmake_parse_arguments(ARG "" "" "SOURCES;DEPS" ${ARGN})
+  if(NOT D3D_FUZZ)
+    return()
+  endif()
+  if(NOT CMAKE_CXX_COMPILER_ID STREQUAL "Clang")
+    message(STATUS "D3D_FUZZ: ${name} needs clang, skipped with ${CMAKE_CXX_COMPILER_ID}")
+    return()
+  endif()
+  d3d_executable(${name} SOURCES ${ARG_SOURCES} DEPS ${ARG_DEPS})
+  target_include_directories(${name} PRIVATE ${PROJECT_SOURCE_DIR})
+  target_compile_options(${name} PRIVATE -fsanitize=fuzzer,address,undefined -fno-omit-frame-pointer -g)
+  target_link_options(${name} PRIVATE -fsanitize=fuzzer,address,undefined)
+endfunction()

@@ -1,0 +1,45 @@
+// Radiance that a projector frame casts, as a function of the projector coordinate and of the
+// optical blur at the lit point. The DMD shows piecewise-constant pixels of radiance (DMD/255)^γ;
+// the lens blurs them with a Gaussian whose σ depends on the point's distance (defocus,
+// diffraction) plus, for translucent surfaces, sub-surface transport. Because every frame of our
+// pattern sets varies along one axis only, the blur is 1-D along that axis (a Gaussian blur of a
+// function constant along the other axis is that function blurred in 1-D).
+//
+// Implementation: the box-sampled DMD profile (4 samples per projector pixel) is blurred once per
+// level σ_k = 0.25 · 2^(k/2) px, k = 0..17 (0.25 … 90 px); a lookup interpolates linearly in the
+// coordinate and between the two levels around σ. Beyond the DMD the projector is dark; the table
+// extends 3·σ_max past both ends so the blurred spill of light there is kept.
+// Immutable after construction: Sample() may be called from any thread.
+#pragma once
+
+#include <vector>
+
+#include "firmware/sim/patterns/patterns.h"
+
+namespace d3d {
+
+class ProjectorRadiance {
+ public:
+  // gamma ≤ 0 is refused; gamma = 1 is a linear projector. axis_length = projector width (axis x)
+  // or height (axis y); the frame's dmd must have that many values.
+  ProjectorRadiance(const ProjectorFrame& frame, double gamma, int axis_length);
+
+  char axis() const { return axis_; }
+  // Radiance ∈ [0, 1] at projector coordinate `coord_px` (OpenCV convention: pixel i spans
+  // [i − ½, i + ½)) seen through a Gaussian blur of σ = sigma_px projector pixels (clamped to the
+  // table's range [0.25, 90]).
+  float Sample(float coord_px, float sigma_px) const;
+
+  static constexpr int kSamplesPerPixel = 4;
+  static constexpr int kLevels = 18;
+  static constexpr float kSigmaMin = 0.25f;
+
+ private:
+  float SampleLevel(int level, float index) const;
+  char axis_;
+  int pad_;     // samples before the DMD's first pixel
+  int length_;  // samples per level (DMD + padding on both sides)
+  std::vector<float> levels_;  // kLevels × length_
+};
+
+}  // namespace d3d

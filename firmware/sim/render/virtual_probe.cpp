@@ -1,0 +1,417 @@
+#include "firmware/sim/render/virtual_probe.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <atomic>
+#include <cmath>
+#include <limits>
+#include <thread>
+#include <opencv2/imgproc.hpp>
+
+#include "firmware/sim/render/albedo_texture.h"
+#include "firmware/sim/render/scene_prep.h"
+
+namespace d3d {
+
+// Everything the shading of any projector frame needs at one pixel, computed once per pose.
+struct VirtualProbe::PixelGeometry {
+  float depth = std::numeric_limits<float>::quiet_NaN();  // camera z, mm
+  float x = 0, y = 0, z = 0;    // p_in_cam, mm
+  float u = 0, v = 0;           // projector pixel (valid when vis == 2)
+  int32_t face = -1;            // scene triangle, −1 for none or an analytic sphere
+  uint8_t vis = 0;              // 0 none, 1 not lit, 2 lit
+  uint8_t label = 0;
+  float ambient = 0;            // v·ρ·E_amb
+  float diffuse = 0;            // v·ρ·E_p
+  float specular = 0;           // v·F·E_p
+  float ss_fraction = 0;        // s
+  float sigma_p = 0;            // projector blur, projector px
+  float sigma_ss = 0;           // combined blur of the sub-surface part, projector px
+  float sigma_cam = 0;          // camera blur, camera px
+};
+
+namespace {
+
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+
+uint64_t SplitMix64(uint64_t x) {
+  x += 0x9E3779B97F4A7C15ull;
+  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
+  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
+  return x ^ (x >> 31);
+}
+
+// Counter-based generator: one independent stream per pixel, so results do not depend on threads.
+class PixelRng {
+ public:
+  explicit PixelRng(uint64_t state) : state_(state) {}
+  double Uniform() {  // (0, 1)
+    state_ = SplitMix64(state_);
+    return (static_cast<double>(state_ >> 11) + 0.5) * (1.0 / 9007199254740992.0);
+  }
+  // Two independent standard normals (Box & Muller 1958: both outputs of one pair of uniforms).
+  void Normal2(double* a, double* b) {
+    const double r = std::sqrt(-2.0 * std::log(Uniform()));
+    const double angle = 2.0 * M_PI * Uniform();
+    *a = r * std::cos(angle);
+    *b = r * std::sin(angle);
+  }
+  // Poisson sample by Knuth's product of uniforms (for small means; larger ones use the normal
+  // approximation in the caller).
+  double PoissonSmall(double mean) {
+    const double limit = std::exp(-mean);  // Knuth's product of uniforms
+    double p = Uniform();
+    int k = 0;
+    while (p > limit) {
+      p *= Uniform();
+      ++k;
+    }
+    return k;
+  }
+
+ private:
+  uint64_t state_;
+};
+
+// Runs f(row) for every row on the probe's arena. Under ThreadSanitizer (GCC/clang define
+// __SANITIZE_THREAD__) the rows go to plain std::threads that are joined: Debian's oneTBB is not
+// instrumented, so TSan cannot see that a TBB parallel_for has finished and would report false
+// races between successive loops. The per-row work, which is what could race, is the same.
+template <typename F>
+void ParallelRows(tbb::task_arena& arena, int rows, F&& f) {
+#if defined(__SANITIZE_THREAD__)
+  std::atomic<int> next{0};
+  std::vector<std::thread> workers;
+  for (int w = 0; w < std::max(1, arena.max_concurrency()); ++w) {
+    workers.emplace_back([&] {
+      for (int row = next.fetch_add(1); row < rows; row = next.fetch_add(1)) f(row);
+    });
+  }
+  for (auto& t : workers) t.join();
+  return;
+#endif
+  arena.execute([&] {
+    tbb::parallel_for(tbb::blocked_range<int>(0, rows, 4), [&](const tbb::blocked_range<int>& r) {
+      for (int row = r.begin(); row < r.end(); ++row) f(row);
+    });
+  });
+}
+
+}  // namespace
+
+void RenderOptions::Check() const {
+  D3D_CHECK_MSG(motion_blur_samples >= 1 && motion_blur_samples <= 64, "motion_blur_samples must be in [1, 64]");
+  D3D_CHECK_MSG(frame_interval_ns > 0, "frame interval must be positive");
+  D3D_CHECK_MSG(threads >= 0, "threads must be ≥ 0");
+}
+
+uint64_t FrameNoiseSeed(uint64_t seed, uint64_t sequence, int frame_index) {
+  return SplitMix64(seed ^ SplitMix64(sequence * 64 + static_cast<uint64_t>(frame_index) + 0x5EEDull));
+}
+
+VirtualProbe::VirtualProbe(const TriangleMesh& scene, const ProbeDesign& design, const RenderOptions& options,
+                           std::vector<SceneSphere> spheres)
+    : design_(design),
+      options_(options),
+      scene_(PrepareScene(scene, design, options.texture, options.texture_seed)),
+      arena_(options.threads > 0 ? options.threads : tbb::task_arena::automatic) {
+  design_.Check();
+  options_.Check();
+  caster_ = std::make_unique<RayCaster>(scene_.mesh, std::move(spheres));
+  const auto& cam = design_.calibration.camera;
+  const auto& proj = design_.calibration.projector;
+  burst_patterns_ = MakePhaseShiftSet(design_.calibration.pattern, proj.width, proj.height);
+  pixel_rays_.resize(static_cast<size_t>(cam.width) * static_cast<size_t>(cam.height));
+  pixel_ray_valid_.assign(pixel_rays_.size(), 0);
+  for (int r = 0; r < cam.height; ++r)
+    for (int c = 0; c < cam.width; ++c) {
+      const auto ray = cam.PixelRay(Eigen::Vector2d(c, r));
+      const size_t i = static_cast<size_t>(r) * static_cast<size_t>(cam.width) + static_cast<size_t>(c);
+      if (ray) {
+        pixel_rays_[i] = *ray;
+        pixel_ray_valid_[i] = 1;
+      }
+    }
+  geometry_.resize(pixel_rays_.size());
+  for (const auto& f : burst_patterns_.frames) RadianceFor(f);
+}
+
+VirtualProbe::~VirtualProbe() = default;
+
+const ProjectorRadiance& VirtualProbe::RadianceFor(const ProjectorFrame& frame) {
+  const auto& proj = design_.calibration.projector;
+  std::string key(1, frame.axis);
+  key.append(frame.dmd.begin(), frame.dmd.end());
+  std::lock_guard<std::mutex> lock(radiance_mutex_);
+  auto it = radiance_cache_.find(key);
+  if (it == radiance_cache_.end()) {
+    const double gamma = options_.gamma ? design_.optics.projector_gamma : 1.0;
+    auto table = std::make_unique<ProjectorRadiance>(frame, gamma, frame.axis == 'y' ? proj.height : proj.width);
+    it = radiance_cache_.emplace(std::move(key), std::move(table)).first;
+  }
+  return *it->second;
+}
+
+void VirtualProbe::GeometryPass(const Rigid3d& world_from_probe, std::vector<PixelGeometry>* out) {
+  const ProbeCalibration& calib = design_.calibration;
+  const ProbeOptics& optics = design_.optics;
+  const int width = calib.camera.width, height = calib.camera.height;
+  out->resize(pixel_rays_.size());
+  const Eigen::Matrix3d R = world_from_probe.linear();
+  const Eigen::Vector3d cam_centre = world_from_probe.translation();
+  const Rigid3d world_from_proj = world_from_probe * calib.cam_from_proj;
+  const Rigid3d proj_from_world = world_from_proj.inverse();
+  const Eigen::Vector3d proj_centre = world_from_proj.translation();
+  constexpr int kTile = 4;  // 4×4 pixel tiles: one coherent Embree packet of 16 rays
+  ParallelRows(arena_, (height + kTile - 1) / kTile, [&](int tile_row) {
+    size_t index[RayCaster::kPacket];
+    Eigen::Vector3d dirs[RayCaster::kPacket], points[RayCaster::kPacket];
+    SurfaceHit hits[RayCaster::kPacket];
+    bool hit[RayCaster::kPacket], facing[RayCaster::kPacket], occluded[RayCaster::kPacket];
+    std::optional<Eigen::Vector2d> uv[RayCaster::kPacket];
+    for (int c0 = 0; c0 < width; c0 += kTile) {
+      int n = 0;
+      for (int r = tile_row * kTile; r < std::min(height, (tile_row + 1) * kTile); ++r)
+        for (int c = c0; c < std::min(width, c0 + kTile); ++c) {
+          const size_t i = static_cast<size_t>(r) * static_cast<size_t>(width) + static_cast<size_t>(c);
+          (*out)[i] = PixelGeometry{};
+          if (!pixel_ray_valid_[i]) continue;
+          index[n] = i;
+          dirs[n++] = R * pixel_rays_[i];  // (x, y, 1) rotated: t along it is the camera z
+        }
+      if (n == 0) continue;
+      caster_->Intersect16(cam_centre, dirs, n, 0.0, hits, hit);
+      for (int k = 0; k < n; ++k) {
+        facing[k] = false;
+        if (!hit[k]) continue;
+        points[k] = hits[k].point;
+        uv[k] = calib.projector.Project(proj_from_world * hits[k].point);
+        facing[k] = uv[k] && calib.projector.InImage(*uv[k]) &&
+                    hits[k].geometric_normal.dot(proj_centre - hits[k].point) > 0.0;
+      }
+      caster_->OccludedToPoint16(points, facing, n, proj_centre, 1e-3, occluded);
+      for (int k = 0; k < n; ++k) {
+        if (hit[k]) Shade(hits[k], pixel_rays_[index[k]], cam_centre, proj_centre, proj_from_world,
+                          facing[k] && !occluded[k] ? &*uv[k] : nullptr, &(*out)[index[k]]);
+      }
+    }
+  });
+  (void)optics;
+}
+
+void VirtualProbe::Shade(const SurfaceHit& hit, const Eigen::Vector3d& ray, const Eigen::Vector3d& cam_centre,
+                         const Eigen::Vector3d& proj_centre, const Rigid3d& proj_from_world, const Eigen::Vector2d* uv,
+                         PixelGeometry* g) const {
+  const ProbeCalibration& calib = design_.calibration;
+  const ProbeOptics& optics = design_.optics;
+  const Eigen::Vector3d p_in_cam = ray * hit.t;
+  g->depth = static_cast<float>(hit.t);
+  g->x = static_cast<float>(p_in_cam.x());
+  g->y = static_cast<float>(p_in_cam.y());
+  g->z = static_cast<float>(p_in_cam.z());
+  g->label = static_cast<uint8_t>(hit.label);
+  g->face = hit.face >= 0 ? scene_.parent_face[static_cast<size_t>(hit.face)] : -1;
+  g->vis = 1;
+  const Material& m = design_.MaterialOf(hit.label);
+  const double vignetting = 1.0 / (ray.squaredNorm() * ray.squaredNorm());  // cos⁴ α for ray = (x, y, 1)
+  double albedo;
+  if (hit.face >= 0) {  // baked at the corners (scene_prep.h), interpolated
+    const float* a = &scene_.corner_albedo[3 * static_cast<size_t>(hit.face)];
+    const double b1 = std::clamp(hit.b1, 0.0, 1.0), b2 = std::clamp(hit.b2, 0.0, 1.0 - b1);
+    albedo = (1.0 - b1 - b2) * a[0] + b1 * a[1] + b2 * a[2];
+  } else {
+    albedo = m.albedo * (options_.texture ? AlbedoFactor(m, hit.point, options_.texture_seed) : 1.0);
+  }
+  g->ambient = static_cast<float>(vignetting * albedo * optics.ambient_irradiance);
+  g->sigma_cam = static_cast<float>(ProbeOptics::BlurSigmaPx(calib.camera.fx, optics.camera_pupil_mm,
+                                                             optics.camera_focus_mm, optics.wavelength_nm, hit.t));
+  if (!uv) return;  // not lit by the projector
+  g->vis = 2;
+  g->u = static_cast<float>(uv->x());
+  g->v = static_cast<float>(uv->y());
+  const Eigen::Vector3d to_proj = proj_centre - hit.point;
+  const double dist = to_proj.norm();
+  const Eigen::Vector3d l = to_proj / dist;
+  const double cos_i = std::max(0.0, hit.shading_normal.dot(l));
+  const double e_p = optics.projector_irradiance * cos_i * (optics.projector_focus_mm / dist) * (optics.projector_focus_mm / dist);
+  g->diffuse = static_cast<float>(vignetting * albedo * e_p);
+  if (options_.specular && m.specular_r0 > 0.0) {
+    const Eigen::Vector3d view = (cam_centre - hit.point).normalized();
+    const double n_h = hit.shading_normal.dot((l + view).normalized());
+    // (n·h)^m below 1e-6 of the peak is dropped: n·h < 1e-6^(1/m).
+    if (n_h > std::pow(1e-6, 1.0 / m.specular_exponent)) {
+      const double f = m.specular_r0 * (m.specular_exponent + 8.0) / 8.0 * std::pow(n_h, m.specular_exponent);
+      g->specular = static_cast<float>(vignetting * f * e_p);
+    }
+  }
+  const double z_p = (proj_from_world * hit.point).z();
+  const double sigma_p = options_.projector_defocus
+                             ? ProbeOptics::BlurSigmaPx(calib.projector.fx, optics.projector_pupil_mm,
+                                                        optics.projector_focus_mm, optics.wavelength_nm, z_p)
+                             : 0.0;
+  g->sigma_p = static_cast<float>(sigma_p);
+  if (options_.subsurface && m.subsurface_fraction > 0.0) {
+    const double ss = m.subsurface_sigma_mm * calib.projector.fx / z_p;
+    g->ss_fraction = static_cast<float>(m.subsurface_fraction);
+    g->sigma_ss = static_cast<float>(std::sqrt(sigma_p * sigma_p + ss * ss));
+  }
+}
+
+void VirtualProbe::ShadePass(const std::vector<PixelGeometry>& geometry, const ProjectorRadiance& radiance,
+                             float weight, cv::Mat* signal) {
+  const int width = signal->cols;
+  const bool along_v = radiance.axis() == 'y';
+  ParallelRows(arena_, signal->rows, [&](int row) {
+    float* out = signal->ptr<float>(row);
+    for (int col = 0; col < width; ++col) {
+      const PixelGeometry& g = geometry[static_cast<size_t>(row) * static_cast<size_t>(width) + static_cast<size_t>(col)];
+      if (g.vis == 0) continue;
+      float s = g.ambient;
+      if (g.vis == 2) {
+        const float c = along_v ? g.v : g.u;
+        const float sharp = radiance.Sample(c, g.sigma_p);
+        float diffuse = sharp;
+        if (g.ss_fraction > 0.0f) diffuse = (1.0f - g.ss_fraction) * sharp + g.ss_fraction * radiance.Sample(c, g.sigma_ss);
+        s += g.diffuse * diffuse + g.specular * sharp;
+      }
+      out[col] += weight * s;
+    }
+  });
+}
+
+void VirtualProbe::CameraDefocus(const std::vector<PixelGeometry>& geometry, cv::Mat* signal) {
+  // Spatially varying Gaussian blur by interpolating between uniformly blurred copies (a gather
+  // approximation: exact on surfaces of slowly varying depth).
+  static constexpr float kLevels[] = {0.5f, 0.7f, 1.0f, 1.4f, 2.0f, 2.8f, 4.0f};
+  constexpr int kCount = sizeof(kLevels) / sizeof(kLevels[0]);
+  const float airy = static_cast<float>(ProbeOptics::BlurSigmaPx(design_.calibration.camera.fx,
+                                                                 design_.optics.camera_pupil_mm,
+                                                                 design_.optics.camera_focus_mm,
+                                                                 design_.optics.wavelength_nm,
+                                                                 design_.optics.camera_focus_mm));
+  float max_sigma = airy;
+  for (const auto& g : geometry) max_sigma = std::max(max_sigma, g.sigma_cam);
+  int needed = 1;
+  while (needed < kCount && kLevels[needed - 1] < max_sigma) ++needed;
+  blur_levels_.resize(kCount);
+  for (int k = 0; k < needed; ++k) cv::GaussianBlur(*signal, blur_levels_[k], cv::Size(0, 0), kLevels[k], kLevels[k], cv::BORDER_REFLECT);
+  const cv::Mat sharp = signal->clone();
+  const int width = signal->cols;
+  ParallelRows(arena_, signal->rows, [&](int row) {
+    float* out = signal->ptr<float>(row);
+    const float* s0 = sharp.ptr<float>(row);
+    for (int col = 0; col < width; ++col) {
+      const auto& g = geometry[static_cast<size_t>(row) * static_cast<size_t>(width) + static_cast<size_t>(col)];
+      const float sigma = g.vis ? g.sigma_cam : airy;
+      if (sigma <= kLevels[0]) {
+        const float w = sigma / kLevels[0];
+        out[col] = s0[col] + w * (blur_levels_[0].ptr<float>(row)[col] - s0[col]);
+        continue;
+      }
+      int k = 0;
+      while (k + 1 < needed && kLevels[k + 1] < sigma) ++k;
+      if (k + 1 >= needed) {
+        out[col] = blur_levels_[needed - 1].ptr<float>(row)[col];
+        continue;
+      }
+      const float w = (sigma - kLevels[k]) / (kLevels[k + 1] - kLevels[k]);
+      const float a = blur_levels_[k].ptr<float>(row)[col], b = blur_levels_[k + 1].ptr<float>(row)[col];
+      out[col] = a + w * (b - a);
+    }
+  });
+}
+
+void VirtualProbe::SensorPass(const cv::Mat& signal, uint64_t frame_seed, cv::Mat* image) {
+  const SensorModel& sensor = design_.sensor;
+  const double max_dn = std::ldexp(1.0, sensor.bits) - 1.0;
+  const double dn_per_e = max_dn / sensor.full_well_e;
+  const bool eight = sensor.bits == 8;
+  image->create(signal.rows, signal.cols, eight ? CV_8U : CV_16U);
+  const int width = signal.cols;
+  ParallelRows(arena_, signal.rows, [&](int row) {
+    const float* s = signal.ptr<float>(row);
+    for (int col = 0; col < width; ++col) {
+      double electrons = std::max(0.0, static_cast<double>(s[col])) * sensor.full_well_e;
+      if (options_.noise) {  // photon shot noise (Poisson) + read noise (Gaussian), in electrons
+        PixelRng rng(SplitMix64(frame_seed + static_cast<uint64_t>(row) * 1315423911ull + static_cast<uint64_t>(col)));
+        double n1, n2;
+        rng.Normal2(&n1, &n2);
+        const double shot = electrons > 64.0 ? std::max(0.0, electrons + std::sqrt(electrons) * n1) : rng.PoissonSmall(electrons);
+        electrons = shot + sensor.read_noise_e * n2;
+      }
+      const double dn = std::clamp(std::round(electrons * dn_per_e), 0.0, max_dn);
+      if (eight) image->ptr<uint8_t>(row)[col] = static_cast<uint8_t>(dn);
+      else image->ptr<uint16_t>(row)[col] = static_cast<uint16_t>(dn);
+    }
+  });
+}
+
+void VirtualProbe::FillTruth(const std::vector<PixelGeometry>& geometry, int width, int height, FrameTruth* out) {
+  out->depth_mm.create(height, width, CV_32F);
+  out->points_in_cam.create(height, width, CV_32FC3);
+  out->projector_uv.create(height, width, CV_32FC2);
+  out->visibility.create(height, width, CV_8U);
+  out->label.create(height, width, CV_8U);
+  out->face_index.create(height, width, CV_32S);
+  for (int r = 0; r < height; ++r)
+    for (int c = 0; c < width; ++c) {
+      const auto& g = geometry[static_cast<size_t>(r) * static_cast<size_t>(width) + static_cast<size_t>(c)];
+      const bool hit = g.vis != 0;
+      out->depth_mm.at<float>(r, c) = hit ? g.depth : kNaN;
+      out->points_in_cam.at<cv::Vec3f>(r, c) = hit ? cv::Vec3f(g.x, g.y, g.z) : cv::Vec3f(kNaN, kNaN, kNaN);
+      out->projector_uv.at<cv::Vec2f>(r, c) = g.vis == 2 ? cv::Vec2f(g.u, g.v) : cv::Vec2f(kNaN, kNaN);
+      out->visibility.at<uint8_t>(r, c) = g.vis;
+      out->label.at<uint8_t>(r, c) = g.label;
+      out->face_index.at<int32_t>(r, c) = g.face;
+    }
+}
+
+void VirtualProbe::RenderTruth(const Rigid3d& world_from_probe, FrameTruth* out) {
+  GeometryPass(world_from_probe, &geometry_);
+  FillTruth(geometry_, design_.calibration.camera.width, design_.calibration.camera.height, out);
+  out->world_from_probe = world_from_probe;
+}
+
+void VirtualProbe::RenderFrame(const PoseAtTime& pose, int64_t t_ns, const ProjectorFrame& frame, uint64_t noise_seed,
+                               bool with_truth, BurstFrame* out) {
+  const auto& cam = design_.calibration.camera;
+  const ProjectorRadiance& radiance = RadianceFor(frame);
+  out->pattern = frame.name;
+  out->timestamp_ns = t_ns;
+  const Rigid3d world_from_probe = pose(t_ns);
+  cv::Mat signal(cam.height, cam.width, CV_32F, cv::Scalar(0));
+  GeometryPass(world_from_probe, &geometry_);  // the pose at mid-exposure: truth and defocus
+  const int samples = options_.motion_blur_samples;
+  if (samples == 1) {
+    ShadePass(geometry_, radiance, 1.0f, &signal);
+  } else {
+    const double exposure = static_cast<double>(design_.sensor.exposure_ns);
+    for (int s = 0; s < samples; ++s) {
+      const auto t = t_ns + static_cast<int64_t>(std::llround(exposure * ((s + 0.5) / samples - 0.5)));
+      GeometryPass(pose(t), &geometry_sub_);
+      ShadePass(geometry_sub_, radiance, 1.0f / static_cast<float>(samples), &signal);
+    }
+  }
+  if (options_.camera_defocus) CameraDefocus(geometry_, &signal);
+  SensorPass(signal, noise_seed, &out->image);
+  out->truth = FrameTruth{};
+  if (with_truth) FillTruth(geometry_, cam.width, cam.height, &out->truth);
+  out->truth.world_from_probe = world_from_probe;
+}
+
+Burst VirtualProbe::RenderBurst(const PoseAtTime& pose, int64_t t0_ns, uint64_t sequence, uint64_t seed,
+                                        bool with_truth, const PatternSet* set) {
+  const PatternSet& patterns = set ? *set : burst_patterns_;
+  Burst burst;
+  burst.sequence = sequence;
+  burst.frames.resize(patterns.frames.size());
+  for (size_t i = 0; i < patterns.frames.size(); ++i) {
+    const int64_t t = t0_ns + static_cast<int64_t>(i) * options_.frame_interval_ns;
+    RenderFrame(pose, t, patterns.frames[i], FrameNoiseSeed(seed, sequence, static_cast<int>(i)), with_truth,
+                &burst.frames[i]);
+  }
+  return burst;
+}
+
+}  // namespace d3d

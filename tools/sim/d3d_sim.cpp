@@ -1,0 +1,223 @@
+// d3d-sim: renders bursts of the virtual probe scanning a dental arch, with ground truth.
+// Thin wiring of SimSession (firmware/sim/session) and the burst folder format (common/burst).
+#include <CLI/CLI.hpp>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "common/burst/burst_io.h"
+#include "common/core/progress.h"
+#include "common/mesh/mesh_io.h"
+#include "firmware/sim/session/sim_session.h"
+
+namespace fs = std::filesystem;
+using namespace d3d;
+
+namespace {
+
+struct BurstStats {
+  double surface_share = 0;   // pixels that see a surface
+  double lit_share = 0;       // pixels lit by the projector
+  double median_depth_mm = std::nan("");
+};
+
+BurstStats Stats(const FrameTruth& t) {
+  BurstStats s;
+  std::vector<float> depths;
+  int lit = 0;
+  for (int r = 0; r < t.visibility.rows; ++r)
+    for (int c = 0; c < t.visibility.cols; ++c) {
+      const uint8_t v = t.visibility.at<uint8_t>(r, c);
+      if (v == 0) continue;
+      depths.push_back(t.depth_mm.at<float>(r, c));
+      lit += v == 2;
+    }
+  const double n = static_cast<double>(t.visibility.total());
+  s.surface_share = static_cast<double>(depths.size()) / n;
+  s.lit_share = lit / n;
+  if (!depths.empty()) {
+    std::nth_element(depths.begin(), depths.begin() + static_cast<long>(depths.size() / 2), depths.end());
+    s.median_depth_mm = depths[depths.size() / 2];
+  }
+  return s;
+}
+
+// A 2×2 picture of one burst: frame 0, the marker frame, true depth (jet over the measurement
+// volume, black where no surface) and surfaces (tooth white, gingiva pink, unlit dark blue).
+cv::Mat PreviewPicture(const Burst& burst, const ProbeCalibration& calib) {
+  auto grey = [](const cv::Mat& m) {
+    cv::Mat g, c;
+    if (m.depth() == CV_8U) g = m;
+    else m.convertTo(g, CV_8U, 255.0 / 65535.0);
+    cv::cvtColor(g, c, cv::COLOR_GRAY2BGR);
+    return c;
+  };
+  const FrameTruth& t = burst.frames[0].truth;
+  cv::Mat depth8;
+  t.depth_mm.convertTo(depth8, CV_8U, 255.0 / (calib.depth_max_mm - calib.depth_min_mm),
+                       -255.0 * calib.depth_min_mm / (calib.depth_max_mm - calib.depth_min_mm));
+  cv::Mat depth;
+  cv::applyColorMap(depth8, depth, cv::COLORMAP_JET);
+  depth.setTo(cv::Scalar(0, 0, 0), t.visibility == 0);
+  cv::Mat labels(t.visibility.size(), CV_8UC3, cv::Scalar(0, 0, 0));
+  labels.setTo(cv::Scalar(235, 235, 235), t.label == static_cast<int>(SurfaceLabel::kTooth));
+  labels.setTo(cv::Scalar(150, 120, 230), t.label == static_cast<int>(SurfaceLabel::kGingiva));
+  labels.setTo(cv::Scalar(90, 30, 10), t.visibility == 1);
+  const size_t marker = static_cast<size_t>(std::max(0, calib.pattern.marker_frame));
+  cv::Mat top, bottom, all;
+  cv::hconcat(grey(burst.frames[0].image), grey(burst.frames[std::min(marker, burst.frames.size() - 1)].image), top);
+  cv::hconcat(depth, labels, bottom);
+  cv::vconcat(top, bottom, all);
+  const std::string caption = "burst " + std::to_string(burst.sequence) + ": frame 0 | frame " + std::to_string(marker) +
+                              " (marker) | depth " + std::to_string(static_cast<int>(calib.depth_min_mm)) + "-" +
+                              std::to_string(static_cast<int>(calib.depth_max_mm)) + " mm | tooth/gingiva/unlit";
+  cv::putText(all, caption, cv::Point(10, all.rows - 12), cv::FONT_HERSHEY_SIMPLEX, 0.6, cv::Scalar(0, 255, 255), 1,
+              cv::LINE_AA);
+  return all;
+}
+
+bool ParseCamera(const std::string& text, int* w, int* h) {
+  return std::sscanf(text.c_str(), "%dx%d", w, h) == 2;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"d3d-sim: the virtual intraoral probe. Renders 4-frame phase-shift bursts of a dental arch along a "
+               "hand-held scan trajectory, with per-pixel ground truth, and writes them as a burst folder set:\n"
+               "  OUT/calibration.json  the probe's calibration (the only thing downstream stages may use)\n"
+               "  OUT/trajectory.tum    the true trajectory (TUM: t[s] tx ty tz[mm] qx qy qz qw)\n"
+               "  OUT/scene.ply         the scene mesh (mm)\n"
+               "  OUT/bursts/NNNNNN/    frame_K.png, burst.json (timestamps, poses), truth_K/*.npy|png\n"
+               "  OUT/preview.png       the middle burst: frames, true depth, surfaces\n"
+               "  OUT/summary.json      what was rendered"};
+  SimSessionOptions opt;
+  std::string out_dir, camera = "640x480", patterns = "burst", truth = "first";
+  int64_t frames = 30, first = 0;
+  bool no_noise = false, no_gamma = false, quiet = false, json = false;
+  app.add_option("--model", opt.model, "'typodont' (built-in, default) or a mesh file: PLY/STL/OBJ in mm");
+  app.add_option("--trajectory", opt.trajectory, "full-arch (default) | quadrant | tooth | a TUM file");
+  app.add_option("--frames", frames, "number of bursts to render (default 30; 0 = the whole trajectory)");
+  app.add_option("--index", first, "index of the first burst (default 0)");
+  app.add_option("--seed", opt.seed, "seed of hand motion and sensor noise (default 1)");
+  app.add_option("--rate", opt.burst_rate_hz, "bursts per second (default 30)");
+  app.add_option("--camera", camera, "camera size: 640x480 (default) or 1280x1024");
+  app.add_option("--patterns", patterns,
+                 "burst (default: 4-step with marker) | phase:N:PERIOD[:x|y] | multifreq:N:P1,P2,..[:x|y] | "
+                 "gray:CELL[:x|y] | white | black");
+  app.add_option("--truth", truth, "ground-truth maps to write: first (default: of frame 0) | all | none");
+  app.add_option("--motion-blur", opt.render.motion_blur_samples, "poses averaged over each exposure (default 1)");
+  app.add_option("--threads", opt.render.threads, "render threads (default 0 = all cores)");
+  app.add_flag("--no-noise", no_noise, "no shot or read noise (quantisation stays)");
+  app.add_flag("--no-gamma", no_gamma, "linear projector (default: uncorrected gamma 2.2)");
+  app.add_flag("--quiet", quiet, "no progress bar");
+  app.add_flag("--json", json, "print a JSON summary as the last line");
+  app.add_option("--out", out_dir, "output folder")->required();
+  CLI11_PARSE(app, argc, argv);
+
+  if (!ParseCamera(camera, &opt.camera_width, &opt.camera_height)) {
+    std::fprintf(stderr, "d3d-sim: --camera must look like 640x480, got '%s'\n", camera.c_str());
+    return 2;
+  }
+  if (truth != "first" && truth != "all" && truth != "none") {
+    std::fprintf(stderr, "d3d-sim: --truth must be first, all or none\n");
+    return 2;
+  }
+  opt.render.noise = !no_noise;
+  opt.render.gamma = !no_gamma;
+  std::unique_ptr<SimSession> session;
+  try {
+    const Status s = SimSession::Create(opt, &session);
+    if (!s.ok()) {
+      std::fprintf(stderr, "d3d-sim: %s\n", s.ToString().c_str());
+      return 1;
+    }
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "d3d-sim: %s\n", e.what());
+    return 2;
+  }
+  cv::setNumThreads(opt.render.threads > 0 ? opt.render.threads : cv::getNumberOfCPUs());
+  PatternSet set;
+  if (const Status s = ParsePatternSet(patterns, session->calibration(), &set); !s.ok()) {
+    std::fprintf(stderr, "d3d-sim: %s\n", s.ToString().c_str());
+    return 2;
+  }
+  const int64_t available = session->NumBursts();
+  if (first < 0 || first >= available) {
+    std::fprintf(stderr, "d3d-sim: --index %lld outside the trajectory's %lld bursts\n", static_cast<long long>(first),
+                 static_cast<long long>(available));
+    return 2;
+  }
+  const int64_t count = frames <= 0 ? available - first : std::min(frames, available - first);
+  std::error_code ec;
+  fs::create_directories(fs::path(out_dir) / "bursts", ec);
+  if (ec) {
+    std::fprintf(stderr, "d3d-sim: cannot create '%s': %s\n", out_dir.c_str(), ec.message().c_str());
+    return 1;
+  }
+  for (const Status& s : {session->calibration().Save((fs::path(out_dir) / "calibration.json").string()),
+                          session->trajectory().SaveTum((fs::path(out_dir) / "trajectory.tum").string()),
+                          SavePlyBinary((fs::path(out_dir) / "scene.ply").string(), session->scene())}) {
+    if (!s.ok()) {
+      std::fprintf(stderr, "d3d-sim: %s\n", s.ToString().c_str());
+      return 1;
+    }
+  }
+  std::vector<int> truth_frames;
+  if (truth == "first") truth_frames = {0};
+  if (truth == "all")
+    for (int k = 0; k < static_cast<int>(set.frames.size()); ++k) truth_frames.push_back(k);
+  ProgressBar bar("d3d-sim", count, !quiet);
+  double surface = 0, lit = 0;
+  int64_t in_volume = 0;
+  const auto& calib = session->calibration();
+  const auto start = std::chrono::steady_clock::now();
+  for (int64_t i = 0; i < count; ++i) {
+    const int64_t index = first + i;
+    const PoseAtTime pose = [&](int64_t t) { return session->trajectory().WorldFromProbe(t); };
+    const Burst burst = session->probe().RenderBurst(pose, session->BurstStartNs(index), static_cast<uint64_t>(index),
+                                                     opt.seed, true, &set);
+    const BurstStats st = Stats(burst.frames[0].truth);
+    surface += st.surface_share;
+    lit += st.lit_share;
+    in_volume += st.median_depth_mm >= calib.depth_min_mm && st.median_depth_mm <= calib.depth_max_mm;
+    char name[32];
+    std::snprintf(name, sizeof(name), "%06lld", static_cast<long long>(index));
+    if (const Status s = WriteBurstDir((fs::path(out_dir) / "bursts" / name).string(), burst, truth_frames); !s.ok()) {
+      std::fprintf(stderr, "\nd3d-sim: %s\n", s.ToString().c_str());
+      return 1;
+    }
+    if (i == count / 2 && !cv::imwrite((fs::path(out_dir) / "preview.png").string(), PreviewPicture(burst, calib))) {
+      std::fprintf(stderr, "\nd3d-sim: cannot write preview.png\n");
+      return 1;
+    }
+    bar.Update(i + 1);
+  }
+  bar.Finish();
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const nlohmann::json summary{
+      {"model", opt.model},
+      {"trajectory", opt.trajectory},
+      {"seed", opt.seed},
+      {"patterns", set.id},
+      {"bursts", count},
+      {"first_index", first},
+      {"trajectory_bursts", available},
+      {"trajectory_s", static_cast<double>(session->trajectory().DurationNs()) * 1e-9},
+      {"surface_pct", 100.0 * surface / std::max<int64_t>(count, 1)},
+      {"lit_pct", 100.0 * lit / std::max<int64_t>(count, 1)},
+      {"in_measurement_volume_pct", 100.0 * static_cast<double>(in_volume) / static_cast<double>(std::max<int64_t>(count, 1))},
+      {"ms_per_burst_with_io", 1000.0 * seconds / static_cast<double>(std::max<int64_t>(count, 1))},
+      {"out", out_dir}};
+  std::ofstream(fs::path(out_dir) / "summary.json") << summary.dump(2) << "\n";
+  if (json) std::printf("%s\n", summary.dump().c_str());
+  else std::printf("d3d-sim: %lld bursts of %s written to %s (%.0f ms per burst)\n", static_cast<long long>(count),
+                   opt.model.c_str(), out_dir.c_str(), 1000.0 * seconds / static_cast<double>(std::max<int64_t>(count, 1)));
+  return 0;
+}

@@ -1,0 +1,48 @@
+#!/usr/bin/env bash
+# Installs what is missing, builds, and runs every test: the unit and integration tests (CTest),
+# then the parsers under AddressSanitizer + UBSan, then each fuzzer for a bounded time.
+#   tools/test.sh [--quick]   (--quick: CTest only)
+set -euo pipefail
+source "$(dirname "$0")/lib/setup.sh"
+quick=0
+[[ "${1:-}" == "--quick" ]] && quick=1
+d3d_install_deps
+d3d_build "$D3D_ROOT/build"
+start=$(date +%s)
+ctest --test-dir "$D3D_ROOT/build" --output-on-failure -j2 --timeout 900
+echo "test.sh: CTest took $(( $(date +%s) - start )) s"
+((quick)) && exit 0
+
+# Parsers (mesh files, .npy, burst folders, calibration.json) under ASan + UBSan.
+asan="$D3D_ROOT/build-asan"
+cmake -G Ninja -S "$D3D_ROOT" -B "$asan" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DD3D_SANITIZE=address,undefined >/dev/null
+cmake --build "$asan" -j"$(nproc)" --target d3d_mesh_test d3d_core_test d3d_burst_test d3d_calib_model_test d3d_formats_mutation_test
+for t in d3d_mesh_test d3d_core_test d3d_burst_test d3d_calib_model_test d3d_formats_mutation_test; do
+  UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 ASAN_OPTIONS=detect_leaks=1 "$asan/tests/$t" --gtest_brief=1
+done
+
+# Concurrency under ThreadSanitizer: the renderer's parallel loops (same output on 1 and 2 threads).
+tsan="$D3D_ROOT/build-tsan"
+cmake -G Ninja -S "$D3D_ROOT" -B "$tsan" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DD3D_SANITIZE=thread >/dev/null
+cmake --build "$tsan" -j"$(nproc)" --target d3d_virtual_probe_test
+TSAN_OPTIONS="halt_on_error=1 suppressions=$D3D_ROOT/tools/tsan.supp" \
+  "$tsan/tests/d3d_virtual_probe_test" --gtest_filter='*AnyThreadCount*' --gtest_brief=1
+
+# libFuzzer targets (clang), 30 s each.
+fuzz="$D3D_ROOT/build-fuzz"
+CC=clang CXX=clang++ cmake -G Ninja -S "$D3D_ROOT" -B "$fuzz" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DD3D_FUZZ=ON \
+  -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ >/dev/null
+targets=$(cmake --build "$fuzz" --target help | sed -n 's/^\(d3d_[a-z_]*_fuzz\):.*/\1/p')
+for t in $targets; do
+  cmake --build "$fuzz" -j"$(nproc)" --target "$t"
+  corpus=$(mktemp -d)
+  log="$fuzz/$t.log"
+  if ! "$fuzz/bin/$t" -max_total_time=30 -seed=1 -print_final_stats=1 "$corpus" >"$log" 2>&1; then
+    tail -40 "$log"
+    echo "test.sh: fuzzer $t found a crash (log: $log)" >&2
+    exit 1
+  fi
+  echo "test.sh: $t: $(grep -o 'stat::number_of_executed_units: [0-9]*' "$log" | cut -d' ' -f2) inputs in 30 s, no crash"
+  rm -rf "$corpus"
+done
+echo "test.sh: all tests passed"
