@@ -112,6 +112,7 @@ void ProbeCalibration::Check() const {
   D3D_CHECK_MSG((R * R.transpose() - Eigen::Matrix3d::Identity()).norm() < 1e-6 && R.determinant() > 0,
                 "cam_from_proj rotation is not a proper rotation");
   D3D_CHECK_MSG(cam_from_proj.translation().norm() > 0.0, "camera and projector centres coincide (no baseline)");
+  D3D_CHECK_MSG(projector_gamma > 0.1 && projector_gamma < 10.0, "projector gamma " << projector_gamma << " is implausible");
   D3D_CHECK_MSG(depth_min_mm > 0.0 && depth_max_mm > depth_min_mm,
                 "measurement volume [" << depth_min_mm << ", " << depth_max_mm << "] mm is empty");
 }
@@ -133,6 +134,7 @@ std::string ProbeCalibration::ToJson() const {
          {"cam_from_proj",
           {{"R", {{R(0, 0), R(0, 1), R(0, 2)}, {R(1, 0), R(1, 1), R(1, 2)}, {R(2, 0), R(2, 1), R(2, 2)}}},
            {"t_mm", {t.x(), t.y(), t.z()}}}},
+         {"projector_gamma", projector_gamma},
          {"measurement_volume", {{"depth_min_mm", depth_min_mm}, {"depth_max_mm", depth_max_mm}}},
          {"triangulation_angle_deg", TriangulationAngleRad() * 180.0 / M_PI},
          {"pattern", PatternToJson(pattern)}};
@@ -160,6 +162,7 @@ Status ProbeCalibration::FromJson(const std::string& text, ProbeCalibration* out
     c.cam_from_proj.linear() = R;
     c.cam_from_proj.translation() = Eigen::Vector3d(e.at("t_mm").at(0).get<double>(), e.at("t_mm").at(1).get<double>(),
                                                     e.at("t_mm").at(2).get<double>());
+    c.projector_gamma = j.value("projector_gamma", 1.0);
     c.depth_min_mm = j.at("measurement_volume").at("depth_min_mm").get<double>();
     c.depth_max_mm = j.at("measurement_volume").at("depth_max_mm").get<double>();
     c.pattern = PatternFromJson(j.at("pattern"));

@@ -53,6 +53,10 @@ struct ProbeCalibration {
   PinholeBrownConrady camera;
   PinholeBrownConrady projector;
   Rigid3d cam_from_proj = Rigid3d::Identity();  // p_in_cam = cam_from_proj * p_in_proj, mm
+  // Intensity response of the projector: emitted radiance ∝ (DMD value / 255)^γ. Measured by the
+  // calibration (a real DMD with an uncorrected video path has γ ≈ 2.2); phase algorithms that
+  // compensate the non-sinusoidal error take it from here.
+  double projector_gamma = 1.0;
   double depth_min_mm = 0.0;                    // measurement volume along the camera's z
   double depth_max_mm = 0.0;
   FringePatternSpec pattern;

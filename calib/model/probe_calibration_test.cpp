@@ -17,6 +17,7 @@ ProbeCalibration TestCalibration() {
   c.cam_from_proj.translation() = Eigen::Vector3d(10.63, 0, 0);
   c.depth_min_mm = 42;
   c.depth_max_mm = 58;
+  c.projector_gamma = 2.2;
   c.source = "test";
   return c;
 }
@@ -30,6 +31,7 @@ TEST(ProbeCalibration, JsonRoundTripIsExact) {
   EXPECT_EQ(back.projector.height, 1140);
   EXPECT_TRUE(back.cam_from_proj.isApprox(c.cam_from_proj, 1e-15));
   EXPECT_EQ(back.pattern.fringe_period_px, c.pattern.fringe_period_px);
+  EXPECT_EQ(back.projector_gamma, 2.2);
   EXPECT_EQ(back.pattern.marker_spacing_orders, c.pattern.marker_spacing_orders);
   EXPECT_NEAR(back.TriangulationAngleRad() * 180 / M_PI, 12.0, 1e-9);
 }

@@ -114,6 +114,7 @@ int main(int argc, char** argv) {
   app.add_option("--truth", truth, "ground-truth maps to write: first (default: of frame 0) | all | none");
   app.add_option("--motion-blur", opt.render.motion_blur_samples, "poses averaged over each exposure (default 1)");
   app.add_option("--threads", opt.render.threads, "render threads (default 0 = all cores)");
+  app.add_flag("--texture-frame", opt.texture_frame, "bursts get a 5th, uniformly lit texture frame");
   app.add_flag("--no-noise", no_noise, "no shot or read noise (quantisation stays)");
   app.add_flag("--no-gamma", no_gamma, "linear projector (default: uncorrected gamma 2.2)");
   app.add_flag("--quiet", quiet, "no progress bar");

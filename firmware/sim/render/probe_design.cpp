@@ -9,7 +9,6 @@ void ProbeOptics::Check() const {
   D3D_CHECK_MSG(camera_pupil_mm > 0 && projector_pupil_mm > 0, "pupil diameters must be positive");
   D3D_CHECK_MSG(wavelength_nm > 200 && wavelength_nm < 2000, "wavelength " << wavelength_nm << " nm out of range");
   D3D_CHECK_MSG(projector_irradiance > 0 && ambient_irradiance >= 0, "irradiances must be non-negative");
-  D3D_CHECK_MSG(projector_gamma > 0, "projector gamma must be positive");
 }
 
 double ProbeOptics::BlurSigmaPx(double f_px, double pupil_mm, double focus_mm, double wavelength_nm, double z_mm) {
@@ -91,6 +90,7 @@ ProbeDesign MakeDefaultProbeDesign(int camera_width, int camera_height) {
   c.cam_from_proj.translation() = Eigen::Vector3d(working_distance * std::tan(angle), 0.0, 0.0);
   c.depth_min_mm = 42.0;
   c.depth_max_mm = 58.0;
+  c.projector_gamma = 2.2;
   c.pattern = FringePatternSpec{};
   d.optics.camera_focus_mm = working_distance;
   d.optics.projector_focus_mm = working_distance / std::cos(angle);

@@ -15,6 +15,7 @@
 //   - Projector: a DMD of 912 × 1140 micromirrors (DLP4500 class, modelled with square pixels),
 //     fx = fy = 2100 px (23.8 µm per projector pixel at 50 mm, a 21.7 × 27 mm field that covers
 //     the camera's across the whole measurement volume).
+//   - Projector intensity response: uncorrected gamma 2.2 (calibration.projector_gamma).
 //   - Apertures: camera entrance pupil 0.6 mm and projector 0.8 mm, the balance between defocus at
 //     the depth-of-field limits and diffraction (λ = 450 nm blue LED): camera blur σ ≈ 0.63 px at
 //     focus and ≈ 1.05 px at ±8 mm.
@@ -36,7 +37,6 @@ struct ProbeOptics {
   // in units of the sensor's full well per unit albedo during one exposure.
   double projector_irradiance = 1.15;
   double ambient_irradiance = 0.02;    // stray room/operatory light reaching the teeth, same units
-  double projector_gamma = 2.2;        // uncorrected display gamma: radiance = (DMD/255)^γ
 
   void Check() const;
   // Gaussian σ (pixels) of the blur of a point at distance z_mm (along the device's axis) for a

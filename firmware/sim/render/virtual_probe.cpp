@@ -42,6 +42,26 @@ uint64_t SplitMix64(uint64_t x) {
   return x ^ (x >> 31);
 }
 
+// Φ⁻¹((i + ½)/2¹⁶) for i < 2¹⁶: a stratified, exact discretisation of N(0, 1) into 65 536
+// equiprobable values (tails at |z| ≈ 4.3σ). Drawing a uniform index gives a standard normal
+// without a log and a sincos per pixel (Box–Muller cost a fifth of the render time).
+const std::vector<float>& NormalQuantiles() {
+  static const std::vector<float> table = [] {
+    std::vector<float> t(1u << 16);
+    for (size_t i = 0; i < t.size(); ++i) {
+      const double p = (static_cast<double>(i) + 0.5) / static_cast<double>(t.size());
+      double lo = -10.0, hi = 10.0;  // bisection on Φ(z) = ½ erfc(−z/√2)
+      for (int it = 0; it < 60; ++it) {
+        const double mid = 0.5 * (lo + hi);
+        (0.5 * std::erfc(-mid / std::sqrt(2.0)) < p ? lo : hi) = mid;
+      }
+      t[i] = static_cast<float>(0.5 * (lo + hi));
+    }
+    return t;
+  }();
+  return table;
+}
+
 // Counter-based generator: one independent stream per pixel, so results do not depend on threads.
 class PixelRng {
  public:
@@ -50,12 +70,12 @@ class PixelRng {
     state_ = SplitMix64(state_);
     return (static_cast<double>(state_ >> 11) + 0.5) * (1.0 / 9007199254740992.0);
   }
-  // Two independent standard normals (Box & Muller 1958: both outputs of one pair of uniforms).
+  // Two independent standard normals from one 64-bit draw: two indices into the quantile table.
   void Normal2(double* a, double* b) {
-    const double r = std::sqrt(-2.0 * std::log(Uniform()));
-    const double angle = 2.0 * M_PI * Uniform();
-    *a = r * std::cos(angle);
-    *b = r * std::sin(angle);
+    state_ = SplitMix64(state_);
+    const auto& table = NormalQuantiles();
+    *a = table[state_ & 0xFFFF];
+    *b = table[(state_ >> 16) & 0xFFFF];
   }
   // Poisson sample by Knuth's product of uniforms (for small means; larger ones use the normal
   // approximation in the caller).
@@ -118,6 +138,7 @@ VirtualProbe::VirtualProbe(const TriangleMesh& scene, const ProbeDesign& design,
       arena_(options.threads > 0 ? options.threads : tbb::task_arena::automatic) {
   design_.Check();
   options_.Check();
+  if (!options_.gamma) design_.calibration.projector_gamma = 1.0;  // a linear projector, and its calibration says so
   caster_ = std::make_unique<RayCaster>(scene_.mesh, std::move(spheres));
   const auto& cam = design_.calibration.camera;
   const auto& proj = design_.calibration.projector;
@@ -134,6 +155,11 @@ VirtualProbe::VirtualProbe(const TriangleMesh& scene, const ProbeDesign& design,
       }
     }
   geometry_.resize(pixel_rays_.size());
+  for (const SurfaceLabel label : {SurfaceLabel::kUnknown, SurfaceLabel::kGingiva, SurfaceLabel::kTooth}) {
+    // (n·h)^m below 1e-6 of the lobe's peak is dropped: n·h < 1e-6^(1/m).
+    specular_gate_[static_cast<size_t>(label)] = std::pow(1e-6, 1.0 / design_.MaterialOf(label).specular_exponent);
+  }
+  NormalQuantiles();  // build the table now, not inside the first parallel loop
   for (const auto& f : burst_patterns_.frames) RadianceFor(f);
 }
 
@@ -146,7 +172,7 @@ const ProjectorRadiance& VirtualProbe::RadianceFor(const ProjectorFrame& frame) 
   std::lock_guard<std::mutex> lock(radiance_mutex_);
   auto it = radiance_cache_.find(key);
   if (it == radiance_cache_.end()) {
-    const double gamma = options_.gamma ? design_.optics.projector_gamma : 1.0;
+    const double gamma = design_.calibration.projector_gamma;
     auto table = std::make_unique<ProjectorRadiance>(frame, gamma, frame.axis == 'y' ? proj.height : proj.width);
     it = radiance_cache_.emplace(std::move(key), std::move(table)).first;
   }
@@ -239,8 +265,7 @@ void VirtualProbe::Shade(const SurfaceHit& hit, const Eigen::Vector3d& ray, cons
   if (options_.specular && m.specular_r0 > 0.0) {
     const Eigen::Vector3d view = (cam_centre - hit.point).normalized();
     const double n_h = hit.shading_normal.dot((l + view).normalized());
-    // (n·h)^m below 1e-6 of the peak is dropped: n·h < 1e-6^(1/m).
-    if (n_h > std::pow(1e-6, 1.0 / m.specular_exponent)) {
+    if (n_h > specular_gate_[static_cast<size_t>(hit.label)]) {
       const double f = m.specular_r0 * (m.specular_exponent + 8.0) / 8.0 * std::pow(n_h, m.specular_exponent);
       g->specular = static_cast<float>(vignetting * f * e_p);
     }

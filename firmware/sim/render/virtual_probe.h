@@ -28,6 +28,7 @@
 
 #include <tbb/task_arena.h>
 
+#include <array>
 #include <functional>
 #include <memory>
 #include <mutex>
@@ -48,7 +49,8 @@ namespace d3d {
 
 struct RenderOptions {
   bool noise = true;             // shot + read noise (quantisation and saturation always apply)
-  bool gamma = true;             // projector gamma (false: linear projector)
+  bool gamma = true;             // projector gamma as calibrated (false: a linear projector; the
+                                 // probe's calibration then says projector_gamma = 1)
   bool camera_defocus = true;    // camera blur from depth (false: no camera blur at all)
   bool projector_defocus = true; // projector blur from depth (false: DMD pixels only)
   bool subsurface = true;        // sub-surface blur of the pattern on translucent materials
@@ -115,6 +117,7 @@ class VirtualProbe {
   tbb::task_arena arena_;
   std::vector<Eigen::Vector3d> pixel_rays_;  // (x, y, 1) per pixel in the camera frame, row-major
   std::vector<uint8_t> pixel_ray_valid_;
+  std::array<double, 3> specular_gate_{};  // per SurfaceLabel: smallest n·h worth a specular term
   std::mutex radiance_mutex_;
   std::unordered_map<std::string, std::unique_ptr<ProjectorRadiance>> radiance_cache_;
   // Scratch owned by the caller thread of Render* (see class comment).

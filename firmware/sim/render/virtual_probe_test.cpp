@@ -115,7 +115,8 @@ TEST(VirtualProbePhotometry, UniformFramesFollowTheModelWithAndWithoutGamma) {
     BurstFrame f;
     probe.RenderFrame(Static(Rigid3d::Identity()), 0, grey, 1, true, &f);
     const Eigen::Vector3d proj_centre = design.calibration.cam_from_proj.translation();
-    const double p = std::pow(160.0 / 255.0, gamma ? design.optics.projector_gamma : 1.0);
+    const double p = std::pow(160.0 / 255.0, gamma ? design.calibration.projector_gamma : 1.0);
+    EXPECT_EQ(probe.calibration().projector_gamma, gamma ? 2.2 : 1.0);
     int n = 0;
     double worst = 0;
     for (int r = 5; r < 475; r += 7)
@@ -165,7 +166,7 @@ TEST(VirtualProbePhotometry, FringesEncodeTheProjectorCoordinateAndGammaDistorts
   const auto& spec = design.calibration.pattern;
   for (double gamma : {1.0, 2.2, 2.8}) {
     ProbeDesign d = design;
-    d.optics.projector_gamma = gamma;
+    d.calibration.projector_gamma = gamma;
     RenderOptions o = Ideal();
     o.gamma = gamma != 1.0;
     o.projector_defocus = true;  // blur smooths the DMD's pixel steps, as in a real projector

@@ -36,7 +36,8 @@ Status SimSession::Create(const SimSessionOptions& options, std::unique_ptr<SimS
   } else {
     D3D_RETURN_IF_ERROR(Trajectory::LoadTum(t, &s->trajectory_));
   }
-  const ProbeDesign design = MakeDefaultProbeDesign(options.camera_width, options.camera_height);
+  ProbeDesign design = MakeDefaultProbeDesign(options.camera_width, options.camera_height);
+  design.calibration.pattern.texture_frame = options.texture_frame;
   s->probe_ = std::make_unique<VirtualProbe>(s->scene_, design, options.render);
   *out = std::move(s);
   return Status::Ok();

@@ -21,6 +21,7 @@ struct SimSessionOptions {
   double burst_rate_hz = 30.0;           // bursts per second of trajectory time
   int camera_width = 640;                // 640 × 480 or 1280 × 1024 (probe_design.h)
   int camera_height = 480;
+  bool texture_frame = false;            // bursts get a 5th, uniformly lit frame (probe pattern set)
   RenderOptions render;
   TypodontOptions typodont;
   ScanPathOptions scan_path;             // its seed is replaced by `seed`
