@@ -33,6 +33,10 @@ struct BurstFrame {
 struct Burst {
   uint64_t sequence = 0;
   std::vector<BurstFrame> frames;  // in projection order
+  // Simulation only: the truth at the burst's reference time, the middle between the first and the
+  // last exposure, which is what a reconstruction of the whole burst measures when the probe moves.
+  int64_t reference_ns = 0;
+  FrameTruth reference_truth;      // maps empty unless rendered with truth
 };
 
 }  // namespace d3d

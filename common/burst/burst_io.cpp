@@ -100,8 +100,13 @@ Status WriteBurstDir(const std::string& dir, const Burst& burst, const std::vect
     D3D_RETURN_IF_ERROR(WriteTruth(fs::path(dir) / ("truth_" + std::to_string(k)), burst.frames[static_cast<size_t>(k)].truth));
     truth_list.push_back(k);
   }
-  const json j{{"format", "d3dscan.burst"}, {"version", kVersion}, {"sequence", burst.sequence},
-               {"frames", frames}, {"truth_frames", truth_list}};
+  json j{{"format", "d3dscan.burst"}, {"version", kVersion}, {"sequence", burst.sequence},
+         {"frames", frames}, {"truth_frames", truth_list}};
+  if (burst.reference_truth.has_maps()) {
+    D3D_RETURN_IF_ERROR(WriteTruth(fs::path(dir) / "truth_ref", burst.reference_truth));
+    j["reference"] = {{"timestamp_ns", burst.reference_ns},
+                      {"world_from_probe", PoseToJson(burst.reference_truth.world_from_probe)}};
+  }
   std::ofstream out(fs::path(dir) / "burst.json", std::ios::trunc);
   out << j.dump(2) << "\n";
   if (!out) return IoError("cannot write " + dir + "/burst.json");
@@ -137,6 +142,10 @@ Status ReadBurstDir(const std::string& dir, bool read_truth, Burst* out) {
       burst.frames.push_back(std::move(frame));
     }
     if (j.contains("truth_frames")) truth_frames = j.at("truth_frames").get<std::vector<int>>();
+    if (j.contains("reference")) {
+      burst.reference_ns = j.at("reference").at("timestamp_ns").get<int64_t>();
+      if (read_truth) burst.reference_truth.world_from_probe = PoseFromJson(j.at("reference").at("world_from_probe"));
+    }
   } catch (const std::exception& e) {
     return ParseError(dir + "/burst.json: " + e.what());
   }
@@ -150,6 +159,9 @@ Status ReadBurstDir(const std::string& dir, bool read_truth, Burst* out) {
     }
   }
   if (read_truth) {
+    if (fs::exists(fs::path(dir) / "truth_ref")) {
+      D3D_RETURN_IF_ERROR(ReadTruth(fs::path(dir) / "truth_ref", first.rows, first.cols, &burst.reference_truth));
+    }
     for (int k : truth_frames) {
       if (k < 0 || k >= static_cast<int>(burst.frames.size())) return ParseError(dir + ": truth frame index out of range");
       D3D_RETURN_IF_ERROR(ReadTruth(fs::path(dir) / ("truth_" + std::to_string(k)), first.rows, first.cols,

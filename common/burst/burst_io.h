@@ -7,6 +7,8 @@
 //   BURST_DIR/frame_K.png           8- or 16-bit grey
 //   BURST_DIR/truth_K/depth_mm.npy, points_in_cam.npy, projector_uv.npy, face_index.npy,
 //                     visibility.png, label.png        (only for frames listed in truth_frames)
+//   BURST_DIR/truth_ref/ ...        the same at the reference time (burst.json "reference":
+//                                   {"timestamp_ns", "world_from_probe"}), when the burst has it
 // Poses are written with the truth (simulation); a real capture has none.
 #pragma once
 

@@ -33,6 +33,9 @@ Burst MakeBurst() {
   t.visibility = cv::Mat(12, 16, CV_8U, cv::Scalar(2));
   t.label = cv::Mat(12, 16, CV_8U, cv::Scalar(2));
   t.face_index = cv::Mat(12, 16, CV_32S, cv::Scalar(1234));
+  b.reference_ns = 1'000'003'750;
+  b.reference_truth = t;
+  b.reference_truth.depth_mm = cv::Mat(12, 16, CV_32F, cv::Scalar(49.5f));
   return b;
 }
 
@@ -63,6 +66,9 @@ TEST(BurstIo, RoundTripWithTruth) {
   EXPECT_EQ(t.projector_uv.at<cv::Vec2f>(2, 3)[1], 600.25f);
   EXPECT_EQ(t.face_index.at<int>(11, 15), 1234);
   EXPECT_FALSE(back.frames[1].truth.has_maps());
+  EXPECT_EQ(back.reference_ns, 1'000'003'750);
+  ASSERT_TRUE(back.reference_truth.has_maps());
+  EXPECT_EQ(back.reference_truth.depth_mm.at<float>(3, 3), 49.5f);
 }
 
 TEST(BurstIo, ClearErrorsForBrokenFolders) {

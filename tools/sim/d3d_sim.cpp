@@ -58,7 +58,7 @@ cv::Mat PreviewPicture(const Burst& burst, const ProbeCalibration& calib) {
     cv::cvtColor(g, c, cv::COLOR_GRAY2BGR);
     return c;
   };
-  const FrameTruth& t = burst.frames[0].truth;
+  const FrameTruth& t = burst.reference_truth;
   cv::Mat depth8;
   t.depth_mm.convertTo(depth8, CV_8U, 255.0 / (calib.depth_max_mm - calib.depth_min_mm),
                        -255.0 * calib.depth_min_mm / (calib.depth_max_mm - calib.depth_min_mm));
@@ -94,11 +94,11 @@ int main(int argc, char** argv) {
                "  OUT/calibration.json  the probe's calibration (the only thing downstream stages may use)\n"
                "  OUT/trajectory.tum    the true trajectory (TUM: t[s] tx ty tz[mm] qx qy qz qw)\n"
                "  OUT/scene.ply         the scene mesh (mm)\n"
-               "  OUT/bursts/NNNNNN/    frame_K.png, burst.json (timestamps, poses), truth_K/*.npy|png\n"
+               "  OUT/bursts/NNNNNN/    frame_K.png, burst.json (timestamps, poses), truth_ref/ and truth_K/ (*.npy|png)\n"
                "  OUT/preview.png       the middle burst: frames, true depth, surfaces\n"
                "  OUT/summary.json      what was rendered"};
   SimSessionOptions opt;
-  std::string out_dir, camera = "640x480", patterns = "burst", truth = "first";
+  std::string out_dir, camera = "640x480", patterns = "burst", truth = "ref";
   int64_t frames = 30, first = 0;
   bool no_noise = false, no_gamma = false, quiet = false, json = false;
   app.add_option("--model", opt.model, "'typodont' (built-in, default) or a mesh file: PLY/STL/OBJ in mm");
@@ -111,7 +111,9 @@ int main(int argc, char** argv) {
   app.add_option("--patterns", patterns,
                  "burst (default: 4-step with marker) | phase:N:PERIOD[:x|y] | multifreq:N:P1,P2,..[:x|y] | "
                  "gray:CELL[:x|y] | white | black");
-  app.add_option("--truth", truth, "ground-truth maps to write: first (default: of frame 0) | all | none");
+  app.add_option("--truth", truth,
+                 "ground-truth maps to write: ref (default: at the burst's mid time) | first (and of frame 0) | "
+                 "all (and of every frame) | none");
   app.add_option("--motion-blur", opt.render.motion_blur_samples, "poses averaged over each exposure (default 1)");
   app.add_option("--threads", opt.render.threads, "render threads (default 0 = all cores)");
   app.add_flag("--texture-frame", opt.texture_frame, "bursts get a 5th, uniformly lit texture frame");
@@ -126,8 +128,8 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "d3d-sim: --camera must look like 640x480, got '%s'\n", camera.c_str());
     return 2;
   }
-  if (truth != "first" && truth != "all" && truth != "none") {
-    std::fprintf(stderr, "d3d-sim: --truth must be first, all or none\n");
+  if (truth != "ref" && truth != "first" && truth != "all" && truth != "none") {
+    std::fprintf(stderr, "d3d-sim: --truth must be ref, first, all or none\n");
     return 2;
   }
   opt.render.noise = !no_noise;
@@ -182,9 +184,10 @@ int main(int argc, char** argv) {
   for (int64_t i = 0; i < count; ++i) {
     const int64_t index = first + i;
     const PoseAtTime pose = [&](int64_t t) { return session->trajectory().WorldFromProbe(t); };
-    const Burst burst = session->probe().RenderBurst(pose, session->BurstStartNs(index), static_cast<uint64_t>(index),
-                                                     opt.seed, true, &set);
-    const BurstStats st = Stats(burst.frames[0].truth);
+    Burst burst = session->probe().RenderBurst(pose, session->BurstStartNs(index), static_cast<uint64_t>(index),
+                                               opt.seed, true, &set);
+    const BurstStats st = Stats(burst.reference_truth);
+    if (truth == "none") burst.reference_truth = FrameTruth{};
     surface += st.surface_share;
     lit += st.lit_share;
     in_volume += st.median_depth_mm >= calib.depth_min_mm && st.median_depth_mm <= calib.depth_max_mm;

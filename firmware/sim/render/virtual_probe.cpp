@@ -436,6 +436,8 @@ Burst VirtualProbe::RenderBurst(const PoseAtTime& pose, int64_t t0_ns, uint64_t 
     RenderFrame(pose, t, patterns.frames[i], FrameNoiseSeed(seed, sequence, static_cast<int>(i)), with_truth,
                 &burst.frames[i]);
   }
+  burst.reference_ns = (burst.frames.front().timestamp_ns + burst.frames.back().timestamp_ns) / 2;
+  if (with_truth) RenderTruth(pose(burst.reference_ns), &burst.reference_truth);
   return burst;
 }
 

@@ -90,7 +90,8 @@ class VirtualProbe {
   void RenderFrame(const PoseAtTime& pose, int64_t t_ns, const ProjectorFrame& frame, uint64_t noise_seed,
                    bool with_truth, BurstFrame* out);
   // Renders all frames of `set` (default: the probe's burst set), frame i at t0 + i·interval.
-  // The noise of frame i is seeded from (seed, sequence, i).
+  // The noise of frame i is seeded from (seed, sequence, i). With truth, also the truth at the
+  // burst's reference time (Burst::reference_ns, the middle of the first and last exposure).
   Burst RenderBurst(const PoseAtTime& pose, int64_t t0_ns, uint64_t sequence, uint64_t seed,
                             bool with_truth, const PatternSet* set = nullptr);
   // Ground truth only (no shading, no noise) at a pose: cheap visibility/coverage queries.

@@ -23,7 +23,7 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 // Arch analysis: constants
 
 constexpr size_t kMinToothFaces = 50;     // fewer labelled tooth faces: not a dental arch
-constexpr double kSampleSpacingMm = 1.0;  // faces are resampled so samples are ≤ ~1 mm apart
+constexpr double kSampleSpacingMm = 1.5;  // faces are resampled so samples are ≤ ~1.5 mm apart
 constexpr double kCellMm = 1.0;           // occupancy grid cell
 constexpr double kSliceMm = 1.0;          // slices along the band
 constexpr double kEndCapMm = 4.0;         // cells this close to the farthest ones form an end cap
@@ -431,25 +431,70 @@ struct LineCoords {
 
 double Cross2(const Eigen::Vector2d& a, const Eigen::Vector2d& b) { return a.x() * b.y() - a.y() * b.x(); }
 
-LineCoords ProjectOnPolyline(const std::vector<Eigen::Vector2d>& line, const Eigen::Vector2d& p) {
-  double best = kInf, acc = 0;
-  LineCoords out;
-  for (size_t i = 0; i + 1 < line.size(); ++i) {
-    const Eigen::Vector2d d = line[i + 1] - line[i];
-    const double len2 = d.squaredNorm(), len = std::sqrt(len2);
-    if (len2 <= 0) continue;
-    const double t = std::clamp((p - line[i]).dot(d) / len2, 0.0, 1.0);
-    const Eigen::Vector2d foot = line[i] + t * d;
-    const double dist2 = (p - foot).squaredNorm();
-    if (dist2 < best) {
-      best = dist2;
-      out.arc = acc + t * len;
-      out.lateral = Cross2(d / len, p - foot);
+// Nearest-point queries on a polyline, accelerated by a grid of its segments: a cell lists every
+// segment within kSearchRadiusMm of it, so a hit closer than that radius is the global nearest;
+// farther points fall back to a scan of all segments.
+class PolylineProjector {
+ public:
+  explicit PolylineProjector(const std::vector<Eigen::Vector2d>& line) : line_(line), arc_(line.size(), 0.0) {
+    for (size_t i = 1; i < line_.size(); ++i) arc_[i] = arc_[i - 1] + (line_[i] - line_[i - 1]).norm();
+    lo_ = hi_ = line_.front();
+    for (const auto& p : line_) {
+      lo_ = lo_.cwiseMin(p);
+      hi_ = hi_.cwiseMax(p);
     }
-    acc += len;
+    lo_ -= Eigen::Vector2d::Constant(kSearchRadiusMm);
+    hi_ += Eigen::Vector2d::Constant(kSearchRadiusMm);
+    nx_ = static_cast<int>((hi_.x() - lo_.x()) / kGridCellMm) + 1;
+    ny_ = static_cast<int>((hi_.y() - lo_.y()) / kGridCellMm) + 1;
+    cells_.resize(static_cast<size_t>(nx_) * static_cast<size_t>(ny_));
+    for (size_t i = 0; i + 1 < line_.size(); ++i) {
+      const Eigen::Vector2d a = line_[i].cwiseMin(line_[i + 1]) - Eigen::Vector2d::Constant(kSearchRadiusMm);
+      const Eigen::Vector2d b = line_[i].cwiseMax(line_[i + 1]) + Eigen::Vector2d::Constant(kSearchRadiusMm);
+      for (int y = CellY(a.y()); y <= CellY(b.y()); ++y)
+        for (int x = CellX(a.x()); x <= CellX(b.x()); ++x) cells_[static_cast<size_t>(y * nx_ + x)].push_back(i);
+    }
   }
-  return out;
-}
+
+  LineCoords Project(const Eigen::Vector2d& p) const {
+    double best = kInf;
+    LineCoords out;
+    if ((p.array() >= lo_.array()).all() && (p.array() <= hi_.array()).all()) {
+      for (size_t i : cells_[static_cast<size_t>(CellY(p.y()) * nx_ + CellX(p.x()))]) Consider(i, p, &best, &out);
+      if (best <= kSearchRadiusMm * kSearchRadiusMm) return out;
+    }
+    for (size_t i = 0; i + 1 < line_.size(); ++i) Consider(i, p, &best, &out);
+    return out;
+  }
+
+ private:
+  static constexpr double kGridCellMm = 4.0;
+  static constexpr double kSearchRadiusMm = 8.0;
+
+  int CellX(double x) const { return std::clamp(static_cast<int>((x - lo_.x()) / kGridCellMm), 0, nx_ - 1); }
+  int CellY(double y) const { return std::clamp(static_cast<int>((y - lo_.y()) / kGridCellMm), 0, ny_ - 1); }
+
+  void Consider(size_t i, const Eigen::Vector2d& p, double* best, LineCoords* out) const {
+    const Eigen::Vector2d d = line_[i + 1] - line_[i];
+    const double len2 = d.squaredNorm();
+    if (len2 <= 0) return;
+    const double t = std::clamp((p - line_[i]).dot(d) / len2, 0.0, 1.0);
+    const Eigen::Vector2d foot = line_[i] + t * d;
+    const double dist2 = (p - foot).squaredNorm();
+    if (dist2 < *best) {
+      *best = dist2;
+      const double len = std::sqrt(len2);
+      out->arc = arc_[i] + t * len;
+      out->lateral = Cross2(d / len, p - foot);
+    }
+  }
+
+  std::vector<Eigen::Vector2d> line_;
+  std::vector<double> arc_;
+  Eigen::Vector2d lo_, hi_;
+  int nx_ = 0, ny_ = 0;
+  std::vector<std::vector<size_t>> cells_;
+};
 
 // The point at arc position `arc` of a polyline and its left normal there.
 std::pair<Eigen::Vector2d, Eigen::Vector2d> PointAtArc(const std::vector<Eigen::Vector2d>& line, double arc) {
@@ -507,10 +552,11 @@ void MergeLightEnds(std::vector<Slice>* slices) {
 // the band obliquely (a centroid would be pulled toward the corner that sticks out).
 std::vector<Slice> SliceAlong(const PlanePoints& pts, const std::vector<Eigen::Vector2d>& centreline) {
   const std::vector<Eigen::Vector2d> line = ExtendEnds(centreline, 100.0);
+  const PolylineProjector projector(line);
   std::vector<LineCoords> lc(pts.uv.size());
   double lo = kInf;
   for (size_t i = 0; i < pts.uv.size(); ++i) {
-    lc[i] = ProjectOnPolyline(line, pts.uv[i]);
+    lc[i] = projector.Project(pts.uv[i]);
     lo = std::min(lo, lc[i].arc);
   }
   std::vector<Slice> slices;
@@ -596,23 +642,19 @@ void BuildCurve(const std::vector<Slice>& slices, const Eigen::Vector3d& centre,
 }
 
 // Per-point half width: 95th percentile of |lateral offset| of the nearby samples.
-void EstimateHalfWidths(const std::vector<Eigen::Vector3d>& pts, const std::vector<double>& weight,
-                        const Eigen::Vector3d& occlusal, ArchFrame* arch) {
+void EstimateHalfWidths(const PlanePoints& plane, const Eigen::Vector3d& centre, const Eigen::Vector3d& e_u,
+                        const Eigen::Vector3d& e_v, ArchFrame* arch) {
   const size_t n = arch->curve.size();
+  std::vector<Eigen::Vector2d> line;
+  for (const auto& q : arch->curve) line.emplace_back((q.position - centre).dot(e_u), (q.position - centre).dot(e_v));
+  std::vector<double> arc(n, 0.0);
+  for (size_t k = 1; k < n; ++k) arc[k] = arc[k - 1] + (line[k] - line[k - 1]).norm();
+  const PolylineProjector projector(line);
   std::vector<std::vector<std::pair<double, double>>> lateral(n);
-  for (size_t i = 0; i < pts.size(); ++i) {
-    size_t best = 0;
-    double best_d = kInf;
-    for (size_t k = 0; k < n; ++k) {
-      Eigen::Vector3d d = pts[i] - arch->curve[k].position;
-      d -= d.dot(occlusal) * occlusal;
-      if (d.squaredNorm() < best_d) {
-        best_d = d.squaredNorm();
-        best = k;
-      }
-    }
-    const Eigen::Vector3d d = pts[i] - arch->curve[best].position;
-    lateral[best].push_back({std::abs(d.dot(arch->curve[best].buccal)), weight[i]});
+  for (size_t i = 0; i < plane.uv.size(); ++i) {
+    const LineCoords lc = projector.Project(plane.uv[i]);
+    const size_t k = std::min<size_t>(static_cast<size_t>(std::lower_bound(arc.begin(), arc.end(), lc.arc) - arc.begin()), n - 1);
+    lateral[k].push_back({std::abs(lc.lateral), plane.weight[i]});
   }
   const int window = static_cast<int>(std::round(2.0 / kCurveStepMm));
   for (size_t k = 0; k < n; ++k) {
@@ -653,7 +695,7 @@ std::vector<std::pair<double, double>> Zip(const std::vector<double>& a, const s
 
 // Fits the arch curve to the plane points (see AnalyzeArch): fills curve, length, widths and
 // midline of *arch, or says why the points are not an arch.
-Status FitArchCurve(const PlanePoints& plane, const std::vector<Eigen::Vector3d>& pts, const Eigen::Vector3d& centre,
+Status FitArchCurve(const PlanePoints& plane, const Eigen::Vector3d& centre,
                     const Eigen::Vector3d& e_u, const Eigen::Vector3d& e_v, ArchFrame* arch) {
   char buf[200];
   std::vector<Eigen::Vector2d> line;
@@ -684,7 +726,7 @@ Status FitArchCurve(const PlanePoints& plane, const std::vector<Eigen::Vector3d>
                   arch->length_mm, geodesic_mm);
     return InvalidArgument(buf);
   }
-  EstimateHalfWidths(pts, plane.weight, arch->occlusal, arch);
+  EstimateHalfWidths(plane, centre, e_u, e_v, arch);
   arch->midline_arc_mm = MidlineArc(*arch);
   return Status::Ok();
 }
@@ -767,7 +809,6 @@ ArchFrame AnalyzeArch(const TriangleMesh& mesh) {
   const Eigen::Vector3d e_u = pca.axes.col(2), e_v = arch.occlusal.cross(e_u);
 
   PlanePoints plane;
-  std::vector<Eigen::Vector3d> pts;
   for (const auto& s : sel.arch) {
     const Eigen::Vector3d d = s.p - pca.mean;
     plane.uv.emplace_back(d.dot(e_u), d.dot(e_v));
@@ -775,25 +816,22 @@ ArchFrame AnalyzeArch(const TriangleMesh& mesh) {
     // Footprint weight: what the surface covers in the occlusal plane (walls parallel to the
     // occlusal direction, e.g. the distal faces of the last molars, barely pull the curve).
     plane.weight.push_back(s.w * (kWallWeight + (1.0 - kWallWeight) * std::abs(s.n.dot(arch.occlusal))));
-    pts.push_back(s.p);
   }
-  arch.status = FitArchCurve(plane, pts, pca.mean, e_u, e_v, &arch);
+  arch.status = FitArchCurve(plane, pca.mean, e_u, e_v, &arch);
   if (!arch.ok() && !sel.used_labels) {
     // Unlabelled scans often hold the palate or the floor of the mouth as well: retry with the
     // most occlusal part of the surface, where the crowns are.
     for (const double q : {0.5, 0.7}) {
       const double floor = WeightedPercentile(Zip(plane.height, plane.weight), q);
       PlanePoints top;
-      std::vector<Eigen::Vector3d> top_pts;
-      for (size_t i = 0; i < pts.size(); ++i) {
+      for (size_t i = 0; i < plane.uv.size(); ++i) {
         if (plane.height[i] < floor) continue;
         top.uv.push_back(plane.uv[i]);
         top.height.push_back(plane.height[i]);
         top.weight.push_back(plane.weight[i]);
-        top_pts.push_back(pts[i]);
       }
       ArchFrame retry = arch;
-      retry.status = FitArchCurve(top, top_pts, pca.mean, e_u, e_v, &retry);
+      retry.status = FitArchCurve(top, pca.mean, e_u, e_v, &retry);
       if (retry.ok()) {
         arch = std::move(retry);
         break;
@@ -1242,7 +1280,7 @@ std::string ScanPathStats::ToString() const {
 
 ScanPathStats ComputeScanPathStats(const Trajectory& trajectory, const ArchFrame& arch) {
   constexpr int64_t kSampleNs = 1'000'000'000 / 30;
-  constexpr int64_t kPathStepNs = 1'000'000;
+  constexpr int64_t kPathStepNs = 2'000'000;
   constexpr double kDofNear = 42.0, kDofFar = 58.0;
   ScanPathStats st;
   if (trajectory.empty()) return st;

@@ -54,7 +54,7 @@ struct ArchFrame {
 
 // Finds the arch's geometry. Uses the faces labelled kTooth when the mesh has labels with teeth
 // (refused with a reason when labelled but with too few tooth faces), every face otherwise. Faces
-// are resampled into area-weighted points about 1 mm apart.
+// are resampled into area-weighted points at most about 1.5 mm apart.
 //  - Occlusal direction: the smallest principal axis of those points, signed so that tooth faces
 //    lie on the occlusal side of gingiva faces (by more than 0.5 mm), or, with no gingiva, so that
 //    the mean area-weighted face normal points occlusally.
@@ -233,7 +233,7 @@ ScanPathResult MakeScanTrajectory(const ArchFrame& arch, ScanKind kind, const Sc
 // Summary figures of a scan trajectory over an arch.
 struct ScanPathStats {
   double duration_s = 0;
-  double path_length_mm = 0;      // camera-centre path, sampled every 1 ms
+  double path_length_mm = 0;      // camera-centre path, sampled every 2 ms
   double min_speed_mm_s = 0;      // camera-centre speed at 30 Hz samples (1 ms central differences)
   double mean_speed_mm_s = 0;
   double max_speed_mm_s = 0;

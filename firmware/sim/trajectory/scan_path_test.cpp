@@ -65,7 +65,7 @@ void AddTriangle(TriangleMesh* m, int a, int b, int c, const Eigen::Vector3d& ou
 
 TriangleMesh RidgeArch(const Rigid3d& world_from_local, bool with_labels, Shape shape = Shape::kU) {
   std::vector<Eigen::Vector3d> c;
-  ArchCentreline(shape, 0.5, &c);
+  ArchCentreline(shape, 1.0, &c);
   // Open box profile (lateral offset, height) from outer bottom over the top to inner bottom.
   std::vector<Eigen::Vector2d> profile;
   for (int k = 0; k <= 8; ++k) profile.emplace_back(kWidth / 2, kHeight * k / 8);
@@ -119,6 +119,12 @@ Rigid3d SomeWorldFromLocal() {
   T.linear() = Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
   T.translation() = Eigen::Vector3d(5, -3, 10);
   return T;
+}
+
+// The analysed synthetic U arch (labelled, in SomeWorldFromLocal), computed once.
+const ArchFrame& SyntheticArch() {
+  static const ArchFrame arch = AnalyzeArch(RidgeArch(SomeWorldFromLocal(), true));
+  return arch;
 }
 
 double AngleDeg(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
@@ -303,7 +309,7 @@ TEST(MakeScanTrajectory, FullArchOnTheSyntheticArch) {
 }
 
 TEST(MakeScanTrajectory, DeterministicForASeed) {
-  const ArchFrame arch = AnalyzeArch(RidgeArch(SomeWorldFromLocal(), true));
+  const ArchFrame& arch = SyntheticArch();
   ASSERT_TRUE(arch.ok());
   ScanPathOptions options;
   options.seed = 7;
@@ -325,7 +331,7 @@ TEST(MakeScanTrajectory, DeterministicForASeed) {
 }
 
 TEST(MakeScanTrajectory, QuadrantAndTooth) {
-  const ArchFrame arch = AnalyzeArch(RidgeArch(SomeWorldFromLocal(), true));
+  const ArchFrame& arch = SyntheticArch();
   ASSERT_TRUE(arch.ok());
   ScanPathOptions options;
   options.start_ns = 1'000'000'000;
@@ -340,6 +346,25 @@ TEST(MakeScanTrajectory, QuadrantAndTooth) {
     EXPECT_LT(qs.duration_s, 40.0);
     EXPECT_GE(qs.depth_in_dof_share, 0.9);
     EXPECT_GE(qs.speed_in_5_20_share, 0.9);
+    // Passes run from the chosen distal end to the midline.
+    for (const auto& seg : quad.segments) {
+      if (seg.phase == ScanPhase::kTransition) continue;
+      double lo = 1e9, hi = -1e9;
+      for (int64_t t = seg.start_ns; t <= seg.end_ns; t += 50'000'000) {
+        const double arc = NearestToAxis(arch, quad.trajectory.WorldFromProbe(t)).arc_mm;
+        lo = std::min(lo, arc);
+        hi = std::max(hi, arc);
+      }
+      if (side == 0) {
+        EXPECT_LT(lo, 2.0) << ScanPhaseName(seg.phase);
+        EXPECT_GT(hi, arch.midline_arc_mm - 1.0) << ScanPhaseName(seg.phase);
+        EXPECT_LT(hi, arch.midline_arc_mm + 15.0) << ScanPhaseName(seg.phase);
+      } else {
+        EXPECT_GT(hi, arch.length_mm - 2.0) << ScanPhaseName(seg.phase);
+        EXPECT_LT(lo, arch.midline_arc_mm + 1.0) << ScanPhaseName(seg.phase);
+        EXPECT_GT(lo, arch.midline_arc_mm - 15.0) << ScanPhaseName(seg.phase);
+      }
+    }
 
     const ScanPathResult tooth = MakeScanTrajectory(arch, ScanKind::kTooth, options);
     ASSERT_TRUE(tooth.ok()) << tooth.status.ToString();
@@ -373,7 +398,7 @@ TEST(MakeScanTrajectory, RefusesBadInputs) {
 }
 
 TEST(MakeScanTrajectory, TrajectoryIsSmooth) {
-  const ArchFrame arch = AnalyzeArch(RidgeArch(SomeWorldFromLocal(), true));
+  const ArchFrame& arch = SyntheticArch();
   ASSERT_TRUE(arch.ok());
   ScanPathOptions options;
   const ScanPathResult scan = MakeScanTrajectory(arch, ScanKind::kQuadrant, options);
