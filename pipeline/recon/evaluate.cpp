@@ -1,0 +1,81 @@
+#include "pipeline/recon/evaluate.h"
+
+#include <algorithm>
+#include <cmath>
+#include <opencv2/imgproc.hpp>
+
+namespace d3d {
+
+CloudErrors EvaluateCloud(const cv::Mat& points, const cv::Mat& order, const FrameTruth& truth,
+                          const TriangleMesh& scene, const FringePatternSpec& spec, cv::Mat* error_um) {
+  CloudErrors e;
+  const Eigen::Matrix3d cam_from_world = truth.world_from_probe.rotation().transpose();
+  if (error_um) error_um->create(points.size(), CV_32F), error_um->setTo(std::nanf(""));
+  std::vector<double> abs_err;
+  double sum2 = 0, sum = 0;
+  for (int r = 0; r < points.rows; ++r)
+    for (int c = 0; c < points.cols; ++c) {
+      const cv::Vec3f& p = points.at<cv::Vec3f>(r, c);
+      const bool has_point = std::isfinite(p[2]);
+      const uint8_t vis = truth.visibility.at<uint8_t>(r, c);
+      const bool tooth = truth.label.at<uint8_t>(r, c) == static_cast<uint8_t>(SurfaceLabel::kTooth);
+      if (vis == 2 && tooth) {
+        ++e.tooth_lit;
+        e.tooth_valid += has_point;
+      }
+      if (!has_point) continue;
+      if (vis == 0) {
+        ++e.spurious;
+        continue;
+      }
+      const cv::Vec3f& t = truth.points_in_cam.at<cv::Vec3f>(r, c);
+      const Eigen::Vector3d delta(p[0] - t[0], p[1] - t[1], p[2] - t[2]);
+      const int face = truth.face_index.at<int32_t>(r, c);
+      double d;
+      if (face >= 0 && face < static_cast<int>(scene.faces.size())) {
+        Eigen::Vector3d n = cam_from_world * scene.FaceNormal(face);
+        if (n.dot(Eigen::Vector3d(t[0], t[1], t[2])) > 0) n = -n;  // toward the camera: + = in front
+        d = n.dot(delta);
+      } else {
+        d = -delta.z();
+      }
+      const double um = d * 1000.0;
+      if (error_um) error_um->at<float>(r, c) = static_cast<float>(um);
+      abs_err.push_back(std::abs(um));
+      sum += um;
+      sum2 += um * um;
+      ++e.points;
+      if (!order.empty() && vis == 2) {
+        const int k = order.at<int32_t>(r, c);
+        const double true_phase = spec.AbsolutePhase(truth.projector_uv.at<cv::Vec2f>(r, c)[spec.axis == 'y' ? 1 : 0]);
+        const int true_k = static_cast<int>(std::floor(true_phase / (2.0 * M_PI)));
+        ++e.order_checked;
+        e.order_errors += k != true_k;
+      }
+    }
+  if (e.points > 0) {
+    e.rms_um = std::sqrt(sum2 / static_cast<double>(e.points));
+    e.mean_um = sum / static_cast<double>(e.points);
+    double abs_sum = 0;
+    for (double a : abs_err) abs_sum += a;
+    e.mean_abs_um = abs_sum / static_cast<double>(e.points);
+    const size_t k95 = static_cast<size_t>(0.95 * static_cast<double>(abs_err.size() - 1));
+    std::nth_element(abs_err.begin(), abs_err.begin() + static_cast<long>(k95), abs_err.end());
+    e.p95_um = abs_err[k95];
+    e.max_um = *std::max_element(abs_err.begin(), abs_err.end());
+  }
+  e.order_error_pct = e.order_checked ? 100.0 * static_cast<double>(e.order_errors) / static_cast<double>(e.order_checked) : 0.0;
+  e.tooth_valid_pct = e.tooth_lit ? 100.0 * static_cast<double>(e.tooth_valid) / static_cast<double>(e.tooth_lit) : 0.0;
+  return e;
+}
+
+cv::Mat ErrorHeatMap(const cv::Mat& error_um, double range_um) {
+  cv::Mat scaled;
+  error_um.convertTo(scaled, CV_8U, 127.5 / range_um, 127.5);
+  cv::Mat colour;
+  cv::applyColorMap(scaled, colour, cv::COLORMAP_JET);
+  colour.setTo(cv::Scalar(0, 0, 0), error_um != error_um);  // NaN
+  return colour;
+}
+
+}  // namespace d3d

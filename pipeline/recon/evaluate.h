@@ -1,0 +1,39 @@
+// Accuracy of a single-view reconstruction against the simulator's ground truth.
+//
+// Distance of a reconstructed point X (camera frame) to the true surface: the true surface point
+// X_t hit by the same camera ray at the burst's reference pose, and its true normal n (the scene
+// triangle's normal, from FrameTruth::face_index), give d = n · (X − X_t): the distance to the
+// tangent plane, exact to second order in the lateral offset (≤ 1e-3 µm for the offsets here).
+// For analytic shapes without a face the depth difference is used.
+#pragma once
+
+#include <opencv2/core.hpp>
+
+#include "calib/model/probe_calibration.h"
+#include "common/burst/burst.h"
+#include "common/mesh/mesh.h"
+
+namespace d3d {
+
+struct CloudErrors {
+  int64_t points = 0;              // reconstructed points that see a true surface
+  int64_t spurious = 0;            // reconstructed points where the truth has no surface
+  double rms_um = 0, mean_um = 0, mean_abs_um = 0, p95_um = 0, max_um = 0;  // |d| statistics, µm
+  int64_t order_checked = 0;       // points with a true projector coordinate
+  int64_t order_errors = 0;        // of those, fringe order ≠ truth
+  double order_error_pct = 0;
+  int64_t tooth_lit = 0;           // truth: tooth pixels lit by the projector
+  int64_t tooth_valid = 0;         // of those, reconstructed
+  double tooth_valid_pct = 0;
+};
+
+// points_in_cam: H×W CV_32FC3 (NaN = no point); order: H×W CV_32S fringe order k (−1 = none) or
+// empty; truth: FrameTruth at the reference time with maps; scene: the mesh the truth refers to.
+// error_um (optional): H×W CV_32F signed distance in µm, NaN where not evaluated.
+CloudErrors EvaluateCloud(const cv::Mat& points_in_cam, const cv::Mat& order, const FrameTruth& truth,
+                          const TriangleMesh& scene, const FringePatternSpec& spec, cv::Mat* error_um = nullptr);
+
+// A colour heat map of signed errors (blue −range … green 0 … red +range µm; black where NaN).
+cv::Mat ErrorHeatMap(const cv::Mat& error_um, double range_um);
+
+}  // namespace d3d

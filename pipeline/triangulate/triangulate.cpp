@@ -1,0 +1,138 @@
+#include "pipeline/triangulate/triangulate.h"
+
+#include <cmath>
+#include <limits>
+
+namespace d3d {
+namespace {
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+constexpr float kNaNf = std::numeric_limits<float>::quiet_NaN();
+}  // namespace
+
+void TriangulateOptions::Check() const {
+  D3D_CHECK_MSG(depth_margin_mm >= 0, "depth margin must be ≥ 0");
+  D3D_CHECK_MSG(max_newton_steps >= 1 && max_newton_steps <= 50, "max_newton_steps must be in [1, 50]");
+}
+
+PhaseTriangulator::PhaseTriangulator(const ProbeCalibration& calibration, const TriangulateOptions& options)
+    : calibration_(calibration), options_(options), proj_from_cam_(calibration.cam_from_proj.inverse()),
+      axis_(calibration.pattern.axis == 'y' ? 1 : 0) {
+  calibration_.Check();
+  options_.Check();
+  const auto& cam = calibration_.camera;
+  rays_.resize(static_cast<size_t>(cam.width) * static_cast<size_t>(cam.height));
+  for (int r = 0; r < cam.height; ++r)
+    for (int c = 0; c < cam.width; ++c) {
+      const auto ray = cam.PixelRay(Eigen::Vector2d(c, r));
+      rays_[static_cast<size_t>(r) * static_cast<size_t>(cam.width) + static_cast<size_t>(c)] =
+          ray ? *ray : Eigen::Vector3d::Constant(kNaN);
+    }
+}
+
+double PhaseTriangulator::CodedCoordinate(const Eigen::Vector3d& p_in_cam) const {
+  const auto px = calibration_.projector.Project(proj_from_cam_ * p_in_cam);
+  return px ? (*px)[axis_] : kNaN;
+}
+
+double PhaseTriangulator::PhaseAtDepth(int col, int row, double z_mm) const {
+  const Eigen::Vector3d& r = rays_[static_cast<size_t>(row) * static_cast<size_t>(calibration_.camera.width) + static_cast<size_t>(col)];
+  const auto px = calibration_.projector.Project(proj_from_cam_ * (r * z_mm));
+  if (!px || !calibration_.projector.InImage(*px)) return kNaN;
+  return calibration_.pattern.AbsolutePhase((*px)[axis_]);
+}
+
+double PhaseTriangulator::DepthForPhase(int col, int row, double Phi) const {
+  const Eigen::Vector3d& r = rays_[static_cast<size_t>(row) * static_cast<size_t>(calibration_.camera.width) + static_cast<size_t>(col)];
+  if (!std::isfinite(Phi) || !r.allFinite()) return kNaN;
+  const auto& proj = calibration_.projector;
+  const double f_px = axis_ == 0 ? proj.fx : proj.fy;
+  const double centre = axis_ == 0 ? proj.cx : proj.cy;
+  const FringePatternSpec& spec = calibration_.pattern;
+  const double target = spec.phase_origin_px + Phi * spec.fringe_period_px / (2.0 * M_PI);  // c*
+  const Eigen::Vector3d Rr = proj_from_cam_.linear() * r;
+  const Eigen::Vector3d& t = proj_from_cam_.translation();
+  const double a = Rr[axis_], b = t[axis_], e = Rr.z(), f = t.z();
+  const double m = (target - centre) / f_px;
+  const double denom = m * e - a;
+  if (std::abs(denom) < 1e-12) return kNaN;
+  double z = (b - m * f) / denom;  // undistorted projector: exact
+  const double z_lo = calibration_.depth_min_mm - options_.depth_margin_mm;
+  const double z_hi = calibration_.depth_max_mm + options_.depth_margin_mm;
+  for (int it = 0; it < options_.max_newton_steps; ++it) {
+    if (!(z > 0.0)) return kNaN;
+    const double c = CodedCoordinate(r * z);
+    if (!std::isfinite(c)) return kNaN;
+    // dc/dz of the pinhole model: c = centre + f_px (a z + b)/(e z + f).
+    const double q = e * z + f;
+    const double dcdz = f_px * (a * f - b * e) / (q * q);
+    if (std::abs(dcdz) < 1e-12) return kNaN;
+    const double step = (target - c) / dcdz;
+    z += step;
+    if (std::abs(step) < 1e-7) break;
+  }
+  return z >= z_lo && z <= z_hi ? z : kNaN;
+}
+
+void PhaseTriangulator::PhaseRange(cv::Mat* phase_min, cv::Mat* phase_max) const {
+  const auto& cam = calibration_.camera;
+  phase_min->create(cam.height, cam.width, CV_32F);
+  phase_max->create(cam.height, cam.width, CV_32F);
+  for (int r = 0; r < cam.height; ++r)
+    for (int c = 0; c < cam.width; ++c) {
+      const double p0 = PhaseAtDepth(c, r, calibration_.depth_min_mm);
+      const double p1 = PhaseAtDepth(c, r, calibration_.depth_max_mm);
+      const bool ok = std::isfinite(p0) && std::isfinite(p1);
+      phase_min->at<float>(r, c) = ok ? static_cast<float>(std::min(p0, p1)) : kNaNf;
+      phase_max->at<float>(r, c) = ok ? static_cast<float>(std::max(p0, p1)) : kNaNf;
+    }
+}
+
+Status PhaseTriangulator::Triangulate(const cv::Mat& Phi, cv::Mat* points_in_cam) const {
+  const auto& cam = calibration_.camera;
+  if (Phi.type() != CV_32F) return InvalidArgument("triangulate: absolute phase must be CV_32F");
+  if (Phi.cols != cam.width || Phi.rows != cam.height) {
+    return InvalidArgument("triangulate: phase map is " + std::to_string(Phi.cols) + "x" + std::to_string(Phi.rows) +
+                           " but the calibration's camera is " + std::to_string(cam.width) + "x" +
+                           std::to_string(cam.height));
+  }
+  points_in_cam->create(cam.height, cam.width, CV_32FC3);
+  for (int r = 0; r < cam.height; ++r) {
+    const float* phi = Phi.ptr<float>(r);
+    auto* out = points_in_cam->ptr<cv::Vec3f>(r);
+    for (int c = 0; c < cam.width; ++c) {
+      const double z = DepthForPhase(c, r, phi[c]);
+      if (!std::isfinite(z)) {
+        out[c] = cv::Vec3f(kNaNf, kNaNf, kNaNf);
+        continue;
+      }
+      const Eigen::Vector3d p = rays_[static_cast<size_t>(r) * static_cast<size_t>(cam.width) + static_cast<size_t>(c)] * z;
+      out[c] = cv::Vec3f(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
+    }
+  }
+  return Status::Ok();
+}
+
+void OrganisedNormals(const cv::Mat& points, double max_gap_mm, cv::Mat* normals) {
+  normals->create(points.size(), CV_32FC3);
+  normals->setTo(cv::Scalar::all(kNaNf));
+  auto at = [&](int r, int c) {
+    const cv::Vec3f& v = points.at<cv::Vec3f>(r, c);
+    return Eigen::Vector3d(v[0], v[1], v[2]);
+  };
+  for (int r = 1; r + 1 < points.rows; ++r)
+    for (int c = 1; c + 1 < points.cols; ++c) {
+      const Eigen::Vector3d p = at(r, c), L = at(r, c - 1), R = at(r, c + 1), U = at(r - 1, c), D = at(r + 1, c);
+      if (!p.allFinite() || !L.allFinite() || !R.allFinite() || !U.allFinite() || !D.allFinite()) continue;
+      if ((R - p).norm() > max_gap_mm || (p - L).norm() > max_gap_mm || (D - p).norm() > max_gap_mm ||
+          (p - U).norm() > max_gap_mm) {
+        continue;
+      }
+      Eigen::Vector3d n = (R - L).cross(D - U);
+      if (n.squaredNorm() == 0) continue;
+      n.normalize();
+      if (n.dot(p) > 0) n = -n;  // face the camera at the origin
+      normals->at<cv::Vec3f>(r, c) = cv::Vec3f(static_cast<float>(n.x()), static_cast<float>(n.y()), static_cast<float>(n.z()));
+    }
+}
+
+}  // namespace d3d

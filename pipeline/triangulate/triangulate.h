@@ -1,0 +1,75 @@
+// Triangulation of absolute phase: for each camera pixel, the point on its ray whose projection
+// into the projector has the coded coordinate of its absolute phase Φ.
+//
+// Model: the camera ray of pixel p is X(z) = z · r(p), r = (x, y, 1) the undistorted normalised
+// coordinates (camera_model.h), z the camera depth (mm). The fringe coordinate c (projector pixels
+// along the pattern axis) of a depth is c(z) = π_axis(projector, proj_from_cam · X(z)) with the
+// projector's Brown–Conrady distortion. We solve c(z) = c*, c* = origin + Φ T / 2π:
+//   1. closed form for the undistorted projector (a projective function of z): with
+//      P = proj_from_cam, a = (P.R r)_axis, b = (P.t)_axis, e = (P.R r)_z, f = (P.t)_z and
+//      m* = (c* − c_centre)/f_px the normalised target, z₀ = (b − m* f) / (m* e − a);
+//   2. Newton on the exact c(z) (distortion included), derivative by the pinhole model, until
+//      |Δz| < 1e-7 mm (two or three steps for real lenses).
+// This is the "camera ray ∩ projector plane" of the issue, exact also when distortion bends the
+// projector's iso-phase surface.
+//
+// Thread safety: const methods may run concurrently; the object holds only per-pixel constants.
+#pragma once
+
+#include <opencv2/core.hpp>
+#include <vector>
+
+#include "calib/model/probe_calibration.h"
+#include "common/core/status.h"
+
+namespace d3d {
+
+struct TriangulateOptions {
+  // Points outside [depth_min − margin, depth_max + margin] (calibration's measurement volume) are
+  // dropped: they cannot come from a correct fringe order.
+  double depth_margin_mm = 2.0;
+  int max_newton_steps = 6;
+  void Check() const;
+};
+
+class PhaseTriangulator {
+ public:
+  // Precomputes every pixel's ray. Throws std::invalid_argument for an invalid calibration/options.
+  PhaseTriangulator(const ProbeCalibration& calibration, const TriangulateOptions& options = {});
+
+  const ProbeCalibration& calibration() const { return calibration_; }
+
+  // Absolute phase Φ that each pixel would see at the near and far ends of the measurement volume
+  // (H×W CV_32F each, phase_min ≤ phase_max; NaN where the pixel's ray leaves the projector image
+  // there). The unwrapper uses it as the geometric constraint on the fringe order (An et al. 2016,
+  // "Pixel-wise absolute phase unwrapping using geometric constraints of structured light system",
+  // Opt. Express 24(16):18445).
+  void PhaseRange(cv::Mat* phase_min, cv::Mat* phase_max) const;
+
+  // Φ (H×W CV_32F, NaN where unknown) → points_in_cam (H×W CV_32FC3, mm, NaN where no valid
+  // point). INVALID_ARGUMENT if Φ's size or type does not match the calibration's camera.
+  [[nodiscard]] Status Triangulate(const cv::Mat& Phi, cv::Mat* points_in_cam) const;
+
+  // Depth (camera z, mm) of pixel (col,row) for absolute phase Phi; NaN if there is no solution in
+  // the measurement volume (with margin).
+  double DepthForPhase(int col, int row, double Phi) const;
+  // Absolute phase that pixel (col,row) sees at depth z_mm (exact, with distortion); NaN outside
+  // the projector image.
+  double PhaseAtDepth(int col, int row, double z_mm) const;
+
+ private:
+  double CodedCoordinate(const Eigen::Vector3d& p_in_cam) const;  // c of a point, NaN if behind
+
+  ProbeCalibration calibration_;
+  TriangulateOptions options_;
+  Rigid3d proj_from_cam_;
+  int axis_;  // 0 for x-coded patterns, 1 for y
+  std::vector<Eigen::Vector3d> rays_;  // r(p), row-major; NaN where undistortion failed
+};
+
+// Organised normals: unit normals (CV_32FC3, camera frame, facing the camera) from the cross
+// product of central differences of the point map; NaN where a neighbour is missing or the
+// neighbours are farther apart than max_gap_mm (a depth discontinuity).
+void OrganisedNormals(const cv::Mat& points_in_cam, double max_gap_mm, cv::Mat* normals);
+
+}  // namespace d3d

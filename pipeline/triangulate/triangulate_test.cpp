@@ -1,0 +1,119 @@
+#include "pipeline/triangulate/triangulate.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "firmware/sim/render/virtual_probe.h"
+
+namespace d3d {
+namespace {
+
+TriangleMesh Plane(const Eigen::Vector3d& n_in, const Eigen::Vector3d& point) {
+  const Eigen::Vector3d n = n_in.normalized(), a = n.unitOrthogonal(), b = n.cross(a);
+  TriangleMesh m;
+  const double h = 80;
+  m.vertices = {point - h * a - h * b, point + h * a - h * b, point + h * a + h * b, point - h * a + h * b};
+  m.faces = {{0, 1, 2}, {0, 2, 3}};
+  return m;
+}
+
+// Truth Φ from the renderer's projector coordinate, back through the triangulator: the points must
+// come back to the truth surface points (both use the same calibration, exactly).
+void ExpectRoundTrip(VirtualProbe& probe, int* checked) {
+  FrameTruth t;
+  probe.RenderTruth(Rigid3d::Identity(), &t);
+  const PhaseTriangulator tri(probe.calibration());
+  cv::Mat Phi(t.depth_mm.size(), CV_32F, cv::Scalar(std::nan("")));
+  for (int r = 0; r < Phi.rows; ++r)
+    for (int c = 0; c < Phi.cols; ++c)
+      if (t.visibility.at<uint8_t>(r, c) == 2) {
+        Phi.at<float>(r, c) = static_cast<float>(probe.calibration().pattern.AbsolutePhase(t.projector_uv.at<cv::Vec2f>(r, c)[0]));
+      }
+  cv::Mat points;
+  ASSERT_TRUE(tri.Triangulate(Phi, &points).ok());
+  double worst = 0;
+  for (int r = 0; r < Phi.rows; ++r)
+    for (int c = 0; c < Phi.cols; ++c) {
+      if (std::isnan(Phi.at<float>(r, c))) {
+        EXPECT_TRUE(std::isnan(points.at<cv::Vec3f>(r, c)[2]));
+        continue;
+      }
+      const float z = t.depth_mm.at<float>(r, c);
+      if (z < 40 || z > 60) continue;  // outside the measurement volume (+margin): dropped by design
+      const cv::Vec3f d = points.at<cv::Vec3f>(r, c) - t.points_in_cam.at<cv::Vec3f>(r, c);
+      worst = std::max(worst, static_cast<double>(cv::norm(d)));
+      ++*checked;
+    }
+  // Float32 Φ at ≈ 200 rad carries 1e-5 rad ≈ 1e-4 mm of depth; the solve itself is exact.
+  EXPECT_LT(worst, 2e-4) << "mm";
+}
+
+TEST(Triangulate, PlaneRoundTripThroughBothDistortions) {
+  RenderOptions o;
+  o.texture = false;
+  VirtualProbe probe(Plane({0.3, -0.2, -1}, {0, 0, 50}), MakeDefaultProbeDesign(), o);
+  int checked = 0;
+  ExpectRoundTrip(probe, &checked);
+  EXPECT_GT(checked, 100000);
+}
+
+TEST(Triangulate, SphereRoundTrip) {
+  RenderOptions o;
+  o.texture = false;
+  VirtualProbe probe(Plane({0, 0, -1}, {0, 0, 57}), MakeDefaultProbeDesign(), o,
+                     {SceneSphere{{0.5, -0.3, 50.0}, 5.0, SurfaceLabel::kTooth}});
+  int checked = 0;
+  ExpectRoundTrip(probe, &checked);
+  EXPECT_GT(checked, 50000);
+}
+
+TEST(Triangulate, PhaseRangeBracketsTruthAndAdmitsFewOrders) {
+  const ProbeDesign design = MakeDefaultProbeDesign();
+  const PhaseTriangulator tri(design.calibration);
+  cv::Mat lo, hi;
+  tri.PhaseRange(&lo, &hi);
+  for (int r = 0; r < 480; r += 40)
+    for (int c = 0; c < 640; c += 40) {
+      ASSERT_FALSE(std::isnan(lo.at<float>(r, c))) << r << "," << c;
+      const double mid = tri.PhaseAtDepth(c, r, 50.0);
+      EXPECT_GT(mid, lo.at<float>(r, c));
+      EXPECT_LT(mid, hi.at<float>(r, c));
+      const double orders = (hi.at<float>(r, c) - lo.at<float>(r, c)) / (2 * M_PI);
+      EXPECT_GT(orders, 4.0);
+      // The marker stripes are 10 orders apart: the volume must admit fewer than that.
+      EXPECT_LT(orders, design.calibration.pattern.marker_spacing_orders - 1.0);
+      EXPECT_NEAR(tri.DepthForPhase(c, r, mid), 50.0, 1e-6);
+    }
+}
+
+TEST(Triangulate, RefusesMismatchedMapsAndDropsOutOfVolume) {
+  const PhaseTriangulator tri(MakeDefaultProbeDesign().calibration);
+  cv::Mat points;
+  EXPECT_EQ(tri.Triangulate(cv::Mat(10, 10, CV_32F), &points).code(), StatusCode::kInvalidArgument);
+  EXPECT_EQ(tri.Triangulate(cv::Mat(480, 640, CV_64F), &points).code(), StatusCode::kInvalidArgument);
+  // A phase that would put the point at 30 mm is dropped, not returned.
+  EXPECT_TRUE(std::isnan(tri.DepthForPhase(320, 240, tri.PhaseAtDepth(320, 240, 30.0))));
+  EXPECT_TRUE(std::isnan(tri.DepthForPhase(320, 240, std::nan(""))));
+}
+
+TEST(Triangulate, OrganisedNormalsOfAPlane) {
+  const Eigen::Vector3d n = Eigen::Vector3d(0.2, 0.1, -1).normalized();
+  cv::Mat points(50, 60, CV_32FC3);
+  for (int r = 0; r < 50; ++r)
+    for (int c = 0; c < 60; ++c) {
+      const Eigen::Vector3d ray((c - 30) * 0.0005, (r - 25) * 0.0005, 1.0);
+      const Eigen::Vector3d p = ray * (n.dot(Eigen::Vector3d(0, 0, 50)) / n.dot(ray));
+      points.at<cv::Vec3f>(r, c) = cv::Vec3f(p.x(), p.y(), p.z());
+    }
+  points.at<cv::Vec3f>(10, 10) = cv::Vec3f(std::nanf(""), 0, 0);
+  cv::Mat normals;
+  OrganisedNormals(points, 0.5, &normals);
+  const cv::Vec3f m = normals.at<cv::Vec3f>(25, 30);
+  EXPECT_NEAR(m[0] * n.x() + m[1] * n.y() + m[2] * n.z(), 1.0, 1e-5);
+  EXPECT_TRUE(std::isnan(normals.at<cv::Vec3f>(10, 11)[0]));  // next to a hole
+  EXPECT_TRUE(std::isnan(normals.at<cv::Vec3f>(0, 0)[0]));    // border
+}
+
+}  // namespace
+}  // namespace d3d

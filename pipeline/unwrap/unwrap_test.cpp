@@ -1,0 +1,392 @@
+#include "pipeline/unwrap/unwrap.h"
+
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <map>
+
+#include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
+
+#include "pipeline/unwrap/quality_map.h"
+#include "pipeline/unwrap/synthetic_fringes.h"
+
+namespace d3d {
+namespace {
+
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+
+struct Eval {
+  int64_t lit = 0;      // pixels with a phase (truth order ≥ 0)
+  int64_t kept = 0;     // with an output order
+  int64_t wrong = 0;    // kept with order ≠ truth
+  int64_t inconsistent = 0;  // kept with order ≠ floor(Φ/2π) or |Φ − Φ_true| > π
+  double KeptShare() const { return lit > 0 ? static_cast<double>(kept) / lit : 0.0; }
+};
+
+Eval Evaluate(const SyntheticScene& s, const UnwrapResult& r, const cv::Mat& only = cv::Mat()) {
+  Eval e;
+  for (int y = 0; y < s.phi.rows; ++y) {
+    for (int x = 0; x < s.phi.cols; ++x) {
+      if (!only.empty() && only.at<uint8_t>(y, x) == 0) continue;
+      const int truth = s.order_true.at<int32_t>(y, x);
+      if (truth >= 0) ++e.lit;
+      const float Phi = r.Phi.at<float>(y, x);
+      const int k = r.order.at<int32_t>(y, x);
+      if (!std::isfinite(Phi)) {
+        EXPECT_EQ(k, -1);
+        continue;
+      }
+      ++e.kept;
+      if (k != truth) ++e.wrong;
+      if (k != static_cast<int>(std::floor(Phi / (2 * M_PI) + 1e-6)) ||
+          std::fabs(Phi - s.Phi_true.at<float>(y, x)) > M_PI) {
+        ++e.inconsistent;
+      }
+    }
+  }
+  return e;
+}
+
+// Prints the regions that matter (for failing tests).
+void DumpRegions(const UnwrapResult& r) {
+  const UnwrapStats& st = r.stats;
+  std::printf("usable %lld valid %lld conflict %lld small %lld rejected %lld outside %lld\n",
+              static_cast<long long>(st.pixels_usable), static_cast<long long>(st.pixels_valid),
+              static_cast<long long>(st.pixels_conflict), static_cast<long long>(st.pixels_small),
+              static_cast<long long>(st.pixels_rejected), static_cast<long long>(st.pixels_outside));
+  for (size_t i = 0; i < r.regions.size(); ++i) {
+    const RegionInfo& g = r.regions[i];
+    if (g.pixels < 100) continue;
+    std::printf("region %zu: %d px, %s, K %d, hits %d/%d rival %d, bounded %d admitting %d, candidates %d\n",
+                i, g.pixels, RegionAnchorName(g.anchor), g.offset, g.marker_hits, g.marker_predicted,
+                g.marker_rival_hits, g.bounded_pixels, g.admitting_pixels, g.candidates);
+  }
+}
+
+UnwrapResult RunAll(const SyntheticScene& s, const UnwrapOptions& opt = {}, bool use_marker = true,
+                 bool use_bounds = true) {
+  cv::Mat q;
+  EXPECT_TRUE(ComputeQualityMap(s.phi, s.modulation, s.valid, QualityOptions{}, &q).ok());
+  UnwrapResult r;
+  const Status st = UnwrapPhase(s.phi, q, use_marker ? s.marker : cv::Mat(),
+                                use_bounds ? s.phase_min : cv::Mat(),
+                                use_bounds ? s.phase_max : cv::Mat(), opt, &r);
+  EXPECT_TRUE(st.ok()) << st.ToString();
+  return r;
+}
+
+// Naive path-following unwrapping (Itoh along rows, then the first column), relative: compared up
+// to the best single global offset. The reference for "naive unwrapping fails".
+int64_t NaiveWrongPixels(const SyntheticScene& s) {
+  const int h = s.phi.rows, w = s.phi.cols;
+  cv::Mat k(h, w, CV_32SC1, cv::Scalar(0));
+  auto step = [](float a, float b) { return b - a > M_PI ? -1 : (b - a < -M_PI ? 1 : 0); };
+  for (int y = 0; y < h; ++y) {
+    if (y > 0) k.at<int>(y, 0) = k.at<int>(y - 1, 0) + step(s.phi.at<float>(y - 1, 0), s.phi.at<float>(y, 0));
+    for (int x = 1; x < w; ++x) {
+      k.at<int>(y, x) = k.at<int>(y, x - 1) + step(s.phi.at<float>(y, x - 1), s.phi.at<float>(y, x));
+    }
+  }
+  std::map<int, int64_t> diff;
+  int64_t lit = 0;
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      if (s.order_true.at<int32_t>(y, x) < 0) continue;
+      ++diff[s.order_true.at<int32_t>(y, x) - k.at<int>(y, x)];
+      ++lit;
+    }
+  }
+  int64_t best = 0;
+  for (const auto& [d, n] : diff) best = std::max(best, n);
+  return lit - best;
+}
+
+SyntheticNoise Noise(uint64_t seed = 1) {
+  SyntheticNoise n;
+  n.seed = seed;
+  return n;
+}
+
+// Depth at which the scene is shifted by `fringes` relative to depth z on the same pixel.
+double DepthForShift(const SyntheticProbe& p, double z, double fringes) {
+  // Φ ∝ −fp·b/Z: Δfringes = fp·b/T·(1/z − 1/z2).
+  return 1.0 / (1.0 / z - fringes * p.period_px / (p.fp * p.baseline_mm));
+}
+
+TEST(Unwrap, TiltedPlaneAnchoredByMarker) {
+  const SyntheticProbe probe;
+  const SyntheticScene s = MakeFringeScene(PlaneDepth(probe, 50.0, 0.004, -0.003), probe, Noise());
+  const UnwrapResult r = RunAll(s);
+  const Eval e = Evaluate(s, r);
+  EXPECT_EQ(e.wrong, 0);
+  EXPECT_EQ(e.inconsistent, 0);
+  EXPECT_GT(e.KeptShare(), 0.97);
+  EXPECT_EQ(r.stats.regions_marker, 1);
+  EXPECT_EQ(r.stats.pixels_valid, e.kept);
+  EXPECT_EQ(r.stats.pixels_dropped, r.stats.pixels_discontinuity + r.stats.pixels_conflict +
+                                        r.stats.pixels_small + r.stats.pixels_rejected +
+                                        r.stats.pixels_outside);
+}
+
+TEST(Unwrap, SphereCap) {
+  const SyntheticProbe probe;
+  const SyntheticScene s = MakeFringeScene(SphereDepth(probe, 300, 250, 6.0, 47.0), probe, Noise(2));
+  const UnwrapResult r = RunAll(s);
+  const Eval e = Evaluate(s, r);
+  EXPECT_EQ(e.wrong, 0);
+  EXPECT_EQ(e.inconsistent, 0);
+  EXPECT_GT(e.KeptShare(), 0.9);
+}
+
+TEST(Unwrap, NonIntegerStepWhereNaiveUnwrappingFails) {
+  const SyntheticProbe probe;
+  cv::Mat depth = PlaneDepth(probe, 48.0, 0.0, 0.0);
+  const double z2 = DepthForShift(probe, 48.0, 2.4);  // the right half: 2.4 fringes further
+  depth(cv::Rect(320, 0, 320, 480)).setTo(z2);
+  const SyntheticScene s = MakeFringeScene(depth, probe, Noise(3));
+  // Both halves see a marker stripe.
+  cv::Mat left = cv::Mat::zeros(480, 640, CV_8UC1), right = left.clone();
+  left(cv::Rect(0, 0, 320, 480)).setTo(255);
+  right(cv::Rect(320, 0, 320, 480)).setTo(255);
+  ASSERT_GT(cv::countNonZero(s.marker & left), 1000);
+  ASSERT_GT(cv::countNonZero(s.marker & right), 1000);
+
+  const int64_t naive_wrong = NaiveWrongPixels(s);
+  EXPECT_GT(naive_wrong, 100000) << "the naive unwrapping should be off by 2 orders on one half";
+
+  const UnwrapResult r = RunAll(s);
+  const Eval e = Evaluate(s, r);
+  EXPECT_EQ(e.wrong, 0);
+  EXPECT_EQ(e.inconsistent, 0);
+  EXPECT_GT(e.KeptShare(), 0.97);
+  EXPECT_EQ(r.stats.regions_marker, 2);
+}
+
+TEST(Unwrap, HiddenIntegerStepIsRejectedNotGuessed) {
+  // 3.0 fringes: the wrapped phase shows no trace of the step, so both halves grow into one region;
+  // their marker stripes vote for offsets 3 apart and the region is rejected.
+  const SyntheticProbe probe;
+  cv::Mat depth = PlaneDepth(probe, 48.0, 0.0, 0.0);
+  depth(cv::Rect(320, 0, 320, 480)).setTo(DepthForShift(probe, 48.0, 3.0));
+  SyntheticScene s = MakeFringeScene(depth, probe, Noise(4));
+  s.modulation.setTo(40.0f);  // no dark edge at the step either
+  const UnwrapResult r = RunAll(s);
+  const Eval e = Evaluate(s, r);
+  EXPECT_EQ(e.wrong, 0);
+  EXPECT_EQ(r.stats.regions_marker, 0);
+  EXPECT_GE(r.stats.regions_rejected, 1);
+}
+
+TEST(Unwrap, SeparatedTeethOnlySomeWithMarker) {
+  const SyntheticProbe probe;
+  const cv::Mat depth = TeethDepth(probe, 4, 12.0, 7);
+  const SyntheticScene s = MakeFringeScene(depth, probe, Noise(5));
+  const UnwrapResult r = RunAll(s);
+  const Eval e = Evaluate(s, r);
+  EXPECT_EQ(e.wrong, 0);
+  EXPECT_EQ(e.inconsistent, 0);
+  EXPECT_GE(r.stats.regions_marker, 2);
+  // Every anchored region is right; a region that saw no marker is either anchored by depth or
+  // dropped. Blobs crossed by a stripe are kept almost entirely.
+  for (const RegionInfo& info : r.regions) {
+    if (info.anchor == RegionAnchor::kMarker) {
+      EXPECT_GE(info.marker_hits, UnwrapOptions{}.min_marker_votes);
+    }
+  }
+  EXPECT_GT(e.KeptShare(), 0.5);
+  if (HasFailure()) DumpRegions(r);
+}
+
+TEST(Unwrap, RegionsWithoutMarkerAreDroppedUnderTheWideVolume) {
+  // 42–58 mm admit ≈ 6 orders per pixel: without a marker no region is unique, all are dropped.
+  const SyntheticProbe probe;
+  const SyntheticScene s = MakeFringeScene(TeethDepth(probe, 3, 15.0, 8), probe, Noise(6));
+  const UnwrapResult r = RunAll(s, {}, /*use_marker=*/false);
+  const Eval e = Evaluate(s, r);
+  EXPECT_EQ(e.kept, 0);
+  EXPECT_EQ(r.stats.regions_marker + r.stats.regions_depth, 0);
+  EXPECT_GE(r.stats.regions_rejected, 3);
+}
+
+TEST(Unwrap, DepthConstraintAnchorsWhenTheWindowIsNarrow) {
+  // A volume of ±0.45 fringes around the truth leaves one admissible offset per region.
+  const SyntheticProbe probe;
+  SyntheticScene s = MakeFringeScene(TeethDepth(probe, 4, 12.0, 9), probe, Noise(7));
+  for (int y = 0; y < s.phi.rows; ++y) {
+    for (int x = 0; x < s.phi.cols; ++x) {
+      const float t = s.Phi_true.at<float>(y, x);
+      s.phase_min.at<float>(y, x) = std::isfinite(t) ? t - 0.45f * 2 * static_cast<float>(M_PI) : kNaN;
+      s.phase_max.at<float>(y, x) = std::isfinite(t) ? t + 0.45f * 2 * static_cast<float>(M_PI) : kNaN;
+    }
+  }
+  const UnwrapResult r = RunAll(s, {}, /*use_marker=*/false);
+  const Eval e = Evaluate(s, r);
+  EXPECT_EQ(e.wrong, 0);
+  EXPECT_GE(r.stats.regions_depth, 3);
+  EXPECT_GT(e.KeptShare(), 0.8);
+  if (HasFailure()) DumpRegions(r);
+}
+
+TEST(Unwrap, NoiseHolesAndBlurredMarker) {
+  const SyntheticProbe probe;
+  cv::Mat holes = cv::Mat::zeros(480, 640, CV_8UC1);
+  cv::RNG rng(11);
+  for (int i = 0; i < 25; ++i) {
+    cv::circle(holes, {rng.uniform(0, 640), rng.uniform(0, 480)}, rng.uniform(3, 15), 255, cv::FILLED);
+  }
+  SyntheticNoise noise = Noise(8);
+  noise.intensity_sigma = 5.0;     // σ_φ ≈ 0.09 rad at B = 40, ≈ 0.35 rad at B = 10
+  noise.marker_false_rate = 0.01;
+  SyntheticScene s = MakeFringeScene(SphereDepth(probe, 320, 240, 7.0, 46.0), probe, noise, holes);
+  // The marker detection bleeds 2 px past the stripe edges.
+  cv::dilate(s.marker, s.marker, cv::getStructuringElement(cv::MORPH_RECT, {5, 1}));
+  const UnwrapResult r = RunAll(s);
+  const Eval e = Evaluate(s, r);
+  EXPECT_EQ(e.wrong, 0);
+  EXPECT_EQ(e.inconsistent, 0);
+  EXPECT_GT(e.KeptShare(), 0.8);
+  EXPECT_GE(r.stats.regions_marker, 1);
+  if (HasFailure()) DumpRegions(r);
+}
+
+TEST(Unwrap, OutsideTheVolumeIsDropped) {
+  // A plane from 55 to 61 mm: the part beyond 58 mm is outside the volume.
+  const SyntheticProbe probe;
+  const SyntheticScene s = MakeFringeScene(PlaneDepth(probe, 58.0, 0.0, 0.0125), probe, Noise(9));
+  UnwrapOptions opt;
+  opt.marker_depth_fraction = 0.3;
+  UnwrapResult r = RunAll(s, opt);
+  Eval e = Evaluate(s, r);
+  EXPECT_EQ(e.wrong, 0);
+  EXPECT_GT(r.stats.pixels_outside, 50000);
+  for (int y = 0; y < 480; ++y) {
+    const float z = s.depth.at<float>(y, 320);
+    if (z > 58.3f) {
+      EXPECT_FALSE(std::isfinite(r.Phi.at<float>(y, 320))) << y;
+    }
+    if (z < 57.7f) {
+      EXPECT_TRUE(std::isfinite(r.Phi.at<float>(y, 320))) << y;
+    }
+  }
+  opt.drop_outside_volume = false;
+  r = RunAll(s, opt);
+  e = Evaluate(s, r);
+  EXPECT_EQ(e.wrong, 0);
+  EXPECT_EQ(r.stats.pixels_outside, 0);
+  EXPECT_GT(e.KeptShare(), 0.97);
+}
+
+TEST(Unwrap, OneStripeWithoutBounds) {
+  // marker_spacing_orders = 0: a single stripe identifies its order without any depth bound.
+  SyntheticProbe probe;
+  probe.marker_first_order = 19;
+  probe.marker_spacing_orders = 0;
+  const SyntheticScene s = MakeFringeScene(PlaneDepth(probe, 50.0, 0.002, 0.0), probe, Noise(10));
+  UnwrapOptions opt;
+  opt.marker_first_order = 19;
+  opt.marker_spacing_orders = 0;
+  const UnwrapResult r = RunAll(s, opt, true, /*use_bounds=*/false);
+  const Eval e = Evaluate(s, r);
+  EXPECT_EQ(e.wrong, 0);
+  EXPECT_GT(e.KeptShare(), 0.97);
+  // With several stripes and no bounds, a stripe's order is ambiguous: nothing is anchored.
+  const UnwrapResult r2 = RunAll(s, {}, true, false);
+  EXPECT_EQ(Evaluate(s, r2).kept, 0);
+}
+
+TEST(Unwrap, ReusedUnwrapperMatchesFreshRuns) {
+  const SyntheticProbe p1;
+  const SyntheticProbe p2 = SyntheticProbe::ForSize(320, 200);
+  const SyntheticScene a = MakeFringeScene(TeethDepth(p1, 4, 12.0, 1), p1, Noise(1));
+  const SyntheticScene b = MakeFringeScene(PlaneDepth(p2, 50.0, 0.0, 0.0), p2, Noise(2));
+  Unwrapper unwrapper;
+  for (const SyntheticScene* s : {&a, &b, &a}) {
+    cv::Mat q;
+    ASSERT_TRUE(ComputeQualityMap(s->phi, s->modulation, s->valid, {}, &q).ok());
+    UnwrapResult reused, fresh;
+    ASSERT_TRUE(unwrapper.Run(s->phi, q, s->marker, s->phase_min, s->phase_max, &reused).ok());
+    ASSERT_TRUE(UnwrapPhase(s->phi, q, s->marker, s->phase_min, s->phase_max, {}, &fresh).ok());
+    EXPECT_EQ(cv::norm(reused.order, fresh.order, cv::NORM_INF), 0.0);
+    EXPECT_EQ(cv::norm(reused.region, fresh.region, cv::NORM_INF), 0.0);
+    EXPECT_EQ(reused.stats.pixels_valid, fresh.stats.pixels_valid);
+  }
+}
+
+TEST(Unwrap, AllInvalidIsOkAndEmpty) {
+  cv::Mat phi(30, 40, CV_32FC1, cv::Scalar(kNaN));
+  cv::Mat q(30, 40, CV_32FC1, cv::Scalar(0.0f));
+  UnwrapResult r;
+  ASSERT_TRUE(UnwrapPhase(phi, q, cv::Mat(), cv::Mat(), cv::Mat(), {}, &r).ok());
+  EXPECT_EQ(r.stats.pixels_valid, 0);
+  EXPECT_EQ(r.stats.regions_total, 0);
+  EXPECT_EQ(cv::countNonZero(r.order != -1), 0);
+  EXPECT_EQ(cv::countNonZero(r.region != -1), 0);
+  // Good quality but NaN phase, and NaN quality: still nothing, no crash.
+  q.setTo(1.0f);
+  ASSERT_TRUE(UnwrapPhase(phi, q, cv::Mat(), cv::Mat(), cv::Mat(), {}, &r).ok());
+  EXPECT_EQ(r.stats.pixels_usable, 0);
+  cv::Mat phi0(30, 40, CV_32FC1, cv::Scalar(1.0f));
+  q.setTo(kNaN);
+  ASSERT_TRUE(UnwrapPhase(phi0, q, cv::Mat(), cv::Mat(), cv::Mat(), {}, &r).ok());
+  EXPECT_EQ(r.stats.pixels_usable, 0);
+}
+
+TEST(Unwrap, BadInputs) {
+  const cv::Mat phi(20, 30, CV_32FC1, cv::Scalar(1.0f));
+  const cv::Mat q(20, 30, CV_32FC1, cv::Scalar(1.0f));
+  const cv::Mat none;
+  UnwrapResult r;
+  auto code = [&](const Status& s) { return s.code(); };
+  const StatusCode bad = StatusCode::kInvalidArgument;
+  EXPECT_EQ(code(UnwrapPhase(none, q, none, none, none, {}, &r)), bad);
+  EXPECT_EQ(code(UnwrapPhase(phi, none, none, none, none, {}, &r)), bad);
+  EXPECT_EQ(code(UnwrapPhase(phi, cv::Mat(20, 31, CV_32FC1), none, none, none, {}, &r)), bad);
+  EXPECT_EQ(code(UnwrapPhase(phi, cv::Mat(20, 30, CV_64FC1), none, none, none, {}, &r)), bad);
+  EXPECT_EQ(code(UnwrapPhase(cv::Mat(20, 30, CV_8UC1), q, none, none, none, {}, &r)), bad);
+  EXPECT_EQ(code(UnwrapPhase(phi, q, cv::Mat(20, 30, CV_32FC1), none, none, {}, &r)), bad);
+  EXPECT_EQ(code(UnwrapPhase(phi, q, cv::Mat(21, 30, CV_8UC1), none, none, {}, &r)), bad);
+  EXPECT_EQ(code(UnwrapPhase(phi, q, none, phi.clone(), none, {}, &r)), bad);
+  EXPECT_EQ(code(UnwrapPhase(phi, q, none, phi.clone(), cv::Mat(20, 29, CV_32FC1), {}, &r)), bad);
+  EXPECT_EQ(code(UnwrapPhase(phi, q, none, none, none, {}, nullptr)), bad);
+  UnwrapOptions opt;
+  opt.max_jump = 4.0;
+  EXPECT_EQ(code(UnwrapPhase(phi, q, none, none, none, opt, &r)), bad);
+  EXPECT_THROW(Unwrapper{opt}, std::invalid_argument);
+  opt = {};
+  opt.quality_levels = 1;
+  EXPECT_THROW(opt.Check(), std::invalid_argument);
+  opt = {};
+  opt.marker_density = 0.0;
+  EXPECT_THROW(opt.Check(), std::invalid_argument);
+  EXPECT_NO_THROW(UnwrapOptions{}.Check());
+  // Output aliasing an input.
+  UnwrapResult alias;
+  alias.Phi = phi;
+  EXPECT_EQ(code(UnwrapPhase(phi, q, none, none, none, {}, &alias)), bad);
+  // NaN and reversed bounds are "unknown", not errors.
+  cv::Mat pmin(20, 30, CV_32FC1, cv::Scalar(kNaN)), pmax(20, 30, CV_32FC1, cv::Scalar(-5.0f));
+  EXPECT_TRUE(UnwrapPhase(phi, q, none, pmin, pmax, {}, &r).ok());
+  pmin.setTo(10.0f);
+  EXPECT_TRUE(UnwrapPhase(phi, q, none, pmin, pmax, {}, &r).ok());
+  EXPECT_EQ(r.stats.pixels_valid, 0);
+}
+
+TEST(Unwrap, ExtremeValuesDoNotCrash) {
+  // Huge bounds are clamped; infinities are unknown; phases out of [0, 2π) are reduced.
+  const SyntheticProbe probe = SyntheticProbe::ForSize(64, 48);
+  SyntheticScene s = MakeFringeScene(PlaneDepth(probe, 50.0, 0.0, 0.0), probe, Noise(12));
+  s.phase_min.setTo(-1e30f);
+  s.phase_max.setTo(1e30f);
+  s.phase_min.at<float>(3, 3) = -std::numeric_limits<float>::infinity();
+  s.phi.at<float>(5, 5) = 1e6f;
+  s.phi.at<float>(6, 6) = -7.0f;
+  cv::Mat q;
+  ASSERT_TRUE(ComputeQualityMap(s.phi, s.modulation, s.valid, {}, &q).ok());
+  UnwrapResult r;
+  ASSERT_TRUE(UnwrapPhase(s.phi, q, s.marker, s.phase_min, s.phase_max, {}, &r).ok());
+  EXPECT_EQ(r.stats.pixels_valid, cv::countNonZero(r.order != -1));
+}
+
+}  // namespace
+}  // namespace d3d
