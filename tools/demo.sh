@@ -7,7 +7,7 @@ set -euo pipefail
 source "$(dirname "$0")/lib/setup.sh"
 model=typodont
 out="$D3D_ROOT/demo_out"
-frames=60
+frames=30
 while (($#)); do
   case "$1" in
     --model) model="$2"; shift 2 ;;
@@ -20,11 +20,11 @@ done
 d3d_install_deps
 d3d_build
 rm -rf "$out"
-# Two seconds of the scan, starting 10 s in (over the molars and premolars).
+# One second of the scan, starting 10 s in (over the molars and premolars).
 "$D3D_ROOT/build/bin/d3d-sim" --model "$model" --trajectory full-arch --index 300 --frames "$frames" --seed 1 \
   --out "$out" --quiet
 echo
-echo "demo: bursts      $out/bursts/ (frame_0..3.png, burst.json, truth_0/)"
+echo "demo: bursts      $out/bursts/ (frame_0..3.png, burst.json, truth_ref/ ground truth at mid-burst)"
 echo "demo: calibration $out/calibration.json"
 echo "demo: trajectory  $out/trajectory.tum (true poses)"
 echo "demo: preview     $out/preview.png"

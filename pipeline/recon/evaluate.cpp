@@ -6,7 +6,7 @@
 
 namespace d3d {
 
-CloudErrors EvaluateCloud(const cv::Mat& points, const cv::Mat& order, const FrameTruth& truth,
+CloudErrors EvaluateCloud(const cv::Mat& points, const cv::Mat& Phi, const FrameTruth& truth,
                           const TriangleMesh& scene, const FringePatternSpec& spec, cv::Mat* error_um) {
   CloudErrors e;
   const Eigen::Matrix3d cam_from_world = truth.world_from_probe.rotation().transpose();
@@ -45,12 +45,10 @@ CloudErrors EvaluateCloud(const cv::Mat& points, const cv::Mat& order, const Fra
       sum += um;
       sum2 += um * um;
       ++e.points;
-      if (!order.empty() && vis == 2) {
-        const int k = order.at<int32_t>(r, c);
+      if (!Phi.empty() && vis == 2 && std::isfinite(Phi.at<float>(r, c))) {
         const double true_phase = spec.AbsolutePhase(truth.projector_uv.at<cv::Vec2f>(r, c)[spec.axis == 'y' ? 1 : 0]);
-        const int true_k = static_cast<int>(std::floor(true_phase / (2.0 * M_PI)));
         ++e.order_checked;
-        e.order_errors += k != true_k;
+        e.order_errors += std::abs(Phi.at<float>(r, c) - true_phase) > M_PI;
       }
     }
   if (e.points > 0) {

@@ -20,17 +20,18 @@ struct CloudErrors {
   int64_t spurious = 0;            // reconstructed points where the truth has no surface
   double rms_um = 0, mean_um = 0, mean_abs_um = 0, p95_um = 0, max_um = 0;  // |d| statistics, µm
   int64_t order_checked = 0;       // points with a true projector coordinate
-  int64_t order_errors = 0;        // of those, fringe order ≠ truth
+  int64_t order_errors = 0;        // of those, |Φ − Φ_true| > π: a wrong fringe order (comparing
+                                   // k with floor(Φ_true/2π) would count noise across a wrap)
   double order_error_pct = 0;
   int64_t tooth_lit = 0;           // truth: tooth pixels lit by the projector
   int64_t tooth_valid = 0;         // of those, reconstructed
   double tooth_valid_pct = 0;
 };
 
-// points_in_cam: H×W CV_32FC3 (NaN = no point); order: H×W CV_32S fringe order k (−1 = none) or
+// points_in_cam: H×W CV_32FC3 (NaN = no point); Phi: H×W CV_32F absolute phase (NaN = none) or
 // empty; truth: FrameTruth at the reference time with maps; scene: the mesh the truth refers to.
 // error_um (optional): H×W CV_32F signed distance in µm, NaN where not evaluated.
-CloudErrors EvaluateCloud(const cv::Mat& points_in_cam, const cv::Mat& order, const FrameTruth& truth,
+CloudErrors EvaluateCloud(const cv::Mat& points_in_cam, const cv::Mat& Phi, const FrameTruth& truth,
                           const TriangleMesh& scene, const FringePatternSpec& spec, cv::Mat* error_um = nullptr);
 
 // A colour heat map of signed errors (blue −range … green 0 … red +range µm; black where NaN).

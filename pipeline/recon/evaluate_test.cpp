@@ -5,18 +5,15 @@
 #include <cmath>
 #include <random>
 
+#include "firmware/sim/render/test_scenes.h"
 #include "firmware/sim/render/virtual_probe.h"
 
 namespace d3d {
 namespace {
 
 TEST(EvaluateCloud, KnownOffsetsAlongTheNormalAndWrongOrders) {
-  TriangleMesh plane;
-  const Eigen::Vector3d n = Eigen::Vector3d(0.2, -0.1, -1).normalized(), a = n.unitOrthogonal(), b = n.cross(a);
-  const Eigen::Vector3d o(0, 0, 50);
-  plane.vertices = {o - 80 * a - 80 * b, o + 80 * a - 80 * b, o + 80 * a + 80 * b, o - 80 * a + 80 * b};
-  plane.faces = {{0, 1, 2}, {0, 2, 3}};
-  plane.face_labels = {SurfaceLabel::kTooth, SurfaceLabel::kTooth};
+  const Eigen::Vector3d n = Eigen::Vector3d(0.2, -0.1, -1).normalized(), a = n.unitOrthogonal();
+  const TriangleMesh plane = PlaneMesh(n, {0, 0, 50});
   RenderOptions opt;
   opt.texture = false;
   VirtualProbe probe(plane, MakeDefaultProbeDesign(), opt);
@@ -25,7 +22,7 @@ TEST(EvaluateCloud, KnownOffsetsAlongTheNormalAndWrongOrders) {
   // Move every lit truth point by +10 µm along the normal (toward the camera) and slide it
   // sideways by 30 µm within the plane (must not count), and give 1 in 1000 a wrong order.
   const auto& spec = probe.calibration().pattern;
-  cv::Mat points(t.depth_mm.size(), CV_32FC3, cv::Scalar::all(std::nan(""))), order(t.depth_mm.size(), CV_32S, cv::Scalar(-1));
+  cv::Mat points(t.depth_mm.size(), CV_32FC3, cv::Scalar::all(std::nan(""))), Phi(t.depth_mm.size(), CV_32F, cv::Scalar(std::nan("")));
   const Eigen::Vector3d toward = n.dot(Eigen::Vector3d(0, 0, 50)) > 0 ? -n : n;
   int lit = 0;
   for (int r = 0; r < points.rows; ++r)
@@ -34,11 +31,13 @@ TEST(EvaluateCloud, KnownOffsetsAlongTheNormalAndWrongOrders) {
       const cv::Vec3f& q = t.points_in_cam.at<cv::Vec3f>(r, c);
       const Eigen::Vector3d p = Eigen::Vector3d(q[0], q[1], q[2]) + 0.010 * toward + 0.030 * a;
       points.at<cv::Vec3f>(r, c) = cv::Vec3f(p.x(), p.y(), p.z());
-      const int k = static_cast<int>(std::floor(spec.AbsolutePhase(t.projector_uv.at<cv::Vec2f>(r, c)[0]) / (2 * M_PI)));
-      order.at<int32_t>(r, c) = (lit++ % 1000 == 0) ? k + 1 : k;
+      // Noise of 0.2 rad everywhere (across wraps too: not an order error), and a whole period off
+      // on 1 in 1000.
+      const double true_phase = spec.AbsolutePhase(t.projector_uv.at<cv::Vec2f>(r, c)[0]);
+      Phi.at<float>(r, c) = static_cast<float>(true_phase + ((r + c) % 2 ? 0.2 : -0.2) + ((lit++ % 1000 == 0) ? 2 * M_PI : 0.0));
     }
   cv::Mat err;
-  const CloudErrors e = EvaluateCloud(points, order, t, plane, spec, &err);
+  const CloudErrors e = EvaluateCloud(points, Phi, t, plane, spec, &err);
   EXPECT_EQ(e.points, lit);
   EXPECT_NEAR(e.rms_um, 10.0, 0.05);
   EXPECT_NEAR(e.mean_um, 10.0, 0.05);

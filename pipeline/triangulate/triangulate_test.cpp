@@ -4,19 +4,12 @@
 
 #include <cmath>
 
+#include "firmware/sim/render/test_scenes.h"
 #include "firmware/sim/render/virtual_probe.h"
 
 namespace d3d {
 namespace {
 
-TriangleMesh Plane(const Eigen::Vector3d& n_in, const Eigen::Vector3d& point) {
-  const Eigen::Vector3d n = n_in.normalized(), a = n.unitOrthogonal(), b = n.cross(a);
-  TriangleMesh m;
-  const double h = 80;
-  m.vertices = {point - h * a - h * b, point + h * a - h * b, point + h * a + h * b, point - h * a + h * b};
-  m.faces = {{0, 1, 2}, {0, 2, 3}};
-  return m;
-}
 
 // Truth Φ from the renderer's projector coordinate, back through the triangulator: the points must
 // come back to the truth surface points (both use the same calibration, exactly).
@@ -52,7 +45,7 @@ void ExpectRoundTrip(VirtualProbe& probe, int* checked) {
 TEST(Triangulate, PlaneRoundTripThroughBothDistortions) {
   RenderOptions o;
   o.texture = false;
-  VirtualProbe probe(Plane({0.3, -0.2, -1}, {0, 0, 50}), MakeDefaultProbeDesign(), o);
+  VirtualProbe probe(PlaneMesh({0.3, -0.2, -1}, {0, 0, 50}), MakeDefaultProbeDesign(), o);
   int checked = 0;
   ExpectRoundTrip(probe, &checked);
   EXPECT_GT(checked, 100000);
@@ -61,7 +54,7 @@ TEST(Triangulate, PlaneRoundTripThroughBothDistortions) {
 TEST(Triangulate, SphereRoundTrip) {
   RenderOptions o;
   o.texture = false;
-  VirtualProbe probe(Plane({0, 0, -1}, {0, 0, 57}), MakeDefaultProbeDesign(), o,
+  VirtualProbe probe(PlaneMesh({0, 0, -1}, {0, 0, 57}), MakeDefaultProbeDesign(), o,
                      {SceneSphere{{0.5, -0.3, 50.0}, 5.0, SurfaceLabel::kTooth}});
   int checked = 0;
   ExpectRoundTrip(probe, &checked);

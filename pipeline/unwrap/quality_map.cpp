@@ -7,13 +7,15 @@
 #include <stdexcept>
 #include <vector>
 
+#include <opencv2/imgproc.hpp>
+
 #include "pipeline/unwrap/wrap_util.h"
 
 namespace d3d {
 
 void QualityOptions::Check() const {
   const double all[] = {shadow_modulation, min_modulation, full_modulation, laplace_ref, max_laplace,
-                        saturation_level};
+                        saturation_level, modulation_edge_ratio, modulation_edge_min_dn};
   for (double v : all) D3D_CHECK_MSG(std::isfinite(v), "QualityOptions: non-finite value");
   D3D_CHECK_MSG(shadow_modulation >= 0 && shadow_modulation <= min_modulation,
                 "QualityOptions: need 0 <= shadow_modulation <= min_modulation, got "
@@ -26,6 +28,14 @@ void QualityOptions::Check() const {
   D3D_CHECK_MSG(max_laplace > 0, "QualityOptions: max_laplace must be > 0, got " << max_laplace);
   D3D_CHECK_MSG(saturation_level > 0,
                 "QualityOptions: saturation_level must be > 0, got " << saturation_level);
+  D3D_CHECK_MSG(modulation_edge_min_dn >= 0,
+                "QualityOptions: modulation_edge_min_dn must be >= 0, got " << modulation_edge_min_dn);
+  D3D_CHECK_MSG(modulation_edge_close == 0 || (modulation_edge_close >= 1 && modulation_edge_close <= 15 &&
+                                                 modulation_edge_close % 2 == 1),
+                "QualityOptions: modulation_edge_close must be 0 or odd in [1, 15], got "
+                    << modulation_edge_close);
+  D3D_CHECK_MSG(modulation_edge_ratio == 0 || modulation_edge_ratio > 1,
+                "QualityOptions: modulation_edge_ratio must be 0 (off) or > 1, got " << modulation_edge_ratio);
 }
 
 namespace {
@@ -93,6 +103,42 @@ Status ComputeQualityMap(const cv::Mat& phi, const cv::Mat& modulation, const cv
   const float inv_ref2 = static_cast<float>(1.0 / (options.laplace_ref * options.laplace_ref));
   const float max_d2 = static_cast<float>(options.max_laplace * options.max_laplace);
   const float sat = static_cast<float>(options.saturation_level);
+  const bool edge_test = options.modulation_edge_ratio > 1;
+  const float edge_hi = static_cast<float>(options.modulation_edge_ratio);
+  // B of a neighbour if it can enter the ratio test (finite, ≥ min_modulation), else NaN.
+  auto mod_at = [&](int yy, int xx) -> float {
+    if (yy < 0 || yy >= h || xx < 0 || xx >= w) return kNaN;
+    const float v = modulation.ptr<float>(yy)[xx];
+    return v >= min_mod && std::isfinite(v) ? v : kNaN;
+  };
+  // Modulation edges: the ratio max(t, 1/t), t = B(p+1)/B(p−1), along x and y (0 where a neighbour
+  // is unusable); a pixel is an edge if one exceeds `ratio` (and the B difference ≥ min_dn) and, when
+  // thinning, is not below its two neighbours' along the same axis.
+  std::vector<uint8_t> medge;
+  if (edge_test) {
+    const float edge_dn = static_cast<float>(options.modulation_edge_min_dn);
+    std::vector<float> gxs(static_cast<size_t>(w) * h), gys(static_cast<size_t>(w) * h);
+    for (int y = 0; y < h; ++y) {
+      for (int x = 0; x < w; ++x) {
+        auto g = [&](float a, float b2) {
+          const float t = b2 / a;
+          const float v = t > 1.0f ? t : 1.0f / t;
+          return v > edge_hi && std::fabs(b2 - a) >= edge_dn ? v : 0.0f;  // NaN → 0
+        };
+        gxs[static_cast<size_t>(y) * w + x] = g(mod_at(y, x - 1), mod_at(y, x + 1));
+        gys[static_cast<size_t>(y) * w + x] = g(mod_at(y - 1, x), mod_at(y + 1, x));
+      }
+    }
+    medge.assign(static_cast<size_t>(w) * h, 0);
+    for (size_t i = 0; i < medge.size(); ++i) medge[i] = (gxs[i] > 0 || gys[i] > 0) ? 255 : 0;
+    const int ks = options.modulation_edge_close;
+    if (ks > 1) {
+      cv::Mat m(h, w, CV_8UC1, medge.data());
+      const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(ks, ks));
+      // OpenCV's default border: neutral for both the dilation and the erosion.
+      cv::morphologyEx(m, m, cv::MORPH_CLOSE, kernel);
+    }
+  }
 
   // Five cleaned rows (y−2 .. y+2), each with two NaN border columns on both sides.
   const int rw = w + 4;
@@ -156,6 +202,8 @@ Status ComputeQualityMap(const cv::Mat& phi, const cv::Mat& modulation, const cv
           rs = QualityReason::kIsolated;
         } else if (dd > max_d2) {
           rs = QualityReason::kPhaseNoise;
+        } else if (edge_test && medge[static_cast<size_t>(y) * w + x] != 0) {
+          rs = QualityReason::kModulationEdge;
         } else {
           // B ≥ min_modulation > 0 and dd ≤ max_d2 keep the value > 0.
           value = std::min(1.0f, b[x] * inv_full) / (1.0f + dd * inv_ref2);

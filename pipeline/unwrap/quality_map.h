@@ -41,6 +41,8 @@ enum class QualityReason : uint8_t {
   kSaturated = 4,      // peak intensity ≥ saturation_level (only when `peak` is given)
   kPhaseNoise = 5,     // D > max_laplace: noise or a discontinuity
   kIsolated = 6,       // no second difference along either axis (too few usable neighbours)
+  kModulationEdge = 7, // B changes by more than modulation_edge_ratio across the pixel: an albedo
+                       // edge (tooth/gingiva) that may hide a depth step, see modulation_edge_ratio
 };
 
 struct QualityOptions {
@@ -50,9 +52,24 @@ struct QualityOptions {
   double laplace_ref = 0.6;        // rad; D at which Q_L = ½
   double max_laplace = 1.5;        // rad; D above: quality 0 (reason kPhaseNoise)
   double saturation_level = 254.5; // DN; peak ≥ this: saturated (only with a `peak` image)
+  // Albedo edges: where B(p+1)/B(p−1) along x or y (centred, both neighbours with B ≥
+  // min_modulation) lies outside [1/ratio, ratio], the pixel gets quality 0 (kModulationEdge). A
+  // tooth/gingiva border (albedo ≈ 0.70 vs 0.35) often carries a depth step of nearly a whole fringe
+  // that the optics blur into a smooth-looking phase ramp; the modulation step is sharp there, so the
+  // unwrapper's regions must not cross it. On a smooth surface B varies slowly (n_z, defocus).
+  // 0 = off.
+  double modulation_edge_ratio = 1.2;
+  // ... and only where the two neighbours' B also differ by at least this [DN] (B noise on dark
+  // gingiva would otherwise mark scattered pixels).
+  double modulation_edge_min_dn = 0.0;
+  // Morphological closing of the edge mask with a square of this side [px] (odd; 0 or 1 = none):
+  // fills the small gaps of a cut (noise, a corner where two borders meet) through which a region
+  // would leak around it without widening the cut.
+  int modulation_edge_close = 3;
 
   // Throws std::invalid_argument unless 0 ≤ shadow ≤ min, 0 < min < full, 0 < laplace_ref,
-  // 0 < max_laplace and saturation_level > 0 (all finite).
+  // 0 < max_laplace, saturation_level > 0, modulation_edge_ratio 0 or > 1, modulation_edge_min_dn ≥ 0
+  // and modulation_edge_close 0 or odd in [1, 15] (all finite).
   void Check() const;
 };
 

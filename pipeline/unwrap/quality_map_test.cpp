@@ -94,6 +94,31 @@ TEST(QualityMap, MarksPhaseJumpOfDepthStep) {
   }
 }
 
+TEST(QualityMap, MarksModulationEdge) {
+  // Smooth phase, B steps from 40 to 20 DN between rows 9 and 10 (tooth → gingiva albedo): the
+  // pixels beside the step are cut; a slow B gradient (10 % per pixel) is not.
+  const cv::Mat phi = Ramp(40, 20, 0.27, 0.05);
+  cv::Mat b(20, 40, CV_32FC1);
+  for (int y = 0; y < 20; ++y) {
+    for (int x = 0; x < 40; ++x) b.at<float>(y, x) = (y < 10 ? 40.0f : 20.0f) * std::pow(1.05f, x * 0.5f);
+  }
+  cv::Mat q, why;
+  ASSERT_TRUE(ComputeQualityMap(phi, b, cv::Mat(), {}, &q, &why).ok());
+  for (int x = 0; x < 40; ++x) {
+    EXPECT_EQ(q.at<float>(9, x), 0.0f);
+    EXPECT_EQ(q.at<float>(10, x), 0.0f);
+    EXPECT_EQ(why.at<uint8_t>(9, x), static_cast<uint8_t>(QualityReason::kModulationEdge));
+    EXPECT_GT(q.at<float>(5, x), 0.9f);
+    EXPECT_GT(q.at<float>(15, x), 0.5f);
+  }
+  // Off: no cut.
+  QualityOptions off;
+  off.modulation_edge_ratio = 0;
+  ASSERT_TRUE(ComputeQualityMap(phi, b, cv::Mat(), off, &q, &why).ok());
+  EXPECT_GT(q.at<float>(9, 20), 0.5f);
+  EXPECT_GT(q.at<float>(10, 20), 0.5f);
+}
+
 TEST(QualityMap, Masks) {
   const int w = 20, h = 10;
   cv::Mat phi = Ramp(w, h, 0.3, 0.1);

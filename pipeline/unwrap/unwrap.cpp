@@ -50,6 +50,8 @@ void UnwrapOptions::Check() const {
                 "UnwrapOptions: marker_depth_fraction must be in [0, 1], got " << marker_depth_fraction);
   D3D_CHECK_MSG(depth_fraction > 0.5 && depth_fraction <= 1,
                 "UnwrapOptions: depth_fraction must be in (0.5, 1], got " << depth_fraction);
+  D3D_CHECK_MSG(neck_radius >= 0 && neck_radius <= 8,
+                "UnwrapOptions: neck_radius must be in [0, 8], got " << neck_radius);
   D3D_CHECK_MSG(std::isfinite(volume_margin) && volume_margin >= 0,
                 "UnwrapOptions: volume_margin must be finite and >= 0, got " << volume_margin);
 }
@@ -457,6 +459,89 @@ void Unwrapper::AnchorRegion(RegionInfo* info, int region_id) {
   }
 }
 
+void Unwrapper::PruneNecks(const UnwrapResult& out) {
+  const size_t n = state_.size();
+  const int stride = stride_;
+  const int rho = options_.neck_radius;
+  keep_.assign(n, 1);
+  if (rho <= 0) return;
+  lab_.assign(n, -1);
+  bool any = false;
+  for (size_t i = 0; i < n; ++i) {
+    if (state_[i] != kMember) continue;
+    const int rid = region_[i];
+    if (out.regions[static_cast<size_t>(rid)].anchor != RegionAnchor::kMarker) continue;
+    lab_[i] = rid;
+    keep_[i] = 0;
+    any = true;
+  }
+  if (!any) return;
+  const int nb8[8] = {-1, 1, -stride, stride, -stride - 1, -stride + 1, stride - 1, stride + 1};
+  // Erosion by rho (3×3 square, rho times) within a region: a pixel stays if its 8 neighbours carry
+  // the same label. The padded border is −1, so indices stay in range for interior pixels.
+  ero_ = lab_;
+  tmp_.resize(n);
+  const int first = stride + 1, last = static_cast<int>(n) - stride - 1;
+  for (int it = 0; it < rho; ++it) {
+    std::fill(tmp_.begin(), tmp_.end(), -1);
+    for (int i = first; i < last; ++i) {
+      const int l = ero_[i];
+      if (l < 0) continue;
+      bool ok = true;
+      for (int d : nb8) ok = ok && ero_[i + d] == l;
+      tmp_[i] = ok ? l : -1;
+    }
+    ero_.swap(tmp_);
+  }
+  // 8-connected parts of the eroded regions, each checked against the marker for its region's K.
+  std::fill(tmp_.begin(), tmp_.end(), 0);  // visited
+  const double density = options_.marker_density;
+  const int votes = options_.min_marker_votes;
+  for (int s = first; s < last; ++s) {
+    if (ero_[s] < 0 || tmp_[s] != 0) continue;
+    const int l = ero_[s];
+    const int K = offsets_[static_cast<size_t>(l)];
+    stack_.clear();
+    stack_.push_back(s);
+    tmp_[s] = 1;
+    size_t head = 0;
+    int hits = 0, predicted = 0;
+    while (head < stack_.size()) {
+      const int i = stack_[head++];
+      const int16_t st = kstripe_[static_cast<size_t>(i)];
+      if (st != kNone && st - rel_[static_cast<size_t>(i)] == K) {
+        ++predicted;
+        hits += (edge_[static_cast<size_t>(i)] & kMarkerBit) != 0;
+      }
+      for (int d : nb8) {
+        const int j = i + d;
+        if (ero_[j] == l && tmp_[j] == 0) {
+          tmp_[j] = 1;
+          stack_.push_back(j);
+        }
+      }
+    }
+    if (hits >= votes && hits >= density * predicted) {
+      for (int i : stack_) keep_[static_cast<size_t>(i)] = 2;  // verified core
+    }
+  }
+  // Grow the verified cores back by rho within their region.
+  for (int it = 0; it < rho; ++it) {
+    const uint8_t mark = static_cast<uint8_t>(3 + it);
+    const uint8_t prev_lo = 2;
+    for (int i = first; i < last; ++i) {
+      if (keep_[i] != 0 || lab_[i] < 0) continue;
+      for (int d : nb8) {
+        const uint8_t k = keep_[i + d];
+        if (k >= prev_lo && k < mark && lab_[i + d] == lab_[i]) {
+          keep_[i] = mark;
+          break;
+        }
+      }
+    }
+  }
+}
+
 Status Unwrapper::Run(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker,
                       const cv::Mat& phase_min, const cv::Mat& phase_max, UnwrapResult* out) {
   if (out == nullptr) return InvalidArgument("UnwrapPhase: out is null");
@@ -509,13 +594,14 @@ Status Unwrapper::Run(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat&
         break;
     }
   }
+  PruneNecks(*out);
   out->Phi.create(h_, w_, CV_32FC1);
   out->order.create(h_, w_, CV_32SC1);
   out->region.create(h_, w_, CV_32SC1);
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const float two_pi = internal::kTwoPiF;
   const bool drop_outside = options_.drop_outside_volume;
-  int64_t usable = 0, valid = 0, outside = 0;
+  int64_t usable = 0, valid = 0, outside = 0, neck = 0;
   for (int y = 0; y < h_; ++y) {
     float* Phi = out->Phi.ptr<float>(y);
     int32_t* ord = out->order.ptr<int32_t>(y);
@@ -529,7 +615,9 @@ Status Unwrapper::Run(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat&
       if (state_[i] == kMember) {
         rid = region_[i];
         const int off = offsets_[rid];
-        if (off != INT_MIN) {
+        if (off != INT_MIN && keep_[i] == 0) {
+          ++neck;
+        } else if (off != INT_MIN) {
           const int kk = rel_[i] + off;
           const int16_t lo = klo_[i];
           if (drop_outside && lo != kUnknown && (kk < lo || kk > khi_[i])) {
@@ -550,6 +638,7 @@ Status Unwrapper::Run(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat&
   st.pixels_discontinuity = barrier_;
   st.pixels_valid = valid;
   st.pixels_outside = outside;
+  st.pixels_neck = neck;
   st.pixels_conflict = conflicts_;
   st.pixels_dropped = usable + barrier_ - valid;
   return Status::Ok();

@@ -40,6 +40,9 @@
 //        exactly one K is admissible at ≥ depth_fraction of the region's pixels with known bounds
 //        (and ≥ min_region_pixels of them have bounds), that K is taken.
 //     c. otherwise the region is rejected. Regions smaller than min_region_pixels are dropped.
+//     d. neck pruning (neck_radius): a marker-anchored region keeps only the parts that the marker
+//        verifies on their own, where parts are what is left after eroding the region by
+//        neck_radius (so narrow leaks separate them); the rest is dropped (pixels_neck).
 //  4. Output: Φ and k for the pixels of anchored regions; with drop_outside_volume, pixels whose Φ
 //     falls outside their own admissible range (outside the measurement volume) are dropped too.
 // Dropped pixels get Φ = NaN and k = −1: an order that cannot be trusted is never guessed.
@@ -101,6 +104,14 @@ struct UnwrapOptions {
   double depth_fraction = 0.97;        // share of bounded pixels that must admit a depth-only K
   double volume_margin = 0.0;          // rad added on both sides of [phase_min, phase_max]
   bool drop_outside_volume = true;     // drop pixels whose Φ lies outside their admissible range
+  // Neck pruning of marker-anchored regions (step 3c): a region that leaked around a cut through a
+  // gap of a few pixels (e.g. at an image border or where two tooth/gingiva borders meet) carries
+  // a wrong order beyond it. The region's mask is eroded by neck_radius px (square), the 8-connected
+  // parts of what remains are checked each on its own against the marker (≥ min_marker_votes hits
+  // at a density ≥ marker_density for the region's K), and only the parts that pass are kept,
+  // grown back by neck_radius within the region. Parts joined to the verified ones only through a
+  // neck at most 2·neck_radius px wide are dropped. 0 = off.
+  int neck_radius = 1;
 
   // Throws std::invalid_argument for values outside the documented ranges.
   void Check() const;
@@ -144,6 +155,7 @@ struct UnwrapStats {
   int64_t pixels_small = 0;     //   in regions too small
   int64_t pixels_rejected = 0;  //   in rejected regions
   int64_t pixels_outside = 0;   //   outside the measurement volume (drop_outside_volume)
+  int64_t pixels_neck = 0;      //   in parts of marker regions not verified on their own (neck_radius)
 };
 
 struct UnwrapResult {
@@ -179,6 +191,7 @@ class Unwrapper {
                const cv::Mat& phase_min, const cv::Mat& phase_max);
   void GrowRegion(int seed, UnwrapResult* out);
   void AnchorRegion(RegionInfo* info, int region_id);
+  void PruneNecks(const UnwrapResult& out);
 
   UnwrapOptions options_;
   int w_ = 0, h_ = 0, stride_ = 0;  // padded grid: (w+2)×(h+2), one unusable pixel of border
@@ -198,6 +211,9 @@ class Unwrapper {
   std::vector<int32_t> hist_;       // per-K histograms of one region
   std::vector<int32_t> predicted_, hits_;
   std::vector<int> offsets_;        // per region: K, or INT_MIN if not anchored
+  std::vector<int32_t> lab_, ero_, tmp_;  // neck pruning: region labels, eroded labels, scratch
+  std::vector<uint8_t> keep_;       // neck pruning: 1 = verified part of a marker region
+  std::vector<int32_t> stack_;      // neck pruning: flood-fill stack
   int64_t conflicts_ = 0;
 };
 

@@ -1,5 +1,7 @@
 #include "firmware/sim/render/virtual_probe.h"
 
+#include "firmware/sim/render/test_scenes.h"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -15,15 +17,7 @@ struct Plane {
   Eigen::Vector3d point;
 };
 
-TriangleMesh PlaneMesh(const Plane& p, double half = 80.0) {
-  const Eigen::Vector3d a = p.n.unitOrthogonal(), b = p.n.cross(a);
-  TriangleMesh m;
-  m.vertices = {p.point - half * a - half * b, p.point + half * a - half * b, p.point + half * a + half * b,
-                p.point - half * a + half * b};
-  m.faces = {{0, 1, 2}, {0, 2, 3}};
-  m.face_labels = {SurfaceLabel::kTooth, SurfaceLabel::kTooth};
-  return m;
-}
+TriangleMesh PlaneMesh(const Plane& p) { return ::d3d::PlaneMesh(p.n, p.point); }
 
 RenderOptions Ideal() {  // every effect off: the bare photometric model
   RenderOptions o;

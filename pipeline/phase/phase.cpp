@@ -1,0 +1,510 @@
+#include "pipeline/phase/phase.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <list>
+#include <mutex>
+#include <opencv2/imgproc.hpp>
+#include <sstream>
+#include <string>
+#include <utility>
+
+#include "pipeline/phase/phase_model.h"
+
+namespace d3d {
+
+using phase_internal::FastAtan2Pos;
+using phase_internal::FullEntry;
+using phase_internal::PhaseModel;
+using phase_internal::SubEntry;
+
+namespace {
+
+constexpr float kTwoPiF = 6.28318530717958647692f;
+constexpr float kMarkerEps = 0.01f;  // ε of the matched filter α = r·D/(D² + ε)
+constexpr int kKappaStride = 2;      // κ is fitted on every 2nd pixel of every 2nd row
+constexpr float kSuspect = 0.3f;     // |r| (B units) above which the N-step result is not trusted
+constexpr int kSuspectReach = 12;    // ... within this many px of a detected stripe
+constexpr int kScoreBox = 5;         // α is averaged over 5×5 px before the threshold
+
+inline float WrapPos(float a) {
+  a = a < 0.0f ? a + kTwoPiF : a;
+  return a >= kTwoPiF ? a - kTwoPiF : a;
+}
+
+// Position of a phase in a table of `bins` bins over [0, 2π): bin index and fraction.
+struct BinPos {
+  int i;
+  float t;
+};
+inline BinPos PhaseBin(float phi, float bins_per_rad, int bins) {
+  const float x = phi * bins_per_rad;
+  int i = static_cast<int>(x);
+  i = i < 0 ? 0 : (i >= bins ? bins - 1 : i);
+  return {i, x - static_cast<float>(i)};
+}
+
+// Nearest κ row of the tables (rows are 1.5/(rows−1) apart: 0.0125 by default).
+inline int KappaRow(float kappa, float rows_per_kappa, int rows) {
+  int j = static_cast<int>(kappa * rows_per_kappa + 0.5f);
+  return j < 0 ? 0 : (j >= rows ? rows - 1 : j);
+}
+
+// Linear interpolation in φ' within one κ row.
+inline FullEntry ReadFullRow(const FullEntry* row, BinPos b) {
+  const FullEntry& a = row[b.i];
+  const FullEntry& c = row[b.i + 1];
+  return {a.corr + b.t * (c.corr - a.corr), a.ginv + b.t * (c.ginv - a.ginv), a.e + b.t * (c.e - a.e),
+          a.e1 + b.t * (c.e1 - a.e1)};
+}
+inline SubEntry ReadSubRow(const SubEntry* row, BinPos b) {
+  const SubEntry& a = row[b.i];
+  const SubEntry& c = row[b.i + 1];
+  return {a.corr + b.t * (c.corr - a.corr), a.ginv + b.t * (c.ginv - a.ginv), a.e + b.t * (c.e - a.e),
+          a.d + b.t * (c.d - a.d), a.off + b.t * (c.off - a.off)};
+}
+
+std::string ModelKey(const FringePatternSpec& s, double gamma, bool marker, int bins, int rows) {
+  std::ostringstream os;
+  os.precision(17);
+  os << s.steps << '|' << s.fringe_period_px << '|' << (marker ? s.marker_frame : -1) << '|' << s.marker_width_periods
+     << '|' << gamma << '|' << bins << '|' << rows;
+  return os.str();
+}
+
+// Models are immutable once built: share them between estimators (the last few keys).
+std::shared_ptr<const PhaseModel> CachedModel(const FringePatternSpec& spec, double gamma, bool marker, int bins,
+                                              int rows) {
+  static std::mutex mutex;
+  static std::list<std::pair<std::string, std::shared_ptr<const PhaseModel>>> cache;
+  const std::string key = ModelKey(spec, gamma, marker, bins, rows);
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    for (auto it = cache.begin(); it != cache.end(); ++it)
+      if (it->first == key) {
+        cache.splice(cache.begin(), cache, it);
+        return cache.front().second;
+      }
+  }
+  auto model = std::make_shared<const PhaseModel>(spec, gamma, marker, bins, rows);
+  std::lock_guard<std::mutex> lock(mutex);
+  cache.emplace_front(key, model);
+  while (cache.size() > 8) cache.pop_back();
+  return model;
+}
+
+template <typename T>
+void ToFloat(const T* src, float* dst, int W) {
+  for (int x = 0; x < W; ++x) dst[x] = static_cast<float>(src[x]);
+}
+
+void Accumulate(const float* w, const std::vector<std::vector<float>>& f, int W, float* out) {
+  std::fill(out, out + W, 0.0f);
+  for (size_t n = 0; n < f.size(); ++n) {
+    const float c = w[n];
+    if (c == 0.0f) continue;
+    const float* src = f[n].data();
+    for (int x = 0; x < W; ++x) out[x] += c * src[x];
+  }
+}
+
+}  // namespace
+
+const char* PhaseAlgorithmName(PhaseAlgorithm algorithm) {
+  switch (algorithm) {
+    case PhaseAlgorithm::kStandard: return "standard";
+    case PhaseAlgorithm::kLutGamma: return "lut-gamma";
+    case PhaseAlgorithm::kAdaptiveHarmonic: return "adaptive-harmonic";
+  }
+  return "?";
+}
+
+void PhaseOptions::Check() const {
+  D3D_CHECK_MSG(algorithm == PhaseAlgorithm::kStandard || algorithm == PhaseAlgorithm::kLutGamma ||
+                    algorithm == PhaseAlgorithm::kAdaptiveHarmonic,
+                "unknown phase algorithm " << static_cast<int>(algorithm));
+  D3D_CHECK_MSG(std::isfinite(min_modulation_dn) && min_modulation_dn >= 0.0,
+                "min_modulation_dn must be ≥ 0, got " << min_modulation_dn);
+  D3D_CHECK_MSG(std::isfinite(saturation_dn) && saturation_dn >= 0.0, "saturation_dn must be ≥ 0, got " << saturation_dn);
+  D3D_CHECK_MSG(marker_threshold > 0.0 && marker_threshold < 2.0, "marker_threshold must be in (0, 2), got " << marker_threshold);
+  D3D_CHECK_MSG(marker_guard_px >= 0 && marker_guard_px <= 32, "marker_guard_px must be in [0, 32], got " << marker_guard_px);
+  D3D_CHECK_MSG(kappa_prior >= 0.0 && kappa_prior <= phase_internal::kKappaMax,
+                "kappa_prior must be in [0, " << phase_internal::kKappaMax << "], got " << kappa_prior);
+  D3D_CHECK_MSG(kappa_exclusion > 0.0, "kappa_exclusion must be > 0, got " << kappa_exclusion);
+  D3D_CHECK_MSG(kappa_tile_px >= 2 && kappa_tile_px <= 256, "kappa_tile_px must be in [2, 256], got " << kappa_tile_px);
+  D3D_CHECK_MSG(kappa_window_tiles >= 1 && kappa_window_tiles % 2 == 1 && kappa_window_tiles <= 63,
+                "kappa_window_tiles must be odd in [1, 63], got " << kappa_window_tiles);
+  D3D_CHECK_MSG(table_bins >= 64 && table_bins <= 65536, "table_bins must be in [64, 65536], got " << table_bins);
+  D3D_CHECK_MSG(table_rows >= 2 && table_rows <= 4096, "table_rows must be in [2, 4096], got " << table_rows);
+}
+
+std::vector<int> MarkerOrders(const FringePatternSpec& spec, double projector_extent_px) {
+  std::vector<int> orders;
+  if (!spec.HasMarker()) return orders;
+  const double last_order = std::floor((projector_extent_px - spec.phase_origin_px) / spec.fringe_period_px);
+  for (int k = spec.marker_first_order; k <= last_order; k += spec.marker_spacing_orders) {
+    orders.push_back(k);
+    if (spec.marker_spacing_orders == 0) break;
+  }
+  return orders;
+}
+
+struct PhaseEstimator::Impl {
+  FringePatternSpec spec;
+  PhaseOptions options;
+  double gamma = 1.0;
+  bool marker = false;  // detect the marker
+  std::shared_ptr<const PhaseModel> model;
+  // Scratch (reused between calls).
+  std::vector<std::vector<float>> frame_rows;
+  std::vector<float> acc_c, acc_s, acc_sum, acc_max;
+  cv::Mat residual, phi_sub, mod_sub, dc_sub, marker_raw, guard, near, invalid;
+  std::vector<double> num, den, cnt;
+  cv::Mat kappa_tiles;
+
+  Status Validate(const std::vector<cv::Mat>& frames, PhaseMaps* out) const;
+  void EstimateKappa(const PhaseMaps& out, int H, int W, cv::Mat* kappa);
+  void TileSums(const PhaseMaps& out, const cv::Mat* exclude_with, int H, int W);
+  cv::Mat SolveTiles(int TH, int TW, int window, const cv::Mat* fallback, double fallback_value) const;
+};
+
+PhaseEstimator::PhaseEstimator(const FringePatternSpec& spec, double projector_gamma, const PhaseOptions& options)
+    : impl_(std::make_unique<Impl>()) {
+  spec.Check();
+  options.Check();
+  D3D_CHECK_MSG(projector_gamma > 0.1 && projector_gamma < 10.0, "projector gamma " << projector_gamma << " is implausible");
+  D3D_CHECK_MSG(!(spec.HasMarker() && options.detect_marker) || spec.steps >= 4,
+                "marker detection needs N ≥ 4 phase steps, the spec has " << spec.steps
+                                                                          << " (set detect_marker = false or marker_frame = -1)");
+  impl_->spec = spec;
+  impl_->options = options;
+  impl_->gamma = projector_gamma;
+  impl_->marker = spec.HasMarker() && options.detect_marker;
+  impl_->model = CachedModel(spec, projector_gamma, impl_->marker, options.table_bins, options.table_rows);
+}
+
+PhaseEstimator::~PhaseEstimator() = default;
+PhaseEstimator::PhaseEstimator(PhaseEstimator&&) noexcept = default;
+PhaseEstimator& PhaseEstimator::operator=(PhaseEstimator&&) noexcept = default;
+
+const FringePatternSpec& PhaseEstimator::spec() const { return impl_->spec; }
+const PhaseOptions& PhaseEstimator::options() const { return impl_->options; }
+double PhaseEstimator::projector_gamma() const { return impl_->gamma; }
+const std::vector<double>& PhaseEstimator::harmonic_ratios() const { return impl_->model->harmonic_ratios(); }
+
+Status PhaseEstimator::Impl::Validate(const std::vector<cv::Mat>& frames, PhaseMaps* out) const {
+  if (out == nullptr) return InvalidArgument("phase: no output PhaseMaps given");
+  if (frames.empty()) return InvalidArgument("phase: no frames given");
+  if (static_cast<int>(frames.size()) != spec.steps)
+    return InvalidArgument("phase: got " + std::to_string(frames.size()) + " frames, the pattern '" + spec.name +
+                           "' has " + std::to_string(spec.steps) + " steps");
+  for (size_t n = 0; n < frames.size(); ++n) {
+    const cv::Mat& f = frames[n];
+    if (f.empty()) return InvalidArgument("phase: frame " + std::to_string(n) + " is empty");
+    if (f.type() != CV_8UC1 && f.type() != CV_16UC1)
+      return InvalidArgument("phase: frame " + std::to_string(n) + " has type " + cv::typeToString(f.type()) +
+                             ", expected CV_8UC1 or CV_16UC1");
+    if (f.size() != frames[0].size())
+      return InvalidArgument("phase: frame " + std::to_string(n) + " is " + std::to_string(f.cols) + "x" +
+                             std::to_string(f.rows) + ", frame 0 is " + std::to_string(frames[0].cols) + "x" +
+                             std::to_string(frames[0].rows));
+    if (f.type() != frames[0].type())
+      return InvalidArgument("phase: frame " + std::to_string(n) + " has type " + cv::typeToString(f.type()) +
+                             ", frame 0 has " + cv::typeToString(frames[0].type()));
+  }
+  return Status::Ok();
+}
+
+// Tile sums of the κ fit e ≈ κ·b, b = B'·E_1(φ') (B', φ' the raw N-step estimates), over valid pixels
+// (every kKappaStride-th), leaving out pixels with |e − κ_tile·b| > kappa_exclusion·B' when
+// `exclude_with` (tile κ) is given.
+void PhaseEstimator::Impl::TileSums(const PhaseMaps& out, const cv::Mat* exclude_with, int H, int W) {
+  const int t = options.kappa_tile_px;
+  const int TW = (W + t - 1) / t, TH = (H + t - 1) / t;
+  num.assign(static_cast<size_t>(TW) * TH, 0.0);
+  den.assign(num.size(), 0.0);
+  cnt.assign(num.size(), 0.0);
+  const PhaseModel& m = *model;
+  const float bins_per_rad = static_cast<float>(m.bins() / (2.0 * M_PI));
+  const float rows_per_kappa = static_cast<float>(1.0 / m.KappaStep());
+  const int prior_row = KappaRow(static_cast<float>(options.kappa_prior), rows_per_kappa, m.rows());
+  const float min_mod = static_cast<float>(options.min_modulation_dn);
+  const float excl = static_cast<float>(options.kappa_exclusion);
+  for (int y = kKappaStride / 2; y < H; y += kKappaStride) {
+    const float* phi = out.phi.ptr<float>(y);
+    const float* mod = out.modulation.ptr<float>(y);
+    const float* e = residual.ptr<float>(y);
+    const uint8_t* sat = out.saturated.ptr<uint8_t>(y);
+    const float* kt = exclude_with ? exclude_with->ptr<float>(y / t) : nullptr;
+    double* tn = &num[static_cast<size_t>(y / t) * TW];
+    double* td = &den[static_cast<size_t>(y / t) * TW];
+    double* tc = &cnt[static_cast<size_t>(y / t) * TW];
+    for (int x = kKappaStride / 2; x < W; x += kKappaStride) {
+      if (sat[x] || !(mod[x] >= min_mod)) continue;
+      // Φ and B through the current κ (the N-step distortion depends on it), basis E(Φ; 1).
+      const FullEntry f = ReadFullRow(m.full_row(kt ? KappaRow(kt[x / t], rows_per_kappa, m.rows()) : prior_row),
+                                      PhaseBin(phi[x], bins_per_rad, m.bins()));
+      const float b = mod[x] * f.ginv * f.e1;
+      if (kt && std::abs(e[x] - mod[x] * f.ginv * f.e) > excl * mod[x] * f.ginv) continue;
+      tn[x / t] += static_cast<double>(e[x]) * b;
+      td[x / t] += static_cast<double>(b) * b;
+      tc[x / t] += 1.0;
+    }
+  }
+}
+
+// κ per tile from the sums over a window of tiles; tiles without enough support get the fallback
+// tile map's value (or fallback_value).
+cv::Mat PhaseEstimator::Impl::SolveTiles(int TH, int TW, int window, const cv::Mat* fallback,
+                                         double fallback_value) const {
+  const int half = window / 2;  // window = 2·half + 1
+  const int t = options.kappa_tile_px;
+  const double min_count = std::max(8.0, (2.0 * half + 1) * (2.0 * half + 1) * t * t / (kKappaStride * kKappaStride) / 8.0);
+  // Window sums by separable box filters over the tile grids (zero outside).
+  cv::Mat sums[3];
+  const std::vector<double>* grids[3] = {&num, &den, &cnt};
+  for (int g = 0; g < 3; ++g)
+    cv::boxFilter(cv::Mat(TH, TW, CV_64F, const_cast<double*>(grids[g]->data())), sums[g], CV_64F, cv::Size(window, window),
+                  cv::Point(-1, -1), false, cv::BORDER_CONSTANT);
+  cv::Mat k(TH, TW, CV_32F);
+  for (int ty = 0; ty < TH; ++ty)
+    for (int tx = 0; tx < TW; ++tx) {
+      const double n = sums[0].at<double>(ty, tx), d = sums[1].at<double>(ty, tx), c = sums[2].at<double>(ty, tx);
+      const double kappa = c >= min_count && d > 0.0 ? n / d : fallback ? fallback->at<float>(ty, tx) : fallback_value;
+      k.at<float>(ty, tx) = static_cast<float>(std::clamp(kappa, 0.0, phase_internal::kKappaMax));
+    }
+  return k;
+}
+
+void PhaseEstimator::Impl::EstimateKappa(const PhaseMaps& out, int H, int W, cv::Mat* kappa) {
+  constexpr int kWideWindow = 11;
+  const int t = options.kappa_tile_px;
+  const int TW = (W + t - 1) / t, TH = (H + t - 1) / t;
+  const int local = options.kappa_window_tiles;
+  TileSums(out, nullptr, H, W);
+  const cv::Mat first = SolveTiles(TH, TW, local, nullptr, -1.0);
+  std::vector<float> supported;
+  for (int i = 0; i < first.rows * first.cols; ++i)
+    if (first.ptr<float>()[i] >= 0.0f && first.ptr<float>()[i] < phase_internal::kKappaMax) supported.push_back(first.ptr<float>()[i]);
+  double kappa0 = options.kappa_prior;
+  if (!supported.empty()) {
+    std::nth_element(supported.begin(), supported.begin() + supported.size() / 2, supported.end());
+    kappa0 = supported[supported.size() / 2];
+  }
+  const cv::Mat flat(TH, TW, CV_32F, cv::Scalar(kappa0));
+  TileSums(out, &flat, H, W);
+  const cv::Mat wide = SolveTiles(TH, TW, kWideWindow, &flat, kappa0);
+  TileSums(out, &wide, H, W);
+  kappa_tiles = SolveTiles(TH, TW, local, &wide, kappa0);
+  // Tile centres → pixels (bilinear); exact when W, H are multiples of the tile size.
+  cv::resize(kappa_tiles, *kappa, cv::Size(W, H), 0, 0, cv::INTER_LINEAR);
+}
+
+Status PhaseEstimator::Compute(const std::vector<cv::Mat>& frames, PhaseMaps* out) {
+  Impl& I = *impl_;
+  D3D_RETURN_IF_ERROR(I.Validate(frames, out));
+  const PhaseModel& m = *I.model;
+  const int N = I.spec.steps, H = frames[0].rows, W = frames[0].cols;
+  const bool wide = frames[0].depth() == CV_16U;
+  const float sat_dn = static_cast<float>(I.options.saturation_dn > 0 ? I.options.saturation_dn : (wide ? 65535.0 : 255.0));
+  const float min_mod = static_cast<float>(I.options.min_modulation_dn);
+  const PhaseAlgorithm alg = I.options.algorithm;
+  const bool marker = I.marker;
+  const bool need_kappa = m.has_residual() && m.residual_informative() &&
+                          (alg == PhaseAlgorithm::kAdaptiveHarmonic || marker);
+
+  out->phi.create(H, W, CV_32F);
+  out->modulation.create(H, W, CV_32F);
+  out->offset.create(H, W, CV_32F);
+  out->texture.create(H, W, wide ? CV_16U : CV_8U);
+  out->valid.create(H, W, CV_8U);
+  out->saturated.create(H, W, CV_8U);
+  out->marker.create(H, W, CV_8U);
+  out->marker.setTo(0);
+  if (need_kappa || m.has_residual()) I.residual.create(H, W, CV_32F);
+  if (marker) {
+    I.phi_sub.create(H, W, CV_32F);
+    I.mod_sub.create(H, W, CV_32F);
+    I.dc_sub.create(H, W, CV_32F);
+  }
+
+  // Pass 1: linear sums per pixel (vectorised row loops): raw N-step φ', B', mean, saturation,
+  // residual e, and the N−1-frame fit.
+  I.frame_rows.resize(N);
+  for (auto& r : I.frame_rows) r.resize(W);
+  I.acc_c.resize(W);
+  I.acc_s.resize(W);
+  I.acc_sum.resize(W);
+  I.acc_max.resize(W);
+  std::vector<float> ones(N, 1.0f / N);
+  for (int y = 0; y < H; ++y) {
+    for (int n = 0; n < N; ++n) {
+      if (wide)
+        ToFloat(frames[n].ptr<uint16_t>(y), I.frame_rows[n].data(), W);
+      else
+        ToFloat(frames[n].ptr<uint8_t>(y), I.frame_rows[n].data(), W);
+    }
+    float* C = I.acc_c.data();
+    float* S = I.acc_s.data();
+    float* mean = out->offset.ptr<float>(y);
+    float* mx = I.acc_max.data();
+    Accumulate(m.cos_w().data(), I.frame_rows, W, C);
+    Accumulate(m.sin_w().data(), I.frame_rows, W, S);
+    Accumulate(ones.data(), I.frame_rows, W, mean);
+    std::copy(I.frame_rows[0].begin(), I.frame_rows[0].end(), mx);
+    for (int n = 1; n < N; ++n) {
+      const float* f = I.frame_rows[n].data();
+      for (int x = 0; x < W; ++x) mx[x] = f[x] > mx[x] ? f[x] : mx[x];
+    }
+    float* phi = out->phi.ptr<float>(y);
+    float* mod = out->modulation.ptr<float>(y);
+    uint8_t* sat = out->saturated.ptr<uint8_t>(y);
+    for (int x = 0; x < W; ++x) {
+      phi[x] = FastAtan2Pos(S[x], C[x]);
+      mod[x] = std::sqrt(C[x] * C[x] + S[x] * S[x]);
+    }
+    for (int x = 0; x < W; ++x) sat[x] = static_cast<uint8_t>(-static_cast<int>(mx[x] >= sat_dn));
+    if (!I.residual.empty()) Accumulate(m.res_w().data(), I.frame_rows, W, I.residual.ptr<float>(y));
+    if (marker) {
+      Accumulate(m.sub_cos_w().data(), I.frame_rows, W, C);
+      Accumulate(m.sub_sin_w().data(), I.frame_rows, W, S);
+      Accumulate(m.sub_dc_w().data(), I.frame_rows, W, I.dc_sub.ptr<float>(y));
+      float* p3 = I.phi_sub.ptr<float>(y);
+      float* m3 = I.mod_sub.ptr<float>(y);
+      for (int x = 0; x < W; ++x) {
+        p3[x] = FastAtan2Pos(S[x], C[x]);
+        m3[x] = std::sqrt(C[x] * C[x] + S[x] * S[x]);
+      }
+    }
+  }
+
+  // Pass 2: harmonic attenuation κ.
+  if (need_kappa) {
+    I.EstimateKappa(*out, H, W, &out->kappa);
+  } else if (alg == PhaseAlgorithm::kAdaptiveHarmonic) {
+    out->kappa.create(H, W, CV_32F);
+    out->kappa.setTo(static_cast<float>(I.options.kappa_prior));
+  } else {
+    out->kappa.release();
+  }
+
+  const float bins_per_rad = static_cast<float>(m.bins() / (2.0 * M_PI));
+  const float rows_per_kappa = static_cast<float>(1.0 / m.KappaStep());
+  const int bins = m.bins(), rows = m.rows();
+  const FullEntry* lut_full = m.full_row(m.RowOf(1.0));
+  const SubEntry* lut_sub = marker ? m.sub_row(m.RowOf(1.0)) : nullptr;
+
+  // Pass 3: compensated N-step phase and modulation.
+  if (alg != PhaseAlgorithm::kStandard) {
+    for (int y = 0; y < H; ++y) {
+      float* phi = out->phi.ptr<float>(y);
+      float* mod = out->modulation.ptr<float>(y);
+      const float* kap = alg == PhaseAlgorithm::kAdaptiveHarmonic ? out->kappa.ptr<float>(y) : nullptr;
+      for (int x = 0; x < W; ++x) {
+        const BinPos b = PhaseBin(phi[x], bins_per_rad, bins);
+        const FullEntry e = ReadFullRow(kap ? m.full_row(KappaRow(kap[x], rows_per_kappa, rows)) : lut_full, b);
+        phi[x] = WrapPos(phi[x] + e.corr);
+        mod[x] *= e.ginv;
+      }
+    }
+  }
+
+  // Pass 4: marker detection against the adaptive model (whatever the phase algorithm).
+  if (marker) {
+    out->marker_score.create(H, W, CV_32F);
+    I.marker_raw.create(H, W, CV_8U);
+    const float thr = static_cast<float>(I.options.marker_threshold);
+    for (int y = 0; y < H; ++y) {
+      const float* p3 = I.phi_sub.ptr<float>(y);
+      const float* m3 = I.mod_sub.ptr<float>(y);
+      const float* e = I.residual.ptr<float>(y);
+      const float* kap = need_kappa ? out->kappa.ptr<float>(y) : nullptr;
+      const uint8_t* sat = out->saturated.ptr<uint8_t>(y);
+      float* score = out->marker_score.ptr<float>(y);
+      uint8_t* raw = I.marker_raw.ptr<uint8_t>(y);
+      const float kappa_const = static_cast<float>(I.options.kappa_prior);
+      for (int x = 0; x < W; ++x) {
+        const SubEntry s = ReadSubRow(m.sub_row(KappaRow(kap ? kap[x] : kappa_const, rows_per_kappa, rows)),
+                                      PhaseBin(p3[x], bins_per_rad, bins));
+        const float B = m3[x] * s.ginv;
+        float alpha = 0.0f;
+        bool suspect = false;
+        if (!sat[x] && B >= min_mod) {
+          const float r = (e[x] - B * s.e) / B;
+          alpha = r * s.d / (s.d * s.d + kMarkerEps);
+          suspect = std::abs(r) > kSuspect;
+        }
+        score[x] = alpha;
+        raw[x] = suspect ? 255 : 0;
+      }
+    }
+    // α averaged over 5×5 px (noise of low-modulation pixels, the blurred jump in a stripe's middle),
+    // thresholded, then a 3×3 closing and opening.
+    cv::blur(out->marker_score, out->marker_score, cv::Size(kScoreBox, kScoreBox), cv::Point(-1, -1), cv::BORDER_REPLICATE);
+    cv::compare(out->marker_score, thr, out->marker, cv::CMP_GT);
+    const cv::Mat k3 = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(3, 3));
+    cv::morphologyEx(out->marker, out->marker, cv::MORPH_CLOSE, k3);
+    cv::morphologyEx(out->marker, out->marker, cv::MORPH_OPEN, k3);
+    // The N−1-frame phase is used in the stripes dilated by the guard (transition pixels) and
+    // wherever the N frames contradict the non-marker model (|r| > kSuspect: a stripe's fringe
+    // missed by the detector, a partly marked pixel, a glint's edge).
+    // Only near detected stripes (kSuspectReach px): elsewhere |r| > kSuspect is mostly noise of
+    // low-modulation pixels, for which the N-step phase is the better one.
+    const int g = I.options.marker_guard_px;
+    if (g > 0)
+      cv::dilate(out->marker, I.guard, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * g + 1, 2 * g + 1)));
+    else
+      out->marker.copyTo(I.guard);
+    cv::dilate(out->marker, I.near, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * kSuspectReach + 1, 2 * kSuspectReach + 1)));
+    cv::bitwise_and(I.marker_raw, I.near, I.marker_raw);
+    cv::bitwise_or(I.guard, I.marker_raw, I.guard);
+
+    // Inside the guarded stripes: phase, modulation and offset from the N−1 unmarked frames.
+    for (int y = 0; y < H; ++y) {
+      const uint8_t* gd = I.guard.ptr<uint8_t>(y);
+      const float* p3 = I.phi_sub.ptr<float>(y);
+      const float* m3 = I.mod_sub.ptr<float>(y);
+      const float* dc = I.dc_sub.ptr<float>(y);
+      const float* kap = need_kappa ? out->kappa.ptr<float>(y) : nullptr;
+      float* phi = out->phi.ptr<float>(y);
+      float* mod = out->modulation.ptr<float>(y);
+      float* off = out->offset.ptr<float>(y);
+      for (int x = 0; x < W; ++x) {
+        if (!gd[x]) continue;
+        const BinPos b = PhaseBin(p3[x], bins_per_rad, bins);
+        SubEntry s{0.0f, 1.0f, 0.0f, 0.0f, 0.0f};
+        if (alg == PhaseAlgorithm::kLutGamma) {
+          s = ReadSubRow(lut_sub, b);
+        } else if (alg == PhaseAlgorithm::kAdaptiveHarmonic) {
+          s = ReadSubRow(m.sub_row(KappaRow(kap ? kap[x] : static_cast<float>(I.options.kappa_prior), rows_per_kappa, rows)), b);
+        }
+        phi[x] = WrapPos(p3[x] + s.corr);
+        mod[x] = m3[x] * s.ginv;
+        off[x] = dc[x] - mod[x] * s.off;
+      }
+    }
+  } else {
+    out->marker_score.release();
+  }
+
+  // Pass 5: validity, NaN where invalid, texture, counts (OpenCV's vectorised array operations).
+  cv::compare(out->modulation, min_mod, out->valid, cv::CMP_GE);
+  cv::bitwise_and(out->valid, out->saturated == 0, out->valid);
+  cv::bitwise_not(out->valid, I.invalid);
+  out->phi.setTo(std::numeric_limits<float>::quiet_NaN(), I.invalid);
+  out->marker.setTo(0, I.invalid);
+  out->num_valid = cv::countNonZero(out->valid);
+  out->num_saturated = cv::countNonZero(out->saturated);
+  out->offset.convertTo(out->texture, wide ? CV_16U : CV_8U);
+  out->num_marker = marker ? cv::countNonZero(out->marker) : 0;
+  return Status::Ok();
+}
+
+Status ComputePhase(const std::vector<cv::Mat>& frames, const FringePatternSpec& spec, double projector_gamma,
+                    const PhaseOptions& options, PhaseMaps* out) {
+  PhaseEstimator estimator(spec, projector_gamma, options);
+  return estimator.Compute(frames, out);
+}
+
+}  // namespace d3d
