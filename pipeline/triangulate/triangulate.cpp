@@ -58,15 +58,24 @@ double PhaseTriangulator::DepthForPhase(int col, int row, double Phi) const {
   double z = (b - m * f) / denom;  // undistorted projector: exact
   const double z_lo = calibration_.depth_min_mm - options_.depth_margin_mm;
   const double z_hi = calibration_.depth_max_mm + options_.depth_margin_mm;
-  for (int it = 0; it < options_.max_newton_steps; ++it) {
+  // First step: Newton with the pinhole derivative; then secant steps on the exact c(z), which
+  // converge superlinearly (the pinhole slope alone converges only linearly under distortion).
+  if (!(z > 0.0)) return kNaN;
+  double c = CodedCoordinate(r * z);
+  if (!std::isfinite(c)) return kNaN;
+  const double q = e * z + f;
+  const double dcdz = f_px * (a * f - b * e) / (q * q);  // c = centre + f_px (a z + b)/(e z + f)
+  if (std::abs(dcdz) < 1e-12) return kNaN;
+  double z_prev = z, c_prev = c;
+  z += (target - c) / dcdz;
+  for (int it = 1; it < options_.max_newton_steps; ++it) {
     if (!(z > 0.0)) return kNaN;
-    const double c = CodedCoordinate(r * z);
+    c = CodedCoordinate(r * z);
     if (!std::isfinite(c)) return kNaN;
-    // dc/dz of the pinhole model: c = centre + f_px (a z + b)/(e z + f).
-    const double q = e * z + f;
-    const double dcdz = f_px * (a * f - b * e) / (q * q);
-    if (std::abs(dcdz) < 1e-12) return kNaN;
-    const double step = (target - c) / dcdz;
+    if (std::abs(c - c_prev) < 1e-15) break;
+    const double step = (target - c) * (z - z_prev) / (c - c_prev);
+    z_prev = z;
+    c_prev = c;
     z += step;
     if (std::abs(step) < 1e-7) break;
   }

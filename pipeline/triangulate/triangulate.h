@@ -8,8 +8,8 @@
 //   1. closed form for the undistorted projector (a projective function of z): with
 //      P = proj_from_cam, a = (P.R r)_axis, b = (P.t)_axis, e = (P.R r)_z, f = (P.t)_z and
 //      m* = (c* − c_centre)/f_px the normalised target, z₀ = (b − m* f) / (m* e − a);
-//   2. Newton on the exact c(z) (distortion included), derivative by the pinhole model, until
-//      |Δz| < 1e-7 mm (two or three steps for real lenses).
+//   2. one Newton step on the exact c(z) (distortion included) with the pinhole derivative, then
+//      secant steps on the exact c(z) until |Δz| < 1e-7 mm (two or three for real lenses).
 // This is the "camera ray ∩ projector plane" of the issue, exact also when distortion bends the
 // projector's iso-phase surface.
 //
