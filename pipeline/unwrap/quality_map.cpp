@@ -7,8 +7,6 @@
 #include <stdexcept>
 #include <vector>
 
-#include <opencv2/imgproc.hpp>
-
 #include "pipeline/unwrap/wrap_util.h"
 
 namespace d3d {
@@ -30,10 +28,8 @@ void QualityOptions::Check() const {
                 "QualityOptions: saturation_level must be > 0, got " << saturation_level);
   D3D_CHECK_MSG(modulation_edge_min_dn >= 0,
                 "QualityOptions: modulation_edge_min_dn must be >= 0, got " << modulation_edge_min_dn);
-  D3D_CHECK_MSG(modulation_edge_close == 0 || (modulation_edge_close >= 1 && modulation_edge_close <= 15 &&
-                                                 modulation_edge_close % 2 == 1),
-                "QualityOptions: modulation_edge_close must be 0 or odd in [1, 15], got "
-                    << modulation_edge_close);
+  D3D_CHECK_MSG(modulation_edge_close == 0 || modulation_edge_close == 1,
+                "QualityOptions: modulation_edge_close must be 0 or 1, got " << modulation_edge_close);
   D3D_CHECK_MSG(modulation_edge_ratio == 0 || modulation_edge_ratio > 1,
                 "QualityOptions: modulation_edge_ratio must be 0 (off) or > 1, got " << modulation_edge_ratio);
 }
@@ -105,38 +101,45 @@ Status ComputeQualityMap(const cv::Mat& phi, const cv::Mat& modulation, const cv
   const float sat = static_cast<float>(options.saturation_level);
   const bool edge_test = options.modulation_edge_ratio > 1;
   const float edge_hi = static_cast<float>(options.modulation_edge_ratio);
-  // B of a neighbour if it can enter the ratio test (finite, ≥ min_modulation), else NaN.
-  auto mod_at = [&](int yy, int xx) -> float {
-    if (yy < 0 || yy >= h || xx < 0 || xx >= w) return kNaN;
-    const float v = modulation.ptr<float>(yy)[xx];
-    return v >= min_mod && std::isfinite(v) ? v : kNaN;
-  };
-  // Modulation edges: the ratio max(t, 1/t), t = B(p+1)/B(p−1), along x and y (0 where a neighbour
-  // is unusable); a pixel is an edge if one exceeds `ratio` (and the B difference ≥ min_dn) and, when
-  // thinning, is not below its two neighbours' along the same axis.
+  // Modulation edges: along x and y, the two neighbours' B (both finite and ≥ min_modulation)
+  // differ by more than the factor `ratio` (and by ≥ min_dn); bit 0 of medge. No division: both are
+  // > 0, so max(t, 1/t) > r with t = b/a is b > r·a or a > r·b.
   std::vector<uint8_t> medge;
   if (edge_test) {
     const float edge_dn = static_cast<float>(options.modulation_edge_min_dn);
-    std::vector<float> gxs(static_cast<size_t>(w) * h), gys(static_cast<size_t>(w) * h);
+    const float lo = min_mod;
+    auto step = [edge_hi, edge_dn, lo](float a, float b2) -> uint8_t {
+      // NaN fails every comparison: no edge.
+      return (a >= lo && b2 >= lo && (b2 > edge_hi * a || a > edge_hi * b2) && std::fabs(b2 - a) >= edge_dn)
+                 ? 1
+                 : 0;
+    };
+    medge.assign(static_cast<size_t>(w) * h, 0);
     for (int y = 0; y < h; ++y) {
-      for (int x = 0; x < w; ++x) {
-        auto g = [&](float a, float b2) {
-          const float t = b2 / a;
-          const float v = t > 1.0f ? t : 1.0f / t;
-          return v > edge_hi && std::fabs(b2 - a) >= edge_dn ? v : 0.0f;  // NaN → 0
-        };
-        gxs[static_cast<size_t>(y) * w + x] = g(mod_at(y, x - 1), mod_at(y, x + 1));
-        gys[static_cast<size_t>(y) * w + x] = g(mod_at(y - 1, x), mod_at(y + 1, x));
+      const float* bc = modulation.ptr<float>(y);
+      const float* bu = y > 0 ? modulation.ptr<float>(y - 1) : nullptr;
+      const float* bd = y + 1 < h ? modulation.ptr<float>(y + 1) : nullptr;
+      uint8_t* m = medge.data() + static_cast<size_t>(y) * w;
+      for (int x = 1; x + 1 < w; ++x) m[x] = step(bc[x - 1], bc[x + 1]);
+      if (bu != nullptr && bd != nullptr) {
+        for (int x = 0; x < w; ++x) m[x] |= step(bu[x], bd[x]);
       }
     }
-    medge.assign(static_cast<size_t>(w) * h, 0);
-    for (size_t i = 0; i < medge.size(); ++i) medge[i] = (gxs[i] > 0 || gys[i] > 0) ? 255 : 0;
-    const int ks = options.modulation_edge_close;
-    if (ks > 1) {
-      cv::Mat m(h, w, CV_8UC1, medge.data());
-      const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(ks, ks));
-      // OpenCV's default border: neutral for both the dilation and the erosion.
-      cv::morphologyEx(m, m, cv::MORPH_CLOSE, kernel);
+    if (options.modulation_edge_close != 0) {
+      // Bridge one-pixel gaps: decided on the unbridged mask (bit 0), marked in bit 1.
+      auto e = [&](int yy, int xx) {
+        return yy >= 0 && yy < h && xx >= 0 && xx < w && (medge[static_cast<size_t>(yy) * w + xx] & 1u) != 0;
+      };
+      for (int y = 0; y < h; ++y) {
+        for (int x = 0; x < w; ++x) {
+          uint8_t& m = medge[static_cast<size_t>(y) * w + x];
+          if (m != 0) continue;
+          if ((e(y, x - 1) && e(y, x + 1)) || (e(y - 1, x) && e(y + 1, x)) ||
+              (e(y - 1, x - 1) && e(y + 1, x + 1)) || (e(y - 1, x + 1) && e(y + 1, x - 1))) {
+            m = 2;
+          }
+        }
+      }
     }
   }
 

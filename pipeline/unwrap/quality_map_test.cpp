@@ -119,6 +119,26 @@ TEST(QualityMap, MarksModulationEdge) {
   EXPECT_GT(q.at<float>(10, 20), 0.5f);
 }
 
+TEST(QualityMap, BridgesOnePixelGapsOfAModulationEdge) {
+  // One dark pixel (B 20 in 40) at (9, 19): its four neighbours see a B step across themselves and
+  // are edge pixels; the pixel itself sees equal neighbours (a one-pixel gap between edge pixels)
+  // and is bridged only with modulation_edge_close.
+  const cv::Mat phi = Ramp(40, 20, 0.27, 0.05);
+  cv::Mat b = Const(40, 20, 40.0f);
+  b.at<float>(9, 19) = 20.0f;
+  cv::Mat q, why;
+  ASSERT_TRUE(ComputeQualityMap(phi, b, cv::Mat(), {}, &q, &why).ok());
+  EXPECT_EQ(why.at<uint8_t>(9, 18), static_cast<uint8_t>(QualityReason::kModulationEdge));
+  EXPECT_EQ(why.at<uint8_t>(9, 20), static_cast<uint8_t>(QualityReason::kModulationEdge));
+  EXPECT_EQ(why.at<uint8_t>(9, 19), static_cast<uint8_t>(QualityReason::kUsable));
+  QualityOptions bridge;
+  bridge.modulation_edge_close = 1;
+  ASSERT_TRUE(ComputeQualityMap(phi, b, cv::Mat(), bridge, &q, &why).ok());
+  EXPECT_EQ(why.at<uint8_t>(9, 19), static_cast<uint8_t>(QualityReason::kModulationEdge));
+  EXPECT_EQ(q.at<float>(9, 19), 0.0f);
+  EXPECT_EQ(why.at<uint8_t>(2, 5), static_cast<uint8_t>(QualityReason::kUsable));  // far: untouched
+}
+
 TEST(QualityMap, Masks) {
   const int w = 20, h = 10;
   cv::Mat phi = Ramp(w, h, 0.3, 0.1);

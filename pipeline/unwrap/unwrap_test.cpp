@@ -208,6 +208,63 @@ TEST(Unwrap, AlbedoEdgeWithHiddenNearIntegerStepIsNotCrossed) {
   EXPECT_TRUE(e0.wrong > 0 || Evaluate(s, r0, top).KeptShare() < 0.5);
 }
 
+TEST(Unwrap, NarrowLeakIntoAnUnverifiedPartIsPruned) {
+  // A plane with a stripe (top) and, 1.0 fringe further, a patch without any stripe (bottom, where
+  // neither its true orders nor those one off are stripe orders), joined only through a 2 px gap in
+  // an invalid band. The integer step leaves no trace in φ, so the region grows through the gap and
+  // the patch would inherit the top's offset, one order off. Neck pruning drops it.
+  const SyntheticProbe probe;
+  // Two whole planes composed at row 245 (a depth map with the step would darken the rows beside it).
+  SyntheticScene s = MakeFringeScene(PlaneDepth(probe, 48.0, 0.0, 0.0), probe, Noise(12));
+  const SyntheticScene far =
+      MakeFringeScene(PlaneDepth(probe, DepthForShift(probe, 48.0, 1.0), 0.0, 0.0), probe, Noise(13));
+  const cv::Rect lower(0, 245, 640, 235);
+  for (auto [dst, src] : {std::pair{&s.depth, &far.depth}, {&s.Phi_true, &far.Phi_true},
+                          {&s.order_true, &far.order_true}, {&s.phi, &far.phi},
+                          {&s.modulation, &far.modulation}, {&s.valid, &far.valid},
+                          {&s.marker, &far.marker}, {&s.phase_min, &far.phase_min},
+                          {&s.phase_max, &far.phase_max}}) {
+    (*src)(lower).copyTo((*dst)(lower));
+  }
+  // A 150 px wide window of the bottom whose orders k and k − 1 avoid every stripe order.
+  int x0 = -1;
+  for (int x = 0; x + 150 <= 640 && x0 < 0; x += 5) {
+    bool clear = true;
+    for (int xx = x; xx < x + 150 && clear; ++xx) {
+      const int k = s.order_true.at<int32_t>(300, xx);
+      for (int km = probe.marker_first_order; km <= 40; km += probe.marker_spacing_orders) {
+        clear = clear && k != km && k - 1 != km;
+      }
+    }
+    if (clear) x0 = x;
+  }
+  ASSERT_GE(x0, 0);
+  cv::Mat invalid = cv::Mat::zeros(480, 640, CV_8UC1);
+  invalid(cv::Rect(0, 240, 640, 240)).setTo(255);
+  invalid(cv::Rect(x0, 250, 150, 230)).setTo(0);     // the patch
+  invalid(cv::Rect(x0 + 74, 240, 2, 10)).setTo(0);   // the 2 px gap
+  s.phi.setTo(kNaN, invalid);
+  s.valid.setTo(0, invalid);
+  s.marker.setTo(0, invalid);
+  cv::Mat patch = cv::Mat::zeros(480, 640, CV_8UC1), top = patch.clone();
+  patch(cv::Rect(x0, 250, 150, 230)).setTo(255);
+  top(cv::Rect(0, 0, 640, 240)).setTo(255);
+  ASSERT_GT(cv::countNonZero(s.marker & top), 1000);
+
+  UnwrapOptions no_prune;
+  no_prune.neck_radius = 0;
+  const Eval e0 = Evaluate(s, RunAll(s, no_prune), patch);
+  EXPECT_GT(e0.wrong, 10000) << "without pruning the patch should inherit a wrong order";
+
+  const UnwrapResult r = RunAll(s);
+  const Eval e = Evaluate(s, r);
+  EXPECT_EQ(e.wrong, 0);
+  EXPECT_EQ(Evaluate(s, r, patch).kept, 0);
+  EXPECT_GT(Evaluate(s, r, top).KeptShare(), 0.95);
+  EXPECT_GT(r.stats.pixels_neck, 10000);
+  if (HasFailure()) DumpRegions(r);
+}
+
 TEST(Unwrap, SeparatedTeethOnlySomeWithMarker) {
   const SyntheticProbe probe;
   const cv::Mat depth = TeethDepth(probe, 4, 12.0, 7);
