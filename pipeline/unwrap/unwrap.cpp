@@ -40,6 +40,8 @@ void UnwrapOptions::Check() const {
                 "UnwrapOptions: min_region_pixels must be >= 1, got " << min_region_pixels);
   D3D_CHECK_MSG(min_marker_votes >= 1,
                 "UnwrapOptions: min_marker_votes must be >= 1, got " << min_marker_votes);
+  D3D_CHECK_MSG(marker_max_stripe_share > 0 && marker_max_stripe_share <= 1,
+                "UnwrapOptions: marker_max_stripe_share must be in (0, 1], got " << marker_max_stripe_share);
   D3D_CHECK_MSG(marker_density > 0 && marker_density <= 1,
                 "UnwrapOptions: marker_density must be in (0, 1], got " << marker_density);
   D3D_CHECK_MSG(marker_rival_votes >= 1,
@@ -437,8 +439,9 @@ void Unwrapper::AnchorRegion(RegionInfo* info, int region_id) {
       }
     }
     const bool dense = hits_[best] >= options_.marker_density * predicted_[best];
+    const bool extends_beyond = predicted_[best] <= options_.marker_max_stripe_share * info->pixels;
     const bool depth_ok = bounded == 0 || hist_[best] >= options_.marker_depth_fraction * bounded;
-    info->anchor = dense && !rival && depth_ok ? RegionAnchor::kMarker : RegionAnchor::kMarkerConflict;
+    info->anchor = dense && !rival && depth_ok && extends_beyond ? RegionAnchor::kMarker : RegionAnchor::kMarkerConflict;
     return;
   }
   if (bounded < options_.min_region_pixels) return;  // kAmbiguous
@@ -521,7 +524,9 @@ void Unwrapper::PruneNecks(const UnwrapResult& out) {
         }
       }
     }
-    if (hits >= votes && hits >= density * predicted) {
+    // Same test as AnchorRegion's: enough hits, dense, and the piece reaches beyond the stripe.
+    if (hits >= votes && hits >= density * predicted &&
+        predicted <= options_.marker_max_stripe_share * static_cast<double>(stack_.size())) {
       for (int i : stack_) keep_[static_cast<size_t>(i)] = 2;  // verified core
     }
   }

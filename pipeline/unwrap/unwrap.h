@@ -98,6 +98,12 @@ struct UnwrapOptions {
   // that grew across a hidden near-integer jump is rejected); assumes a detector that finds ≳ 90 %
   // of the stripe-core pixels.
   double marker_density = 0.9;
+  // A region anchored by marker must reach beyond the stripe: its pixels predicted in the stripe
+  // may be at most this share of the region. A region lying inside a stripe (a fragment cut out by
+  // quality, or a false detection blob) shows no stripe edge, so its order is not verified and it
+  // is dropped (seen on noise-free renders: a 572-px fragment with 561 stripe pixels and 58 % of its
+  // pixels one order off).
+  double marker_max_stripe_share = 0.6;
   int marker_rival_votes = 10;      // another K with this many hits ...
   double marker_rival_density = 0.2;  // ... at this density rejects the region
   double marker_depth_fraction = 0.8;  // share of bounded pixels that must admit the marker's K

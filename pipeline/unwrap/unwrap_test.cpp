@@ -129,6 +129,43 @@ TEST(Unwrap, TiltedPlaneAnchoredByMarker) {
                                         r.stats.pixels_outside + r.stats.pixels_neck);
 }
 
+// A fragment that lies inside a marker stripe (cut out of the surface around it) shows no stripe
+// edge: its order cannot be verified by the marker, so it is dropped, never anchored.
+TEST(Unwrap, FragmentInsideAStripeIsNotAnchoredByIt) {
+  const SyntheticProbe probe;
+  SyntheticScene s = MakeFringeScene(PlaneDepth(probe, 50.0, 0.004, -0.003), probe, Noise());
+  int inside = 0;
+  for (int y = 0; y < s.phi.rows; ++y)
+    for (int x = 0; x < s.phi.cols; ++x) {
+      const bool keep = s.order_true.at<int32_t>(y, x) == 14 && y >= 120 && y < 360;  // the order-14 stripe
+      if (!keep) {
+        s.valid.at<uint8_t>(y, x) = 0;
+        s.phi.at<float>(y, x) = std::nanf("");
+      }
+      inside += keep;
+    }
+  ASSERT_GT(inside, 2000);
+  const UnwrapResult r = RunAll(s);
+  EXPECT_EQ(r.stats.pixels_valid, 0) << "a stripe fragment must not anchor itself";
+  EXPECT_EQ(r.stats.regions_marker, 0);
+  UnwrapOptions no_rule;
+  no_rule.marker_max_stripe_share = 1.0;  // without the rule the stripe alone "anchors" the fragment
+  EXPECT_GT(RunAll(s, no_rule).stats.pixels_valid, 0);
+  // The same fragment with a band of surface on both sides of the stripe is anchored.
+  SyntheticScene wide = MakeFringeScene(PlaneDepth(probe, 50.0, 0.004, -0.003), probe, Noise());
+  for (int y = 0; y < wide.phi.rows; ++y)
+    for (int x = 0; x < wide.phi.cols; ++x) {
+      const int k = wide.order_true.at<int32_t>(y, x);
+      if (!(k >= 12 && k <= 16 && y >= 120 && y < 360)) {
+        wide.valid.at<uint8_t>(y, x) = 0;
+        wide.phi.at<float>(y, x) = std::nanf("");
+      }
+    }
+  const UnwrapResult w = RunAll(wide);
+  EXPECT_EQ(Evaluate(wide, w).wrong, 0);
+  EXPECT_EQ(w.stats.regions_marker, 1);
+}
+
 TEST(Unwrap, SphereCap) {
   const SyntheticProbe probe;
   const SyntheticScene s = MakeFringeScene(SphereDepth(probe, 300, 250, 6.0, 47.0), probe, Noise(2));
