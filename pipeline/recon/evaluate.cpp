@@ -72,7 +72,7 @@ cv::Mat ErrorHeatMap(const cv::Mat& error_um, double range_um) {
   error_um.convertTo(scaled, CV_8U, 127.5 / range_um, 127.5);
   cv::Mat colour;
   cv::applyColorMap(scaled, colour, cv::COLORMAP_JET);
-  colour.setTo(cv::Scalar(0, 0, 0), error_um != error_um);  // NaN
+  colour.setTo(cv::Scalar(0, 0, 0), ~(error_um == error_um));  // NaN (NaN == NaN is false)
   return colour;
 }
 

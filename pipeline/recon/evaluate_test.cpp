@@ -36,6 +36,8 @@ TEST(EvaluateCloud, KnownOffsetsAlongTheNormalAndWrongOrders) {
       const double true_phase = spec.AbsolutePhase(t.projector_uv.at<cv::Vec2f>(r, c)[0]);
       Phi.at<float>(r, c) = static_cast<float>(true_phase + ((r + c) % 2 ? 0.2 : -0.2) + ((lit++ % 1000 == 0) ? 2 * M_PI : 0.0));
     }
+  points.at<cv::Vec3f>(0, 0) = cv::Vec3f(std::nanf(""), std::nanf(""), std::nanf(""));  // one pixel without a point
+  --lit;
   cv::Mat err;
   const CloudErrors e = EvaluateCloud(points, Phi, t, plane, spec, &err);
   EXPECT_EQ(e.points, lit);
@@ -43,8 +45,19 @@ TEST(EvaluateCloud, KnownOffsetsAlongTheNormalAndWrongOrders) {
   EXPECT_NEAR(e.mean_um, 10.0, 0.05);
   EXPECT_NEAR(e.p95_um, 10.0, 0.05);
   EXPECT_NEAR(e.order_error_pct, 0.1, 0.01);
-  EXPECT_NEAR(e.tooth_valid_pct, 100.0, 1e-9);
-  EXPECT_EQ(ErrorHeatMap(err, 25.0).type(), CV_8UC3);
+  EXPECT_NEAR(e.tooth_valid_pct, 100.0, 1e-3);
+  const cv::Mat heat = ErrorHeatMap(err, 25.0);
+  EXPECT_EQ(heat.type(), CV_8UC3);
+  int nan_r = -1, nan_c = -1;  // a pixel without a point is drawn black
+  for (int r = 0; r < err.rows && nan_r < 0; ++r)
+    for (int c = 0; c < err.cols; ++c)
+      if (std::isnan(err.at<float>(r, c))) {
+        nan_r = r;
+        nan_c = c;
+        break;
+      }
+  ASSERT_GE(nan_r, 0);
+  EXPECT_EQ(heat.at<cv::Vec3b>(nan_r, nan_c), cv::Vec3b(0, 0, 0));
 }
 
 }  // namespace

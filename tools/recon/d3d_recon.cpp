@@ -39,7 +39,7 @@ cv::Mat Colourise(const cv::Mat& m, double lo, double hi) {
   cv::Mat u8, c;
   m.convertTo(u8, CV_8U, 255.0 / (hi - lo), -255.0 * lo / (hi - lo));
   cv::applyColorMap(u8, c, cv::COLORMAP_VIRIDIS);
-  c.setTo(cv::Scalar(0, 0, 0), m != m);
+  c.setTo(cv::Scalar(0, 0, 0), ~(m == m));  // NaN (NaN == NaN is false)
   return c;
 }
 
