@@ -67,13 +67,17 @@ CloudErrors EvaluateCloud(const cv::Mat& points, const cv::Mat& Phi, const Frame
   return e;
 }
 
-cv::Mat ErrorHeatMap(const cv::Mat& error_um, double range_um) {
-  cv::Mat scaled;
-  error_um.convertTo(scaled, CV_8U, 127.5 / range_um, 127.5);
-  cv::Mat colour;
-  cv::applyColorMap(scaled, colour, cv::COLORMAP_JET);
-  colour.setTo(cv::Scalar(0, 0, 0), ~(error_um == error_um));  // NaN (NaN == NaN is false)
+cv::Mat FalseColour(const cv::Mat& values, double lo, double hi, int colormap) {
+  const double scale = hi > lo ? 255.0 / (hi - lo) : 1.0;
+  cv::Mat u8, colour;
+  values.convertTo(u8, CV_8U, scale, hi > lo ? -lo * scale : 0.0);
+  cv::applyColorMap(u8, colour, colormap);
+  colour.setTo(cv::Scalar(0, 0, 0), ~(values == values));  // NaN (NaN == NaN is false)
   return colour;
+}
+
+cv::Mat ErrorHeatMap(const cv::Mat& error_um, double range_um) {
+  return FalseColour(error_um, -range_um, range_um, cv::COLORMAP_JET);
 }
 
 }  // namespace d3d

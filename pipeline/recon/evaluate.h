@@ -34,6 +34,10 @@ struct CloudErrors {
 CloudErrors EvaluateCloud(const cv::Mat& points_in_cam, const cv::Mat& Phi, const FrameTruth& truth,
                           const TriangleMesh& scene, const FringePatternSpec& spec, cv::Mat* error_um = nullptr);
 
+// False colour of a single-channel map: values in [lo, hi] through an OpenCV colour map
+// (cv::COLORMAP_*), clipped outside; black where the value is NaN. H×W CV_8UC3 (BGR).
+cv::Mat FalseColour(const cv::Mat& values, double lo, double hi, int colormap);
+
 // A colour heat map of signed errors (blue −range … green 0 … red +range µm; black where NaN).
 cv::Mat ErrorHeatMap(const cv::Mat& error_um, double range_um);
 

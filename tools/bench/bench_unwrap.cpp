@@ -254,6 +254,23 @@ OrderErrors RelativeErrors(const cv::Mat& order, const cv::Mat& labels, const cv
   return e;
 }
 
+// OpenCV's HistogramPhaseUnwrapping for a map of φ ∈ [0, 2π): its input in [−π, π) (0 outside the
+// mask) and an unwrapper sized for it. Relative unwrapping (no absolute orders).
+struct OpenCvUnwrap {
+  cv::Mat wrapped;
+  cv::Ptr<cv::phase_unwrapping::HistogramPhaseUnwrapping> unwrapper;
+};
+OpenCvUnwrap MakeOpenCvUnwrap(const cv::Mat& phi, const cv::Mat& mask) {
+  OpenCvUnwrap u;
+  u.wrapped = phi - static_cast<float>(M_PI);
+  u.wrapped.setTo(0.0f, ~mask);
+  cv::phase_unwrapping::HistogramPhaseUnwrapping::Params params;
+  params.width = phi.cols;
+  params.height = phi.rows;
+  u.unwrapper = cv::phase_unwrapping::HistogramPhaseUnwrapping::create(params);
+  return u;
+}
+
 // Orders of an unwrapped phase map Ψ (any offset): k = round((Ψ + shift − φ)/2π); INT32_MIN where
 // the method gave nothing or outside the mask.
 cv::Mat OrdersOf(const cv::Mat& unwrapped, const cv::Mat& phi, const cv::Mat& mask, double shift) {
@@ -369,14 +386,9 @@ void Compare(const Maps& m, const Options& opt, int index) {
   }
 
   // OpenCV HistogramPhaseUnwrapping: input in [−π, π), relative.
-  cv::Mat wrapped_pm = m.phi - static_cast<float>(M_PI);
-  wrapped_pm.setTo(0.0f, ~mask);
-  cv::phase_unwrapping::HistogramPhaseUnwrapping::Params params;
-  params.width = m.phi.cols;
-  params.height = m.phi.rows;
-  auto hist = cv::phase_unwrapping::HistogramPhaseUnwrapping::create(params);
+  OpenCvUnwrap ocv = MakeOpenCvUnwrap(m.phi, mask);
   cv::Mat cv_out;
-  const double ms_cv = MedianMs(std::max(3, opt.reps / 3), [&] { hist->unwrapPhaseMap(wrapped_pm, cv_out, mask); });
+  const double ms_cv = MedianMs(std::max(3, opt.reps / 3), [&] { ocv.unwrapper->unwrapPhaseMap(ocv.wrapped, cv_out, mask); });
   cv::Mat cv_k = OrdersOf(cv_out, m.phi, mask, M_PI);
   cv::Mat cc;
   cv::connectedComponents(mask, cc, 4, CV_32S);
@@ -467,14 +479,9 @@ void RegisterBenchmarks(const Maps& m, const std::string& tag) {
     cv::Mat q;
     if (!ComputeQualityMap(m.phi, m.modulation, m.valid, m.peak, {}, &q).ok()) state.SkipWithError("quality");
     const cv::Mat mask = q > 0;
-    cv::Mat wrapped = m.phi - static_cast<float>(M_PI);
-    wrapped.setTo(0.0f, ~mask);
-    cv::phase_unwrapping::HistogramPhaseUnwrapping::Params params;
-    params.width = m.phi.cols;
-    params.height = m.phi.rows;
-    auto hist = cv::phase_unwrapping::HistogramPhaseUnwrapping::create(params);
+    OpenCvUnwrap ocv = MakeOpenCvUnwrap(m.phi, mask);
     cv::Mat out;
-    for (auto _ : state) hist->unwrapPhaseMap(wrapped, out, mask);
+    for (auto _ : state) ocv.unwrapper->unwrapPhaseMap(ocv.wrapped, out, mask);
   })->Unit(benchmark::kMillisecond);
 }
 

@@ -35,13 +35,7 @@ double PhaseRmsRad(const PhaseMaps& phase, const FrameTruth& truth, const Fringe
   return n ? std::sqrt(sum2 / static_cast<double>(n)) : std::nan("");
 }
 
-cv::Mat Colourise(const cv::Mat& m, double lo, double hi) {
-  cv::Mat u8, c;
-  m.convertTo(u8, CV_8U, 255.0 / (hi - lo), -255.0 * lo / (hi - lo));
-  cv::applyColorMap(u8, c, cv::COLORMAP_VIRIDIS);
-  c.setTo(cv::Scalar(0, 0, 0), ~(m == m));  // NaN (NaN == NaN is false)
-  return c;
-}
+cv::Mat Colourise(const cv::Mat& m, double lo, double hi) { return FalseColour(m, lo, hi, cv::COLORMAP_VIRIDIS); }
 
 Status WriteMaps(const std::string& dir, const ReconstructedView& v, const cv::Mat& error_um) {
   std::error_code ec;

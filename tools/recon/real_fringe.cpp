@@ -17,6 +17,8 @@
 
 #include "tools/recon/real_fringe.h"
 
+#include "pipeline/recon/evaluate.h"
+
 #include "calib/model/probe_calibration.h"
 #include "common/core/status.h"
 #include "pipeline/phase/phase.h"
@@ -429,14 +431,8 @@ Status RunRelative(const RelativeOptions& o, RelativeReport* rep) {
 // Colour image of an unwrapped phase map (jet over its finite range, black where NaN).
 cv::Mat PhaseImage(const cv::Mat& Phi) {
   double lo = 0.0, hi = 0.0;
-  cv::Mat finite = Phi == Phi;  // NaN != NaN
-  cv::minMaxLoc(Phi, &lo, &hi, nullptr, nullptr, finite);
-  cv::Mat u8;
-  Phi.convertTo(u8, CV_8U, hi > lo ? 255.0 / (hi - lo) : 1.0, hi > lo ? -lo * 255.0 / (hi - lo) : 0.0);
-  cv::Mat color;
-  cv::applyColorMap(u8, color, cv::COLORMAP_JET);
-  color.setTo(cv::Scalar(0, 0, 0), ~finite);
-  return color;
+  cv::minMaxLoc(Phi, &lo, &hi, nullptr, nullptr, Phi == Phi);  // over the finite values
+  return FalseColour(Phi, lo, hi, cv::COLORMAP_JET);
 }
 
 }  // namespace d3d::real_fringe

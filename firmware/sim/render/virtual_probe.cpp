@@ -181,7 +181,6 @@ const ProjectorRadiance& VirtualProbe::RadianceFor(const ProjectorFrame& frame) 
 
 void VirtualProbe::GeometryPass(const Rigid3d& world_from_probe, std::vector<PixelGeometry>* out) {
   const ProbeCalibration& calib = design_.calibration;
-  const ProbeOptics& optics = design_.optics;
   const int width = calib.camera.width, height = calib.camera.height;
   out->resize(pixel_rays_.size());
   const Eigen::Matrix3d R = world_from_probe.linear();
@@ -223,7 +222,6 @@ void VirtualProbe::GeometryPass(const Rigid3d& world_from_probe, std::vector<Pix
       }
     }
   });
-  (void)optics;
 }
 
 void VirtualProbe::Shade(const SurfaceHit& hit, const Eigen::Vector3d& ray, const Eigen::Vector3d& cam_centre,
