@@ -12,6 +12,8 @@
 
 #include "pipeline/phase/phase_model.h"
 
+#include <Eigen/Dense>
+
 namespace d3d {
 
 using phase_internal::FastAtan2Pos;
@@ -24,9 +26,13 @@ namespace {
 constexpr float kTwoPiF = 6.28318530717958647692f;
 constexpr float kMarkerEps = 0.01f;  // ε of the matched filter α = r·D/(D² + ε)
 constexpr int kKappaStride = 2;      // κ is fitted on every 2nd pixel of every 2nd row
+constexpr int kDriftRows = 16;       // κ rows of the motion-compensation tables over [0, kKappaMax]
+
+inline int DriftRow(float kappa) {
+  const int j = static_cast<int>(kappa * ((kDriftRows - 1) / static_cast<float>(phase_internal::kKappaMax)) + 0.5f);
+  return j < 0 ? 0 : (j >= kDriftRows ? kDriftRows - 1 : j);
+}
 constexpr float kSuspect = 0.3f;     // |r| (B units) above which the N-step result is not trusted
-constexpr int kSuspectReach = 12;    // ... within this many px of a detected stripe
-constexpr int kScoreBox = 5;         // α is averaged over 5×5 px before the threshold
 
 inline float WrapPos(float a) {
   a = a < 0.0f ? a + kTwoPiF : a;
@@ -129,12 +135,23 @@ void PhaseOptions::Check() const {
   D3D_CHECK_MSG(std::isfinite(saturation_dn) && saturation_dn >= 0.0, "saturation_dn must be ≥ 0, got " << saturation_dn);
   D3D_CHECK_MSG(marker_threshold > 0.0 && marker_threshold < 2.0, "marker_threshold must be in (0, 2), got " << marker_threshold);
   D3D_CHECK_MSG(marker_guard_px >= 0 && marker_guard_px <= 32, "marker_guard_px must be in [0, 32], got " << marker_guard_px);
+  D3D_CHECK_MSG(marker_box_px >= 1 && marker_box_px <= 63 && marker_box_px % 2 == 1,
+                "marker_box_px must be odd in [1, 63], got " << marker_box_px);
+  D3D_CHECK_MSG(marker_close_px >= 1 && marker_close_px <= 31 && marker_close_px % 2 == 1,
+                "marker_close_px must be odd in [1, 31], got " << marker_close_px);
+  D3D_CHECK_MSG(marker_suspect_reach_px >= 0 && marker_suspect_reach_px <= 128,
+                "marker_suspect_reach_px must be in [0, 128], got " << marker_suspect_reach_px);
   D3D_CHECK_MSG(kappa_prior >= 0.0 && kappa_prior <= phase_internal::kKappaMax,
                 "kappa_prior must be in [0, " << phase_internal::kKappaMax << "], got " << kappa_prior);
   D3D_CHECK_MSG(kappa_exclusion > 0.0, "kappa_exclusion must be > 0, got " << kappa_exclusion);
   D3D_CHECK_MSG(kappa_tile_px >= 2 && kappa_tile_px <= 256, "kappa_tile_px must be in [2, 256], got " << kappa_tile_px);
   D3D_CHECK_MSG(kappa_window_tiles >= 1 && kappa_window_tiles % 2 == 1 && kappa_window_tiles <= 63,
                 "kappa_window_tiles must be odd in [1, 63], got " << kappa_window_tiles);
+  D3D_CHECK_MSG(std::isfinite(max_phase_drift_rad) && max_phase_drift_rad >= 0.0 && max_phase_drift_rad <= 1.5,
+                "max_phase_drift_rad must be in [0, 1.5], got " << max_phase_drift_rad);
+  D3D_CHECK_MSG(drift_window_px >= 0 && drift_window_px <= 63 && (drift_window_px == 0 || drift_window_px % 2 == 1),
+                "drift_window_px must be 0 or odd in [1, 63], got " << drift_window_px);
+  D3D_CHECK_MSG(std::isfinite(drift_exclusion) && drift_exclusion > 0.0, "drift_exclusion must be > 0, got " << drift_exclusion);
   D3D_CHECK_MSG(table_bins >= 64 && table_bins <= 65536, "table_bins must be in [64, 65536], got " << table_bins);
   D3D_CHECK_MSG(table_rows >= 2 && table_rows <= 4096, "table_rows must be in [2, 4096], got " << table_rows);
 }
@@ -162,6 +179,16 @@ struct PhaseEstimator::Impl {
   cv::Mat residual, phi_sub, mod_sub, dc_sub, marker_raw, guard, near, invalid;
   std::vector<double> num, den, cnt;
   cv::Mat kappa_tiles;
+  // Motion compensation (phase.h): per phase bin, the first-order effect of a unit drift
+  // (0: ε of Φ, 1: b/B of the amplitude, 2: a/B of the offset, per frame interval) on the
+  // residual e per unit B (drift_g), on the N-step phase (drift_h) and on the N−1-frame phase
+  // (drift_hs, with a marker). Empty when the residual cannot see the drift.
+  std::vector<float> drift_g[3], drift_h[3], drift_hs[3];
+  std::vector<double> drift_sums[10];  // tile sums of the 3×3 normal equations, right side, count
+  cv::Mat drift_tiles[3], drift_maps[3], drift_num, drift_den;
+
+  void BuildDriftTables();
+  void EstimateDrift(const PhaseMaps& out, int H, int W);
 
   Status Validate(const std::vector<cv::Mat>& frames, PhaseMaps* out) const;
   void EstimateKappa(const PhaseMaps& out, int H, int W, cv::Mat* kappa);
@@ -182,6 +209,192 @@ PhaseEstimator::PhaseEstimator(const FringePatternSpec& spec, double projector_g
   impl_->gamma = projector_gamma;
   impl_->marker = spec.HasMarker() && options.detect_marker;
   impl_->model = CachedModel(spec, projector_gamma, impl_->marker, options.table_bins, options.table_rows);
+  if (options.motion_compensation && impl_->model->has_residual() && spec.steps >= 4) impl_->BuildDriftTables();
+}
+
+// First-order drift tables (phase.h, "In-burst motion"), per κ row (kDriftRows over [0, kKappaMax])
+// and phase bin: frame n is s_n = n − (N−1)/2 frame intervals from the reference time, with the
+// model's waveform w_n(Φ; κ) per unit B (harmonics included: their drift aliases into the N-step
+// phase as much as the fundamental's). A unit drift perturbs the frames by s_n·∂w_n/∂Φ (ε), s_n·w_n
+// (b/B) or s_n (a/B); the tables hold the resulting change of the residual left by the κ model,
+// r = e − B_c·E(φ; κ) (drift_g), and of the
+// estimators' final phases (drift_h: N-step + table correction; drift_hs: N−1-frame fit + its
+// table), by central differences through the same weights and tables as Compute().
+void PhaseEstimator::Impl::BuildDriftTables() {
+  const PhaseModel& m = *model;
+  const int N = m.steps(), bins = m.bins();
+  const float bins_per_rad = static_cast<float>(bins / (2.0 * M_PI));
+  const size_t size = static_cast<size_t>(kDriftRows) * bins;
+  for (int k = 0; k < 3; ++k) {
+    drift_g[k].assign(size, 0.0f);
+    drift_h[k].assign(size, 0.0f);
+    if (marker) drift_hs[k].assign(size, 0.0f);
+  }
+  struct Estimate {
+    double phi, e, phi_sub;
+  };
+  std::vector<double> I(static_cast<size_t>(N));
+  auto estimate = [&](int model_row) {
+    double C = 0, S = 0, e = 0, Cs = 0, Ss = 0;
+    for (int n = 0; n < N; ++n) {
+      C += m.cos_w()[n] * I[n];
+      S += m.sin_w()[n] * I[n];
+      e += m.res_w()[n] * I[n];
+      if (marker) Cs += m.sub_cos_w()[n] * I[n], Ss += m.sub_sin_w()[n] * I[n];
+    }
+    const float p = WrapPos(static_cast<float>(std::atan2(S, C)));
+    const FullEntry f = ReadFullRow(m.full_row(model_row), PhaseBin(p, bins_per_rad, bins));
+    // The residual as EstimateDrift sees it: e minus the κ model read at the measured phase (which
+    // the drift moves too).
+    Estimate r{p + f.corr, e - std::sqrt(C * C + S * S) * f.ginv * f.e, 0.0};
+    if (marker) {
+      const float q = WrapPos(static_cast<float>(std::atan2(Ss, Cs)));
+      r.phi_sub = q + ReadSubRow(m.sub_row(model_row), PhaseBin(q, bins_per_rad, bins)).corr;
+    }
+    return r;
+  };
+  double g_rms = 0;
+  constexpr double h = 1e-3;
+  for (int j = 0; j < kDriftRows; ++j) {
+    const double kappa = phase_internal::kKappaMax * j / (kDriftRows - 1);
+    const int model_row = m.RowOf(kappa);
+    for (int i = 0; i < bins; ++i) {
+      const double Phi = 2.0 * M_PI * (i + 0.5) / bins;
+      for (int k = 0; k < 3; ++k) {
+        Estimate pm[2];
+        for (int side = 0; side < 2; ++side) {
+          const double x = side == 0 ? -h : h;
+          for (int n = 0; n < N; ++n) {
+            const double s_n = n - (N - 1) / 2.0;
+            I[n] = k == 0 ? m.Waveform(n, Phi + s_n * x, kappa)
+                 : k == 1 ? (1.0 + s_n * x) * m.Waveform(n, Phi, kappa)
+                          : m.Waveform(n, Phi, kappa) + s_n * x;
+          }
+          pm[side] = estimate(model_row);
+        }
+        const size_t at = static_cast<size_t>(j) * bins + i;
+        drift_g[k][at] = static_cast<float>((pm[1].e - pm[0].e) / (2 * h));
+        drift_h[k][at] = static_cast<float>(std::remainder(pm[1].phi - pm[0].phi, 2 * M_PI) / (2 * h));
+        if (marker) drift_hs[k][at] = static_cast<float>(std::remainder(pm[1].phi_sub - pm[0].phi_sub, 2 * M_PI) / (2 * h));
+        if (k == 0 && j == kDriftRows - 1) g_rms += drift_g[0][at] * drift_g[0][at];
+      }
+    }
+  }
+  // A residual blind to ε (e.g. some N > 4 channels) cannot measure the drift: no compensation.
+  if (std::sqrt(g_rms / bins) < 1e-3)
+    for (int k = 0; k < 3; ++k) drift_g[k].clear(), drift_h[k].clear(), drift_hs[k].clear();
+}
+
+// Least-squares fit of r = e − B_c·E(φ_c; κ) ≈ B_c·Σ_k x_k·g_k(φ_c) per window of tiles (the κ
+// tiles and window), over every kKappaStride-th valid pixel with |r| ≤ drift_exclusion·B_c (wider
+// than the κ fit's exclusion: the drift's own residual reaches 2√2·ε·B),
+// with a small ridge; tiles without support get x = 0. Leaves per-pixel maps in drift_maps.
+void PhaseEstimator::Impl::EstimateDrift(const PhaseMaps& out, int H, int W) {
+  const PhaseModel& m = *model;
+  const int t = options.kappa_tile_px;
+  const int TW = (W + t - 1) / t, TH = (H + t - 1) / t;
+  for (auto& v : drift_sums) v.assign(static_cast<size_t>(TW) * TH, 0.0);
+  const float bins_per_rad = static_cast<float>(m.bins() / (2.0 * M_PI));
+  const float rows_per_kappa = static_cast<float>(1.0 / m.KappaStep());
+  const float min_mod = static_cast<float>(options.min_modulation_dn);
+  const float excl = static_cast<float>(options.drift_exclusion);
+  const int bins = m.bins();
+  for (int y = kKappaStride / 2; y < H; y += kKappaStride) {
+    const float* phi = out.phi.ptr<float>(y);
+    const float* mod = out.modulation.ptr<float>(y);
+    const float* e = residual.ptr<float>(y);
+    const float* kap = out.kappa.empty() ? nullptr : out.kappa.ptr<float>(y);
+    const uint8_t* sat = out.saturated.ptr<uint8_t>(y);
+    const size_t row0 = static_cast<size_t>(y / t) * TW;
+    for (int x = kKappaStride / 2; x < W; x += kKappaStride) {
+      if (sat[x] || !(mod[x] >= min_mod)) continue;
+      const int row = KappaRow(kap ? kap[x] : static_cast<float>(options.kappa_prior), rows_per_kappa, m.rows());
+      const FullEntry f = ReadFullRow(m.full_row(row), PhaseBin(phi[x], bins_per_rad, bins));
+      const float Bc = mod[x] * f.ginv;
+      const float r = e[x] - Bc * f.e;
+      if (std::abs(r) > excl * Bc) continue;
+      const size_t i = static_cast<size_t>(DriftRow(kap ? kap[x] : static_cast<float>(options.kappa_prior))) * bins +
+                       PhaseBin(WrapPos(phi[x] + f.corr), bins_per_rad, bins).i;
+      const double g[3] = {Bc * drift_g[0][i], Bc * drift_g[1][i], Bc * drift_g[2][i]};
+      const size_t ti = row0 + static_cast<size_t>(x / t);
+      int q = 0;
+      for (int a = 0; a < 3; ++a)
+        for (int b = a; b < 3; ++b) drift_sums[q++][ti] += g[a] * g[b];
+      for (int a = 0; a < 3; ++a) drift_sums[6 + a][ti] += g[a] * r;
+      drift_sums[9][ti] += 1.0;
+    }
+  }
+  const int window = options.kappa_window_tiles;
+  cv::Mat sums[10];
+  for (int q = 0; q < 10; ++q)
+    cv::boxFilter(cv::Mat(TH, TW, CV_64F, drift_sums[q].data()), sums[q], CV_64F, cv::Size(window, window),
+                  cv::Point(-1, -1), false, cv::BORDER_CONSTANT);
+  const double min_count = std::max(8.0, window * window * t * t / (kKappaStride * kKappaStride) / 8.0);
+  const double max_eps = options.max_phase_drift_rad;
+  for (auto& d : drift_tiles) d.create(TH, TW, CV_32F);
+  for (int ty = 0; ty < TH; ++ty)
+    for (int tx = 0; tx < TW; ++tx) {
+      double v[10];
+      for (int q = 0; q < 10; ++q) v[q] = sums[q].at<double>(ty, tx);
+      Eigen::Vector3d x = Eigen::Vector3d::Zero();
+      if (v[9] >= min_count) {
+        Eigen::Matrix3d A;
+        A << v[0], v[1], v[2], v[1], v[3], v[4], v[2], v[4], v[5];
+        A.diagonal() += Eigen::Vector3d::Constant(1e-3 * A.trace() / 3.0 + 1e-12);
+        x = A.ldlt().solve(Eigen::Vector3d(v[6], v[7], v[8]));
+        if (!x.allFinite()) x.setZero();
+        x = x.cwiseMax(-max_eps).cwiseMin(max_eps);
+      }
+      for (int k = 0; k < 3; ++k) drift_tiles[k].at<float>(ty, tx) = static_cast<float>(x[k]);
+    }
+  for (int k = 0; k < 3; ++k) cv::resize(drift_tiles[k], drift_maps[k], cv::Size(W, H), 0, 0, cv::INTER_LINEAR);
+  if (options.drift_window_px == 0) return;
+  // Per-pixel ε: what the tile model leaves of r, fitted by B_c·g_ε over the window.
+  drift_num.create(H, W, CV_32F);
+  drift_den.create(H, W, CV_32F);
+  const float excl2 = static_cast<float>(options.drift_exclusion);
+  for (int y = 0; y < H; ++y) {
+    const float* phi = out.phi.ptr<float>(y);
+    const float* mod = out.modulation.ptr<float>(y);
+    const float* e = residual.ptr<float>(y);
+    const float* kap = out.kappa.empty() ? nullptr : out.kappa.ptr<float>(y);
+    const uint8_t* sat = out.saturated.ptr<uint8_t>(y);
+    const float* d0 = drift_maps[0].ptr<float>(y);
+    const float* d1 = drift_maps[1].ptr<float>(y);
+    const float* d2 = drift_maps[2].ptr<float>(y);
+    float* num = drift_num.ptr<float>(y);
+    float* den = drift_den.ptr<float>(y);
+    for (int x = 0; x < W; ++x) {
+      num[x] = den[x] = 0.0f;
+      if (sat[x] || !(mod[x] >= min_mod)) continue;
+      const int row = KappaRow(kap ? kap[x] : static_cast<float>(options.kappa_prior), rows_per_kappa, m.rows());
+      const FullEntry f = ReadFullRow(m.full_row(row), PhaseBin(phi[x], bins_per_rad, bins));
+      const float Bc = mod[x] * f.ginv;
+      const size_t i = static_cast<size_t>(DriftRow(kap ? kap[x] : static_cast<float>(options.kappa_prior))) * bins +
+                       PhaseBin(WrapPos(phi[x] + f.corr), bins_per_rad, bins).i;
+      const float r = e[x] - Bc * (f.e + d0[x] * drift_g[0][i] + d1[x] * drift_g[1][i] + d2[x] * drift_g[2][i]);
+      if (std::abs(r) > excl2 * Bc) continue;
+      const float g = Bc * drift_g[0][i];
+      num[x] = r * g;
+      den[x] = g * g;
+    }
+  }
+  const int w = options.drift_window_px;
+  cv::boxFilter(drift_num, drift_num, CV_32F, cv::Size(w, w), cv::Point(-1, -1), false, cv::BORDER_CONSTANT);
+  cv::boxFilter(drift_den, drift_den, CV_32F, cv::Size(w, w), cv::Point(-1, -1), false, cv::BORDER_CONSTANT);
+  const float max_eps_f = static_cast<float>(max_eps);
+  for (int y = 0; y < H; ++y) {
+    const float* num = drift_num.ptr<float>(y);
+    const float* den = drift_den.ptr<float>(y);
+    const float* mod = out.modulation.ptr<float>(y);
+    float* d0 = drift_maps[0].ptr<float>(y);
+    for (int x = 0; x < W; ++x) {
+      // Ridge: a window whose g is small everywhere (too few pixels) keeps the tile's ε.
+      const float ridge = 0.5f * mod[x] * mod[x] + 1e-6f;
+      const float de = num[x] / (den[x] + ridge);
+      d0[x] = std::clamp(d0[x] + de, -max_eps_f, max_eps_f);
+    }
+  }
 }
 
 PhaseEstimator::~PhaseEstimator() = default;
@@ -395,7 +608,17 @@ Status PhaseEstimator::Compute(const std::vector<cv::Mat>& frames, PhaseMaps* ou
   const FullEntry* lut_full = m.full_row(m.RowOf(1.0));
   const SubEntry* lut_sub = marker ? m.sub_row(m.RowOf(1.0)) : nullptr;
 
-  // Pass 3: compensated N-step phase and modulation.
+  // Pass 2b: in-burst motion (ours only; the textbook and LUT baselines stay as published).
+  const bool drift = alg == PhaseAlgorithm::kAdaptiveHarmonic && !I.drift_g[0].empty();
+  if (drift) {
+    I.EstimateDrift(*out, H, W);
+    I.drift_maps[0].copyTo(out->phase_drift);
+  } else {
+    out->phase_drift.release();
+  }
+
+  // Pass 3: compensated N-step phase and modulation; with drift, also the N−1-frame phase and the
+  // residual (what the marker detector sees) lose their motion terms.
   if (alg != PhaseAlgorithm::kStandard) {
     for (int y = 0; y < H; ++y) {
       float* phi = out->phi.ptr<float>(y);
@@ -406,6 +629,22 @@ Status PhaseEstimator::Compute(const std::vector<cv::Mat>& frames, PhaseMaps* ou
         const FullEntry e = ReadFullRow(kap ? m.full_row(KappaRow(kap[x], rows_per_kappa, rows)) : lut_full, b);
         phi[x] = WrapPos(phi[x] + e.corr);
         mod[x] *= e.ginv;
+      }
+      if (!drift) continue;
+      const float* d0 = I.drift_maps[0].ptr<float>(y);
+      const float* d1 = I.drift_maps[1].ptr<float>(y);
+      const float* d2 = I.drift_maps[2].ptr<float>(y);
+      float* res = I.residual.ptr<float>(y);
+      float* p3 = marker ? I.phi_sub.ptr<float>(y) : nullptr;
+      for (int x = 0; x < W; ++x) {
+        const size_t row0 = static_cast<size_t>(DriftRow(kap[x])) * bins;
+        const size_t i = row0 + PhaseBin(phi[x], bins_per_rad, bins).i;
+        res[x] -= mod[x] * (d0[x] * I.drift_g[0][i] + d1[x] * I.drift_g[1][i] + d2[x] * I.drift_g[2][i]);
+        phi[x] = WrapPos(phi[x] - (d0[x] * I.drift_h[0][i] + d1[x] * I.drift_h[1][i] + d2[x] * I.drift_h[2][i]));
+        if (p3) {
+          const size_t j = row0 + PhaseBin(p3[x], bins_per_rad, bins).i;
+          p3[x] = WrapPos(p3[x] - (d0[x] * I.drift_hs[0][j] + d1[x] * I.drift_hs[1][j] + d2[x] * I.drift_hs[2][j]));
+        }
       }
     }
   }
@@ -439,24 +678,26 @@ Status PhaseEstimator::Compute(const std::vector<cv::Mat>& frames, PhaseMaps* ou
         raw[x] = suspect ? 255 : 0;
       }
     }
-    // α averaged over 5×5 px (noise of low-modulation pixels, the blurred jump in a stripe's middle),
-    // thresholded, then a 3×3 closing and opening.
-    cv::blur(out->marker_score, out->marker_score, cv::Size(kScoreBox, kScoreBox), cv::Point(-1, -1), cv::BORDER_REPLICATE);
+    // α averaged over a box (noise of low-modulation pixels, the blurred jump in a stripe's middle),
+    // thresholded, then a closing and an opening.
+    const int box = I.options.marker_box_px, close = I.options.marker_close_px;
+    const int reach = I.options.marker_suspect_reach_px;
+    cv::blur(out->marker_score, out->marker_score, cv::Size(box, box), cv::Point(-1, -1), cv::BORDER_REPLICATE);
     cv::compare(out->marker_score, thr, out->marker, cv::CMP_GT);
-    const cv::Mat k3 = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(3, 3));
+    const cv::Mat k3 = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(close, close));
     cv::morphologyEx(out->marker, out->marker, cv::MORPH_CLOSE, k3);
     cv::morphologyEx(out->marker, out->marker, cv::MORPH_OPEN, k3);
     // The N−1-frame phase is used in the stripes dilated by the guard (transition pixels) and
     // wherever the N frames contradict the non-marker model (|r| > kSuspect: a stripe's fringe
     // missed by the detector, a partly marked pixel, a glint's edge).
-    // Only near detected stripes (kSuspectReach px): elsewhere |r| > kSuspect is mostly noise of
+    // Only near detected stripes (marker_suspect_reach_px): elsewhere |r| > kSuspect is mostly noise of
     // low-modulation pixels, for which the N-step phase is the better one.
     const int g = I.options.marker_guard_px;
     if (g > 0)
       cv::dilate(out->marker, I.guard, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * g + 1, 2 * g + 1)));
     else
       out->marker.copyTo(I.guard);
-    cv::dilate(out->marker, I.near, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * kSuspectReach + 1, 2 * kSuspectReach + 1)));
+    cv::dilate(out->marker, I.near, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * reach + 1, 2 * reach + 1)));
     cv::bitwise_and(I.marker_raw, I.near, I.marker_raw);
     cv::bitwise_or(I.guard, I.marker_raw, I.guard);
 

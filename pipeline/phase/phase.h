@@ -47,13 +47,34 @@
 // the same harmonic model), predict frame m, and the marker is what the prediction misses: the
 // normalised residual r = (e − B·E(Φ;κ))/B is matched against the stripe's known signature D(Φ;κ)
 // (frame m brighter in the first half of a stripe period, darker in the second, blurred like the
-// fringes), α = r·D/(D² + ε) averaged over 5×5 px, marker where α > marker_threshold, then a 3×3
-// closing (fills the blurred jump in the stripe's middle) and opening (drops isolated pixels).
+// fringes), α = r·D/(D² + ε) averaged over marker_box_px² (5×5), marker where α > marker_threshold, then a
+// marker_close_px² (3×3) closing (fills the blurred jump in the stripe's middle) and opening (drops
+// isolated pixels).
 // Inside the detected stripes dilated by marker_guard_px (transition pixels), and at pixels within
-// 12 px of a stripe whose |r| > 0.3 (a partly marked or missed fringe), the phase comes from the
+// marker_suspect_reach_px (12) of a stripe whose |r| > 0.3 (a partly marked or missed fringe), the phase comes from the
 // N−1 unmarked frames. This is the dissertation's "modulation from 3 frames vs from 4" test made robust to the
 // projector's 2nd harmonic, which alone would make that difference oscillate as cos 2Φ with an
 // amplitude comparable to the marker's.
+//
+// In-burst motion (motion_compensation, N ≥ 4): the frames are taken one frame interval apart while
+// the hand moves, so at a pixel Φ drifts by ε per frame (depth changes along the pixel's ray) and the
+// fringe amplitude and offset drift by b and a per frame. To first order, frame n (time s_n =
+// n − (N−1)/2 intervals from the burst's reference time, the middle of the burst) sees
+//   I_n = A + s_n·a + (B + s_n·b)·w(Φ + s_n·ε − δ_n),
+// which gives the N-step phase an error at 2Φ (for N = 4: (ε/2)·cos 2Φ + (b/2B)·sin 2Φ) and the
+// offset drift one at Φ: about 11 µm RMS of depth at the probe's 12.5 mm/s. The same drift shows in
+// the redundant residual e (for N = 4: e ∝ 2Bε(sin Φ + cos Φ) + 2b(sin Φ − cos Φ) + 2a), orthogonal
+// to the κ term's cos 2Φ. So after κ, (ε, b/B, a/B) are fitted by least squares to the residual left
+// by the κ model over the same tiles and windows as κ (same exclusions: marker stripes, glints), and
+// then ε alone is refined per pixel over drift_window_px (the depth rate changes with the surface
+// slope from pixel to pixel), and
+// φ, the N−1-frame φ and e (before marker detection) are corrected by their first-order error
+// functions, tabulated from the estimators' own weights. The motion-compensated phase refers to
+// the burst's reference time (the truth of the virtual probe's Burst::reference_truth). This is the
+// first-order error model of motion in phase shifting (e.g. Weise, Leibe & Van Gool 2007, CVPR,
+// "Fast 3D scanning with automatic motion compensation"; Liu, Zhang et al. 2018, Opt. Express 26(10),
+// "Motion-induced error compensation for phase shifting profilometry"), with the drift measured from
+// the burst's own redundancy instead of from neighbouring bursts.
 //
 // A marker pixel's absolute phase is Φ = 2π·k + φ with k one of the marker orders
 // (MarkerOrders(spec)); which one is decided downstream from the measurement volume (stripes are
@@ -90,10 +111,30 @@ struct PhaseOptions {
   bool detect_marker = true;        // when the spec has a marker (needs N ≥ 4)
   double marker_threshold = 0.5;    // on α, the matched-filter marker amplitude (1 = a full stripe)
   int marker_guard_px = 2;          // camera px around detected stripes that use the N−1-frame phase
+  // Pixel sizes of the marker detector, tuned where a fringe period spans ≈ 23 camera px (640 × 480
+  // probe); scale them with the period (ReconstructOptions::scale_to_fringe_period does).
+  int marker_box_px = 5;            // odd: α is averaged over a box of this size before the threshold
+  int marker_close_px = 3;          // odd: closing (fills the blurred jump in a stripe's middle), opening
+  int marker_suspect_reach_px = 12; // |r| > 0.3 pixels this close to a stripe use the N−1-frame phase
   double kappa_prior = 1.0;         // κ where the data cannot tell (N = 3, γ = 1, no valid pixels)
   double kappa_exclusion = 0.25;    // |r| (B units) above which a pixel is left out of the κ fit
   int kappa_tile_px = 8;            // κ tiles (camera px) ...
   int kappa_window_tiles = 3;       // ... and the odd window of tiles each κ is fitted over
+  // In-burst motion: fit and remove the phase drift (N ≥ 4, see above). Off by default: it removes
+  // the drift of analytic frames (phase_test: 0.046 → 0.020 rad at γ = 2.2, 0.029 → 0.003 at γ = 1),
+  // but on the virtual probe's bursts the marker stripes' residual leaks into the fit near the
+  // stripes (static renders: 0.006 → 0.015 rad outside the stripes, 0.02 → 0.10 inside) and 50
+  // moving bursts gain little (typodont 17.2 → 17.0 µm RMS, real arch 13.9 → 14.3 µm). Fitting the
+  // drift after the marker is known is the next step.
+  bool motion_compensation = false;
+  double max_phase_drift_rad = 0.5; // |ε| per frame interval is clamped to this (rad)
+  // ε varies from pixel to pixel (it is the depth rate along each ray: surface slope × hand speed),
+  // so after the tile fit, ε alone is refined per pixel by a least-squares fit over a window of
+  // this many px (odd; 0 = tiles only). Both fits use the residuals up to drift_exclusion·B. Off by default: on
+  // the virtual probe the per-pixel fit adds more noise than the drift it removes (typodont burst
+  // 300: 15.6 µm RMS with a 5-px window, 14.8 µm with tiles only).
+  int drift_window_px = 0;
+  double drift_exclusion = 0.5;
   int table_bins = 1024;            // phase bins of the compensation tables
   int table_rows = 121;             // κ rows of the tables over [0, 1.5] (nearest row is used)
   void Check() const;               // throws std::invalid_argument
@@ -112,6 +153,8 @@ struct PhaseMaps {
   cv::Mat marker;      // CV_8U 255 = marker stripe detected (all 0 when the spec has none)
   cv::Mat marker_score;  // CV_32F α (matched-filter marker amplitude; empty without marker detection)
   cv::Mat kappa;       // CV_32F harmonic attenuation κ used per pixel (empty when not estimated)
+  cv::Mat phase_drift; // CV_32F ε, rad per frame interval: the in-burst drift of Φ removed per pixel
+                       // (motion_compensation; empty when not estimated)
   int num_valid = 0;
   int num_saturated = 0;
   int num_marker = 0;

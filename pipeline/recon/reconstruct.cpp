@@ -1,5 +1,6 @@
 #include "pipeline/recon/reconstruct.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 
@@ -17,7 +18,42 @@ double MsSince(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }
 
+int ScaleLength(int v, double s, bool odd) {
+  const int r = std::max(v > 0 ? 1 : 0, static_cast<int>(std::lround(v * s)));
+  return odd && r % 2 == 0 ? r + 1 : r;
+}
+
+int ScaleArea(int v, double s) { return std::max(v > 0 ? 1 : 0, static_cast<int>(std::lround(v * s * s))); }
+
+ReconstructOptions Effective(const ProbeCalibration& calibration, const ReconstructOptions& options) {
+  options.Check();
+  return options.scale_to_fringe_period ? ScaleToFringePeriod(options, FringePeriodCamPx(calibration)) : options;
+}
+
 }  // namespace
+
+double FringePeriodCamPx(const ProbeCalibration& calibration) {
+  return calibration.pattern.fringe_period_px * calibration.camera.fx / calibration.projector.fx;
+}
+
+ReconstructOptions ScaleToFringePeriod(const ReconstructOptions& options, double fringe_period_cam_px) {
+  D3D_CHECK_MSG(fringe_period_cam_px > 0 && std::isfinite(fringe_period_cam_px),
+                "fringe period must be positive, got " << fringe_period_cam_px);
+  const double s = fringe_period_cam_px / kReferenceFringePeriodCamPx;
+  ReconstructOptions o = options;
+  if (std::abs(s - 1.0) < 0.05) return o;
+  o.phase.marker_box_px = ScaleLength(o.phase.marker_box_px, s, true);
+  o.phase.marker_close_px = ScaleLength(o.phase.marker_close_px, s, true);
+  o.phase.marker_guard_px = ScaleLength(o.phase.marker_guard_px, s, false);
+  o.phase.marker_suspect_reach_px = ScaleLength(o.phase.marker_suspect_reach_px, s, false);
+  o.phase.kappa_tile_px = ScaleLength(o.phase.kappa_tile_px, s, false);
+  o.unwrap.min_region_pixels = ScaleArea(o.unwrap.min_region_pixels, s);
+  o.unwrap.min_marker_votes = ScaleArea(o.unwrap.min_marker_votes, s);
+  o.unwrap.marker_rival_votes = ScaleArea(o.unwrap.marker_rival_votes, s);
+  o.unwrap.max_violations = ScaleLength(o.unwrap.max_violations, s, false);
+  o.unwrap.neck_radius = ScaleLength(o.unwrap.neck_radius, s, false);
+  return o;
+}
 
 void ReconstructOptions::Check() const {
   phase.Check();
@@ -29,10 +65,10 @@ void ReconstructOptions::Check() const {
 
 Reconstructor::Reconstructor(const ProbeCalibration& calibration, const ReconstructOptions& options)
     : calibration_(calibration),
-      options_(options),
-      phase_(calibration.pattern, calibration.projector_gamma, options.phase),
-      unwrapper_(WithMarkerOf(options.unwrap, calibration.pattern)),
-      triangulator_(calibration, options.triangulate) {
+      options_(Effective(calibration, options)),
+      phase_(calibration.pattern, calibration.projector_gamma, options_.phase),
+      unwrapper_(WithMarkerOf(options_.unwrap, calibration.pattern)),
+      triangulator_(calibration, options_.triangulate) {
   options_.Check();
   triangulator_.PhaseRange(&phase_min_, &phase_max_);
 }

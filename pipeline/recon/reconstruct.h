@@ -28,8 +28,26 @@ struct ReconstructOptions {
   UnwrapOptions unwrap;          // marker orders are taken from the calibration's pattern
   TriangulateOptions triangulate;
   double normal_max_gap_mm = 0.15;  // neighbours farther apart than this are a depth discontinuity
+  // The stages' pixel sizes (marker detector boxes, κ tiles, region and vote counts, neck radius)
+  // are tuned for a fringe period of kReferenceFringePeriodCamPx camera pixels. With this on, the
+  // Reconstructor scales them by the calibration's own period in camera pixels (ScaleToFringePeriod),
+  // so the same options serve a 640 × 480 and a 1280 × 1024 probe.
+  bool scale_to_fringe_period = true;
   void Check() const;               // throws std::invalid_argument
 };
+
+// The fringe period in camera pixels for which the stages' pixel sizes are tuned: the 640 × 480
+// probe's, 24 projector px × fx_cam/fx_proj = 24 × 2000/2100 (probe_design.h).
+inline constexpr double kReferenceFringePeriodCamPx = 24.0 * 2000.0 / 2100.0;
+
+// The fringe period of `calibration` in camera pixels near the optical axis: T · fx_cam / fx_proj
+// (camera and projector at about the same distance from the surface).
+double FringePeriodCamPx(const ProbeCalibration& calibration);
+
+// `options` with every pixel-size field scaled by s = fringe_period_cam_px / kReferenceFringePeriodCamPx:
+// lengths by s (odd sizes stay odd), pixel counts (areas) by s². s = 1 returns `options` unchanged.
+// Throws std::invalid_argument for a non-positive period.
+ReconstructOptions ScaleToFringePeriod(const ReconstructOptions& options, double fringe_period_cam_px);
 
 struct ReconstructedView {
   cv::Mat points_in_cam;  // H×W CV_32FC3, mm, NaN where no point
@@ -50,6 +68,8 @@ class Reconstructor {
   ~Reconstructor();
 
   const ProbeCalibration& calibration() const { return calibration_; }
+  // The options in effect (after ScaleToFringePeriod, when scale_to_fringe_period).
+  const ReconstructOptions& options() const { return options_; }
 
   // frames: the burst's phase-shift frames (calibration.pattern.steps of them, texture frame not
   // included), H×W CV_8U or CV_16U of the calibration's camera size. INVALID_ARGUMENT for a wrong

@@ -82,3 +82,38 @@ TEST(Reconstruct, DarkOrSaturatedBurstsGiveNoPointsAndNoNaNs) {
 
 }  // namespace
 }  // namespace d3d
+
+namespace d3d {
+namespace {
+
+// Pixel sizes follow the fringe period in camera pixels: the 1280 × 1024 probe sees each fringe
+// over twice the pixels of the 640 × 480 one, so lengths double (odd stay odd) and areas quadruple;
+// the reference probe's options are unchanged.
+TEST(Reconstruct, PixelSizesScaleWithTheFringePeriod) {
+  const ProbeCalibration vga = MakeDefaultProbeDesign(640, 480).calibration;
+  const ProbeCalibration sxga = MakeDefaultProbeDesign(1280, 1024).calibration;
+  EXPECT_NEAR(FringePeriodCamPx(vga), kReferenceFringePeriodCamPx, 1e-9);
+  EXPECT_NEAR(FringePeriodCamPx(sxga), 2 * kReferenceFringePeriodCamPx, 1e-9);
+  const ReconstructOptions o;
+  const ReconstructOptions same = ScaleToFringePeriod(o, FringePeriodCamPx(vga));
+  EXPECT_EQ(same.phase.marker_box_px, o.phase.marker_box_px);
+  EXPECT_EQ(same.unwrap.min_region_pixels, o.unwrap.min_region_pixels);
+  const ReconstructOptions big = ScaleToFringePeriod(o, FringePeriodCamPx(sxga));
+  EXPECT_EQ(big.phase.marker_box_px, 11);   // 2·5 = 10 → odd
+  EXPECT_EQ(big.phase.marker_close_px, 7);  // 2·3
+  EXPECT_EQ(big.phase.marker_suspect_reach_px, 2 * o.phase.marker_suspect_reach_px);
+  EXPECT_EQ(big.phase.kappa_tile_px, 2 * o.phase.kappa_tile_px);
+  EXPECT_EQ(big.unwrap.min_region_pixels, 4 * o.unwrap.min_region_pixels);
+  EXPECT_EQ(big.unwrap.min_marker_votes, 4 * o.unwrap.min_marker_votes);
+  EXPECT_EQ(big.unwrap.neck_radius, 2 * o.unwrap.neck_radius);
+  EXPECT_NO_THROW(big.Check());
+  EXPECT_THROW(ScaleToFringePeriod(o, 0.0), std::invalid_argument);
+  // The Reconstructor applies it unless told not to.
+  EXPECT_EQ(Reconstructor(sxga).options().unwrap.min_region_pixels, 4 * o.unwrap.min_region_pixels);
+  ReconstructOptions fixed;
+  fixed.scale_to_fringe_period = false;
+  EXPECT_EQ(Reconstructor(sxga, fixed).options().unwrap.min_region_pixels, o.unwrap.min_region_pixels);
+}
+
+}  // namespace
+}  // namespace d3d

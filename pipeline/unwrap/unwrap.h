@@ -97,7 +97,7 @@ struct UnwrapOptions {
   // predicted stripe pixels without detections and lowers the density. High on purpose (a region
   // that grew across a hidden near-integer jump is rejected); assumes a detector that finds ≳ 90 %
   // of the stripe-core pixels.
-  double marker_density = 0.9;
+  double marker_density = 0.8;
   // A region anchored by marker must reach beyond the stripe: its pixels predicted in the stripe
   // may be at most this share of the region. A region lying inside a stripe (a fragment cut out by
   // quality, or a false detection blob) shows no stripe edge, so its order is not verified and it

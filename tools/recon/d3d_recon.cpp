@@ -1,6 +1,7 @@
 // d3d-recon: one burst → an organised point cloud (pipeline/recon), from a burst folder or from
 // the virtual probe, with accuracy figures when the truth is known.
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -57,6 +58,8 @@ Status WriteMaps(const std::string& dir, const ReconstructedView& v, const cv::M
 
 struct Figures {
   CloudErrors err;
+  UnwrapStats unwrap;
+  std::vector<RegionInfo> largest_regions;  // the unwrapper's largest regions, for diagnosis
   double phase_rms_rad = std::nan("");
   double ms = 0;
   int64_t points = 0;
@@ -68,13 +71,17 @@ int main(int argc, char** argv) {
   CLI::App app{"d3d-recon: reconstructs one phase-shift burst into an organised point cloud (camera frame, mm).\n"
                "Input: a burst folder (--images, as written by d3d-sim or a recorder; calibration.json in it or\n"
                "in a parent folder) or the virtual probe (--sim). With truth, prints accuracy figures."};
-  std::string images, sim_model, calibration_path, out_ply, maps_dir;
+  std::string images, sim_model, calibration_path, out_ply, maps_dir, camera = "640x480", pose_text;
   int64_t index = -1, count = 1;
   uint32_t seed = 1;
   bool json = false;
   app.add_option("--images", images, "burst folder (frame_K.png + burst.json)");
   app.add_option("--sim", sim_model, "render with the virtual probe: 'typodont' or a mesh file");
   app.add_option("--index", index, "--sim: burst index on the full-arch trajectory (default: the first pose)");
+  app.add_option("--pose", pose_text,
+                 "--sim: render one burst with the probe held still at world_from_probe = 'tx ty tz qx qy qz qw'\n"
+                 "(mm, unit quaternion; the TUM order without the time)");
+  app.add_option("--camera", camera, "--sim: camera size, 640x480 (default) or 1280x1024");
   app.add_option("--count", count, "--sim: evaluate N bursts spread evenly over the trajectory (default 1)");
   app.add_option("--seed", seed, "--sim: seed (default 1)");
   app.add_option("--calibration", calibration_path, "calibration.json (default: found beside the images)");
@@ -116,6 +123,10 @@ int main(int argc, char** argv) {
       SimSessionOptions o;
       o.model = sim_model;
       o.seed = seed;
+      if (std::sscanf(camera.c_str(), "%dx%d", &o.camera_width, &o.camera_height) != 2) {
+        std::fprintf(stderr, "d3d-recon: --camera must look like 640x480, got '%s'\n", camera.c_str());
+        return 2;
+      }
       std::unique_ptr<SimSession> session;
       if (const Status s = SimSession::Create(o, &session); !s.ok()) {
         std::fprintf(stderr, "d3d-recon: %s\n", s.ToString().c_str());
@@ -125,6 +136,19 @@ int main(int argc, char** argv) {
       scene = session->scene();
       have_truth = true;
       const int64_t n = session->NumBursts();
+      if (!pose_text.empty()) {
+        double v[7];
+        if (std::sscanf(pose_text.c_str(), "%lf %lf %lf %lf %lf %lf %lf", &v[0], &v[1], &v[2], &v[3], &v[4], &v[5], &v[6]) != 7 ||
+            std::abs(Eigen::Vector4d(v[3], v[4], v[5], v[6]).norm() - 1.0) > 1e-3) {
+          std::fprintf(stderr, "d3d-recon: --pose must be 'tx ty tz qx qy qz qw' with a unit quaternion, got '%s'\n",
+                       pose_text.c_str());
+          return 2;
+        }
+        const Rigid3d world_from_probe =
+            RigidFromQuaternion(Eigen::Quaterniond(v[6], v[3], v[4], v[5]).normalized(), Eigen::Vector3d(v[0], v[1], v[2]));
+        bursts.push_back(session->probe().RenderBurst([world_from_probe](int64_t) { return world_from_probe; }, 0, 0, seed, true));
+        count = 0;
+      }
       for (int64_t i = 0; i < count; ++i) {
         const int64_t k = index >= 0 ? index + i : (count == 1 ? 0 : i * (n - 1) / (count - 1));
         if (k >= n) break;
@@ -144,6 +168,11 @@ int main(int argc, char** argv) {
       Figures f;
       f.ms = view.ms_total;
       f.points = view.points;
+      f.unwrap = view.unwrap.stats;
+      f.largest_regions = view.unwrap.regions;
+      std::sort(f.largest_regions.begin(), f.largest_regions.end(),
+                [](const RegionInfo& a, const RegionInfo& b) { return a.pixels > b.pixels; });
+      f.largest_regions.resize(std::min<size_t>(f.largest_regions.size(), 6));
       cv::Mat error_um;
       if (have_truth) {
         f.err = EvaluateCloud(view.points_in_cam, view.unwrap.Phi, b.reference_truth, scene, calib.pattern, &error_um);
@@ -197,6 +226,24 @@ int main(int argc, char** argv) {
       j["p95_um"] = p95_sum / n;
       j["fringe_order_error_pct"] = order_checked ? 100.0 * static_cast<double>(order_err) / static_cast<double>(order_checked) : 0.0;
       j["phase_rms_rad"] = phase_sum / n;
+    }
+    if (figures.size() == 1) {
+      const UnwrapStats& u = figures.front().unwrap;
+      j["unwrap"] = {{"regions_total", u.regions_total},     {"regions_marker", u.regions_marker},
+                     {"regions_depth", u.regions_depth},     {"regions_rejected", u.regions_rejected},
+                     {"regions_small", u.regions_small},     {"pixels_usable", u.pixels_usable},
+                     {"pixels_valid", u.pixels_valid},       {"pixels_discontinuity", u.pixels_discontinuity},
+                     {"pixels_conflict", u.pixels_conflict}, {"pixels_small", u.pixels_small},
+                     {"pixels_rejected", u.pixels_rejected}, {"pixels_outside", u.pixels_outside},
+                     {"pixels_neck", u.pixels_neck}};
+      for (const RegionInfo& r : figures.front().largest_regions)
+        j["unwrap"]["largest_regions"].push_back({{"pixels", r.pixels}, {"anchor", RegionAnchorName(r.anchor)},
+                                                  {"offset", r.offset}, {"marker_hits", r.marker_hits},
+                                                  {"marker_predicted", r.marker_predicted},
+                                                  {"marker_rival_hits", r.marker_rival_hits},
+                                                  {"bounded_pixels", r.bounded_pixels},
+                                                  {"admitting_pixels", r.admitting_pixels},
+                                                  {"violations", r.violations}});
     }
     if (json) std::printf("%s\n", j.dump().c_str());
     else std::printf("%s\n", j.dump(2).c_str());
