@@ -23,6 +23,7 @@ inline constexpr const char* kTopicProbeCommandAck = "d3d/ProbeCommandAck";
 // Who uses a QoS profile; the justification of each is in qos.cpp (MakeQos).
 enum class QosProfile {
   kBurstWriter,         // the probe's PhaseBurst writer
+  kBurstReplayWriter,   // d3d-replay --rate max: as fast as the readers take it, never lossy
   kBurstPreviewReader,  // live preview: only the freshest burst matters
   kBurstRecordReader,   // recorder, replay consumers, reconstruction: every burst
   kInfoWriter,          // ProbeInfo, latched for late joiners

@@ -17,6 +17,14 @@ dds_qos_t* MakeQos(QosProfile profile, int depth) {
       dds_qset_history(q, DDS_HISTORY_KEEP_LAST, last(16));
       dds_qset_durability(q, DDS_DURABILITY_VOLATILE);
       break;
+    case QosProfile::kBurstReplayWriter:
+      // Replaying a file has no camera to keep up with: KEEP_ALL + RELIABLE makes dds_write wait
+      // (flow control through WhcHigh) until reliable readers acknowledged, so "as fast as readers
+      // take it" loses nothing. max_blocking_time 10 s: a reader that stalls that long fails the write.
+      dds_qset_reliability(q, DDS_RELIABILITY_RELIABLE, DDS_SECS(10));
+      dds_qset_history(q, DDS_HISTORY_KEEP_ALL, 0);
+      dds_qset_durability(q, DDS_DURABILITY_VOLATILE);
+      break;
     case QosProfile::kBurstPreviewReader:
       // Live preview wants the freshest burst: BEST_EFFORT (never slows the writer, no repair of a
       // lost burst that is stale anyway) and KEEP_LAST 1 (an unread older burst is replaced).

@@ -175,6 +175,13 @@ bool ProbeApp::Recover(const Status& cause) {
 Status ProbeApp::Run() {
   const int64_t period_ns = static_cast<int64_t>(std::llround(1e9 / options_.rate_hz));
   uint64_t trigger_seq = 0;
+  for (int64_t waited = 0; options_.wait_readers > 0 && !stop_; waited += 10'000'000) {
+    dds_publication_matched_status_t m{};
+    dds_get_publication_matched_status(burst_writer_, &m);
+    if (static_cast<int>(m.current_count) >= options_.wait_readers) break;
+    if (waited >= options_.wait_readers_timeout_ns) return Unavailable("no PhaseBurst reader appeared within the wait timeout");
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
   int64_t next = NowNs() + 20'000'000;
   Status last_error;
   while (!stop_) {
@@ -256,6 +263,7 @@ void ProbeApp::PublishLoop() {
       ++counters_.publish_failures;
     } else {
       ++counters_.bursts_published;
+      if (options_.on_published) options_.on_published(s.burst_seq, pb.frames);
     }
     std::lock_guard<std::mutex> lock(queue_mu_);
     publishing_ = false;

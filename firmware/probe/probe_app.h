@@ -19,6 +19,7 @@
 #include <atomic>
 #include <condition_variable>
 #include <deque>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -43,6 +44,10 @@ struct ProbeAppOptions {
   int64_t ack_timeout_ns = 15'000'000'000;  // at the end: how long reliable readers may take
   int64_t status_period_ns = 1'000'000'000; // ProbeStatus period (1 Hz)
   int max_recoveries = 3;                   // error → recovering attempts before giving up
+  int wait_readers = 0;                     // Run(): first wait for this many PhaseBurst readers ...
+  int64_t wait_readers_timeout_ns = 60'000'000'000;  // ... at most this long (then UNAVAILABLE)
+  // Called on the publish thread after each successful PhaseBurst write (tests, manifests).
+  std::function<void(uint64_t burst_seq, const std::vector<CapturedFrame>& frames)> on_published;
   void Check() const;                       // throws std::invalid_argument
 };
 
