@@ -16,8 +16,9 @@ using namespace d3d::fw;
 
 namespace {
 
+// SIGTERM / SIGINT keep their default action (terminate at once): the flash is a file, so stopping
+// at any point is just another power cut, which the probe is built to survive.
 std::atomic<bool> g_stop{false};
-void OnSignal(int) { g_stop.store(true); }
 
 class SimProbeHooks : public ProbeHooks {
  public:
@@ -141,9 +142,7 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "d3d-update-agent: %s\n", s.ToString().c_str());
       return 3;
     }
-    if (!hooks.quiet) std::fprintf(stderr, "d3d-update-agent: %s\n", agent.running().message.c_str());
-    std::signal(SIGINT, OnSignal);
-    std::signal(SIGTERM, OnSignal);
+    if (!hooks.quiet) std::fprintf(stderr, "d3d-update-agent: power-on: %s\n", agent.boot_log().c_str());
     SimLinkServerOptions so;
     so.socket_path = socket_path;
     so.on_power_cut = [] {
@@ -152,7 +151,9 @@ int main(int argc, char** argv) {
     };
     so.on_reset = [&](const Status& s) {
       if (!s.ok()) std::fprintf(stderr, "d3d-update-agent: reboot: %s\n", s.ToString().c_str());
-      else if (!hooks.quiet) std::fprintf(stderr, "d3d-update-agent: %s\n", agent.running().message.c_str());
+      else if (!hooks.quiet && !agent.boot_log().empty()) {
+        std::fprintf(stderr, "d3d-update-agent: reboot: %s\n", agent.boot_log().c_str());
+      }
     };
     if (!hooks.quiet) std::fprintf(stderr, "d3d-update-agent: listening on %s\n", socket_path.c_str());
     const Status s = ServeSimLink(&agent, so, &g_stop);

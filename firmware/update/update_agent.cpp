@@ -27,9 +27,12 @@ UpdateAgent::UpdateAgent(Flash* flash, const PublicKey& trusted_key, UpdateAgent
 
 Status UpdateAgent::PowerOn() {
   // Bounded: each pass either settles or uses up a trial boot / marks the trial slot failed.
+  boot_log_.clear();
   for (int pass = 0; pass < options_.slots.trial_boots + 3; ++pass) {
     BootOutcome b;
     D3D_RETURN_IF_ERROR(slots_.Boot(&b));
+    if (!boot_log_.empty()) boot_log_.append("; ");
+    boot_log_.append(b.message);
     if (!b.booted) return NotFound("no bootable firmware: " + b.message);
     if (!slots_.on_trial()) {
       hooks_->OnRunningFirmware(Info());
@@ -38,11 +41,16 @@ Status UpdateAgent::PowerOn() {
     const HealthResult h = hooks_->HealthCheck(b.header);
     if (h == HealthResult::kHealthy) {
       D3D_RETURN_IF_ERROR(slots_.Confirm());
+      boot_log_.append("; health check passed: confirmed");
       hooks_->OnRunningFirmware(Info());
       return Status::Ok();
     }
-    if (h == HealthResult::kUnhealthy) D3D_RETURN_IF_ERROR(slots_.ReportHealthFailure());
-    // kNoAnswer: the watchdog resets the probe; the next boot uses up another trial boot.
+    if (h == HealthResult::kUnhealthy) {
+      boot_log_.append("; health check failed: reboot");
+      D3D_RETURN_IF_ERROR(slots_.ReportHealthFailure());
+    } else {
+      boot_log_.append("; no health-check answer: watchdog reset");
+    }
   }
   return Status(StatusCode::kInternal, "boot did not settle");
 }
@@ -153,6 +161,7 @@ ControlResponse UpdateAgent::HandleControl(const SetupPacket& setup, std::span<c
 }
 
 Status UpdateAgent::BusReset() {
+  boot_log_.clear();
   switch (dfu_.OnBusReset()) {
     case dfu::DfuDevice::ResetAction::kNone: return Status::Ok();
     case dfu::DfuDevice::ResetAction::kEnterDfuMode: hooks_->OnDfuMode(true); return Status::Ok();

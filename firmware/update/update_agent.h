@@ -73,6 +73,9 @@ class UpdateAgent : private dfu::DfuBackend {
   Status PowerOn();
   dfu::FirmwareInfo Info() const;
   const BootOutcome& running() const { return slots_.running(); }
+  // What the last power-on / reboot did ("trial boot of slot B (1.1.0, ...); health check passed:
+  // confirmed"); empty after a bus reset that did not reboot.
+  const std::string& boot_log() const { return boot_log_; }
   SlotManager& slots() { return slots_; }
   const dfu::DfuDevice& dfu() const { return dfu_; }
   // True after a flash operation failed with a power cut (the simulated probe then dies).
@@ -101,6 +104,7 @@ class UpdateAgent : private dfu::DfuBackend {
   ProbeHooks* hooks_;
   SlotManager slots_;
   dfu::DfuDevice dfu_;
+  std::string boot_log_;
 };
 
 }  // namespace d3d::fw

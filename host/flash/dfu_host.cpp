@@ -193,6 +193,7 @@ FlashReport FlashImage(DfuTransport* t, std::span<const uint8_t> image, const Fl
 
   if (Status s = host.ReadDescriptors(&rep.device); !s.ok()) return link_lost(s);
   if (Status s = host.GetFirmwareInfo(&rep.before); !s.ok()) return link_lost(s);
+  if (o.on_connected) o.on_connected(rep.device, rep.before);
   if (o.dry_run) return finish(FlashOutcome::kDryRun, "");
 
   // Into DFU mode.

@@ -95,6 +95,8 @@ struct FlashOptions {
   int reconnect_timeout_ms = 15000;
   // Called after every block: bytes sent, total bytes.
   std::function<void(uint64_t, uint64_t)> progress;
+  // Called once the probe's descriptors and firmware info are read (before anything changes).
+  std::function<void(const DfuDeviceInfo&, const dfu::FirmwareInfo&)> on_connected;
   // Stop after sending this many blocks (tests: cut the transfer at block k); -1 = never.
   int64_t stop_after_blocks = -1;
 };
