@@ -308,6 +308,34 @@ TEST_F(FirmwareUpdateTest, PowerLossAtEveryFlashOperationIncludingManifestation)
               static_cast<long long>(k), download_cuts, manifest_cuts, boot_cuts);
 }
 
+// dfu-util (Debian's), the reference DFU 1.1 client, flashes the simulated probe: its libusb calls
+// are carried over the sim link by an LD_PRELOAD stand-in (tests/dfu_util/libusb_sim_shim.cpp).
+TEST_F(FirmwareUpdateTest, DfuUtilAsReferenceClient) {
+  if (RunCmd("command -v dfu-util").exit_code != 0) GTEST_SKIP() << "dfu-util is not installed (tools/deps.txt lists it)";
+  StartAgent();
+  const std::string env = std::string("LD_PRELOAD=") + D3D_SIM_SHIM + " D3D_SIM_SOCKET=" + sock + " timeout 60 dfu-util ";
+  RunResult r = RunCmd(env + "-l");
+  EXPECT_NE(r.output.find("Found Runtime: [1209:0010]"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("serial=\"SIM0001\""), std::string::npos) << r.output;
+  r = RunCmd(env + "-d 1209:0010 -D " + (dir / "v1.1.img").string() + " -R -E 0");
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("Device returned transfer size 4096"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("DFU state(7) = dfuMANIFEST, status(0)"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("DFU state(2) = dfuIDLE, status(0)"), std::string::npos) << r.output;
+  dfu::FirmwareInfo f = Info();
+  EXPECT_EQ(f.VersionString(), "1.1.0");
+  EXPECT_EQ(f.boot_state, dfu::BootState::kConfirmed);
+  EXPECT_FALSE(f.dfu_mode);
+  // An image signed with another key: dfu-util shows the probe's errFILE, the probe keeps 1.1.0.
+  const auto other = MakeTestKey(2);
+  WriteFile(dir / "other.img", MakeImage(&other, {1, 2, 0}, 1, 1, 45000, 2));
+  r = RunCmd(env + "-d 1209:0010 -D " + (dir / "other.img").string() + " -R -E 0");
+  EXPECT_NE(r.output.find("DFU state(10) = dfuERROR, status(2)"), std::string::npos) << r.output;
+  f = Info();
+  EXPECT_EQ(f.VersionString(), "1.1.0");
+  EXPECT_FALSE(f.dfu_mode);
+}
+
 TEST_F(FirmwareUpdateTest, FwpackKeygenPackVerify) {
   const std::string keys = (dir / "keys").string();
   RunResult r = RunCmd(kBin + "/d3d-fwpack --keygen --out " + keys);
