@@ -135,9 +135,9 @@ TEST(ImageFormat, SemVerParsing) {
 TEST(ImageFormat, KeyFilesRoundTripAndTheSecretKeyIsPrivate) {
   const auto dir = std::filesystem::temp_directory_path() / ("d3d_keys_" + std::to_string(::getpid()));
   std::filesystem::create_directories(dir);
-  PublicKey pk;
-  SecretKey sk;
-  GenerateKeyPair(&pk, &sk);
+  const auto k = MakeTestKey(3);
+  const PublicKey& pk = k.pk;
+  const SecretKey& sk = k.sk;
   ASSERT_TRUE(SaveSecretKey((dir / "signing.key").string(), sk).ok());
   ASSERT_TRUE(SavePublicKey((dir / "signing.pub").string(), pk).ok());
   struct stat st {};
