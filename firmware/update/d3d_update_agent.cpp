@@ -1,0 +1,169 @@
+// d3d-update-agent: the simulated probe's firmware update agent. Holds a file-backed A/B flash,
+// boots it like the probe's bootloader, and serves USB DFU 1.1 over a Unix socket (the sim link)
+// to d3d-flash. Tests start it, kill it (power loss) and restart it on the same flash.
+#include <CLI/CLI.hpp>
+#include <csignal>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <unistd.h>
+
+#include "firmware/update/sim_link_server.h"
+#include "firmware/update/update_agent.h"
+
+using namespace d3d;
+using namespace d3d::fw;
+
+namespace {
+
+// SIGTERM / SIGINT keep their default action (terminate at once): the flash is a file, so stopping
+// at any point is just another power cut, which the probe is built to survive.
+std::atomic<bool> g_stop{false};
+
+class SimProbeHooks : public ProbeHooks {
+ public:
+  std::atomic<bool> streaming{false};
+  std::string unhealthy_version, silent_version;
+  bool quiet = false;
+
+  bool IsStreaming() const override { return streaming.load(); }
+  void OnDfuMode(bool entering) override {
+    if (!quiet) std::fprintf(stderr, "d3d-update-agent: %s DFU mode\n", entering ? "entering" : "leaving");
+  }
+  void OnRunningFirmware(const dfu::FirmwareInfo& f) override {
+    if (!quiet) {
+      std::fprintf(stderr, "d3d-update-agent: running %s (slot %c, %s), security floor %u\n", f.VersionString().c_str(),
+                   f.running_slot == 0 ? 'A' : 'B', dfu::BootStateName(f.boot_state), f.security_floor);
+    }
+  }
+  HealthResult HealthCheck(const ImageHeader& h) override {
+    const std::string v = h.version.ToString();
+    if (v == unhealthy_version) return HealthResult::kUnhealthy;
+    if (v == silent_version) return HealthResult::kNoAnswer;
+    return HealthResult::kHealthy;
+  }
+  bool SimSetStreaming(bool on) override {
+    streaming.store(on);
+    if (!quiet) std::fprintf(stderr, "d3d-update-agent: streaming %s\n", on ? "started" : "stopped");
+    return true;
+  }
+};
+
+bool ReadFile(const std::string& path, std::vector<uint8_t>* out) {
+  std::ifstream f(path, std::ios::binary);
+  if (!f) return false;
+  out->assign(std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>());
+  return true;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"d3d-update-agent: the simulated probe's firmware update agent (USB DFU 1.1 over a Unix socket)"};
+  std::string socket_path, flash_dir, pubkey_path, provision, hw = "0x0001", serial = "SIM0001";
+  SimProbeHooks hooks;
+  uint64_t slot_mib = 20;
+  uint32_t erase_kib = 64, page_bytes = 256;
+  uint16_t transfer_size = 4096;
+  int poll_ms = 0, trial_boots = 2;
+  int64_t power_cut_after = -1;
+  bool streaming = false, sim_controls = false;
+  app.add_option("--socket", socket_path, "Unix socket to serve the sim link on")->required();
+  app.add_option("--flash", flash_dir, "directory of the simulated flash (flash.bin, created erased)")->required();
+  app.add_option("--pubkey", pubkey_path, "the public key the probe trusts (d3d-fwpack --keygen)")->required();
+  app.add_option("--hw", hw, "this probe's hardware compatibility id")->capture_default_str();
+  app.add_option("--serial", serial, "USB serial number")->capture_default_str();
+  app.add_option("--provision", provision, "factory image written to slot A when the flash is blank");
+  app.add_option("--slot-mib", slot_mib, "capacity of each A/B slot, MiB")->capture_default_str();
+  app.add_option("--erase-kib", erase_kib, "flash erase block, KiB")->capture_default_str();
+  app.add_option("--page", page_bytes, "flash program page, bytes")->capture_default_str();
+  app.add_option("--transfer-size", transfer_size, "DFU wTransferSize, bytes")->capture_default_str();
+  app.add_option("--poll-ms", poll_ms, "bwPollTimeout reported while busy (-1: the flash timing model)")
+      ->capture_default_str();
+  app.add_option("--trial-boots", trial_boots, "boots a new firmware gets to confirm itself")->capture_default_str();
+  app.add_flag("--streaming", streaming, "the probe streams from the start (updates are refused)");
+  app.add_flag("--sim-controls", sim_controls, "accept the vendor request that starts/stops streaming");
+  app.add_option("--unhealthy-version", hooks.unhealthy_version, "a firmware version whose health check fails");
+  app.add_option("--silent-version", hooks.silent_version, "a firmware version that never confirms (hangs)");
+  app.add_option("--power-cut-after-ops", power_cut_after,
+                 "cut the power at flash operation N (erases + page programs since start); the agent exits 86");
+  app.add_flag("--quiet", hooks.quiet, "no log lines");
+  CLI11_PARSE(app, argc, argv);
+
+  try {
+    PublicKey pk;
+    if (Status s = LoadPublicKey(pubkey_path, &pk); !s.ok()) {
+      std::fprintf(stderr, "d3d-update-agent: %s\n", s.ToString().c_str());
+      return 2;
+    }
+    UpdateAgentOptions opt;
+    opt.slots.hw_id = static_cast<uint32_t>(std::stoul(hw, nullptr, 0));
+    opt.slots.slot_bytes = slot_mib << 20;
+    opt.slots.trial_boots = static_cast<uint8_t>(trial_boots);
+    opt.dfu.transfer_size = transfer_size;
+    opt.dfu.fixed_poll_ms = poll_ms;
+    opt.serial = serial;
+    opt.sim_controls = sim_controls;
+    FlashGeometry g;
+    g.erase_block_bytes = erase_kib * 1024;
+    g.page_bytes = page_bytes;
+    g = SlotFlashGeometry(g, opt.slots.slot_bytes);
+    std::filesystem::create_directories(flash_dir);
+    std::unique_ptr<Flash> flash;
+    if (Status s = Flash::OpenFile(flash_dir + "/flash.bin", g, &flash); !s.ok()) {
+      std::fprintf(stderr, "d3d-update-agent: %s\n", s.ToString().c_str());
+      return 2;
+    }
+    hooks.streaming.store(streaming);
+    UpdateAgent agent(flash.get(), pk, opt, &hooks);
+    bool provisioned = false;
+    if (Status s = agent.slots().IsProvisioned(&provisioned); !s.ok()) {
+      std::fprintf(stderr, "d3d-update-agent: %s\n", s.ToString().c_str());
+      return 2;
+    }
+    if (!provisioned && !provision.empty()) {
+      std::vector<uint8_t> image;
+      if (!ReadFile(provision, &image)) {
+        std::fprintf(stderr, "d3d-update-agent: cannot read %s\n", provision.c_str());
+        return 2;
+      }
+      if (Status s = agent.slots().Provision(image); !s.ok()) {
+        std::fprintf(stderr, "d3d-update-agent: %s\n", s.ToString().c_str());
+        return 2;
+      }
+    }
+    // The power cut counts operations from this start on (provisioning is the factory's).
+    if (power_cut_after >= 0) flash->CutPowerAfterOps(flash->ops() + power_cut_after);
+    if (Status s = agent.PowerOn(); !s.ok()) {
+      if (agent.flash_dead()) {
+        std::fprintf(stderr, "d3d-update-agent: power cut during boot\n");
+        _exit(86);
+      }
+      std::fprintf(stderr, "d3d-update-agent: %s\n", s.ToString().c_str());
+      return 3;
+    }
+    if (!hooks.quiet) std::fprintf(stderr, "d3d-update-agent: power-on: %s\n", agent.boot_log().c_str());
+    SimLinkServerOptions so;
+    so.socket_path = socket_path;
+    so.on_power_cut = [] {
+      std::fprintf(stderr, "d3d-update-agent: power cut\n");
+      _exit(86);
+    };
+    so.on_reset = [&](const Status& s) {
+      if (!s.ok()) std::fprintf(stderr, "d3d-update-agent: reboot: %s\n", s.ToString().c_str());
+      else if (!hooks.quiet && !agent.boot_log().empty()) {
+        std::fprintf(stderr, "d3d-update-agent: reboot: %s\n", agent.boot_log().c_str());
+      }
+    };
+    if (!hooks.quiet) std::fprintf(stderr, "d3d-update-agent: listening on %s\n", socket_path.c_str());
+    const Status s = ServeSimLink(&agent, so, &g_stop);
+    if (!s.ok()) {
+      std::fprintf(stderr, "d3d-update-agent: %s\n", s.ToString().c_str());
+      return 2;
+    }
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "d3d-update-agent: %s\n", e.what());
+    return 2;
+  }
+  return 0;
+}
