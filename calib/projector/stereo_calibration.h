@@ -30,7 +30,10 @@ struct StereoCalibrationOptions {
   CameraCalibrationOptions projector;  // its circle_radius_mm is ignored (point model)
   int max_iterations = 200;
   double max_extrinsic_sigma_mm = 0.05;    // σ of the baseline above this: ill-conditioned
-  double max_extrinsic_sigma_rad = 1e-3;   // σ of the rotation above this: ill-conditioned
+  // σ of the rotation above this: ill-conditioned. The rotation is strongly correlated with the
+  // projector's principal point (1 px ≈ 0.5 mrad at f = 2100 px), which the 3-D measurement does not
+  // see; σ ≈ 1 mrad is normal for 10–15 views of the probe.
+  double max_extrinsic_sigma_rad = 5e-3;
   void Check() const;                  // throws std::invalid_argument
 };
 
