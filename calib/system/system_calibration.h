@@ -74,7 +74,9 @@ struct SystemCalibrationResult {
   bool ok = false;
   std::string reason;
   bool has_projector = false;
-  ProbeCalibration calibration;        // the result (camera only: projector/extrinsics left default)
+  ProbeCalibration calibration;        // the result; without phase sets only .camera (and the depth
+                                       // range) is calibrated: has_projector = false, and the rest
+                                       // of it must not be used (the tool writes a camera-only file)
   double circle_diameter_mm = 0;       // given or estimated
   bool circle_diameter_estimated = false;
   CameraCalibrationResult camera;      // step 3 (camera alone, final camera-only result)
