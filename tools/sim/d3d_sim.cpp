@@ -14,6 +14,7 @@
 #include "common/burst/burst_io.h"
 #include "common/core/progress.h"
 #include "common/mesh/mesh_io.h"
+#include "firmware/sim/calibration/calibration_session.h"
 #include "firmware/sim/session/sim_session.h"
 
 namespace fs = std::filesystem;
@@ -122,7 +123,39 @@ int main(int argc, char** argv) {
   app.add_flag("--quiet", quiet, "no progress bar");
   app.add_flag("--json", json, "print a JSON summary as the last line");
   app.add_option("--out", out_dir, "output folder")->required();
+  // Calibration sessions (firmware/sim/calibration): a printed target at N poses instead of a scan.
+  bool calibration_session = false;
+  CalibrationSessionOptions cal;
+  app.add_flag("--calibration-session", calibration_session,
+               "render a calibration session instead of bursts: a printed target at --poses poses under white light and "
+               "phase-shift sets along both projector axes, with the true calibration (see firmware/sim/calibration)");
+  app.add_option("--target", cal.target, "calibration target: circles:COLSxROWS:SPACING_MM[:asymmetric]:d=DIAM_MM | "
+                                         "chessboard:COLSxROWS:SQUARE_MM (default circles:9x7:1.2:d=0.6)");
+  app.add_option("--poses", cal.poses, "calibration session: number of target poses (default 15)");
   CLI11_PARSE(app, argc, argv);
+  if (calibration_session) {
+    cal.seed = opt.seed;
+    cal.noise = !no_noise;
+    cal.gamma = !no_gamma;
+    cal.threads = opt.render.threads;
+    if (!ParseCamera(camera, &cal.camera_width, &cal.camera_height)) return 2;
+    CalibrationSessionResult r;
+    try {
+      if (const Status s = RenderCalibrationSession(cal, out_dir, !quiet, &r); !s.ok()) {
+        std::fprintf(stderr, "d3d-sim: %s\n", s.ToString().c_str());
+        return s.code() == StatusCode::kInvalidArgument ? 2 : 1;
+      }
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "d3d-sim: %s\n", e.what());
+      return 2;
+    }
+    const nlohmann::json summary{{"calibration_session", out_dir}, {"target", r.target.ToString()},
+                                 {"poses", r.views.size()}, {"seconds", r.seconds}};
+    if (json) std::printf("%s\n", summary.dump().c_str());
+    else std::printf("d3d-sim: calibration session of %zu poses of %s written to %s (%.1f s)\n", r.views.size(),
+                     r.target.ToString().c_str(), out_dir.c_str(), r.seconds);
+    return 0;
+  }
 
   if (!ParseCamera(camera, &opt.camera_width, &opt.camera_height)) {
     std::fprintf(stderr, "d3d-sim: --camera must look like 640x480, got '%s'\n", camera.c_str());
