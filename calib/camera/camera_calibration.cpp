@@ -10,26 +10,11 @@
 #include <sstream>
 
 #include "calib/camera/conditioning.h"
-#include "calib/camera/projection.h"
+#include "calib/camera/ceres_terms.h"
 #include "common/core/status.h"
 
 namespace d3d {
 namespace {
-
-struct FeatureCost {
-  Eigen::Vector3d X;
-  Eigen::Vector2d observed;
-  double radius_mm;
-  double fixed_aspect;  // > 0: fy = fixed_aspect · fx
-  template <typename T>
-  bool operator()(const T* intr, const T* dist, const T* pose, T* residual) const {
-    T uv[2];
-    ProjectFeature(intr, dist, pose, X, radius_mm, fixed_aspect, uv);
-    residual[0] = uv[0] - observed.x();
-    residual[1] = uv[1] - observed.y();
-    return true;
-  }
-};
 
 double Median(std::vector<double> v) {
   std::sort(v.begin(), v.end());
@@ -308,24 +293,8 @@ CameraCalibrationResult CalibrateCamera(const std::vector<TargetView>& views, in
   double dist[5] = {0, 0, 0, 0, 0};
   int residuals = 0;
   for (const auto& v : views) residuals += 2 * static_cast<int>(v.image_points.size());
-  std::vector<int> fixed_intr, fixed_dist;
-  if (options.fix_aspect_ratio) fixed_intr.push_back(1);
-  if (options.fix_principal_point) {
-    fixed_intr.push_back(2);
-    fixed_intr.push_back(3);
-  }
-  if (options.fix_tangential) {
-    fixed_dist.push_back(2);
-    fixed_dist.push_back(3);
-  }
-  if (options.fix_k3) fixed_dist.push_back(4);
-  ceres::Solver::Options so;
-  so.linear_solver_type = ceres::DENSE_SCHUR;
-  so.max_num_iterations = options.max_iterations;
-  so.function_tolerance = 1e-14;
-  so.gradient_tolerance = 1e-14;
-  so.parameter_tolerance = 1e-12;
-  so.num_threads = 1;
+  const std::vector<int> fixed_intr = FixedIntrinsics(options), fixed_dist = FixedDistortion(options);
+  const ceres::Solver::Options so = CalibrationSolverOptions(options.max_iterations);
   ceres::Solver::Summary summary;
   // Stages (a distortion-free start is far from a distorted optimum; freeing everything at once
   // lets k2/k3 run away): 1) f and poses, 2) + principal point and k1, 3) everything asked for.
@@ -344,15 +313,13 @@ CameraCalibrationResult CalibrateCamera(const std::vector<TargetView>& views, in
     ceres::Problem problem;
     for (size_t i = 0; i < views.size(); ++i) {
       for (size_t k = 0; k < views[i].image_points.size(); ++k) {
-        auto* cost = new ceres::AutoDiffCostFunction<FeatureCost, 2, 4, 5, 6>(
-            new FeatureCost{views[i].object_points[k], views[i].image_points[k], options.circle_radius_mm, stage_aspect});
+        auto* cost = new ceres::AutoDiffCostFunction<CameraFeatureCost, 2, 4, 5, 6>(
+            new CameraFeatureCost{views[i].object_points[k], views[i].image_points[k], options.circle_radius_mm, stage_aspect});
         problem.AddResidualBlock(cost, nullptr, intr, dist, poses[i].data());
       }
     }
-    if (fi.size() == 4) problem.SetParameterBlockConstant(intr);
-    else if (!fi.empty()) problem.SetManifold(intr, new ceres::SubsetManifold(4, fi));
-    if (fd.size() == 5) problem.SetParameterBlockConstant(dist);
-    else if (!fd.empty()) problem.SetManifold(dist, new ceres::SubsetManifold(5, fd));
+    SetFixedSubset(&problem, intr, 4, fi);
+    SetFixedSubset(&problem, dist, 5, fd);
     ceres::Solve(so, &problem, &summary);
     if (!summary.IsSolutionUsable()) break;
     if (stage < 2) intr[1] = intr[0] * aspect0;

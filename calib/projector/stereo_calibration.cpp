@@ -7,69 +7,11 @@
 #include <sstream>
 
 #include "calib/camera/conditioning.h"
-#include "calib/camera/projection.h"
+#include "calib/camera/ceres_terms.h"
 #include "common/core/status.h"
 
 namespace d3d {
 namespace {
-
-struct CameraFeatureCost {
-  Eigen::Vector3d X;
-  Eigen::Vector2d observed;
-  double radius_mm;
-  double fixed_aspect;
-  template <typename T>
-  bool operator()(const T* intr, const T* dist, const T* pose, T* r) const {
-    T uv[2];
-    ProjectFeature(intr, dist, pose, X, radius_mm, fixed_aspect, uv);
-    r[0] = uv[0] - observed.x();
-    r[1] = uv[1] - observed.y();
-    return true;
-  }
-};
-
-struct ProjectorFeatureCost {
-  Eigen::Vector3d X;
-  Eigen::Vector2d observed;
-  double fixed_aspect;
-  template <typename T>
-  bool operator()(const T* intr, const T* dist, const T* proj_from_cam, const T* cam_from_target, T* r) const {
-    T R[9], t[3], xy[2], xyd[2];
-    ComposePoses(proj_from_cam, cam_from_target, R, t);
-    NormalisedFeature(R, t, X, 0.0, xy);
-    DistortNormalised(dist, xy, xyd);
-    T fx, fy;
-    FocalLengths(intr, fixed_aspect, &fx, &fy);
-    r[0] = fx * xyd[0] + intr[2] - observed.x();
-    r[1] = fy * xyd[1] + intr[3] - observed.y();
-    return true;
-  }
-};
-
-std::vector<int> FixedIntrinsics(const CameraCalibrationOptions& o) {
-  std::vector<int> f;
-  if (o.fix_aspect_ratio) f.push_back(1);
-  if (o.fix_principal_point) {
-    f.push_back(2);
-    f.push_back(3);
-  }
-  return f;
-}
-
-std::vector<int> FixedDistortion(const CameraCalibrationOptions& o) {
-  std::vector<int> f;
-  if (o.fix_tangential) {
-    f.push_back(2);
-    f.push_back(3);
-  }
-  if (o.fix_k3) f.push_back(4);
-  return f;
-}
-
-void SetSubset(ceres::Problem* p, double* block, int size, const std::vector<int>& fixed) {
-  if (static_cast<int>(fixed.size()) == size) p->SetParameterBlockConstant(block);
-  else if (!fixed.empty()) p->SetManifold(block, new ceres::SubsetManifold(size, fixed));
-}
 
 }  // namespace
 
@@ -166,17 +108,11 @@ StereoCalibrationResult CalibrateStereo(const std::vector<StereoView>& views, in
   }
   const auto fci = FixedIntrinsics(options.camera), fcd = FixedDistortion(options.camera);
   const auto fpi = FixedIntrinsics(options.projector), fpd = FixedDistortion(options.projector);
-  SetSubset(&problem, cam_intr, 4, fci);
-  SetSubset(&problem, cam_dist, 5, fcd);
-  SetSubset(&problem, proj_intr, 4, fpi);
-  SetSubset(&problem, proj_dist, 5, fpd);
-  ceres::Solver::Options so;
-  so.linear_solver_type = ceres::DENSE_SCHUR;
-  so.max_num_iterations = options.max_iterations;
-  so.function_tolerance = 1e-14;
-  so.gradient_tolerance = 1e-14;
-  so.parameter_tolerance = 1e-12;
-  so.num_threads = 1;
+  SetFixedSubset(&problem, cam_intr, 4, fci);
+  SetFixedSubset(&problem, cam_dist, 5, fcd);
+  SetFixedSubset(&problem, proj_intr, 4, fpi);
+  SetFixedSubset(&problem, proj_dist, 5, fpd);
+  const ceres::Solver::Options so = CalibrationSolverOptions(options.max_iterations);
   ceres::Solver::Summary summary;
   ceres::Solve(so, &problem, &summary);
   if (!summary.IsSolutionUsable()) {

@@ -7,7 +7,7 @@
 #include <cmath>
 #include <opencv2/imgproc.hpp>
 
-#include "calib/camera/projection.h"
+#include "calib/camera/ceres_terms.h"
 #include "common/core/status.h"
 
 namespace d3d {
@@ -44,62 +44,6 @@ struct DenseCost {
     return true;
   }
 };
-
-struct CameraFeatureCost {
-  Eigen::Vector3d X;
-  Eigen::Vector2d observed;
-  double radius_mm, fixed_aspect;
-  template <typename T>
-  bool operator()(const T* intr, const T* dist, const T* pose, T* r) const {
-    T uv[2];
-    ProjectFeature(intr, dist, pose, X, radius_mm, fixed_aspect, uv);
-    r[0] = uv[0] - observed.x();
-    r[1] = uv[1] - observed.y();
-    return true;
-  }
-};
-
-struct ProjectorFeatureCost {
-  Eigen::Vector3d X;
-  Eigen::Vector2d observed;
-  double fixed_aspect;
-  template <typename T>
-  bool operator()(const T* intr, const T* dist, const T* proj_from_cam, const T* cam_from_target, T* r) const {
-    T R[9], t[3], xy[2], xyd[2];
-    ComposePoses(proj_from_cam, cam_from_target, R, t);
-    NormalisedFeature(R, t, X, 0.0, xy);
-    DistortNormalised(dist, xy, xyd);
-    T fx, fy;
-    FocalLengths(intr, fixed_aspect, &fx, &fy);
-    r[0] = fx * xyd[0] + intr[2] - observed.x();
-    r[1] = fy * xyd[1] + intr[3] - observed.y();
-    return true;
-  }
-};
-
-void SetSubset(ceres::Problem* p, double* block, int size, const std::vector<int>& fixed) {
-  if (static_cast<int>(fixed.size()) == size) p->SetParameterBlockConstant(block);
-  else if (!fixed.empty()) p->SetManifold(block, new ceres::SubsetManifold(size, fixed));
-}
-
-std::vector<int> FixedIntr(const CameraCalibrationOptions& o) {
-  std::vector<int> f;
-  if (o.fix_aspect_ratio) f.push_back(1);
-  if (o.fix_principal_point) {
-    f.push_back(2);
-    f.push_back(3);
-  }
-  return f;
-}
-std::vector<int> FixedDist(const CameraCalibrationOptions& o) {
-  std::vector<int> f;
-  if (o.fix_tangential) {
-    f.push_back(2);
-    f.push_back(3);
-  }
-  if (o.fix_k3) f.push_back(4);
-  return f;
-}
 
 double DenseRms(const PinholeBrownConrady& cam, const PinholeBrownConrady& proj, const Rigid3d& cam_from_proj,
                 const std::vector<Rigid3d>& poses, const std::vector<std::vector<PlaneSample>>& dense) {
@@ -252,10 +196,10 @@ MultiPlaneResult RefineMultiPlane(const std::vector<StereoView>& views, const st
       ++res.samples;
     }
   }
-  SetSubset(&problem, ci, 4, FixedIntr(so_in.camera));
-  SetSubset(&problem, cd, 5, FixedDist(so_in.camera));
-  SetSubset(&problem, pi, 4, FixedIntr(so_in.projector));
-  SetSubset(&problem, pd, 5, FixedDist(so_in.projector));
+  SetFixedSubset(&problem, ci, 4, FixedIntrinsics(so_in.camera));
+  SetFixedSubset(&problem, cd, 5, FixedDistortion(so_in.camera));
+  SetFixedSubset(&problem, pi, 4, FixedIntrinsics(so_in.projector));
+  SetFixedSubset(&problem, pd, 5, FixedDistortion(so_in.projector));
   ceres::Solver::Options so;
   so.linear_solver_type = ceres::DENSE_SCHUR;
   so.max_num_iterations = options.max_iterations;
