@@ -149,8 +149,6 @@ void PhaseOptions::Check() const {
                 "kappa_window_tiles must be odd in [1, 63], got " << kappa_window_tiles);
   D3D_CHECK_MSG(std::isfinite(max_phase_drift_rad) && max_phase_drift_rad >= 0.0 && max_phase_drift_rad <= 1.5,
                 "max_phase_drift_rad must be in [0, 1.5], got " << max_phase_drift_rad);
-  D3D_CHECK_MSG(drift_window_px >= 0 && drift_window_px <= 63 && (drift_window_px == 0 || drift_window_px % 2 == 1),
-                "drift_window_px must be 0 or odd in [1, 63], got " << drift_window_px);
   D3D_CHECK_MSG(std::isfinite(drift_exclusion) && drift_exclusion > 0.0, "drift_exclusion must be > 0, got " << drift_exclusion);
   D3D_CHECK_MSG(table_bins >= 64 && table_bins <= 65536, "table_bins must be in [64, 65536], got " << table_bins);
   D3D_CHECK_MSG(table_rows >= 2 && table_rows <= 4096, "table_rows must be in [2, 4096], got " << table_rows);
@@ -185,7 +183,7 @@ struct PhaseEstimator::Impl {
   // (drift_hs, with a marker). Empty when the residual cannot see the drift.
   std::vector<float> drift_g[3], drift_h[3], drift_hs[3];
   std::vector<double> drift_sums[10];  // tile sums of the 3×3 normal equations, right side, count
-  cv::Mat drift_tiles[3], drift_maps[3], drift_num, drift_den;
+  cv::Mat drift_tiles[3], drift_maps[3];
 
   void BuildDriftTables();
   void EstimateDrift(const PhaseMaps& out, int H, int W);
@@ -348,53 +346,6 @@ void PhaseEstimator::Impl::EstimateDrift(const PhaseMaps& out, int H, int W) {
       for (int k = 0; k < 3; ++k) drift_tiles[k].at<float>(ty, tx) = static_cast<float>(x[k]);
     }
   for (int k = 0; k < 3; ++k) cv::resize(drift_tiles[k], drift_maps[k], cv::Size(W, H), 0, 0, cv::INTER_LINEAR);
-  if (options.drift_window_px == 0) return;
-  // Per-pixel ε: what the tile model leaves of r, fitted by B_c·g_ε over the window.
-  drift_num.create(H, W, CV_32F);
-  drift_den.create(H, W, CV_32F);
-  const float excl2 = static_cast<float>(options.drift_exclusion);
-  for (int y = 0; y < H; ++y) {
-    const float* phi = out.phi.ptr<float>(y);
-    const float* mod = out.modulation.ptr<float>(y);
-    const float* e = residual.ptr<float>(y);
-    const float* kap = out.kappa.empty() ? nullptr : out.kappa.ptr<float>(y);
-    const uint8_t* sat = out.saturated.ptr<uint8_t>(y);
-    const float* d0 = drift_maps[0].ptr<float>(y);
-    const float* d1 = drift_maps[1].ptr<float>(y);
-    const float* d2 = drift_maps[2].ptr<float>(y);
-    float* num = drift_num.ptr<float>(y);
-    float* den = drift_den.ptr<float>(y);
-    for (int x = 0; x < W; ++x) {
-      num[x] = den[x] = 0.0f;
-      if (sat[x] || !(mod[x] >= min_mod)) continue;
-      const int row = KappaRow(kap ? kap[x] : static_cast<float>(options.kappa_prior), rows_per_kappa, m.rows());
-      const FullEntry f = ReadFullRow(m.full_row(row), PhaseBin(phi[x], bins_per_rad, bins));
-      const float Bc = mod[x] * f.ginv;
-      const size_t i = static_cast<size_t>(DriftRow(kap ? kap[x] : static_cast<float>(options.kappa_prior))) * bins +
-                       PhaseBin(WrapPos(phi[x] + f.corr), bins_per_rad, bins).i;
-      const float r = e[x] - Bc * (f.e + d0[x] * drift_g[0][i] + d1[x] * drift_g[1][i] + d2[x] * drift_g[2][i]);
-      if (std::abs(r) > excl2 * Bc) continue;
-      const float g = Bc * drift_g[0][i];
-      num[x] = r * g;
-      den[x] = g * g;
-    }
-  }
-  const int w = options.drift_window_px;
-  cv::boxFilter(drift_num, drift_num, CV_32F, cv::Size(w, w), cv::Point(-1, -1), false, cv::BORDER_CONSTANT);
-  cv::boxFilter(drift_den, drift_den, CV_32F, cv::Size(w, w), cv::Point(-1, -1), false, cv::BORDER_CONSTANT);
-  const float max_eps_f = static_cast<float>(max_eps);
-  for (int y = 0; y < H; ++y) {
-    const float* num = drift_num.ptr<float>(y);
-    const float* den = drift_den.ptr<float>(y);
-    const float* mod = out.modulation.ptr<float>(y);
-    float* d0 = drift_maps[0].ptr<float>(y);
-    for (int x = 0; x < W; ++x) {
-      // Ridge: a window whose g is small everywhere (too few pixels) keeps the tile's ε.
-      const float ridge = 0.5f * mod[x] * mod[x] + 1e-6f;
-      const float de = num[x] / (den[x] + ridge);
-      d0[x] = std::clamp(d0[x] + de, -max_eps_f, max_eps_f);
-    }
-  }
 }
 
 PhaseEstimator::~PhaseEstimator() = default;

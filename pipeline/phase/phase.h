@@ -65,10 +65,8 @@
 // offset drift one at Φ: about 11 µm RMS of depth at the probe's 12.5 mm/s. The same drift shows in
 // the redundant residual e (for N = 4: e ∝ 2Bε(sin Φ + cos Φ) + 2b(sin Φ − cos Φ) + 2a), orthogonal
 // to the κ term's cos 2Φ. So after κ, (ε, b/B, a/B) are fitted by least squares to the residual left
-// by the κ model over the same tiles and windows as κ (same exclusions: marker stripes, glints), and
-// then ε alone is refined per pixel over drift_window_px (the depth rate changes with the surface
-// slope from pixel to pixel), and
-// φ, the N−1-frame φ and e (before marker detection) are corrected by their first-order error
+// by the κ model over the same tiles and windows as κ (residuals up to drift_exclusion·B: marker
+// stripes and glints are left out), and φ, the N−1-frame φ and e (before marker detection) are corrected by their first-order error
 // functions, tabulated from the estimators' own weights. The motion-compensated phase refers to
 // the burst's reference time (the truth of the virtual probe's Burst::reference_truth). This is the
 // first-order error model of motion in phase shifting (e.g. Weise, Leibe & Van Gool 2007, CVPR,
@@ -128,13 +126,7 @@ struct PhaseOptions {
   // drift after the marker is known is the next step.
   bool motion_compensation = false;
   double max_phase_drift_rad = 0.5; // |ε| per frame interval is clamped to this (rad)
-  // ε varies from pixel to pixel (it is the depth rate along each ray: surface slope × hand speed),
-  // so after the tile fit, ε alone is refined per pixel by a least-squares fit over a window of
-  // this many px (odd; 0 = tiles only). Both fits use the residuals up to drift_exclusion·B. Off by default: on
-  // the virtual probe the per-pixel fit adds more noise than the drift it removes (typodont burst
-  // 300: 15.6 µm RMS with a 5-px window, 14.8 µm with tiles only).
-  int drift_window_px = 0;
-  double drift_exclusion = 0.5;
+  double drift_exclusion = 0.5;     // residuals above this many B are left out of the drift fit
   int table_bins = 1024;            // phase bins of the compensation tables
   int table_rows = 121;             // κ rows of the tables over [0, 1.5] (nearest row is used)
   void Check() const;               // throws std::invalid_argument
