@@ -169,10 +169,10 @@ int main(int argc, char** argv) {
       f.ms = view.ms_total;
       f.points = view.points;
       f.unwrap = view.unwrap.stats;
-      f.largest_regions = view.unwrap.regions;
-      std::sort(f.largest_regions.begin(), f.largest_regions.end(),
-                [](const RegionInfo& a, const RegionInfo& b) { return a.pixels > b.pixels; });
-      f.largest_regions.resize(std::min<size_t>(f.largest_regions.size(), 6));
+      f.largest_regions.resize(std::min<size_t>(view.unwrap.regions.size(), 6));
+      std::partial_sort_copy(view.unwrap.regions.begin(), view.unwrap.regions.end(), f.largest_regions.begin(),
+                             f.largest_regions.end(),
+                             [](const RegionInfo& a, const RegionInfo& b) { return a.pixels > b.pixels; });
       cv::Mat error_um;
       if (have_truth) {
         f.err = EvaluateCloud(view.points_in_cam, view.unwrap.Phi, b.reference_truth, scene, calib.pattern, &error_um);
