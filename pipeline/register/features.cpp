@@ -6,6 +6,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "common/core/status.h"
+#include "pipeline/register/surface_points.h"
 
 namespace d3d {
 
@@ -45,6 +46,25 @@ cv::Mat RangeImage(const cv::Mat& points, cv::Mat* mask) {
       m[c] = 255;
     }
   }
+  return img;
+}
+
+cv::Mat ShadedRangeImage(const cv::Mat& points, double max_gap_mm, cv::Mat* mask) {
+  const cv::Mat N = GridNormals(points, max_gap_mm);
+  cv::Mat img(points.size(), CV_8U, cv::Scalar(0));
+  mask->create(points.size(), CV_8U);
+  mask->setTo(0);
+  for (int r = 0; r < points.rows; ++r)
+    for (int c = 0; c < points.cols; ++c) {
+      const cv::Vec3f& n = N.at<cv::Vec3f>(r, c);
+      const cv::Vec3f& p = points.at<cv::Vec3f>(r, c);
+      if (!std::isfinite(n[0])) continue;
+      const float len = std::sqrt(p.dot(p));
+      // For scans not in a camera frame (the ray is unknown), light along the z axis.
+      const float shade = len > 1e-6f && p[2] > 0 ? std::abs(n.dot(p)) / len : std::abs(n[2]);
+      img.at<uint8_t>(r, c) = static_cast<uint8_t>(std::clamp(1.0f + 254.0f * shade, 1.0f, 255.0f));
+      mask->at<uint8_t>(r, c) = 255;
+    }
   return img;
 }
 
@@ -111,7 +131,12 @@ ViewFeatures ExtractViewFeatures(const cv::Mat& points, const cv::Mat& texture, 
   cv::Mat mask;
   const cv::Mat range = RangeImage(points, &mask);
   if (o.use_texture && !texture.empty()) Detect(texture, mask, points, o, &f.texture_points, &f.texture_descriptors);
-  if (o.use_range) Detect(range, mask, points, o, &f.range_points, &f.range_descriptors);
+  if (o.use_range && o.range_rendering != RangeRendering::kShaded) Detect(range, mask, points, o, &f.range_points, &f.range_descriptors);
+  if (o.use_range && o.range_rendering != RangeRendering::kDepth) {
+    cv::Mat smask;
+    const cv::Mat shaded = ShadedRangeImage(points, o.max_gap_mm, &smask);
+    Detect(shaded, smask, points, o, &f.shaded_points, &f.shaded_descriptors);
+  }
   return f;
 }
 
@@ -121,6 +146,7 @@ FeatureAlignResult AlignByFeatures(const ViewFeatures& s, const ViewFeatures& t,
   std::vector<Correspondence3d> c;
   if (o.use_texture) Match(s.texture_points, s.texture_descriptors, t.texture_points, t.texture_descriptors, o, &c);
   if (o.use_range) Match(s.range_points, s.range_descriptors, t.range_points, t.range_descriptors, o, &c);
+  if (o.use_range) Match(s.shaded_points, s.shaded_descriptors, t.shaded_points, t.shaded_descriptors, o, &c);
   r.matches = static_cast<int>(c.size());
   const RansacResult rr = RansacRigid(c, o.ransac);
   r.inliers = static_cast<int>(rr.inliers.size());

@@ -14,9 +14,19 @@
 
 namespace d3d {
 
+// How the 2.5-D range image is rendered for SIFT.
+enum class RangeRendering {
+  kDepth,   // camera-frame z, percentile-scaled (RangeImage)
+  kShaded,  // the surface lit from the camera: |n·view| of the grid normals (ShadedRangeImage),
+            // which changes less with the viewpoint than depth does
+  kBoth,    // both, matched separately
+};
+
 struct FeatureOptions {
   bool use_texture = true;        // SIFT on the texture image
   bool use_range = true;          // SIFT on the range image
+  RangeRendering range_rendering = RangeRendering::kBoth;
+  double max_gap_mm = 0.3;        // grid normals of the shaded rendering (GridNormals)
   int max_features = 1500;        // per image (strongest kept)
   double contrast_threshold = 0.02;  // OpenCV SIFT contrastThreshold (lower: more keypoints)
   double ratio = 0.8;             // Lowe's ratio test
@@ -30,9 +40,11 @@ struct FeatureOptions {
 struct ViewFeatures {
   std::vector<Eigen::Vector3f> texture_points;  // 3-D position (mm) of each texture keypoint
   cv::Mat texture_descriptors;                  // N×128 CV_32F
-  std::vector<Eigen::Vector3f> range_points;
+  std::vector<Eigen::Vector3f> range_points;    // depth rendering
   cv::Mat range_descriptors;
-  size_t size() const { return texture_points.size() + range_points.size(); }
+  std::vector<Eigen::Vector3f> shaded_points;   // shaded rendering
+  cv::Mat shaded_descriptors;
+  size_t size() const { return texture_points.size() + range_points.size() + shaded_points.size(); }
 };
 
 // points: H×W CV_32FC3 (mm, NaN = none); texture: H×W CV_8U or empty (texture features skipped).
@@ -42,6 +54,10 @@ ViewFeatures ExtractViewFeatures(const cv::Mat& points, const cv::Mat& texture, 
 // The range image of an organised cloud: z (mm) mapped linearly from its [1st, 99th] percentile
 // over the finite points onto 1..255, 0 where no point; *mask = 255 where a point is.
 cv::Mat RangeImage(const cv::Mat& points, cv::Mat* mask);
+
+// The range image lit from the camera: 255 · |n · v| (v the unit ray to the point), 0 where no
+// normal; *mask = 255 where a value is. points: H×W CV_32FC3.
+cv::Mat ShadedRangeImage(const cv::Mat& points, double max_gap_mm, cv::Mat* mask);
 
 struct FeatureAlignResult {
   bool ok = false;

@@ -3,6 +3,7 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "common/core/status.h"
 #include "pipeline/register/kdtree.h"
@@ -69,6 +70,33 @@ SurfacePoints SampleOrganised(const cv::Mat& points, const cv::Mat& normals, con
     }
   }
   return out;
+}
+
+cv::Mat GridNormals(const cv::Mat& P, double max_gap_mm) {
+  D3D_CHECK_MSG(P.type() == CV_32FC3, "GridNormals: CV_32FC3 expected");
+  cv::Mat N(P.size(), CV_32FC3, cv::Scalar::all(std::numeric_limits<float>::quiet_NaN()));
+  const float gap = static_cast<float>(max_gap_mm);
+  auto get = [&](int r, int c, Eigen::Vector3f* v) {
+    if (r < 0 || c < 0 || r >= P.rows || c >= P.cols) return false;
+    const cv::Vec3f& p = P.at<cv::Vec3f>(r, c);
+    if (!std::isfinite(p[0])) return false;
+    *v = Eigen::Vector3f(p[0], p[1], p[2]);
+    return true;
+  };
+  for (int r = 0; r < P.rows; ++r)
+    for (int c = 0; c < P.cols; ++c) {
+      Eigen::Vector3f p, l, rr, u, d;
+      if (!get(r, c, &p)) continue;
+      const bool hl = get(r, c - 1, &l) && (l - p).norm() < gap, hr = get(r, c + 1, &rr) && (rr - p).norm() < gap;
+      const bool hu = get(r - 1, c, &u) && (u - p).norm() < gap, hd = get(r + 1, c, &d) && (d - p).norm() < gap;
+      if (!(hl || hr) || !(hu || hd)) continue;
+      const Eigen::Vector3f dc = (hr ? rr : p) - (hl ? l : p), dr = (hd ? d : p) - (hu ? u : p);
+      const Eigen::Vector3f n = dc.cross(dr);
+      if (n.norm() < 1e-9f) continue;
+      const Eigen::Vector3f m = n.normalized();
+      N.at<cv::Vec3f>(r, c) = cv::Vec3f(m.x(), m.y(), m.z());
+    }
+  return N;
 }
 
 std::vector<Eigen::Vector3f> EstimateNormals(const std::vector<Eigen::Vector3f>& points, int k,

@@ -32,6 +32,10 @@ struct SurfacePoints {
 // apart, then the ones between) so that SurfacePoints::Subsample(k) stays spread over the image.
 SurfacePoints SampleOrganised(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, int stride);
 
+// Normals of an organised cloud from central differences on the grid, n = ∂P/∂col × ∂P/∂row
+// (normalised), NaN where a neighbour is missing or farther than max_gap_mm. H×W CV_32FC3.
+cv::Mat GridNormals(const cv::Mat& points, double max_gap_mm);
+
 // Normals of an unorganised cloud by principal component analysis of the k nearest neighbours
 // (Hoppe et al. 1992, "Surface reconstruction from unorganized points", §3.2), oriented toward
 // `viewpoint` (mm, the cloud's frame). Points with a degenerate neighbourhood get a NaN normal.
