@@ -97,10 +97,12 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   kf_from_cam_.push_back(Rigid3d::Identity());
   TrackResult out;
   const SurfacePoints samples = SampleOrganised(points, normals, quality, o_.sample_stride);
-  if (samples.size() < 200) {
-    out.state = state_ == TrackingState::kInitialising ? state_ : TrackingState::kLost;
+  if (samples.size() < static_cast<size_t>(o_.min_view_samples)) {
+    // Nothing to register (probe lifted, out of the measurement volume): refused, but the
+    // tracking state is kept; the motion model restarts with the next view.
+    out.state = state_;
     out.reason = "too few points in the view (" + std::to_string(samples.size()) + ")";
-    if (state_ != TrackingState::kInitialising) state_ = TrackingState::kLost;
+    prev_accepted_ = -1;
     out.ms = Ms(t0);
     return out;
   }
@@ -134,6 +136,19 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   } else {
     out.reason = "lost";
   }
+  if (!accepted && !keyframes_.empty()) {
+    // Local search first: ICP from the last accepted pose and from the keyframes nearest to it
+    // (the probe usually comes back where it left the model).
+    const std::string why = out.reason;
+    if (RelocaliseLocally(samples, &out)) {
+      accepted = true;
+      pose = out.world_from_cam;
+      out.state = TrackingState::kRelocalised;
+      out.reason = why + "; relocalised: " + out.reason;
+    } else {
+      out.reason = why + "; local search failed: " + out.reason;
+    }
+  }
   if (!accepted && o_.relocalise && !keyframes_.empty()) {
     const std::string why = out.reason;
     if (Relocalise(samples, points, texture, &out)) {
@@ -165,6 +180,37 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   kf_from_cam_.back() = graph_.pose(keyframes_[static_cast<size_t>(kf)].node).inverse() * pose;
   out.ms = Ms(t0);
   return out;
+}
+
+bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out) {
+  const Eigen::Vector3d here = last_pose_ * samples.Centroid();
+  std::vector<std::pair<double, int>> order;
+  for (int k = 0; k < static_cast<int>(keyframes_.size()); ++k) {
+    const Keyframe& kf = keyframes_[static_cast<size_t>(k)];
+    order.emplace_back((graph_.pose(kf.node) * kf.centre_in_cam - here).norm(), k);
+  }
+  std::sort(order.begin(), order.end());
+  std::vector<Rigid3d> starts = {last_pose_};
+  for (int i = 0; i < std::min<int>(o_.local_candidates, static_cast<int>(order.size())); ++i)
+    starts.push_back(graph_.pose(keyframes_[static_cast<size_t>(order[static_cast<size_t>(i)].second)].node));
+  IcpOptions icp = o_.icp;
+  icp.levels.front().max_distance_mm = std::max(icp.levels.front().max_distance_mm, o_.local_search_gate_mm);
+  icp.max_rmse_mm = o_.relocalise_max_rmse_mm;
+  icp.min_overlap = o_.relocalise_min_overlap;
+  std::string last_reason;
+  for (size_t i = 0; i < starts.size(); ++i) {
+    const IcpResult r = RunIcp(samples, starts[i], icp);
+    if (!r.ok) {
+      last_reason = r.reason;
+      continue;
+    }
+    out->icp = r;
+    out->world_from_cam = r.target_from_source;
+    out->reason = i == 0 ? "icp from the last pose" : "icp from keyframe " + std::to_string(order[i - 1].second);
+    return true;
+  }
+  out->reason = last_reason;
+  return false;
 }
 
 bool Tracker::Relocalise(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& texture, TrackResult* out) {

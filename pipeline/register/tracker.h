@@ -6,10 +6,13 @@
 //  2. Frame-to-model ICP (icp.h) against the PointMap of every accepted view, by projective
 //     association in the model rendered from the prediction, or a k-d tree over the model
 //     samples near it (options.association).
+//     A view with too few points (probe lifted, out of range) is skipped without a state change.
 //  3. Checks: ICP ok (overlap, residual, degeneracy) and consistent motion (the step from the last
 //     accepted pose, per elapsed burst, below max_step_mm / max_step_deg). A view failing them is
 //     refused (not fused, not added to the model) and the state becomes kLost.
-//  4. Relocalisation (when ICP fails, and for every view while lost): SIFT features of the view
+//  4. Relocalisation (when ICP fails, and for every view while lost): first a local search, ICP
+//     from the last accepted pose and from the keyframes nearest to it (the probe usually comes
+//     back where it left); then SIFT features of the view
 //     (features.h) are matched to keyframes, chosen by a local border search: keyframes nearest
 //     the last accepted view first (where the probe left the model), up to relocalise_candidates;
 //     RANSAC → ICP against the model; the first that passes is accepted (state kRelocalised).
@@ -57,6 +60,9 @@ struct TrackerOptions {
   int keyframe_stride = 4;        // px lattice of a keyframe's samples
   FeatureOptions features;
   int relocalise_candidates = 6;
+  int local_candidates = 4;       // local search: ICP from the last pose and this many nearest keyframes
+  double local_search_gate_mm = 2.0;  // first-level association gate of the local search
+  int min_view_samples = 500;     // fewer samples: the view is skipped (state unchanged)
   double relocalise_max_rmse_mm = 0.04;  // stricter residual for a relocalised view
   double relocalise_min_overlap = 0.5;
   double loop_radius_mm = 6.0;    // keyframe centres closer than this are loop candidates
@@ -116,6 +122,7 @@ class Tracker {
 
  private:
   IcpResult RunIcp(const SurfacePoints& source, const Rigid3d& initial, const IcpOptions& icp) const;
+  bool RelocaliseLocally(const SurfacePoints& samples, TrackResult* out);
   bool Relocalise(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& texture, TrackResult* out);
   void MaybeKeyframe(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& normals,
                      const cv::Mat& texture, const Rigid3d& pose, TrackResult* out);

@@ -44,9 +44,13 @@ TEST_F(TrackerScan, TracksAStripRefusesABadViewAndRelocalises) {
     EXPECT_LT(RotationAngleRad(p, want) * 180 / M_PI, 0.04) << "view " << i;
   }
   EXPECT_GT(tracker.keyframes().size(), 3u);
-  // A view of nothing: refused, state lost.
+  // A view of nothing: refused (not fused), the state is kept.
   cv::Mat empty(cam_.height, cam_.width, CV_32FC3, cv::Scalar::all(std::nanf("")));
-  const TrackResult bad = tracker.Track(empty, empty, cv::Mat(), cv::Mat());
+  const TrackResult none = tracker.Track(empty, empty, cv::Mat(), cv::Mat());
+  EXPECT_FALSE(none.accepted);
+  EXPECT_NE(none.reason.find("too few points"), std::string::npos);
+  // A view off the model: refused, lost.
+  const TrackResult bad = Feed(&tracker, Truth(25, 0), 77);
   EXPECT_FALSE(bad.accepted);
   EXPECT_EQ(bad.state, TrackingState::kLost);
   EXPECT_FALSE(bad.reason.empty());
