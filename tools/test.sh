@@ -16,8 +16,8 @@ echo "test.sh: CTest took $(( $(date +%s) - start )) s"
 # Parsers (mesh files, .npy, burst folders, calibration.json) under ASan + UBSan.
 asan="$D3D_ROOT/build-asan"
 cmake -G Ninja -S "$D3D_ROOT" -B "$asan" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DD3D_SANITIZE=address,undefined >/dev/null
-cmake --build "$asan" -j"$(nproc)" --target d3d_mesh_test d3d_core_test d3d_burst_test d3d_calib_model_test d3d_formats_mutation_test
-for t in d3d_mesh_test d3d_core_test d3d_burst_test d3d_calib_model_test d3d_formats_mutation_test; do
+cmake --build "$asan" -j"$(nproc)" --target d3d_mesh_test d3d_core_test d3d_burst_test d3d_calib_model_test d3d_formats_mutation_test d3d_range_grid_io_test
+for t in d3d_mesh_test d3d_core_test d3d_burst_test d3d_calib_model_test d3d_formats_mutation_test d3d_range_grid_io_test; do
   UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 ASAN_OPTIONS=detect_leaks=1 "$asan/tests/$t" --gtest_brief=1
 done
 
