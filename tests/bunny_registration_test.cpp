@@ -70,7 +70,8 @@ TEST_P(Bunny, PairFromIdentityRecoversTheConfPose) {
 // images, no texture in these scans) give no RANSAC consensus from identity (see the report of
 // tools/bench/bench_register.cpp, which runs every pair).
 INSTANTIATE_TEST_SUITE_P(StanfordBunny, Bunny,
-                         ::testing::Values(std::pair{"bun045", "bun000"}, std::pair{"bun315", "bun000"}));
+                         ::testing::Values(std::pair{"bun045", "bun000"}, std::pair{"bun315", "bun000"}),
+                         [](const auto& info) { return std::string(info.param.first) + "_to_" + info.param.second; });
 
 }  // namespace
 }  // namespace d3d
