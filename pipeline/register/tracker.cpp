@@ -102,7 +102,6 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     // tracking state is kept; the motion model restarts with the next view.
     out.state = state_;
     out.reason = "too few points in the view (" + std::to_string(samples.size()) + ")";
-    prev_accepted_ = -1;
     out.ms = Ms(t0);
     return out;
   }
@@ -113,13 +112,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     pose = Rigid3d::Identity();
     out.state = TrackingState::kTracking;
   } else if (state_ != TrackingState::kLost) {
-    // Constant-velocity prediction, per elapsed view.
-    Rigid3d pred = last_pose_;
-    if (prev_accepted_ >= 0 && last_accepted_ > prev_accepted_) {
-      const Rigid3d step = prev_pose_.inverse() * last_pose_;
-      const double k = static_cast<double>(index_ - last_accepted_) / static_cast<double>(last_accepted_ - prev_accepted_);
-      if (k <= 3) pred = last_pose_ * InterpolateRigid(Rigid3d::Identity(), step, k);
-    }
+    const Rigid3d pred = Predict();
     out.icp = RunIcp(samples, pred, o_.icp);
     const double views = static_cast<double>(index_ - last_accepted_);
     const double step_mm = TranslationDistanceMm(out.icp.target_from_source, last_pose_);
@@ -182,6 +175,14 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   return out;
 }
 
+Rigid3d Tracker::Predict() const {
+  // Constant velocity, per elapsed view (views skipped for lack of points included).
+  if (prev_accepted_ < 0 || last_accepted_ <= prev_accepted_) return last_pose_;
+  const Rigid3d step = prev_pose_.inverse() * last_pose_;
+  const double k = static_cast<double>(index_ - last_accepted_) / static_cast<double>(last_accepted_ - prev_accepted_);
+  return k <= 8 ? Rigid3d(last_pose_ * InterpolateRigid(Rigid3d::Identity(), step, k)) : last_pose_;
+}
+
 bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out) {
   const Eigen::Vector3d here = last_pose_ * samples.Centroid();
   std::vector<std::pair<double, int>> order;
@@ -190,13 +191,13 @@ bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out) 
     order.emplace_back((graph_.pose(kf.node) * kf.centre_in_cam - here).norm(), k);
   }
   std::sort(order.begin(), order.end());
-  std::vector<Rigid3d> starts = {last_pose_};
+  std::vector<Rigid3d> starts = {Predict(), last_pose_};
   for (int i = 0; i < std::min<int>(o_.local_candidates, static_cast<int>(order.size())); ++i)
     starts.push_back(graph_.pose(keyframes_[static_cast<size_t>(order[static_cast<size_t>(i)].second)].node));
   IcpOptions icp = o_.icp;
   icp.levels.front().max_distance_mm = std::max(icp.levels.front().max_distance_mm, o_.local_search_gate_mm);
-  icp.max_rmse_mm = o_.relocalise_max_rmse_mm;
-  icp.min_overlap = o_.relocalise_min_overlap;
+  // Same acceptance as tracking: the local search continues the track (the stricter
+  // relocalise_* thresholds guard the global, feature-based relocalisation).
   std::string last_reason;
   for (size_t i = 0; i < starts.size(); ++i) {
     const IcpResult r = RunIcp(samples, starts[i], icp);
@@ -206,7 +207,7 @@ bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out) 
     }
     out->icp = r;
     out->world_from_cam = r.target_from_source;
-    out->reason = i == 0 ? "icp from the last pose" : "icp from keyframe " + std::to_string(order[i - 1].second);
+    out->reason = i == 0 ? "icp from the predicted pose" : i == 1 ? "icp from the last pose" : "icp from keyframe " + std::to_string(order[i - 2].second);
     return true;
   }
   out->reason = last_reason;

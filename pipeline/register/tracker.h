@@ -2,7 +2,7 @@
 // keyframes and a loop-closing pose graph. One Tracker per scan, driven by one thread.
 //
 // Per view (an organised cloud in the camera frame):
-//  1. Prediction: constant velocity from the last two accepted poses.
+//  1. Prediction: constant velocity from the last two accepted poses (over skipped views too).
 //  2. Frame-to-model ICP (icp.h) against the PointMap of every accepted view, by projective
 //     association in the model rendered from the prediction, or a k-d tree over the model
 //     samples near it (options.association).
@@ -11,7 +11,7 @@
 //     accepted pose, per elapsed burst, below max_step_mm / max_step_deg). A view failing them is
 //     refused (not fused, not added to the model) and the state becomes kLost.
 //  4. Relocalisation (when ICP fails, and for every view while lost): first a local search, ICP
-//     from the last accepted pose and from the keyframes nearest to it (the probe usually comes
+//     from the predicted pose, the last accepted pose and the keyframes nearest to it (the probe usually comes
 //     back where it left); then SIFT features of the view
 //     (features.h) are matched to keyframes, chosen by a local border search: keyframes nearest
 //     the last accepted view first (where the probe left the model), up to relocalise_candidates;
@@ -61,8 +61,8 @@ struct TrackerOptions {
   FeatureOptions features;
   int relocalise_candidates = 6;
   int local_candidates = 4;       // local search: ICP from the last pose and this many nearest keyframes
-  double local_search_gate_mm = 2.0;  // first-level association gate of the local search
-  int min_view_samples = 500;     // fewer samples: the view is skipped (state unchanged)
+  double local_search_gate_mm = 4.0;  // first-level association gate of the local search
+  int min_view_samples = 5000;    // fewer samples (a fragment, ~6 % of the image): skipped, state unchanged
   double relocalise_max_rmse_mm = 0.04;  // stricter residual for a relocalised view
   double relocalise_min_overlap = 0.5;
   double loop_radius_mm = 6.0;    // keyframe centres closer than this are loop candidates
@@ -122,6 +122,7 @@ class Tracker {
 
  private:
   IcpResult RunIcp(const SurfacePoints& source, const Rigid3d& initial, const IcpOptions& icp) const;
+  Rigid3d Predict() const;
   bool RelocaliseLocally(const SurfacePoints& samples, TrackResult* out);
   bool Relocalise(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& texture, TrackResult* out);
   void MaybeKeyframe(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& normals,
