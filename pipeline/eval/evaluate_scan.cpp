@@ -363,7 +363,8 @@ cv::Mat DeviationHeatMap(const TriangleMesh& scan, const std::vector<float>& sig
     const Eigen::Vector3d d = scan.vertices[i] - m;
     const int u = static_cast<int>((d.dot(ax) - x0) * scale) + 10, v = static_cast<int>((y1 - d.dot(ay)) * scale) + 10;
     const double z = sz * d.dot(az);
-    const cv::Vec3b c = std::isfinite(signed_um[i]) ? colour(signed_um[i]) : cv::Vec3b(170, 170, 170);
+    if (!std::isfinite(signed_um[i])) continue;  // not evaluated (subsampled) or excluded
+    const cv::Vec3b c = colour(signed_um[i]);
     for (int y = std::max(0, v - splat); y <= std::min(h - 1, v + splat); ++y)
       for (int x = std::max(0, u - splat); x <= std::min(width_px - 1, u + splat); ++x)
         if (z > zbuf.at<double>(y, x)) {

@@ -95,7 +95,7 @@ AteReport AbsoluteTrajectoryError(const std::vector<Rigid3d>& estimate, const st
 
 // A deviation heat map: the scan's vertices seen along the smallest principal axis of the scan
 // (orthographic, z-buffered splats), coloured by signed deviation on a diverging blue–green–red
-// scale clipped at ±range_um, grey where excluded, with a colour bar and its labels.
+// scale clipped at ±range_um (vertices without a value not drawn), with a colour bar and its labels.
 cv::Mat DeviationHeatMap(const TriangleMesh& scan_in_reference, const std::vector<float>& signed_um, double range_um = 50,
                          int width_px = 1200);
 

@@ -66,7 +66,7 @@ int main(int argc, char** argv) {
   int every = 1;
   int64_t max_bursts = -1, first = 0;
   double voxel_mm = 0.05, truncation_mm = 0.2;
-  bool json = false, no_eval = false, no_loops = false, quiet = false;
+  bool json = false, no_eval = false, no_loops = false, quiet = false, no_refuse = false;
   app.add_option("--sim", sim_model, "scan with the virtual probe: 'typodont' or a mesh file (PLY/STL/OBJ, mm)");
   app.add_option("--bursts", bursts_dir, "a d3d-sim output folder (calibration.json, bursts/NNNNNN/, scene.ply)");
   app.add_option("--trajectory", trajectory, "--sim: full-arch | quadrant | tooth | a TUM file")->capture_default_str();
@@ -81,6 +81,9 @@ int main(int argc, char** argv) {
   app.add_flag("--no-eval", no_eval, "skip the evaluation against the scene");
   app.add_flag("--no-loops", no_loops, "no loop-closure detection / pose graph");
   app.add_flag("--quiet", quiet, "no progress bar");
+  app.add_flag("--no-refuse", no_refuse,
+               "keep the model fused at the tracked poses (default: when the pose graph moves a view by more than\n"
+               "10 um, the accepted bursts are reconstructed again and fused at the optimised poses)");
   app.add_flag("--json", json, "print report.json as one line on stdout");
   CLI11_PARSE(app, argc, argv);
   if (sim_model.empty() == bursts_dir.empty()) {
@@ -206,8 +209,33 @@ int main(int argc, char** argv) {
         if (tracker.ViewPose(static_cast<int64_t>(k), &p)) max_correction_mm = std::max(max_correction_mm, TranslationDistanceMm(p, tracked[k]));
       }
     }
+    // Second pass: the accepted bursts fused again at the optimised poses (offline path; the
+    // bursts are rendered / read again rather than kept in memory).
+    std::unique_ptr<TsdfVolume> refused;
+    double ms_refuse = 0;
+    if (!no_loops && !no_refuse && max_correction_mm > 0.01) {
+      const auto tr0 = std::chrono::steady_clock::now();
+      refused = std::make_unique<TsdfVolume>(fo);
+      ProgressBar bar2("d3d-fuse: fusing at optimised poses", static_cast<int64_t>(indices.size()), !quiet);
+      for (size_t k = 0; k < indices.size(); ++k) {
+        Rigid3d pose;
+        if (!tracker.ViewPose(static_cast<int64_t>(k), &pose)) continue;
+        Burst b;
+        if (session) b = session->RenderBurst(indices[k], false);
+        else if (const Status s = ReadBurstDir(burst_dirs[static_cast<size_t>(indices[k])], false, &b); !s.ok()) return Fail(s);
+        std::vector<cv::Mat> frames;
+        for (int f = 0; f < calib.pattern.steps && f < static_cast<int>(b.frames.size()); ++f) frames.push_back(b.frames[static_cast<size_t>(f)].image);
+        if (const Status s = recon.Reconstruct(frames, &view); !s.ok()) return Fail(s);
+        if (const Status s = refused->Integrate(view.points_in_cam, view.normals, view.quality, calib.camera, pose); !s.ok()) return Fail(s);
+        bar2.Update(static_cast<int64_t>(k + 1));
+      }
+      bar2.Finish();
+      ms_refuse = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - tr0).count();
+      for (size_t k = 0; k < indices.size(); ++k) tracker.ViewPose(static_cast<int64_t>(k), &tracked[k]);
+    }
+    const TsdfVolume& model = refused ? *refused : tsdf;
     const auto tm0 = std::chrono::steady_clock::now();
-    TriangleMesh mesh = tsdf.ExtractMesh();
+    TriangleMesh mesh = model.ExtractMesh();
     const double ms_mesh = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - tm0).count();
     if (mesh.faces.empty()) return Fail(Status(StatusCode::kInternal, "the fused model is empty (no view was accepted)"));
     mesh.ComputeVertexNormals();
@@ -246,8 +274,10 @@ int main(int argc, char** argv) {
     j["ms_fuse_per_burst"] = ms_fuse / n;
     j["ms_mesh"] = ms_mesh;
     j["voxel_mm"] = voxel_mm;
-    j["tsdf_active_voxels"] = tsdf.ActiveVoxels();
-    j["tsdf_memory_mib"] = static_cast<double>(tsdf.MemoryBytes()) / (1024.0 * 1024.0);
+    j["refused_at_optimised_poses"] = refused != nullptr;
+    j["ms_refuse_total"] = ms_refuse;
+    j["tsdf_active_voxels"] = model.ActiveVoxels();
+    j["tsdf_memory_mib"] = static_cast<double>(tsdf.MemoryBytes() + (refused ? refused->MemoryBytes() : 0)) / (1024.0 * 1024.0);
     j["peak_rss_mib"] = PeakRssMiB();
     j["mesh_vertices"] = mesh.vertices.size();
     j["mesh_faces"] = mesh.faces.size();
