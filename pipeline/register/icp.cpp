@@ -4,8 +4,6 @@
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 #include <algorithm>
-#include <cstdio>
-#include <cstdlib>
 #include <cmath>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -231,7 +229,6 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
         return res;
       }
       T = ExpSe3(x) * T;
-      if (getenv("D3D_ICP_DEBUG")) fprintf(stderr, "L%zu it%d n=%d sigma=%.5f err=%.3g dx=%.3g dw=%.3g\n", li, it, nm, sigma, err / wsum, x.tail<3>().norm(), x.head<3>().norm());
       err /= wsum;
       const bool small = x.head<3>().norm() < o.min_delta_rotation_rad && x.tail<3>().norm() < o.min_delta_translation_mm;
       const bool flat = prev_err > 0 && std::abs(prev_err - err) <= o.min_relative_error_change * prev_err;
