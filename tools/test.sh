@@ -20,6 +20,7 @@ asan_tests="d3d_mesh_test d3d_core_test d3d_burst_test d3d_calib_model_test d3d_
 asan_tests+=" d3d_recording_test d3d_recording_mutation_test"                     # recordings (issue 4)
 asan_tests+=" d3d_fw_update_test d3d_firmware_mutation_test d3d_flash_host_test"  # firmware update (issue 8)
 asan_tests+=" d3d_calib_features_test"                                            # calibration images (issue 7)
+asan_tests+=" d3d_range_grid_io_test"                                            # range scans (issue 5)
 cmake --build "$asan" -j"$(nproc)" --target $asan_tests
 for t in $asan_tests; do
   UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 ASAN_OPTIONS=detect_leaks=1 "$asan/tests/$t" --gtest_brief=1

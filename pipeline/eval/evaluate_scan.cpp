@@ -1,0 +1,389 @@
+#include "pipeline/eval/evaluate_scan.h"
+
+#include <Eigen/Eigenvalues>
+#include <Eigen/SVD>
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <opencv2/imgproc.hpp>
+#include <random>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <unordered_map>
+
+#include "common/core/status.h"
+#include "pipeline/register/kdtree.h"
+#include "pipeline/register/rigid_fit.h"
+
+namespace d3d {
+
+namespace {
+
+// Closest point on triangle abc to p (Ericson 2005, §5.1.5). region: 0 interior, 1..3 vertex a,b,c,
+// 4 edge ab, 5 edge bc, 6 edge ca.
+Eigen::Vector3d ClosestOnTriangle(const Eigen::Vector3d& p, const Eigen::Vector3d& a, const Eigen::Vector3d& b,
+                                  const Eigen::Vector3d& c, int* region) {
+  const Eigen::Vector3d ab = b - a, ac = c - a, ap = p - a;
+  const double d1 = ab.dot(ap), d2 = ac.dot(ap);
+  if (d1 <= 0 && d2 <= 0) { *region = 1; return a; }
+  const Eigen::Vector3d bp = p - b;
+  const double d3 = ab.dot(bp), d4 = ac.dot(bp);
+  if (d3 >= 0 && d4 <= d3) { *region = 2; return b; }
+  const double vc = d1 * d4 - d3 * d2;
+  if (vc <= 0 && d1 >= 0 && d3 <= 0) { *region = 4; return a + d1 / (d1 - d3) * ab; }
+  const Eigen::Vector3d cp = p - c;
+  const double d5 = ab.dot(cp), d6 = ac.dot(cp);
+  if (d6 >= 0 && d5 <= d6) { *region = 3; return c; }
+  const double vb = d5 * d2 - d1 * d6;
+  if (vb <= 0 && d2 >= 0 && d6 <= 0) { *region = 6; return a + d2 / (d2 - d6) * ac; }
+  const double va = d3 * d6 - d5 * d4;
+  if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
+    *region = 5;
+    return b + (d4 - d3) / ((d4 - d3) + (d5 - d6)) * (c - b);
+  }
+  const double den = 1.0 / (va + vb + vc);
+  *region = 0;
+  return a + ab * (vb * den) + ac * (vc * den);
+}
+
+uint64_t EdgeKey(int a, int b) {
+  if (a > b) std::swap(a, b);
+  return (static_cast<uint64_t>(static_cast<uint32_t>(a)) << 32) | static_cast<uint32_t>(b);
+}
+
+double Percentile(std::vector<double> v, double q) {
+  if (v.empty()) return 0;
+  const size_t k = static_cast<size_t>(std::clamp(q, 0.0, 1.0) * static_cast<double>(v.size() - 1));
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.end());
+  return v[k];
+}
+
+}  // namespace
+
+struct MeshClosestPoint::Impl {
+  std::vector<Eigen::Vector3f> centroids;
+  std::unique_ptr<PointKdTree> tree;
+  std::vector<Eigen::Vector3d> normals;
+  std::vector<uint8_t> boundary_edge;  // per face: bit 0 ab, bit 1 bc, bit 2 ca
+  std::vector<uint8_t> boundary_vertex;
+};
+
+MeshClosestPoint::MeshClosestPoint(const TriangleMesh& mesh, int candidates)
+    : mesh_(mesh), candidates_(candidates), impl_(std::make_unique<Impl>()) {
+  mesh_.Check();
+  D3D_CHECK_MSG(!mesh_.faces.empty(), "MeshClosestPoint: mesh has no faces");
+  D3D_CHECK_MSG(candidates >= 1, "MeshClosestPoint: candidates >= 1");
+  std::unordered_map<uint64_t, int> edge_count;
+  for (const auto& f : mesh_.faces)
+    for (int k = 0; k < 3; ++k) ++edge_count[EdgeKey(f[k], f[(k + 1) % 3])];
+  impl_->boundary_vertex.assign(mesh_.vertices.size(), 0);
+  for (int i = 0; i < static_cast<int>(mesh_.faces.size()); ++i) {
+    const auto& f = mesh_.faces[static_cast<size_t>(i)];
+    impl_->centroids.push_back(((mesh_.vertices[static_cast<size_t>(f[0])] + mesh_.vertices[static_cast<size_t>(f[1])] +
+                                 mesh_.vertices[static_cast<size_t>(f[2])]) / 3).cast<float>());
+    impl_->normals.push_back(mesh_.FaceNormal(i));
+    uint8_t b = 0;
+    for (int k = 0; k < 3; ++k)
+      if (edge_count[EdgeKey(f[k], f[(k + 1) % 3])] == 1) {
+        b |= static_cast<uint8_t>(1 << k);
+        impl_->boundary_vertex[static_cast<size_t>(f[k])] = 1;
+        impl_->boundary_vertex[static_cast<size_t>(f[(k + 1) % 3])] = 1;
+      }
+    impl_->boundary_edge.push_back(b);
+  }
+  impl_->tree = std::make_unique<PointKdTree>(&impl_->centroids);
+}
+
+MeshClosestPoint::~MeshClosestPoint() = default;
+
+MeshClosestPoint::Hit MeshClosestPoint::Closest(const Eigen::Vector3d& p) const {
+  std::vector<int> idx(static_cast<size_t>(candidates_));
+  std::vector<float> d2(static_cast<size_t>(candidates_));
+  const int n = impl_->tree->Knn(p.cast<float>(), candidates_, idx.data(), d2.data());
+  Hit best;
+  best.distance_mm = 1e300;
+  for (int k = 0; k < n; ++k) {
+    const int fi = idx[static_cast<size_t>(k)];
+    const auto& f = mesh_.faces[static_cast<size_t>(fi)];
+    int region = 0;
+    const Eigen::Vector3d q = ClosestOnTriangle(p, mesh_.vertices[static_cast<size_t>(f[0])], mesh_.vertices[static_cast<size_t>(f[1])],
+                                                mesh_.vertices[static_cast<size_t>(f[2])], &region);
+    const double d = (p - q).norm();
+    if (d < best.distance_mm) {
+      best.distance_mm = d;
+      best.point = q;
+      best.face = fi;
+      const uint8_t be = impl_->boundary_edge[static_cast<size_t>(fi)];
+      switch (region) {
+        case 0: best.on_boundary = false; break;
+        case 1: case 2: case 3: best.on_boundary = impl_->boundary_vertex[static_cast<size_t>(f[region - 1])]; break;
+        default: best.on_boundary = (be >> (region - 4)) & 1; break;
+      }
+    }
+  }
+  if (best.face >= 0) {
+    const double s = impl_->normals[static_cast<size_t>(best.face)].dot(p - best.point);
+    best.signed_mm = s >= 0 ? best.distance_mm : -best.distance_mm;
+  }
+  return best;
+}
+
+bool MeshClosestPoint::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* p, Eigen::Vector3f* n) const {
+  const Hit h = Closest(q.cast<double>());
+  if (h.face < 0 || h.distance_mm > max_d || h.on_boundary) return false;
+  *p = h.point.cast<float>();
+  *n = impl_->normals[static_cast<size_t>(h.face)].cast<float>();
+  return true;
+}
+
+void EvaluateOptions::Check() const {
+  D3D_CHECK_MSG(max_distance_mm > 0 && coverage_distance_mm > 0 && coverage_sample_mm2 > 0 && max_scan_points > 0,
+                "EvaluateOptions: invalid value");
+}
+
+namespace {
+
+SurfacePoints ScanSamples(const TriangleMesh& scan, int max_points) {
+  TriangleMesh m = scan;
+  if (m.vertex_normals.size() != m.vertices.size()) m.ComputeVertexNormals();
+  SurfacePoints s;
+  const size_t step = std::max<size_t>(1, m.vertices.size() / static_cast<size_t>(max_points));
+  for (size_t i = 0; i < m.vertices.size(); i += step) {
+    s.points.push_back(m.vertices[i].cast<float>());
+    s.normals.push_back(m.vertex_normals[i].cast<float>());
+  }
+  return s;
+}
+
+IcpOptions BestFitIcp() {
+  IcpOptions o;
+  o.levels = {{16, 30, 2.0, 0.8}, {4, 30, 0.5, 1.0}, {1, 30, 0.2, 1.0}};
+  o.min_overlap = 0.05;
+  o.max_rmse_mm = 1.0;
+  o.min_eigen_ratio = 0;
+  o.max_normal_angle_deg = 60;
+  o.threads = 2;
+  return o;
+}
+
+}  // namespace
+
+TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint& ref, const Rigid3d& initial,
+                                const EvaluateOptions& o) {
+  o.Check();
+  TruenessReport r;
+  r.reference_from_scan = initial;
+  if (scan.vertices.empty()) return r;
+  if (o.align) {
+    const SurfacePoints s = ScanSamples(scan, 100000);
+    const IcpResult icp = RegisterIcp(s, ref, initial, BestFitIcp());
+    r.reference_from_scan = icp.target_from_source;
+    r.alignment_rmse_mm = icp.rmse_mm;
+  }
+  // Signed distances of every scan vertex (subsampled evenly beyond max_scan_points).
+  const size_t nv = scan.vertices.size();
+  const size_t step = std::max<size_t>(1, nv / static_cast<size_t>(o.max_scan_points));
+  r.signed_um.assign(nv, std::nanf(""));
+  std::vector<uint8_t> state(nv, 0);  // 0 not evaluated, 1 in figures, 2 outlier
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, nv), [&](const tbb::blocked_range<size_t>& range) {
+    for (size_t i = range.begin(); i < range.end(); ++i) {
+      if (i % step) continue;
+      const MeshClosestPoint::Hit h = ref.Closest(r.reference_from_scan * scan.vertices[i]);
+      if (h.face < 0 || h.distance_mm > o.max_distance_mm || h.on_boundary) {
+        state[i] = 2;
+        continue;
+      }
+      state[i] = 1;
+      r.signed_um[i] = static_cast<float>(h.signed_mm * 1000.0);
+    }
+  });
+  std::vector<double> absd;
+  double s = 0, s2 = 0, sa = 0;
+  int64_t outliers = 0, evaluated = 0;
+  for (size_t i = 0; i < nv; ++i) {
+    if (!state[i]) continue;
+    ++evaluated;
+    if (state[i] == 2) {
+      ++outliers;
+      continue;
+    }
+    const double d = r.signed_um[i];
+    s += d;
+    s2 += d * d;
+    sa += std::abs(d);
+    absd.push_back(std::abs(d));
+  }
+  r.points = static_cast<int64_t>(absd.size());
+  if (r.points) {
+    const double n = static_cast<double>(r.points);
+    r.mean_um = s / n;
+    r.rms_um = std::sqrt(s2 / n);
+    r.mean_abs_um = sa / n;
+    r.p95_um = Percentile(absd, 0.95);
+    r.max_um = *std::max_element(absd.begin(), absd.end());
+  }
+  r.outlier_pct = evaluated ? 100.0 * static_cast<double>(outliers) / static_cast<double>(evaluated) : 0;
+  // Coverage: area samples of the reference (tooth faces when labelled) near a scan vertex.
+  const TriangleMesh& R = ref.mesh();
+  bool has_teeth = false;
+  if (o.teeth_only_coverage)
+    for (int f = 0; f < static_cast<int>(R.faces.size()) && !has_teeth; ++f) has_teeth = R.Label(f) == SurfaceLabel::kTooth;
+  std::vector<Eigen::Vector3f> scan_pts(nv);
+  for (size_t i = 0; i < nv; ++i) scan_pts[i] = (r.reference_from_scan * scan.vertices[i]).cast<float>();
+  PointKdTree tree(&scan_pts);
+  std::mt19937 rng(1);
+  std::uniform_real_distribution<double> U(0, 1);
+  int64_t covered = 0, samples = 0;
+  const float cov2 = static_cast<float>(o.coverage_distance_mm * o.coverage_distance_mm);
+  for (int f = 0; f < static_cast<int>(R.faces.size()); ++f) {
+    if (has_teeth && R.Label(f) != SurfaceLabel::kTooth) continue;
+    const double area = R.FaceArea(f);
+    double expected = area / o.coverage_sample_mm2;
+    int k = static_cast<int>(expected);
+    if (U(rng) < expected - k) ++k;
+    const auto& F = R.faces[static_cast<size_t>(f)];
+    for (int j = 0; j < k; ++j) {
+      double a = U(rng), b = U(rng);
+      if (a + b > 1) { a = 1 - a; b = 1 - b; }
+      const Eigen::Vector3d p = R.vertices[static_cast<size_t>(F[0])] + a * (R.vertices[static_cast<size_t>(F[1])] - R.vertices[static_cast<size_t>(F[0])]) +
+                                b * (R.vertices[static_cast<size_t>(F[2])] - R.vertices[static_cast<size_t>(F[0])]);
+      float d2 = 0;
+      ++samples;
+      if (tree.Nearest(p.cast<float>(), &d2) >= 0 && d2 <= cov2) ++covered;
+    }
+  }
+  r.coverage_pct = samples ? 100.0 * static_cast<double>(covered) / static_cast<double>(samples) : 0;
+  return r;
+}
+
+Rigid3d GlobalAlign(const TriangleMesh& scan, const MeshClosestPoint& ref) {
+  auto frame = [](const std::vector<Eigen::Vector3d>& v, Eigen::Vector3d* mean) {
+    Eigen::Vector3d m = Eigen::Vector3d::Zero();
+    for (const auto& p : v) m += p;
+    m /= static_cast<double>(v.size());
+    Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
+    for (const auto& p : v) C += (p - m) * (p - m).transpose();
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(C);
+    *mean = m;
+    return Eigen::Matrix3d(es.eigenvectors());
+  };
+  Eigen::Vector3d ms, mr;
+  const Eigen::Matrix3d Es = frame(scan.vertices, &ms), Er = frame(ref.mesh().vertices, &mr);
+  const SurfacePoints s = ScanSamples(scan, 20000);
+  IcpOptions o = BestFitIcp();
+  o.levels = {{4, 30, 5.0, 0.5}, {1, 30, 1.0, 0.9}, {1, 20, 0.3, 1.0}};
+  Rigid3d best = Rigid3d::Identity();
+  double best_score = -1;
+  for (int signs = 0; signs < 4; ++signs) {
+    Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+    D(0, 0) = signs & 1 ? -1 : 1;
+    D(1, 1) = signs & 2 ? -1 : 1;
+    D(2, 2) = D(0, 0) * D(1, 1) * Es.determinant() * Er.determinant();
+    Rigid3d T = Rigid3d::Identity();
+    T.linear() = Er * D * Es.transpose();
+    T.translation() = mr - T.linear() * ms;
+    const IcpResult r = RegisterIcp(s, ref, T, o);
+    const double score = r.overlap - r.rmse_mm;  // overlap first (fractions), residual breaks ties
+    if (score > best_score) {
+      best_score = score;
+      best = r.target_from_source;
+    }
+  }
+  return best;
+}
+
+PrecisionReport EvaluatePrecision(const TriangleMesh& a, const TriangleMesh& b, const Rigid3d& a_from_b, double max_d) {
+  const MeshClosestPoint ref(a);
+  EvaluateOptions o;
+  o.max_distance_mm = max_d;
+  o.teeth_only_coverage = false;
+  const TruenessReport t = EvaluateTrueness(b, ref, a_from_b, o);
+  PrecisionReport p;
+  p.rms_um = t.rms_um;
+  p.p95_um = t.p95_um;
+  p.points = t.points;
+  return p;
+}
+
+AteReport AbsoluteTrajectoryError(const std::vector<Rigid3d>& est, const std::vector<Rigid3d>& truth, Rigid3d* out) {
+  D3D_CHECK_MSG(est.size() == truth.size(), "AbsoluteTrajectoryError: sizes differ");
+  AteReport r;
+  r.poses = static_cast<int>(est.size());
+  if (est.size() < 3) return r;
+  std::vector<Correspondence3d> c;
+  for (size_t i = 0; i < est.size(); ++i) c.push_back({est[i].translation(), truth[i].translation(), 1.0});
+  Rigid3d T = FitRigid(c, 0).value_or(truth[0] * est[0].inverse());
+  double s2 = 0, sr = 0;
+  for (size_t i = 0; i < est.size(); ++i) {
+    const Rigid3d e = T * est[i];
+    const double d = TranslationDistanceMm(e, truth[i]);
+    s2 += d * d;
+    r.max_mm = std::max(r.max_mm, d);
+    sr += RotationAngleRad(e, truth[i]) * 180.0 / M_PI;
+  }
+  r.rmse_mm = std::sqrt(s2 / static_cast<double>(est.size()));
+  r.mean_deg = sr / static_cast<double>(est.size());
+  if (out) *out = T;
+  return r;
+}
+
+cv::Mat DeviationHeatMap(const TriangleMesh& scan, const std::vector<float>& signed_um, double range_um, int width_px) {
+  D3D_CHECK_MSG(signed_um.size() == scan.vertices.size(), "DeviationHeatMap: one value per vertex");
+  cv::Mat img(10, 10, CV_8UC3, cv::Scalar(255, 255, 255));
+  if (scan.vertices.empty()) return img;
+  Eigen::Vector3d m = Eigen::Vector3d::Zero();
+  for (const auto& p : scan.vertices) m += p;
+  m /= static_cast<double>(scan.vertices.size());
+  Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
+  for (const auto& p : scan.vertices) C += (p - m) * (p - m).transpose();
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(C);
+  const Eigen::Vector3d ax = es.eigenvectors().col(2), ay = es.eigenvectors().col(1), az = es.eigenvectors().col(0);
+  // View from the side most normals face.
+  TriangleMesh tmp = scan;
+  tmp.ComputeVertexNormals();
+  double facing = 0;
+  for (const auto& n : tmp.vertex_normals) facing += n.dot(az);
+  const double sz = facing >= 0 ? 1 : -1;
+  double x0 = 1e30, x1 = -1e30, y0 = 1e30, y1 = -1e30;
+  for (const auto& p : scan.vertices) {
+    const double x = (p - m).dot(ax), y = (p - m).dot(ay);
+    x0 = std::min(x0, x), x1 = std::max(x1, x), y0 = std::min(y0, y), y1 = std::max(y1, y);
+  }
+  const double scale = (width_px - 20) / std::max(x1 - x0, 1e-6);
+  const int h = static_cast<int>((y1 - y0) * scale) + 20, bar = 70;
+  img = cv::Mat(h + bar, width_px, CV_8UC3, cv::Scalar(255, 255, 255));
+  cv::Mat zbuf(h, width_px, CV_64F, cv::Scalar(-1e30));
+  auto colour = [&](double d) {
+    const double t = std::clamp((d / range_um + 1) / 2, 0.0, 1.0);  // 0 blue, 0.5 green, 1 red
+    const double r = std::clamp(2 * t - 1, 0.0, 1.0), b = std::clamp(1 - 2 * t, 0.0, 1.0), g = 1 - r - b;
+    return cv::Vec3b(static_cast<uint8_t>(255 * b), static_cast<uint8_t>(255 * g), static_cast<uint8_t>(255 * r));
+  };
+  const int splat = std::max(1, static_cast<int>(std::ceil(0.05 * scale / 2)));
+  for (size_t i = 0; i < scan.vertices.size(); ++i) {
+    const Eigen::Vector3d d = scan.vertices[i] - m;
+    const int u = static_cast<int>((d.dot(ax) - x0) * scale) + 10, v = static_cast<int>((y1 - d.dot(ay)) * scale) + 10;
+    const double z = sz * d.dot(az);
+    if (!std::isfinite(signed_um[i])) continue;  // not evaluated (subsampled) or excluded
+    const cv::Vec3b c = colour(signed_um[i]);
+    for (int y = std::max(0, v - splat); y <= std::min(h - 1, v + splat); ++y)
+      for (int x = std::max(0, u - splat); x <= std::min(width_px - 1, u + splat); ++x)
+        if (z > zbuf.at<double>(y, x)) {
+          zbuf.at<double>(y, x) = z;
+          img.at<cv::Vec3b>(y, x) = c;
+        }
+  }
+  // Colour bar with labels (µm).
+  const int bx0 = width_px / 6, bx1 = 5 * width_px / 6;
+  for (int x = bx0; x < bx1; ++x) {
+    const double d = (2.0 * (x - bx0) / (bx1 - bx0) - 1) * range_um;
+    cv::line(img, {x, h + 10}, {x, h + 35}, cv::Scalar(colour(d)[0], colour(d)[1], colour(d)[2]));
+  }
+  for (int k = 0; k <= 4; ++k) {
+    const int x = bx0 + k * (bx1 - bx0) / 4;
+    const std::string label = std::to_string(static_cast<int>(std::lround((k / 2.0 - 1) * range_um))) + " um";
+    cv::putText(img, label, {x - 25, h + 58}, cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+  }
+  return img;
+}
+
+}  // namespace d3d

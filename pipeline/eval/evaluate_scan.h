@@ -1,0 +1,102 @@
+// Accuracy of a scanned model against a reference surface, as the in-vitro full-arch studies
+// report it (ISO 5725-1 trueness / precision; ISO 20896-1 for intraoral scanners; e.g. Ender &
+// Mehl 2013, J. Prosthet. Dent. 109(2)): best-fit alignment of the scan to the reference (ICP,
+// point-to-plane, on mesh closest points), then signed distances from the scan to the reference
+// over the region the scan covers; coverage of the reference tooth surface; precision between
+// repeated scans; absolute trajectory error (Sturm et al. 2012, TUM RGB-D benchmark, §V-A) after
+// a rigid Umeyama alignment of the trajectories. Units: mm in, µm in the reported deviations.
+#pragma once
+
+#include <Eigen/Core>
+#include <memory>
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+#include "common/core/rigid.h"
+#include "common/mesh/mesh.h"
+#include "pipeline/register/icp.h"
+
+namespace d3d {
+
+// Exact closest points on a triangle mesh: a k-d tree over triangle centroids gives candidates,
+// the point–triangle distance (Ericson 2005, Real-Time Collision Detection §5.1.5) decides.
+// The mesh is copied. Const methods are thread-safe.
+class MeshClosestPoint final : public IcpTarget {
+ public:
+  explicit MeshClosestPoint(const TriangleMesh& mesh, int candidates = 16);
+  ~MeshClosestPoint() override;
+  struct Hit {
+    int face = -1;
+    Eigen::Vector3d point = Eigen::Vector3d::Zero();
+    double distance_mm = 0;   // unsigned
+    double signed_mm = 0;     // positive on the side the face normal points to
+    bool on_boundary = false; // the closest point lies on an open (boundary) edge of the mesh
+  };
+  Hit Closest(const Eigen::Vector3d& p) const;
+  // IcpTarget: closest point and its face normal.
+  bool Find(const Eigen::Vector3f& query, float max_distance_mm, Eigen::Vector3f* point,
+            Eigen::Vector3f* normal) const override;
+  const TriangleMesh& mesh() const { return mesh_; }
+
+ private:
+  struct Impl;
+  TriangleMesh mesh_;
+  int candidates_;
+  std::unique_ptr<Impl> impl_;
+};
+
+struct EvaluateOptions {
+  bool align = true;                  // best-fit ICP of the scan onto the reference
+  double max_distance_mm = 1.0;       // scan points farther from the reference are outliers (counted, not in the figures)
+  double coverage_distance_mm = 0.2;  // a reference point is covered when a scan point is this close
+  double coverage_sample_mm2 = 0.01;  // reference surface per coverage sample
+  bool teeth_only_coverage = true;    // coverage of tooth faces when the reference is labelled
+  int max_scan_points = 400000;       // scan vertices evaluated (evenly subsampled beyond)
+  void Check() const;
+};
+
+struct TruenessReport {
+  Rigid3d reference_from_scan = Rigid3d::Identity();  // the best fit applied (identity without align)
+  double alignment_rmse_mm = 0;
+  int64_t points = 0;                 // scan points in the figures
+  double outlier_pct = 0;             // scan points beyond max_distance_mm or past the reference's border
+  double rms_um = 0, mean_um = 0, mean_abs_um = 0, p95_um = 0, max_um = 0;  // p95 of |d|
+  double coverage_pct = 0;
+  std::vector<float> signed_um;       // per scan vertex (NaN where excluded), for heat maps
+};
+
+// Aligns (if asked) starting from `initial` (reference_from_scan) and evaluates.
+TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint& reference, const Rigid3d& initial,
+                                const EvaluateOptions& options = {});
+
+// A coarse global alignment when no initial pose is known: principal axes of both vertex sets
+// (8 sign/axis hypotheses) each refined by ICP; the best (overlap, then residual) wins.
+Rigid3d GlobalAlign(const TriangleMesh& scan, const MeshClosestPoint& reference);
+
+// Precision between two scans of the same object: b is aligned onto a (ICP, from `initial`
+// a_from_b) and the RMS / p95 of |signed distance| over the overlap is returned (µm).
+struct PrecisionReport {
+  double rms_um = 0, p95_um = 0;
+  int64_t points = 0;
+};
+PrecisionReport EvaluatePrecision(const TriangleMesh& a, const TriangleMesh& b, const Rigid3d& a_from_b = Rigid3d::Identity(),
+                                  double max_distance_mm = 0.5);
+
+// Absolute trajectory error: estimated and true poses (same length, paired) are aligned by the
+// rigid transform minimising the position error (Umeyama 1991), then RMS position error (mm) and
+// mean rotation error (deg). *truth_from_estimate (optional) gets the alignment.
+struct AteReport {
+  double rmse_mm = 0, mean_deg = 0, max_mm = 0;
+  int poses = 0;
+};
+AteReport AbsoluteTrajectoryError(const std::vector<Rigid3d>& estimate, const std::vector<Rigid3d>& truth,
+                                  Rigid3d* truth_from_estimate = nullptr);
+
+// A deviation heat map: the scan's vertices seen along the smallest principal axis of the scan
+// (orthographic, z-buffered splats), coloured by signed deviation on a diverging blue–green–red
+// scale clipped at ±range_um (vertices without a value not drawn), with a colour bar and its labels.
+cv::Mat DeviationHeatMap(const TriangleMesh& scan_in_reference, const std::vector<float>& signed_um, double range_um = 50,
+                         int width_px = 1200);
+
+}  // namespace d3d

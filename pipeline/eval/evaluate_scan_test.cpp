@@ -1,0 +1,104 @@
+#include "pipeline/eval/evaluate_scan.h"
+
+#include <gtest/gtest.h>
+
+namespace d3d {
+namespace {
+
+// A bumpy 20 × 10 mm sheet z = h(x, y), triangulated on a 0.1 mm grid, faces toward +z.
+TriangleMesh Sheet(double x0 = -10, double x1 = 10, double step = 0.1) {
+  TriangleMesh m;
+  const int nx = static_cast<int>(std::lround((x1 - x0) / step)) + 1, ny = 101;
+  for (int j = 0; j < ny; ++j)
+    for (int i = 0; i < nx; ++i) {
+      const double x = x0 + i * step, y = -5 + j * step;
+      m.vertices.emplace_back(x, y, 0.8 * std::sin(0.7 * x) * std::cos(0.9 * y) + 0.3 * std::sin(2.3 * x + 1.1 * y));
+    }
+  for (int j = 0; j + 1 < ny; ++j)
+    for (int i = 0; i + 1 < nx; ++i) {
+      const int a = j * nx + i, b = a + 1, c = a + nx, d = c + 1;
+      m.faces.emplace_back(a, b, d);
+      m.faces.emplace_back(a, d, c);
+    }
+  return m;
+}
+
+TEST(EvaluateScan, AReferenceShiftedByAKnownAmount) {
+  const TriangleMesh ref = Sheet();
+  const MeshClosestPoint cp(ref);
+  TriangleMesh scan = Sheet(-5, 5);  // the middle half of the sheet
+  Rigid3d shift = Rigid3d::Identity();
+  shift.translation() = Eigen::Vector3d(0, 0, 0.030);
+  for (auto& v : scan.vertices) v = shift * v;
+  EvaluateOptions o;
+  o.align = false;
+  o.teeth_only_coverage = false;
+  const TruenessReport r = EvaluateTrueness(scan, cp, Rigid3d::Identity(), o);
+  // The signed distance of a 30 µm vertical shift is 30 µm · cos(slope) ≤ 30 µm, positive (above).
+  EXPECT_GT(r.mean_um, 20.0);
+  EXPECT_LE(r.max_um, 30.01);
+  EXPECT_NEAR(r.rms_um, r.mean_abs_um, 2.0);
+  EXPECT_GT(r.p95_um, 25.0);
+  EXPECT_NEAR(r.coverage_pct, 50.0, 3.0);  // half the sheet, within 0.2 mm
+  // Best fit removes the shift.
+  o.align = true;
+  const TruenessReport a = EvaluateTrueness(scan, cp, Rigid3d::Identity(), o);
+  EXPECT_LT(a.rms_um, 1.5);
+  EXPECT_LT(TranslationDistanceMm(a.reference_from_scan, shift.inverse()), 0.002);
+  // A scan placed far off is found by the global alignment.
+  Rigid3d far = Rigid3d::Identity();
+  far.linear() = Eigen::AngleAxisd(2.5, Eigen::Vector3d(0.2, 0.5, 1).normalized()).toRotationMatrix();
+  far.translation() = Eigen::Vector3d(40, -7, 12);
+  TriangleMesh moved = Sheet(-8, 8);
+  for (auto& v : moved.vertices) v = far * v;
+  const Rigid3d g = GlobalAlign(moved, cp);
+  const TruenessReport ga = EvaluateTrueness(moved, cp, g, o);
+  EXPECT_LT(ga.rms_um, 1.5);
+}
+
+TEST(EvaluateScan, PrecisionAndTrajectoryError) {
+  const TriangleMesh a = Sheet();
+  TriangleMesh b = Sheet(-9, 9);
+  Rigid3d T = Rigid3d::Identity();
+  T.translation() = Eigen::Vector3d(0.05, -0.02, 0.01);
+  for (auto& v : b.vertices) v = T * v;
+  const PrecisionReport p = EvaluatePrecision(a, b, T.inverse());
+  EXPECT_LT(p.rms_um, 1.5);
+  EXPECT_GT(p.points, 1000);
+  // ATE: a trajectory seen in another frame, with one pose off by 1 mm.
+  std::vector<Rigid3d> truth, est;
+  Rigid3d W = Rigid3d::Identity();
+  W.linear() = Eigen::AngleAxisd(0.8, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  W.translation() = Eigen::Vector3d(5, 6, 7);
+  for (int i = 0; i < 50; ++i) {
+    Rigid3d t = Rigid3d::Identity();
+    t.translation() = Eigen::Vector3d(i, std::sin(0.2 * i) * 5, 0.1 * i);
+    truth.push_back(t);
+    est.push_back(W * t);
+  }
+  Rigid3d align;
+  AteReport r = AbsoluteTrajectoryError(est, truth, &align);
+  EXPECT_LT(r.rmse_mm, 1e-9);
+  EXPECT_LT(r.mean_deg, 1e-6);
+  est[10].translation() += Eigen::Vector3d(0, 0, 1.0);
+  r = AbsoluteTrajectoryError(est, truth);
+  EXPECT_NEAR(r.rmse_mm, std::sqrt(1.0 / 50), 0.02);
+  EXPECT_NEAR(r.max_mm, 1.0, 0.05);
+}
+
+TEST(EvaluateScan, HeatMapHasTheScanAndABar) {
+  const TriangleMesh s = Sheet();
+  std::vector<float> d(s.vertices.size());
+  for (size_t i = 0; i < d.size(); ++i) d[i] = static_cast<float>(s.vertices[i].x() * 5);
+  const cv::Mat img = DeviationHeatMap(s, d, 50, 800);
+  ASSERT_EQ(img.type(), CV_8UC3);
+  EXPECT_EQ(img.cols, 800);
+  // One end blue (−50 µm), the other red (+50 µm) (the principal axis may point either way).
+  const cv::Vec3b left = img.at<cv::Vec3b>(img.rows / 3, 30), right = img.at<cv::Vec3b>(img.rows / 3, 770);
+  const bool blue_left = left[0] > 200 && left[2] < 50 && right[2] > 200 && right[0] < 50;
+  const bool red_left = left[2] > 200 && left[0] < 50 && right[0] > 200 && right[2] < 50;
+  EXPECT_TRUE(blue_left || red_left) << left << " " << right;
+}
+
+}  // namespace
+}  // namespace d3d

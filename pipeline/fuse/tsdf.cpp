@@ -1,0 +1,241 @@
+#include "pipeline/fuse/tsdf.h"
+
+#include <openvdb/openvdb.h>
+#include <openvdb/tools/Interpolation.h>
+#include <openvdb/tools/VolumeToMesh.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <unordered_set>
+
+namespace d3d {
+
+void TsdfOptions::Check() const {
+  D3D_CHECK_MSG(voxel_mm > 0 && voxel_mm <= 1.0, "TsdfOptions: voxel_mm must be in (0, 1], got " << voxel_mm);
+  D3D_CHECK_MSG(truncation_mm >= voxel_mm, "TsdfOptions: truncation_mm must be >= voxel_mm");
+  D3D_CHECK_MSG(max_weight > 0 && min_point_weight >= 0, "TsdfOptions: weights must be positive");
+  D3D_CHECK_MSG(max_incidence_deg > 0 && max_incidence_deg <= 90, "TsdfOptions: max_incidence_deg in (0, 90]");
+  D3D_CHECK_MSG(pixel_stride >= 1, "TsdfOptions: pixel_stride >= 1");
+}
+
+struct TsdfVolume::Impl {
+  openvdb::FloatGrid::Ptr tsdf;
+  openvdb::FloatGrid::Ptr weight;
+};
+
+namespace {
+constexpr int kLeafDim = 8;  // openvdb::FloatTree::LeafNodeType::DIM
+
+struct CoordHash {
+  size_t operator()(const openvdb::Coord& c) const {
+    return static_cast<size_t>(c.x()) * 73856093u ^ static_cast<size_t>(c.y()) * 19349663u ^
+           static_cast<size_t>(c.z()) * 83492791u;
+  }
+};
+
+openvdb::Coord LeafOrigin(const openvdb::Coord& ijk) {
+  return openvdb::Coord(ijk.x() & ~(kLeafDim - 1), ijk.y() & ~(kLeafDim - 1), ijk.z() & ~(kLeafDim - 1));
+}
+
+// Leaves within `band` voxels of point p (index space).
+void TouchLeaves(const Eigen::Vector3d& p_index, double band, std::unordered_set<openvdb::Coord, CoordHash>* leaves) {
+  const openvdb::Coord lo(static_cast<int>(std::floor(p_index.x() - band)), static_cast<int>(std::floor(p_index.y() - band)),
+                          static_cast<int>(std::floor(p_index.z() - band)));
+  const openvdb::Coord hi(static_cast<int>(std::ceil(p_index.x() + band)), static_cast<int>(std::ceil(p_index.y() + band)),
+                          static_cast<int>(std::ceil(p_index.z() + band)));
+  const openvdb::Coord a = LeafOrigin(lo), b = LeafOrigin(hi);
+  for (int x = a.x(); x <= b.x(); x += kLeafDim)
+    for (int y = a.y(); y <= b.y(); y += kLeafDim)
+      for (int z = a.z(); z <= b.z(); z += kLeafDim) leaves->insert(openvdb::Coord(x, y, z));
+}
+
+}  // namespace
+
+TsdfVolume::TsdfVolume(const TsdfOptions& options) : o_(options), impl_(std::make_unique<Impl>()) {
+  o_.Check();
+  openvdb::initialize();
+  const float trunc = static_cast<float>(o_.truncation_mm);
+  impl_->tsdf = openvdb::FloatGrid::create(trunc);
+  impl_->weight = openvdb::FloatGrid::create(0.0f);
+  const auto xf = openvdb::math::Transform::createLinearTransform(o_.voxel_mm);
+  impl_->tsdf->setTransform(xf);
+  impl_->weight->setTransform(xf->copy());
+  impl_->tsdf->setGridClass(openvdb::GRID_LEVEL_SET);
+  impl_->tsdf->setName("tsdf_mm");
+  impl_->weight->setName("weight");
+}
+
+TsdfVolume::~TsdfVolume() = default;
+
+Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& Q, const PinholeBrownConrady& camera,
+                             const Rigid3d& world_from_cam) {
+  if (P.type() != CV_32FC3 || N.type() != CV_32FC3 || P.size() != N.size())
+    return InvalidArgument("tsdf: points and normals must be CV_32FC3 of one size");
+  if (!Q.empty() && (Q.type() != CV_32F || Q.size() != P.size())) return InvalidArgument("tsdf: quality must be CV_32F like points");
+  if (P.cols != camera.width || P.rows != camera.height) return InvalidArgument("tsdf: image size differs from the camera's");
+  const double inv_voxel = 1.0 / o_.voxel_mm;
+  const double band = o_.truncation_mm * inv_voxel + 1.0;
+  const float cos_max = static_cast<float>(std::cos(o_.max_incidence_deg * M_PI / 180.0));
+  // 1. Leaves near the view's points (serial: topology changes).
+  std::unordered_set<openvdb::Coord, CoordHash> leaves;
+  for (int r = 0; r < P.rows; r += o_.pixel_stride) {
+    const cv::Vec3f* p = P.ptr<cv::Vec3f>(r);
+    for (int c = 0; c < P.cols; c += o_.pixel_stride) {
+      if (!std::isfinite(p[c][0]) || !std::isfinite(p[c][2])) continue;
+      const Eigen::Vector3d w = world_from_cam * Eigen::Vector3d(p[c][0], p[c][1], p[c][2]);
+      TouchLeaves(w * inv_voxel, band, &leaves);
+    }
+  }
+  auto& ttree = impl_->tsdf->tree();
+  auto& wtree = impl_->weight->tree();
+  std::vector<std::pair<openvdb::FloatTree::LeafNodeType*, openvdb::FloatTree::LeafNodeType*>> nodes;
+  nodes.reserve(leaves.size());
+  for (const auto& o : leaves) nodes.emplace_back(ttree.touchLeaf(o), wtree.touchLeaf(o));
+  // 2. Every voxel of those leaves, projectively (parallel over leaves: each leaf is one task's).
+  const Rigid3d cam_from_world = world_from_cam.inverse();
+  const Eigen::Matrix3d R = cam_from_world.linear();
+  const Eigen::Vector3d t = cam_from_world.translation();
+  const float trunc = static_cast<float>(o_.truncation_mm);
+  const float maxw = o_.max_weight;
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, nodes.size(), 16), [&](const tbb::blocked_range<size_t>& range) {
+    for (size_t li = range.begin(); li < range.end(); ++li) {
+      auto* tl = nodes[li].first;
+      auto* wl = nodes[li].second;
+      const openvdb::Coord origin = tl->origin();
+      for (openvdb::Index off = 0; off < openvdb::FloatTree::LeafNodeType::SIZE; ++off) {
+        const openvdb::Coord ijk = origin + openvdb::FloatTree::LeafNodeType::offsetToLocalCoord(off);
+        const Eigen::Vector3d x = R * (Eigen::Vector3d(ijk.x(), ijk.y(), ijk.z()) * o_.voxel_mm) + t;
+        if (x.z() <= 0) continue;
+        const auto uv = camera.Project(x);
+        if (!uv) continue;
+        const int u = static_cast<int>(std::lround((*uv).x())), v = static_cast<int>(std::lround((*uv).y()));
+        if (u < 0 || v < 0 || u >= P.cols || v >= P.rows) continue;
+        const cv::Vec3f& pm = P.at<cv::Vec3f>(v, u);
+        const cv::Vec3f& nm = N.at<cv::Vec3f>(v, u);
+        if (!std::isfinite(pm[0]) || !std::isfinite(pm[2])) continue;
+        const float q = Q.empty() ? 1.0f : Q.at<float>(v, u);
+        if (!(q >= o_.min_point_weight)) continue;
+        const Eigen::Vector3f p(pm[0], pm[1], pm[2]);
+        float sdf;
+        if (std::isfinite(nm[0]) && std::isfinite(nm[2])) {
+          Eigen::Vector3f n(nm[0], nm[1], nm[2]);
+          const Eigen::Vector3f ray = p.normalized();
+          float cos_inc = -n.dot(ray);
+          if (cos_inc < 0) {
+            n = -n;
+            cos_inc = -cos_inc;
+          }
+          if (cos_inc < cos_max) continue;
+          sdf = n.dot(x.cast<float>() - p);
+        } else {
+          sdf = (p.norm() - static_cast<float>(x.norm()));
+        }
+        if (sdf < -trunc) continue;
+        if (sdf > trunc) sdf = trunc;
+        const float W = wl->getValue(off);
+        const float D = W > 0 ? tl->getValue(off) : 0.0f;
+        const float Wn = W + q;
+        tl->setValueOn(off, (D * W + sdf * q) / Wn);
+        wl->setValueOn(off, std::min(Wn, maxw));
+      }
+    }
+  });
+  ++views_;
+  return Status::Ok();
+}
+
+void TsdfVolume::IntegratePoints(const std::vector<Eigen::Vector3f>& points, const std::vector<Eigen::Vector3f>& normals,
+                                 const std::vector<float>& weights) {
+  D3D_CHECK_MSG(normals.size() == points.size(), "IntegratePoints: a normal per point");
+  D3D_CHECK_MSG(weights.empty() || weights.size() == points.size(), "IntegratePoints: weights empty or one per point");
+  const double inv_voxel = 1.0 / o_.voxel_mm;
+  const int band = static_cast<int>(std::ceil(o_.truncation_mm * inv_voxel));
+  const float trunc = static_cast<float>(o_.truncation_mm);
+  openvdb::FloatGrid::Accessor ta = impl_->tsdf->getAccessor();
+  openvdb::FloatGrid::Accessor wa = impl_->weight->getAccessor();
+  for (size_t i = 0; i < points.size(); ++i) {
+    const Eigen::Vector3d p = points[i].cast<double>();
+    const Eigen::Vector3d n = normals[i].cast<double>().normalized();
+    const float q = weights.empty() ? 1.0f : weights[i];
+    if (!(q >= o_.min_point_weight)) continue;
+    // Voxels within half a voxel of the point's normal line, ±truncation.
+    const Eigen::Vector3d c = p * inv_voxel;
+    for (int dx = -band; dx <= band; ++dx)
+      for (int dy = -band; dy <= band; ++dy)
+        for (int dz = -band; dz <= band; ++dz) {
+          const openvdb::Coord ijk(static_cast<int>(std::lround(c.x())) + dx, static_cast<int>(std::lround(c.y())) + dy,
+                                   static_cast<int>(std::lround(c.z())) + dz);
+          const Eigen::Vector3d x = Eigen::Vector3d(ijk.x(), ijk.y(), ijk.z()) * o_.voxel_mm;
+          const Eigen::Vector3d d = x - p;
+          const double along = n.dot(d);
+          if ((d - along * n).norm() > 0.5 * o_.voxel_mm || std::abs(along) > o_.truncation_mm) continue;
+          const float sdf = std::clamp(static_cast<float>(along), -trunc, trunc);
+          const float W = wa.getValue(ijk);
+          const float D = W > 0 ? ta.getValue(ijk) : 0.0f;
+          ta.setValue(ijk, (D * W + sdf * q) / (W + q));
+          wa.setValue(ijk, std::min(W + q, o_.max_weight));
+        }
+  }
+  ++views_;
+}
+
+TriangleMesh TsdfVolume::ExtractMesh(float min_weight) const {
+  if (min_weight < 0) min_weight = o_.min_mesh_weight;
+  std::vector<openvdb::Vec3s> pts;
+  std::vector<openvdb::Vec3I> tris;
+  std::vector<openvdb::Vec4I> quads;
+  openvdb::tools::volumeToMesh(*impl_->tsdf, pts, tris, quads, 0.0, 0.0, true);
+  TriangleMesh mesh;
+  // Keep a vertex when the 8 voxel centres around it are all observed with enough weight.
+  std::vector<uint8_t> keep(pts.size(), 0);
+  const auto wacc = impl_->weight->getConstAccessor();
+  const double inv_voxel = 1.0 / o_.voxel_mm;
+  for (size_t i = 0; i < pts.size(); ++i) {
+    const int x = static_cast<int>(std::floor(pts[i].x() * inv_voxel)), y = static_cast<int>(std::floor(pts[i].y() * inv_voxel)),
+              z = static_cast<int>(std::floor(pts[i].z() * inv_voxel));
+    bool ok = true;
+    for (int k = 0; k < 8 && ok; ++k) ok = wacc.getValue(openvdb::Coord(x + (k & 1), y + ((k >> 1) & 1), z + ((k >> 2) & 1))) >= min_weight;
+    keep[i] = ok;
+  }
+  std::vector<int> remap(pts.size(), -1);
+  auto vid = [&](openvdb::Index i) {
+    if (remap[i] < 0) {
+      remap[i] = static_cast<int>(mesh.vertices.size());
+      mesh.vertices.emplace_back(pts[i].x(), pts[i].y(), pts[i].z());
+    }
+    return remap[i];
+  };
+  // OpenVDB orients polygons with normals toward the inside (negative) of the level set; we want
+  // them toward the front (positive, the camera side): reverse the winding.
+  for (const auto& t : tris) {
+    if (!keep[t[0]] || !keep[t[1]] || !keep[t[2]]) continue;
+    mesh.faces.emplace_back(vid(t[0]), vid(t[2]), vid(t[1]));
+  }
+  for (const auto& q : quads) {
+    if (!keep[q[0]] || !keep[q[1]] || !keep[q[2]] || !keep[q[3]]) continue;
+    const int a = vid(q[0]), b = vid(q[1]), c = vid(q[2]), d = vid(q[3]);
+    mesh.faces.emplace_back(a, c, b);
+    mesh.faces.emplace_back(a, d, c);
+  }
+  return mesh;
+}
+
+float TsdfVolume::SignedDistance(const Eigen::Vector3d& p) const {
+  openvdb::tools::GridSampler<openvdb::FloatGrid, openvdb::tools::BoxSampler> s(*impl_->tsdf);
+  return s.wsSample(openvdb::Vec3d(p.x(), p.y(), p.z()));
+}
+
+float TsdfVolume::Weight(const Eigen::Vector3d& p) const {
+  openvdb::tools::GridSampler<openvdb::FloatGrid, openvdb::tools::BoxSampler> s(*impl_->weight);
+  return s.wsSample(openvdb::Vec3d(p.x(), p.y(), p.z()));
+}
+
+int64_t TsdfVolume::ActiveVoxels() const { return static_cast<int64_t>(impl_->tsdf->activeVoxelCount()); }
+
+int64_t TsdfVolume::MemoryBytes() const {
+  return static_cast<int64_t>(impl_->tsdf->memUsage() + impl_->weight->memUsage());
+}
+
+}  // namespace d3d

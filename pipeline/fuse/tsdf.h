@@ -1,0 +1,83 @@
+// Truncated signed distance fusion in a sparse OpenVDB grid, and its surface as a triangle mesh.
+//
+// Method: Curless & Levoy 1996 ("A volumetric method for building complex models from range
+// images", §3: cumulative weighted signed distance), on a sparse VDB tree as in VDBFusion (Vizzo
+// et al. 2022, Sensors 22(3) 1296): only leaves (8³ voxels) within the truncation band of a view's
+// points are allocated. The signed distance of a voxel centre x is taken projectively: x is moved
+// into the camera, projected with the calibrated camera (distortion included), and its distance
+// to the tangent plane of the measured point at that pixel, d = n·(x − p) (n toward the camera;
+// positive in front of the surface, negative behind), is clamped to ±truncation; voxels more than
+// one truncation behind the surface are left alone. Each view adds d with weight w = its point's
+// quality (pipeline/unwrap's quality map, 0..1):
+//   D ← (W·D + w·d) / (W + w),  W ← min(W + w, max_weight).
+// With unit weights and no cap, D is the mean of the n measurements: noise falls as 1/√n.
+// Mesh: marching cubes on the zero level (OpenVDB tools::volumeToMesh, adaptivity 0; Lorensen &
+// Cline 1987 / dual-contouring topology of OpenVDB), keeping polygons whose voxel cell corners all
+// carry at least min_mesh_weight (which drops the spurious crossings at the band's back and rim).
+// Thread model: one owner thread calls Integrate/ExtractMesh; Integrate uses TBB internally.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <opencv2/core.hpp>
+
+#include "calib/model/camera_model.h"
+#include "common/core/rigid.h"
+#include "common/core/status.h"
+#include "common/mesh/mesh.h"
+
+namespace d3d {
+
+struct TsdfOptions {
+  double voxel_mm = 0.05;          // voxel edge (≤ 0.05 mm for the arch)
+  double truncation_mm = 0.2;      // band half-width
+  float max_weight = 1e6f;         // cap of the accumulated weight (moving average beyond)
+  float min_point_weight = 0.05f;  // points of lower quality are not fused
+  double max_incidence_deg = 80;   // points seen more grazing than this are not fused
+  int pixel_stride = 1;            // leaf allocation samples every k-th pixel (integration uses all)
+  float min_mesh_weight = 1.0f;    // see ExtractMesh
+  void Check() const;              // throws std::invalid_argument
+};
+
+class TsdfVolume {
+ public:
+  explicit TsdfVolume(const TsdfOptions& options = {});
+  ~TsdfVolume();
+  TsdfVolume(const TsdfVolume&) = delete;
+  TsdfVolume& operator=(const TsdfVolume&) = delete;
+
+  const TsdfOptions& options() const { return o_; }
+
+  // Fuses one organised view. points_in_cam, normals_in_cam: H×W CV_32FC3 (mm, NaN = none);
+  // quality: H×W CV_32F in [0, 1] or empty (weight 1); camera: the intrinsics the view was
+  // measured with (H×W = its size); world_from_cam: the view's registered pose.
+  // INVALID_ARGUMENT for mismatched sizes or types.
+  [[nodiscard]] Status Integrate(const cv::Mat& points_in_cam, const cv::Mat& normals_in_cam, const cv::Mat& quality,
+                                 const PinholeBrownConrady& camera, const Rigid3d& world_from_cam);
+
+  // Fuses an unorganised set of points with normals (world frame) by splatting each point's
+  // tangent-plane distance into the voxels within truncation of it (used by tests and for clouds
+  // without a camera): same averaging, weight per point.
+  void IntegratePoints(const std::vector<Eigen::Vector3f>& points, const std::vector<Eigen::Vector3f>& normals,
+                       const std::vector<float>& weights);
+
+  // The zero level as a mesh (world frame, mm, faces counter-clockwise seen from the front /
+  // camera side), with polygons whose cell corners all have weight ≥ min_weight (< 0: the option).
+  TriangleMesh ExtractMesh(float min_weight = -1.0f) const;
+
+  // Signed distance (mm) and weight at a world point (trilinear; weight 0 where unobserved).
+  float SignedDistance(const Eigen::Vector3d& p_in_world) const;
+  float Weight(const Eigen::Vector3d& p_in_world) const;
+
+  int64_t ActiveVoxels() const;
+  int64_t MemoryBytes() const;  // both grids, as OpenVDB counts them
+  int64_t views() const { return views_; }
+
+ private:
+  struct Impl;
+  TsdfOptions o_;
+  std::unique_ptr<Impl> impl_;
+  int64_t views_ = 0;
+};
+
+}  // namespace d3d

@@ -1,0 +1,275 @@
+#include "pipeline/register/icp.h"
+
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include "common/core/status.h"
+
+namespace d3d {
+
+KdTreeTarget::KdTreeTarget(SurfacePoints target) : target_(std::move(target)) {
+  D3D_CHECK_MSG(target_.normals.size() == target_.points.size(), "KdTreeTarget needs a normal per point");
+  tree_ = std::make_unique<PointKdTree>(&target_.points);
+}
+
+bool KdTreeTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* p, Eigen::Vector3f* n) const {
+  float d2 = 0;
+  const int i = tree_->Nearest(q, &d2);
+  if (i < 0 || d2 > max_d * max_d) return false;
+  *p = target_.points[static_cast<size_t>(i)];
+  *n = target_.normals[static_cast<size_t>(i)];
+  return std::isfinite((*n)[0]);
+}
+
+PinholeIntrinsics PinholeIntrinsics::Scaled(double s) const {
+  PinholeIntrinsics o;
+  o.fx = fx * s;
+  o.fy = fy * s;
+  o.cx = (cx + 0.5) * s - 0.5;
+  o.cy = (cy + 0.5) * s - 0.5;
+  o.width = static_cast<int>(std::lround(width * s));
+  o.height = static_cast<int>(std::lround(height * s));
+  return o;
+}
+
+ProjectiveTarget::ProjectiveTarget(cv::Mat points, cv::Mat normals, const PinholeIntrinsics& k,
+                                   const Rigid3d& cam_from_target, int window)
+    : points_(std::move(points)), normals_(std::move(normals)), k_(k), window_(window) {
+  D3D_CHECK_MSG(points_.type() == CV_32FC3 && normals_.type() == CV_32FC3 && points_.size() == normals_.size(),
+                "ProjectiveTarget: points and normals must be CV_32FC3 of one size");
+  D3D_CHECK_MSG(points_.cols == k.width && points_.rows == k.height, "ProjectiveTarget: image size != intrinsics");
+  D3D_CHECK_MSG(window >= 0, "window must be >= 0");
+  R_ = cam_from_target.linear().cast<float>();
+  t_ = cam_from_target.translation().cast<float>();
+}
+
+bool ProjectiveTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* p, Eigen::Vector3f* n) const {
+  const Eigen::Vector3f c = R_ * q + t_;
+  if (c.z() <= 0) return false;
+  const int u = static_cast<int>(std::lround(k_.fx * c.x() / c.z() + k_.cx));
+  const int v = static_cast<int>(std::lround(k_.fy * c.y() / c.z() + k_.cy));
+  float best = max_d * max_d;
+  bool found = false;
+  for (int y = std::max(0, v - window_); y <= std::min(k_.height - 1, v + window_); ++y) {
+    const cv::Vec3f* P = points_.ptr<cv::Vec3f>(y);
+    for (int x = std::max(0, u - window_); x <= std::min(k_.width - 1, u + window_); ++x) {
+      const cv::Vec3f& s = P[x];
+      if (!std::isfinite(s[0])) continue;
+      const float d2 = (Eigen::Vector3f(s[0], s[1], s[2]) - q).squaredNorm();
+      if (d2 <= best) {
+        best = d2;
+        *p = Eigen::Vector3f(s[0], s[1], s[2]);
+        const cv::Vec3f& m = normals_.at<cv::Vec3f>(y, x);
+        *n = Eigen::Vector3f(m[0], m[1], m[2]);
+        found = true;
+      }
+    }
+  }
+  return found && std::isfinite((*n)[0]);
+}
+
+void IcpOptions::Check() const {
+  D3D_CHECK_MSG(!levels.empty(), "IcpOptions: at least one level");
+  for (const auto& l : levels) {
+    D3D_CHECK_MSG(l.stride >= 1 && l.max_iterations >= 1 && l.max_distance_mm > 0,
+                  "IcpOptions: level needs stride >= 1, max_iterations >= 1, max_distance_mm > 0");
+    D3D_CHECK_MSG(l.point_to_plane_weight >= 0 && l.point_to_plane_weight <= 1, "point_to_plane_weight must be in [0, 1]");
+  }
+  D3D_CHECK_MSG(max_normal_angle_deg > 0 && max_normal_angle_deg <= 180, "max_normal_angle_deg must be in (0, 180]");
+  D3D_CHECK_MSG(min_sigma_mm > 0, "min_sigma_mm must be > 0");
+  D3D_CHECK_MSG(min_overlap >= 0 && min_overlap <= 1, "min_overlap must be in [0, 1]");
+  D3D_CHECK_MSG(max_rmse_mm > 0 && min_correspondences >= 6 && min_eigen_ratio >= 0, "acceptance thresholds invalid");
+  D3D_CHECK_MSG(threads >= 1, "threads must be >= 1");
+}
+
+namespace {
+
+struct Match {
+  Eigen::Vector3f p;  // moved source point (target frame)
+  Eigen::Vector3f q;  // target point
+  Eigen::Vector3f n;  // target normal
+  float w0;           // source confidence
+  float r;            // point-to-plane residual
+};
+
+double Median(std::vector<float>* v) {
+  if (v->empty()) return 0;
+  auto mid = v->begin() + static_cast<std::ptrdiff_t>(v->size() / 2);
+  std::nth_element(v->begin(), mid, v->end());
+  return *mid;
+}
+
+Rigid3d ExpSe3(const Eigen::Matrix<double, 6, 1>& x) {
+  Rigid3d d = Rigid3d::Identity();
+  const Eigen::Vector3d w = x.head<3>();
+  const double a = w.norm();
+  d.linear() = a > 0 ? Eigen::AngleAxisd(a, w / a).toRotationMatrix() : Eigen::Matrix3d::Identity();
+  d.translation() = x.tail<3>();
+  return d;
+}
+
+}  // namespace
+
+IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, const Rigid3d& initial, const IcpOptions& o) {
+  o.Check();
+  IcpResult res;
+  res.target_from_source = initial;
+  const bool has_n = source.normals.size() == source.points.size();
+  const bool has_w = source.weights.size() == source.points.size();
+  const float cos_max = static_cast<float>(std::cos(o.max_normal_angle_deg * M_PI / 180.0));
+  const double radius = std::max(source.RadiusMm(), 1e-3);
+  Rigid3d T = initial;
+  std::vector<Match> matches;
+  std::vector<uint8_t> found;
+  std::vector<Match> scratch;
+  Eigen::Matrix<double, 6, 6> H_plane_last = Eigen::Matrix<double, 6, 6>::Zero();
+  double sigma_last = o.min_sigma_mm;
+  int associated_last = 0, samples_last = 0;
+  double rmse_last = 0;
+
+  for (size_t li = 0; li < o.levels.size(); ++li) {
+    const IcpLevel& L = o.levels[li];
+    const float gate = static_cast<float>(L.max_distance_mm);
+    const double alpha = L.point_to_plane_weight;
+    std::vector<size_t> idx;
+    for (size_t i = 0; i < source.points.size(); i += static_cast<size_t>(L.stride)) idx.push_back(i);
+    scratch.resize(idx.size());
+    found.assign(idx.size(), 0);
+    double prev_err = -1;
+    for (int it = 0; it < L.max_iterations; ++it) {
+      ++res.iterations;
+      const Eigen::Matrix3f R = T.linear().cast<float>();
+      const Eigen::Vector3f t = T.translation().cast<float>();
+      auto associate = [&](size_t b, size_t e) {
+        for (size_t k = b; k < e; ++k) {
+          const size_t i = idx[k];
+          found[k] = 0;
+          const Eigen::Vector3f p = R * source.points[i] + t;
+          Match m;
+          if (!target.Find(p, gate, &m.q, &m.n)) continue;
+          if (has_n && (R * source.normals[i]).dot(m.n) < cos_max) continue;
+          m.p = p;
+          m.w0 = has_w ? source.weights[i] : 1.0f;
+          m.r = m.n.dot(p - m.q);
+          if (!(m.w0 > 0)) continue;
+          scratch[k] = m;
+          found[k] = 1;
+        }
+      };
+      if (o.threads > 1) {
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, idx.size(), 512),
+                          [&](const tbb::blocked_range<size_t>& r) { associate(r.begin(), r.end()); });
+      } else {
+        associate(0, idx.size());
+      }
+      matches.clear();
+      for (size_t k = 0; k < idx.size(); ++k)
+        if (found[k]) matches.push_back(scratch[k]);
+      const int nm = static_cast<int>(matches.size());
+      samples_last = static_cast<int>(idx.size());
+      associated_last = nm;
+      if (nm < o.min_correspondences) {
+        res.reason = "too few correspondences (" + std::to_string(nm) + " at level " + std::to_string(li) + ")";
+        res.target_from_source = T;
+        res.correspondences = nm;
+        res.overlap = idx.empty() ? 0 : static_cast<double>(nm) / static_cast<double>(idx.size());
+        return res;
+      }
+      std::vector<float> absr(static_cast<size_t>(nm));
+      for (int k = 0; k < nm; ++k) absr[static_cast<size_t>(k)] = std::abs(matches[static_cast<size_t>(k)].r);
+      const double sigma = std::max(o.min_sigma_mm, 1.4826 * Median(&absr));
+      const double c = 4.685 * sigma;
+      Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero(), Hp = H;
+      Eigen::Matrix<double, 6, 1> g = Eigen::Matrix<double, 6, 1>::Zero();
+      double err = 0, wsum = 0, r2sum = 0;
+      for (const Match& m : matches) {
+        const double r = m.r;
+        if (std::abs(r) >= c) continue;
+        const double u = r / c;
+        const double w = m.w0 * (1 - u * u) * (1 - u * u);
+        const Eigen::Vector3d p = m.p.cast<double>(), q = m.q.cast<double>(), n = m.n.cast<double>();
+        Eigen::Matrix<double, 6, 1> J;
+        J.head<3>() = p.cross(n);
+        J.tail<3>() = n;
+        H.noalias() += alpha * w * J * J.transpose();
+        Hp.noalias() += w * J * J.transpose();
+        g.noalias() += alpha * w * r * J;
+        if (alpha < 1) {
+          const Eigen::Vector3d e = p - q;
+          Eigen::Matrix<double, 3, 6> Jp;
+          Jp.leftCols<3>() << 0, p.z(), -p.y(), -p.z(), 0, p.x(), p.y(), -p.x(), 0;  // −[p]×
+          Jp.rightCols<3>().setIdentity();
+          H.noalias() += (1 - alpha) * w * Jp.transpose() * Jp;
+          g.noalias() += (1 - alpha) * w * Jp.transpose() * e;
+          err += (1 - alpha) * w * e.squaredNorm();
+        }
+        err += alpha * w * r * r;
+        wsum += w;
+        r2sum += r * r;
+      }
+      if (!(wsum > 0)) {
+        res.reason = "no inlier correspondences";
+        return res;
+      }
+      H_plane_last = Hp / (sigma * sigma);
+      sigma_last = sigma;
+      int inl = 0;
+      for (const Match& m : matches) inl += std::abs(m.r) < c;
+      rmse_last = std::sqrt(r2sum / std::max(inl, 1));
+      // Solve with the Hessian about the source centroid for conditioning (ω, t in the target frame).
+      H.diagonal().array() += 1e-9 * H.trace() + 1e-12;
+      const Eigen::Matrix<double, 6, 1> x = -H.ldlt().solve(g);
+      if (!x.allFinite()) {
+        res.reason = "singular normal equations";
+        return res;
+      }
+      T = ExpSe3(x) * T;
+      err /= wsum;
+      const bool small = x.head<3>().norm() < o.min_delta_rotation_rad && x.tail<3>().norm() < o.min_delta_translation_mm;
+      const bool flat = prev_err > 0 && std::abs(prev_err - err) <= o.min_relative_error_change * prev_err;
+      prev_err = err;
+      if (small || flat) break;
+    }
+  }
+  res.target_from_source = T;
+  res.correspondences = associated_last;
+  res.overlap = samples_last ? static_cast<double>(associated_last) / samples_last : 0;
+  res.rmse_mm = rmse_last;
+  // Information in [ω, t] with the rotation taken about the target origin; its conditioning is
+  // judged after scaling rotations by the source radius and moving to the source centroid.
+  res.information = H_plane_last;
+  {
+    const Eigen::Vector3d c = T * source.Centroid();
+    // Change of variables to ω and t_c = t + ω × c (the translation of the centroid).
+    Eigen::Matrix<double, 6, 6> A = Eigen::Matrix<double, 6, 6>::Identity();
+    A.block<3, 3>(3, 0) << 0, -c.z(), c.y(), c.z(), 0, -c.x(), -c.y(), c.x(), 0;  // t = t_c + [c]× ω
+    Eigen::Matrix<double, 6, 6> D = Eigen::Matrix<double, 6, 6>::Identity();
+    D.topLeftCorner<3, 3>() *= 1.0 / radius;
+    const Eigen::Matrix<double, 6, 6> Hn = D * A.transpose() * H_plane_last * A * D;
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> es(Hn);
+    const double lmax = es.eigenvalues()(5);
+    res.eigen_ratio = lmax > 0 ? es.eigenvalues()(0) / lmax : 0;
+  }
+  (void)sigma_last;
+  if (res.overlap < o.min_overlap) {
+    res.reason = "low overlap (" + std::to_string(res.overlap) + " < " + std::to_string(o.min_overlap) + ")";
+    return res;
+  }
+  if (res.rmse_mm > o.max_rmse_mm) {
+    res.reason = "high residual (rmse " + std::to_string(res.rmse_mm * 1000) + " um)";
+    return res;
+  }
+  if (res.eigen_ratio < o.min_eigen_ratio) {
+    res.reason = "degenerate geometry (eigenvalue ratio " + std::to_string(res.eigen_ratio) + ")";
+    return res;
+  }
+  res.ok = true;
+  return res;
+}
+
+}  // namespace d3d

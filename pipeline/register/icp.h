@@ -1,0 +1,133 @@
+// Iterative closest point with the combined point-to-point / point-to-plane metric, robust
+// weights and coarse-to-fine termination. Units: mm, rad. Transforms are target_from_source.
+//
+// Metric (the dissertation's combination, weighted per level; Chen & Medioni 1992 point-to-plane, Besl & McKay 1992
+// point-to-point): for source sample p (moved by the current estimate, p' = T p) and its associated
+// target sample q with unit normal n,
+//   E(T) = Σ wᵢ [ α (nᵢ·(p'ᵢ − qᵢ))² + (1 − α) ‖p'ᵢ − qᵢ‖² ],
+// minimised by Gauss–Newton on the small-motion linearisation T ← Exp([ω, t]) T (left update,
+// p' + ω × p' + t), with a Levenberg damping of 1e-9 · trace(H). α = IcpLevel::point_to_plane_weight:
+// point-to-plane converges fast on smooth surfaces; point-to-point widens the basin early on.
+// Robust weights: Tukey's biweight on the point-to-plane residual, w = (1 − (r/c)²)², c = 4.685 σ,
+// σ = 1.4826 · median |r| (floored at min_sigma_mm) re-estimated every iteration (Zhang 1994;
+// Holland & Welsch 1977), times the source sample's own weight (quality).
+// Hierarchy: levels from coarse (few samples, large association distance) to fine; a level ends
+// when the pose update is below (min_delta_rotation_rad, min_delta_translation_mm) or the weighted
+// error changes by less than min_relative_error_change, or after its max_iterations.
+// Data association: a target object (IcpTarget): a nanoflann k-d tree over target samples
+// (KdTreeTarget) or a projective look-up in an organised target image (ProjectiveTarget).
+#pragma once
+
+#include <Eigen/Core>
+#include <memory>
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+#include "common/core/rigid.h"
+#include "pipeline/register/kdtree.h"
+#include "pipeline/register/surface_points.h"
+
+namespace d3d {
+
+// Associates a query point (target frame, mm) with a target sample: returns true and writes the
+// sample's point and unit normal (target frame) when one lies within max_distance_mm.
+// Implementations must be safe to call concurrently (const, no shared scratch).
+class IcpTarget {
+ public:
+  virtual ~IcpTarget() = default;
+  virtual bool Find(const Eigen::Vector3f& query, float max_distance_mm, Eigen::Vector3f* point,
+                    Eigen::Vector3f* normal) const = 0;
+};
+
+// Nearest neighbour in a k-d tree (nanoflann). Holds its own copy of the samples.
+class KdTreeTarget final : public IcpTarget {
+ public:
+  explicit KdTreeTarget(SurfacePoints target);  // normals required (same size as points)
+  bool Find(const Eigen::Vector3f& query, float max_distance_mm, Eigen::Vector3f* point,
+            Eigen::Vector3f* normal) const override;
+  const SurfacePoints& samples() const { return target_; }
+
+ private:
+  SurfacePoints target_;
+  std::unique_ptr<PointKdTree> tree_;
+};
+
+// Simple pinhole for projective association (no distortion: the target image is rendered with
+// the same projection, so the look-up is consistent).
+struct PinholeIntrinsics {
+  double fx = 0, fy = 0, cx = 0, cy = 0;
+  int width = 0, height = 0;
+  PinholeIntrinsics Scaled(double s) const;  // for an image s times the size
+};
+
+// Projective data association (Blais & Levine 1995; KinectFusion, Newcombe et al. 2011): the query
+// is moved into the image's camera (cam_from_target), projected, and the nearest valid sample in a
+// (2·window+1)² pixel neighbourhood is taken. points, normals: H×W CV_32FC3 in the TARGET frame
+// (NaN = empty), H×W = intrinsics' size.
+class ProjectiveTarget final : public IcpTarget {
+ public:
+  ProjectiveTarget(cv::Mat points, cv::Mat normals, const PinholeIntrinsics& intrinsics, const Rigid3d& cam_from_target,
+                   int window = 1);
+  bool Find(const Eigen::Vector3f& query, float max_distance_mm, Eigen::Vector3f* point,
+            Eigen::Vector3f* normal) const override;
+
+ private:
+  cv::Mat points_, normals_;
+  PinholeIntrinsics k_;
+  Eigen::Matrix3f R_;
+  Eigen::Vector3f t_;
+  int window_;
+};
+
+struct IcpLevel {
+  int stride = 1;                 // use every stride-th source sample
+  int max_iterations = 10;
+  double max_distance_mm = 0.5;   // association gate
+  // α of the combined metric at this level, [0, 1]. The point-to-point term widens the basin on
+  // coarse levels but, with nearest-neighbour association, also damps (and biases) tangential
+  // motion, so the finest level is pure point-to-plane by default.
+  double point_to_plane_weight = 1.0;
+};
+
+struct IcpOptions {
+  // Coarse to fine. The last level decides the reported figures.
+  std::vector<IcpLevel> levels = {{16, 12, 1.0, 0.7}, {4, 10, 0.3, 0.9}, {1, 8, 0.15, 1.0}};
+  double max_normal_angle_deg = 45;        // association refused when normals disagree more
+  double min_sigma_mm = 0.004;             // floor of the robust scale
+  double min_delta_rotation_rad = 2e-6;    // level ends when the update is smaller ...
+  double min_delta_translation_mm = 1e-4;  // ... in both rotation and translation
+  double min_relative_error_change = 1e-4; // ... or the error stops changing
+  // Acceptance (a registration failing these comes back not ok, with the reason):
+  double min_overlap = 0.3;                // fraction of final-level source samples associated
+  double max_rmse_mm = 0.06;               // RMS point-to-plane residual of the associated samples
+  int min_correspondences = 30;
+  // Degeneracy: smallest / largest eigenvalue of the point-to-plane Hessian (rotation scaled by the
+  // source radius so that all six are in mm²). Below: a direction slides freely (plane, sphere,
+  // cylinder, extrusion): not ok.
+  double min_eigen_ratio = 2e-3;
+  int threads = 1;                         // association in parallel (TBB) when > 1
+  void Check() const;                      // throws std::invalid_argument
+};
+
+struct IcpResult {
+  bool ok = false;
+  std::string reason;                      // why not ok
+  Rigid3d target_from_source = Rigid3d::Identity();
+  double rmse_mm = 0;                      // final point-to-plane RMS of associated samples
+  double overlap = 0;                      // associated / final-level samples
+  int correspondences = 0;
+  int iterations = 0;                      // over all levels
+  double eigen_ratio = 0;                  // see IcpOptions::min_eigen_ratio
+  // Gauss–Newton information of the final level, [ω (rad), t (mm)], scaled by 1/σ²: the inverse
+  // covariance of the left-perturbation of target_from_source (pose graph edges use it).
+  Eigen::Matrix<double, 6, 6> information = Eigen::Matrix<double, 6, 6>::Zero();
+};
+
+// Registers `source` (its own frame; normals used for the compatibility test and the source
+// weights as per-sample confidence) to `target`, starting from `initial` (target_from_source).
+// Throws std::invalid_argument for invalid options; expected failures are returned.
+IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, const Rigid3d& initial,
+                      const IcpOptions& options = {});
+
+}  // namespace d3d

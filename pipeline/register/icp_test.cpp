@@ -1,0 +1,116 @@
+#include "pipeline/register/icp.h"
+
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include "pipeline/register/test_surfaces.h"
+
+namespace d3d {
+namespace {
+
+using testing::HeightField;
+using testing::LookDown;
+using testing::RenderHeightField;
+using testing::TestCamera;
+
+Rigid3d Perturbation(double deg, double mm) {
+  Rigid3d T = Rigid3d::Identity();
+  T.linear() = Eigen::AngleAxisd(deg * M_PI / 180, Eigen::Vector3d(0.3, -1, 0.4).normalized()).toRotationMatrix();
+  T.translation() = Eigen::Vector3d(0.6, -0.8, 0.3).normalized() * mm;
+  return T;
+}
+
+struct Pair {
+  SurfacePoints source, target;
+  cv::Mat target_points, target_normals;
+  Rigid3d target_from_source;
+  PinholeIntrinsics k;
+};
+
+// Two views of the bumpy surface 1.5 mm apart; returns samples in their camera frames.
+Pair MakePair(const HeightField& hf, double shift_mm, double noise_mm) {
+  const auto cam = TestCamera();
+  const Rigid3d wa = LookDown(0, 0, 30), wb = LookDown(shift_mm, 0.3, 30.2, 0.03, -0.04, 0.05);
+  const auto va = RenderHeightField(hf, cam, wa, noise_mm, 1), vb = RenderHeightField(hf, cam, wb, noise_mm, 2);
+  Pair p;
+  p.target = SampleOrganised(va.points, va.normals, va.quality, 1);
+  p.source = SampleOrganised(vb.points, vb.normals, vb.quality, 2);
+  p.target_points = va.points;
+  p.target_normals = va.normals;
+  p.target_from_source = wa.inverse() * wb;
+  p.k = {cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height};
+  return p;
+}
+
+TEST(Icp, RecoversAKnownTransformWithBothAssociations) {
+  const HeightField hf(11);
+  const Pair p = MakePair(hf, 1.5, 0.005);
+  const Rigid3d init = Perturbation(1.0, 0.3) * p.target_from_source;
+  IcpOptions o;
+  KdTreeTarget kd(p.target);
+  const IcpResult a = RegisterIcp(p.source, kd, init, o);
+  ASSERT_TRUE(a.ok) << a.reason;
+  EXPECT_LT(RotationAngleRad(a.target_from_source, p.target_from_source) * 180 / M_PI, 0.01);
+  EXPECT_LT(TranslationDistanceMm(a.target_from_source, p.target_from_source), 0.004);  // at the camera, 30 mm away
+  EXPECT_GT(a.overlap, 0.5);
+  EXPECT_LT(a.rmse_mm, 0.012);
+  // Projective association in the target's own image (the target frame is its camera frame).
+  ProjectiveTarget pt(p.target_points, p.target_normals, p.k, Rigid3d::Identity(), 2);
+  const IcpResult b = RegisterIcp(p.source, pt, init, o);
+  ASSERT_TRUE(b.ok) << b.reason;
+  EXPECT_LT(RotationAngleRad(b.target_from_source, p.target_from_source) * 180 / M_PI, 0.01);
+  EXPECT_LT(TranslationDistanceMm(b.target_from_source, p.target_from_source), 0.004);
+}
+
+TEST(Icp, CombinedMetricAtEveryLevelConverges) {
+  const HeightField hf(12);
+  const Pair p = MakePair(hf, 1.0, 0.0);
+  IcpOptions o;
+  o.levels = {{8, 30, 1.0, 0.7}, {2, 30, 0.3, 0.8}, {1, 30, 0.1, 0.9}};
+  KdTreeTarget kd(p.target);
+  const IcpResult a = RegisterIcp(p.source, kd, Perturbation(0.5, 0.1) * p.target_from_source, o);
+  ASSERT_TRUE(a.ok) << a.reason;
+  EXPECT_LT(TranslationDistanceMm(a.target_from_source, p.target_from_source), 0.03);
+}
+
+TEST(Icp, PlaneIsDegenerate) {
+  HeightField hf(13);
+  hf.flat = 1;
+  const Pair p = MakePair(hf, 1.0, 0.002);
+  KdTreeTarget kd(p.target);
+  const IcpResult r = RegisterIcp(p.source, kd, p.target_from_source, IcpOptions{});
+  EXPECT_FALSE(r.ok);
+  EXPECT_NE(r.reason.find("degenerate"), std::string::npos) << r.reason;
+}
+
+TEST(Icp, SphereIsSymmetric) {
+  // Samples of a sphere cap: rotations about its centre slide freely.
+  SurfacePoints s;
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> U(-1, 1);
+  while (s.size() < 4000) {
+    Eigen::Vector3d d(U(rng), U(rng), U(rng));
+    if (d.norm() > 1 || d.norm() < 0.1 || d.z() > -0.3) continue;
+    d.normalize();
+    s.points.push_back((Eigen::Vector3d(0, 0, 40) + 5 * d).cast<float>());
+    s.normals.push_back((-d).cast<float>());
+  }
+  KdTreeTarget kd(s);
+  const IcpResult r = RegisterIcp(s, kd, Perturbation(0.3, 0.02), IcpOptions{});
+  EXPECT_FALSE(r.ok);
+  EXPECT_NE(r.reason.find("degenerate"), std::string::npos) << r.reason;
+}
+
+TEST(Icp, LowOverlapFailsCleanly) {
+  const HeightField hf(14);
+  const Pair p = MakePair(hf, 8.5, 0.003);  // 9.6 mm wide views, 8.5 mm apart: ~10 % overlap
+  KdTreeTarget kd(p.target);
+  const IcpResult r = RegisterIcp(p.source, kd, p.target_from_source, IcpOptions{});
+  EXPECT_FALSE(r.ok);
+  EXPECT_TRUE(r.reason.find("overlap") != std::string::npos || r.reason.find("correspondences") != std::string::npos)
+      << r.reason;
+}
+
+}  // namespace
+}  // namespace d3d

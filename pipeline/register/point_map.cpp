@@ -1,0 +1,147 @@
+#include "pipeline/register/point_map.h"
+
+#include <cmath>
+#include <limits>
+
+#include "common/core/status.h"
+
+namespace d3d {
+
+void PointMapOptions::Check() const {
+  D3D_CHECK_MSG(voxel_mm > 0 && block_mm >= voxel_mm, "PointMapOptions: need 0 < voxel_mm <= block_mm");
+  D3D_CHECK_MSG(max_weight >= 1, "PointMapOptions: max_weight must be >= 1");
+}
+
+PointMap::PointMap(const PointMapOptions& options) : o_(options) { o_.Check(); }
+
+uint64_t PointMap::Key(int64_t x, int64_t y, int64_t z) {
+  const uint64_t m = (1u << 21) - 1;
+  return (static_cast<uint64_t>(x + (1 << 20)) & m) | ((static_cast<uint64_t>(y + (1 << 20)) & m) << 21) |
+         ((static_cast<uint64_t>(z + (1 << 20)) & m) << 42);
+}
+
+void PointMap::Insert(const SurfacePoints& s, const Rigid3d& world_from_source) {
+  D3D_CHECK_MSG(s.normals.size() == s.points.size(), "PointMap::Insert needs normals");
+  const Eigen::Matrix3f R = world_from_source.linear().cast<float>();
+  const Eigen::Vector3f t = world_from_source.translation().cast<float>();
+  const float inv = static_cast<float>(1.0 / o_.voxel_mm), binv = static_cast<float>(1.0 / o_.block_mm);
+  for (size_t i = 0; i < s.size(); ++i) {
+    const Eigen::Vector3f p = R * s.points[i] + t;
+    const Eigen::Vector3f n = R * s.normals[i];
+    const uint64_t k = Key(static_cast<int64_t>(std::floor(p.x() * inv)), static_cast<int64_t>(std::floor(p.y() * inv)),
+                           static_cast<int64_t>(std::floor(p.z() * inv)));
+    auto [it, fresh] = voxel_.try_emplace(k, static_cast<uint32_t>(points_.size()));
+    if (fresh) {
+      points_.push_back(p);
+      normals_.push_back(n);
+      weights_.push_back(1.0f);
+      const uint64_t b = Key(static_cast<int64_t>(std::floor(p.x() * binv)), static_cast<int64_t>(std::floor(p.y() * binv)),
+                             static_cast<int64_t>(std::floor(p.z() * binv)));
+      blocks_[b].push_back(it->second);
+    } else {
+      const uint32_t j = it->second;
+      if (normals_[j].dot(n) < 0.5f) continue;  // the other side of a thin wall
+      const float w = weights_[j];
+      points_[j] = (points_[j] * w + p) / (w + 1);
+      normals_[j] = (normals_[j] * w + n).normalized();
+      weights_[j] = std::min(w + 1, o_.max_weight);
+    }
+  }
+}
+
+SurfacePoints PointMap::Gather(const Eigen::Vector3f& lo, const Eigen::Vector3f& hi) const {
+  SurfacePoints out;
+  const double binv = 1.0 / o_.block_mm;
+  const int64_t x0 = static_cast<int64_t>(std::floor(lo.x() * binv)), x1 = static_cast<int64_t>(std::floor(hi.x() * binv));
+  const int64_t y0 = static_cast<int64_t>(std::floor(lo.y() * binv)), y1 = static_cast<int64_t>(std::floor(hi.y() * binv));
+  const int64_t z0 = static_cast<int64_t>(std::floor(lo.z() * binv)), z1 = static_cast<int64_t>(std::floor(hi.z() * binv));
+  if ((x1 - x0 + 1) * (y1 - y0 + 1) * (z1 - z0 + 1) > static_cast<int64_t>(blocks_.size())) {
+    for (const auto& [k, v] : blocks_) {
+      for (uint32_t i : v) {
+        const Eigen::Vector3f& p = points_[i];
+        if ((p.array() >= lo.array()).all() && (p.array() <= hi.array()).all()) {
+          out.points.push_back(p);
+          out.normals.push_back(normals_[i]);
+        }
+      }
+    }
+    return out;
+  }
+  for (int64_t x = x0; x <= x1; ++x)
+    for (int64_t y = y0; y <= y1; ++y)
+      for (int64_t z = z0; z <= z1; ++z) {
+        const auto it = blocks_.find(Key(x, y, z));
+        if (it == blocks_.end()) continue;
+        for (uint32_t i : it->second) {
+          out.points.push_back(points_[i]);
+          out.normals.push_back(normals_[i]);
+        }
+      }
+  return out;
+}
+
+int PointMap::Render(const Rigid3d& world_from_cam, const PinholeIntrinsics& k, int splat, cv::Mat* P, cv::Mat* N) const {
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  P->create(k.height, k.width, CV_32FC3);
+  N->create(k.height, k.width, CV_32FC3);
+  P->setTo(cv::Scalar::all(nan));
+  N->setTo(cv::Scalar::all(nan));
+  cv::Mat zbuf(k.height, k.width, CV_32F, cv::Scalar(std::numeric_limits<float>::infinity()));
+  const Rigid3d cam_from_world = world_from_cam.inverse();
+  const Eigen::Matrix3f R = cam_from_world.linear().cast<float>();
+  const Eigen::Vector3f t = cam_from_world.translation().cast<float>();
+  // Only blocks inside the camera's view volume: gather by the frustum's bounding box.
+  const double zmax = 80.0;
+  Eigen::Vector3f lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::max()), hi = -lo;
+  for (int cx : {0, k.width - 1})
+    for (int cy : {0, k.height - 1})
+      for (double z : {1.0, zmax}) {
+        const Eigen::Vector3d c((cx - k.cx) / k.fx * z, (cy - k.cy) / k.fy * z, z);
+        const Eigen::Vector3f w = (world_from_cam * c).cast<float>();
+        lo = lo.cwiseMin(w);
+        hi = hi.cwiseMax(w);
+      }
+  const Eigen::Vector3f o = world_from_cam.translation().cast<float>();
+  lo = lo.cwiseMin(o);
+  hi = hi.cwiseMax(o);
+  const SurfacePoints s = Gather(lo, hi);
+  int filled = 0;
+  for (size_t i = 0; i < s.size(); ++i) {
+    const Eigen::Vector3f c = R * s.points[i] + t;
+    if (c.z() <= 0) continue;
+    if ((R * s.normals[i]).dot(c) > 0) continue;  // back-facing
+    const int u = static_cast<int>(std::lround(k.fx * c.x() / c.z() + k.cx));
+    const int v = static_cast<int>(std::lround(k.fy * c.y() / c.z() + k.cy));
+    for (int y = std::max(0, v - splat); y <= std::min(k.height - 1, v + splat); ++y)
+      for (int x = std::max(0, u - splat); x <= std::min(k.width - 1, u + splat); ++x) {
+        float& zb = zbuf.at<float>(y, x);
+        if (c.z() >= zb) continue;
+        if (!std::isfinite(zb)) ++filled;
+        zb = c.z();
+        P->at<cv::Vec3f>(y, x) = cv::Vec3f(s.points[i].x(), s.points[i].y(), s.points[i].z());
+        N->at<cv::Vec3f>(y, x) = cv::Vec3f(s.normals[i].x(), s.normals[i].y(), s.normals[i].z());
+      }
+  }
+  return filled;
+}
+
+double PointMap::Overlap(const SurfacePoints& s, const Rigid3d& world_from_source) const {
+  if (s.empty()) return 0;
+  const Eigen::Matrix3f R = world_from_source.linear().cast<float>();
+  const Eigen::Vector3f t = world_from_source.translation().cast<float>();
+  const float inv = static_cast<float>(1.0 / o_.voxel_mm);
+  int hit = 0;
+  for (const auto& q : s.points) {
+    const Eigen::Vector3f p = R * q + t;
+    const int64_t x = static_cast<int64_t>(std::floor(p.x() * inv)), y = static_cast<int64_t>(std::floor(p.y() * inv)),
+                  z = static_cast<int64_t>(std::floor(p.z() * inv));
+    bool any = false;
+    for (int dx = -1; dx <= 1 && !any; ++dx)
+      for (int dy = -1; dy <= 1 && !any; ++dy)
+        for (int dz = -1; dz <= 1 && !any; ++dz) any = voxel_.count(Key(x + dx, y + dy, z + dz)) > 0;
+    hit += any;
+  }
+  return static_cast<double>(hit) / static_cast<double>(s.size());
+}
+
+}  // namespace d3d

@@ -1,0 +1,60 @@
+// A pose graph of keyframes with odometry and loop-closure edges, optimised with Ceres
+// (nonlinear least squares; the residual of Ceres' own pose_graph_3d example formulation,
+// Kümmerle et al. 2011 g2o / Grisetti et al. 2010 "A tutorial on graph-based SLAM"):
+//   for an edge i→j with measurement T_ij = node_i_from_node_j,
+//   r = [ R_iᵀ (t_j − t_i) − t_ij ;  2 · vec(q_ijᵀ · q_iᵀ q_j) ] scaled by (1/σ_t, 1/σ_r),
+// with each node's pose world_from_node as (t, unit quaternion on Ceres' EigenQuaternionManifold),
+// the first node held fixed, and a Huber loss on loop-closure edges so that one false closure
+// cannot bend the whole arch. Units: mm, rad.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "common/core/rigid.h"
+#include "common/core/status.h"
+
+namespace d3d {
+
+struct PoseGraphEdge {
+  int from = 0, to = 0;
+  Rigid3d from_from_to = Rigid3d::Identity();  // measured node_from ← node_to
+  double sigma_translation_mm = 0.01;
+  double sigma_rotation_rad = 2e-4;
+  bool loop = false;                           // loop closure (robust loss) or odometry
+};
+
+struct PoseGraphOptions {
+  int max_iterations = 100;
+  double loop_huber_sigmas = 3.0;  // Huber threshold of loop edges, in units of their σ
+  void Check() const;
+};
+
+struct PoseGraphSummary {
+  bool converged = false;
+  std::string message;       // Ceres' brief report
+  double initial_cost = 0, final_cost = 0;
+  int iterations = 0;
+  // Edges whose normalised residual stays above 3 σ after optimisation ("disagreeing views").
+  std::vector<int> disagreeing_edges;
+};
+
+class PoseGraph {
+ public:
+  int AddNode(const Rigid3d& world_from_node);
+  void AddEdge(const PoseGraphEdge& edge);  // throws std::invalid_argument for unknown nodes
+  int num_nodes() const { return static_cast<int>(poses_.size()); }
+  const std::vector<PoseGraphEdge>& edges() const { return edges_; }
+  const Rigid3d& pose(int node) const { return poses_[static_cast<size_t>(node)]; }
+  void set_pose(int node, const Rigid3d& p) { poses_[static_cast<size_t>(node)] = p; }
+  // Optimises all but node 0. INVALID_ARGUMENT for an empty graph.
+  [[nodiscard]] Status Optimize(const PoseGraphOptions& options, PoseGraphSummary* summary);
+  // Normalised residual norm of an edge at the current poses.
+  double EdgeResidual(int edge) const;
+
+ private:
+  std::vector<Rigid3d> poses_;
+  std::vector<PoseGraphEdge> edges_;
+};
+
+}  // namespace d3d

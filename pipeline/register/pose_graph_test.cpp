@@ -1,0 +1,87 @@
+#include "pipeline/register/pose_graph.h"
+
+#include <gtest/gtest.h>
+
+namespace d3d {
+namespace {
+
+Rigid3d CirclePose(int i, int n, double radius) {
+  const double a = 2 * M_PI * i / n;
+  Rigid3d T = Rigid3d::Identity();
+  T.linear() = Eigen::AngleAxisd(a, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  T.translation() = Eigen::Vector3d(radius * std::cos(a), radius * std::sin(a), 0.2 * std::sin(3 * a));
+  return T;
+}
+
+TEST(PoseGraph, LoopClosureRemovesAnInjectedDrift) {
+  const int n = 40;
+  std::vector<Rigid3d> truth;
+  for (int i = 0; i < n; ++i) truth.push_back(CirclePose(i, n, 25));
+  // Odometry with a systematic bias: every step turns 0.02° too far and advances 5 µm too far.
+  Rigid3d bias = Rigid3d::Identity();
+  bias.linear() = Eigen::AngleAxisd(0.02 * M_PI / 180, Eigen::Vector3d(0.2, 0.3, 1).normalized()).toRotationMatrix();
+  bias.translation() = Eigen::Vector3d(0.005, 0.002, -0.001);
+  PoseGraph g;
+  Rigid3d pose = truth[0];
+  g.AddNode(pose);
+  for (int i = 1; i < n; ++i) {
+    const Rigid3d step = truth[static_cast<size_t>(i - 1)].inverse() * truth[static_cast<size_t>(i)] * bias;
+    pose = pose * step;
+    g.AddNode(pose);
+    PoseGraphEdge e;
+    e.from = i - 1;
+    e.to = i;
+    e.from_from_to = step;
+    g.AddEdge(e);
+  }
+  const double drift_before = TranslationDistanceMm(g.pose(n - 1), truth[static_cast<size_t>(n - 1)]);
+  ASSERT_GT(drift_before, 0.3);
+  // Loop closure: the last pose seen from the first, exact (and one from node 5 to node 35).
+  for (auto [a, b] : {std::pair{0, n - 1}, std::pair{5, 35}}) {
+    PoseGraphEdge e;
+    e.from = a;
+    e.to = b;
+    e.from_from_to = truth[static_cast<size_t>(a)].inverse() * truth[static_cast<size_t>(b)];
+    e.loop = true;
+    g.AddEdge(e);
+  }
+  PoseGraphSummary s;
+  ASSERT_TRUE(g.Optimize({}, &s).ok());
+  EXPECT_TRUE(s.converged) << s.message;
+  EXPECT_LT(s.final_cost, s.initial_cost);
+  double worst = 0;
+  for (int i = 0; i < n; ++i) worst = std::max(worst, TranslationDistanceMm(g.pose(i), truth[static_cast<size_t>(i)]));
+  EXPECT_LT(worst, drift_before / 5) << "drift before " << drift_before;
+  // End meets start: the relative pose of the loop edge now holds.
+  const Rigid3d end_from_start = g.pose(n - 1).inverse() * g.pose(0);
+  const Rigid3d want = truth[static_cast<size_t>(n - 1)].inverse() * truth[0];
+  EXPECT_LT(TranslationDistanceMm(end_from_start, want), 0.05);
+}
+
+TEST(PoseGraph, FlagsADisagreeingLoopEdge) {
+  PoseGraph g;
+  for (int i = 0; i < 10; ++i) g.AddNode(CirclePose(i, 40, 25));
+  for (int i = 1; i < 10; ++i) {
+    PoseGraphEdge e;
+    e.from = i - 1;
+    e.to = i;
+    e.from_from_to = g.pose(i - 1).inverse() * g.pose(i);
+    g.AddEdge(e);
+  }
+  PoseGraphEdge bad;
+  bad.from = 0;
+  bad.to = 9;
+  bad.from_from_to = g.pose(0).inverse() * g.pose(9);
+  bad.from_from_to.translation() += Eigen::Vector3d(2.0, 0, 0);  // a false closure, 2 mm off
+  bad.loop = true;
+  g.AddEdge(bad);
+  PoseGraphSummary s;
+  ASSERT_TRUE(g.Optimize({}, &s).ok());
+  ASSERT_FALSE(s.disagreeing_edges.empty());
+  EXPECT_EQ(s.disagreeing_edges.back(), 9);
+  // The robust loss keeps the trajectory close to the odometry.
+  EXPECT_LT(TranslationDistanceMm(g.pose(9), CirclePose(9, 40, 25)), 0.5);
+}
+
+}  // namespace
+}  // namespace d3d

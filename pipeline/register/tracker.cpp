@@ -1,0 +1,334 @@
+#include "pipeline/register/tracker.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+#include "common/core/status.h"
+
+namespace d3d {
+
+const char* TrackingStateName(TrackingState s) {
+  switch (s) {
+    case TrackingState::kInitialising: return "initialising";
+    case TrackingState::kTracking: return "tracking";
+    case TrackingState::kLost: return "lost";
+    case TrackingState::kRelocalised: return "relocalised";
+  }
+  return "?";
+}
+
+IcpOptions DefaultTrackerIcp() {
+  IcpOptions o;
+  o.levels = {{16, 12, 0.8, 0.7}, {4, 8, 0.25, 0.9}, {1, 6, 0.1, 1.0}};
+  o.min_overlap = 0.35;
+  o.max_rmse_mm = 0.05;
+  return o;
+}
+
+void TrackerOptions::Check() const {
+  icp.Check();
+  map.Check();
+  features.Check();
+  D3D_CHECK_MSG(sample_stride >= 1 && map_stride >= 1 && keyframe_stride >= 1, "TrackerOptions: strides >= 1");
+  D3D_CHECK_MSG(target_scale > 0 && target_scale <= 2 && target_splat >= 0 && target_window >= 0, "TrackerOptions: target");
+  D3D_CHECK_MSG(max_step_mm > 0 && max_step_deg > 0, "TrackerOptions: max_step");
+  D3D_CHECK_MSG(keyframe_overlap > 0 && keyframe_overlap <= 1, "TrackerOptions: keyframe_overlap in (0, 1]");
+  D3D_CHECK_MSG(relocalise_candidates >= 1 && loop_min_separation >= 1 && max_loop_candidates >= 0, "TrackerOptions: counts");
+  D3D_CHECK_MSG(odometry_sigma_mm > 0 && odometry_sigma_rad > 0 && loop_sigma_mm > 0 && loop_sigma_rad > 0, "TrackerOptions: sigmas");
+}
+
+Tracker::Tracker(const PinholeBrownConrady& camera, const TrackerOptions& options)
+    : camera_(camera), o_(options), map_(options.map) {
+  camera_.Check();
+  o_.Check();
+  PinholeIntrinsics k;
+  k.fx = camera.fx;
+  k.fy = camera.fy;
+  k.cx = camera.cx;
+  k.cy = camera.cy;
+  k.width = camera.width;
+  k.height = camera.height;
+  pinhole_ = k.Scaled(o_.target_scale);
+}
+
+Tracker::~Tracker() = default;
+
+IcpResult Tracker::RunIcp(const SurfacePoints& source, const Rigid3d& initial, const IcpOptions& icp) const {
+  if (o_.association == Association::kProjective) {
+    cv::Mat P, N;
+    map_.Render(initial, pinhole_, o_.target_splat, &P, &N);
+    ProjectiveTarget target(P, N, pinhole_, initial.inverse(), o_.target_window);
+    return RegisterIcp(source, target, initial, icp);
+  }
+  Eigen::Vector3f lo = Eigen::Vector3f::Constant(1e30f), hi = -lo;
+  const Eigen::Matrix3f R = initial.linear().cast<float>();
+  const Eigen::Vector3f t = initial.translation().cast<float>();
+  for (const auto& p : source.points) {
+    const Eigen::Vector3f w = R * p + t;
+    lo = lo.cwiseMin(w);
+    hi = hi.cwiseMax(w);
+  }
+  const Eigen::Vector3f m = Eigen::Vector3f::Constant(static_cast<float>(o_.gather_margin_mm));
+  KdTreeTarget target(map_.Gather(lo - m, hi + m));
+  return RegisterIcp(source, target, initial, icp);
+}
+
+namespace {
+double Ms(std::chrono::steady_clock::time_point a) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - a).count();
+}
+
+// Fraction of `a` (frame A) that lies in occupied voxels of `b` (frame B) given B_from_A.
+double OverlapIndex(const SurfacePoints& a, const SurfacePoints& b, const Rigid3d& b_from_a, double voxel_mm) {
+  PointMapOptions o;
+  o.voxel_mm = voxel_mm;
+  o.block_mm = std::max(2.0, voxel_mm);
+  PointMap m(o);
+  m.Insert(b, Rigid3d::Identity());
+  return m.Overlap(a, b_from_a);
+}
+}  // namespace
+
+TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, const cv::Mat& texture) {
+  const auto t0 = std::chrono::steady_clock::now();
+  ++index_;
+  anchor_.push_back(-1);
+  kf_from_cam_.push_back(Rigid3d::Identity());
+  TrackResult out;
+  const SurfacePoints samples = SampleOrganised(points, normals, quality, o_.sample_stride);
+  if (samples.size() < static_cast<size_t>(o_.min_view_samples)) {
+    // Nothing to register (probe lifted, out of the measurement volume): refused, but the
+    // tracking state is kept; the motion model restarts with the next view.
+    out.state = state_;
+    out.reason = "too few points in the view (" + std::to_string(samples.size()) + ")";
+    out.ms = Ms(t0);
+    return out;
+  }
+  bool accepted = false;
+  Rigid3d pose = last_pose_;
+  if (map_.empty()) {
+    accepted = true;
+    pose = Rigid3d::Identity();
+    out.state = TrackingState::kTracking;
+  } else if (state_ != TrackingState::kLost) {
+    const Rigid3d pred = Predict();
+    out.icp = RunIcp(samples, pred, o_.icp);
+    const double views = static_cast<double>(index_ - last_accepted_);
+    const double step_mm = TranslationDistanceMm(out.icp.target_from_source, last_pose_);
+    const double step_deg = RotationAngleRad(out.icp.target_from_source, last_pose_) * 180 / M_PI;
+    if (!out.icp.ok) {
+      out.reason = "icp: " + out.icp.reason;
+    } else if (step_mm > o_.max_step_mm * views || step_deg > o_.max_step_deg * views) {
+      out.reason = "inconsistent motion (" + std::to_string(step_mm) + " mm, " + std::to_string(step_deg) + " deg)";
+    } else {
+      accepted = true;
+      pose = out.icp.target_from_source;
+      out.state = TrackingState::kTracking;
+    }
+  } else {
+    out.reason = "lost";
+  }
+  if (!accepted && !keyframes_.empty()) {
+    // Local search first: ICP from the last accepted pose and from the keyframes nearest to it
+    // (the probe usually comes back where it left the model).
+    const std::string why = out.reason;
+    if (RelocaliseLocally(samples, &out)) {
+      accepted = true;
+      pose = out.world_from_cam;
+      out.state = TrackingState::kRelocalised;
+      out.reason = why + "; relocalised: " + out.reason;
+    } else {
+      out.reason = why + "; local search failed: " + out.reason;
+    }
+  }
+  if (!accepted && o_.relocalise && !keyframes_.empty()) {
+    const std::string why = out.reason;
+    if (Relocalise(samples, points, texture, &out)) {
+      accepted = true;
+      pose = out.world_from_cam;
+      out.state = TrackingState::kRelocalised;
+      out.reason = why + "; relocalised: " + out.reason;
+    } else {
+      out.reason = why + "; relocalisation failed: " + out.reason;
+    }
+  }
+  if (!accepted) {
+    state_ = state_ == TrackingState::kInitialising ? state_ : TrackingState::kLost;
+    out.state = state_;
+    out.ms = Ms(t0);
+    return out;
+  }
+  out.accepted = true;
+  out.world_from_cam = pose;
+  state_ = out.state;
+  prev_pose_ = last_pose_;
+  prev_accepted_ = out.state == TrackingState::kRelocalised ? -1 : last_accepted_;  // no velocity across a gap
+  last_pose_ = pose;
+  last_accepted_ = index_;
+  map_.Insert(SampleOrganised(points, normals, cv::Mat(), o_.map_stride), pose);
+  MaybeKeyframe(samples, points, normals, texture, pose, &out);
+  const int kf = static_cast<int>(keyframes_.size()) - 1;
+  anchor_.back() = kf;
+  kf_from_cam_.back() = graph_.pose(keyframes_[static_cast<size_t>(kf)].node).inverse() * pose;
+  out.ms = Ms(t0);
+  return out;
+}
+
+Rigid3d Tracker::Predict() const {
+  // Constant velocity, per elapsed view (views skipped for lack of points included).
+  if (prev_accepted_ < 0 || last_accepted_ <= prev_accepted_) return last_pose_;
+  const Rigid3d step = prev_pose_.inverse() * last_pose_;
+  const double k = static_cast<double>(index_ - last_accepted_) / static_cast<double>(last_accepted_ - prev_accepted_);
+  return k <= 8 ? Rigid3d(last_pose_ * InterpolateRigid(Rigid3d::Identity(), step, k)) : last_pose_;
+}
+
+bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out) {
+  const Eigen::Vector3d here = last_pose_ * samples.Centroid();
+  std::vector<std::pair<double, int>> order;
+  for (int k = 0; k < static_cast<int>(keyframes_.size()); ++k) {
+    const Keyframe& kf = keyframes_[static_cast<size_t>(k)];
+    order.emplace_back((graph_.pose(kf.node) * kf.centre_in_cam - here).norm(), k);
+  }
+  std::sort(order.begin(), order.end());
+  std::vector<Rigid3d> starts = {Predict(), last_pose_};
+  for (int i = 0; i < std::min<int>(o_.local_candidates, static_cast<int>(order.size())); ++i)
+    starts.push_back(graph_.pose(keyframes_[static_cast<size_t>(order[static_cast<size_t>(i)].second)].node));
+  IcpOptions icp = o_.icp;
+  icp.levels.front().max_distance_mm = std::max(icp.levels.front().max_distance_mm, o_.local_search_gate_mm);
+  // Same acceptance as tracking: the local search continues the track (the stricter
+  // relocalise_* thresholds guard the global, feature-based relocalisation).
+  std::string last_reason;
+  for (size_t i = 0; i < starts.size(); ++i) {
+    const IcpResult r = RunIcp(samples, starts[i], icp);
+    if (!r.ok) {
+      last_reason = r.reason;
+      continue;
+    }
+    out->icp = r;
+    out->world_from_cam = r.target_from_source;
+    out->reason = i == 0 ? "icp from the predicted pose" : i == 1 ? "icp from the last pose" : "icp from keyframe " + std::to_string(order[i - 2].second);
+    return true;
+  }
+  out->reason = last_reason;
+  return false;
+}
+
+bool Tracker::Relocalise(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& texture, TrackResult* out) {
+  const ViewFeatures f = ExtractViewFeatures(points, texture, o_.features);
+  // Local border search: keyframes nearest the last accepted view first.
+  const Eigen::Vector3d here = last_pose_ * samples.Centroid();
+  std::vector<std::pair<double, int>> order;
+  for (int k = 0; k < static_cast<int>(keyframes_.size()); ++k) {
+    const Keyframe& kf = keyframes_[static_cast<size_t>(k)];
+    const Eigen::Vector3d c = graph_.pose(kf.node) * kf.centre_in_cam;
+    order.emplace_back((c - here).norm(), k);
+  }
+  std::sort(order.begin(), order.end());
+  IcpOptions icp = o_.icp;
+  icp.max_rmse_mm = o_.relocalise_max_rmse_mm;
+  icp.min_overlap = o_.relocalise_min_overlap;
+  std::string last_reason = "no keyframe";
+  for (int i = 0; i < std::min<int>(o_.relocalise_candidates, static_cast<int>(order.size())); ++i) {
+    const Keyframe& kf = keyframes_[static_cast<size_t>(order[static_cast<size_t>(i)].second)];
+    const FeatureAlignResult a = AlignByFeatures(f, kf.features, o_.features);
+    if (!a.ok) {
+      last_reason = a.reason;
+      continue;
+    }
+    const Rigid3d guess = graph_.pose(kf.node) * a.target_from_source;
+    const IcpResult r = RunIcp(samples, guess, icp);
+    if (!r.ok) {
+      last_reason = "icp after features: " + r.reason;
+      continue;
+    }
+    out->icp = r;
+    out->world_from_cam = r.target_from_source;
+    out->reason = "keyframe " + std::to_string(order[static_cast<size_t>(i)].second) + ", " + std::to_string(a.inliers) +
+                  " feature inliers";
+    return true;
+  }
+  out->reason = last_reason;
+  return false;
+}
+
+void Tracker::MaybeKeyframe(const SurfacePoints& /*samples*/, const cv::Mat& points, const cv::Mat& normals,
+                            const cv::Mat& texture, const Rigid3d& pose, TrackResult* out) {
+  SurfacePoints kfs = SampleOrganised(points, normals, cv::Mat(), o_.keyframe_stride);
+  if (!keyframes_.empty()) {
+    const Keyframe& last = keyframes_.back();
+    const Rigid3d last_from_cam = graph_.pose(last.node).inverse() * pose;
+    if (OverlapIndex(kfs, last.samples, last_from_cam, 0.1) >= o_.keyframe_overlap) return;
+  }
+  Keyframe kf;
+  kf.view = index_;
+  kf.node = graph_.AddNode(pose);
+  kf.centre_in_cam = kfs.Centroid();
+  kf.samples = std::move(kfs);
+  if (o_.relocalise) kf.features = ExtractViewFeatures(points, texture, o_.features);
+  if (!keyframes_.empty()) {
+    PoseGraphEdge e;
+    e.from = keyframes_.back().node;
+    e.to = kf.node;
+    e.from_from_to = graph_.pose(e.from).inverse() * pose;
+    e.sigma_translation_mm = o_.odometry_sigma_mm;
+    e.sigma_rotation_rad = o_.odometry_sigma_rad;
+    graph_.AddEdge(e);
+  }
+  keyframes_.push_back(std::move(kf));
+  out->new_keyframe = true;
+  if (o_.detect_loops) out->loops_added = DetectLoops(static_cast<int>(keyframes_.size()) - 1);
+}
+
+int Tracker::DetectLoops(int k) {
+  const Keyframe& a = keyframes_[static_cast<size_t>(k)];
+  const Rigid3d wa = graph_.pose(a.node);
+  const Eigen::Vector3d ca = wa * a.centre_in_cam;
+  std::vector<std::pair<double, int>> cand;
+  for (int j = 0; j + o_.loop_min_separation <= k; ++j) {
+    const Keyframe& b = keyframes_[static_cast<size_t>(j)];
+    const double d = (graph_.pose(b.node) * b.centre_in_cam - ca).norm();
+    if (d < o_.loop_radius_mm) cand.emplace_back(d, j);
+  }
+  std::sort(cand.begin(), cand.end());
+  int added = 0;
+  IcpOptions icp = o_.icp;
+  icp.levels = {{4, 10, 0.5, 0.8}, {1, 10, 0.2, 1.0}, {1, 8, 0.1, 1.0}};
+  for (size_t i = 0; i < cand.size() && added < o_.max_loop_candidates; ++i) {
+    const Keyframe& b = keyframes_[static_cast<size_t>(cand[i].second)];
+    const Rigid3d b_from_a = graph_.pose(b.node).inverse() * wa;
+    if (OverlapIndex(a.samples, b.samples, b_from_a, 0.1) < o_.loop_min_overlap) continue;
+    KdTreeTarget target(b.samples);
+    const IcpResult r = RegisterIcp(a.samples, target, b_from_a, icp);
+    if (!r.ok) continue;
+    PoseGraphEdge e;
+    e.from = b.node;
+    e.to = a.node;
+    e.from_from_to = r.target_from_source;
+    e.sigma_translation_mm = o_.loop_sigma_mm;
+    e.sigma_rotation_rad = o_.loop_sigma_rad;
+    e.loop = true;
+    graph_.AddEdge(e);
+    ++added;
+  }
+  return added;
+}
+
+int Tracker::loop_edges() const {
+  int n = 0;
+  for (const auto& e : graph_.edges()) n += e.loop;
+  return n;
+}
+
+Status Tracker::Optimize(const PoseGraphOptions& options, PoseGraphSummary* summary) {
+  return graph_.Optimize(options, summary);
+}
+
+bool Tracker::ViewPose(int64_t view, Rigid3d* world_from_cam) const {
+  if (view < 0 || view >= views() || anchor_[static_cast<size_t>(view)] < 0) return false;
+  const Keyframe& kf = keyframes_[static_cast<size_t>(anchor_[static_cast<size_t>(view)])];
+  *world_from_cam = graph_.pose(kf.node) * kf_from_cam_[static_cast<size_t>(view)];
+  return true;
+}
+
+}  // namespace d3d

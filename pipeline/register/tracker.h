@@ -1,0 +1,148 @@
+// Frame-to-model tracking of a hand-held scan, with tracking-loss detection, relocalisation,
+// keyframes and a loop-closing pose graph. One Tracker per scan, driven by one thread.
+//
+// Per view (an organised cloud in the camera frame):
+//  1. Prediction: constant velocity from the last two accepted poses (over skipped views too).
+//  2. Frame-to-model ICP (icp.h) against the PointMap of every accepted view, by projective
+//     association in the model rendered from the prediction, or a k-d tree over the model
+//     samples near it (options.association).
+//     A view with too few points (probe lifted, out of range) is skipped without a state change.
+//  3. Checks: ICP ok (overlap, residual, degeneracy) and consistent motion (the step from the last
+//     accepted pose, per elapsed burst, below max_step_mm / max_step_deg). A view failing them is
+//     refused (not fused, not added to the model) and the state becomes kLost.
+//  4. Relocalisation (when ICP fails, and for every view while lost): first a local search, ICP
+//     from the predicted pose, the last accepted pose and the keyframes nearest to it (the probe usually comes
+//     back where it left); then SIFT features of the view
+//     (features.h) are matched to keyframes, chosen by a local border search: keyframes nearest
+//     the last accepted view first (where the probe left the model), up to relocalise_candidates;
+//     RANSAC → ICP against the model; the first that passes is accepted (state kRelocalised).
+//  5. Keyframes: a view whose overlap index with the last keyframe (fraction of its samples in
+//     the keyframe's occupied voxels) falls below keyframe_overlap becomes a keyframe: samples,
+//     features and pose kept; an odometry edge joins it to the previous keyframe.
+//  6. Loop closure: a new keyframe is registered by ICP to older keyframes (at least
+//     loop_min_separation keyframes back) whose samples overlap its own (overlap index ≥
+//     loop_min_overlap at the current poses): each success becomes a loop edge.
+// Optimize() solves the pose graph (pose_graph.h) and re-expresses every accepted view through its
+// anchor keyframe: world_from_cam = world_from_keyframe (optimised) · keyframe_from_cam (tracked).
+#pragma once
+
+#include <memory>
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+#include "calib/model/camera_model.h"
+#include "pipeline/register/features.h"
+#include "pipeline/register/icp.h"
+#include "pipeline/register/point_map.h"
+#include "pipeline/register/pose_graph.h"
+
+namespace d3d {
+
+enum class TrackingState { kInitialising, kTracking, kLost, kRelocalised };
+const char* TrackingStateName(TrackingState s);  // "initialising", "tracking", "lost", "relocalised"
+
+enum class Association { kProjective, kKdTree };
+
+struct TrackerOptions {
+  IcpOptions icp;                 // frame-to-model; see DefaultTrackerIcp()
+  PointMapOptions map;
+  Association association = Association::kProjective;
+  int sample_stride = 2;          // px lattice of the ICP source samples
+  int map_stride = 3;             // px lattice of the samples added to the model
+  double target_scale = 0.5;      // projective: model image size / camera size
+  int target_splat = 1;           // projective: splat half-size (px of the model image)
+  int target_window = 1;          // projective: search half-window (px)
+  double gather_margin_mm = 1.0;  // k-d tree: model samples within the view's box ± this
+  double max_step_mm = 2.5;       // per burst: larger motion is "inconsistent motion"
+  double max_step_deg = 10.0;
+  double keyframe_overlap = 0.7;
+  int keyframe_stride = 4;        // px lattice of a keyframe's samples
+  FeatureOptions features;
+  int relocalise_candidates = 6;
+  int local_candidates = 4;       // local search: ICP from the last pose and this many nearest keyframes
+  double local_search_gate_mm = 4.0;  // first-level association gate of the local search
+  int min_view_samples = 5000;    // fewer samples (a fragment, ~6 % of the image): skipped, state unchanged
+  double relocalise_max_rmse_mm = 0.04;  // stricter residual for a relocalised view
+  double relocalise_min_overlap = 0.5;
+  double loop_radius_mm = 6.0;    // keyframe centres closer than this are loop candidates
+  int loop_min_separation = 10;   // keyframes
+  double loop_min_overlap = 0.3;
+  int max_loop_candidates = 3;    // per new keyframe, nearest first
+  double odometry_sigma_mm = 0.005, odometry_sigma_rad = 1e-4;  // pose graph edge σ
+  double loop_sigma_mm = 0.005, loop_sigma_rad = 1e-4;
+  bool relocalise = true;
+  bool detect_loops = true;
+  void Check() const;             // throws std::invalid_argument
+};
+
+// Frame-to-model ICP levels used by default (association gates shrinking 0.8 → 0.1 mm).
+IcpOptions DefaultTrackerIcp();
+
+struct Keyframe {
+  int64_t view = 0;                   // index of the view (Track call) it was made from
+  int node = 0;                       // pose graph node
+  SurfacePoints samples;              // camera frame
+  ViewFeatures features;              // camera frame
+  Eigen::Vector3d centre_in_cam = Eigen::Vector3d::Zero();
+};
+
+struct TrackResult {
+  TrackingState state = TrackingState::kInitialising;
+  bool accepted = false;              // pose valid and view added to the model (fuse it)
+  Rigid3d world_from_cam = Rigid3d::Identity();
+  std::string reason;                 // why refused, or how relocalised
+  IcpResult icp;
+  bool new_keyframe = false;
+  int loops_added = 0;
+  double ms = 0;
+};
+
+class Tracker {
+ public:
+  // camera: intrinsics of the organised views (their H×W). Throws for invalid options.
+  Tracker(const PinholeBrownConrady& camera, const TrackerOptions& options = {});
+  ~Tracker();
+
+  // points, normals: H×W CV_32FC3 camera frame (mm, NaN = none); quality H×W CV_32F or empty;
+  // texture H×W CV_8U or empty (then relocalisation uses range features only).
+  TrackResult Track(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, const cv::Mat& texture);
+
+  TrackingState state() const { return state_; }
+  const std::vector<Keyframe>& keyframes() const { return keyframes_; }
+  const PoseGraph& graph() const { return graph_; }
+  int64_t views() const { return static_cast<int64_t>(anchor_.size()); }
+  const PointMap& model() const { return map_; }
+
+  // Optimises the pose graph (loop closures) and returns the summary.
+  [[nodiscard]] Status Optimize(const PoseGraphOptions& options, PoseGraphSummary* summary);
+  // Pose of view i after Optimize (its tracked pose before): false if the view was refused.
+  bool ViewPose(int64_t view, Rigid3d* world_from_cam) const;
+  int loop_edges() const;
+
+ private:
+  IcpResult RunIcp(const SurfacePoints& source, const Rigid3d& initial, const IcpOptions& icp) const;
+  Rigid3d Predict() const;
+  bool RelocaliseLocally(const SurfacePoints& samples, TrackResult* out);
+  bool Relocalise(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& texture, TrackResult* out);
+  void MaybeKeyframe(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& normals,
+                     const cv::Mat& texture, const Rigid3d& pose, TrackResult* out);
+  int DetectLoops(int new_kf);
+
+  PinholeBrownConrady camera_;
+  PinholeIntrinsics pinhole_;
+  TrackerOptions o_;
+  PointMap map_;
+  PoseGraph graph_;
+  std::vector<Keyframe> keyframes_;
+  TrackingState state_ = TrackingState::kInitialising;
+  int64_t index_ = -1;                // current view index
+  int64_t last_accepted_ = -1;
+  Rigid3d last_pose_ = Rigid3d::Identity(), prev_pose_ = Rigid3d::Identity();
+  int64_t prev_accepted_ = -1;
+  // Per view: anchor keyframe (−1 = refused) and keyframe_from_cam.
+  std::vector<int> anchor_;
+  std::vector<Rigid3d> kf_from_cam_;
+};
+
+}  // namespace d3d

@@ -1,0 +1,98 @@
+#include "pipeline/register/tracker.h"
+
+#include <gtest/gtest.h>
+
+#include "pipeline/register/test_surfaces.h"
+
+namespace d3d {
+namespace {
+
+using namespace d3d::testing;
+
+class TrackerScan : public ::testing::Test {
+ protected:
+  TrackerScan() : hf_(31), cam_(TestCamera()) {}
+  Rigid3d Truth(double x, double y) const { return LookDown(x, y, 30, 0.05 * std::sin(x), 0.04 * std::cos(x), 0.02 * x); }
+  TrackResult Feed(Tracker* t, const Rigid3d& pose, uint32_t seed) {
+    const auto v = RenderHeightField(hf_, cam_, pose, 0.004, seed);
+    return t->Track(v.points, v.normals, v.quality, v.texture);
+  }
+  HeightField hf_;
+  PinholeBrownConrady cam_;
+};
+
+TEST_F(TrackerScan, TracksAStripRefusesABadViewAndRelocalises) {
+  TrackerOptions o;
+  o.features.max_features = 800;
+  Tracker tracker(cam_, o);
+  std::vector<Rigid3d> truth;
+  uint32_t seed = 1;
+  for (double x = -6; x <= 6.01; x += 0.5) {
+    truth.push_back(Truth(x, 0));
+    const TrackResult r = Feed(&tracker, truth.back(), seed++);
+    ASSERT_TRUE(r.accepted) << "x = " << x << ": " << r.reason;
+    EXPECT_EQ(r.state, TrackingState::kTracking);
+  }
+  // Every accepted pose matches the truth expressed in the first camera's frame.
+  const Rigid3d first_inv = truth[0].inverse();
+  for (int64_t i = 0; i < tracker.views(); ++i) {
+    Rigid3d p;
+    ASSERT_TRUE(tracker.ViewPose(i, &p));
+    const Rigid3d want = first_inv * truth[static_cast<size_t>(i)];
+    // Drift over the 16-mm strip (translation at the camera centre, 30 mm from the surface).
+    EXPECT_LT(TranslationDistanceMm(p, want), 0.02) << "view " << i;
+    EXPECT_LT(RotationAngleRad(p, want) * 180 / M_PI, 0.04) << "view " << i;
+  }
+  EXPECT_GT(tracker.keyframes().size(), 3u);
+  // A view of nothing: refused (not fused), the state is kept.
+  cv::Mat empty(cam_.height, cam_.width, CV_32FC3, cv::Scalar::all(std::nanf("")));
+  const TrackResult none = tracker.Track(empty, empty, cv::Mat(), cv::Mat());
+  EXPECT_FALSE(none.accepted);
+  EXPECT_NE(none.reason.find("too few points"), std::string::npos);
+  // A view off the model: refused, lost.
+  const TrackResult bad = Feed(&tracker, Truth(25, 0), 77);
+  EXPECT_FALSE(bad.accepted);
+  EXPECT_EQ(bad.state, TrackingState::kLost);
+  EXPECT_FALSE(bad.reason.empty());
+  // The probe comes back somewhere else over the scanned strip: relocalised by features.
+  const Rigid3d back = Truth(-3.1, 0.4);
+  const TrackResult re = Feed(&tracker, back, 999);
+  ASSERT_TRUE(re.accepted) << re.reason;
+  EXPECT_EQ(re.state, TrackingState::kRelocalised);
+  EXPECT_LT(TranslationDistanceMm(re.world_from_cam, first_inv * back), 0.02);
+  // And keeps tracking from there.
+  const TrackResult next = Feed(&tracker, Truth(-2.8, 0.4), 1000);
+  ASSERT_TRUE(next.accepted) << next.reason;
+  EXPECT_EQ(next.state, TrackingState::kTracking);
+  EXPECT_EQ(tracker.state(), TrackingState::kTracking);
+}
+
+TEST_F(TrackerScan, KdTreeAssociationTracksToo) {
+  TrackerOptions o;
+  o.association = Association::kKdTree;
+  o.relocalise = false;
+  Tracker tracker(cam_, o);
+  std::vector<Rigid3d> truth;
+  uint32_t seed = 1;
+  for (double x = -3; x <= 3.01; x += 0.5) {
+    truth.push_back(Truth(x, 0.2));
+    const TrackResult r = Feed(&tracker, truth.back(), seed++);
+    ASSERT_TRUE(r.accepted) << r.reason;
+  }
+  Rigid3d p;
+  ASSERT_TRUE(tracker.ViewPose(tracker.views() - 1, &p));
+  EXPECT_LT(TranslationDistanceMm(p, truth[0].inverse() * truth.back()), 0.02);
+}
+
+TEST_F(TrackerScan, AJumpBeyondTheModelIsRefused) {
+  TrackerOptions o;
+  Tracker tracker(cam_, o);
+  for (double x = 0; x <= 1.01; x += 0.5) ASSERT_TRUE(Feed(&tracker, Truth(x, 0), 1).accepted);
+  const TrackResult r = Feed(&tracker, Truth(20, 0), 2);  // nothing of the model in view
+  EXPECT_FALSE(r.accepted);
+  EXPECT_EQ(r.state, TrackingState::kLost);
+  EXPECT_NE(r.reason.find("icp"), std::string::npos) << r.reason;
+}
+
+}  // namespace
+}  // namespace d3d

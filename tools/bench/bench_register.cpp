@@ -1,0 +1,272 @@
+// d3d-bench-register: our registration and fusion side by side with Open3D's (Debian
+// libopen3d-dev 0.16) on the same data, in one run:
+//  1. Stanford bunny pairs from identity: features + ICP (ours), pose error against bun.conf.
+//  2. ICP on the same pairs from the same initial pose: ours (combined metric, k-d tree and
+//     projective association, 1 and 2 threads) vs Open3D's point-to-plane ICP: ms and final error
+//     (RMS displacement of the source points between the estimated and the true transform).
+//  3. TSDF integration of the same virtual-probe views: ours (OpenVDB) vs Open3D's
+//     ScalableTSDFVolume: ms per view.
+// Speed is measured here, never in tests. Prints a table and, with --json, one JSON object.
+#include <open3d/Open3D.h>
+
+#include <CLI/CLI.hpp>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "firmware/sim/session/sim_session.h"
+#include "pipeline/fuse/tsdf.h"
+#include "pipeline/recon/reconstruct.h"
+#include "pipeline/register/pairwise.h"
+#include "pipeline/register/range_grid_io.h"
+
+using namespace d3d;
+namespace o3r = open3d::pipelines::registration;
+
+namespace {
+
+double Now() { return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
+
+double PointRmsUm(const SurfacePoints& s, const Rigid3d& a, const Rigid3d& b) {
+  double e = 0;
+  for (const auto& p : s.points) e += (a * p.cast<double>() - b * p.cast<double>()).squaredNorm();
+  return 1000 * std::sqrt(e / static_cast<double>(std::max<size_t>(1, s.size())));
+}
+
+open3d::geometry::PointCloud ToO3d(const SurfacePoints& s, bool normals) {
+  open3d::geometry::PointCloud pc;
+  for (size_t i = 0; i < s.size(); ++i) {
+    pc.points_.push_back(s.points[i].cast<double>());
+    if (normals) pc.normals_.push_back(s.normals[i].cast<double>());
+  }
+  return pc;
+}
+
+struct IcpCase {
+  std::string name;
+  SurfacePoints source, target;
+  cv::Mat target_points, target_normals;  // organised (empty: no projective association)
+  PinholeIntrinsics k;
+  Rigid3d truth, init;
+  IcpOptions ours;
+  double o3d_max_distance_mm = 1.0;
+};
+
+nlohmann::json RunIcpCase(const IcpCase& c, int repeats) {
+  nlohmann::json j;
+  j["pair"] = c.name;
+  j["source_points"] = c.source.size();
+  j["target_points"] = c.target.size();
+  j["initial_error_um"] = PointRmsUm(c.source, c.init, c.truth);
+  auto time_ours = [&](bool projective, int threads) {
+    IcpOptions o = c.ours;
+    o.threads = threads;
+    IcpResult r;
+    double best = 1e30;
+    for (int k = 0; k < repeats; ++k) {
+      const double t0 = Now();
+      if (projective) {
+        ProjectiveTarget t(c.target_points, c.target_normals, c.k, Rigid3d::Identity(), 1);
+        r = RegisterIcp(c.source, t, c.init, o);
+      } else {
+        KdTreeTarget t(c.target);
+        r = RegisterIcp(c.source, t, c.init, o);
+      }
+      best = std::min(best, Now() - t0);
+    }
+    return std::pair{r, best};
+  };
+  for (int threads : {1, 2}) {
+    const auto [r, ms] = time_ours(false, threads);
+    j["ours_kdtree_t" + std::to_string(threads)] = {{"ms", ms}, {"error_um", PointRmsUm(c.source, r.target_from_source, c.truth)},
+                                                   {"ok", r.ok}, {"iterations", r.iterations}, {"rmse_um", r.rmse_mm * 1000}};
+    if (!c.target_points.empty()) {
+      const auto [p, pms] = time_ours(true, threads);
+      j["ours_projective_t" + std::to_string(threads)] = {{"ms", pms}, {"error_um", PointRmsUm(c.source, p.target_from_source, c.truth)},
+                                                         {"ok", p.ok}, {"iterations", p.iterations}, {"rmse_um", p.rmse_mm * 1000}};
+    }
+  }
+  const auto src = ToO3d(c.source, false), tgt = ToO3d(c.target, true);
+  o3r::RegistrationResult res;
+  double best = 1e30;
+  for (int k = 0; k < repeats; ++k) {
+    const double t0 = Now();
+    res = o3r::RegistrationICP(src, tgt, c.o3d_max_distance_mm, c.init.matrix(), o3r::TransformationEstimationPointToPlane(),
+                               o3r::ICPConvergenceCriteria(1e-6, 1e-6, 30));
+    best = std::min(best, Now() - t0);
+  }
+  Rigid3d T(res.transformation_);
+  j["open3d_point_to_plane"] = {{"ms", best}, {"error_um", PointRmsUm(c.source, T, c.truth)}, {"fitness", res.fitness_},
+                                {"rmse_um", res.inlier_rmse_ * 1000}};
+  return j;
+}
+
+std::map<std::string, Rigid3d> LoadConf(const std::string& dir) {
+  std::map<std::string, Rigid3d> out;
+  std::ifstream f(dir + "/bun.conf");
+  std::string line;
+  while (std::getline(f, line)) {
+    std::istringstream is(line);
+    std::string w, name;
+    double tx, ty, tz, qx, qy, qz, qw;
+    if (!(is >> w) || w != "bmesh" || !(is >> name >> tx >> ty >> tz >> qx >> qy >> qz >> qw)) continue;
+    Rigid3d T = Rigid3d::Identity();
+    T.linear() = Eigen::Quaterniond(qw, qx, qy, qz).normalized().toRotationMatrix().transpose();
+    T.translation() = Eigen::Vector3d(tx, ty, tz) * 1000.0;
+    out[name.substr(0, name.find('.'))] = T;
+  }
+  return out;
+}
+
+Rigid3d Perturb(const Rigid3d& T, double deg, double mm) {
+  Rigid3d d = Rigid3d::Identity();
+  d.linear() = Eigen::AngleAxisd(deg * M_PI / 180, Eigen::Vector3d(0.4, -0.7, 0.6).normalized()).toRotationMatrix();
+  d.translation() = Eigen::Vector3d(0.5, 0.3, -0.8).normalized() * mm;
+  return d * T;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"d3d-bench-register: our ICP and TSDF vs Open3D's on the same data (bunny scans, virtual-probe views)."};
+  std::string data = std::string(D3D_SHARED_DATA_DIR);
+  int repeats = 3, tsdf_views = 20;
+  bool json = false;
+  app.add_option("--data", data, "../shared/data")->capture_default_str();
+  app.add_option("--repeats", repeats, "timing repeats (best kept)")->capture_default_str();
+  app.add_option("--tsdf-views", tsdf_views, "views fused in the TSDF comparison")->capture_default_str();
+  app.add_flag("--json", json, "print one JSON object");
+  CLI11_PARSE(app, argc, argv);
+  nlohmann::json out;
+  open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
+  // 1. Bunny pairs from identity (features + ICP) and 2. ICP vs Open3D from a perturbed truth.
+  const std::string dir = data + "/range_scans/stanford_bunny";
+  std::vector<IcpCase> cases;
+  if (std::filesystem::exists(dir + "/bun.conf")) {
+    const auto conf = LoadConf(dir);
+    nlohmann::json pairs = nlohmann::json::array();
+    for (auto [s, t] : std::vector<std::pair<std::string, std::string>>{
+             {"bun045", "bun000"}, {"bun315", "bun000"}, {"bun090", "bun045"}, {"bun270", "bun315"}, {"bun180", "bun090"}, {"bun180", "bun270"}}) {
+      cv::Mat S, T;
+      if (!LoadRangeGridPly(dir + "/" + s + ".ply", 1000, &S).ok() || !LoadRangeGridPly(dir + "/" + t + ".ply", 1000, &T).ok()) continue;
+      PairwiseOptions o;
+      o.features.ransac.inlier_threshold_mm = 1.5;
+      o.features.ransac.min_sample_spread_mm = 5;
+      o.features.ransac.max_iterations = 20000;
+      o.features.ransac.min_inliers = 8;
+      o.features.max_gap_mm = 2.0;
+      o.features.max_features = 4000;
+      o.features.contrast_threshold = 0.01;
+      o.features.ratio = 0.85;
+      o.features.mutual = false;
+      o.icp.levels = {{4, 30, 5.0, 0.7}, {2, 30, 2.0, 0.9}, {1, 30, 1.0, 1.0}};
+      o.icp.min_overlap = 0.3;
+      o.icp.max_rmse_mm = 0.5;
+      o.icp.min_sigma_mm = 0.05;
+      const PairwiseResult r = RegisterPair(S, cv::Mat(), T, cv::Mat(), o);
+      const Rigid3d truth = conf.at(t).inverse() * conf.at(s);
+      nlohmann::json pj = {{"pair", s + "->" + t}, {"ok", r.ok}, {"reason", r.reason}, {"feature_matches", r.initial.matches},
+                           {"feature_inliers", r.initial.inliers}, {"ms_features", r.ms_features}, {"ms_icp", r.ms_icp}};
+      if (r.ok) {
+        pj["error_deg"] = RotationAngleRad(r.target_from_source, truth) * 180 / M_PI;
+        pj["error_mm"] = TranslationDistanceMm(r.target_from_source, truth);
+      }
+      pairs.push_back(pj);
+      IcpCase c;
+      c.name = s + "->" + t;
+      c.source = SampleOrganised(S, GridNormals(S, 2.0), cv::Mat(), 1);
+      c.target = SampleOrganised(T, GridNormals(T, 2.0), cv::Mat(), 1);
+      c.truth = truth;
+      c.init = Perturb(truth, 3.0, 2.0);
+      c.ours = o.icp;
+      c.o3d_max_distance_mm = 5.0;
+      cases.push_back(std::move(c));
+    }
+    out["bunny_pairs_from_identity"] = pairs;
+  }
+  // Virtual-probe pair: two bursts 1/30 s apart, ~100k source samples, ~230k target samples.
+  SimSessionOptions so;
+  std::unique_ptr<SimSession> session;
+  if (!SimSession::Create(so, &session).ok()) return 1;
+  const ProbeCalibration& calib = session->calibration();
+  Reconstructor recon(calib);
+  std::vector<ReconstructedView> views;
+  std::vector<Rigid3d> poses;
+  const int64_t start = 300;
+  for (int i = 0; i < std::max(2, tsdf_views); ++i) {
+    const Burst b = session->RenderBurst(start + i, false);
+    std::vector<cv::Mat> imgs;
+    for (int f = 0; f < calib.pattern.steps; ++f) imgs.push_back(b.frames[static_cast<size_t>(f)].image);
+    ReconstructedView v;
+    if (!recon.Reconstruct(imgs, &v).ok()) return 1;
+    views.push_back(v);
+    poses.push_back(session->trajectory().WorldFromProbe(b.reference_ns));
+  }
+  {
+    IcpCase c;
+    c.name = "virtual-probe bursts 300->301";
+    const SurfacePoints all = SampleOrganised(views[1].points_in_cam, views[1].normals, cv::Mat(), 1);
+    c.source = all.Subsample(std::max<int>(1, static_cast<int>(all.size() / 100000)));
+    c.target = SampleOrganised(views[0].points_in_cam, views[0].normals, cv::Mat(), 1);
+    c.target_points = views[0].points_in_cam;
+    c.target_normals = views[0].normals;
+    c.k = {calib.camera.fx, calib.camera.fy, calib.camera.cx, calib.camera.cy, calib.camera.width, calib.camera.height};
+    c.truth = poses[0].inverse() * poses[1];
+    c.init = Rigid3d::Identity();  // no motion prediction
+    c.ours.levels = {{16, 12, 1.0, 0.7}, {4, 8, 0.3, 0.9}, {1, 6, 0.1, 1.0}};
+    c.o3d_max_distance_mm = 1.0;
+    cases.push_back(std::move(c));
+  }
+  nlohmann::json icp = nlohmann::json::array();
+  for (const auto& c : cases) icp.push_back(RunIcpCase(c, repeats));
+  out["icp_vs_open3d"] = icp;
+  // 3. TSDF integration, same views at their true poses.
+  {
+    TsdfOptions to;
+    TsdfVolume ours(to);
+    double t0 = Now();
+    for (size_t i = 0; i < views.size(); ++i)
+      if (!ours.Integrate(views[i].points_in_cam, views[i].normals, views[i].quality, calib.camera, poses[i]).ok()) return 1;
+    const double ours_ms = (Now() - t0) / static_cast<double>(views.size());
+    t0 = Now();
+    const TriangleMesh m = ours.ExtractMesh();
+    const double ours_mesh_ms = Now() - t0;
+    open3d::pipelines::integration::ScalableTSDFVolume o3d(to.voxel_mm, to.truncation_mm,
+                                                           open3d::pipelines::integration::TSDFVolumeColorType::NoColor, 16, 4);
+    const open3d::camera::PinholeCameraIntrinsic K(calib.camera.width, calib.camera.height, calib.camera.fx, calib.camera.fy,
+                                                   calib.camera.cx, calib.camera.cy);
+    std::vector<std::shared_ptr<open3d::geometry::RGBDImage>> rgbd;
+    for (const auto& v : views) {
+      open3d::geometry::Image depth, colour;
+      depth.Prepare(v.points_in_cam.cols, v.points_in_cam.rows, 1, 4);
+      colour.Prepare(v.points_in_cam.cols, v.points_in_cam.rows, 3, 1);
+      for (int r = 0; r < v.points_in_cam.rows; ++r)
+        for (int c = 0; c < v.points_in_cam.cols; ++c) {
+          const float z = v.points_in_cam.at<cv::Vec3f>(r, c)[2];
+          *depth.PointerAt<float>(c, r) = std::isfinite(z) ? z : 0.0f;
+        }
+      rgbd.push_back(open3d::geometry::RGBDImage::CreateFromColorAndDepth(colour, depth, 1.0, 100.0, false));
+    }
+    t0 = Now();
+    for (size_t i = 0; i < views.size(); ++i) o3d.Integrate(*rgbd[i], K, poses[i].inverse().matrix());
+    const double o3d_ms = (Now() - t0) / static_cast<double>(views.size());
+    t0 = Now();
+    const auto om = o3d.ExtractTriangleMesh();
+    const double o3d_mesh_ms = Now() - t0;
+    out["tsdf"] = {{"views", views.size()},
+                   {"voxel_mm", to.voxel_mm},
+                   {"ours_ms_per_view", ours_ms},
+                   {"ours_mesh_ms", ours_mesh_ms},
+                   {"ours_faces", m.faces.size()},
+                   {"ours_memory_mib", static_cast<double>(ours.MemoryBytes()) / (1 << 20)},
+                   {"open3d_ms_per_view", o3d_ms},
+                   {"open3d_mesh_ms", o3d_mesh_ms},
+                   {"open3d_faces", om->triangles_.size()}};
+  }
+  std::printf("%s\n", json ? out.dump().c_str() : out.dump(2).c_str());
+  return 0;
+}
