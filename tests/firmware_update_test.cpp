@@ -8,12 +8,15 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <thread>
 
 #include "firmware/update/agent_process.h"
 #include "firmware/update/image_format.h"
 #include "firmware/update/test_images.h"
 #include "host/flash/dfu_host.h"
 #include "host/flash/sim_transport.h"
+#include "host/receiver/receiver.h"
+#include "protocol/dds_setup.h"
 
 namespace d3d {
 namespace {
@@ -126,6 +129,38 @@ TEST_F(FirmwareUpdateTest, HappyPathWithD3dFlashBootsAndConfirmsTheNewVersion) {
   EXPECT_EQ(f.VersionString(), "1.1.0");
   EXPECT_EQ(f.running_slot, 1);
   EXPECT_EQ(f.boot_state, dfu::BootState::kConfirmed);
+}
+
+// The agent hosted in the probe's acquisition process: d3d-flash over the sim link to d3d-probe,
+// and the host sees the new version in DDS ProbeInfo.
+TEST_F(FirmwareUpdateTest, D3dProbeHostsTheAgentAndReportsTheNewVersionOverDds) {
+  constexpr int kDomain = 74;
+  const Status started = agent.Start(kBin + "/d3d-probe",
+                                     {"--sim", "typodont", "--sim-cycle", "1", "--idle", "--domain", std::to_string(kDomain),
+                                      "--update-socket", sock, "--flash", (dir / "flash").string(), "--pubkey",
+                                      (dir / "signing.pub").string(), "--provision", (dir / "v1.0.img").string(),
+                                      "--hw", "1", "--slot-mib", "1", "--erase-kib", "4"},
+                                     sock, (dir / "probe.log").string(), 60000);
+  ASSERT_TRUE(started.ok()) << started.ToString();
+  proto::DdsParticipant pp;
+  ASSERT_TRUE(pp.Create({kDomain, proto::SelectCycloneConfig(nullptr, 0, 0, nullptr)}).ok());
+  BurstReceiver rx(ReceiverOptions{});
+  ASSERT_TRUE(rx.Start(&pp).ok());
+  auto version = [&](const std::string& want) {
+    std::string got;
+    for (int i = 0; i < 200 && got != want; ++i) {
+      proto::InfoMsg info;
+      if (rx.LatestInfo(&info, nullptr)) got = info.firmware_version;
+      if (got != want) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+    return got;
+  };
+  EXPECT_EQ(version("1.0.0"), "1.0.0");
+  const RunResult r = RunCmd(kBin + "/d3d-flash " + (dir / "v1.1.img").string() + " --device sim:" + sock + " --no-progress");
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("result: UPDATED 1.0.0 -> 1.1.0"), std::string::npos) << r.output;
+  EXPECT_EQ(version("1.1.0"), "1.1.0") << "ProbeInfo.firmware_version after the confirmed update";
+  EXPECT_EQ(agent.Stop(), 0);
 }
 
 TEST_F(FirmwareUpdateTest, DryRunSendsNothing) {

@@ -100,6 +100,19 @@ void ProbeApp::SetFirmwareVersion(const std::string& version) {
   firmware_version_ = version;
 }
 
+void ProbeApp::SetStreamingInhibit(const std::string& reason) {
+  std::lock_guard<std::mutex> lock(info_mu_);
+  streaming_inhibit_ = reason;
+}
+
+Status ProbeApp::SetStreaming(bool on) {
+  if (on) {
+    std::lock_guard<std::mutex> lock(info_mu_);
+    if (!streaming_inhibit_.empty()) return Unavailable("streaming refused: " + streaming_inhibit_);
+  }
+  return state_.Transition(on ? ProbeState::kStreaming : ProbeState::kIdle, "command");
+}
+
 Status ProbeApp::PublishInfo() {
   const CaptureInfo& ci = backend_->info();
   proto::InfoMsg m;
@@ -306,10 +319,8 @@ std::string ProbeApp::HandleCommand(int kind, double value, bool* accepted) {
   Status s;
   switch (kind) {
     case d3d_proto_CMD_START_STREAMING:
-      s = state_.Transition(ProbeState::kStreaming, "command");
-      break;
     case d3d_proto_CMD_STOP_STREAMING:
-      s = state_.Transition(ProbeState::kIdle, "command");
+      s = SetStreaming(kind == d3d_proto_CMD_START_STREAMING);
       break;
     case d3d_proto_CMD_SET_EXPOSURE:
       s = backend_->SetExposure(static_cast<int64_t>(std::llround(value)));

@@ -79,6 +79,12 @@ class ProbeApp {
   const FrameSyncCounters& sync_counters() const { return sync_.counters(); }
   void SetFirmwareVersion(const std::string& version);
   [[nodiscard]] Status PublishInfo();
+  // While `reason` is non-empty, CMD_START_STREAMING and SetStreaming(true) are refused with
+  // UNAVAILABLE naming it (the update agent sets it for the DFU session). Thread-safe.
+  void SetStreamingInhibit(const std::string& reason);
+  // Starts (idle → streaming) or stops (streaming → idle) streaming, as the DDS commands do.
+  // Thread-safe; UNAVAILABLE while inhibited, INVALID_ARGUMENT for an illegal transition.
+  [[nodiscard]] Status SetStreaming(bool on);
 
  private:
   struct PendingBurst {
@@ -104,7 +110,8 @@ class ProbeApp {
   std::atomic<bool> stop_{false};
   std::atomic<bool> threads_stop_{false};
   std::mutex info_mu_;
-  std::string firmware_version_;
+  std::string firmware_version_;       // guarded by info_mu_
+  std::string streaming_inhibit_;      // guarded by info_mu_
 
   dds_entity_t burst_writer_ = 0, info_writer_ = 0, status_writer_ = 0, ack_writer_ = 0, command_reader_ = 0;
 

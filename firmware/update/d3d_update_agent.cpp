@@ -4,10 +4,9 @@
 #include <CLI/CLI.hpp>
 #include <csignal>
 #include <cstdio>
-#include <filesystem>
-#include <fstream>
 #include <unistd.h>
 
+#include "firmware/update/agent_setup.h"
 #include "firmware/update/sim_link_server.h"
 #include "firmware/update/update_agent.h"
 
@@ -49,13 +48,6 @@ class SimProbeHooks : public ProbeHooks {
   }
 };
 
-bool ReadFile(const std::string& path, std::vector<uint8_t>* out) {
-  std::ifstream f(path, std::ios::binary);
-  if (!f) return false;
-  out->assign(std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>());
-  return true;
-}
-
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -91,11 +83,6 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
 
   try {
-    PublicKey pk;
-    if (Status s = LoadPublicKey(pubkey_path, &pk); !s.ok()) {
-      std::fprintf(stderr, "d3d-update-agent: %s\n", s.ToString().c_str());
-      return 2;
-    }
     UpdateAgentOptions opt;
     opt.slots.hw_id = static_cast<uint32_t>(std::stoul(hw, nullptr, 0));
     opt.slots.slot_bytes = slot_mib << 20;
@@ -104,34 +91,20 @@ int main(int argc, char** argv) {
     opt.dfu.fixed_poll_ms = poll_ms;
     opt.serial = serial;
     opt.sim_controls = sim_controls;
-    FlashGeometry g;
-    g.erase_block_bytes = erase_kib * 1024;
-    g.page_bytes = page_bytes;
-    g = SlotFlashGeometry(g, opt.slots.slot_bytes);
-    std::filesystem::create_directories(flash_dir);
-    std::unique_ptr<Flash> flash;
-    if (Status s = Flash::OpenFile(flash_dir + "/flash.bin", g, &flash); !s.ok()) {
-      std::fprintf(stderr, "d3d-update-agent: %s\n", s.ToString().c_str());
-      return 2;
-    }
+    AgentSetupOptions setup_options;
+    setup_options.flash_dir = flash_dir;
+    setup_options.pubkey_path = pubkey_path;
+    setup_options.provision_path = provision;
+    setup_options.erase_bytes = erase_kib * 1024;
+    setup_options.page_bytes = page_bytes;
     hooks.streaming.store(streaming);
-    UpdateAgent agent(flash.get(), pk, opt, &hooks);
-    bool provisioned = false;
-    if (Status s = agent.slots().IsProvisioned(&provisioned); !s.ok()) {
+    AgentSetup setup;
+    if (Status s = OpenUpdateAgent(setup_options, opt, &hooks, &setup); !s.ok()) {
       std::fprintf(stderr, "d3d-update-agent: %s\n", s.ToString().c_str());
       return 2;
     }
-    if (!provisioned && !provision.empty()) {
-      std::vector<uint8_t> image;
-      if (!ReadFile(provision, &image)) {
-        std::fprintf(stderr, "d3d-update-agent: cannot read %s\n", provision.c_str());
-        return 2;
-      }
-      if (Status s = agent.slots().Provision(image); !s.ok()) {
-        std::fprintf(stderr, "d3d-update-agent: %s\n", s.ToString().c_str());
-        return 2;
-      }
-    }
+    Flash* flash = setup.flash.get();
+    UpdateAgent& agent = *setup.agent;
     // The power cut counts operations from this start on (provisioning is the factory's).
     if (power_cut_after >= 0) flash->CutPowerAfterOps(flash->ops() + power_cut_after);
     if (Status s = agent.PowerOn(); !s.ok()) {

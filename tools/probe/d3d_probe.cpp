@@ -14,6 +14,7 @@
 #include <fstream>
 
 #include "firmware/probe/probe_app.h"
+#include "firmware/probe/probe_update.h"
 #include "tools/dds/tool_dds.h"
 
 using namespace d3d;
@@ -52,6 +53,19 @@ int main(int argc, char** argv) {
   cli.add_option("--wait-subscribers", wait_subscribers, "before streaming, wait for this many PhaseBurst readers")->capture_default_str();
   cli.add_option("--wait-timeout", wait_timeout_s, "seconds to wait for them")->capture_default_str();
   cli.add_option("--manifest", manifest, "write 'burst_seq crc32(frame 0) ... crc32(frame N-1)' per published burst (tests)");
+  // Firmware update agent (issue 8): served over the sim link when --update-socket is given.
+  ProbeUpdateOptions update;
+  std::string hw = "0x0001";
+  uint64_t slot_mib = 20;
+  uint32_t erase_kib = 64;
+  auto* update_group = cli.add_option_group("firmware update", "the update agent (d3d-flash --device sim:SOCKET)");
+  update_group->add_option("--update-socket", update.socket_path, "serve firmware updates on this Unix socket (sim link)");
+  update_group->add_option("--flash", update.setup.flash_dir, "directory of the probe's flash (flash.bin, A/B slots)");
+  update_group->add_option("--pubkey", update.setup.pubkey_path, "the firmware signing public key the probe trusts");
+  update_group->add_option("--provision", update.setup.provision_path, "factory image written to slot A when the flash is blank");
+  update_group->add_option("--hw", hw, "this probe's hardware compatibility id")->capture_default_str();
+  update_group->add_option("--slot-mib", slot_mib, "capacity of each A/B slot, MiB")->capture_default_str();
+  update_group->add_option("--erase-kib", erase_kib, "flash erase block, KiB")->capture_default_str();
   CLI11_PARSE(cli, argc, argv);
 
   if (camera.empty()) camera = sim.empty() ? "auto" : "sim";
@@ -69,6 +83,21 @@ int main(int argc, char** argv) {
   app_options.firmware_version = D3D_FIRMWARE_VERSION;
   app_options.max_bursts = frames;
   app_options.start_streaming = !idle;
+  if (!update.socket_path.empty()) {
+    if (update.setup.flash_dir.empty() || update.setup.pubkey_path.empty()) {
+      std::fprintf(stderr, "d3d-probe: --update-socket needs --flash DIR and --pubkey FILE\n");
+      return 2;
+    }
+    try {
+      update.agent.slots.hw_id = static_cast<uint32_t>(std::stoul(hw, nullptr, 0));
+    } catch (const std::exception&) {
+      std::fprintf(stderr, "d3d-probe: --hw must be a number, got '%s'\n", hw.c_str());
+      return 2;
+    }
+    update.agent.slots.slot_bytes = slot_mib << 20;
+    update.agent.serial = serial;
+    update.setup.erase_bytes = erase_kib * 1024;
+  }
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
 
@@ -115,8 +144,19 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "d3d-probe: start: %s\n", s.ToString().c_str());
       return 3;
     }
+    // The update agent powers on once the camera, projector and DDS are up (its health check).
+    std::unique_ptr<ProbeUpdateService> updates;
+    if (!update.socket_path.empty()) {
+      updates = std::make_unique<ProbeUpdateService>(&app, update);
+      if (const Status s = updates->Start(); !s.ok()) {
+        std::fprintf(stderr, "d3d-probe: firmware update agent: %s\n", s.ToString().c_str());
+        return 3;
+      }
+      std::fprintf(stderr, "d3d-probe: firmware: %s; updates on %s\n", updates->boot_log().c_str(), update.socket_path.c_str());
+    }
     const auto t1 = std::chrono::steady_clock::now();
     const Status s = app.Run();
+    if (updates) updates->Stop();
     const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
     g_app = nullptr;
     if (manifest_file) std::fclose(manifest_file);
