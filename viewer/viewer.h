@@ -26,7 +26,7 @@ struct ViewerOptions {
   int width = 960, height = 720;  // px
   bool headless = false;          // offscreen (EGL surfaceless) instead of a window
   std::string title = "d3d-scan";
-  float point_size_px = 2.0f;
+  float point_size_px = 3.0f;
   void Check() const;             // throws std::invalid_argument
 };
 
