@@ -20,6 +20,7 @@
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <thread>
+#include <unistd.h>
 
 #include "common/mesh/mesh_io.h"
 #include "firmware/sim/session/sim_session.h"
@@ -33,6 +34,13 @@ using namespace d3d;
 namespace {
 std::atomic<bool> g_stop{false};
 void OnSignal(int) { g_stop.store(true); }
+// Resident set size now (MiB), from /proc/self/statm.
+double RssMiB() {
+  std::ifstream f("/proc/self/statm");
+  long pages = 0, resident = 0;
+  f >> pages >> resident;
+  return static_cast<double>(resident) * static_cast<double>(sysconf(_SC_PAGESIZE)) / (1024.0 * 1024.0);
+}
 double SteadyS() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
 }  // namespace
 
@@ -158,6 +166,7 @@ int main(int argc, char** argv) {
     const double t0 = SteadyS();
     double next_frame = t0, next_line = t0 + 1, fps = 0, fps_t0 = t0, last_fps_t = t0;
     int64_t frames = 0, fps_frames = 0;
+    std::vector<double> rss_timeline;  // MiB, once a second: memory must stay flat after warm-up
     std::mutex message_mu;  // the saver thread sets the message line, the render loop reads it
     std::string message;
     double message_until = 0;
@@ -204,8 +213,10 @@ int main(int argc, char** argv) {
           }
         }
       }
-      if (!quiet && now >= next_line) {
+      if (now >= next_line) {
         next_line += 1;
+        rss_timeline.push_back(RssMiB());
+        if (quiet) continue;
         const PreviewStatus st = app.CurrentStatus();
         std::fprintf(stderr, "\rd3d-scan: %5.0f s  received %llu  processed %llu  fused %llu  dropped %llu  %.1f bursts/s  latency p95 %.0f ms  %s   ",
                      now - t0, static_cast<unsigned long long>(st.bursts_received), static_cast<unsigned long long>(st.bursts_processed),
@@ -270,6 +281,7 @@ int main(int argc, char** argv) {
     result.report["preview_fps"] = viewer && preview_s > 0 ? static_cast<double>(frames) / preview_s : 0.0;
     result.report["preview"] = viewer ? (viewer->headless() ? "offscreen" : "window") : "none";
     result.report["step"] = step;
+    result.report["rss_mb_per_s"] = rss_timeline;
     result.report["threads"] = threads;
     if (rec) result.report["recording_problems"] = rec->diagnostics().problems;
     if (!fs_status.ok()) {
