@@ -9,9 +9,9 @@ set -euo pipefail
 source "$(dirname "$0")/lib/setup.sh"
 model=typodont
 out="$D3D_ROOT/demo_out"
-seconds=8        # of scan path streamed at 30 Hz (the probe pre-renders them first: ~7 bursts/s on 2 cores)
-start=10         # s into the scan path (the first seconds approach the arch and see no tooth)
-policy=live
+seconds=4        # of scan path streamed at 30 Hz (the probe pre-renders them first: ~7 bursts/s on 2 cores)
+start=0          # s into the scan path
+policy=lossless  # the host keeps every burst (reproducible trueness); live: latest wins, drops counted
 headless=0
 while (($#)); do
   case "$1" in
@@ -36,14 +36,18 @@ mkdir -p "$out"
 domain=$(( 100 + $$ % 100 ))
 frames=$(( seconds * 30 ))
 
-# The scan path of the model (d3d-sim writes it as TUM), from --start seconds on.
-"$bin/d3d-sim" --model "$model" --trajectory full-arch --seed 1 --index 0 --frames 1 --out "$out/sim" --quiet >"$out/sim.log" 2>&1 || true
-[[ -s "$out/sim/trajectory.tum" ]] || { cat "$out/sim.log"; echo "demo.sh: d3d-sim wrote no trajectory" >&2; exit 1; }
-awk -v t0="$start" '/^#/ || $1 >= t0' "$out/sim/trajectory.tum" >"$out/path.tum"
+# The scan path: the model's full-arch path (seed 1), or its part from --start seconds on (d3d-sim
+# writes the path as TUM).
+path=full-arch
+if [[ "$start" != 0 ]]; then
+  "$bin/d3d-sim" --model "$model" --trajectory full-arch --seed 1 --index 0 --frames 1 --out "$out/sim" --quiet >"$out/sim.log" 2>&1
+  awk -v t0="$start" '/^#/ || $1 >= t0' "$out/sim/trajectory.tum" >"$out/path.tum"
+  path="$out/path.tum"
+fi
 
 # The host first (it waits for the probe), in a window: under Xvfb when there is no display.
 scan=("$bin/d3d-scan" --out "$out" --domain "$domain" --policy "$policy" --idle-exit 3 --probe-timeout 1
-      --reference "$model" --sim-trajectory "$out/path.tum" --sim-seed 1 --screenshot "$out/preview.png" --quiet)
+      --reference "$model" --sim-trajectory "$path" --sim-seed 1 --screenshot "$out/preview.png" --quiet)
 if ((headless)); then
   scan+=(--headless)
 elif [[ -z "${DISPLAY:-}" ]]; then
@@ -54,7 +58,7 @@ scan_pid=$!
 trap 'kill $scan_pid 2>/dev/null || true' EXIT
 
 echo "demo: the probe renders $frames bursts of the $model scan path ($seconds s at 30 Hz), then streams them..."
-"$bin/d3d-probe" --sim "$model" --trajectory "$out/path.tum" --seed 1 --rate 30 --frames "$frames" --sim-cycle "$frames" \
+"$bin/d3d-probe" --sim "$model" --trajectory "$path" --seed 1 --rate 30 --frames "$frames" --sim-cycle "$frames" \
   --wait-subscribers 1 --domain "$domain" >"$out/probe.log" 2>&1 || { tail -5 "$out/probe.log"; echo "demo.sh: d3d-probe failed" >&2; exit 1; }
 tail -1 "$out/probe.log"
 echo "demo: probe done; the host finishes the model..."

@@ -32,7 +32,7 @@ Status CopyBurst(const proto::BurstMsg& msg, int64_t receive_ns, IngestedBurst* 
 }
 
 void RecordingSourceOptions::Check() const {
-  if (!(rate >= 0)) throw std::invalid_argument("RecordingSourceOptions: rate must be >= 0");
+  if (!(rate >= 0) || max_bursts < 0) throw std::invalid_argument("RecordingSourceOptions: rate and max_bursts must be >= 0");
 }
 
 Status RecordingBurstSource::Open(const std::string& path, const RecordingSourceOptions& options, std::unique_ptr<RecordingBurstSource>* out) {
@@ -63,6 +63,7 @@ Status RecordingBurstSource::Open(const std::string& path, const RecordingSource
 }
 
 BurstSource::Result RecordingBurstSource::Next(IngestedBurst* out) {
+  if (o_.max_bursts > 0 && delivered_ >= o_.max_bursts) return Result::kEnd;
   for (;;) {
     if (message_ >= messages_.size()) {
       if (chunk_ >= reader_->chunks().size()) return Result::kEnd;
@@ -86,6 +87,7 @@ BurstSource::Result RecordingBurstSource::Next(IngestedBurst* out) {
       continue;
     }
     seq_chunk_.emplace_back(msg_.burst_seq, chunk_ - 1);
+    ++delivered_;
     if (o_.rate > 0) {
       if (t0_file_ < 0) {
         t0_file_ = m.log_time_ns;

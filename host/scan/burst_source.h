@@ -54,6 +54,7 @@ class BurstSource {
 
 struct RecordingSourceOptions {
   double rate = 0;  // 0: as fast as the graph takes them (lossless replay); > 0: paced by the recorded times × rate
+  int64_t max_bursts = 0;  // > 0: end after this many bursts
   void Check() const;
 };
 
@@ -76,6 +77,7 @@ class RecordingBurstSource final : public BurstSource {
   ProbeCalibration calibration_;
   uint16_t burst_channel_ = 0;
   size_t chunk_ = 0, message_ = 0;
+  int64_t delivered_ = 0;
   std::vector<RecordedMessage> messages_;
   proto::BurstMsg msg_;
   std::vector<std::pair<uint64_t, size_t>> seq_chunk_;  // burst seq → chunk, in file order

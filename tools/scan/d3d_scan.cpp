@@ -55,6 +55,10 @@ int main(int argc, char** argv) {
   double sim_rate = 30;
   cli.add_option("--replay", replay, "replay a recording (d3d-record) through the same graph instead of listening on DDS");
   cli.add_option("--replay-rate", replay_rate, "--replay: 0 = as fast as the graph takes bursts, else the recorded timing x this")->capture_default_str();
+  int64_t max_bursts = 0;
+  size_t rx_queue = 0;
+  cli.add_option("--frames", max_bursts, "--replay: use the first N bursts only (0 = all)")->capture_default_str();
+  cli.add_option("--rx-queue", rx_queue, "live: bursts the DDS receiver may hold for the graph (default: 8 live, 300 lossless)");
   cli.add_option("--out", out_dir, "output folder")->capture_default_str();
   cli.add_flag("--headless", headless, "render the preview offscreen (EGL, no display needed)");
   cli.add_flag("--no-preview", no_preview, "no preview at all");
@@ -105,6 +109,7 @@ int main(int argc, char** argv) {
     if (!replay.empty()) {
       RecordingSourceOptions ro;
       ro.rate = replay_rate;
+      ro.max_bursts = max_bursts;
       if (const Status s = RecordingBurstSource::Open(replay, ro, &rec); !s.ok()) {
         std::fprintf(stderr, "d3d-scan: %s: %s\n", replay.c_str(), s.ToString().c_str());
         return 2;
@@ -118,7 +123,7 @@ int main(int argc, char** argv) {
       }
       ReceiverOptions ro;
       ro.serial = serial;
-      ro.queue_capacity = 8;
+      ro.queue_capacity = rx_queue > 0 ? rx_queue : (policy == EdgePolicy::kLive ? 8 : 300);
       ro.log = [](const std::string& m) { std::fprintf(stderr, "d3d-scan: %s\n", m.c_str()); };
       rx = std::make_unique<BurstReceiver>(ro);
       if (const Status s = rx->Start(&participant); !s.ok()) {
