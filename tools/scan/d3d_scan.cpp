@@ -32,8 +32,9 @@ namespace fs = std::filesystem;
 using namespace d3d;
 
 namespace {
-std::atomic<bool> g_stop{false};
+std::atomic<bool> g_stop{false}, g_save{false};
 void OnSignal(int) { g_stop.store(true); }
+void OnSave(int) { g_save.store(true); }
 // Resident set size now (MiB), from /proc/self/statm.
 double RssMiB() {
   std::ifstream f("/proc/self/statm");
@@ -80,11 +81,12 @@ int main(int argc, char** argv) {
   cli.add_option("--preview-fps", preview_fps, "preview frame-rate cap")->capture_default_str();
   cli.add_option("--size", width, "preview width (px; height = 3/4)")->capture_default_str();
   cli.add_flag("--json", json, "print report.json as one line on stdout");
-  cli.add_flag("--quiet", quiet, "no status line on stderr");
+  cli.add_flag("--quiet", quiet, "no status line on stderr (SIGUSR1 saves the model now, as the 's' key)");
   CLI11_PARSE(cli, argc, argv);
   height = width * 3 / 4;
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
+  std::signal(SIGUSR1, OnSave);  // save the model now (as the 's' key)
   EdgePolicy policy = replay.empty() ? EdgePolicy::kLive : EdgePolicy::kLossless;
   if (policy_text == "live") policy = EdgePolicy::kLive;
   else if (policy_text == "lossless") policy = EdgePolicy::kLossless;
@@ -181,6 +183,17 @@ int main(int argc, char** argv) {
     while (!app.finished()) {
       const double now = SteadyS();
       if (g_stop.load() || (duration_s > 0 && now - t0 >= duration_s)) break;
+      if (g_save.exchange(false) && !saving.exchange(true)) {
+        if (saver.joinable()) saver.join();
+        saver = std::thread([&app, &saving, out_dir, &message, &message_until, &message_mu] {
+          const Status s = app.SaveNow(out_dir);
+          std::fprintf(stderr, "\nd3d-scan: %s\n", s.ok() ? ("saved " + out_dir + "/scan.ply").c_str() : s.ToString().c_str());
+          std::lock_guard<std::mutex> lock(message_mu);
+          message = s.ok() ? "saved " + out_dir + "/scan.ply" : "save failed: " + s.ToString();
+          message_until = SteadyS() + 4;
+          saving.store(false);
+        });
+      }
       if (viewer) {
         if (now >= next_frame) {
           next_frame = std::max(next_frame + frame_dt, now);
@@ -304,6 +317,7 @@ int main(int argc, char** argv) {
       // The final picture: the last snapshot (the whole model), status as at the end.
       PreviewStatus st = app.CurrentStatus();
       st.message = "scan finished";
+      st.override_cue = st.override_cue && st.cue_override != PreviewCue::kProbeLost;  // the model's own state
       const PreviewSnapshot* snap = app.LatestSnapshot();
       cv::Mat picture;
       viewer->Render(snap, st, fps, &picture);
