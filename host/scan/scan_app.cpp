@@ -247,7 +247,10 @@ nlohmann::json ScanApp::HostReport() const {
   j["bursts_refused"] = refused_.load();
   j["bursts_failed"] = failed_.load();
   j["bursts_paused"] = paused_bursts_.load();
-  j["bursts_dropped"] = graph_->dropped() + source_->dropped();
+  // Every burst that reached the host and was neither processed nor malformed, failed or paused was
+  // dropped for lack of time (where: "drops"; the receiver's figure counts samples of every topic).
+  const uint64_t accounted = processed + source_->malformed() + failed_.load() + paused_bursts_.load();
+  j["bursts_dropped"] = source_->received() > accounted ? source_->received() - accounted : 0;
   nlohmann::json drops;
   drops["receiver_queue"] = source_->dropped();
   for (size_t i = 0; i < graph_->num_stages(); ++i) drops["before_" + graph_->stage_name(i)] = graph_->dropped_at(i);
@@ -287,8 +290,14 @@ Status ScanApp::Finish(const ScanTruth& truth, const ScanViewProvider& provider,
   times.ms_fuse = fuser_->ms_fuse();
   const Status s = FinishScan(o_.scan, times, registrar_.get(), fuser_.get(), provider, truth, out);
   const nlohmann::json host = HostReport();
-  if (!s.ok()) {
+  if (!s.ok()) {  // still say what happened
     out->report = host;
+    out->report["bursts"] = registrar_->views().size();
+    out->report["fused"] = fuser_->fused();
+    out->report["rejected"] = registrar_->rejected();
+    out->report["tracking_lost"] = registrar_->lost_events();
+    out->report["events"] = registrar_->events();
+    out->report["error"] = s.ToString();
     return s;
   }
   for (auto it = host.begin(); it != host.end(); ++it) out->report[it.key()] = it.value();
