@@ -1,0 +1,250 @@
+// A small, explicit stage graph: one source (ingest) thread and a linear chain of stages, each on
+// its own dedicated thread, joined by bounded, preallocated SPSC edges (edges.h) of one policy per
+// run: live (latest wins, the oldest waiting item dropped and counted) or lossless (blocking).
+//
+//   source ──edge0──▶ stage 0 ──edge1──▶ stage 1 ── … ──▶ stage N−1 ──▶ (item back to the pool)
+//
+// Items: the graph preallocates a pool of Items (made once by the factory; each Item owns its
+// buffers, e.g. the burst's frames and the reconstructed maps, so that a warm run allocates
+// nothing). An item is owned by exactly one thread at a time: the pool, the source while it fills
+// it, an edge while it waits, a stage while it runs, the pool again after the last stage. Dropped
+// items (live edges) are returned to the pool by the producer that dropped them.
+// Pool size = 1 (source) + N (one per stage) + edge capacity × N (1 per live edge) + extra, so in
+// live mode the source never waits for an item; in lossless mode it waits (back-pressure).
+//
+// Per item the graph keeps an ItemMeta: `seq` (ingest order, 0, 1, …), `origin_ns` (the time the
+// item's latency is measured from, set by the source: capture or receive time, Unix epoch ns) and
+// whether a stage rejected it. A stage function returns false to reject an item: it is not passed
+// on (counted per stage). Latency = wall clock (Unix epoch) when the last stage finished − origin_ns.
+//
+// Threads: Start() spawns the source thread and one thread per stage; RequestStop() (any thread)
+// makes the source end at its next call; every edge is then closed in order and drained (lossless:
+// every item already ingested is processed). Join() (the thread that called Start) waits for all.
+// Counters are atomics readable from any thread at any time; the latency samples are written by
+// the last stage's thread and read by LatencyPercentileMs() only after Join().
+#pragma once
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <stdexcept>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "host/graph/edges.h"
+
+namespace d3d {
+
+inline int64_t GraphNowNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
+
+struct StageGraphOptions {
+  EdgePolicy policy = EdgePolicy::kLossless;
+  size_t lossless_capacity = 4;  // items per lossless edge
+  size_t extra_items = 1;        // pool items beyond the minimum
+  size_t latency_samples = 1 << 16;  // kept for the percentiles (the latest ones, ring)
+  void Check() const {
+    if (lossless_capacity < 1 || latency_samples < 1) throw std::invalid_argument("StageGraphOptions: capacities must be >= 1");
+  }
+};
+
+struct ItemMeta {
+  uint64_t seq = 0;       // ingest order
+  int64_t origin_ns = 0;  // latency origin (Unix epoch ns), set by the source (default: ingest time)
+};
+
+struct StageCounters {
+  std::atomic<uint64_t> processed{0};  // items the stage ran on
+  std::atomic<uint64_t> rejected{0};   // ... of which it rejected
+  std::atomic<uint64_t> busy_ns{0};    // time inside the stage function
+  std::atomic<uint64_t> max_ns{0};
+  std::atomic<uint64_t> order_violations{0};  // seq not above the previous one (must stay 0)
+};
+
+// Percentile (0..100) of `v` by nearest rank on a sorted copy; 0 for an empty vector.
+double PercentileOf(std::vector<double> v, double pct);
+
+template <class Item>
+class StageGraph {
+ public:
+  enum class SourceResult { kItem, kSkip, kEnd };  // kSkip: nothing this time (the item is kept)
+  // Source thread: fills the item (reusing its buffers) and may set meta->origin_ns.
+  using SourceFn = std::function<SourceResult(Item& item, ItemMeta* meta)>;
+  // Stage thread: processes the item; false rejects it.
+  using StageFn = std::function<bool(Item& item, const ItemMeta& meta)>;
+  struct Stage {
+    std::string name;
+    StageFn fn;
+  };
+
+  StageGraph(const StageGraphOptions& options, const std::function<std::unique_ptr<Item>()>& factory, SourceFn source,
+             std::vector<Stage> stages)
+      : o_(options), source_(std::move(source)), stages_(std::move(stages)), counters_(stages_.size()) {
+    o_.Check();
+    if (stages_.empty()) throw std::invalid_argument("StageGraph: no stage");
+    const size_t per_edge = o_.policy == EdgePolicy::kLive ? 1 : o_.lossless_capacity;
+    const size_t n_items = 1 + stages_.size() * (1 + per_edge) + o_.extra_items;
+    for (size_t i = 0; i < n_items; ++i) {
+      nodes_.push_back(std::make_unique<Node>());
+      nodes_.back()->item = factory();
+      free_.push_back(nodes_.back().get());
+    }
+    for (size_t i = 0; i < stages_.size(); ++i) edges_.push_back(MakeEdge<Node>(o_.policy, o_.lossless_capacity));
+    latency_ms_.reserve(o_.latency_samples);
+  }
+  ~StageGraph() {
+    RequestStop();
+    Join();
+  }
+  StageGraph(const StageGraph&) = delete;
+  StageGraph& operator=(const StageGraph&) = delete;
+
+  size_t pool_size() const { return nodes_.size(); }
+  // Every item of the pool (set-up only, before Start: e.g. to preallocate their buffers).
+  template <class F>
+  void ForEachItem(F&& f) {
+    for (auto& n : nodes_) f(*n->item);
+  }
+
+  void Start() {
+    t_start_ns_ = GraphNowNs();
+    threads_.emplace_back([this] { SourceLoop(); });
+    for (size_t i = 0; i < stages_.size(); ++i) threads_.emplace_back([this, i] { StageLoop(i); });
+  }
+  void RequestStop() {
+    stop_.store(true, std::memory_order_release);
+    pool_cv_.notify_all();
+  }
+  void Join() {
+    for (auto& t : threads_)
+      if (t.joinable()) t.join();
+    threads_.clear();
+  }
+  bool finished() const { return finished_.load(std::memory_order_acquire); }  // last stage drained
+
+  // Counters (any thread).
+  uint64_t ingested() const { return ingested_.load(std::memory_order_relaxed); }
+  uint64_t completed() const { return completed_.load(std::memory_order_relaxed); }  // left the last stage
+  uint64_t dropped() const {
+    uint64_t d = 0;
+    for (const auto& e : edges_) d += e->dropped();
+    return d;
+  }
+  uint64_t dropped_at(size_t edge) const { return edges_[edge]->dropped(); }  // edge i feeds stage i
+  const StageCounters& stage(size_t i) const { return counters_[i]; }
+  const std::string& stage_name(size_t i) const { return stages_[i].name; }
+  size_t num_stages() const { return stages_.size(); }
+  double last_latency_ms() const { return last_latency_ms_.load(std::memory_order_relaxed); }
+  int64_t first_done_ns() const { return first_done_ns_.load(std::memory_order_relaxed); }
+  int64_t last_done_ns() const { return last_done_ns_.load(std::memory_order_relaxed); }
+  int64_t start_ns() const { return t_start_ns_; }
+
+  // After Join(): latency percentile over the kept samples (ms).
+  double LatencyPercentileMs(double pct) const { return PercentileOf(latency_ms_, pct); }
+  size_t latency_count() const { return latency_ms_.size(); }
+
+ private:
+  struct Node {
+    std::unique_ptr<Item> item;
+    ItemMeta meta;
+  };
+
+  Node* TakeFree() {  // source thread
+    std::unique_lock<std::mutex> lock(pool_mu_);
+    pool_cv_.wait(lock, [this] { return !free_.empty() || stop_.load(std::memory_order_acquire); });
+    if (free_.empty()) return nullptr;
+    Node* n = free_.back();
+    free_.pop_back();
+    return n;
+  }
+  void GiveBack(Node* n) {  // any producer / the last stage
+    {
+      std::lock_guard<std::mutex> lock(pool_mu_);
+      free_.push_back(n);
+    }
+    pool_cv_.notify_one();
+  }
+
+  void SourceLoop() {
+    uint64_t seq = 0;
+    Node* n = nullptr;
+    while (!stop_.load(std::memory_order_acquire)) {
+      if (n == nullptr && (n = TakeFree()) == nullptr) break;
+      n->meta = ItemMeta{seq, GraphNowNs()};
+      const SourceResult r = source_(*n->item, &n->meta);
+      if (r == SourceResult::kEnd) break;
+      if (r == SourceResult::kSkip) continue;
+      ++seq;
+      ingested_.fetch_add(1, std::memory_order_relaxed);
+      Node* dropped = edges_[0]->Push(n);
+      n = dropped;  // live: the older item dropped from the slot is reused at once
+    }
+    if (n != nullptr) GiveBack(n);
+    edges_[0]->Close();
+  }
+
+  void StageLoop(size_t i) {
+    StageCounters& c = counters_[i];
+    const bool last = i + 1 == stages_.size();
+    bool have_prev = false;
+    uint64_t prev_seq = 0;
+    Node* n = nullptr;
+    while (edges_[i]->Pop(&n)) {
+      if (have_prev && n->meta.seq <= prev_seq) c.order_violations.fetch_add(1, std::memory_order_relaxed);
+      have_prev = true;
+      prev_seq = n->meta.seq;
+      const auto t0 = std::chrono::steady_clock::now();
+      const bool ok = stages_[i].fn(*n->item, n->meta);
+      const auto ns = static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - t0).count());
+      c.processed.fetch_add(1, std::memory_order_relaxed);
+      c.busy_ns.fetch_add(ns, std::memory_order_relaxed);
+      if (ns > c.max_ns.load(std::memory_order_relaxed)) c.max_ns.store(ns, std::memory_order_relaxed);
+      if (!ok) {
+        c.rejected.fetch_add(1, std::memory_order_relaxed);
+        GiveBack(n);
+        continue;
+      }
+      if (last) {
+        const int64_t now = GraphNowNs();
+        const double ms = static_cast<double>(now - n->meta.origin_ns) * 1e-6;
+        if (latency_ms_.size() < o_.latency_samples) latency_ms_.push_back(ms);
+        else latency_ms_[latency_next_++ % o_.latency_samples] = ms;
+        last_latency_ms_.store(ms, std::memory_order_relaxed);
+        if (completed_.fetch_add(1, std::memory_order_relaxed) == 0) first_done_ns_.store(now, std::memory_order_relaxed);
+        last_done_ns_.store(now, std::memory_order_relaxed);
+        GiveBack(n);
+      } else if (Node* dropped = edges_[i + 1]->Push(n); dropped != nullptr) {
+        GiveBack(dropped);
+      }
+    }
+    if (!last) edges_[i + 1]->Close();
+    else finished_.store(true, std::memory_order_release);
+  }
+
+  StageGraphOptions o_;
+  SourceFn source_;
+  std::vector<Stage> stages_;
+  std::vector<StageCounters> counters_;
+  std::vector<std::unique_ptr<Node>> nodes_;
+  std::vector<std::unique_ptr<Edge<Node>>> edges_;
+  std::mutex pool_mu_;
+  std::condition_variable pool_cv_;
+  std::vector<Node*> free_;  // guarded by pool_mu_ (capacity = pool size: no allocation)
+  std::vector<std::thread> threads_;
+  std::atomic<bool> stop_{false}, finished_{false};
+  std::atomic<uint64_t> ingested_{0}, completed_{0};
+  std::atomic<double> last_latency_ms_{0};
+  std::atomic<int64_t> first_done_ns_{0}, last_done_ns_{0};
+  int64_t t_start_ns_ = 0;
+  std::vector<double> latency_ms_;  // last stage's thread; read after Join
+  size_t latency_next_ = 0;
+};
+
+}  // namespace d3d

@@ -1,0 +1,167 @@
+#include "host/scan/burst_source.h"
+
+#include <chrono>
+#include <cstring>
+#include <stdexcept>
+#include <thread>
+
+#include "protocol/codec.h"
+#include "protocol/protocol.h"
+
+namespace d3d {
+namespace {
+int64_t SteadyNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+}  // namespace
+
+Status CopyBurst(const proto::BurstMsg& msg, int64_t receive_ns, IngestedBurst* out) {
+  if (msg.frames.empty() || msg.width == 0 || msg.height == 0) return InvalidArgument("burst without frames");
+  const int type = msg.bit_depth > 8 ? CV_16U : CV_8U;
+  const size_t bytes = msg.BytesPerFrame();
+  out->frames.resize(msg.frames.size());
+  for (size_t i = 0; i < msg.frames.size(); ++i) {
+    if (msg.frames[i].pixels.size() != bytes) return InvalidArgument("frame " + std::to_string(i) + " has the wrong size");
+    out->frames[i].create(static_cast<int>(msg.height), static_cast<int>(msg.width), type);
+    std::memcpy(out->frames[i].data, msg.frames[i].pixels.data(), bytes);
+  }
+  out->burst_seq = msg.burst_seq;
+  out->capture_ns = (msg.frames.front().timestamp_ns + msg.frames.back().timestamp_ns) / 2;
+  out->receive_ns = receive_ns;
+  return Status::Ok();
+}
+
+void RecordingSourceOptions::Check() const {
+  if (!(rate >= 0) || max_bursts < 0) throw std::invalid_argument("RecordingSourceOptions: rate and max_bursts must be >= 0");
+}
+
+Status RecordingBurstSource::Open(const std::string& path, const RecordingSourceOptions& options, std::unique_ptr<RecordingBurstSource>* out) {
+  options.Check();
+  auto s = std::unique_ptr<RecordingBurstSource>(new RecordingBurstSource());
+  s->o_ = options;
+  D3D_RETURN_IF_ERROR(RecordingReader::OpenFile(path, &s->reader_));
+  const RecordingChannel* cb = s->reader_->header().FindTopic(proto::kTopicPhaseBurst);
+  if (cb == nullptr) return InvalidArgument(path + ": no " + std::string(proto::kTopicPhaseBurst) + " channel");
+  s->burst_channel_ = cb->id;
+  std::string calib_json = s->reader_->header().calibration_json;
+  if (calib_json.empty()) {  // the ProbeInfo samples inside, if any
+    const RecordingChannel* ci = s->reader_->header().FindTopic(proto::kTopicProbeInfo);
+    if (ci != nullptr)
+      s->reader_->ForEach([&](const RecordedMessage& m) {
+        proto::InfoMsg info;
+        if (m.channel == ci->id && proto::Decode(m.data, &info).ok() && !info.calibration_json.empty()) {
+          calib_json = info.calibration_json;
+          return false;
+        }
+        return true;
+      });
+  }
+  if (calib_json.empty()) return InvalidArgument(path + ": the recording carries no calibration (no ProbeInfo)");
+  D3D_RETURN_IF_ERROR(ProbeCalibration::FromJson(calib_json, &s->calibration_));
+  *out = std::move(s);
+  return Status::Ok();
+}
+
+BurstSource::Result RecordingBurstSource::Next(IngestedBurst* out) {
+  if (o_.max_bursts > 0 && delivered_ >= o_.max_bursts) return Result::kEnd;
+  for (;;) {
+    if (message_ >= messages_.size()) {
+      if (chunk_ >= reader_->chunks().size()) return Result::kEnd;
+      messages_.clear();
+      message_ = 0;
+      if (!reader_->ReadChunk(chunk_++, &messages_).ok()) continue;  // damaged: recorded in diagnostics()
+    }
+    const RecordedMessage& m = messages_[message_++];
+    if (m.channel != burst_channel_) continue;
+    received_.fetch_add(1, std::memory_order_relaxed);
+    if (!proto::Decode(m.data, &msg_).ok()) {
+      malformed_.fetch_add(1, std::memory_order_relaxed);
+      continue;
+    }
+    std::string detail;
+    d3d_proto_PhaseBurst dds{};
+    std::vector<d3d_proto_ImageFrame> storage;
+    proto::ToDds(msg_, &dds, &storage);
+    if (CheckBurst(dds, &detail) != DropReason::kCount || !CopyBurst(msg_, m.log_time_ns, out).ok()) {
+      malformed_.fetch_add(1, std::memory_order_relaxed);
+      continue;
+    }
+    seq_chunk_.emplace_back(msg_.burst_seq, chunk_ - 1);
+    ++delivered_;
+    if (o_.rate > 0) {
+      if (t0_file_ < 0) {
+        t0_file_ = m.log_time_ns;
+        t0_wall_ = SteadyNs();
+      }
+      const int64_t due = t0_wall_ + static_cast<int64_t>(static_cast<double>(m.log_time_ns - t0_file_) / o_.rate);
+      const int64_t wait = due - SteadyNs();
+      if (wait > 0) std::this_thread::sleep_for(std::chrono::nanoseconds(wait));
+      out->receive_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch()).count();
+    }
+    return Result::kBurst;
+  }
+}
+
+Status RecordingBurstSource::ReadBurst(uint64_t seq, IngestedBurst* out) {
+  for (const auto& [s, chunk] : seq_chunk_) {
+    if (s != seq) continue;
+    if (reread_chunk_ != chunk) {
+      D3D_RETURN_IF_ERROR(reader_->ReadChunk(chunk, &reread_));
+      reread_chunk_ = chunk;
+    }
+    proto::BurstMsg b;
+    for (const RecordedMessage& m : reread_) {
+      if (m.channel != burst_channel_ || !proto::Decode(m.data, &b).ok() || b.burst_seq != seq) continue;
+      return CopyBurst(b, m.log_time_ns, out);
+    }
+  }
+  return Status(StatusCode::kNotFound, "burst " + std::to_string(seq) + " is not in the recording");
+}
+
+void DdsSourceOptions::Check() const {
+  if (!(probe_timeout_s > 0) || !(idle_exit_s >= 0)) throw std::invalid_argument("DdsSourceOptions: probe_timeout_s > 0, idle_exit_s >= 0");
+}
+
+DdsBurstSource::DdsBurstSource(BurstReceiver* receiver, const DdsSourceOptions& options) : rx_(receiver), o_(options) { o_.Check(); }
+
+Status DdsBurstSource::WaitForCalibration(double timeout_s, const std::atomic<bool>* stop, ProbeCalibration* calibration, proto::InfoMsg* info) {
+  const int64_t end = SteadyNs() + static_cast<int64_t>(timeout_s * 1e9);
+  while (SteadyNs() < end) {
+    if (rx_->LatestInfo(info, calibration)) return Status::Ok();
+    if (stop != nullptr && stop->load()) return Unavailable("stopped before a probe appeared");
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  return Unavailable("no ProbeInfo (calibration) from a probe within " + std::to_string(timeout_s) + " s");
+}
+
+BurstSource::Result DdsBurstSource::Next(IngestedBurst* out) {
+  for (;;) {
+    const ReceiverCounters c = rx_->counters();
+    const uint64_t queue_full = c.dropped[static_cast<size_t>(DropReason::kQueueFull)];
+    const uint64_t malformed = c.dropped_total() - queue_full - c.dropped[static_cast<size_t>(DropReason::kSerial)];
+    malformed_.store(malformed + copy_failures_, std::memory_order_relaxed);
+    dropped_.store(queue_full, std::memory_order_relaxed);  // accepted by the checks, then no room in the receiver's queue
+    received_.store(c.bursts_accepted + malformed, std::memory_order_relaxed);
+    missing_.store(c.bursts_missing, std::memory_order_relaxed);
+    if (!rx_->Pop(&sample_, 50'000'000)) {
+      const int64_t now = SteadyNs();
+      if (last_burst_ns_ > 0 && now - last_burst_ns_ > static_cast<int64_t>(o_.probe_timeout_s * 1e9)) probe_lost_.store(true);
+      if (last_burst_ns_ > 0 && o_.idle_exit_s > 0 && now - last_burst_ns_ > static_cast<int64_t>(o_.idle_exit_s * 1e9)) return Result::kEnd;
+      return Result::kNothing;
+    }
+    if (const auto* b = std::get_if<proto::BurstMsg>(&sample_.msg)) {
+      const Status s = CopyBurst(*b, sample_.receive_ns, out);
+      rx_->Recycle(std::move(sample_));
+      if (!s.ok()) {
+        ++copy_failures_;
+        continue;
+      }
+      if (probe_lost_.exchange(false)) probe_returns_.fetch_add(1, std::memory_order_relaxed);
+      last_burst_ns_ = SteadyNs();
+      return Result::kBurst;
+    }
+    rx_->Recycle(std::move(sample_));  // ProbeInfo / ProbeStatus: the receiver keeps the latest info
+  }
+}
+
+}  // namespace d3d

@@ -1,0 +1,307 @@
+#include "host/scan/scan_app.h"
+
+#include <sys/resource.h>
+
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <stdexcept>
+
+#include "common/mesh/mesh_io.h"
+
+namespace d3d {
+namespace {
+
+uint64_t CellKey(const Eigen::Vector3f& p, float inv_cell) {
+  const auto q = [&](float v) { return static_cast<uint64_t>(static_cast<int64_t>(std::floor(v * inv_cell)) + (int64_t{1} << 20)) & 0x1FFFFF; };
+  return (q(p.x()) << 42) | (q(p.y()) << 21) | q(p.z());
+}
+
+PreviewCue CueOf(TrackingState s) {
+  switch (s) {
+    case TrackingState::kTracking: return PreviewCue::kTracking;
+    case TrackingState::kLost: return PreviewCue::kLost;
+    case TrackingState::kRelocalised: return PreviewCue::kRelocalised;
+    case TrackingState::kInitialising: return PreviewCue::kWaiting;
+  }
+  return PreviewCue::kWaiting;
+}
+
+}  // namespace
+
+void ScanAppOptions::Check() const {
+  scan.Check();
+  if (lossless_capacity < 1) throw std::invalid_argument("ScanAppOptions: lossless_capacity must be >= 1");
+  if (!(preview_cell_mm > 0) || preview_stride_px < 1 || view_stride_px < 1)
+    throw std::invalid_argument("ScanAppOptions: preview cell > 0 and strides >= 1");
+}
+
+ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& options, BurstSource* source)
+    : calibration_(calibration), o_(options), source_(source), recon_(calibration, options.scan.recon) {
+  o_.Check();
+  registrar_ = std::make_unique<ScanRegistrar>(calibration_.camera, o_.scan.tracker);
+  fuser_ = std::make_unique<ScanFuser>(calibration_.camera, o_.scan.tsdf);
+  cells_.reserve(o_.preview_max_points);
+  model_points_.reserve(o_.preview_max_points);
+  model_normals_.reserve(o_.preview_max_points);
+  recent_latency_ms_.reserve(64);
+  StageGraphOptions go;
+  go.policy = o_.policy;
+  go.lossless_capacity = o_.lossless_capacity;
+  const int w = calibration_.camera.width, h = calibration_.camera.height;
+  graph_ = std::make_unique<Graph>(
+      go,
+      [w, h] {
+        auto it = std::make_unique<ScanItem>();
+        it->burst.frames.resize(4);  // the usual burst, allocated once (each frame its own buffer)
+        for (cv::Mat& f : it->burst.frames) f.create(h, w, CV_8U);
+        return it;
+      },
+      [this](ScanItem& it, ItemMeta* meta) { return Ingest(it, meta); },
+      std::vector<Graph::Stage>{{"reconstruct", [this](ScanItem& it, const ItemMeta&) { return ReconstructStage(it); }},
+                                {"register", [this](ScanItem& it, const ItemMeta&) { return RegisterStage(it); }},
+                                {"fuse", [this](ScanItem& it, const ItemMeta&) { return FuseStage(it); }},
+                                {"preview", [this](ScanItem& it, const ItemMeta&) { return PreviewStage(it); }}});
+}
+
+ScanApp::~ScanApp() {
+  RequestStop();
+  Join();
+}
+
+void ScanApp::Start() { graph_->Start(); }
+void ScanApp::RequestStop() { graph_->RequestStop(); }
+void ScanApp::Join() { graph_->Join(); }
+
+ScanApp::Graph::SourceResult ScanApp::Ingest(ScanItem& item, ItemMeta* meta) {
+  const BurstSource::Result r = source_->Next(&item.burst);
+  if (r == BurstSource::Result::kEnd) return Graph::SourceResult::kEnd;
+  if (r == BurstSource::Result::kNothing) return Graph::SourceResult::kSkip;
+  if (paused_.load(std::memory_order_relaxed)) {
+    paused_bursts_.fetch_add(1, std::memory_order_relaxed);
+    return Graph::SourceResult::kSkip;
+  }
+  item.epoch = epoch_.load(std::memory_order_relaxed);
+  item.recon_ok = false;
+  item.fused = false;
+  // Latency origin: the capture time when the probe's clock agrees with ours (live), else the
+  // time the host received the burst (a replayed recording carries its old capture times).
+  const int64_t now = GraphNowNs();
+  if (item.burst.capture_ns > 0 && item.burst.capture_ns <= now && now - item.burst.capture_ns < 2'000'000'000) {
+    meta->origin_ns = item.burst.capture_ns;
+    latency_origin_capture_.fetch_add(1, std::memory_order_relaxed);
+  } else if (item.burst.receive_ns > 0 && item.burst.receive_ns <= now && now - item.burst.receive_ns < 2'000'000'000) {
+    meta->origin_ns = item.burst.receive_ns;
+    latency_origin_receive_.fetch_add(1, std::memory_order_relaxed);
+  }  // else: the ingest time (set by the graph)
+  return Graph::SourceResult::kItem;
+}
+
+bool ScanApp::ReconstructStage(ScanItem& item) {
+  item.recon_ok = recon_.Reconstruct(item.burst.frames, &item.view).ok();
+  if (!item.recon_ok) {
+    failed_.fetch_add(1, std::memory_order_relaxed);
+    return false;
+  }
+  ms_recon_ += item.view.ms_total;
+  return true;
+}
+
+bool ScanApp::RegisterStage(ScanItem& item) {
+  if (item.epoch != reg_epoch_) {
+    registrar_ = std::make_unique<ScanRegistrar>(calibration_.camera, o_.scan.tracker);
+    reg_epoch_ = item.epoch;
+  }
+  item.track = registrar_->Register(item.view, item.burst.burst_seq, item.burst.capture_ns);
+  if (!item.track.accepted) refused_.fetch_add(1, std::memory_order_relaxed);
+  return true;  // refused views still go on: the preview shows them (red)
+}
+
+bool ScanApp::FuseStage(ScanItem& item) {
+  std::lock_guard<std::mutex> lock(model_mu_);
+  if (item.epoch != fuse_epoch_) {
+    fuser_ = std::make_unique<ScanFuser>(calibration_.camera, o_.scan.tsdf);
+    fuse_epoch_ = item.epoch;
+  }
+  if (item.track.accepted) {
+    item.fused = fuser_->Fuse(item.view, item.track.world_from_cam).ok();
+    if (item.fused) fused_.fetch_add(1, std::memory_order_relaxed);
+  }
+  return true;
+}
+
+bool ScanApp::PreviewStage(ScanItem& item) {
+  if (item.epoch != preview_epoch_) {
+    cells_.clear();
+    model_points_.clear();
+    model_normals_.clear();
+    bursts_in_model_ = 0;
+    preview_epoch_ = item.epoch;
+  }
+  const Eigen::Matrix4f model_from_cam = item.track.world_from_cam.matrix().cast<float>();
+  const Eigen::Matrix3f r = model_from_cam.topLeftCorner<3, 3>();
+  const Eigen::Vector3f t = model_from_cam.topRightCorner<3, 1>();
+  const float inv_cell = static_cast<float>(1.0 / o_.preview_cell_mm);
+  const cv::Mat& pts = item.view.points_in_cam;
+  const cv::Mat& nrm = item.view.normals;
+  if (item.fused) {
+    ++bursts_in_model_;
+    for (int y = 0; y < pts.rows; y += o_.preview_stride_px) {
+      const auto* p = pts.ptr<cv::Vec3f>(y);
+      const auto* n = nrm.ptr<cv::Vec3f>(y);
+      for (int x = 0; x < pts.cols && model_points_.size() < o_.preview_max_points; x += o_.preview_stride_px) {
+        if (!std::isfinite(p[x][2]) || !std::isfinite(n[x][2])) continue;
+        const Eigen::Vector3f pw = r * Eigen::Vector3f(p[x][0], p[x][1], p[x][2]) + t;
+        if (cells_.try_emplace(CellKey(pw, inv_cell), static_cast<uint32_t>(model_points_.size())).second) {
+          model_points_.push_back(pw);
+          model_normals_.push_back(r * Eigen::Vector3f(n[x][0], n[x][1], n[x][2]));
+        }
+      }
+    }
+  }
+  PreviewSnapshot& s = preview_.Back();
+  if (s.epoch != preview_epoch_ || s.points.size() > model_points_.size()) {
+    s.points.clear();
+    s.normals.clear();
+    s.epoch = preview_epoch_;
+  }
+  // The model is append-only within an epoch: copy the new tail only.
+  s.points.insert(s.points.end(), model_points_.begin() + static_cast<std::ptrdiff_t>(s.points.size()), model_points_.end());
+  s.normals.insert(s.normals.end(), model_normals_.begin() + static_cast<std::ptrdiff_t>(s.normals.size()), model_normals_.end());
+  s.view_points.clear();
+  for (int y = o_.view_stride_px / 2; y < pts.rows; y += o_.view_stride_px) {
+    const auto* p = pts.ptr<cv::Vec3f>(y);
+    for (int x = o_.view_stride_px / 2; x < pts.cols; x += o_.view_stride_px)
+      if (std::isfinite(p[x][2])) s.view_points.push_back(r * Eigen::Vector3f(p[x][0], p[x][1], p[x][2]) + t);
+  }
+  s.view_accepted = item.fused;
+  s.have_pose = item.track.state != TrackingState::kInitialising || item.fused;
+  s.model_from_cam = model_from_cam;
+  const PinholeBrownConrady& cam = calibration_.camera;
+  s.tan_half_x = static_cast<float>(0.5 * cam.width / cam.fx);
+  s.tan_half_y = static_cast<float>(0.5 * cam.height / cam.fy);
+  s.near_mm = static_cast<float>(calibration_.depth_min_mm);
+  s.far_mm = static_cast<float>(calibration_.depth_max_mm);
+  s.cue = CueOf(item.track.state);
+  s.bursts_in_model = bursts_in_model_;
+  s.last_burst_seq = item.burst.burst_seq;
+  s.model_area_mm2 = static_cast<double>(model_points_.size()) * o_.preview_cell_mm * o_.preview_cell_mm;
+  preview_.Publish();
+  // Status line: percentiles of the latest 64 latencies (the graph's, of the bursts before this one).
+  const double lat = graph_->last_latency_ms();
+  if (recent_latency_ms_.size() < 64) recent_latency_ms_.push_back(lat);
+  else recent_latency_ms_[recent_next_++ % 64] = lat;
+  recent_p50_.store(PercentileOf(recent_latency_ms_, 50), std::memory_order_relaxed);
+  recent_p95_.store(PercentileOf(recent_latency_ms_, 95), std::memory_order_relaxed);
+  return true;
+}
+
+Status ScanApp::SaveNow(const std::string& dir) {
+  TriangleMesh mesh;
+  {
+    std::lock_guard<std::mutex> lock(model_mu_);
+    mesh = fuser_->volume().ExtractMesh();
+  }
+  if (mesh.faces.empty()) return Status(StatusCode::kInternal, "the model is empty: nothing to save");
+  mesh.ComputeVertexNormals();
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  D3D_RETURN_IF_ERROR(SavePlyBinary((std::filesystem::path(dir) / "scan.ply").string(), mesh));
+  return SaveStlBinary((std::filesystem::path(dir) / "scan.stl").string(), mesh);
+}
+
+PreviewStatus ScanApp::CurrentStatus() const {
+  PreviewStatus st;
+  st.bursts_received = source_->received();
+  st.bursts_processed = graph_->completed();
+  st.bursts_fused = fused_.load(std::memory_order_relaxed);
+  st.bursts_dropped = graph_->dropped() + source_->dropped();
+  st.bursts_rejected = refused_.load(std::memory_order_relaxed) + failed_.load(std::memory_order_relaxed);
+  const int64_t span = graph_->last_done_ns() - graph_->first_done_ns();
+  st.bursts_per_s = span > 0 ? static_cast<double>(graph_->completed() - 1) / (static_cast<double>(span) * 1e-9) : 0.0;
+  st.latency_ms_p50 = recent_p50_.load(std::memory_order_relaxed);
+  st.latency_ms_p95 = recent_p95_.load(std::memory_order_relaxed);
+  if (paused_.load()) {
+    st.override_cue = true;
+    st.cue_override = PreviewCue::kPaused;
+  } else if (source_->probe_lost()) {
+    st.override_cue = true;
+    st.cue_override = PreviewCue::kProbeLost;
+  } else if (source_->received() == 0) {
+    st.override_cue = true;
+    st.cue_override = PreviewCue::kWaiting;
+  }
+  return st;
+}
+
+nlohmann::json ScanApp::HostReport() const {
+  nlohmann::json j;
+  const uint64_t processed = graph_->completed();
+  j["policy"] = EdgePolicyName(o_.policy);
+  j["bursts_received"] = source_->received();
+  j["bursts_malformed"] = source_->malformed();
+  j["bursts_missing_upstream"] = source_->missing();
+  j["bursts_ingested"] = graph_->ingested();
+  j["bursts_processed"] = processed;
+  j["bursts_fused"] = fused_.load();
+  j["bursts_refused"] = refused_.load();
+  j["bursts_failed"] = failed_.load();
+  j["bursts_paused"] = paused_bursts_.load();
+  // Every burst that reached the host and was neither processed nor malformed, failed or paused was
+  // dropped for lack of time (where: "drops"; the receiver's figure counts samples of every topic).
+  const uint64_t accounted = processed + source_->malformed() + failed_.load() + paused_bursts_.load();
+  j["bursts_dropped"] = source_->received() > accounted ? source_->received() - accounted : 0;
+  nlohmann::json drops;
+  drops["receiver_queue"] = source_->dropped();
+  for (size_t i = 0; i < graph_->num_stages(); ++i) drops["before_" + graph_->stage_name(i)] = graph_->dropped_at(i);
+  j["drops"] = drops;
+  const double span_s = static_cast<double>(graph_->last_done_ns() - graph_->start_ns()) * 1e-9;
+  const double active_s = static_cast<double>(graph_->last_done_ns() - graph_->first_done_ns()) * 1e-9;
+  j["bursts_per_s"] = active_s > 0 ? static_cast<double>(processed - 1) / active_s : 0.0;
+  j["fused_per_s"] = active_s > 0 ? static_cast<double>(fused_.load()) / active_s : 0.0;
+  j["wall_s"] = span_s;
+  j["latency_ms_p50"] = graph_->LatencyPercentileMs(50);
+  j["latency_ms_p95"] = graph_->LatencyPercentileMs(95);
+  j["latency_ms_max"] = graph_->LatencyPercentileMs(100);
+  j["latency_origin"] = latency_origin_capture_.load() > 0 ? (latency_origin_receive_.load() > 0 ? "capture+receive" : "capture")
+                                                           : (latency_origin_receive_.load() > 0 ? "receive" : "ingest");
+  nlohmann::json stages;
+  for (size_t i = 0; i < graph_->num_stages(); ++i) {
+    const StageCounters& c = graph_->stage(i);
+    const uint64_t n = c.processed.load();
+    stages[graph_->stage_name(i)] = {{"items", n},
+                                     {"ms_mean", n > 0 ? static_cast<double>(c.busy_ns.load()) * 1e-6 / static_cast<double>(n) : 0.0},
+                                     {"ms_max", static_cast<double>(c.max_ns.load()) * 1e-6},
+                                     {"order_violations", c.order_violations.load()}};
+  }
+  j["stages"] = stages;
+  j["probe_returns"] = source_->probe_returns();
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  j["peak_rss_mb"] = static_cast<double>(u.ru_maxrss) / 1024.0;
+  return j;
+}
+
+Status ScanApp::Finish(const ScanTruth& truth, const ScanViewProvider& provider, ScanResult* out) {
+  ScanTimes times;
+  times.bursts = static_cast<int64_t>(registrar_->views().size());
+  times.ms_recon = ms_recon_;
+  times.ms_register = registrar_->ms_register();
+  times.ms_fuse = fuser_->ms_fuse();
+  const Status s = FinishScan(o_.scan, times, registrar_.get(), fuser_.get(), provider, truth, out);
+  const nlohmann::json host = HostReport();
+  if (!s.ok()) {  // still say what happened
+    out->report = host;
+    out->report["bursts"] = registrar_->views().size();
+    out->report["fused"] = fuser_->fused();
+    out->report["rejected"] = registrar_->rejected();
+    out->report["tracking_lost"] = registrar_->lost_events();
+    out->report["events"] = registrar_->events();
+    out->report["error"] = s.ToString();
+    return s;
+  }
+  for (auto it = host.begin(); it != host.end(); ++it) out->report[it.key()] = it.value();
+  return Status::Ok();
+}
+
+}  // namespace d3d

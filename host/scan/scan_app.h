@@ -1,0 +1,131 @@
+// The host application's scan: a stage graph (host/graph) on dedicated threads
+//
+//   ingest (BurstSource) → reconstruct → register → fuse → preview snapshot
+//
+// running the scan chain's pieces (pipeline/scan), with a live preview handed to the render thread
+// through a triple buffer, control from any thread (pause, reset, save) and the host's figures
+// (bursts received / processed / dropped, bursts/s, latency percentiles, per-stage timing).
+//
+// Buffers and threads (who owns what):
+//   ScanItem (pool of the graph): frames (ingest writes), view (reconstruct writes; register, fuse and
+//     preview read), track (register writes; fuse and preview read). One thread at a time, handed
+//     over by the graph's edges.
+//   ScanReconstructor: reconstruct thread.   ScanRegistrar (Tracker): register thread.
+//   ScanFuser (TSDF): fuse thread, under model_mu_, which SaveNow() (a saver thread) also takes.
+//   Preview grid (the decimated model) and the TripleBuffer's back copy: preview thread.
+//   The TripleBuffer's front copy: the render thread (LatestSnapshot()).
+//   After Join(): everything belongs to the thread that calls Finish().
+// Control flags (pause, reset epoch) and counters are atomics. Reset bumps an epoch that travels
+// with the items, so each stage resets its own state when the first item of the new epoch arrives
+// (in order, without locks).
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "host/graph/stage_graph.h"
+#include "host/scan/burst_source.h"
+#include "pipeline/scan/scan_chain.h"
+#include "viewer/preview.h"
+
+namespace d3d {
+
+struct ScanAppOptions {
+  ScanOptions scan;
+  EdgePolicy policy = EdgePolicy::kLossless;
+  size_t lossless_capacity = 3;      // items per lossless edge
+  double preview_cell_mm = 0.2;      // one preview point per cell of this size
+  size_t preview_max_points = 150000;  // the preview stops adding points beyond this (llvmpipe: ~100k at 20 fps)
+  int preview_stride_px = 3;         // pixels sampled per view for the preview model
+  int view_stride_px = 8;            // pixels sampled for the highlighted current view
+  void Check() const;                // throws std::invalid_argument
+};
+
+struct ScanItem {
+  uint64_t epoch = 0;
+  IngestedBurst burst;
+  bool recon_ok = false;
+  ReconstructedView view;
+  TrackResult track;
+  bool fused = false;
+};
+
+class ScanApp {
+ public:
+  // `source` is borrowed and must outlive Join(). Throws std::invalid_argument for bad options or
+  // calibration.
+  ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& options, BurstSource* source);
+  ~ScanApp();
+
+  void Start();
+  void RequestStop();  // any thread: the source ends; lossless edges drain
+  void Join();
+  bool finished() const { return graph_->finished(); }
+
+  // Control, any thread.
+  void SetPaused(bool paused) { paused_.store(paused); }
+  bool paused() const { return paused_.load(); }
+  void Reset() { epoch_.fetch_add(1); }
+  // Any thread but the stages': extracts the current model (waits for the fuse stage's current
+  // burst) and writes DIR/scan.ply and DIR/scan.stl. INTERNAL for an empty model.
+  [[nodiscard]] Status SaveNow(const std::string& dir);
+
+  // Render thread only: the newest snapshot (nullptr before the first).
+  const PreviewSnapshot* LatestSnapshot() { return preview_.Latest(); }
+  // Any thread.
+  PreviewStatus CurrentStatus() const;
+
+  // After Join(): pose graph, mesh, evaluation (FinishScan) with the host's figures added to the
+  // report. `provider` may be empty (no refusion pass).
+  [[nodiscard]] Status Finish(const ScanTruth& truth, const ScanViewProvider& provider, ScanResult* out);
+  // The host's figures (any time; percentiles only after Join()).
+  nlohmann::json HostReport() const;
+  const ProbeCalibration& calibration() const { return calibration_; }
+  const ScanAppOptions& options() const { return o_; }
+
+ private:
+  using Graph = StageGraph<ScanItem>;
+  Graph::SourceResult Ingest(ScanItem& item, ItemMeta* meta);
+  bool ReconstructStage(ScanItem& item);
+  bool RegisterStage(ScanItem& item);
+  bool FuseStage(ScanItem& item);
+  bool PreviewStage(ScanItem& item);
+
+  ProbeCalibration calibration_;
+  ScanAppOptions o_;
+  BurstSource* source_;
+  std::atomic<bool> paused_{false};
+  std::atomic<uint64_t> epoch_{0};
+  std::atomic<uint64_t> paused_bursts_{0}, failed_{0}, fused_{0}, refused_{0};
+  std::atomic<uint64_t> latency_origin_capture_{0}, latency_origin_receive_{0};
+  // reconstruct thread
+  ScanReconstructor recon_;
+  double ms_recon_ = 0;
+  // register thread
+  uint64_t reg_epoch_ = 0;
+  std::unique_ptr<ScanRegistrar> registrar_;
+  // fuse thread (+ SaveNow under model_mu_)
+  std::mutex model_mu_;
+  uint64_t fuse_epoch_ = 0;
+  std::unique_ptr<ScanFuser> fuser_;
+  // preview thread
+  uint64_t preview_epoch_ = 0;
+  std::unordered_map<uint64_t, uint32_t> cells_;
+  std::vector<Eigen::Vector3f> model_points_, model_normals_;
+  uint64_t bursts_in_model_ = 0;
+  TripleBuffer<PreviewSnapshot> preview_;
+  // Rolling window of latencies for the status line: preview thread; its percentiles are atomics.
+  std::vector<double> recent_latency_ms_;
+  size_t recent_next_ = 0;
+  std::atomic<double> recent_p50_{0}, recent_p95_{0};
+
+  std::unique_ptr<Graph> graph_;
+};
+
+}  // namespace d3d

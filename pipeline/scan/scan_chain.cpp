@@ -1,0 +1,226 @@
+#include "pipeline/scan/scan_chain.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <opencv2/imgcodecs.hpp>
+#include <stdexcept>
+
+#include "common/mesh/mesh_io.h"
+
+namespace d3d {
+namespace {
+using Clock = std::chrono::steady_clock;
+double MsSince(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
+}  // namespace
+
+void ScanOptions::Check() const {
+  recon.Check();
+  tracker.Check();
+  tsdf.Check();
+  eval.Check();
+}
+
+TrackerOptions TrackerOptionsForStep(TrackerOptions options, double every) {
+  if (!(every >= 1)) throw std::invalid_argument("TrackerOptionsForStep: every must be >= 1");
+  if (!options.icp.levels.empty()) options.icp.levels[0].max_distance_mm = std::min(3.0, 0.8 * std::sqrt(every));
+  return options;
+}
+
+ScanReconstructor::ScanReconstructor(const ProbeCalibration& calibration, const ReconstructOptions& options)
+    : recon_(calibration, options) {}
+
+Status ScanReconstructor::Reconstruct(const std::vector<cv::Mat>& frames, ReconstructedView* out) {
+  const size_t steps = static_cast<size_t>(recon_.calibration().pattern.steps);
+  if (frames.size() < steps)
+    return InvalidArgument("burst has " + std::to_string(frames.size()) + " frames, the pattern needs " + std::to_string(steps));
+  phase_frames_.resize(steps);
+  for (size_t i = 0; i < steps; ++i) phase_frames_[i] = frames[i];  // headers only
+  return recon_.Reconstruct(phase_frames_, out);
+}
+
+ScanRegistrar::ScanRegistrar(const PinholeBrownConrady& camera, const TrackerOptions& options) : tracker_(camera, options) {}
+
+TrackResult ScanRegistrar::Register(const ReconstructedView& view, uint64_t burst_seq, int64_t reference_ns) {
+  const auto t0 = Clock::now();
+  const int64_t index = static_cast<int64_t>(views_.size());
+  TrackResult r = tracker_.Track(view.points_in_cam, view.normals, view.quality, view.texture);
+  ms_ += MsSince(t0);
+  if (r.accepted) ++accepted_;
+  else ++rejected_;
+  if (r.state == TrackingState::kLost && prev_state_ != TrackingState::kLost) ++lost_events_;
+  if (r.state == TrackingState::kRelocalised) ++relocalised_;
+  if (r.state != TrackingState::kTracking || !r.accepted)
+    events_.push_back({{"view", index}, {"burst", burst_seq}, {"state", TrackingStateName(r.state)}, {"fused", r.accepted}, {"reason", r.reason}});
+  prev_state_ = r.state;
+  views_.push_back({burst_seq, reference_ns, r.accepted, r.state});
+  return r;
+}
+
+ScanFuser::ScanFuser(const PinholeBrownConrady& camera, const TsdfOptions& options)
+    : camera_(camera), tsdf_(std::make_unique<TsdfVolume>(options)) {}
+
+Status ScanFuser::Fuse(const ReconstructedView& view, const Rigid3d& world_from_cam) {
+  const auto t0 = Clock::now();
+  const Status s = tsdf_->Integrate(view.points_in_cam, view.normals, view.quality, camera_, world_from_cam);
+  ms_ += MsSince(t0);
+  if (s.ok()) ++fused_;
+  return s;
+}
+
+Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegistrar* registrar, ScanFuser* fuser,
+                  const ScanViewProvider& provider, const ScanTruth& truth, ScanResult* out) {
+  *out = ScanResult{};
+  Tracker& tracker = registrar->tracker();
+  const std::vector<ScanViewRecord>& views = registrar->views();
+  const int64_t n_views = static_cast<int64_t>(views.size());
+  nlohmann::json& j = out->report;
+  // Pose graph (loop closures): the correction it finds is reported; a large one means a step.
+  PoseGraphSummary pg;
+  double max_correction_mm = 0;
+  std::vector<Rigid3d> tracked(views.size(), Rigid3d::Identity());
+  for (int64_t k = 0; k < n_views; ++k) tracker.ViewPose(k, &tracked[static_cast<size_t>(k)]);
+  const bool loops = options.tracker.detect_loops && tracker.graph().num_nodes() > 1;
+  if (loops) {
+    D3D_RETURN_IF_ERROR(tracker.Optimize({}, &pg));
+    for (int64_t k = 0; k < n_views; ++k) {
+      Rigid3d p;
+      if (tracker.ViewPose(k, &p)) max_correction_mm = std::max(max_correction_mm, TranslationDistanceMm(p, tracked[static_cast<size_t>(k)]));
+    }
+  }
+  // Refusion at the optimised poses, when the views can be had again.
+  std::unique_ptr<ScanFuser> refused;
+  double ms_refuse = 0;
+  if (loops && provider && options.refuse_min_correction_mm >= 0 && max_correction_mm > options.refuse_min_correction_mm) {
+    const auto t0 = Clock::now();
+    refused = std::make_unique<ScanFuser>(fuser->camera(), fuser->volume().options());
+    ReconstructedView view;
+    for (int64_t k = 0; k < n_views; ++k) {
+      Rigid3d pose;
+      if (!tracker.ViewPose(k, &pose)) continue;
+      const Status s = provider(k, views[static_cast<size_t>(k)], &view);
+      if (s.code() == StatusCode::kNotFound) continue;
+      D3D_RETURN_IF_ERROR(s);
+      D3D_RETURN_IF_ERROR(refused->Fuse(view, pose));
+    }
+    ms_refuse = MsSince(t0);
+  }
+  std::vector<Rigid3d> final_poses(views.size(), Rigid3d::Identity());
+  for (int64_t k = 0; k < n_views; ++k) tracker.ViewPose(k, &final_poses[static_cast<size_t>(k)]);
+  const TsdfVolume& model = refused ? refused->volume() : fuser->volume();
+  const auto tm0 = Clock::now();
+  out->mesh = model.ExtractMesh();
+  const double ms_mesh = MsSince(tm0);
+  if (out->mesh.faces.empty()) return Status(StatusCode::kInternal, "the fused model is empty (no view was accepted)");
+  out->mesh.ComputeVertexNormals();
+  std::vector<Rigid3d> acc_truth;
+  bool have_truth_poses = static_cast<bool>(truth.true_pose);
+  for (int64_t k = 0; k < n_views; ++k) {
+    const ScanViewRecord& v = views[static_cast<size_t>(k)];
+    if (!v.accepted) continue;
+    out->pose_t_ns.push_back(v.reference_ns);
+    out->poses.push_back(final_poses[static_cast<size_t>(k)]);
+    if (have_truth_poses) {
+      Rigid3d t;
+      if (truth.true_pose(v, &t)) acc_truth.push_back(t);
+      else have_truth_poses = false;
+    }
+  }
+  const double n = static_cast<double>(std::max<int64_t>(times.bursts, 1));
+  j["bursts"] = n_views;
+  j["fused"] = fuser->fused();
+  j["rejected"] = registrar->rejected();
+  j["tracking_lost"] = registrar->lost_events();
+  j["relocalised"] = registrar->relocalised();
+  j["unrecovered"] = tracker.state() == TrackingState::kLost ? 1 : 0;
+  j["final_state"] = TrackingStateName(tracker.state());
+  j["keyframes"] = tracker.keyframes().size();
+  j["loop_edges"] = tracker.loop_edges();
+  j["pose_graph_max_correction_mm"] = max_correction_mm;
+  j["pose_graph_disagreeing_edges"] = pg.disagreeing_edges.size();
+  j["ms_per_burst"] = (times.ms_recon + times.ms_register + times.ms_fuse) / n;
+  j["ms_recon_per_burst"] = times.ms_recon / n;
+  j["ms_register_per_burst"] = times.ms_register / n;
+  j["ms_fuse_per_burst"] = times.ms_fuse / n;
+  j["ms_mesh"] = ms_mesh;
+  j["voxel_mm"] = model.options().voxel_mm;
+  j["refused_at_optimised_poses"] = refused != nullptr;
+  j["ms_refuse_total"] = ms_refuse;
+  j["tsdf_active_voxels"] = model.ActiveVoxels();
+  j["tsdf_memory_mib"] = static_cast<double>(fuser->volume().MemoryBytes() + (refused ? refused->volume().MemoryBytes() : 0)) / (1024.0 * 1024.0);
+  j["mesh_vertices"] = out->mesh.vertices.size();
+  j["mesh_faces"] = out->mesh.faces.size();
+  j["events"] = registrar->events();
+  if (truth.reference != nullptr && !truth.reference->faces.empty() && !out->poses.empty()) {
+    const MeshClosestPoint ref(*truth.reference);
+    Rigid3d world_from_model = Rigid3d::Identity();
+    AteReport ate_traj;
+    if (have_truth_poses) ate_traj = AbsoluteTrajectoryError(out->poses, acc_truth, &world_from_model);
+    else world_from_model = GlobalAlign(out->mesh, ref);
+    const TruenessReport t = EvaluateTrueness(out->mesh, ref, world_from_model, options.eval);
+    j["best_fit_start"] = have_truth_poses ? "trajectory" : "global_align";
+    if (have_truth_poses) {
+      // ATE in the frame of the surface best fit (the trajectory-only alignment is ill-posed for
+      // short, nearly straight paths); the trajectory-aligned figure is kept too.
+      double s2 = 0, sr = 0, smax = 0;
+      for (size_t k = 0; k < out->poses.size(); ++k) {
+        const Rigid3d e = t.reference_from_scan * out->poses[k];
+        const double d = TranslationDistanceMm(e, acc_truth[k]);
+        s2 += d * d;
+        smax = std::max(smax, d);
+        sr += RotationAngleRad(e, acc_truth[k]) * 180 / M_PI;
+      }
+      j["ate_mm"] = std::sqrt(s2 / static_cast<double>(out->poses.size()));
+      j["ate_deg"] = sr / static_cast<double>(out->poses.size());
+      j["ate_max_mm"] = smax;
+      j["ate_trajectory_aligned_mm"] = ate_traj.rmse_mm;
+      j["ate_trajectory_aligned_deg"] = ate_traj.mean_deg;
+    }
+    j["trueness_rms_um"] = t.rms_um;
+    j["trueness_mean_um"] = t.mean_um;
+    j["trueness_mean_abs_um"] = t.mean_abs_um;
+    j["trueness_p95_um"] = t.p95_um;
+    j["trueness_points"] = t.points;
+    j["trueness_outlier_pct"] = t.outlier_pct;
+    j["coverage_pct"] = t.coverage_pct;
+    j["best_fit_rmse_um"] = t.alignment_rmse_mm * 1000;
+    TriangleMesh in_ref = out->mesh;
+    for (auto& v : in_ref.vertices) v = t.reference_from_scan * v;
+    out->heatmap = DeviationHeatMap(in_ref, t.signed_um, 50);
+  }
+  return Status::Ok();
+}
+
+Status WriteTumPoses(const std::string& path, const std::vector<int64_t>& t_ns, const std::vector<Rigid3d>& poses) {
+  std::ofstream f(path);
+  if (!f) return IoError("cannot write '" + path + "'");
+  f << "# timestamp_s tx ty tz qx qy qz qw (translation in mm; model_from_probe, model = first view's camera)\n";
+  char line[256];
+  for (size_t i = 0; i < poses.size() && i < t_ns.size(); ++i) {
+    const Eigen::Quaterniond q(poses[i].linear());
+    const Eigen::Vector3d t = poses[i].translation();
+    std::snprintf(line, sizeof line, "%lld.%09lld %.6f %.6f %.6f %.9f %.9f %.9f %.9f\n", static_cast<long long>(t_ns[i] / 1000000000),
+                  static_cast<long long>(t_ns[i] % 1000000000), t.x(), t.y(), t.z(), q.x(), q.y(), q.z(), q.w());
+    f << line;
+  }
+  return f ? Status::Ok() : IoError("write failed: '" + path + "'");
+}
+
+Status WriteScanOutputs(const std::string& dir, const ScanResult& result) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec) return IoError("cannot create '" + dir + "'");
+  D3D_RETURN_IF_ERROR(SavePlyBinary((fs::path(dir) / "scan.ply").string(), result.mesh));
+  D3D_RETURN_IF_ERROR(SaveStlBinary((fs::path(dir) / "scan.stl").string(), result.mesh));
+  D3D_RETURN_IF_ERROR(WriteTumPoses((fs::path(dir) / "poses.txt").string(), result.pose_t_ns, result.poses));
+  if (!result.heatmap.empty() && !cv::imwrite((fs::path(dir) / "heatmap.png").string(), result.heatmap))
+    return IoError("cannot write heatmap.png in '" + dir + "'");
+  std::ofstream f(fs::path(dir) / "report.json");
+  f << result.report.dump(2) << "\n";
+  return f ? Status::Ok() : IoError("cannot write report.json in '" + dir + "'");
+}
+
+}  // namespace d3d

@@ -1,0 +1,157 @@
+// The scan chain of one hand-held scan, as reusable pieces: per burst reconstruct → register
+// (frame-to-model tracking) → fuse (TSDF), and at the end the pose graph, the mesh, the evaluation
+// against a known scene and report.json. Used by d3d-scan (on the host's stage graph, one piece per
+// thread) and meant for d3d-fuse (all pieces on one thread).
+//
+//   ScanReconstructor  reconstruct thread: burst frames → ReconstructedView (pipeline/recon)
+//   ScanRegistrar      register thread:    view → TrackResult (pipeline/register Tracker), with the
+//                      per-view records, tracking counters and events of report.json
+//   ScanFuser          fuse thread:        accepted view + pose → TSDF (pipeline/fuse)
+//   FinishScan         one thread, after the others stopped (it reads the registrar and the fuser):
+//                      Tracker::Optimize (loop closures), optionally the accepted views fused again
+//                      at the optimised poses, mesh extraction, evaluation against the scene
+//                      (pipeline/eval) when one is given, and the report (the fields of issue 5).
+//   WriteScanOutputs   DIR/scan.ply, DIR/scan.stl (binary, mm), DIR/poses.txt (TUM, mm),
+//                      DIR/report.json, DIR/heatmap.png (with an evaluation).
+//
+// Threads: each piece is owned by one thread at a time (none is thread-safe); hand-over between
+// threads must be synchronised by the caller (the stage graph's edges, or joining the threads).
+// The model frame is the first accepted view's camera frame (Tracker).
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "calib/model/probe_calibration.h"
+#include "common/core/rigid.h"
+#include "common/core/status.h"
+#include "common/mesh/mesh.h"
+#include "pipeline/eval/evaluate_scan.h"
+#include "pipeline/fuse/tsdf.h"
+#include "pipeline/recon/reconstruct.h"
+#include "pipeline/register/tracker.h"
+
+namespace d3d {
+
+struct ScanOptions {
+  ReconstructOptions recon;
+  TrackerOptions tracker;  // tracker.detect_loops: keyframe loop closures and the pose graph at the end
+  TsdfOptions tsdf;
+  // Fuse the accepted views again at the optimised poses when the pose graph moved a view by more
+  // than this (mm) and FinishScan is given a view provider; < 0 never.
+  double refuse_min_correction_mm = 0.01;
+  EvaluateOptions eval;
+  void Check() const;  // throws std::invalid_argument
+};
+
+// Tracker options for bursts `every` apart (d3d-fuse --every; a live host that drops bursts sees
+// larger steps): the first ICP level's association gate min(3, 0.8·√every) mm.
+TrackerOptions TrackerOptionsForStep(TrackerOptions options, double every);
+
+class ScanReconstructor {
+ public:
+  // Throws std::invalid_argument for an invalid calibration or options.
+  ScanReconstructor(const ProbeCalibration& calibration, const ReconstructOptions& options);
+  // frames: the burst's frames (at least calibration.pattern.steps; extra ones, e.g. a texture
+  // frame, are ignored), H×W CV_8U/CV_16U. INVALID_ARGUMENT for too few or mis-sized frames.
+  [[nodiscard]] Status Reconstruct(const std::vector<cv::Mat>& frames, ReconstructedView* out);
+  const ProbeCalibration& calibration() const { return recon_.calibration(); }
+
+ private:
+  Reconstructor recon_;
+  std::vector<cv::Mat> phase_frames_;
+};
+
+// One Track() call.
+struct ScanViewRecord {
+  uint64_t burst_seq = 0;    // the probe's burst sequence number
+  int64_t reference_ns = 0;  // capture time of the burst (mid-burst, ns)
+  bool accepted = false;
+  TrackingState state = TrackingState::kInitialising;
+};
+
+class ScanRegistrar {
+ public:
+  ScanRegistrar(const PinholeBrownConrady& camera, const TrackerOptions& options);
+  // Registers one reconstructed view (view index = the number of earlier calls).
+  TrackResult Register(const ReconstructedView& view, uint64_t burst_seq, int64_t reference_ns);
+
+  Tracker& tracker() { return tracker_; }
+  const Tracker& tracker() const { return tracker_; }
+  const std::vector<ScanViewRecord>& views() const { return views_; }
+  int64_t accepted() const { return accepted_; }
+  int64_t rejected() const { return rejected_; }
+  int64_t lost_events() const { return lost_events_; }   // transitions into kLost
+  int64_t relocalised() const { return relocalised_; }
+  const nlohmann::json& events() const { return events_; }  // non-tracking states and refusals, with reasons
+  double ms_register() const { return ms_; }                // total wall time in Register
+
+ private:
+  Tracker tracker_;
+  std::vector<ScanViewRecord> views_;
+  int64_t accepted_ = 0, rejected_ = 0, lost_events_ = 0, relocalised_ = 0;
+  TrackingState prev_state_ = TrackingState::kInitialising;
+  nlohmann::json events_ = nlohmann::json::array();
+  double ms_ = 0;
+};
+
+class ScanFuser {
+ public:
+  ScanFuser(const PinholeBrownConrady& camera, const TsdfOptions& options);
+  [[nodiscard]] Status Fuse(const ReconstructedView& view, const Rigid3d& world_from_cam);
+  TsdfVolume& volume() { return *tsdf_; }
+  const TsdfVolume& volume() const { return *tsdf_; }
+  const PinholeBrownConrady& camera() const { return camera_; }
+  int64_t fused() const { return fused_; }
+  double ms_fuse() const { return ms_; }
+
+ private:
+  PinholeBrownConrady camera_;
+  std::unique_ptr<TsdfVolume> tsdf_;
+  int64_t fused_ = 0;
+  double ms_ = 0;
+};
+
+// The scene the scan is evaluated against (optional).
+struct ScanTruth {
+  const TriangleMesh* reference = nullptr;  // world frame, mm (face labels: coverage of teeth only)
+  // True world_from_cam of a burst, when the scan path is known (the virtual probe); else empty:
+  // the best fit then starts from GlobalAlign (principal axes + ICP).
+  std::function<bool(const ScanViewRecord& view, Rigid3d* world_from_cam)> true_pose;
+};
+
+// Reconstructs view `view_index` (burst `record.burst_seq`) again for the refusion pass; a non-OK
+// status aborts FinishScan, NOT_FOUND skips the view.
+using ScanViewProvider = std::function<Status(int64_t view_index, const ScanViewRecord& record, ReconstructedView* out)>;
+
+struct ScanTimes {
+  int64_t bursts = 0;  // bursts the chain ran on (the denominators of ms_per_burst)
+  double ms_recon = 0, ms_register = 0, ms_fuse = 0;
+};
+
+struct ScanResult {
+  TriangleMesh mesh;                 // model frame, mm, with vertex normals
+  std::vector<int64_t> pose_t_ns;    // accepted views: capture time ...
+  std::vector<Rigid3d> poses;        // ... and model_from_cam after the pose graph
+  nlohmann::json report;             // report.json
+  cv::Mat heatmap;                   // deviation heat map (empty without evaluation)
+};
+
+// After the stages stopped: see the file comment. The report holds bursts, fused, rejected,
+// tracking_lost, relocalised, unrecovered, final_state, keyframes, loop_edges,
+// pose_graph_max_correction_mm, ms_per_burst (+ per stage), ms_mesh, tsdf_* , mesh_*, events and,
+// with a reference: trueness_rms_um, trueness_mean_um, trueness_mean_abs_um, trueness_p95_um,
+// coverage_pct, best_fit_rmse_um, and ate_mm / ate_deg (NaN-free: only when true poses are known).
+// INTERNAL when the model is empty (no view accepted).
+[[nodiscard]] Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegistrar* registrar, ScanFuser* fuser,
+                                const ScanViewProvider& provider, const ScanTruth& truth, ScanResult* out);
+
+// Writes scan.ply, scan.stl, poses.txt, report.json (and heatmap.png) into `dir` (created).
+[[nodiscard]] Status WriteScanOutputs(const std::string& dir, const ScanResult& result);
+[[nodiscard]] Status WriteTumPoses(const std::string& path, const std::vector<int64_t>& t_ns, const std::vector<Rigid3d>& poses);
+
+}  // namespace d3d

@@ -1,0 +1,144 @@
+// The main job's host end to end on a short recording: bursts of the virtual probe are written to a
+// recording (common/recording, as d3d-record does, with one malformed burst among them), then
+// replayed through `d3d-scan --replay --headless` (the stage graph, lossless) twice: the report
+// carries the fields of issues 5 and 6 with a sane trueness, the malformed burst is dropped and
+// counted, the two runs give bit-identical meshes and poses, and the preview picture shows the
+// model. The second run uses a real window under Xvfb when xvfb-run is installed.
+#include <gtest/gtest.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <sstream>
+
+#include "common/recording/recording.h"
+#include "firmware/sim/session/sim_session.h"
+#include "protocol/codec.h"
+#include "protocol/protocol.h"
+
+namespace fs = std::filesystem;
+
+namespace d3d {
+namespace {
+
+const std::string kBin = D3D_BIN_DIR;
+constexpr int64_t kFirst = 300, kCount = 16;
+
+std::string ReadAll(const fs::path& p) {
+  std::ifstream f(p, std::ios::binary);
+  std::stringstream s;
+  s << f.rdbuf();
+  return s.str();
+}
+
+// Writes kCount bursts of the full-arch scan path (seed 1) from burst kFirst, burst_seq = index,
+// and one malformed burst (a frame too short) after the fifth.
+void MakeRecording(const std::string& path) {
+  SimSessionOptions so;
+  std::unique_ptr<SimSession> session;
+  ASSERT_TRUE(SimSession::Create(so, &session).ok());
+  RecordingHeader h;
+  h.protocol_version = proto::kProtocolVersion;
+  h.probe_serial = "SIM-TEST";
+  h.calibration_json = session->calibration().ToJson();
+  h.channels = {{0, proto::kTopicPhaseBurst, proto::kSchemaBurst}};
+  RecordingWriter w;
+  ASSERT_TRUE(w.Open(path, h).ok());
+  std::string bytes;
+  int64_t log_ns = 1'700'000'000'000'000'000;
+  for (int64_t i = kFirst; i < kFirst + kCount; ++i) {
+    const Burst b = session->RenderBurst(i, false);
+    proto::BurstMsg m;
+    m.serial = "SIM-TEST";
+    m.protocol_version = proto::kProtocolVersion;
+    m.burst_seq = static_cast<uint64_t>(i);
+    m.exposure_ns = 1'000'000;
+    m.frame_interval_ns = 2'500'000;
+    m.pattern_set = "phase4-marker";
+    m.width = static_cast<uint32_t>(b.frames[0].image.cols);
+    m.height = static_cast<uint32_t>(b.frames[0].image.rows);
+    for (size_t k = 0; k < b.frames.size(); ++k) {
+      proto::FrameMsg f;
+      f.pattern = "phase4-marker/" + std::to_string(k);
+      f.pattern_index = static_cast<uint16_t>(k);
+      f.timestamp_ns = b.frames[k].timestamp_ns;
+      f.camera_frame_seq = static_cast<uint64_t>(i * 4) + k;
+      const cv::Mat img = b.frames[k].image.clone();
+      f.pixels.assign(img.data, img.data + img.total());
+      m.frames.push_back(std::move(f));
+    }
+    bytes.clear();
+    proto::Encode(m, &bytes);
+    ASSERT_TRUE(w.Add(0, log_ns += 33'333'333, bytes).ok());
+    if (i == kFirst + 4) {  // a malformed sample: the receiver's checks must drop it
+      m.burst_seq = 900000;
+      m.frames[2].pixels.resize(100);
+      bytes.clear();
+      proto::Encode(m, &bytes);
+      ASSERT_TRUE(w.Add(0, log_ns += 1'000'000, bytes).ok());
+    }
+  }
+  ASSERT_TRUE(w.Close().ok());
+}
+
+bool HaveXvfbRun() { return std::system("command -v xvfb-run > /dev/null 2>&1") == 0; }
+
+TEST(ScanReplay, LosslessReplayThroughTheHostGivesTheReportAndAPicture) {
+  const fs::path dir = fs::temp_directory_path() / "d3d_scan_replay_test";
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const std::string rec = (dir / "short.d3drec").string();
+  MakeRecording(rec);
+  ASSERT_TRUE(fs::exists(rec));
+  const std::string common = kBin + "/d3d-scan --replay " + rec + " --reference typodont --sim-trajectory full-arch --sim-seed 1 --quiet --json";
+  const std::string run1 = common + " --headless --out " + (dir / "a").string() + " > " + (dir / "a.json").string() + " 2> " + (dir / "a.err").string();
+  ASSERT_EQ(std::system(run1.c_str()), 0) << ReadAll(dir / "a.err");
+  const nlohmann::json j = nlohmann::json::parse(ReadAll(dir / "a" / "report.json"));
+  for (const char* k : {"bursts", "fused", "rejected", "tracking_lost", "trueness_rms_um", "trueness_mean_um", "trueness_p95_um", "coverage_pct",
+                        "ate_mm", "ate_deg", "ms_per_burst", "bursts_received", "bursts_processed", "bursts_dropped", "bursts_per_s",
+                        "latency_ms_p50", "latency_ms_p95", "peak_rss_mb"})
+    EXPECT_TRUE(j.contains(k)) << k;
+  EXPECT_EQ(j["policy"], "lossless");
+  EXPECT_EQ(j["bursts_received"], kCount + 1);
+  EXPECT_EQ(j["bursts_malformed"], 1);
+  EXPECT_EQ(j["bursts_processed"], kCount);
+  EXPECT_EQ(j["bursts_dropped"], 0);
+  EXPECT_EQ(j["bursts"], kCount);
+  EXPECT_GE(j["fused"].get<int>(), kCount - 2);
+  EXPECT_LT(j["trueness_rms_um"].get<double>(), 20.0);
+  EXPECT_LT(j["ate_mm"].get<double>(), 0.1);
+  EXPECT_GT(j["bursts_per_s"].get<double>(), 0.0);
+  for (const auto& [name, s] : j["stages"].items()) EXPECT_EQ(s["order_violations"], 0) << name;
+  for (const char* f : {"scan.ply", "scan.stl", "poses.txt", "report.json"}) EXPECT_TRUE(fs::exists(dir / "a" / f)) << f;
+
+  // The second run: same bytes out (lossless is deterministic), in a window under Xvfb if possible.
+  const bool xvfb = HaveXvfbRun();
+  const std::string run2 = (xvfb ? "xvfb-run -a " + common : common + " --headless") + " --out " + (dir / "b").string() + " > " +
+                           (dir / "b.json").string() + " 2> " + (dir / "b.err").string();
+  ASSERT_EQ(std::system(run2.c_str()), 0) << ReadAll(dir / "b.err");
+  EXPECT_EQ(ReadAll(dir / "a" / "scan.ply"), ReadAll(dir / "b" / "scan.ply")) << "lossless replay is not bit-identical";
+  EXPECT_EQ(ReadAll(dir / "a" / "poses.txt"), ReadAll(dir / "b" / "poses.txt"));
+  const nlohmann::json j2 = nlohmann::json::parse(ReadAll(dir / "b" / "report.json"));
+  if (xvfb) {
+    EXPECT_EQ(j2["preview"], "window") << ReadAll(dir / "b.err");
+  }
+
+  // The preview pictures show the model: many lit pixels in the middle of a dark background.
+  for (const char* run : {"a", "b"}) {
+    const cv::Mat png = cv::imread((dir / run / "preview.png").string(), cv::IMREAD_GRAYSCALE);
+    if (png.empty()) {
+      ADD_FAILURE() << run << ": no preview.png (" << ReadAll(dir / (std::string(run) + ".err")) << ")";
+      continue;
+    }
+    const cv::Mat middle = png(cv::Rect(png.cols / 4, png.rows / 4, png.cols / 2, png.rows / 2));
+    const double lit = static_cast<double>(cv::countNonZero(middle > 90)) / static_cast<double>(middle.total());
+    EXPECT_GT(lit, 0.03) << run << ": the preview looks empty";
+  }
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace d3d

@@ -1,0 +1,340 @@
+// d3d-scan: the host application, the main job. Subscribes to the probe over DDS (or replays a
+// recording losslessly with --replay), runs the stage graph ingest → reconstruct → register → fuse →
+// preview (host/scan), shows the live preview (viewer/: a GLFW window, or offscreen with
+// --headless), and at the end writes DIR/scan.ply, DIR/scan.stl, DIR/poses.txt, DIR/report.json and
+// DIR/preview.png (and DIR/heatmap.png with a reference).
+//
+// Thread pools are capped here (the tool owns the process): OpenCV and oneTBB to --threads, Mesa's
+// llvmpipe to 1 rendering thread (LP_NUM_THREADS, unless set), so the graph's threads own the cores.
+#include <tbb/global_control.h>
+
+#include <CLI/CLI.hpp>
+#include <atomic>
+#include <chrono>
+#include <csignal>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <mutex>
+#include <opencv2/core/utility.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <thread>
+#include <unistd.h>
+
+#include "common/mesh/mesh_io.h"
+#include "firmware/sim/session/sim_session.h"
+#include "host/scan/scan_app.h"
+#include "tools/dds/tool_dds.h"
+#include "viewer/viewer.h"
+
+namespace fs = std::filesystem;
+using namespace d3d;
+
+namespace {
+std::atomic<bool> g_stop{false}, g_save{false};
+void OnSignal(int) { g_stop.store(true); }
+void OnSave(int) { g_save.store(true); }
+// Resident set size now (MiB), from /proc/self/statm.
+double RssMiB() {
+  std::ifstream f("/proc/self/statm");
+  long pages = 0, resident = 0;
+  f >> pages >> resident;
+  return static_cast<double>(resident) * static_cast<double>(sysconf(_SC_PAGESIZE)) / (1024.0 * 1024.0);
+}
+double SteadyS() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App cli{"d3d-scan: the host application: live scan from the probe over DDS (or --replay FILE), live preview,\n"
+               "and the fused model with its report. Writes DIR/scan.ply, scan.stl, poses.txt, report.json, preview.png."};
+  std::string replay, out_dir = "scan_out", screenshot, policy_text, reference, sim_trajectory, serial;
+  bool headless = false, json = false, no_preview = false, refuse = false, quiet = false;
+  double duration_s = 0, probe_timeout_s = 1.0, idle_exit_s = 0, wait_probe_s = 120, preview_fps = 20, replay_rate = 0, step = 0;
+  int domain = 0, threads = 2, width = 960, height = 720;
+  uint32_t sim_seed = 1;
+  double sim_rate = 30;
+  cli.add_option("--replay", replay, "replay a recording (d3d-record) through the same graph instead of listening on DDS");
+  cli.add_option("--replay-rate", replay_rate, "--replay: 0 = as fast as the graph takes bursts, else the recorded timing x this")->capture_default_str();
+  int64_t max_bursts = 0;
+  size_t rx_queue = 0;
+  cli.add_option("--frames", max_bursts, "--replay: use the first N bursts only (0 = all)")->capture_default_str();
+  cli.add_option("--rx-queue", rx_queue, "live: bursts the DDS receiver may hold for the graph (default: 8 live, 300 lossless)");
+  cli.add_option("--out", out_dir, "output folder")->capture_default_str();
+  cli.add_flag("--headless", headless, "render the preview offscreen (EGL, no display needed)");
+  cli.add_flag("--no-preview", no_preview, "no preview at all");
+  cli.add_option("--screenshot", screenshot, "save the final preview picture here too (PNG; DIR/preview.png is always written)");
+  cli.add_option("--duration", duration_s, "stop after this many seconds (0 = until the end of the replay / the window closes / SIGINT)")->capture_default_str();
+  cli.add_option("--policy", policy_text, "edge policy: live (latest wins, drops counted) | lossless (default: live on DDS, lossless with --replay)");
+  cli.add_option("--reference", reference, "evaluate against this scene: typodont or a mesh file (mm)");
+  cli.add_option("--sim-trajectory", sim_trajectory, "the virtual probe's scan path (full-arch|quadrant|tooth|FILE.tum): true poses for the best fit and the ATE");
+  cli.add_option("--sim-seed", sim_seed, "--sim-trajectory: its seed")->capture_default_str();
+  cli.add_option("--sim-rate", sim_rate, "--sim-trajectory: the probe's burst rate (Hz)")->capture_default_str();
+  cli.add_flag("--refuse", refuse, "--replay: fuse the accepted bursts again at the pose-graph poses at the end");
+  cli.add_option("--step", step, "expected bursts between processed views for the tracker's gates (default: 1 lossless, 6 live)");
+  cli.add_option("--domain", domain, "DDS domain id")->capture_default_str();
+  cli.add_option("--serial", serial, "listen to this probe only (default: any)");
+  cli.add_option("--probe-timeout", probe_timeout_s, "seconds without a burst before 'probe lost'")->capture_default_str();
+  cli.add_option("--idle-exit", idle_exit_s, "live: finish after this many seconds without a burst (0 = wait for the probe to return)")->capture_default_str();
+  cli.add_option("--wait-probe", wait_probe_s, "live: seconds to wait for the probe's ProbeInfo")->capture_default_str();
+  cli.add_option("--threads", threads, "OpenCV / oneTBB worker threads")->capture_default_str();
+  cli.add_option("--preview-fps", preview_fps, "preview frame-rate cap")->capture_default_str();
+  cli.add_option("--size", width, "preview width (px; height = 3/4)")->capture_default_str();
+  cli.add_flag("--json", json, "print report.json as one line on stdout");
+  cli.add_flag("--quiet", quiet, "no status line on stderr (SIGUSR1 saves the model now, as the 's' key)");
+  CLI11_PARSE(cli, argc, argv);
+  height = width * 3 / 4;
+  std::signal(SIGINT, OnSignal);
+  std::signal(SIGTERM, OnSignal);
+  std::signal(SIGUSR1, OnSave);  // save the model now (as the 's' key)
+  EdgePolicy policy = replay.empty() ? EdgePolicy::kLive : EdgePolicy::kLossless;
+  if (policy_text == "live") policy = EdgePolicy::kLive;
+  else if (policy_text == "lossless") policy = EdgePolicy::kLossless;
+  else if (!policy_text.empty()) {
+    std::fprintf(stderr, "d3d-scan: --policy must be live or lossless\n");
+    return 2;
+  }
+  if (step <= 0) step = policy == EdgePolicy::kLive ? 6 : 1;
+  if (threads < 1) threads = 1;
+  cv::setNumThreads(threads);
+  tbb::global_control tbb_cap(tbb::global_control::max_allowed_parallelism, static_cast<size_t>(threads));
+  setenv("LP_NUM_THREADS", "1", 0);
+
+  try {
+    // Source.
+    std::unique_ptr<RecordingBurstSource> rec;
+    proto::DdsParticipant participant;
+    std::unique_ptr<BurstReceiver> rx;
+    std::unique_ptr<DdsBurstSource> dds;
+    BurstSource* source = nullptr;
+    ProbeCalibration calib;
+    if (!replay.empty()) {
+      RecordingSourceOptions ro;
+      ro.rate = replay_rate;
+      ro.max_bursts = max_bursts;
+      if (const Status s = RecordingBurstSource::Open(replay, ro, &rec); !s.ok()) {
+        std::fprintf(stderr, "d3d-scan: %s: %s\n", replay.c_str(), s.ToString().c_str());
+        return 2;
+      }
+      calib = rec->calibration();
+      source = rec.get();
+    } else {
+      if (const Status s = tools::CreateToolParticipant(domain, &participant, "d3d-scan"); !s.ok()) {
+        std::fprintf(stderr, "d3d-scan: DDS: %s\n", s.ToString().c_str());
+        return 3;
+      }
+      ReceiverOptions ro;
+      ro.serial = serial;
+      ro.queue_capacity = rx_queue > 0 ? rx_queue : (policy == EdgePolicy::kLive ? 8 : 300);
+      ro.log = [](const std::string& m) { std::fprintf(stderr, "d3d-scan: %s\n", m.c_str()); };
+      rx = std::make_unique<BurstReceiver>(ro);
+      if (const Status s = rx->Start(&participant); !s.ok()) {
+        std::fprintf(stderr, "d3d-scan: %s\n", s.ToString().c_str());
+        return 3;
+      }
+      DdsSourceOptions dso;
+      dso.probe_timeout_s = probe_timeout_s;
+      dso.idle_exit_s = idle_exit_s;
+      dds = std::make_unique<DdsBurstSource>(rx.get(), dso);
+      std::fprintf(stderr, "d3d-scan: waiting for a probe on DDS domain %d...\n", domain);
+      proto::InfoMsg info;
+      if (const Status s = dds->WaitForCalibration(wait_probe_s, &g_stop, &calib, &info); !s.ok()) {
+        std::fprintf(stderr, "d3d-scan: %s\n", s.ToString().c_str());
+        return 3;
+      }
+      std::fprintf(stderr, "d3d-scan: probe %s (%s, %ux%u)\n", info.serial.c_str(), info.sensor_model.c_str(), info.width, info.height);
+      source = dds.get();
+    }
+    ScanAppOptions ao;
+    ao.policy = policy;
+    ao.scan.tracker = TrackerOptionsForStep(ao.scan.tracker, step);
+    ao.scan.tracker.max_step_mm *= step;
+    ao.scan.tracker.max_step_deg *= step;
+    ao.scan.refuse_min_correction_mm = refuse ? 0.01 : -1;
+    ScanApp app(calib, ao, source);
+
+    std::unique_ptr<Viewer> viewer;
+    if (!no_preview) {
+      ViewerOptions vo;
+      vo.headless = headless;
+      vo.width = width;
+      vo.height = height;
+      Status s = Viewer::Create(vo, &viewer);
+      if (!s.ok() && !headless) {
+        std::fprintf(stderr, "d3d-scan: %s; rendering offscreen instead\n", s.ToString().c_str());
+        vo.headless = true;
+        s = Viewer::Create(vo, &viewer);
+      }
+      if (!s.ok()) std::fprintf(stderr, "d3d-scan: no preview: %s\n", s.ToString().c_str());
+    }
+    std::fprintf(stderr, "d3d-scan: %s graph, %s preview; out %s\n", EdgePolicyName(policy),
+                 viewer ? (viewer->headless() ? "offscreen" : "window") : "no", out_dir.c_str());
+    app.Start();
+    const double t0 = SteadyS();
+    double next_frame = t0, next_line = t0 + 1, fps = 0, fps_t0 = t0, last_fps_t = t0;
+    int64_t frames = 0, fps_frames = 0;
+    std::vector<double> rss_timeline;  // MiB, once a second: memory must stay flat after warm-up
+    std::mutex message_mu;  // the saver thread sets the message line, the render loop reads it
+    std::string message;
+    double message_until = 0;
+    std::thread saver;
+    std::atomic<bool> saving{false};
+    const double frame_dt = 1.0 / std::max(1.0, preview_fps);
+    while (!app.finished()) {
+      const double now = SteadyS();
+      if (g_stop.load() || (duration_s > 0 && now - t0 >= duration_s)) break;
+      if (g_save.exchange(false) && !saving.exchange(true)) {
+        if (saver.joinable()) saver.join();
+        saver = std::thread([&app, &saving, out_dir, &message, &message_until, &message_mu] {
+          const Status s = app.SaveNow(out_dir);
+          std::fprintf(stderr, "\nd3d-scan: %s\n", s.ok() ? ("saved " + out_dir + "/scan.ply").c_str() : s.ToString().c_str());
+          std::lock_guard<std::mutex> lock(message_mu);
+          message = s.ok() ? "saved " + out_dir + "/scan.ply" : "save failed: " + s.ToString();
+          message_until = SteadyS() + 4;
+          saving.store(false);
+        });
+      }
+      if (viewer) {
+        if (now >= next_frame) {
+          next_frame = std::max(next_frame + frame_dt, now);
+          PreviewStatus st = app.CurrentStatus();
+          {
+            std::lock_guard<std::mutex> lock(message_mu);
+            if (now < message_until) st.message = message;
+          }
+          if (!viewer->Render(app.LatestSnapshot(), st, fps)) break;  // window closed
+          ++frames;
+          ++fps_frames;
+          if (now - last_fps_t >= 1.0) {
+            fps = static_cast<double>(fps_frames) / (now - last_fps_t);
+            fps_frames = 0;
+            last_fps_t = now;
+          }
+          for (ViewerAction a : viewer->TakeActions()) {
+            if (a == ViewerAction::kQuit) g_stop.store(true);
+            else if (a == ViewerAction::kPause) app.SetPaused(!app.paused());
+            else if (a == ViewerAction::kReset) {
+              app.Reset();
+              std::lock_guard<std::mutex> lock(message_mu);
+              message = "model reset";
+              message_until = now + 3;
+            } else if (a == ViewerAction::kSave && !saving.exchange(true)) {
+              if (saver.joinable()) saver.join();
+              saver = std::thread([&app, &saving, out_dir, &message, &message_until, &message_mu] {
+                const Status s = app.SaveNow(out_dir);
+                std::lock_guard<std::mutex> lock(message_mu);
+                message = s.ok() ? "saved " + out_dir + "/scan.ply" : "save failed: " + s.ToString();
+                message_until = SteadyS() + 4;
+                saving.store(false);
+              });
+            }
+          }
+        }
+      }
+      if (now >= next_line) {
+        next_line += 1;
+        rss_timeline.push_back(RssMiB());
+        if (quiet) continue;
+        const PreviewStatus st = app.CurrentStatus();
+        std::fprintf(stderr, "\rd3d-scan: %5.0f s  received %llu  processed %llu  fused %llu  dropped %llu  %.1f bursts/s  latency p95 %.0f ms  %s   ",
+                     now - t0, static_cast<unsigned long long>(st.bursts_received), static_cast<unsigned long long>(st.bursts_processed),
+                     static_cast<unsigned long long>(st.bursts_fused), static_cast<unsigned long long>(st.bursts_dropped), st.bursts_per_s,
+                     st.latency_ms_p95, st.override_cue ? PreviewCueText(st.cue_override) : "");
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(viewer ? 2 : 20));
+    }
+    const double preview_s = SteadyS() - fps_t0;
+    app.RequestStop();
+    app.Join();
+    if (saver.joinable()) saver.join();
+    if (!quiet) std::fprintf(stderr, "\n");
+    if (rx) rx->Stop();
+
+    // Evaluation truth.
+    std::unique_ptr<SimSession> session;
+    TriangleMesh scene;
+    ScanTruth truth;
+    if (!reference.empty()) {
+      SimSessionOptions so;
+      so.model = reference;
+      so.trajectory = sim_trajectory.empty() ? "full-arch" : sim_trajectory;
+      so.seed = sim_seed;
+      so.burst_rate_hz = sim_rate;
+      so.camera_width = calib.camera.width;
+      so.camera_height = calib.camera.height;
+      if (reference == "typodont" || !sim_trajectory.empty()) {
+        if (const Status s = SimSession::Create(so, &session); !s.ok()) {
+          std::fprintf(stderr, "d3d-scan: reference: %s\n", s.ToString().c_str());
+          return 2;
+        }
+        scene = session->scene();
+      } else if (const Status s = LoadMesh(reference, &scene); !s.ok()) {
+        std::fprintf(stderr, "d3d-scan: reference: %s\n", s.ToString().c_str());
+        return 2;
+      }
+      if (!scene.face_colors.empty() && scene.face_labels.empty()) LabelFacesFromColors(&scene);
+      truth.reference = &scene;
+      if (!sim_trajectory.empty()) {
+        const int64_t offset = (calib.pattern.steps - 1) * so.render.frame_interval_ns / 2;
+        truth.true_pose = [&session, offset](const ScanViewRecord& v, Rigid3d* p) {
+          if (static_cast<int64_t>(v.burst_seq) >= session->NumBursts()) return false;
+          *p = session->trajectory().WorldFromProbe(session->BurstStartNs(static_cast<int64_t>(v.burst_seq)) + offset);
+          return true;
+        };
+      }
+    }
+    ScanViewProvider provider;
+    std::unique_ptr<ScanReconstructor> re_recon;
+    IngestedBurst re_burst;
+    if (rec && refuse) {
+      re_recon = std::make_unique<ScanReconstructor>(calib, ao.scan.recon);
+      provider = [&](int64_t, const ScanViewRecord& v, ReconstructedView* view) -> Status {
+        D3D_RETURN_IF_ERROR(rec->ReadBurst(v.burst_seq, &re_burst));
+        return re_recon->Reconstruct(re_burst.frames, view);
+      };
+    }
+    ScanResult result;
+    const Status fs_status = app.Finish(truth, provider, &result);
+    result.report["input"] = replay.empty() ? "dds" : replay;
+    result.report["preview_fps"] = viewer && preview_s > 0 ? static_cast<double>(frames) / preview_s : 0.0;
+    result.report["preview"] = viewer ? (viewer->headless() ? "offscreen" : "window") : "none";
+    result.report["step"] = step;
+    result.report["rss_mb_per_s"] = rss_timeline;
+    result.report["threads"] = threads;
+    if (rec) result.report["recording_problems"] = rec->diagnostics().problems;
+    if (!fs_status.ok()) {
+      std::fprintf(stderr, "d3d-scan: %s\n", fs_status.ToString().c_str());
+      std::error_code ec;
+      fs::create_directories(out_dir, ec);
+      std::ofstream(fs::path(out_dir) / "report.json") << result.report.dump(2) << "\n";
+      return 1;
+    }
+    if (const Status s = WriteScanOutputs(out_dir, result); !s.ok()) {
+      std::fprintf(stderr, "d3d-scan: %s\n", s.ToString().c_str());
+      return 1;
+    }
+    if (viewer) {
+      // The final picture: the last snapshot (the whole model), status as at the end.
+      PreviewStatus st = app.CurrentStatus();
+      st.message = "scan finished";
+      st.override_cue = st.override_cue && st.cue_override != PreviewCue::kProbeLost;  // the model's own state
+      const PreviewSnapshot* snap = app.LatestSnapshot();
+      cv::Mat picture;
+      viewer->Render(snap, st, fps, &picture);
+      if (!picture.empty()) {
+        cv::imwrite((fs::path(out_dir) / "preview.png").string(), picture);
+        if (!screenshot.empty()) cv::imwrite(screenshot, picture);
+      }
+    }
+    if (json) std::printf("%s\n", result.report.dump().c_str());
+    else {
+      nlohmann::json brief = result.report;
+      brief.erase("events");
+      std::printf("%s\n", brief.dump(2).c_str());
+    }
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "d3d-scan: %s\n", e.what());
+    return 2;
+  }
+  return 0;
+}

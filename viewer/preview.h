@@ -1,0 +1,45 @@
+// What the live preview shows, as plain data (no GL): the fused model as decimated points with
+// normals (append-only between resets), the current view, the probe pose and frustum, and the
+// status line. The host's preview stage fills PreviewSnapshots in a TripleBuffer
+// (host/graph/edges.h); the render thread reads the newest one without ever waiting.
+//
+// Frames and units: model frame (the first accepted view's camera frame), mm.
+#pragma once
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace d3d {
+
+// The colour cue of the preview (tracking states of pipeline/register plus the host's own).
+enum class PreviewCue : uint8_t { kWaiting, kTracking, kLost, kRelocalised, kProbeLost, kPaused };
+const char* PreviewCueText(PreviewCue c);  // "WAITING FOR PROBE", "TRACKING", "LOST", "RELOCALISED", "PROBE LOST", "PAUSED"
+
+struct PreviewSnapshot {
+  uint64_t epoch = 0;                    // bumps on a model reset: points restart from empty
+  std::vector<Eigen::Vector3f> points;   // model, decimated (one per preview cell), append-only within an epoch
+  std::vector<Eigen::Vector3f> normals;  // unit, per point
+  std::vector<Eigen::Vector3f> view_points;  // the latest view (decimated), model frame
+  bool view_accepted = false;            // the latest view was fused (else refused: drawn red)
+  bool have_pose = false;
+  Eigen::Matrix4f model_from_cam = Eigen::Matrix4f::Identity();  // the latest view's probe pose
+  float tan_half_x = 0.16f, tan_half_y = 0.12f;  // camera field (frustum), tan of the half angles
+  float near_mm = 42, far_mm = 58;               // measurement volume along the optical axis
+  PreviewCue cue = PreviewCue::kWaiting;
+  uint64_t bursts_in_model = 0;          // views fused
+  uint64_t last_burst_seq = 0;
+  double model_area_mm2 = 0;             // preview cells × cell area: the scan's coverage so far
+};
+
+// Counters the render thread reads each frame (atomics behind it; see host/scan/scan_app.h).
+struct PreviewStatus {
+  PreviewCue cue_override = PreviewCue::kTracking;  // kProbeLost / kPaused / kWaiting override the snapshot's cue
+  bool override_cue = false;
+  uint64_t bursts_received = 0, bursts_processed = 0, bursts_fused = 0, bursts_dropped = 0, bursts_rejected = 0;
+  double bursts_per_s = 0, latency_ms_p50 = 0, latency_ms_p95 = 0;
+  std::string message;  // transient line (e.g. "saved scan.ply")
+};
+
+}  // namespace d3d

@@ -1,0 +1,64 @@
+// The preview draws a picture: a synthetic model (a hemisphere of points) rendered offscreen
+// (EGL surfaceless) must show the model's shading, the frustum and the status panel. Skips with a
+// message when this machine has no EGL/OpenGL.
+#include "viewer/viewer.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <opencv2/imgproc.hpp>
+
+namespace d3d {
+namespace {
+
+PreviewSnapshot Hemisphere() {
+  PreviewSnapshot s;
+  for (int i = 0; i < 60; ++i)
+    for (int j = 0; j < 120; ++j) {
+      const float th = static_cast<float>(i) / 60 * 1.5f, ph = static_cast<float>(j) / 120 * 6.2832f;
+      const Eigen::Vector3f n(std::sin(th) * std::cos(ph), std::sin(th) * std::sin(ph), -std::cos(th));
+      s.points.push_back(Eigen::Vector3f(0, 0, 50) + 5.0f * n);
+      s.normals.push_back(n);
+    }
+  for (int i = 0; i < 200; ++i) s.view_points.push_back(Eigen::Vector3f(0.05f * static_cast<float>(i) - 5, 0, 45));
+  s.view_accepted = true;
+  s.have_pose = true;
+  s.cue = PreviewCue::kTracking;
+  s.model_area_mm2 = 157;
+  return s;
+}
+
+TEST(Viewer, OffscreenPictureShowsTheModelAndThePanel) {
+  ViewerOptions o;
+  o.headless = true;
+  o.width = 320;
+  o.height = 240;
+  std::unique_ptr<Viewer> v;
+  const Status s = Viewer::Create(o, &v);
+  if (!s.ok()) GTEST_SKIP() << "no offscreen OpenGL here: " << s.ToString();
+  const PreviewSnapshot snap = Hemisphere();
+  PreviewStatus st;
+  st.bursts_received = 10;
+  cv::Mat empty, full;
+  ASSERT_TRUE(v->Render(nullptr, st, 20, &empty));
+  ASSERT_TRUE(v->Render(&snap, st, 20, &full));
+  ASSERT_EQ(full.size(), cv::Size(320, 240));
+  // The model is drawn in the middle of the picture: bright, varied pixels there.
+  cv::Mat grey;
+  cv::cvtColor(full, grey, cv::COLOR_BGR2GRAY);
+  const cv::Mat centre = grey(cv::Rect(110, 80, 100, 100));
+  cv::Scalar mean, sd;
+  cv::meanStdDev(centre, mean, sd);
+  EXPECT_GT(mean[0], 80) << "the model is not drawn";
+  EXPECT_GT(sd[0], 5) << "no shading";
+  cv::Mat ecentre;
+  cv::cvtColor(empty, ecentre, cv::COLOR_BGR2GRAY);
+  EXPECT_LT(cv::mean(ecentre(cv::Rect(110, 80, 100, 100)))[0], 60) << "an empty preview must stay dark";
+  // The status panel: the tracking colour (green) in the top-left box.
+  const cv::Vec3b box = full.at<cv::Vec3b>(20, 200);
+  EXPECT_GT(box[1], 150);
+  EXPECT_LT(box[2], 100);
+}
+
+}  // namespace
+}  // namespace d3d
