@@ -18,10 +18,12 @@
 //     RANSAC → ICP against the model; the first that passes is accepted (state kRelocalised).
 //  5. Keyframes: a view whose overlap index with the last keyframe (fraction of its samples in
 //     the keyframe's occupied voxels) falls below keyframe_overlap becomes a keyframe: samples,
-//     features and pose kept; an odometry edge joins it to the previous keyframe.
-//  6. Loop closure: a new keyframe is registered by ICP to older keyframes (at least
-//     loop_min_separation keyframes back) whose samples overlap its own (overlap index ≥
-//     loop_min_overlap at the current poses): each success becomes a loop edge.
+//     features and pose kept; an odometry edge joins it to the previous keyframe, measured by ICP
+//     between the two keyframes' samples (keyframe_icp_edges) with ICP's information matrix.
+//  6. Loop closure: a new keyframe is registered by ICP to other keyframes (up to
+//     max_loop_candidates at least loop_min_separation keyframes back, and near_loop_candidates
+//     more recent ones) whose samples overlap its own (overlap index ≥ loop_min_overlap at the
+//     current poses): each success becomes a loop edge (robust loss, ICP information).
 // Optimize() solves the pose graph (pose_graph.h) and re-expresses every accepted view through its
 // anchor keyframe: world_from_cam = world_from_keyframe (optimised) · keyframe_from_cam (tracked).
 #pragma once
@@ -65,11 +67,20 @@ struct TrackerOptions {
   int min_view_samples = 5000;    // fewer samples (a fragment, ~6 % of the image): skipped, state unchanged
   double relocalise_max_rmse_mm = 0.04;  // stricter residual for a relocalised view
   double relocalise_min_overlap = 0.5;
-  double loop_radius_mm = 6.0;    // keyframe centres closer than this are loop candidates
+  double loop_radius_mm = 10.0;   // keyframe centres closer than this are loop candidates
   int loop_min_separation = 10;   // keyframes
   double loop_min_overlap = 0.3;
-  int max_loop_candidates = 3;    // per new keyframe, nearest first
-  double odometry_sigma_mm = 0.005, odometry_sigma_rad = 1e-4;  // pose graph edge σ
+  int max_loop_candidates = 6;    // per new keyframe, older than loop_min_separation, nearest first
+  // Per new keyframe, edges to recent keyframes too (2 .. loop_min_separation − 1 back), nearest
+  // first: several overlapping neighbours constrain a keyframe whose own registration was weak.
+  int near_loop_candidates = 3;
+  // Odometry edges measured by ICP between the keyframes' own samples (k-d tree), independent of
+  // the model the tracker registered against, with ICP's information matrix (times
+  // edge_information_scale) as the edge's information; loop edges use that information too.
+  // false: the odometry edge is the tracked relative pose with the σs below.
+  bool keyframe_icp_edges = true;
+  double edge_information_scale = 1e-3;
+  double odometry_sigma_mm = 0.005, odometry_sigma_rad = 1e-4;  // pose graph edge σ (without ICP information)
   double loop_sigma_mm = 0.005, loop_sigma_rad = 1e-4;
   bool relocalise = true;
   bool detect_loops = true;
@@ -128,6 +139,9 @@ class Tracker {
   void MaybeKeyframe(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& normals,
                      const cv::Mat& texture, const Rigid3d& pose, TrackResult* out);
   int DetectLoops(int new_kf);
+  // ICP of keyframe `to`'s samples onto keyframe `from`'s from their current relative pose: an
+  // edge with ICP's information (false when the ICP fails).
+  bool KeyframeEdge(int from, int to, PoseGraphEdge* edge) const;
 
   PinholeBrownConrady camera_;
   PinholeIntrinsics pinhole_;
