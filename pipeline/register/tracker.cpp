@@ -287,22 +287,36 @@ void Tracker::MaybeKeyframe(const SurfacePoints& /*samples*/, const cv::Mat& poi
   if (o_.detect_loops) out->loops_added = DetectLoops(static_cast<int>(keyframes_.size()) - 1);
 }
 
+IcpOptions KeyframeIcp(const IcpOptions& base) {
+  IcpOptions icp = base;
+  icp.levels = {{4, 10, 0.5, 0.8}, {1, 10, 0.2, 1.0}, {1, 8, 0.1, 1.0}};
+  return icp;
+}
+
+bool MeasureKeyframeEdge(const SurfacePoints& from_samples, const SurfacePoints& to_samples, const Rigid3d& guess,
+                         const IcpOptions& icp, double information_scale, PoseGraphEdge* e, IcpResult* result) {
+  D3D_CHECK_MSG(information_scale > 0, "MeasureKeyframeEdge: information_scale must be > 0");
+  const KdTreeTarget target(from_samples);
+  const IcpResult r = RegisterIcp(to_samples, target, guess, icp);
+  if (result) *result = r;
+  if (!r.ok) return false;
+  e->from_from_to = r.target_from_source;
+  e->information = EdgeInformationFromIcp(r.information, r.target_from_source, information_scale);
+  return true;
+}
+
 bool Tracker::KeyframeEdge(int from, int to, PoseGraphEdge* e) const {
   const Keyframe& b = keyframes_[static_cast<size_t>(from)];
   const Keyframe& a = keyframes_[static_cast<size_t>(to)];
   const Rigid3d b_from_a = graph_.pose(b.node).inverse() * graph_.pose(a.node);
-  IcpOptions icp = o_.icp;
-  icp.levels = {{4, 10, 0.5, 0.8}, {1, 10, 0.2, 1.0}, {1, 8, 0.1, 1.0}};
-  KdTreeTarget target(b.samples);
-  const IcpResult r = RegisterIcp(a.samples, target, b_from_a, icp);
-  if (!r.ok) return false;
-  *e = PoseGraphEdge{};
-  e->from = b.node;
-  e->to = a.node;
-  e->from_from_to = r.target_from_source;
-  e->sigma_translation_mm = o_.loop_sigma_mm;
-  e->sigma_rotation_rad = o_.loop_sigma_rad;
-  if (o_.keyframe_icp_edges) e->information = EdgeInformationFromIcp(r.information, r.target_from_source, o_.edge_information_scale);
+  PoseGraphEdge m;
+  m.from = b.node;
+  m.to = a.node;
+  m.sigma_translation_mm = o_.loop_sigma_mm;
+  m.sigma_rotation_rad = o_.loop_sigma_rad;
+  if (!MeasureKeyframeEdge(b.samples, a.samples, b_from_a, KeyframeIcp(o_.icp), o_.edge_information_scale, &m)) return false;
+  if (!o_.keyframe_icp_edges) m.information.setZero();  // the σs
+  *e = m;
   return true;
 }
 

@@ -90,6 +90,17 @@ struct TrackerOptions {
 // Frame-to-model ICP levels used by default (association gates shrinking 0.8 → 0.1 mm).
 IcpOptions DefaultTrackerIcp();
 
+// ICP levels of keyframe-to-keyframe registration (gates 0.5 → 0.1 mm), acceptance from `base`.
+IcpOptions KeyframeIcp(const IcpOptions& base = DefaultTrackerIcp());
+
+// A pose-graph edge measured by ICP between two keyframes' own samples (their camera frames,
+// normals required): `to_samples` registered onto a k-d tree of `from_samples` starting from
+// `guess` (from_from_to). On success *edge gets from_from_to and ICP's information matrix times
+// information_scale (pose_graph.h EdgeInformationFromIcp); its nodes and `loop` are left to the
+// caller. Returns false (edge untouched) when the ICP is not ok; *result (optional) gets the ICP.
+bool MeasureKeyframeEdge(const SurfacePoints& from_samples, const SurfacePoints& to_samples, const Rigid3d& guess,
+                         const IcpOptions& icp, double information_scale, PoseGraphEdge* edge, IcpResult* result = nullptr);
+
 struct Keyframe {
   int64_t view = 0;                   // index of the view (Track call) it was made from
   int node = 0;                       // pose graph node
