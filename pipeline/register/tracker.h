@@ -49,7 +49,10 @@ enum class Association { kProjective, kKdTree };
 struct TrackerOptions {
   IcpOptions icp;                 // frame-to-model; see DefaultTrackerIcp()
   PointMapOptions map;
-  Association association = Association::kProjective;
+  // k-d tree by default: on the full-arch simulation, projective association into the model
+  // rendered at half resolution gave 4× the trueness error (53 vs 14 µm RMS over the first 150
+  // bursts at 15 Hz) for ~30 % less time.
+  Association association = Association::kKdTree;
   int sample_stride = 2;          // px lattice of the ICP source samples
   int map_stride = 3;             // px lattice of the samples added to the model
   double target_scale = 0.5;      // projective: model image size / camera size
