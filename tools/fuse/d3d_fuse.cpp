@@ -67,6 +67,7 @@ int main(int argc, char** argv) {
   int every = 1;
   int64_t max_bursts = -1, first = 0;
   double voxel_mm = 0.05, truncation_mm = 0.2;
+  float min_mesh_weight = TsdfOptions{}.min_mesh_weight;
   bool json = false, no_eval = false, no_loops = false, quiet = false, no_refuse = false, truth_poses = false;
   app.add_option("--sim", sim_model, "scan with the virtual probe: 'typodont' or a mesh file (PLY/STL/OBJ, mm)");
   app.add_option("--bursts", bursts_dir, "a d3d-sim output folder (calibration.json, bursts/NNNNNN/, scene.ply)");
@@ -79,6 +80,8 @@ int main(int argc, char** argv) {
   app.add_option("--association", association, "ICP data association: kdtree (default: the more accurate) | projective")->capture_default_str();
   app.add_option("--voxel", voxel_mm, "TSDF voxel (mm)")->capture_default_str();
   app.add_option("--truncation", truncation_mm, "TSDF truncation (mm)")->capture_default_str();
+  app.add_option("--min-mesh-weight", min_mesh_weight, "mesh only where the fused weight (sum of point qualities) is at least this")
+      ->capture_default_str();
   app.add_flag("--no-eval", no_eval, "skip the evaluation against the scene");
   app.add_flag("--no-loops", no_loops, "no loop-closure detection / pose graph");
   app.add_flag("--quiet", quiet, "no progress bar");
@@ -147,6 +150,7 @@ int main(int argc, char** argv) {
     TsdfOptions fo;
     fo.voxel_mm = voxel_mm;
     fo.truncation_mm = truncation_mm;
+    fo.min_mesh_weight = min_mesh_weight;
     TsdfVolume tsdf(fo);
     ProgressBar bar("d3d-fuse", static_cast<int64_t>(indices.size()), !quiet);
     double ms_render = 0, ms_recon = 0, ms_register = 0, ms_fuse = 0;
