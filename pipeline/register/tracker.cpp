@@ -200,11 +200,20 @@ bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out) 
   icp.levels.front().max_distance_mm = std::max(icp.levels.front().max_distance_mm, o_.local_search_gate_mm);
   // Same acceptance as tracking: the local search continues the track (the stricter
   // relocalise_* thresholds guard the global, feature-based relocalisation).
+  // The search is local: its result must also be a consistent motion from the last accepted pose
+  // (over the views elapsed); a far return is left to the feature relocalisation.
+  const double views = static_cast<double>(index_ - last_accepted_);
   std::string last_reason;
   for (size_t i = 0; i < starts.size(); ++i) {
     const IcpResult r = RunIcp(samples, starts[i], icp);
     if (!r.ok) {
       last_reason = r.reason;
+      continue;
+    }
+    const double step_mm = TranslationDistanceMm(r.target_from_source, last_pose_);
+    const double step_deg = RotationAngleRad(r.target_from_source, last_pose_) * 180 / M_PI;
+    if (step_mm > o_.max_step_mm * views || step_deg > o_.max_step_deg * views) {
+      last_reason = "inconsistent motion (" + std::to_string(step_mm) + " mm, " + std::to_string(step_deg) + " deg)";
       continue;
     }
     out->icp = r;

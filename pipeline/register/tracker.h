@@ -12,7 +12,8 @@
 //     refused (not fused, not added to the model) and the state becomes kLost.
 //  4. Relocalisation (when ICP fails, and for every view while lost): first a local search, ICP
 //     from the predicted pose, the last accepted pose and the keyframes nearest to it (the probe usually comes
-//     back where it left); then SIFT features of the view
+//     back where it left), whose result must pass the motion check of step 3 over the views elapsed
+//     since the last accepted one; then SIFT features of the view
 //     (features.h) are matched to keyframes, chosen by a local border search: keyframes nearest
 //     the last accepted view first (where the probe left the model), up to relocalise_candidates;
 //     RANSAC → ICP against the model; the first that passes is accepted (state kRelocalised).
