@@ -2,6 +2,7 @@
 
 #include <ceres/ceres.h>
 
+#include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 #include <cmath>
 
@@ -13,9 +14,25 @@ void PoseGraphOptions::Check() const {
 
 namespace {
 
+// Square root S of an edge's information (‖S r‖² = rᵀ Λ r): from the σs, or from Λ by an
+// eigen-decomposition with the small eigenvalues floored.
+Eigen::Matrix<double, 6, 6> SqrtInformation(const PoseGraphEdge& e) {
+  Eigen::Matrix<double, 6, 6> S = Eigen::Matrix<double, 6, 6>::Zero();
+  if (e.information.isZero(0)) {
+    S.diagonal() << Eigen::Vector3d::Constant(1.0 / e.sigma_translation_mm), Eigen::Vector3d::Constant(1.0 / e.sigma_rotation_rad);
+    return S;
+  }
+  const Eigen::Matrix<double, 6, 6> L = 0.5 * (e.information + e.information.transpose());
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> es(L);
+  Eigen::Matrix<double, 6, 1> ev = es.eigenvalues();
+  const double floor = std::max(ev.maxCoeff(), 1e-300) * 1e-9;
+  for (int i = 0; i < 6; ++i) ev(i) = std::sqrt(std::max(ev(i), floor));
+  return ev.asDiagonal() * es.eigenvectors().transpose();
+}
+
 struct RelativePoseCost {
-  RelativePoseCost(const Rigid3d& m, double st, double sr)
-      : t_(m.translation()), q_(Eigen::Quaterniond(m.linear()).normalized()), wt_(1.0 / st), wr_(1.0 / sr) {}
+  RelativePoseCost(const Rigid3d& m, const Eigen::Matrix<double, 6, 6>& sqrt_info)
+      : t_(m.translation()), q_(Eigen::Quaterniond(m.linear()).normalized()), S_(sqrt_info) {}
   template <typename T>
   bool operator()(const T* ti, const T* qi, const T* tj, const T* qj, T* res) const {
     Eigen::Map<const Eigen::Matrix<T, 3, 1>> pa(ti), pb(tj);
@@ -24,17 +41,33 @@ struct RelativePoseCost {
     const Eigen::Quaternion<T> q_ab = qa_inv * qb;
     const Eigen::Matrix<T, 3, 1> p_ab = qa_inv * (pb - pa);
     const Eigen::Quaternion<T> dq = q_.template cast<T>().conjugate() * q_ab;
+    Eigen::Matrix<T, 6, 1> r0;
+    r0.template head<3>() = p_ab - t_.template cast<T>();
+    r0.template tail<3>() = T(2.0) * dq.vec();
     Eigen::Map<Eigen::Matrix<T, 6, 1>> r(res);
-    r.template head<3>() = (p_ab - t_.template cast<T>()) * T(wt_);
-    r.template tail<3>() = T(2.0) * dq.vec() * T(wr_);
+    r = S_.template cast<T>() * r0;
     return true;
   }
   Eigen::Vector3d t_;
   Eigen::Quaterniond q_;
-  double wt_, wr_;
+  Eigen::Matrix<double, 6, 6> S_;
 };
 
 }  // namespace
+
+Eigen::Matrix<double, 6, 6> EdgeInformationFromIcp(const Eigen::Matrix<double, 6, 6>& icp_information, const Rigid3d& m,
+                                                   double scale) {
+  const Eigen::Matrix3d R = m.linear();
+  const Eigen::Vector3d t = m.translation();
+  Eigen::Matrix3d tx;
+  tx << 0, -t.z(), t.y(), t.z(), 0, -t.x(), -t.y(), t.x(), 0;
+  Eigen::Matrix<double, 6, 6> J = Eigen::Matrix<double, 6, 6>::Zero();
+  J.block<3, 3>(0, 3) = R;                       // ω = R_m θ
+  J.block<3, 3>(3, 0) = Eigen::Matrix3d::Identity();
+  J.block<3, 3>(3, 3) = tx * R;                  // δ = r_t + [t_m]× R_m θ
+  const Eigen::Matrix<double, 6, 6> L = scale * J.transpose() * icp_information * J;
+  return 0.5 * (L + L.transpose());
+}
 
 int PoseGraph::AddNode(const Rigid3d& p) {
   poses_.push_back(p);
@@ -45,12 +78,13 @@ void PoseGraph::AddEdge(const PoseGraphEdge& e) {
   D3D_CHECK_MSG(e.from >= 0 && e.to >= 0 && e.from < num_nodes() && e.to < num_nodes() && e.from != e.to,
                 "PoseGraph::AddEdge: bad nodes " << e.from << " → " << e.to);
   D3D_CHECK_MSG(e.sigma_translation_mm > 0 && e.sigma_rotation_rad > 0, "PoseGraph::AddEdge: sigmas must be > 0");
+  D3D_CHECK_MSG(e.information.allFinite() && e.information.trace() >= 0, "PoseGraph::AddEdge: information must be finite, PSD");
   edges_.push_back(e);
 }
 
 double PoseGraph::EdgeResidual(int k) const {
   const PoseGraphEdge& e = edges_[static_cast<size_t>(k)];
-  RelativePoseCost c(e.from_from_to, e.sigma_translation_mm, e.sigma_rotation_rad);
+  RelativePoseCost c(e.from_from_to, SqrtInformation(e));
   const Rigid3d& a = poses_[static_cast<size_t>(e.from)];
   const Rigid3d& b = poses_[static_cast<size_t>(e.to)];
   const Eigen::Quaterniond qa(a.linear()), qb(b.linear());
@@ -73,7 +107,7 @@ Status PoseGraph::Optimize(const PoseGraphOptions& o, PoseGraphSummary* s) {
   ceres::Manifold* qm = new ceres::EigenQuaternionManifold;  // owned by the problem
   for (const PoseGraphEdge& e : edges_) {
     auto* cost = new ceres::AutoDiffCostFunction<RelativePoseCost, 6, 3, 4, 3, 4>(
-        new RelativePoseCost(e.from_from_to, e.sigma_translation_mm, e.sigma_rotation_rad));
+        new RelativePoseCost(e.from_from_to, SqrtInformation(e)));
     ceres::LossFunction* loss = e.loop ? new ceres::HuberLoss(o.loop_huber_sigmas) : nullptr;
     const auto a = static_cast<size_t>(e.from), b = static_cast<size_t>(e.to);
     problem.AddResidualBlock(cost, loss, t[a].data(), q[a].coeffs().data(), t[b].data(), q[b].coeffs().data());

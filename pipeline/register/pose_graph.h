@@ -3,6 +3,7 @@
 // Kümmerle et al. 2011 g2o / Grisetti et al. 2010 "A tutorial on graph-based SLAM"):
 //   for an edge i→j with measurement T_ij = node_i_from_node_j,
 //   r = [ R_iᵀ (t_j − t_i) − t_ij ;  2 · vec(q_ijᵀ · q_iᵀ q_j) ] scaled by (1/σ_t, 1/σ_r),
+// (or whitened by the edge's full information matrix, e.g. from the ICP that measured it),
 // with each node's pose world_from_node as (t, unit quaternion on Ceres' EigenQuaternionManifold),
 // the first node held fixed, and a Huber loss on loop-closure edges so that one false closure
 // cannot bend the whole arch. Units: mm, rad.
@@ -21,8 +22,22 @@ struct PoseGraphEdge {
   Rigid3d from_from_to = Rigid3d::Identity();  // measured node_from ← node_to
   double sigma_translation_mm = 0.01;
   double sigma_rotation_rad = 2e-4;
+  // Full information of the residual [r_t (mm, `from` frame); r_θ (rad, `to` frame)] (the
+  // residual of the header comment before its σ scaling). All zero (the default): the σs above
+  // are used. Symmetric positive semi-definite; directions with (almost) no information are
+  // floored at 1e-9 of the largest eigenvalue. See EdgeInformationFromIcp.
+  Eigen::Matrix<double, 6, 6> information = Eigen::Matrix<double, 6, 6>::Zero();
   bool loop = false;                           // loop closure (robust loss) or odometry
 };
+
+// Converts an ICP information matrix (icp.h IcpResult::information: left perturbation [ω (rad),
+// t (mm)] of target_from_source, about the target origin) of a measured from_from_to into the
+// edge residual's information, times `scale` (ICP's Gauss–Newton information treats every sample
+// as independent; scale < 1 accounts for correlated errors). With T = Exp([ω; δ]) · T_m and
+// T = T_m · Exp(θ) (rotation) the residual is r_θ = θ, r_t = ω × t_m + δ, so
+// [ω; δ] = J [r_t; r_θ], J = [[0, R_m], [I, [t_m]× R_m]] and Λ_r = scale · Jᵀ Λ_icp J.
+Eigen::Matrix<double, 6, 6> EdgeInformationFromIcp(const Eigen::Matrix<double, 6, 6>& icp_information,
+                                                   const Rigid3d& from_from_to, double scale);
 
 struct PoseGraphOptions {
   int max_iterations = 100;

@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include <random>
+
 namespace d3d {
 namespace {
 
@@ -81,6 +83,69 @@ TEST(PoseGraph, FlagsADisagreeingLoopEdge) {
   EXPECT_EQ(s.disagreeing_edges.back(), 9);
   // The robust loss keeps the trajectory close to the odometry.
   EXPECT_LT(TranslationDistanceMm(g.pose(9), CirclePose(9, 40, 25)), 0.5);
+}
+
+
+// The edge information converted from ICP's convention gives the same quadratic form as ICP's
+// information on the left perturbation: ‖S r‖² ≈ ξᵀ Λ_icp ξ for T = Exp(ξ) · T_m (small ξ).
+TEST(PoseGraph, EdgeInformationFromIcpMatchesTheLeftPerturbation) {
+  std::mt19937 rng(7);
+  std::normal_distribution<double> N(0, 1);
+  Rigid3d m = Rigid3d::Identity();
+  m.linear() = Eigen::AngleAxisd(0.4, Eigen::Vector3d(0.3, -0.5, 0.8).normalized()).toRotationMatrix();
+  m.translation() = Eigen::Vector3d(3.0, -1.5, 0.7);
+  Eigen::Matrix<double, 6, 6> A;
+  for (int i = 0; i < 36; ++i) A(i / 6, i % 6) = N(rng);
+  const Eigen::Matrix<double, 6, 6> info_icp = A * A.transpose() + 0.1 * Eigen::Matrix<double, 6, 6>::Identity();
+  PoseGraphEdge e;
+  e.from = 0;
+  e.to = 1;
+  e.from_from_to = m;
+  e.information = EdgeInformationFromIcp(info_icp, m, 1.0);
+  for (int trial = 0; trial < 5; ++trial) {
+    Eigen::Matrix<double, 6, 1> xi;
+    for (int i = 0; i < 6; ++i) xi(i) = 1e-4 * N(rng);
+    Rigid3d d = Rigid3d::Identity();
+    d.linear() = Eigen::AngleAxisd(xi.head<3>().norm(), xi.head<3>().normalized()).toRotationMatrix();
+    d.translation() = xi.tail<3>();
+    PoseGraph g;
+    g.AddNode(Rigid3d::Identity());
+    g.AddNode(d * m);
+    g.AddEdge(e);
+    const double want = xi.dot(info_icp * xi);
+    const double got = g.EdgeResidual(0) * g.EdgeResidual(0);
+    EXPECT_NEAR(got, want, 1e-3 * want + 1e-12) << "trial " << trial;
+  }
+}
+
+// An edge that knows nothing about one direction (a slide along a groove: information only in
+// the other five) gives way to a path of well-measured edges in that direction.
+TEST(PoseGraph, AWeakDirectionGivesWayToWellMeasuredEdges) {
+  std::vector<Rigid3d> truth;
+  for (int i = 0; i < 4; ++i) truth.push_back(CirclePose(i, 40, 25));
+  PoseGraph g;
+  for (const auto& t : truth) g.AddNode(t);
+  auto edge = [&](int a, int b) {
+    PoseGraphEdge e;
+    e.from = a;
+    e.to = b;
+    e.from_from_to = truth[static_cast<size_t>(a)].inverse() * truth[static_cast<size_t>(b)];
+    e.information = Eigen::Matrix<double, 6, 6>::Identity() * 1e4;
+    return e;
+  };
+  // 1 → 2 measured 0.3 mm off along its x, where it has no information; 0 → 2 and 1 → 3 → 2 exact.
+  PoseGraphEdge weak = edge(1, 2);
+  weak.from_from_to.translation() += Eigen::Vector3d(0.3, 0, 0);
+  weak.information(0, 0) = 0;
+  g.AddEdge(edge(0, 1));
+  g.AddEdge(weak);
+  g.AddEdge(edge(0, 2));
+  g.AddEdge(edge(1, 3));
+  g.AddEdge(edge(2, 3));
+  g.set_pose(2, g.pose(1) * weak.from_from_to);  // start from the weak edge's belief
+  PoseGraphSummary s;
+  ASSERT_TRUE(g.Optimize({}, &s).ok());
+  EXPECT_LT(TranslationDistanceMm(g.pose(2), truth[2]), 0.005);
 }
 
 }  // namespace

@@ -34,7 +34,9 @@ void TrackerOptions::Check() const {
   D3D_CHECK_MSG(target_scale > 0 && target_scale <= 2 && target_splat >= 0 && target_window >= 0, "TrackerOptions: target");
   D3D_CHECK_MSG(max_step_mm > 0 && max_step_deg > 0, "TrackerOptions: max_step");
   D3D_CHECK_MSG(keyframe_overlap > 0 && keyframe_overlap <= 1, "TrackerOptions: keyframe_overlap in (0, 1]");
-  D3D_CHECK_MSG(relocalise_candidates >= 1 && loop_min_separation >= 1 && max_loop_candidates >= 0, "TrackerOptions: counts");
+  D3D_CHECK_MSG(relocalise_candidates >= 1 && loop_min_separation >= 1 && max_loop_candidates >= 0 && near_loop_candidates >= 0,
+                "TrackerOptions: counts");
+  D3D_CHECK_MSG(edge_information_scale > 0, "TrackerOptions: edge_information_scale > 0");
   D3D_CHECK_MSG(odometry_sigma_mm > 0 && odometry_sigma_rad > 0 && loop_sigma_mm > 0 && loop_sigma_rad > 0, "TrackerOptions: sigmas");
 }
 
@@ -198,11 +200,20 @@ bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out) 
   icp.levels.front().max_distance_mm = std::max(icp.levels.front().max_distance_mm, o_.local_search_gate_mm);
   // Same acceptance as tracking: the local search continues the track (the stricter
   // relocalise_* thresholds guard the global, feature-based relocalisation).
+  // The search is local: its result must also be a consistent motion from the last accepted pose
+  // (over the views elapsed); a far return is left to the feature relocalisation.
+  const double views = static_cast<double>(index_ - last_accepted_);
   std::string last_reason;
   for (size_t i = 0; i < starts.size(); ++i) {
     const IcpResult r = RunIcp(samples, starts[i], icp);
     if (!r.ok) {
       last_reason = r.reason;
+      continue;
+    }
+    const double step_mm = TranslationDistanceMm(r.target_from_source, last_pose_);
+    const double step_deg = RotationAngleRad(r.target_from_source, last_pose_) * 180 / M_PI;
+    if (step_mm > o_.max_step_mm * views || step_deg > o_.max_step_deg * views) {
+      last_reason = "inconsistent motion (" + std::to_string(step_mm) + " mm, " + std::to_string(step_deg) + " deg)";
       continue;
     }
     out->icp = r;
@@ -266,50 +277,85 @@ void Tracker::MaybeKeyframe(const SurfacePoints& /*samples*/, const cv::Mat& poi
   kf.centre_in_cam = kfs.Centroid();
   kf.samples = std::move(kfs);
   if (o_.relocalise) kf.features = ExtractViewFeatures(points, texture, o_.features);
-  if (!keyframes_.empty()) {
+  keyframes_.push_back(std::move(kf));
+  const int k = static_cast<int>(keyframes_.size()) - 1;
+  if (k > 0) {
     PoseGraphEdge e;
-    e.from = keyframes_.back().node;
-    e.to = kf.node;
-    e.from_from_to = graph_.pose(e.from).inverse() * pose;
-    e.sigma_translation_mm = o_.odometry_sigma_mm;
-    e.sigma_rotation_rad = o_.odometry_sigma_rad;
+    if (!o_.keyframe_icp_edges || !KeyframeEdge(k - 1, k, &e)) {
+      e = PoseGraphEdge{};
+      e.from = keyframes_[static_cast<size_t>(k - 1)].node;
+      e.to = keyframes_[static_cast<size_t>(k)].node;
+      e.from_from_to = graph_.pose(e.from).inverse() * pose;
+      e.sigma_translation_mm = o_.odometry_sigma_mm;
+      e.sigma_rotation_rad = o_.odometry_sigma_rad;
+    }
+    e.loop = false;
     graph_.AddEdge(e);
   }
-  keyframes_.push_back(std::move(kf));
   out->new_keyframe = true;
   if (o_.detect_loops) out->loops_added = DetectLoops(static_cast<int>(keyframes_.size()) - 1);
+}
+
+IcpOptions KeyframeIcp(const IcpOptions& base) {
+  IcpOptions icp = base;
+  icp.levels = {{4, 10, 0.5, 0.8}, {1, 10, 0.2, 1.0}, {1, 8, 0.1, 1.0}};
+  return icp;
+}
+
+bool MeasureKeyframeEdge(const SurfacePoints& from_samples, const SurfacePoints& to_samples, const Rigid3d& guess,
+                         const IcpOptions& icp, double information_scale, PoseGraphEdge* e, IcpResult* result) {
+  D3D_CHECK_MSG(information_scale > 0, "MeasureKeyframeEdge: information_scale must be > 0");
+  const KdTreeTarget target(from_samples);
+  const IcpResult r = RegisterIcp(to_samples, target, guess, icp);
+  if (result) *result = r;
+  if (!r.ok) return false;
+  e->from_from_to = r.target_from_source;
+  e->information = EdgeInformationFromIcp(r.information, r.target_from_source, information_scale);
+  return true;
+}
+
+bool Tracker::KeyframeEdge(int from, int to, PoseGraphEdge* e) const {
+  const Keyframe& b = keyframes_[static_cast<size_t>(from)];
+  const Keyframe& a = keyframes_[static_cast<size_t>(to)];
+  const Rigid3d b_from_a = graph_.pose(b.node).inverse() * graph_.pose(a.node);
+  PoseGraphEdge m;
+  m.from = b.node;
+  m.to = a.node;
+  m.sigma_translation_mm = o_.loop_sigma_mm;
+  m.sigma_rotation_rad = o_.loop_sigma_rad;
+  if (!MeasureKeyframeEdge(b.samples, a.samples, b_from_a, KeyframeIcp(o_.icp), o_.edge_information_scale, &m)) return false;
+  if (!o_.keyframe_icp_edges) m.information.setZero();  // the σs
+  *e = m;
+  return true;
 }
 
 int Tracker::DetectLoops(int k) {
   const Keyframe& a = keyframes_[static_cast<size_t>(k)];
   const Rigid3d wa = graph_.pose(a.node);
   const Eigen::Vector3d ca = wa * a.centre_in_cam;
-  std::vector<std::pair<double, int>> cand;
-  for (int j = 0; j + o_.loop_min_separation <= k; ++j) {
+  std::vector<std::pair<double, int>> far, near;
+  for (int j = 0; j + 2 <= k; ++j) {
     const Keyframe& b = keyframes_[static_cast<size_t>(j)];
     const double d = (graph_.pose(b.node) * b.centre_in_cam - ca).norm();
-    if (d < o_.loop_radius_mm) cand.emplace_back(d, j);
+    if (d >= o_.loop_radius_mm) continue;
+    (j + o_.loop_min_separation <= k ? far : near).emplace_back(d, j);
   }
-  std::sort(cand.begin(), cand.end());
+  std::sort(far.begin(), far.end());
+  std::sort(near.begin(), near.end());
   int added = 0;
-  IcpOptions icp = o_.icp;
-  icp.levels = {{4, 10, 0.5, 0.8}, {1, 10, 0.2, 1.0}, {1, 8, 0.1, 1.0}};
-  for (size_t i = 0; i < cand.size() && added < o_.max_loop_candidates; ++i) {
-    const Keyframe& b = keyframes_[static_cast<size_t>(cand[i].second)];
-    const Rigid3d b_from_a = graph_.pose(b.node).inverse() * wa;
-    if (OverlapIndex(a.samples, b.samples, b_from_a, 0.1) < o_.loop_min_overlap) continue;
-    KdTreeTarget target(b.samples);
-    const IcpResult r = RegisterIcp(a.samples, target, b_from_a, icp);
-    if (!r.ok) continue;
-    PoseGraphEdge e;
-    e.from = b.node;
-    e.to = a.node;
-    e.from_from_to = r.target_from_source;
-    e.sigma_translation_mm = o_.loop_sigma_mm;
-    e.sigma_rotation_rad = o_.loop_sigma_rad;
-    e.loop = true;
-    graph_.AddEdge(e);
-    ++added;
+  for (const auto& [cand, budget] : {std::pair{&far, o_.max_loop_candidates}, std::pair{&near, o_.near_loop_candidates}}) {
+    int here = 0;
+    for (size_t i = 0; i < cand->size() && here < budget; ++i) {
+      const Keyframe& b = keyframes_[static_cast<size_t>((*cand)[i].second)];
+      const Rigid3d b_from_a = graph_.pose(b.node).inverse() * wa;
+      if (OverlapIndex(a.samples, b.samples, b_from_a, 0.1) < o_.loop_min_overlap) continue;
+      PoseGraphEdge e;
+      if (!KeyframeEdge((*cand)[i].second, k, &e)) continue;
+      e.loop = true;
+      graph_.AddEdge(e);
+      ++here;
+    }
+    added += here;
   }
   return added;
 }

@@ -60,13 +60,15 @@ Status WriteTum(const std::string& path, const std::vector<int64_t>& t_ns, const
 int main(int argc, char** argv) {
   CLI::App app{"d3d-fuse: registers and fuses a scan into one mesh (mm) and evaluates it when the truth is known.\n"
                "Input: the virtual probe (--sim MODEL) or a folder of bursts written by d3d-sim (--bursts DIR).\n"
-               "Output: DIR/scan.ply, DIR/scan.stl, DIR/poses.txt (TUM, mm), DIR/report.json, DIR/heatmap.png."};
-  std::string sim_model, bursts_dir, trajectory = "full-arch", out_dir, association = "projective";
+               "Output: DIR/scan.ply, DIR/scan.stl, DIR/poses.txt (TUM, mm), DIR/report.json, DIR/heatmap.png,\n"
+               "DIR/truth_poses.txt (the true poses of the fused views, scene frame, when the source knows them)."};
+  std::string sim_model, bursts_dir, trajectory = "full-arch", out_dir, association = "kdtree", trace_path;
   uint32_t seed = 1;
   int every = 1;
   int64_t max_bursts = -1, first = 0;
   double voxel_mm = 0.05, truncation_mm = 0.2;
-  bool json = false, no_eval = false, no_loops = false, quiet = false, no_refuse = false;
+  float min_mesh_weight = TsdfOptions{}.min_mesh_weight;
+  bool json = false, no_eval = false, no_loops = false, quiet = false, no_refuse = false, truth_poses = false;
   app.add_option("--sim", sim_model, "scan with the virtual probe: 'typodont' or a mesh file (PLY/STL/OBJ, mm)");
   app.add_option("--bursts", bursts_dir, "a d3d-sim output folder (calibration.json, bursts/NNNNNN/, scene.ply)");
   app.add_option("--trajectory", trajectory, "--sim: full-arch | quadrant | tooth | a TUM file")->capture_default_str();
@@ -75,15 +77,23 @@ int main(int argc, char** argv) {
   app.add_option("--every", every, "use every N-th burst (a lower burst rate, for quick runs)")->capture_default_str();
   app.add_option("--first", first, "first burst index")->capture_default_str();
   app.add_option("--max-bursts", max_bursts, "stop after this many bursts used (default: all)");
-  app.add_option("--association", association, "ICP data association: projective | kdtree")->capture_default_str();
+  app.add_option("--association", association, "ICP data association: kdtree (default: the more accurate) | projective")->capture_default_str();
   app.add_option("--voxel", voxel_mm, "TSDF voxel (mm)")->capture_default_str();
   app.add_option("--truncation", truncation_mm, "TSDF truncation (mm)")->capture_default_str();
+  app.add_option("--min-mesh-weight", min_mesh_weight, "mesh only where the fused weight (sum of point qualities) is at least this")
+      ->capture_default_str();
   app.add_flag("--no-eval", no_eval, "skip the evaluation against the scene");
   app.add_flag("--no-loops", no_loops, "no loop-closure detection / pose graph");
   app.add_flag("--quiet", quiet, "no progress bar");
   app.add_flag("--no-refuse", no_refuse,
                "keep the model fused at the tracked poses (default: when the pose graph moves a view by more than\n"
                "10 um, the accepted bursts are reconstructed again and fused at the optimised poses)");
+  app.add_flag("--truth-poses", truth_poses,
+               "debug: no registration; every view is fused at its true pose (from the virtual probe or the bursts'\n"
+               "truth), which measures the fusion-only error floor");
+  app.add_option("--trace", trace_path,
+                 "debug: write one line per burst (burst, accepted, state, icp rmse um, overlap, eigen ratio,\n"
+                 "correspondences, new keyframe, loops, true step error um / deg) to this file");
   app.add_flag("--json", json, "print report.json as one line on stdout");
   CLI11_PARSE(app, argc, argv);
   if (sim_model.empty() == bursts_dir.empty()) {
@@ -140,16 +150,24 @@ int main(int argc, char** argv) {
     TsdfOptions fo;
     fo.voxel_mm = voxel_mm;
     fo.truncation_mm = truncation_mm;
+    fo.min_mesh_weight = min_mesh_weight;
     TsdfVolume tsdf(fo);
     ProgressBar bar("d3d-fuse", static_cast<int64_t>(indices.size()), !quiet);
     double ms_render = 0, ms_recon = 0, ms_register = 0, ms_fuse = 0;
     int64_t fused = 0, rejected = 0, lost_events = 0, relocalised = 0;
     std::vector<int64_t> t_ns;
-    std::vector<Rigid3d> truth_poses;
+    std::vector<Rigid3d> true_poses;
     std::vector<bool> accepted;
     nlohmann::json events = nlohmann::json::array();
     TrackingState prev_state = TrackingState::kInitialising;
     ReconstructedView view;
+    std::ofstream trace;
+    if (!trace_path.empty()) {
+      trace.open(trace_path);
+      trace << "# burst accepted state rmse_um overlap eigen_ratio correspondences keyframe loops err_mm err_deg\n";
+    }
+    Rigid3d first_truth_from_est = Rigid3d::Identity();
+    bool have_first = false;
     for (size_t k = 0; k < indices.size(); ++k) {
       const auto t0 = std::chrono::steady_clock::now();
       Burst b;
@@ -163,7 +181,19 @@ int main(int argc, char** argv) {
       for (int f = 0; f < calib.pattern.steps && f < static_cast<int>(b.frames.size()); ++f) frames.push_back(b.frames[static_cast<size_t>(f)].image);
       if (const Status s = recon.Reconstruct(frames, &view); !s.ok()) return Fail(s);
       const auto t2 = std::chrono::steady_clock::now();
-      const TrackResult r = tracker.Track(view.points_in_cam, view.normals, view.quality, view.texture);
+      // True pose at the burst's reference time (middle of the burst), when the source knows it.
+      Rigid3d truth_pose = Rigid3d::Identity();
+      if (session) truth_pose = session->trajectory().WorldFromProbe(b.reference_ns);
+      else if (!b.frames.empty())
+        truth_pose = InterpolateRigid(b.frames.front().truth.world_from_probe, b.frames.back().truth.world_from_probe, 0.5);
+      TrackResult r;
+      if (truth_poses) {
+        r.accepted = true;
+        r.state = TrackingState::kTracking;
+        r.world_from_cam = truth_pose;
+      } else {
+        r = tracker.Track(view.points_in_cam, view.normals, view.quality, view.texture);
+      }
       const auto t3 = std::chrono::steady_clock::now();
       if (r.accepted) {
         if (const Status s = tsdf.Integrate(view.points_in_cam, view.normals, view.quality, calib.camera, r.world_from_cam); !s.ok())
@@ -182,11 +212,25 @@ int main(int argc, char** argv) {
       }
       prev_state = r.state;
       t_ns.push_back(b.reference_ns);
-      // True pose at the burst's reference time (middle of the burst), when the source knows it.
-      if (session) truth_poses.push_back(session->trajectory().WorldFromProbe(b.reference_ns));
-      else if (!b.frames.empty())
-        truth_poses.push_back(InterpolateRigid(b.frames.front().truth.world_from_probe, b.frames.back().truth.world_from_probe, 0.5));
-      else truth_poses.push_back(Rigid3d::Identity());
+      true_poses.push_back(truth_pose);
+      if (trace.is_open()) {
+        // Pose error against the truth, both frames tied at the first accepted view.
+        double err_mm = NAN, err_deg = NAN;
+        if (r.accepted && !have_first) {
+          first_truth_from_est = truth_pose * r.world_from_cam.inverse();
+          have_first = true;
+        }
+        if (r.accepted) {
+          const Rigid3d e = first_truth_from_est * r.world_from_cam;
+          err_mm = TranslationDistanceMm(e, truth_pose);
+          err_deg = RotationAngleRad(e, truth_pose) * 180 / M_PI;
+        }
+        char line[512];
+        std::snprintf(line, sizeof line, "%lld %d %s %.2f %.3f %.5f %d %d %d %.4f %.4f\n", static_cast<long long>(indices[k]),
+                      r.accepted ? 1 : 0, TrackingStateName(r.state), r.icp.rmse_mm * 1000, r.icp.overlap, r.icp.eigen_ratio,
+                      r.icp.correspondences, r.new_keyframe ? 1 : 0, r.loops_added, err_mm, err_deg);
+        trace << line;
+      }
       accepted.push_back(r.accepted);
       using ms = std::chrono::duration<double, std::milli>;
       ms_render += ms(t1 - t0).count();
@@ -201,8 +245,11 @@ int main(int argc, char** argv) {
     PoseGraphSummary pg;
     double max_correction_mm = 0;
     std::vector<Rigid3d> tracked(indices.size(), Rigid3d::Identity());
-    for (size_t k = 0; k < indices.size(); ++k) tracker.ViewPose(static_cast<int64_t>(k), &tracked[k]);
-    if (!no_loops && tracker.graph().num_nodes() > 1) {
+    for (size_t k = 0; k < indices.size(); ++k) {
+      if (truth_poses) tracked[k] = true_poses[k];
+      else tracker.ViewPose(static_cast<int64_t>(k), &tracked[k]);
+    }
+    if (!truth_poses && !no_loops && tracker.graph().num_nodes() > 1) {
       if (const Status s = tracker.Optimize({}, &pg); !s.ok()) return Fail(s);
       for (size_t k = 0; k < indices.size(); ++k) {
         Rigid3d p;
@@ -247,15 +294,18 @@ int main(int argc, char** argv) {
       if (!accepted[k]) continue;
       acc_t.push_back(t_ns[k]);
       acc_est.push_back(tracked[k]);
-      acc_truth.push_back(truth_poses[k]);
+      acc_truth.push_back(true_poses[k]);
     }
     if (const Status s = WriteTum((fs::path(out_dir) / "poses.txt").string(), acc_t, acc_est); !s.ok()) return Fail(s);
+    if (acc_truth.size() == acc_est.size() && !acc_truth.empty() && acc_truth.front().matrix() != Rigid3d::Identity().matrix())
+      if (const Status s = WriteTum((fs::path(out_dir) / "truth_poses.txt").string(), acc_t, acc_truth); !s.ok()) return Fail(s);
     const double n = static_cast<double>(indices.size());
     nlohmann::json j;
     j["input"] = session ? sim_model : bursts_dir;
     j["trajectory"] = trajectory;
     j["seed"] = seed;
     j["every"] = every;
+    j["truth_poses"] = truth_poses;
     j["bursts"] = indices.size();
     j["fused"] = fused;
     j["rejected"] = rejected;
