@@ -153,44 +153,54 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   j["mesh_vertices"] = out->mesh.vertices.size();
   j["mesh_faces"] = out->mesh.faces.size();
   j["events"] = registrar->events();
-  if (truth.reference != nullptr && !truth.reference->faces.empty() && !out->poses.empty()) {
-    const MeshClosestPoint ref(*truth.reference);
-    Rigid3d world_from_model = Rigid3d::Identity();
-    AteReport ate_traj;
-    if (have_truth_poses) ate_traj = AbsoluteTrajectoryError(out->poses, acc_truth, &world_from_model);
-    else world_from_model = GlobalAlign(out->mesh, ref);
-    const TruenessReport t = EvaluateTrueness(out->mesh, ref, world_from_model, options.eval);
-    j["best_fit_start"] = have_truth_poses ? "trajectory" : "global_align";
-    if (have_truth_poses) {
-      // ATE in the frame of the surface best fit (the trajectory-only alignment is ill-posed for
-      // short, nearly straight paths); the trajectory-aligned figure is kept too.
-      double s2 = 0, sr = 0, smax = 0;
-      for (size_t k = 0; k < out->poses.size(); ++k) {
-        const Rigid3d e = t.reference_from_scan * out->poses[k];
-        const double d = TranslationDistanceMm(e, acc_truth[k]);
-        s2 += d * d;
-        smax = std::max(smax, d);
-        sr += RotationAngleRad(e, acc_truth[k]) * 180 / M_PI;
-      }
-      j["ate_mm"] = std::sqrt(s2 / static_cast<double>(out->poses.size()));
-      j["ate_deg"] = sr / static_cast<double>(out->poses.size());
-      j["ate_max_mm"] = smax;
-      j["ate_trajectory_aligned_mm"] = ate_traj.rmse_mm;
-      j["ate_trajectory_aligned_deg"] = ate_traj.mean_deg;
-    }
-    j["trueness_rms_um"] = t.rms_um;
-    j["trueness_mean_um"] = t.mean_um;
-    j["trueness_mean_abs_um"] = t.mean_abs_um;
-    j["trueness_p95_um"] = t.p95_um;
-    j["trueness_points"] = t.points;
-    j["trueness_outlier_pct"] = t.outlier_pct;
-    j["coverage_pct"] = t.coverage_pct;
-    j["best_fit_rmse_um"] = t.alignment_rmse_mm * 1000;
-    TriangleMesh in_ref = out->mesh;
-    for (auto& v : in_ref.vertices) v = t.reference_from_scan * v;
-    out->heatmap = DeviationHeatMap(in_ref, t.signed_um, 50);
-  }
+  if (truth.reference != nullptr && !truth.reference->faces.empty() && !out->poses.empty())
+    EvaluateScanAgainstScene(out->mesh, *truth.reference, out->poses, have_truth_poses ? acc_truth : std::vector<Rigid3d>{},
+                             options.eval, &j, &out->heatmap);
   return Status::Ok();
+}
+
+void EvaluateScanAgainstScene(const TriangleMesh& mesh, const TriangleMesh& scene, const std::vector<Rigid3d>& poses,
+                              const std::vector<Rigid3d>& true_poses, const EvaluateOptions& options, nlohmann::json* report,
+                              cv::Mat* heatmap) {
+  nlohmann::json& j = *report;
+  const bool have_truth_poses = !true_poses.empty() && true_poses.size() == poses.size();
+  const MeshClosestPoint ref(scene);
+  Rigid3d world_from_model = Rigid3d::Identity();
+  AteReport ate_traj;
+  if (have_truth_poses) ate_traj = AbsoluteTrajectoryError(poses, true_poses, &world_from_model);
+  else world_from_model = GlobalAlign(mesh, ref);
+  const TruenessReport t = EvaluateTrueness(mesh, ref, world_from_model, options);
+  j["best_fit_start"] = have_truth_poses ? "trajectory" : "global_align";
+  if (have_truth_poses) {
+    // ATE in the frame of the surface best fit (the trajectory-only alignment is ill-posed for
+    // short, nearly straight paths); the trajectory-aligned figure is kept too.
+    double s2 = 0, sr = 0, smax = 0;
+    for (size_t k = 0; k < poses.size(); ++k) {
+      const Rigid3d e = t.reference_from_scan * poses[k];
+      const double d = TranslationDistanceMm(e, true_poses[k]);
+      s2 += d * d;
+      smax = std::max(smax, d);
+      sr += RotationAngleRad(e, true_poses[k]) * 180 / M_PI;
+    }
+    j["ate_mm"] = std::sqrt(s2 / static_cast<double>(poses.size()));
+    j["ate_deg"] = sr / static_cast<double>(poses.size());
+    j["ate_max_mm"] = smax;
+    j["ate_trajectory_aligned_mm"] = ate_traj.rmse_mm;
+    j["ate_trajectory_aligned_deg"] = ate_traj.mean_deg;
+  }
+  j["trueness_rms_um"] = t.rms_um;
+  j["trueness_mean_um"] = t.mean_um;
+  j["trueness_mean_abs_um"] = t.mean_abs_um;
+  j["trueness_p95_um"] = t.p95_um;
+  j["trueness_points"] = t.points;
+  j["trueness_outlier_pct"] = t.outlier_pct;
+  j["coverage_pct"] = t.coverage_pct;
+  j["best_fit_rmse_um"] = t.alignment_rmse_mm * 1000;
+  if (heatmap != nullptr) {
+    TriangleMesh in_ref = mesh;
+    for (auto& v : in_ref.vertices) v = t.reference_from_scan * v;
+    *heatmap = DeviationHeatMap(in_ref, t.signed_um, 50);
+  }
 }
 
 Status WriteTumPoses(const std::string& path, const std::vector<int64_t>& t_ns, const std::vector<Rigid3d>& poses) {

@@ -150,6 +150,16 @@ struct ScanResult {
 [[nodiscard]] Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegistrar* registrar, ScanFuser* fuser,
                                 const ScanViewProvider& provider, const ScanTruth& truth, ScanResult* out);
 
+// The evaluation part of FinishScan, for tools that run their own chain (d3d-fuse): best fit of
+// `mesh` (model frame, mm) to `scene` (world frame) — started from the trajectory alignment when
+// `true_poses` (world_from_cam, one per entry of `poses`, model_from_cam) are given, else from
+// GlobalAlign — then trueness, coverage and, with true poses, ATE, added to `report` under the
+// keys listed at FinishScan; the deviation heat map (50 µm full scale) into `heatmap` if not null.
+// Source: pipeline/eval (EvaluateTrueness, AbsoluteTrajectoryError).
+void EvaluateScanAgainstScene(const TriangleMesh& mesh, const TriangleMesh& scene, const std::vector<Rigid3d>& poses,
+                              const std::vector<Rigid3d>& true_poses, const EvaluateOptions& options, nlohmann::json* report,
+                              cv::Mat* heatmap);
+
 // Writes scan.ply, scan.stl, poses.txt, report.json (and heatmap.png) into `dir` (created).
 [[nodiscard]] Status WriteScanOutputs(const std::string& dir, const ScanResult& result);
 [[nodiscard]] Status WriteTumPoses(const std::string& path, const std::vector<int64_t>& t_ns, const std::vector<Rigid3d>& poses);

@@ -1,5 +1,7 @@
-// The scan chain's pieces on a short virtual-probe scan: the report carries issue 5's fields, the
-// evaluation with true poses and with the global best fit agree, and the outputs are written.
+// The scan chain's pieces on a short virtual-probe scan (reconstruction → frame-to-model
+// registration → TSDF fusion → mesh → evaluation against the scene): accurate, the report carries
+// issue 5's fields, the evaluation runs with true poses and with the global best fit, and the
+// outputs are written.
 #include "pipeline/scan/scan_chain.h"
 
 #include <gtest/gtest.h>
@@ -61,6 +63,9 @@ TEST(ScanChain, ShortScanThroughThePiecesGivesAReport) {
     EXPECT_TRUE(j.contains(k)) << k;
   EXPECT_EQ(j["bursts"], 15);
   EXPECT_LT(j["trueness_rms_um"].get<double>(), 20.0);
+  EXPECT_LT(j["trueness_p95_um"].get<double>(), 45.0);
+  EXPECT_LT(j["trueness_outlier_pct"].get<double>(), 2.0);
+  EXPECT_GT(j["mesh_faces"].get<double>(), 10000);
   EXPECT_LT(j["ate_mm"].get<double>(), 0.1);
   EXPECT_GT(j["ms_per_burst"].get<double>(), 0.0);
   EXPECT_EQ(with_poses.poses.size(), static_cast<size_t>(reg.accepted()));

@@ -22,6 +22,7 @@
 #include "pipeline/fuse/tsdf.h"
 #include "pipeline/recon/reconstruct.h"
 #include "pipeline/register/tracker.h"
+#include "pipeline/scan/scan_chain.h"
 
 namespace fs = std::filesystem;
 using namespace d3d;
@@ -37,22 +38,6 @@ double PeakRssMiB() {
 int Fail(const Status& s) {
   std::fprintf(stderr, "d3d-fuse: %s\n", s.ToString().c_str());
   return 1;
-}
-
-Status WriteTum(const std::string& path, const std::vector<int64_t>& t_ns, const std::vector<Rigid3d>& poses) {
-  std::ofstream f(path);
-  if (!f) return IoError("cannot write '" + path + "'");
-  f << "# timestamp_s tx ty tz qx qy qz qw (translation in mm; model_from_probe, model = first view's camera)\n";
-  char line[256];
-  for (size_t i = 0; i < poses.size(); ++i) {
-    const Eigen::Quaterniond q(poses[i].linear());
-    const Eigen::Vector3d t = poses[i].translation();
-    std::snprintf(line, sizeof line, "%lld.%09lld %.6f %.6f %.6f %.9f %.9f %.9f %.9f\n",
-                  static_cast<long long>(t_ns[i] / 1000000000), static_cast<long long>(t_ns[i] % 1000000000), t.x(), t.y(),
-                  t.z(), q.x(), q.y(), q.z(), q.w());
-    f << line;
-  }
-  return f ? Status::Ok() : IoError("write failed: '" + path + "'");
 }
 
 }  // namespace
@@ -296,9 +281,9 @@ int main(int argc, char** argv) {
       acc_est.push_back(tracked[k]);
       acc_truth.push_back(true_poses[k]);
     }
-    if (const Status s = WriteTum((fs::path(out_dir) / "poses.txt").string(), acc_t, acc_est); !s.ok()) return Fail(s);
+    if (const Status s = WriteTumPoses((fs::path(out_dir) / "poses.txt").string(), acc_t, acc_est); !s.ok()) return Fail(s);
     if (acc_truth.size() == acc_est.size() && !acc_truth.empty() && acc_truth.front().matrix() != Rigid3d::Identity().matrix())
-      if (const Status s = WriteTum((fs::path(out_dir) / "truth_poses.txt").string(), acc_t, acc_truth); !s.ok()) return Fail(s);
+      if (const Status s = WriteTumPoses((fs::path(out_dir) / "truth_poses.txt").string(), acc_t, acc_truth); !s.ok()) return Fail(s);
     const double n = static_cast<double>(indices.size());
     nlohmann::json j;
     j["input"] = session ? sim_model : bursts_dir;
@@ -334,36 +319,9 @@ int main(int argc, char** argv) {
     j["events"] = events;
     const bool have_truth = !scene.faces.empty() && !acc_est.empty() && acc_truth.front().matrix() != Rigid3d::Identity().matrix();
     if (have_truth && !no_eval) {
-      Rigid3d world_from_model = Rigid3d::Identity();
-      const AteReport ate_traj = AbsoluteTrajectoryError(acc_est, acc_truth, &world_from_model);
-      const MeshClosestPoint ref(scene);
-      const TruenessReport t = EvaluateTrueness(mesh, ref, world_from_model);
-      // ATE in the frame of the surface best fit (the trajectory-only alignment is ill-posed for
-      // short, nearly straight paths); the trajectory-aligned figure is kept too.
-      double s2 = 0, sr = 0, smax = 0;
-      for (size_t k = 0; k < acc_est.size(); ++k) {
-        const Rigid3d e = t.reference_from_scan * acc_est[k];
-        const double d = TranslationDistanceMm(e, acc_truth[k]);
-        s2 += d * d;
-        smax = std::max(smax, d);
-        sr += RotationAngleRad(e, acc_truth[k]) * 180 / M_PI;
-      }
-      j["ate_mm"] = std::sqrt(s2 / static_cast<double>(acc_est.size()));
-      j["ate_deg"] = sr / static_cast<double>(acc_est.size());
-      j["ate_max_mm"] = smax;
-      j["ate_trajectory_aligned_mm"] = ate_traj.rmse_mm;
-      j["ate_trajectory_aligned_deg"] = ate_traj.mean_deg;
-      j["trueness_rms_um"] = t.rms_um;
-      j["trueness_mean_um"] = t.mean_um;
-      j["trueness_mean_abs_um"] = t.mean_abs_um;
-      j["trueness_p95_um"] = t.p95_um;
-      j["trueness_points"] = t.points;
-      j["trueness_outlier_pct"] = t.outlier_pct;
-      j["coverage_pct"] = t.coverage_pct;
-      j["best_fit_rmse_um"] = t.alignment_rmse_mm * 1000;
-      TriangleMesh in_ref = mesh;
-      for (auto& v : in_ref.vertices) v = t.reference_from_scan * v;
-      cv::imwrite((fs::path(out_dir) / "heatmap.png").string(), DeviationHeatMap(in_ref, t.signed_um, 50));
+      cv::Mat heatmap;
+      EvaluateScanAgainstScene(mesh, scene, acc_est, acc_truth, EvaluateOptions{}, &j, &heatmap);
+      cv::imwrite((fs::path(out_dir) / "heatmap.png").string(), heatmap);
     }
     std::ofstream(fs::path(out_dir) / "report.json") << j.dump(2) << "\n";
     if (json) std::printf("%s\n", j.dump().c_str());
