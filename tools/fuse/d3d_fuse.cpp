@@ -53,6 +53,7 @@ int main(int argc, char** argv) {
   int64_t max_bursts = -1, first = 0;
   double voxel_mm = 0.05, truncation_mm = 0.2;
   float min_mesh_weight = TsdfOptions{}.min_mesh_weight;
+  double max_rmse_um = TrackerOptions{}.icp.max_rmse_mm * 1000;
   bool json = false, no_eval = false, no_loops = false, quiet = false, no_refuse = false, truth_poses = false;
   app.add_option("--sim", sim_model, "scan with the virtual probe: 'typodont' or a mesh file (PLY/STL/OBJ, mm)");
   app.add_option("--bursts", bursts_dir, "a d3d-sim output folder (calibration.json, bursts/NNNNNN/, scene.ply)");
@@ -65,6 +66,8 @@ int main(int argc, char** argv) {
   app.add_option("--association", association, "ICP data association: kdtree (default: the more accurate) | projective")->capture_default_str();
   app.add_option("--voxel", voxel_mm, "TSDF voxel (mm)")->capture_default_str();
   app.add_option("--truncation", truncation_mm, "TSDF truncation (mm)")->capture_default_str();
+  app.add_option("--max-rmse-um", max_rmse_um, "tracking: a view whose ICP residual (RMS, um) is above this is refused")
+      ->capture_default_str();
   app.add_option("--min-mesh-weight", min_mesh_weight, "mesh only where the fused weight (sum of point qualities) is at least this")
       ->capture_default_str();
   app.add_flag("--no-eval", no_eval, "skip the evaluation against the scene");
@@ -128,6 +131,7 @@ int main(int argc, char** argv) {
     TrackerOptions to;
     to.association = association == "kdtree" ? Association::kKdTree : Association::kProjective;
     to.detect_loops = !no_loops;
+    to.icp.max_rmse_mm = max_rmse_um / 1000.0;
     // A lower burst rate means larger steps between views.
     to.max_step_mm *= 1.0;
     to.icp.levels[0].max_distance_mm = std::min(3.0, 0.8 * std::sqrt(static_cast<double>(every)));
