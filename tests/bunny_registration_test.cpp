@@ -15,28 +15,12 @@ namespace {
 
 const std::string kDir = std::string(D3D_SHARED_DATA_DIR) + "/range_scans/stanford_bunny";
 
-std::map<std::string, Rigid3d> LoadConf() {
-  std::map<std::string, Rigid3d> out;
-  std::ifstream f(kDir + "/bun.conf");
-  std::string line;
-  while (std::getline(f, line)) {
-    std::istringstream is(line);
-    std::string w, name;
-    double tx, ty, tz, qx, qy, qz, qw;
-    if (!(is >> w) || w != "bmesh" || !(is >> name >> tx >> ty >> tz >> qx >> qy >> qz >> qw)) continue;
-    Rigid3d T = Rigid3d::Identity();
-    T.linear() = Eigen::Quaterniond(qw, qx, qy, qz).normalized().toRotationMatrix().transpose();
-    T.translation() = Eigen::Vector3d(tx, ty, tz) * 1000.0;  // mm
-    out[name.substr(0, name.find('.'))] = T;  // world_from_scan
-  }
-  return out;
-}
-
 class Bunny : public ::testing::TestWithParam<std::pair<const char*, const char*>> {};
 
 TEST_P(Bunny, PairFromIdentityRecoversTheConfPose) {
   if (!std::filesystem::exists(kDir + "/bun.conf")) GTEST_SKIP() << "no bunny scans in " << kDir;
-  const auto conf = LoadConf();
+  std::map<std::string, Rigid3d> conf;
+  ASSERT_TRUE(LoadRangeScanPoses(kDir + "/bun.conf", &conf).ok());
   const auto [src, dst] = GetParam();
   cv::Mat S, T;
   ASSERT_TRUE(LoadRangeGridPly(kDir + "/" + src + ".ply", 1000.0, &S).ok());

@@ -88,4 +88,23 @@ Status LoadRangeGridPly(const std::string& path, double scale, cv::Mat* out) {
   return ParseRangeGridPly(ss.str(), scale, out);
 }
 
+Status LoadRangeScanPoses(const std::string& conf_path, std::map<std::string, Rigid3d>* world_from_scan) {
+  std::ifstream f(conf_path);
+  if (!f) return NotFound("cannot read '" + conf_path + "'");
+  world_from_scan->clear();
+  std::string line;
+  while (std::getline(f, line)) {
+    std::istringstream is(line);
+    std::string w, name;
+    double tx, ty, tz, qx, qy, qz, qw;
+    if (!(is >> w) || w != "bmesh" || !(is >> name >> tx >> ty >> tz >> qx >> qy >> qz >> qw)) continue;
+    Rigid3d T = Rigid3d::Identity();
+    T.linear() = Eigen::Quaterniond(qw, qx, qy, qz).normalized().toRotationMatrix().transpose();
+    T.translation() = Eigen::Vector3d(tx, ty, tz) * 1000.0;  // m → mm
+    (*world_from_scan)[name.substr(0, name.find('.'))] = T;
+  }
+  if (world_from_scan->empty()) return ParseError("no 'bmesh' line in '" + conf_path + "'");
+  return Status::Ok();
+}
+
 }  // namespace d3d

@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <filesystem>
+#include <fstream>
 
 namespace d3d {
 namespace {
@@ -32,6 +34,23 @@ TEST(RangeGridIo, RefusesBadInputWithAReason) {
   EXPECT_FALSE(ParseRangeGridPly(h + "1 2 nan\n4 5 6\n0\n0\n0\n0\n0\n0\n", 1, &P).ok());  // not a number
   EXPECT_EQ(LoadRangeGridPly("/nonexistent/x.ply", 1, &P).code(), StatusCode::kNotFound);
   EXPECT_FALSE(ParseRangeGridPly(h, 1, nullptr).ok());
+}
+
+TEST(RangeGridIo, ScanPosesOfAConfFile) {
+  const std::string path = (std::filesystem::temp_directory_path() / "d3d_range_scan_poses.conf").string();
+  std::map<std::string, Rigid3d> poses;
+  std::ofstream(path) << "camera 0 0 1 0 0 0 1\nbmesh a.ply 0.001 0 0 0 0 0 1\nbmesh b.ply 0 0 0 0 0.3826834 0 0.9238795\n";
+  ASSERT_TRUE(LoadRangeScanPoses(path, &poses).ok());
+  ASSERT_EQ(poses.size(), 2u);
+  EXPECT_NEAR(poses.at("a").translation().x(), 1.0, 1e-12) << "metres → mm";
+  // 45° about y, stored transposed (the data set's convention): x maps to (cos, 0, +sin).
+  const Eigen::Vector3d x = poses.at("b").linear() * Eigen::Vector3d::UnitX();
+  EXPECT_NEAR(x.x(), std::sqrt(0.5), 1e-6);
+  EXPECT_NEAR(x.z(), std::sqrt(0.5), 1e-6);
+  std::ofstream(path) << "camera 0 0 1 0 0 0 1\n";
+  EXPECT_EQ(LoadRangeScanPoses(path, &poses).code(), StatusCode::kParseError);
+  std::filesystem::remove(path);
+  EXPECT_EQ(LoadRangeScanPoses(path, &poses).code(), StatusCode::kNotFound);
 }
 
 }  // namespace

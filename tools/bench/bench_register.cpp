@@ -105,23 +105,6 @@ nlohmann::json RunIcpCase(const IcpCase& c, int repeats) {
   return j;
 }
 
-std::map<std::string, Rigid3d> LoadConf(const std::string& dir) {
-  std::map<std::string, Rigid3d> out;
-  std::ifstream f(dir + "/bun.conf");
-  std::string line;
-  while (std::getline(f, line)) {
-    std::istringstream is(line);
-    std::string w, name;
-    double tx, ty, tz, qx, qy, qz, qw;
-    if (!(is >> w) || w != "bmesh" || !(is >> name >> tx >> ty >> tz >> qx >> qy >> qz >> qw)) continue;
-    Rigid3d T = Rigid3d::Identity();
-    T.linear() = Eigen::Quaterniond(qw, qx, qy, qz).normalized().toRotationMatrix().transpose();
-    T.translation() = Eigen::Vector3d(tx, ty, tz) * 1000.0;
-    out[name.substr(0, name.find('.'))] = T;
-  }
-  return out;
-}
-
 Rigid3d Perturb(const Rigid3d& T, double deg, double mm) {
   Rigid3d d = Rigid3d::Identity();
   d.linear() = Eigen::AngleAxisd(deg * M_PI / 180, Eigen::Vector3d(0.4, -0.7, 0.6).normalized()).toRotationMatrix();
@@ -147,7 +130,8 @@ int main(int argc, char** argv) {
   const std::string dir = data + "/range_scans/stanford_bunny";
   std::vector<IcpCase> cases;
   if (std::filesystem::exists(dir + "/bun.conf")) {
-    const auto conf = LoadConf(dir);
+    std::map<std::string, Rigid3d> conf;
+    if (!LoadRangeScanPoses(dir + "/bun.conf", &conf).ok()) conf.clear();
     nlohmann::json pairs = nlohmann::json::array();
     for (auto [s, t] : std::vector<std::pair<std::string, std::string>>{
              {"bun045", "bun000"}, {"bun315", "bun000"}, {"bun090", "bun045"}, {"bun270", "bun315"}, {"bun180", "bun090"}, {"bun180", "bun270"}}) {
