@@ -35,8 +35,8 @@ TSAN_OPTIONS="halt_on_error=1 suppressions=$D3D_ROOT/tools/tsan.supp" \
 # The host's stage graph (issue 6): random stage delays, live and lossless edges, triple buffer.
 TSAN_OPTIONS="halt_on_error=1 suppressions=$D3D_ROOT/tools/tsan.supp" "$tsan/tests/d3d_graph_test" --gtest_brief=1
 
-# libFuzzer targets (clang), D3D_FUZZ_SECONDS each (default 20 s: seven targets within the CI budget).
-fuzz_s="${D3D_FUZZ_SECONDS:-20}"
+# libFuzzer targets (clang), D3D_FUZZ_SECONDS each (default 15 s: seven targets within the CI budget).
+fuzz_s="${D3D_FUZZ_SECONDS:-15}"
 fuzz="$D3D_ROOT/build-fuzz"
 CC=clang CXX=clang++ cmake -G Ninja -S "$D3D_ROOT" -B "$fuzz" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DD3D_FUZZ=ON \
   -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ >/dev/null
