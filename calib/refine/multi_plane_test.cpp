@@ -6,18 +6,14 @@
 
 #include <random>
 
+#include "calib/projector/test_system.h"
+
 namespace d3d {
 namespace {
 
-const PinholeBrownConrady kCam{640, 480, 2000, 2000, 322.7, 236.9, -0.045, 0.12, 2e-4, -1.5e-4, 0};
-const PinholeBrownConrady kProj{912, 1140, 2100, 2100, 457.3, 566.4, 0.03, -0.05, -1e-4, 0.8e-4, 0};
-
-Rigid3d CamFromProj() {
-  Rigid3d p = Rigid3d::Identity();
-  p.linear() = Eigen::AngleAxisd(-12.0 * M_PI / 180, Eigen::Vector3d::UnitY()).toRotationMatrix();
-  p.translation() = Eigen::Vector3d(10.63, 0, 0);
-  return p;
-}
+const PinholeBrownConrady& kCam = testing::kTestCam;
+const PinholeBrownConrady& kProj = testing::kTestProj;
+Rigid3d CamFromProj() { return testing::TestCamFromProj(); }
 
 TEST(MultiPlane, TriangulateColumnInvertsTheProjection) {
   const Eigen::Vector3d X(1.2, -0.7, 51.3);
