@@ -44,6 +44,7 @@ Status ScanReconstructor::Reconstruct(const std::vector<cv::Mat>& frames, Recons
 ScanRegistrar::ScanRegistrar(const PinholeBrownConrady& camera, const TrackerOptions& options) : tracker_(camera, options) {}
 
 TrackResult ScanRegistrar::Register(const ReconstructedView& view, uint64_t burst_seq, int64_t reference_ns) {
+  D3D_CHECK_MSG(given_poses_.empty(), "ScanRegistrar: Register after RegisterAtPose");
   const auto t0 = Clock::now();
   const int64_t index = static_cast<int64_t>(views_.size());
   TrackResult r = tracker_.Track(view.points_in_cam, view.normals, view.quality, view.texture);
@@ -57,6 +58,22 @@ TrackResult ScanRegistrar::Register(const ReconstructedView& view, uint64_t burs
   prev_state_ = r.state;
   views_.push_back({burst_seq, reference_ns, r.accepted, r.state});
   return r;
+}
+
+void ScanRegistrar::RegisterAtPose(uint64_t burst_seq, int64_t reference_ns, const Rigid3d& world_from_cam) {
+  D3D_CHECK_MSG(given_poses_.size() == views_.size(), "ScanRegistrar: RegisterAtPose after Register");
+  given_poses_.push_back(world_from_cam);
+  views_.push_back({burst_seq, reference_ns, true, TrackingState::kTracking});
+  ++accepted_;
+}
+
+bool ScanRegistrar::ViewPose(int64_t index, Rigid3d* world_from_cam) const {
+  if (index < 0 || index >= static_cast<int64_t>(views_.size())) return false;
+  if (!given_poses_.empty()) {
+    *world_from_cam = given_poses_[static_cast<size_t>(index)];
+    return true;
+  }
+  return tracker_.ViewPose(index, world_from_cam);
 }
 
 ScanFuser::ScanFuser(const PinholeBrownConrady& camera, const TsdfOptions& options)
@@ -81,13 +98,13 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   PoseGraphSummary pg;
   double max_correction_mm = 0;
   std::vector<Rigid3d> tracked(views.size(), Rigid3d::Identity());
-  for (int64_t k = 0; k < n_views; ++k) tracker.ViewPose(k, &tracked[static_cast<size_t>(k)]);
+  for (int64_t k = 0; k < n_views; ++k) registrar->ViewPose(k, &tracked[static_cast<size_t>(k)]);
   const bool loops = options.tracker.detect_loops && tracker.graph().num_nodes() > 1;
   if (loops) {
     D3D_RETURN_IF_ERROR(tracker.Optimize({}, &pg));
     for (int64_t k = 0; k < n_views; ++k) {
       Rigid3d p;
-      if (tracker.ViewPose(k, &p)) max_correction_mm = std::max(max_correction_mm, TranslationDistanceMm(p, tracked[static_cast<size_t>(k)]));
+      if (registrar->ViewPose(k, &p)) max_correction_mm = std::max(max_correction_mm, TranslationDistanceMm(p, tracked[static_cast<size_t>(k)]));
     }
   }
   // Refusion at the optimised poses, when the views can be had again.
@@ -99,7 +116,7 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
     ReconstructedView view;
     for (int64_t k = 0; k < n_views; ++k) {
       Rigid3d pose;
-      if (!tracker.ViewPose(k, &pose)) continue;
+      if (!registrar->ViewPose(k, &pose)) continue;
       const Status s = provider(k, views[static_cast<size_t>(k)], &view);
       if (s.code() == StatusCode::kNotFound) continue;
       D3D_RETURN_IF_ERROR(s);
@@ -108,7 +125,7 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
     ms_refuse = MsSince(t0);
   }
   std::vector<Rigid3d> final_poses(views.size(), Rigid3d::Identity());
-  for (int64_t k = 0; k < n_views; ++k) tracker.ViewPose(k, &final_poses[static_cast<size_t>(k)]);
+  for (int64_t k = 0; k < n_views; ++k) registrar->ViewPose(k, &final_poses[static_cast<size_t>(k)]);
   const TsdfVolume& model = refused ? refused->volume() : fuser->volume();
   const auto tm0 = Clock::now();
   out->mesh = model.ExtractMesh();

@@ -79,6 +79,12 @@ class ScanRegistrar {
   ScanRegistrar(const PinholeBrownConrady& camera, const TrackerOptions& options);
   // Registers one reconstructed view (view index = the number of earlier calls).
   TrackResult Register(const ReconstructedView& view, uint64_t burst_seq, int64_t reference_ns);
+  // Records a view as accepted at a pose known from elsewhere, without registering it (d3d-fuse
+  // --truth-poses: the fusion-only error floor). A scan uses either this or Register, not both.
+  void RegisterAtPose(uint64_t burst_seq, int64_t reference_ns, const Rigid3d& world_from_cam);
+  // The current pose of view `index` (0-based, in call order): the given one (RegisterAtPose) or
+  // the tracker's (after Optimize, the optimised one); false for a refused view.
+  bool ViewPose(int64_t index, Rigid3d* world_from_cam) const;
 
   Tracker& tracker() { return tracker_; }
   const Tracker& tracker() const { return tracker_; }
@@ -93,6 +99,7 @@ class ScanRegistrar {
  private:
   Tracker tracker_;
   std::vector<ScanViewRecord> views_;
+  std::vector<Rigid3d> given_poses_;  // RegisterAtPose, one per view
   int64_t accepted_ = 0, rejected_ = 0, lost_events_ = 0, relocalised_ = 0;
   TrackingState prev_state_ = TrackingState::kInitialising;
   nlohmann::json events_ = nlohmann::json::array();

@@ -11,17 +11,13 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <nlohmann/json.hpp>
-#include <opencv2/imgcodecs.hpp>
 
 #include "common/burst/burst_io.h"
 #include "common/core/progress.h"
 #include "common/mesh/mesh_io.h"
 #include "firmware/sim/session/sim_session.h"
-#include "pipeline/eval/evaluate_scan.h"
-#include "pipeline/fuse/tsdf.h"
-#include "pipeline/recon/reconstruct.h"
-#include "pipeline/register/tracker.h"
 #include "pipeline/scan/scan_chain.h"
 
 namespace fs = std::filesystem;
@@ -127,28 +123,43 @@ int main(int argc, char** argv) {
       if (max_bursts >= 0 && static_cast<int64_t>(indices.size()) >= max_bursts) break;
       indices.push_back(i);
     }
-    Reconstructor recon(calib);
-    TrackerOptions to;
-    to.association = association == "kdtree" ? Association::kKdTree : Association::kProjective;
-    to.detect_loops = !no_loops;
-    to.icp.max_rmse_mm = max_rmse_um / 1000.0;
-    // A lower burst rate means larger steps between views.
-    to.max_step_mm *= 1.0;
-    to.icp.levels[0].max_distance_mm = std::min(3.0, 0.8 * std::sqrt(static_cast<double>(every)));
-    Tracker tracker(calib.camera, to);
-    TsdfOptions fo;
-    fo.voxel_mm = voxel_mm;
-    fo.truncation_mm = truncation_mm;
-    fo.min_mesh_weight = min_mesh_weight;
-    TsdfVolume tsdf(fo);
+    // The chain of pipeline/scan, all on this thread.
+    ScanOptions so;
+    so.tracker.association = association == "kdtree" ? Association::kKdTree : Association::kProjective;
+    so.tracker.detect_loops = !no_loops;
+    so.tracker.icp.max_rmse_mm = max_rmse_um / 1000.0;
+    so.tracker = TrackerOptionsForStep(so.tracker, every);  // a lower burst rate means larger steps
+    so.tsdf.voxel_mm = voxel_mm;
+    so.tsdf.truncation_mm = truncation_mm;
+    so.tsdf.min_mesh_weight = min_mesh_weight;
+    if (no_refuse) so.refuse_min_correction_mm = -1;
+    so.Check();
+    ScanReconstructor recon(calib, so.recon);
+    ScanRegistrar registrar(calib.camera, so.tracker);
+    ScanFuser fuser(calib.camera, so.tsdf);
+    // Burst `index` of the source, rendered or read (again, for the refusion pass).
+    auto load_burst = [&](int64_t index, Burst* b) -> Status {
+      if (session) {
+        *b = session->RenderBurst(index, false);
+        return Status::Ok();
+      }
+      return ReadBurstDir(burst_dirs[static_cast<size_t>(index)], false, b);
+    };
+    auto frames_of = [&](const Burst& b) {
+      std::vector<cv::Mat> frames;
+      for (const BurstFrame& f : b.frames) frames.push_back(f.image);
+      return frames;
+    };
+    // True pose at the burst's reference time (middle of the burst), when the source knows it.
+    auto true_pose_of = [&](const Burst& b) {
+      if (session) return session->trajectory().WorldFromProbe(b.reference_ns);
+      if (b.frames.empty()) return Rigid3d::Identity();
+      return InterpolateRigid(b.frames.front().truth.world_from_probe, b.frames.back().truth.world_from_probe, 0.5);
+    };
     ProgressBar bar("d3d-fuse", static_cast<int64_t>(indices.size()), !quiet);
-    double ms_render = 0, ms_recon = 0, ms_register = 0, ms_fuse = 0;
-    int64_t fused = 0, rejected = 0, lost_events = 0, relocalised = 0;
-    std::vector<int64_t> t_ns;
-    std::vector<Rigid3d> true_poses;
-    std::vector<bool> accepted;
-    nlohmann::json events = nlohmann::json::array();
-    TrackingState prev_state = TrackingState::kInitialising;
+    ScanTimes times;
+    double ms_render = 0;
+    std::map<uint64_t, Rigid3d> true_poses;  // by burst index
     ReconstructedView view;
     std::ofstream trace;
     if (!trace_path.empty()) {
@@ -157,51 +168,30 @@ int main(int argc, char** argv) {
     }
     Rigid3d first_truth_from_est = Rigid3d::Identity();
     bool have_first = false;
+    using ms = std::chrono::duration<double, std::milli>;
     for (size_t k = 0; k < indices.size(); ++k) {
       const auto t0 = std::chrono::steady_clock::now();
       Burst b;
-      if (session) {
-        b = session->RenderBurst(indices[k], false);
-      } else if (const Status s = ReadBurstDir(burst_dirs[static_cast<size_t>(indices[k])], false, &b); !s.ok()) {
-        return Fail(s);
-      }
+      if (const Status s = load_burst(indices[k], &b); !s.ok()) return Fail(s);
       const auto t1 = std::chrono::steady_clock::now();
-      std::vector<cv::Mat> frames;
-      for (int f = 0; f < calib.pattern.steps && f < static_cast<int>(b.frames.size()); ++f) frames.push_back(b.frames[static_cast<size_t>(f)].image);
-      if (const Status s = recon.Reconstruct(frames, &view); !s.ok()) return Fail(s);
+      if (const Status s = recon.Reconstruct(frames_of(b), &view); !s.ok()) return Fail(s);
       const auto t2 = std::chrono::steady_clock::now();
-      // True pose at the burst's reference time (middle of the burst), when the source knows it.
-      Rigid3d truth_pose = Rigid3d::Identity();
-      if (session) truth_pose = session->trajectory().WorldFromProbe(b.reference_ns);
-      else if (!b.frames.empty())
-        truth_pose = InterpolateRigid(b.frames.front().truth.world_from_probe, b.frames.back().truth.world_from_probe, 0.5);
+      const Rigid3d truth_pose = true_pose_of(b);
+      true_poses[static_cast<uint64_t>(indices[k])] = truth_pose;
       TrackResult r;
       if (truth_poses) {
+        registrar.RegisterAtPose(static_cast<uint64_t>(indices[k]), b.reference_ns, truth_pose);
         r.accepted = true;
         r.state = TrackingState::kTracking;
         r.world_from_cam = truth_pose;
       } else {
-        r = tracker.Track(view.points_in_cam, view.normals, view.quality, view.texture);
+        r = registrar.Register(view, static_cast<uint64_t>(indices[k]), b.reference_ns);
       }
-      const auto t3 = std::chrono::steady_clock::now();
-      if (r.accepted) {
-        if (const Status s = tsdf.Integrate(view.points_in_cam, view.normals, view.quality, calib.camera, r.world_from_cam); !s.ok())
-          return Fail(s);
-        ++fused;
-      } else {
-        ++rejected;
-      }
-      const auto t4 = std::chrono::steady_clock::now();
-      if (r.state == TrackingState::kLost && prev_state != TrackingState::kLost) ++lost_events;
-      if (r.state == TrackingState::kRelocalised) ++relocalised;
-      if (r.state != TrackingState::kTracking || !r.accepted) {
-        events.push_back({{"burst", indices[k]}, {"state", TrackingStateName(r.state)}, {"fused", r.accepted}, {"reason", r.reason}});
-        if (!quiet) std::fprintf(stderr, "\nburst %lld: %s%s%s\n", static_cast<long long>(indices[k]), TrackingStateName(r.state),
-                                 r.reason.empty() ? "" : ": ", r.reason.c_str());
-      }
-      prev_state = r.state;
-      t_ns.push_back(b.reference_ns);
-      true_poses.push_back(truth_pose);
+      if (r.accepted)
+        if (const Status s = fuser.Fuse(view, r.world_from_cam); !s.ok()) return Fail(s);
+      if (!quiet && (r.state != TrackingState::kTracking || !r.accepted))
+        std::fprintf(stderr, "\nburst %lld: %s%s%s\n", static_cast<long long>(indices[k]), TrackingStateName(r.state),
+                     r.reason.empty() ? "" : ": ", r.reason.c_str());
       if (trace.is_open()) {
         // Pose error against the truth, both frames tied at the first accepted view.
         double err_mm = NAN, err_deg = NAN;
@@ -220,114 +210,53 @@ int main(int argc, char** argv) {
                       r.icp.correspondences, r.new_keyframe ? 1 : 0, r.loops_added, err_mm, err_deg);
         trace << line;
       }
-      accepted.push_back(r.accepted);
-      using ms = std::chrono::duration<double, std::milli>;
       ms_render += ms(t1 - t0).count();
-      ms_recon += ms(t2 - t1).count();
-      ms_register += ms(t3 - t2).count();
-      ms_fuse += ms(t4 - t3).count();
+      times.ms_recon += ms(t2 - t1).count();
       bar.Update(static_cast<int64_t>(k + 1));
     }
     bar.Finish();
-    // Pose graph: loop closures. The TSDF holds the views at their tracked poses; the correction
-    // the graph finds is reported (a large one means the model has a step).
-    PoseGraphSummary pg;
-    double max_correction_mm = 0;
-    std::vector<Rigid3d> tracked(indices.size(), Rigid3d::Identity());
-    for (size_t k = 0; k < indices.size(); ++k) {
-      if (truth_poses) tracked[k] = true_poses[k];
-      else tracker.ViewPose(static_cast<int64_t>(k), &tracked[k]);
-    }
-    if (!truth_poses && !no_loops && tracker.graph().num_nodes() > 1) {
-      if (const Status s = tracker.Optimize({}, &pg); !s.ok()) return Fail(s);
-      for (size_t k = 0; k < indices.size(); ++k) {
-        Rigid3d p;
-        if (tracker.ViewPose(static_cast<int64_t>(k), &p)) max_correction_mm = std::max(max_correction_mm, TranslationDistanceMm(p, tracked[k]));
-      }
-    }
-    // Second pass: the accepted bursts fused again at the optimised poses (offline path; the
-    // bursts are rendered / read again rather than kept in memory).
-    std::unique_ptr<TsdfVolume> refused;
-    double ms_refuse = 0;
-    if (!no_loops && !no_refuse && max_correction_mm > 0.01) {
-      const auto tr0 = std::chrono::steady_clock::now();
-      refused = std::make_unique<TsdfVolume>(fo);
-      ProgressBar bar2("d3d-fuse: fusing at optimised poses", static_cast<int64_t>(indices.size()), !quiet);
-      for (size_t k = 0; k < indices.size(); ++k) {
-        Rigid3d pose;
-        if (!tracker.ViewPose(static_cast<int64_t>(k), &pose)) continue;
-        Burst b;
-        if (session) b = session->RenderBurst(indices[k], false);
-        else if (const Status s = ReadBurstDir(burst_dirs[static_cast<size_t>(indices[k])], false, &b); !s.ok()) return Fail(s);
-        std::vector<cv::Mat> frames;
-        for (int f = 0; f < calib.pattern.steps && f < static_cast<int>(b.frames.size()); ++f) frames.push_back(b.frames[static_cast<size_t>(f)].image);
-        if (const Status s = recon.Reconstruct(frames, &view); !s.ok()) return Fail(s);
-        if (const Status s = refused->Integrate(view.points_in_cam, view.normals, view.quality, calib.camera, pose); !s.ok()) return Fail(s);
-        bar2.Update(static_cast<int64_t>(k + 1));
-      }
-      bar2.Finish();
-      ms_refuse = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - tr0).count();
-      for (size_t k = 0; k < indices.size(); ++k) tracker.ViewPose(static_cast<int64_t>(k), &tracked[k]);
-    }
-    const TsdfVolume& model = refused ? *refused : tsdf;
-    const auto tm0 = std::chrono::steady_clock::now();
-    TriangleMesh mesh = model.ExtractMesh();
-    const double ms_mesh = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - tm0).count();
-    if (mesh.faces.empty()) return Fail(Status(StatusCode::kInternal, "the fused model is empty (no view was accepted)"));
-    mesh.ComputeVertexNormals();
-    if (const Status s = SavePlyBinary((fs::path(out_dir) / "scan.ply").string(), mesh); !s.ok()) return Fail(s);
-    if (const Status s = SaveStlBinary((fs::path(out_dir) / "scan.stl").string(), mesh); !s.ok()) return Fail(s);
-    std::vector<int64_t> acc_t;
-    std::vector<Rigid3d> acc_est, acc_truth;
-    for (size_t k = 0; k < indices.size(); ++k) {
-      if (!accepted[k]) continue;
-      acc_t.push_back(t_ns[k]);
-      acc_est.push_back(tracked[k]);
-      acc_truth.push_back(true_poses[k]);
-    }
-    if (const Status s = WriteTumPoses((fs::path(out_dir) / "poses.txt").string(), acc_t, acc_est); !s.ok()) return Fail(s);
-    if (acc_truth.size() == acc_est.size() && !acc_truth.empty() && acc_truth.front().matrix() != Rigid3d::Identity().matrix())
-      if (const Status s = WriteTumPoses((fs::path(out_dir) / "truth_poses.txt").string(), acc_t, acc_truth); !s.ok()) return Fail(s);
-    const double n = static_cast<double>(indices.size());
-    nlohmann::json j;
+    times.bursts = static_cast<int64_t>(indices.size());
+    times.ms_register = registrar.ms_register();
+    times.ms_fuse = fuser.ms_fuse();
+    // Pose graph, refusion at the optimised poses (the bursts rendered / read again rather than
+    // kept in memory), mesh, evaluation and report.
+    ProgressBar bar2("d3d-fuse: pose graph, refusion, mesh, evaluation", 1, !quiet);
+    const ScanViewProvider provider = [&](int64_t, const ScanViewRecord& record, ReconstructedView* out) -> Status {
+      Burst b;
+      D3D_RETURN_IF_ERROR(load_burst(static_cast<int64_t>(record.burst_seq), &b));
+      return recon.Reconstruct(frames_of(b), out);
+    };
+    ScanTruth truth;
+    if (!no_eval && !scene.faces.empty()) truth.reference = &scene;
+    const bool have_true_poses =
+        session != nullptr || (!true_poses.empty() && true_poses.begin()->second.matrix() != Rigid3d::Identity().matrix());
+    if (have_true_poses)
+      truth.true_pose = [&](const ScanViewRecord& record, Rigid3d* world_from_cam) {
+        const auto it = true_poses.find(record.burst_seq);
+        if (it == true_poses.end()) return false;
+        *world_from_cam = it->second;
+        return true;
+      };
+    ScanResult result;
+    if (const Status s = FinishScan(so, times, &registrar, &fuser, provider, truth, &result); !s.ok()) return Fail(s);
+    bar2.Update(1);
+    bar2.Finish();
+    nlohmann::json& j = result.report;
     j["input"] = session ? sim_model : bursts_dir;
     j["trajectory"] = trajectory;
     j["seed"] = seed;
     j["every"] = every;
     j["truth_poses"] = truth_poses;
-    j["bursts"] = indices.size();
-    j["fused"] = fused;
-    j["rejected"] = rejected;
-    j["tracking_lost"] = lost_events;
-    j["relocalised"] = relocalised;
-    j["unrecovered"] = tracker.state() == TrackingState::kLost ? 1 : 0;
-    j["final_state"] = TrackingStateName(tracker.state());
-    j["keyframes"] = tracker.keyframes().size();
-    j["loop_edges"] = tracker.loop_edges();
-    j["pose_graph_max_correction_mm"] = max_correction_mm;
-    j["pose_graph_disagreeing_edges"] = pg.disagreeing_edges.size();
-    j["ms_per_burst"] = (ms_recon + ms_register + ms_fuse) / n;
-    j["ms_render_per_burst"] = ms_render / n;
-    j["ms_recon_per_burst"] = ms_recon / n;
-    j["ms_register_per_burst"] = ms_register / n;
-    j["ms_fuse_per_burst"] = ms_fuse / n;
-    j["ms_mesh"] = ms_mesh;
-    j["voxel_mm"] = voxel_mm;
-    j["refused_at_optimised_poses"] = refused != nullptr;
-    j["ms_refuse_total"] = ms_refuse;
-    j["tsdf_active_voxels"] = model.ActiveVoxels();
-    j["tsdf_memory_mib"] = static_cast<double>(tsdf.MemoryBytes() + (refused ? refused->MemoryBytes() : 0)) / (1024.0 * 1024.0);
+    j["ms_render_per_burst"] = ms_render / static_cast<double>(std::max<size_t>(indices.size(), 1));
     j["peak_rss_mib"] = PeakRssMiB();
-    j["mesh_vertices"] = mesh.vertices.size();
-    j["mesh_faces"] = mesh.faces.size();
-    j["events"] = events;
-    const bool have_truth = !scene.faces.empty() && !acc_est.empty() && acc_truth.front().matrix() != Rigid3d::Identity().matrix();
-    if (have_truth && !no_eval) {
-      cv::Mat heatmap;
-      EvaluateScanAgainstScene(mesh, scene, acc_est, acc_truth, EvaluateOptions{}, &j, &heatmap);
-      cv::imwrite((fs::path(out_dir) / "heatmap.png").string(), heatmap);
+    if (const Status s = WriteScanOutputs(out_dir, result); !s.ok()) return Fail(s);
+    if (have_true_poses) {
+      std::vector<Rigid3d> acc_truth;
+      for (const ScanViewRecord& v : registrar.views())
+        if (v.accepted) acc_truth.push_back(true_poses.at(v.burst_seq));
+      if (const Status s = WriteTumPoses((fs::path(out_dir) / "truth_poses.txt").string(), result.pose_t_ns, acc_truth); !s.ok())
+        return Fail(s);
     }
-    std::ofstream(fs::path(out_dir) / "report.json") << j.dump(2) << "\n";
     if (json) std::printf("%s\n", j.dump().c_str());
     else {
       nlohmann::json brief = j;
