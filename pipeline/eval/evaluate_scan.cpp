@@ -249,7 +249,7 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
                                 b * (R.vertices[static_cast<size_t>(F[2])] - R.vertices[static_cast<size_t>(F[0])]);
       float d2 = 0;
       ++samples;
-      if (tree.Nearest(p.cast<float>(), &d2) >= 0 && d2 <= cov2) ++covered;
+      if (tree.Nearest(p.cast<float>(), &d2, cov2) >= 0) ++covered;
     }
   }
   r.coverage_pct = samples ? 100.0 * static_cast<double>(covered) / static_cast<double>(samples) : 0;

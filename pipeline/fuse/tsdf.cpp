@@ -7,7 +7,9 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <limits>
 #include <unordered_set>
 
 namespace d3d {
@@ -18,6 +20,7 @@ void TsdfOptions::Check() const {
   D3D_CHECK_MSG(max_weight > 0 && min_point_weight >= 0, "TsdfOptions: weights must be positive");
   D3D_CHECK_MSG(max_incidence_deg > 0 && max_incidence_deg <= 90, "TsdfOptions: max_incidence_deg in (0, 90]");
   D3D_CHECK_MSG(pixel_stride >= 1, "TsdfOptions: pixel_stride >= 1");
+  D3D_CHECK_MSG(min_mesh_weight >= 0 && mesh_seed_weight >= 0, "TsdfOptions: mesh weights must be >= 0");
 }
 
 struct TsdfVolume::Impl {
@@ -188,16 +191,50 @@ TriangleMesh TsdfVolume::ExtractMesh(float min_weight) const {
   std::vector<openvdb::Vec4I> quads;
   openvdb::tools::volumeToMesh(*impl_->tsdf, pts, tris, quads, 0.0, 0.0, true);
   TriangleMesh mesh;
-  // Keep a vertex when the 8 voxel centres around it are all observed with enough weight.
-  std::vector<uint8_t> keep(pts.size(), 0);
+  // A vertex's weight: the least of the 8 voxel centres around it. Kept when ≥ min_weight.
+  std::vector<float> vertex_weight(pts.size(), 0.0f);
   const auto wacc = impl_->weight->getConstAccessor();
   const double inv_voxel = 1.0 / o_.voxel_mm;
   for (size_t i = 0; i < pts.size(); ++i) {
     const int x = static_cast<int>(std::floor(pts[i].x() * inv_voxel)), y = static_cast<int>(std::floor(pts[i].y() * inv_voxel)),
               z = static_cast<int>(std::floor(pts[i].z() * inv_voxel));
-    bool ok = true;
-    for (int k = 0; k < 8 && ok; ++k) ok = wacc.getValue(openvdb::Coord(x + (k & 1), y + ((k >> 1) & 1), z + ((k >> 2) & 1))) >= min_weight;
-    keep[i] = ok;
+    float w = std::numeric_limits<float>::max();
+    for (int k = 0; k < 8 && w >= min_weight; ++k)
+      w = std::min(w, wacc.getValue(openvdb::Coord(x + (k & 1), y + ((k >> 1) & 1), z + ((k >> 2) & 1))));
+    vertex_weight[i] = w;
+  }
+  // Kept polygons as triangles (OpenVDB's indices), reversed: OpenVDB orients polygons with
+  // normals toward the inside (negative) of the level set; we want them toward the front
+  // (positive, the camera side).
+  auto kept = [&](openvdb::Index i) { return vertex_weight[i] >= min_weight; };
+  std::vector<std::array<openvdb::Index, 3>> faces;
+  faces.reserve(tris.size() + 2 * quads.size());
+  for (const auto& t : tris)
+    if (kept(t[0]) && kept(t[1]) && kept(t[2])) faces.push_back({t[0], t[2], t[1]});
+  for (const auto& q : quads)
+    if (kept(q[0]) && kept(q[1]) && kept(q[2]) && kept(q[3])) {
+      faces.push_back({q[0], q[2], q[1]});
+      faces.push_back({q[0], q[3], q[2]});
+    }
+  // Hysteresis: connected pieces (union–find over the kept faces' vertices) without a seed vertex go.
+  std::vector<uint8_t> piece_seeded;
+  std::vector<openvdb::Index> parent;
+  const bool hysteresis = o_.mesh_seed_weight > min_weight;
+  auto find = [&](openvdb::Index i) {
+    while (parent[i] != i) i = parent[i] = parent[parent[i]];
+    return i;
+  };
+  if (hysteresis) {
+    parent.resize(pts.size());
+    for (size_t i = 0; i < pts.size(); ++i) parent[i] = static_cast<openvdb::Index>(i);
+    for (const auto& f : faces)
+      for (int e = 1; e < 3; ++e) {
+        const openvdb::Index a = find(f[0]), b = find(f[static_cast<size_t>(e)]);
+        if (a != b) parent[std::max(a, b)] = std::min(a, b);
+      }
+    piece_seeded.assign(pts.size(), 0);
+    for (size_t i = 0; i < pts.size(); ++i)
+      if (vertex_weight[i] >= o_.mesh_seed_weight) piece_seeded[find(static_cast<openvdb::Index>(i))] = 1;
   }
   std::vector<int> remap(pts.size(), -1);
   auto vid = [&](openvdb::Index i) {
@@ -207,17 +244,10 @@ TriangleMesh TsdfVolume::ExtractMesh(float min_weight) const {
     }
     return remap[i];
   };
-  // OpenVDB orients polygons with normals toward the inside (negative) of the level set; we want
-  // them toward the front (positive, the camera side): reverse the winding.
-  for (const auto& t : tris) {
-    if (!keep[t[0]] || !keep[t[1]] || !keep[t[2]]) continue;
-    mesh.faces.emplace_back(vid(t[0]), vid(t[2]), vid(t[1]));
-  }
-  for (const auto& q : quads) {
-    if (!keep[q[0]] || !keep[q[1]] || !keep[q[2]] || !keep[q[3]]) continue;
-    const int a = vid(q[0]), b = vid(q[1]), c = vid(q[2]), d = vid(q[3]);
-    mesh.faces.emplace_back(a, c, b);
-    mesh.faces.emplace_back(a, d, c);
+  for (const auto& f : faces) {
+    if (hysteresis && !piece_seeded[find(f[0])]) continue;
+    const int a = vid(f[0]), b = vid(f[1]), c = vid(f[2]);
+    mesh.faces.emplace_back(a, b, c);
   }
   return mesh;
 }

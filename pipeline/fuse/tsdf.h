@@ -13,7 +13,11 @@
 // With unit weights and no cap, D is the mean of the n measurements: noise falls as 1/√n.
 // Mesh: marching cubes on the zero level (OpenVDB tools::volumeToMesh, adaptivity 0; Lorensen &
 // Cline 1987 / dual-contouring topology of OpenVDB), keeping polygons whose voxel cell corners all
-// carry at least min_mesh_weight (which drops the spurious crossings at the band's back and rim).
+// carry at least min_mesh_weight (which drops the spurious crossings at the band's back and rim),
+// with hysteresis (as Canny's edge linking, 1986 §III): of those polygons, only the connected
+// pieces that hold at least one vertex whose corners all reach mesh_seed_weight are kept. A patch
+// one view alone measured wrongly (a fringe-order error shifts a patch by a fringe's depth) never
+// reaches the seed weight and goes; thin low-weight borders of the well-seen surface stay.
 // Thread model: one owner thread calls Integrate/ExtractMesh; Integrate uses TBB internally.
 #pragma once
 
@@ -35,7 +39,8 @@ struct TsdfOptions {
   float min_point_weight = 0.05f;  // points of lower quality are not fused
   double max_incidence_deg = 80;   // points seen more grazing than this are not fused
   int pixel_stride = 1;            // leaf allocation samples every k-th pixel (integration uses all)
-  float min_mesh_weight = 1.0f;    // see ExtractMesh
+  float min_mesh_weight = 0.5f;    // see ExtractMesh
+  float mesh_seed_weight = 2.0f;   // see ExtractMesh; <= min_mesh_weight: no hysteresis
   void Check() const;              // throws std::invalid_argument
 };
 
@@ -62,7 +67,8 @@ class TsdfVolume {
                        const std::vector<float>& weights);
 
   // The zero level as a mesh (world frame, mm, faces counter-clockwise seen from the front /
-  // camera side), with polygons whose cell corners all have weight ≥ min_weight (< 0: the option).
+  // camera side), with polygons whose cell corners all have weight ≥ min_weight (< 0: the option)
+  // in the connected pieces that reach options().mesh_seed_weight somewhere (see the file comment).
   TriangleMesh ExtractMesh(float min_weight = -1.0f) const;
 
   // Signed distance (mm) and weight at a world point (trilinear; weight 0 where unobserved).

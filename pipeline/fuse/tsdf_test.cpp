@@ -64,6 +64,45 @@ TEST(Tsdf, FusingNoisyPlanesReducesNoiseAsSqrtN) {
   EXPECT_NEAR(e1 / e16, 4.0, 0.6) << e1 << " " << e16;
 }
 
+// Hysteresis of ExtractMesh: the plane z = 50 seen three times (weight 3) on its left two thirds,
+// once at quality 0.7 on its right third (a weak border, joined to the rest), and a patch one view
+// measured 1 mm too near at quality 0.7 (a fringe-order error: a separate piece that never reaches
+// the seed weight).
+TEST(Tsdf, MeshHysteresisDropsAPatchOnlyOneWeakViewSawAndKeepsWeakBorders) {
+  const auto c = Cam();
+  TsdfOptions o;
+  o.voxel_mm = 0.05;
+  TsdfVolume v(o);
+  cv::Mat P, N;
+  PlaneView(0.0, 1, &P, &N);
+  cv::Mat strong(c.height, c.width, CV_32F, cv::Scalar(0)), weak(c.height, c.width, CV_32F, cv::Scalar(0));
+  strong.colRange(0, 2 * c.width / 3).setTo(1.0f);
+  weak.colRange(2 * c.width / 3, c.width).setTo(0.7f);
+  for (int i = 0; i < 3; ++i) ASSERT_TRUE(v.Integrate(P, N, strong, c, Rigid3d::Identity()).ok());
+  ASSERT_TRUE(v.Integrate(P, N, weak, c, Rigid3d::Identity()).ok());
+  cv::Mat ghost = P.clone(), ghost_quality(c.height, c.width, CV_32F, cv::Scalar(0));
+  const cv::Rect patch(20, 20, 30, 30);
+  ghost_quality(patch).setTo(0.7f);
+  for (int r = patch.y; r < patch.y + patch.height; ++r)
+    for (int k = patch.x; k < patch.x + patch.width; ++k) ghost.at<cv::Vec3f>(r, k) *= 49.0f / 50.0f;
+  ASSERT_TRUE(v.Integrate(ghost, N, ghost_quality, c, Rigid3d::Identity()).ok());
+  auto count = [](const TriangleMesh& m, double z_mm, double min_x_mm) {
+    int n = 0;
+    for (const auto& p : m.vertices) n += std::abs(p.z() - z_mm) < 0.1 && p.x() > min_x_mm;
+    return n;
+  };
+  const double right_third_x = (2 * c.width / 3 + 5 - c.cx) / c.fx * 50;
+  const TriangleMesh with = v.ExtractMesh();
+  EXPECT_EQ(count(with, 49.0, -1e9), 0) << "the weak separate patch is meshed";
+  EXPECT_GT(count(with, 50.0, right_third_x), 100) << "the weak border joined to the plane is dropped";
+  EXPECT_GT(count(with, 50.0, -1e9), 1000);
+  o.mesh_seed_weight = 0;  // no hysteresis: the patch comes back
+  TsdfVolume v2(o);
+  for (int i = 0; i < 3; ++i) ASSERT_TRUE(v2.Integrate(P, N, strong, c, Rigid3d::Identity()).ok());
+  ASSERT_TRUE(v2.Integrate(ghost, N, ghost_quality, c, Rigid3d::Identity()).ok());
+  EXPECT_GT(count(v2.ExtractMesh(), 49.0, -1e9), 100);
+}
+
 TEST(Tsdf, SphereMeshIsAccurateAndFacesOutward) {
   // Six views of a sphere (r = 3 mm, centre at 50 mm): exact points, camera moved around it.
   const auto cam = Cam();

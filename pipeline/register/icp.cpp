@@ -19,8 +19,8 @@ KdTreeTarget::KdTreeTarget(SurfacePoints target) : target_(std::move(target)) {
 
 bool KdTreeTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* p, Eigen::Vector3f* n) const {
   float d2 = 0;
-  const int i = tree_->Nearest(q, &d2);
-  if (i < 0 || d2 > max_d * max_d) return false;
+  const int i = tree_->Nearest(q, &d2, max_d * max_d);
+  if (i < 0) return false;
   *p = target_.points[static_cast<size_t>(i)];
   *n = target_.normals[static_cast<size_t>(i)];
   return std::isfinite((*n)[0]);

@@ -28,13 +28,15 @@ PointKdTree::PointKdTree(const std::vector<Eigen::Vector3f>* points, int leaf_si
     : points_(points), impl_(std::make_unique<Impl>(points, leaf_size)) {}
 PointKdTree::~PointKdTree() = default;
 
-int PointKdTree::Nearest(const Eigen::Vector3f& q, float* dist2) const {
+int PointKdTree::Nearest(const Eigen::Vector3f& q, float* dist2, float max_dist2) const {
   if (points_->empty()) return -1;
   uint32_t idx = 0;
   float d2 = 0;
   nanoflann::KNNResultSet<float, uint32_t> rs(1);
   rs.init(&idx, &d2);
+  d2 = max_dist2;  // the result set's worst distance: only closer points are visited and taken
   impl_->tree.findNeighbors(rs, q.data(), nanoflann::SearchParams(32, 0.0f, false));
+  if (rs.size() == 0) return -1;
   if (dist2) *dist2 = d2;
   return static_cast<int>(idx);
 }

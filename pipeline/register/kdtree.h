@@ -2,6 +2,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <limits>
 #include <memory>
 #include <vector>
 
@@ -13,8 +14,9 @@ class PointKdTree {
   ~PointKdTree();
   PointKdTree(const PointKdTree&) = delete;
   PointKdTree& operator=(const PointKdTree&) = delete;
-  // Index of the nearest point and its squared distance (mm²); -1 for an empty tree.
-  int Nearest(const Eigen::Vector3f& q, float* dist2) const;
+  // Index of the nearest point and its squared distance (mm²); -1 for an empty tree or when no
+  // point is closer than √max_dist2 (a bound prunes the search: ICP's association gate).
+  int Nearest(const Eigen::Vector3f& q, float* dist2, float max_dist2 = std::numeric_limits<float>::max()) const;
   // Up to k nearest (sorted by distance); returns the count found.
   int Knn(const Eigen::Vector3f& q, int k, int* indices, float* dist2) const;
   // Indices within radius (mm), unsorted.
