@@ -82,8 +82,9 @@ Eigen::Vector3f DarbouxPairFeature(const Eigen::Vector3f& p1, const Eigen::Vecto
   const float dist = d.norm();
   if (!(dist > 0)) return Eigen::Vector3f::Zero();
   d /= dist;
-  // The source is the point whose normal is closer to the joining line (angle to d for p1, to −d for p2).
-  const bool swap = std::acos(std::clamp(std::abs(n1.dot(d)), 0.0f, 1.0f)) > std::acos(std::clamp(std::abs(n2.dot(d)), 0.0f, 1.0f));
+  // The source is the point whose normal makes the smaller angle with the joining line:
+  // acos|n1·d| > acos|n2·d| ⇔ |n1·d| < |n2·d|.
+  const bool swap = std::abs(n1.dot(d)) < std::abs(n2.dot(d));
   const Eigen::Vector3f& ns = swap ? n2 : n1;
   const Eigen::Vector3f& nt = swap ? n1 : n2;
   if (swap) d = -d;
@@ -211,9 +212,9 @@ struct NearestDescriptors {
 
 NearestDescriptors FindNearest(const std::vector<FpfhDescriptor>& s, const std::vector<FpfhDescriptor>& t) {
   const auto ns = static_cast<Eigen::Index>(s.size()), nt = static_cast<Eigen::Index>(t.size());
-  Eigen::MatrixXf T(kFpfhSize, nt);
-  for (Eigen::Index j = 0; j < nt; ++j) T.col(j) = t[static_cast<size_t>(j)];
-  const Eigen::RowVectorXf tn = T.colwise().squaredNorm();
+  Eigen::MatrixXf Tt(nt, kFpfhSize);
+  for (Eigen::Index j = 0; j < nt; ++j) Tt.row(j) = t[static_cast<size_t>(j)].transpose();
+  const Eigen::VectorXf tn = Tt.rowwise().squaredNorm();
   NearestDescriptors r;
   r.fwd.assign(s.size(), -1);
   r.fwd_d2.assign(s.size(), std::numeric_limits<float>::infinity());
@@ -221,29 +222,37 @@ NearestDescriptors FindNearest(const std::vector<FpfhDescriptor>& s, const std::
   r.bwd.assign(t.size(), -1);
   std::vector<float> bwd_d2(t.size(), std::numeric_limits<float>::infinity());
   constexpr Eigen::Index kBlock = 256;
-  Eigen::MatrixXf S(kBlock, kFpfhSize), D;
+  Eigen::MatrixXf S(kFpfhSize, kBlock), D;  // D: nt × block, one source per (contiguous) column
   for (Eigen::Index b = 0; b < ns; b += kBlock) {
     const Eigen::Index m = std::min(kBlock, ns - b);
-    for (Eigen::Index i = 0; i < m; ++i) S.row(i) = s[static_cast<size_t>(b + i)].transpose();
-    D.noalias() = -2.0f * S.topRows(m) * T;
-    D.rowwise() += tn;
-    D.colwise() += S.topRows(m).rowwise().squaredNorm();
+    for (Eigen::Index i = 0; i < m; ++i) S.col(i) = s[static_cast<size_t>(b + i)];
+    D.noalias() = -2.0f * Tt * S.leftCols(m);
+    D.colwise() += tn;
+    D.rowwise() += S.leftCols(m).colwise().squaredNorm();
     for (Eigen::Index i = 0; i < m; ++i) {
-      const auto si = static_cast<size_t>(b + i);
+      const float* col = D.col(i).data();
+      float d1 = std::numeric_limits<float>::infinity(), d2 = d1;
+      int j1 = -1;
       for (Eigen::Index j = 0; j < nt; ++j) {
-        const float d = D(i, j);
-        if (d < r.fwd_d2[si]) {
-          r.fwd_d2b[si] = r.fwd_d2[si];
-          r.fwd_d2[si] = d;
-          r.fwd[si] = static_cast<int>(j);
-        } else if (d < r.fwd_d2b[si]) {
-          r.fwd_d2b[si] = d;
-        }
+        const float d = col[j];
         if (d < bwd_d2[static_cast<size_t>(j)]) {
           bwd_d2[static_cast<size_t>(j)] = d;
           r.bwd[static_cast<size_t>(j)] = static_cast<int>(b + i);
         }
+        if (d < d2) {
+          if (d < d1) {
+            d2 = d1;
+            d1 = d;
+            j1 = static_cast<int>(j);
+          } else {
+            d2 = d;
+          }
+        }
       }
+      const auto si = static_cast<size_t>(b + i);
+      r.fwd[si] = j1;
+      r.fwd_d2[si] = d1;
+      r.fwd_d2b[si] = d2;
     }
   }
   return r;
