@@ -14,17 +14,9 @@
 namespace d3d {
 
 RansacOptions FpfhOptions::DefaultRansac() {
-  RansacOptions r;
-  r.inlier_threshold_mm = 3.75;
-  r.max_iterations = 50000;
-  r.confidence = 0.999;
-  r.min_inliers = 12;
-  r.min_inlier_ratio = 0.02;
-  r.min_sample_spread_mm = 10;
-  r.min_inlier_spread_mm = 2.5;
-  r.max_edge_ratio_error = 0.1;
-  r.seed = 1;
-  return r;
+  return RansacOptions{.inlier_threshold_mm = 3.75, .max_iterations = 50000, .confidence = 0.999, .min_inliers = 12,
+                       .min_inlier_ratio = 0.02, .min_sample_spread_mm = 10, .min_inlier_spread_mm = 2.5,
+                       .max_edge_ratio_error = 0.1, .seed = 1};
 }
 
 void FpfhOptions::Check() const {
