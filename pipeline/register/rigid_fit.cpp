@@ -122,10 +122,12 @@ RansacResult RansacRigid(const std::vector<Correspondence3d>& c, const RansacOpt
     if (in.size() > best.size()) {
       best = std::move(in);
       best_T = *T;
+      // Hypotheses needed for `confidence`: log(1 − confidence) / log(1 − w³). With a tiny inlier
+      // fraction the quotient overflows an int (or is ±inf): cap it in double before the cast.
       const double w = static_cast<double>(best.size()) / n;
-      const double p_fail = 1.0 - w * w * w;
-      if (p_fail <= 1e-12) needed = it;
-      else needed = std::min(o.max_iterations, static_cast<int>(std::ceil(std::log(1 - o.confidence) / std::log(p_fail))));
+      const double log_fail = std::log1p(-w * w * w);
+      const double k = log_fail < 0 ? std::ceil(std::log(1 - o.confidence) / log_fail) : o.max_iterations;
+      needed = static_cast<int>(std::clamp(k, static_cast<double>(it), static_cast<double>(o.max_iterations)));
     }
   }
   r.iterations = it;
