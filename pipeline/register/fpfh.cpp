@@ -1,6 +1,5 @@
 #include "pipeline/register/fpfh.h"
 
-#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -43,10 +42,7 @@ SurfacePoints VoxelDownsample(const SurfacePoints& in, double voxel_mm) {
   for (size_t i = 0; i < in.size(); ++i) {
     const Eigen::Vector3f& p = in.points[i];
     if (!p.allFinite()) continue;
-    // 21 bits per axis (±1M voxels) packed into one key.
-    const auto q = [&](float v) { return static_cast<uint64_t>(static_cast<int64_t>(std::floor(v * inv)) + (1 << 20)) & 0x1FFFFF; };
-    const uint64_t key = q(p.x()) | (q(p.y()) << 21) | (q(p.z()) << 42);
-    auto [it, fresh] = cell_of.emplace(key, static_cast<int>(count.size()));
+    auto [it, fresh] = cell_of.emplace(VoxelKeyOf(p, inv), static_cast<int>(count.size()));
     if (fresh) {
       psum.emplace_back(Eigen::Vector3d::Zero());
       nsum.emplace_back(Eigen::Vector3d::Zero());
@@ -109,18 +105,8 @@ void NormaliseBlocks(Histogram* h) {
 
 // PCA normal of the keypoints within radius, oriented like `hint`; `hint` when under-determined.
 Eigen::Vector3f PcaNormal(const std::vector<Eigen::Vector3f>& pts, const std::vector<int>& nb, const Eigen::Vector3f& hint) {
-  if (nb.size() < 3) return hint;
-  Eigen::Vector3d m = Eigen::Vector3d::Zero();
-  for (int j : nb) m += pts[static_cast<size_t>(j)].cast<double>();
-  m /= static_cast<double>(nb.size());
-  Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
-  for (int j : nb) {
-    const Eigen::Vector3d e = pts[static_cast<size_t>(j)].cast<double>() - m;
-    C += e * e.transpose();
-  }
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(C);
-  if (!(es.eigenvalues()(1) > 1e-12)) return hint;
-  Eigen::Vector3f n = es.eigenvectors().col(0).cast<float>();
+  Eigen::Vector3f n;
+  if (!PcaPlaneNormal(pts, nb.data(), nb.size(), &n)) return hint;
   return n.dot(hint) < 0 ? Eigen::Vector3f(-n) : n;
 }
 

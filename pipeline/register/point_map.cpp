@@ -14,12 +14,6 @@ void PointMapOptions::Check() const {
 
 PointMap::PointMap(const PointMapOptions& options) : o_(options) { o_.Check(); }
 
-uint64_t PointMap::Key(int64_t x, int64_t y, int64_t z) {
-  const uint64_t m = (1u << 21) - 1;
-  return (static_cast<uint64_t>(x + (1 << 20)) & m) | ((static_cast<uint64_t>(y + (1 << 20)) & m) << 21) |
-         ((static_cast<uint64_t>(z + (1 << 20)) & m) << 42);
-}
-
 void PointMap::Insert(const SurfacePoints& s, const Rigid3d& world_from_source) {
   D3D_CHECK_MSG(s.normals.size() == s.points.size(), "PointMap::Insert needs normals");
   const Eigen::Matrix3f R = world_from_source.linear().cast<float>();
@@ -28,16 +22,13 @@ void PointMap::Insert(const SurfacePoints& s, const Rigid3d& world_from_source) 
   for (size_t i = 0; i < s.size(); ++i) {
     const Eigen::Vector3f p = R * s.points[i] + t;
     const Eigen::Vector3f n = R * s.normals[i];
-    const uint64_t k = Key(static_cast<int64_t>(std::floor(p.x() * inv)), static_cast<int64_t>(std::floor(p.y() * inv)),
-                           static_cast<int64_t>(std::floor(p.z() * inv)));
+    const uint64_t k = VoxelKeyOf(p, inv);
     auto [it, fresh] = voxel_.try_emplace(k, static_cast<uint32_t>(points_.size()));
     if (fresh) {
       points_.push_back(p);
       normals_.push_back(n);
       weights_.push_back(1.0f);
-      const uint64_t b = Key(static_cast<int64_t>(std::floor(p.x() * binv)), static_cast<int64_t>(std::floor(p.y() * binv)),
-                             static_cast<int64_t>(std::floor(p.z() * binv)));
-      blocks_[b].push_back(it->second);
+      blocks_[VoxelKeyOf(p, binv)].push_back(it->second);
     } else {
       const uint32_t j = it->second;
       if (normals_[j].dot(n) < 0.5f) continue;  // the other side of a thin wall
@@ -70,7 +61,7 @@ SurfacePoints PointMap::Gather(const Eigen::Vector3f& lo, const Eigen::Vector3f&
   for (int64_t x = x0; x <= x1; ++x)
     for (int64_t y = y0; y <= y1; ++y)
       for (int64_t z = z0; z <= z1; ++z) {
-        const auto it = blocks_.find(Key(x, y, z));
+        const auto it = blocks_.find(VoxelKey(x, y, z));
         if (it == blocks_.end()) continue;
         for (uint32_t i : it->second) {
           out.points.push_back(points_[i]);
@@ -138,7 +129,7 @@ double PointMap::Overlap(const SurfacePoints& s, const Rigid3d& world_from_sourc
     bool any = false;
     for (int dx = -1; dx <= 1 && !any; ++dx)
       for (int dy = -1; dy <= 1 && !any; ++dy)
-        for (int dz = -1; dz <= 1 && !any; ++dz) any = voxel_.count(Key(x + dx, y + dy, z + dz)) > 0;
+        for (int dz = -1; dz <= 1 && !any; ++dz) any = voxel_.count(VoxelKey(x + dx, y + dy, z + dz)) > 0;
     hit += any;
   }
   return static_cast<double>(hit) / static_cast<double>(s.size());

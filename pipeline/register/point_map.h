@@ -43,7 +43,6 @@ class PointMap {
   double Overlap(const SurfacePoints& samples_in_source, const Rigid3d& world_from_source) const;
 
  private:
-  static uint64_t Key(int64_t x, int64_t y, int64_t z);
   PointMapOptions o_;
   std::vector<Eigen::Vector3f> points_, normals_;
   std::vector<float> weights_;

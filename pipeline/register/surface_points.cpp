@@ -108,22 +108,34 @@ std::vector<Eigen::Vector3f> EstimateNormals(const std::vector<Eigen::Vector3f>&
   std::vector<float> d2(static_cast<size_t>(k));
   for (size_t i = 0; i < points.size(); ++i) {
     const int n = tree.Knn(points[i], k, idx.data(), d2.data());
-    if (n < 3) continue;
-    Eigen::Vector3d m = Eigen::Vector3d::Zero();
-    for (int j = 0; j < n; ++j) m += points[static_cast<size_t>(idx[static_cast<size_t>(j)])].cast<double>();
-    m /= n;
-    Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
-    for (int j = 0; j < n; ++j) {
-      const Eigen::Vector3d d = points[static_cast<size_t>(idx[static_cast<size_t>(j)])].cast<double>() - m;
-      C += d * d.transpose();
-    }
-    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(C);
-    if (!(es.eigenvalues()(1) > 1e-12)) continue;
-    Eigen::Vector3f nrm = es.eigenvectors().col(0).cast<float>();
+    Eigen::Vector3f nrm;
+    if (!PcaPlaneNormal(points, idx.data(), static_cast<size_t>(std::max(n, 0)), &nrm)) continue;
     if (nrm.dot(viewpoint - points[i]) < 0) nrm = -nrm;
     normals[i] = nrm;
   }
   return normals;
+}
+
+bool PcaPlaneNormal(const std::vector<Eigen::Vector3f>& points, const int* indices, size_t count, Eigen::Vector3f* normal) {
+  if (count < 3) return false;
+  Eigen::Vector3d m = Eigen::Vector3d::Zero();
+  for (size_t j = 0; j < count; ++j) m += points[static_cast<size_t>(indices[j])].cast<double>();
+  m /= static_cast<double>(count);
+  Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
+  for (size_t j = 0; j < count; ++j) {
+    const Eigen::Vector3d d = points[static_cast<size_t>(indices[j])].cast<double>() - m;
+    C += d * d.transpose();
+  }
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(C);
+  if (!(es.eigenvalues()(1) > 1e-12)) return false;
+  *normal = es.eigenvectors().col(0).cast<float>();
+  return true;
+}
+
+uint64_t VoxelKey(int64_t x, int64_t y, int64_t z) {
+  const uint64_t m = (1u << 21) - 1;
+  return (static_cast<uint64_t>(x + (1 << 20)) & m) | ((static_cast<uint64_t>(y + (1 << 20)) & m) << 21) |
+         ((static_cast<uint64_t>(z + (1 << 20)) & m) << 42);
 }
 
 }  // namespace d3d

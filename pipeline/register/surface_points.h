@@ -3,6 +3,8 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <cmath>
+#include <cstdint>
 #include <opencv2/core.hpp>
 #include <vector>
 
@@ -41,5 +43,21 @@ cv::Mat GridNormals(const cv::Mat& points, double max_gap_mm);
 // `viewpoint` (mm, the cloud's frame). Points with a degenerate neighbourhood get a NaN normal.
 std::vector<Eigen::Vector3f> EstimateNormals(const std::vector<Eigen::Vector3f>& points, int k,
                                              const Eigen::Vector3f& viewpoint);
+
+// The least-squares plane normal (unit, sign arbitrary) of points[indices[0..count)): the
+// eigenvector of the smallest eigenvalue of their covariance (Hoppe et al. 1992, §3.2). False when
+// fewer than 3 points or the neighbourhood is degenerate (second eigenvalue ≤ 1e-12 mm²: a line).
+bool PcaPlaneNormal(const std::vector<Eigen::Vector3f>& points, const int* indices, size_t count, Eigen::Vector3f* normal);
+
+// Hash key of the integer voxel (x, y, z): 21 bits per axis (cells −2²⁰ … 2²⁰ − 1, i.e. ±1 M
+// voxels) packed into 64 bits. Used by the tracking model's voxel hash and by voxel downsampling.
+uint64_t VoxelKey(int64_t x, int64_t y, int64_t z);
+// The key of the voxel of edge 1 / inv_voxel_mm (cells aligned to the origin) holding p (mm); the
+// products p·inv are formed in the precision of Scalar (float or double).
+template <typename Scalar>
+uint64_t VoxelKeyOf(const Eigen::Vector3f& p, Scalar inv_voxel_mm) {
+  return VoxelKey(static_cast<int64_t>(std::floor(p.x() * inv_voxel_mm)), static_cast<int64_t>(std::floor(p.y() * inv_voxel_mm)),
+                  static_cast<int64_t>(std::floor(p.z() * inv_voxel_mm)));
+}
 
 }  // namespace d3d
