@@ -17,7 +17,8 @@ namespace {
 
 const std::string kDir = std::string(D3D_SHARED_DATA_DIR) + "/range_scans/stanford_bunny";
 
-// Scans are read once for the whole suite (ASCII PLY, ~0.2 s each).
+// Scans are read once per process (ASCII PLY, ~0.2 s each): once for the whole suite when the
+// binary runs it all; under CTest each case is its own process and reads its two scans.
 const cv::Mat& Scan(const std::string& name) {
   static std::map<std::string, cv::Mat> cache;
   auto it = cache.find(name);
