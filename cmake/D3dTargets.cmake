@@ -8,6 +8,16 @@ function(d3d_warnings target)
   target_compile_options(${target} PRIVATE -Wall -Wextra -Werror)
 endfunction()
 
+# Tests and the thin executables parse flags, wire libraries and check results; the work they
+# time or run is in the libraries, which keep the release flags. -O1 (after -O3 on the command
+# line, so it wins) halves their compile time: about two minutes of a clean build on 2 cores.
+# Benchmarks (d3d-bench-*) keep the release flags: their timing loops are in their own files.
+function(d3d_thin_code target)
+  if(NOT target MATCHES "^d3d-bench-")
+    target_compile_options(${target} PRIVATE -O1)
+  endif()
+endfunction()
+
 function(d3d_library name)
   cmake_parse_arguments(ARG "" "" "SOURCES;DEPS;PRIVATE_DEPS" ${ARGN})
   add_library(${name} STATIC ${ARG_SOURCES})
@@ -21,6 +31,7 @@ function(d3d_executable name)
   add_executable(${name} ${ARG_SOURCES})
   target_link_libraries(${name} PRIVATE ${ARG_DEPS})
   d3d_warnings(${name})
+  d3d_thin_code(${name})
 endfunction()
 
 function(d3d_test name)
@@ -28,6 +39,7 @@ function(d3d_test name)
   add_executable(${name} ${ARG_SOURCES})
   target_link_libraries(${name} PRIVATE ${ARG_DEPS} GTest::gtest GTest::gtest_main GTest::gmock)
   target_compile_definitions(${name} PRIVATE D3D_SHARED_DATA_DIR="${D3D_SHARED_DATA_DIR}")
+  d3d_thin_code(${name})
   set_target_properties(${name} PROPERTIES RUNTIME_OUTPUT_DIRECTORY ${CMAKE_BINARY_DIR}/tests)
   d3d_warnings(${name})
   gtest_discover_tests(${name} DISCOVERY_TIMEOUT 60 PROPERTIES LABELS "${ARG_LABELS}")
