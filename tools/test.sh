@@ -15,7 +15,8 @@ echo "test.sh: CTest took $(( $(date +%s) - start )) s"
 
 # Parsers (mesh files, .npy, burst folders, calibration.json) under ASan + UBSan.
 asan="$D3D_ROOT/build-asan"
-cmake -G Ninja -S "$D3D_ROOT" -B "$asan" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DD3D_SANITIZE=address,undefined >/dev/null
+cmake -G Ninja -S "$D3D_ROOT" -B "$asan" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DD3D_SANITIZE=address,undefined \
+  -DD3D_SANITIZE_OPT=-O0 >/dev/null
 asan_tests="d3d_mesh_test d3d_core_test d3d_burst_test d3d_calib_model_test d3d_formats_mutation_test"
 asan_tests+=" d3d_recording_test d3d_recording_mutation_test"                     # recordings (issue 4)
 asan_tests+=" d3d_fw_update_test d3d_firmware_mutation_test d3d_flash_host_test"  # firmware update (issue 8)

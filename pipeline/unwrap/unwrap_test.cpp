@@ -401,6 +401,27 @@ TEST(Unwrap, OutsideTheVolumeIsDropped) {
   EXPECT_GT(e.KeptShare(), 0.97);
 }
 
+TEST(Unwrap, AMarkedRegionReachingBeyondTheVolumeKeepsItsPartInside) {
+  // A plane from 54 to 60 mm (gum behind the crowns): a third of it lies beyond 58 mm and does not
+  // admit the marker's K. With the default majority rule the region keeps its marker order and only
+  // the part outside the volume is dropped; requiring 80 % (the old default) lost it whole.
+  const SyntheticProbe probe;
+  const SyntheticScene s = MakeFringeScene(PlaneDepth(probe, 57.0, 0.0, 0.0125), probe, Noise(12));
+  cv::Mat inside(s.depth.size(), CV_8U, cv::Scalar(0));
+  for (int y = 0; y < s.depth.rows; ++y)
+    for (int x = 0; x < s.depth.cols; ++x) inside.at<uint8_t>(y, x) = s.depth.at<float>(y, x) < 57.7f ? 255 : 0;
+  UnwrapResult r = RunAll(s);
+  Eval e = Evaluate(s, r);
+  EXPECT_EQ(e.wrong, 0);
+  EXPECT_EQ(e.inconsistent, 0);
+  EXPECT_GT(r.stats.pixels_outside, 50000);
+  EXPECT_GT(Evaluate(s, r, inside).KeptShare(), 0.97);
+  UnwrapOptions strict;
+  strict.marker_depth_fraction = 0.8;
+  r = RunAll(s, strict);
+  EXPECT_LT(Evaluate(s, r, inside).KeptShare(), 0.05);
+}
+
 TEST(Unwrap, OneStripeWithoutBounds) {
   // marker_spacing_orders = 0: a single stripe identifies its order without any depth bound.
   SyntheticProbe probe;
