@@ -69,7 +69,7 @@ struct TrackerOptions {
   int local_candidates = 4;       // local search: ICP from the last pose and this many nearest keyframes
   double local_search_gate_mm = 4.0;  // first-level association gate of the local search
   int min_view_samples = 5000;    // fewer samples (a fragment, ~6 % of the image): skipped, state unchanged
-  double relocalise_max_rmse_mm = 0.04;  // stricter residual for a relocalised view
+  double relocalise_max_rmse_mm = 0.04;  // stricter residual for a view re-entering the model (local search or features)
   double relocalise_min_overlap = 0.5;
   double loop_radius_mm = 10.0;   // keyframe centres closer than this are loop candidates
   int loop_min_separation = 10;   // keyframes

@@ -95,6 +95,38 @@ TEST_F(TrackerScan, AJumpBeyondTheModelIsRefused) {
 }
 
 
+TEST_F(TrackerScan, ALostTrackReentersOnlyAtTheRelocalisationResidual) {
+  // A noisy view (σ 55–65 µm: ICP residual between the relocalisation limit, 40 µm, and tracking's)
+  // continues a track from the predicted pose, but does not re-enter the model through the local
+  // search once the track is lost; a clean view at the same place does.
+  TrackerOptions o;
+  o.relocalise = false;  // the local search only
+  Tracker tracker(cam_, o);
+  for (double x = 0; x <= 2.01; x += 0.5) ASSERT_TRUE(Feed(&tracker, Truth(x, 0), 1).accepted);
+  const auto noisy = [&](double x, uint32_t seed, double sigma_mm) {
+    const auto v = RenderHeightField(hf_, cam_, Truth(x, 0), sigma_mm, seed);
+    return tracker.Track(v.points, v.normals, v.quality, v.texture);
+  };
+  const TrackResult tracked = noisy(2.2, 2, 0.055);
+  ASSERT_TRUE(tracked.accepted) << tracked.reason;
+  EXPECT_GT(tracked.icp.rmse_mm, o.relocalise_max_rmse_mm);
+  EXPECT_LT(tracked.icp.rmse_mm, o.icp.max_rmse_mm);
+  ASSERT_FALSE(Feed(&tracker, Truth(20, 0), 3).accepted);  // off the model: lost
+  ASSERT_EQ(tracker.state(), TrackingState::kLost);
+  const TrackResult refused = noisy(2.3, 4, 0.065);
+  EXPECT_FALSE(refused.accepted) << refused.reason << " rmse " << refused.icp.rmse_mm;
+  EXPECT_EQ(refused.state, TrackingState::kLost);
+  // Refused for its residual, which tracking's limit would have let through.
+  const size_t at = refused.reason.find("high residual (rmse ");
+  ASSERT_NE(at, std::string::npos) << refused.reason;
+  const double rmse_um = std::stod(refused.reason.substr(at + 20));
+  EXPECT_GT(rmse_um, 1000 * o.relocalise_max_rmse_mm);
+  EXPECT_LT(rmse_um, 1000 * o.icp.max_rmse_mm);
+  const TrackResult back = Feed(&tracker, Truth(2.3, 0), 5);
+  ASSERT_TRUE(back.accepted) << back.reason;
+  EXPECT_EQ(back.state, TrackingState::kRelocalised);
+}
+
 // Keyframe odometry measured by ICP between the keyframes' own samples, not taken from the
 // drifting tracked poses: a chain of views with an injected drift (every step turns 0.05° and
 // advances 11 µm too far, as a biased frame-to-model registration would) is straightened by the
