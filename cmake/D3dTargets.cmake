@@ -10,7 +10,8 @@ endfunction()
 
 # Tests and the thin executables parse flags, wire libraries and check results; the work they
 # time or run is in the libraries, which keep the release flags. -O1 (after -O3 on the command
-# line, so it wins) halves their compile time: about two minutes of a clean build on 2 cores.
+# line, so it wins) cut their compile time from 671 to 546 cpu-s (tools 262 -> 196, tests 409 ->
+# 350), about a minute of a clean build on 2 cores, with CTest no slower.
 # Benchmarks (d3d-bench-*) keep the release flags: their timing loops are in their own files.
 # Sanitizer builds keep their own level (D3D_SANITIZE_OPT) everywhere.
 function(d3d_thin_code target)

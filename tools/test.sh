@@ -13,7 +13,8 @@ ctest --test-dir "$D3D_ROOT/build" --output-on-failure -j2 --timeout 900
 echo "test.sh: CTest took $(( $(date +%s) - start )) s"
 ((quick)) && exit 0
 
-# Parsers (mesh files, .npy, burst folders, calibration.json) under ASan + UBSan.
+# Parsers (meshes, .npy, burst folders, calibration.json, recordings, firmware images, calibration
+# images, range scans) under ASan + UBSan, at -O0 (compile time; see d3d_sanitize_at_o1).
 asan="$D3D_ROOT/build-asan"
 cmake -G Ninja -S "$D3D_ROOT" -B "$asan" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DD3D_SANITIZE=address,undefined \
   -DD3D_SANITIZE_OPT=-O0 >/dev/null
