@@ -13,8 +13,9 @@ class TrackerScan : public ::testing::Test {
  protected:
   TrackerScan() : hf_(31), cam_(TestCamera()) {}
   Rigid3d Truth(double x, double y) const { return LookDown(x, y, 30, 0.05 * std::sin(x), 0.04 * std::cos(x), 0.02 * x); }
-  TrackResult Feed(Tracker* t, const Rigid3d& pose, uint32_t seed) {
-    const auto v = RenderHeightField(hf_, cam_, pose, 0.004, seed);
+  // A view at `pose` with depth noise σ = noise_mm.
+  TrackResult Feed(Tracker* t, const Rigid3d& pose, uint32_t seed, double noise_mm = 0.004) {
+    const auto v = RenderHeightField(hf_, cam_, pose, noise_mm, seed);
     return t->Track(v.points, v.normals, v.quality, v.texture);
   }
   HeightField hf_;
@@ -103,23 +104,20 @@ TEST_F(TrackerScan, ALostTrackReentersOnlyAtTheRelocalisationResidual) {
   o.relocalise = false;  // the local search only
   Tracker tracker(cam_, o);
   for (double x = 0; x <= 2.01; x += 0.5) ASSERT_TRUE(Feed(&tracker, Truth(x, 0), 1).accepted);
-  const auto noisy = [&](double x, uint32_t seed, double sigma_mm) {
-    const auto v = RenderHeightField(hf_, cam_, Truth(x, 0), sigma_mm, seed);
-    return tracker.Track(v.points, v.normals, v.quality, v.texture);
-  };
-  const TrackResult tracked = noisy(2.2, 2, 0.055);
+  const TrackResult tracked = Feed(&tracker, Truth(2.2, 0), 2, 0.055);
   ASSERT_TRUE(tracked.accepted) << tracked.reason;
   EXPECT_GT(tracked.icp.rmse_mm, o.relocalise_max_rmse_mm);
   EXPECT_LT(tracked.icp.rmse_mm, o.icp.max_rmse_mm);
   ASSERT_FALSE(Feed(&tracker, Truth(20, 0), 3).accepted);  // off the model: lost
   ASSERT_EQ(tracker.state(), TrackingState::kLost);
-  const TrackResult refused = noisy(2.3, 4, 0.065);
+  const TrackResult refused = Feed(&tracker, Truth(2.3, 0), 4, 0.065);
   EXPECT_FALSE(refused.accepted) << refused.reason << " rmse " << refused.icp.rmse_mm;
   EXPECT_EQ(refused.state, TrackingState::kLost);
   // Refused for its residual, which tracking's limit would have let through.
-  const size_t at = refused.reason.find("high residual (rmse ");
+  const std::string high = "high residual (rmse ";
+  const size_t at = refused.reason.find(high);
   ASSERT_NE(at, std::string::npos) << refused.reason;
-  const double rmse_um = std::stod(refused.reason.substr(at + 20));
+  const double rmse_um = std::stod(refused.reason.substr(at + high.size()));
   EXPECT_GT(rmse_um, 1000 * o.relocalise_max_rmse_mm);
   EXPECT_LT(rmse_um, 1000 * o.icp.max_rmse_mm);
   const TrackResult back = Feed(&tracker, Truth(2.3, 0), 5);

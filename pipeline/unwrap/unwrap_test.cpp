@@ -407,9 +407,7 @@ TEST(Unwrap, AMarkedRegionReachingBeyondTheVolumeKeepsItsPartInside) {
   // the part outside the volume is dropped; requiring 80 % (the old default) lost it whole.
   const SyntheticProbe probe;
   const SyntheticScene s = MakeFringeScene(PlaneDepth(probe, 57.0, 0.0, 0.0125), probe, Noise(12));
-  cv::Mat inside(s.depth.size(), CV_8U, cv::Scalar(0));
-  for (int y = 0; y < s.depth.rows; ++y)
-    for (int x = 0; x < s.depth.cols; ++x) inside.at<uint8_t>(y, x) = s.depth.at<float>(y, x) < 57.7f ? 255 : 0;
+  const cv::Mat inside = s.depth < 57.7f;  // CV_8U 255 inside the volume (less a margin)
   UnwrapResult r = RunAll(s);
   Eval e = Evaluate(s, r);
   EXPECT_EQ(e.wrong, 0);
