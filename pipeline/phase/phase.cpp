@@ -435,8 +435,13 @@ cv::Mat PhaseEstimator::Impl::SolveTiles(int TH, int TW, int window, const cv::M
   for (int ty = 0; ty < TH; ++ty)
     for (int tx = 0; tx < TW; ++tx) {
       const double n = sums[0].at<double>(ty, tx), d = sums[1].at<double>(ty, tx), c = sums[2].at<double>(ty, tx);
-      const double kappa = c >= min_count && d > 0.0 ? n / d : fallback ? fallback->at<float>(ty, tx) : fallback_value;
-      k.at<float>(ty, tx) = static_cast<float>(std::clamp(kappa, 0.0, phase_internal::kKappaMax));
+      // Only fitted values are clamped: EstimateKappa's first pass marks tiles without support by
+      // fallback_value −1, and its median must not count them (clamped, they read as κ = 0, and
+      // an image more than half dark then seeded the robust fit with κ = 0).
+      const double kappa = c >= min_count && d > 0.0 ? std::clamp(n / d, 0.0, phase_internal::kKappaMax)
+                           : fallback                ? fallback->at<float>(ty, tx)
+                                                     : fallback_value;
+      k.at<float>(ty, tx) = static_cast<float>(kappa);
     }
   return k;
 }
