@@ -21,6 +21,9 @@ void TsdfOptions::Check() const {
   D3D_CHECK_MSG(max_incidence_deg > 0 && max_incidence_deg <= 90, "TsdfOptions: max_incidence_deg in (0, 90]");
   D3D_CHECK_MSG(pixel_stride >= 1, "TsdfOptions: pixel_stride >= 1");
   D3D_CHECK_MSG(min_mesh_weight >= 0 && mesh_seed_weight >= 0, "TsdfOptions: mesh weights must be >= 0");
+  D3D_CHECK_MSG(occlusion_margin_mm >= 0 && (occlusion_margin_mm == 0 || occlusion_reach_mm > occlusion_margin_mm),
+                "TsdfOptions: occlusion_margin_mm must be >= 0 and below occlusion_reach_mm");
+  D3D_CHECK_MSG(occlusion_min_weight > 0 && occlusion_stride >= 1, "TsdfOptions: occlusion_min_weight > 0, occlusion_stride >= 1");
 }
 
 struct TsdfVolume::Impl {
@@ -81,12 +84,56 @@ Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& 
   const double inv_voxel = 1.0 / o_.voxel_mm;
   const double band = o_.truncation_mm * inv_voxel + 1.0;
   const float cos_max = static_cast<float>(std::cos(o_.max_incidence_deg * M_PI / 180.0));
+  // 0. Occlusion test against the model so far (file comment): occluded_mask_ 1 = not fused.
+  const bool test_occlusion = o_.occlusion_margin_mm > 0 && views_ > 0;
+  last_occluded_ = 0;
+  if (test_occlusion) {
+    occluded_mask_.create(P.size(), CV_8U);
+    occluded_mask_.setTo(0);
+    const int k = o_.occlusion_stride;
+    // Samples behind a known surface (D < −0.1·truncation, within the band's back half, at least
+    // 0.9·truncation thick along any ray) are what counts; the step is shorter than that. The band's
+    // front half is not used: a point's own surface, seen grazing, lies within it along its ray.
+    const double step = 0.8 * o_.truncation_mm;
+    const float behind = static_cast<float>(-0.1 * o_.truncation_mm);
+    std::vector<int64_t> per_row((P.rows + k - 1) / k, 0);
+    tbb::parallel_for(tbb::blocked_range<int>(0, (P.rows + k - 1) / k), [&](const tbb::blocked_range<int>& rows) {
+      auto tacc = impl_->tsdf->getConstAccessor();
+      auto wacc = impl_->weight->getConstAccessor();
+      for (int br = rows.begin(); br < rows.end(); ++br) {
+        const int r = br * k;
+        const cv::Vec3f* p = P.ptr<cv::Vec3f>(r);
+        for (int c = 0; c < P.cols; c += k) {
+          if (!std::isfinite(p[c][0]) || !std::isfinite(p[c][2])) continue;
+          const Eigen::Vector3d pc(p[c][0], p[c][1], p[c][2]);
+          const double range = pc.norm();
+          bool hidden = false;
+          for (double s = o_.occlusion_margin_mm; s <= o_.occlusion_reach_mm && s < range && !hidden; s += step) {
+            const Eigen::Vector3d q = (world_from_cam * (pc * (1.0 - s / range))) * inv_voxel;
+            const openvdb::Coord ijk(static_cast<int>(std::lround(q.x())), static_cast<int>(std::lround(q.y())),
+                                     static_cast<int>(std::lround(q.z())));
+            hidden = tacc.getValue(ijk) < behind && wacc.getValue(ijk) >= o_.occlusion_min_weight;
+          }
+          if (!hidden) continue;
+          const int r1 = std::min(r + k, P.rows), c1 = std::min(c + k, P.cols);
+          for (int rr = r; rr < r1; ++rr)
+            for (int cc = c; cc < c1; ++cc) {
+              occluded_mask_.at<uint8_t>(rr, cc) = 1;
+              per_row[static_cast<size_t>(br)] += std::isfinite(P.at<cv::Vec3f>(rr, cc)[2]) ? 1 : 0;
+            }
+        }
+      }
+    });
+    for (int64_t n : per_row) last_occluded_ += n;
+    occluded_ += last_occluded_;
+  }
+  auto occluded = [&](int r, int c) { return test_occlusion && occluded_mask_.at<uint8_t>(r, c) != 0; };
   // 1. Leaves near the view's points (serial: topology changes).
   std::unordered_set<openvdb::Coord, CoordHash> leaves;
   for (int r = 0; r < P.rows; r += o_.pixel_stride) {
     const cv::Vec3f* p = P.ptr<cv::Vec3f>(r);
     for (int c = 0; c < P.cols; c += o_.pixel_stride) {
-      if (!std::isfinite(p[c][0]) || !std::isfinite(p[c][2])) continue;
+      if (!std::isfinite(p[c][0]) || !std::isfinite(p[c][2]) || occluded(r, c)) continue;
       const Eigen::Vector3d w = world_from_cam * Eigen::Vector3d(p[c][0], p[c][1], p[c][2]);
       TouchLeaves(w * inv_voxel, band, &leaves);
     }
@@ -117,7 +164,7 @@ Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& 
         if (u < 0 || v < 0 || u >= P.cols || v >= P.rows) continue;
         const cv::Vec3f& pm = P.at<cv::Vec3f>(v, u);
         const cv::Vec3f& nm = N.at<cv::Vec3f>(v, u);
-        if (!std::isfinite(pm[0]) || !std::isfinite(pm[2])) continue;
+        if (!std::isfinite(pm[0]) || !std::isfinite(pm[2]) || occluded(v, u)) continue;
         const float q = Q.empty() ? 1.0f : Q.at<float>(v, u);
         if (!(q >= o_.min_point_weight)) continue;
         const Eigen::Vector3f p(pm[0], pm[1], pm[2]);

@@ -166,6 +166,7 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   j["refused_at_optimised_poses"] = refused != nullptr;
   j["ms_refuse_total"] = ms_refuse;
   j["tsdf_active_voxels"] = model.ActiveVoxels();
+  j["points_occluded"] = model.occluded_points();  // not fused: behind a known surface (tsdf.h)
   j["tsdf_memory_mib"] = static_cast<double>(fuser->volume().MemoryBytes() + (refused ? refused->volume().MemoryBytes() : 0)) / (1024.0 * 1024.0);
   j["mesh_vertices"] = out->mesh.vertices.size();
   j["mesh_faces"] = out->mesh.faces.size();
