@@ -26,8 +26,8 @@
 // ray crosses there is hit): a sample behind a surface (D < −0.1·truncation, weight ≥
 // occlusion_min_weight) marks the point occluded, and it is not fused. Such points are measurement errors: a patch unwrapped
 // one fringe order off across a hidden depth step lands 1–2 mm behind the surface, where no other
-// view's band reaches to correct it, and several consecutive views repeat it (real arch, seed 2:
-// 0.1 % of the mesh 0.2–0.8 mm inside the teeth, RMS 9 → 26 µm).
+// view's band reaches to correct it, and several consecutive views repeat it (real arch, seed 2,
+// without the test: 0.1 % of the mesh lay 0.2–0.8 mm inside the teeth, RMS 26 µm instead of 9).
 // Thread model: one owner thread calls Integrate/ExtractMesh; Integrate uses TBB internally.
 #pragma once
 
