@@ -96,6 +96,7 @@ Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& 
     // front half is not used: a point's own surface, seen grazing, lies within it along its ray.
     const double step = 0.8 * o_.truncation_mm;
     const float behind = static_cast<float>(-0.1 * o_.truncation_mm);
+    const Eigen::Vector3d centre = world_from_cam.translation();  // the camera's, world frame
     std::vector<int64_t> per_row((P.rows + k - 1) / k, 0);
     tbb::parallel_for(tbb::blocked_range<int>(0, (P.rows + k - 1) / k), [&](const tbb::blocked_range<int>& rows) {
       auto tacc = impl_->tsdf->getConstAccessor();
@@ -107,9 +108,12 @@ Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& 
           if (!std::isfinite(p[c][0]) || !std::isfinite(p[c][2])) continue;
           const Eigen::Vector3d pc(p[c][0], p[c][1], p[c][2]);
           const double range = pc.norm();
+          // Toward the camera along the ray, in index space: q(s) = p + s·(centre − p)/range.
+          const Eigen::Vector3d p_index = (world_from_cam * pc) * inv_voxel;
+          const Eigen::Vector3d toward = (centre * inv_voxel - p_index) / range;
           bool hidden = false;
           for (double s = o_.occlusion_margin_mm; s <= o_.occlusion_reach_mm && s < range && !hidden; s += step) {
-            const Eigen::Vector3d q = (world_from_cam * (pc * (1.0 - s / range))) * inv_voxel;
+            const Eigen::Vector3d q = p_index + s * toward;
             const openvdb::Coord ijk(static_cast<int>(std::lround(q.x())), static_cast<int>(std::lround(q.y())),
                                      static_cast<int>(std::lround(q.z())));
             hidden = tacc.getValue(ijk) < behind && wacc.getValue(ijk) >= o_.occlusion_min_weight;
