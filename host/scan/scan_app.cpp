@@ -39,7 +39,7 @@ void ScanAppOptions::Check() const {
 ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& options, BurstSource* source)
     : calibration_(calibration), o_(options), source_(source), recon_(calibration, options.scan.recon) {
   o_.Check();
-  registrar_ = std::make_unique<ScanRegistrar>(calibration_.camera, o_.scan.tracker);
+  registrar_ = std::make_unique<ScanRegistrar>(calibration_, o_.scan.tracker, o_.scan.anchor, o_.scan.recon.normal_max_gap_mm);
   fuser_ = std::make_unique<ScanFuser>(calibration_.camera, o_.scan.tsdf);
   cells_.reserve(o_.preview_max_points);
   model_points_.reserve(o_.preview_max_points);
@@ -109,7 +109,7 @@ bool ScanApp::ReconstructStage(ScanItem& item) {
 
 bool ScanApp::RegisterStage(ScanItem& item) {
   if (item.epoch != reg_epoch_) {
-    registrar_ = std::make_unique<ScanRegistrar>(calibration_.camera, o_.scan.tracker);
+    registrar_ = std::make_unique<ScanRegistrar>(calibration_, o_.scan.tracker, o_.scan.anchor, o_.scan.recon.normal_max_gap_mm);
     reg_epoch_ = item.epoch;
   }
   item.track = registrar_->Register(item.view, item.burst.burst_seq, item.burst.capture_ns);

@@ -94,7 +94,7 @@ Status Reconstructor::Reconstruct(const std::vector<cv::Mat>& frames, Reconstruc
   out->ms_phase = MsSince(t);
   t = std::chrono::steady_clock::now();
   D3D_RETURN_IF_ERROR(ComputeQualityMap(out->phase.phi, out->phase.modulation, out->phase.valid, options_.quality,
-                                        &out->quality));
+                                        &out->quality, &out->quality_reason));
   out->ms_quality = MsSince(t);
   t = std::chrono::steady_clock::now();
   D3D_RETURN_IF_ERROR(unwrapper_.Run(out->phase.phi, out->quality, out->phase.marker, phase_min_, phase_max_, &out->unwrap));

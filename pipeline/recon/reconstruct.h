@@ -54,6 +54,7 @@ struct ReconstructedView {
   cv::Mat normals;        // H×W CV_32FC3 unit, camera frame, NaN where unknown
   cv::Mat texture;        // H×W CV_8U: mean of the frames
   cv::Mat quality;        // H×W CV_32F ∈ [0, 1]
+  cv::Mat quality_reason; // H×W CV_8U QualityReason: why a pixel has quality 0 (pipeline/unwrap/quality_map.h)
   PhaseMaps phase;        // φ, B, A, marker ... (pipeline/phase)
   UnwrapResult unwrap;    // Φ, k, regions ... (pipeline/unwrap)
   int64_t points = 0;     // finite points

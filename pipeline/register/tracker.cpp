@@ -37,6 +37,7 @@ void TrackerOptions::Check() const {
   D3D_CHECK_MSG(relocalise_candidates >= 1 && loop_min_separation >= 1 && max_loop_candidates >= 0 && near_loop_candidates >= 0,
                 "TrackerOptions: counts");
   D3D_CHECK_MSG(edge_information_scale > 0, "TrackerOptions: edge_information_scale > 0");
+  D3D_CHECK_MSG(reregister_min_gain >= 0, "TrackerOptions: reregister_min_gain >= 0");
   D3D_CHECK_MSG(odometry_sigma_mm > 0 && odometry_sigma_rad > 0 && loop_sigma_mm > 0 && loop_sigma_rad > 0, "TrackerOptions: sigmas");
 }
 
@@ -92,13 +93,25 @@ double OverlapIndex(const SurfacePoints& a, const SurfacePoints& b, const Rigid3
 }
 }  // namespace
 
-TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, const cv::Mat& texture) {
+TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, const cv::Mat& texture,
+                           const ViewAugmenter& augment) {
   const auto t0 = std::chrono::steady_clock::now();
   ++index_;
   anchor_.push_back(-1);
   kf_from_cam_.push_back(Rigid3d::Identity());
   TrackResult out;
-  const SurfacePoints samples = SampleOrganised(points, normals, quality, o_.sample_stride);
+  SurfacePoints samples = SampleOrganised(points, normals, quality, o_.sample_stride);
+  bool augmented = false;
+  if (samples.size() < static_cast<size_t>(o_.min_view_samples) && augment && !map_.empty() &&
+      state_ == TrackingState::kTracking && index_ - last_accepted_ <= 2) {
+    // Too little of the view was anchored by its own burst (teeth without a readable marker): while
+    // tracking from the view just before, the motion prediction is close enough for the augmenter
+    // to try the model there.
+    if (augment(Predict(), map_)) {
+      samples = SampleOrganised(points, normals, quality, o_.sample_stride);
+      augmented = true;
+    }
+  }
   if (samples.size() < static_cast<size_t>(o_.min_view_samples)) {
     // Nothing to register (probe lifted, out of the measurement volume): refused, but the
     // tracking state is kept; the motion model restarts with the next view.
@@ -160,6 +173,24 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     out.state = state_;
     out.ms = Ms(t0);
     return out;
+  }
+  if (augment && !map_.empty() && !augmented && augment(pose, map_)) {
+    // The view gained points: register it again from its pose with all of them, when they are
+    // enough to change the fit (a view whose own points were only the smooth palate, say).
+    SurfacePoints more = SampleOrganised(points, normals, quality, o_.sample_stride);
+    const bool enough = static_cast<double>(more.size()) >= (1.0 + o_.reregister_min_gain) * static_cast<double>(samples.size());
+    IcpResult again;
+    if (enough) again = RunIcp(more, pose, o_.icp);
+    const double views = static_cast<double>(index_ - last_accepted_);
+    const bool consistent = TranslationDistanceMm(again.target_from_source, last_pose_) <= o_.max_step_mm * views &&
+                            RotationAngleRad(again.target_from_source, last_pose_) * 180 / M_PI <= o_.max_step_deg * views;
+    if (!enough) {
+      samples = std::move(more);  // fused and inserted at the pose found without them
+    } else if (again.ok && consistent) {
+      pose = again.target_from_source;
+      out.icp = again;
+      samples = std::move(more);
+    }
   }
   out.accepted = true;
   out.world_from_cam = pose;

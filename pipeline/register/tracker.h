@@ -29,6 +29,7 @@
 // anchor keyframe: world_from_cam = world_from_keyframe (optimised) · keyframe_from_cam (tracked).
 #pragma once
 
+#include <functional>
 #include <memory>
 #include <opencv2/core.hpp>
 #include <string>
@@ -69,6 +70,9 @@ struct TrackerOptions {
   int local_candidates = 4;       // local search: ICP from the last pose and this many nearest keyframes
   double local_search_gate_mm = 4.0;  // first-level association gate of the local search
   int min_view_samples = 5000;    // fewer samples (a fragment, ~6 % of the image): skipped, state unchanged
+  // A view that a Track() augmenter enlarged is registered again when its samples grew by at least
+  // this share (the second ICP costs as much as the first: ~45 ms on this machine).
+  double reregister_min_gain = 0.25;
   double relocalise_max_rmse_mm = 0.04;  // stricter residual for a view re-entering the model (local search or features)
   double relocalise_min_overlap = 0.5;
   double loop_radius_mm = 10.0;   // keyframe centres closer than this are loop candidates
@@ -130,9 +134,20 @@ class Tracker {
   Tracker(const PinholeBrownConrady& camera, const TrackerOptions& options = {});
   ~Tracker();
 
+  // Called once per accepted view (not the first), with its pose, before the view enters the model:
+  // it may add points to the view, writing into the same buffers as the points, normals and quality
+  // given to Track (e.g. surfaces the model confirms: pipeline/scan/model_anchor.h), and returns
+  // true if it did. Track then runs ICP again from that pose with all the points (when they grew by
+  // TrackerOptions::reregister_min_gain) and takes the new pose if that ICP is ok and a consistent
+  // motion. A view with too few points for ICP, right after
+  // an accepted one while tracking, is offered to it once at the motion prediction instead (then
+  // not again after its ICP). "Right after": at most one view refused in between.
+  using ViewAugmenter = std::function<bool(const Rigid3d& world_from_cam, const PointMap& model)>;
+
   // points, normals: H×W CV_32FC3 camera frame (mm, NaN = none); quality H×W CV_32F or empty;
   // texture H×W CV_8U or empty (then relocalisation uses range features only).
-  TrackResult Track(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, const cv::Mat& texture);
+  TrackResult Track(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, const cv::Mat& texture,
+                    const ViewAugmenter& augment = {});
 
   TrackingState state() const { return state_; }
   const std::vector<Keyframe>& keyframes() const { return keyframes_; }

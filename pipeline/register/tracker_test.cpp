@@ -180,5 +180,56 @@ TEST_F(TrackerScan, KeyframeIcpEdgesRemoveAnInjectedDrift) {
   EXPECT_TRUE(s.disagreeing_edges.empty());
 }
 
+TEST_F(TrackerScan, AnAugmentedViewIsRegisteredAgainWithItsNewPoints) {
+  // Each view reaches the tracker with its right 60 % hidden; the augmenter (as model anchoring
+  // does) writes the hidden part into the same buffers once the pose is known. The view is then
+  // registered again with all its points and enters the model whole.
+  TrackerOptions o;
+  Tracker plain(cam_, o), augmented(cam_, o), declined(cam_, o);
+  const int cut = cam_.width * 2 / 5;
+  int calls = 0, declined_calls = 0;
+  uint32_t seed = 1;
+  for (double x = -4; x <= 4.01; x += 1.0, ++seed) {
+    const Rigid3d pose = Truth(x, 0);
+    const auto full = RenderHeightField(hf_, cam_, pose, 0.004, seed);
+    auto masked = [&](cv::Mat* points, cv::Mat* normals) {
+      *points = full.points.clone();
+      *normals = full.normals.clone();
+      points->colRange(cut, cam_.width).setTo(cv::Scalar::all(std::nanf("")));
+      normals->colRange(cut, cam_.width).setTo(cv::Scalar::all(std::nanf("")));
+    };
+    cv::Mat p0, n0, p1, n1, p2, n2;
+    masked(&p0, &n0);
+    masked(&p1, &n1);
+    masked(&p2, &n2);
+    ASSERT_TRUE(plain.Track(p0, n0, full.quality, full.texture).accepted);
+    const TrackResult r = augmented.Track(p1, n1, full.quality, full.texture, [&](const Rigid3d&, const PointMap& model) {
+      EXPECT_FALSE(model.empty());
+      ++calls;
+      full.points.colRange(cut, cam_.width).copyTo(p1.colRange(cut, cam_.width));
+      full.normals.colRange(cut, cam_.width).copyTo(n1.colRange(cut, cam_.width));
+      return true;
+    });
+    ASSERT_TRUE(r.accepted) << r.reason;
+    const TrackResult d = declined.Track(p2, n2, full.quality, full.texture, [&](const Rigid3d&, const PointMap&) {
+      ++declined_calls;
+      return false;
+    });
+    ASSERT_TRUE(d.accepted) << d.reason;
+  }
+  EXPECT_EQ(calls, 8);  // every accepted view but the first (no model yet)
+  EXPECT_EQ(declined_calls, 8);
+  EXPECT_GT(augmented.model().size(), plain.model().size() * 13 / 10);  // the revealed parts are in the model (1.8×)
+  const Rigid3d first_inv = Truth(-4, 0).inverse();
+  for (int64_t i = 0; i < augmented.views(); ++i) {
+    Rigid3d a, p, d;
+    ASSERT_TRUE(augmented.ViewPose(i, &a) && plain.ViewPose(i, &p) && declined.ViewPose(i, &d));
+    const Rigid3d want = first_inv * Truth(-4 + static_cast<double>(i), 0);
+    EXPECT_LT(TranslationDistanceMm(a, want), 0.02) << "view " << i;
+    EXPECT_LT(RotationAngleRad(a, want) * 180 / M_PI, 0.04) << "view " << i;
+    EXPECT_EQ(d.matrix(), p.matrix()) << "view " << i;  // an augmenter that adds nothing changes nothing
+  }
+}
+
 }  // namespace
 }  // namespace d3d

@@ -19,6 +19,7 @@ double MsSince(Clock::time_point t) { return std::chrono::duration<double, std::
 void ScanOptions::Check() const {
   recon.Check();
   tracker.Check();
+  anchor.Check();
   tsdf.Check();
   eval.Check();
 }
@@ -43,11 +44,34 @@ Status ScanReconstructor::Reconstruct(const std::vector<cv::Mat>& frames, Recons
 
 ScanRegistrar::ScanRegistrar(const PinholeBrownConrady& camera, const TrackerOptions& options) : tracker_(camera, options) {}
 
-TrackResult ScanRegistrar::Register(const ReconstructedView& view, uint64_t burst_seq, int64_t reference_ns) {
+ScanRegistrar::ScanRegistrar(const ProbeCalibration& calibration, const TrackerOptions& options,
+                             const ModelAnchorOptions& anchor, double normal_max_gap_mm)
+    : tracker_(calibration.camera, options) {
+  if (anchor.enabled) {
+    // Pixel counts are set for the 640 × 480 probe's fringe period, as the reconstruction's are.
+    ModelAnchorOptions a = anchor;
+    const double s = FringePeriodCamPx(calibration) / kReferenceFringePeriodCamPx;
+    a.min_pixels = std::max(1, static_cast<int>(std::lround(a.min_pixels * s * s)));
+    anchorer_ = std::make_unique<ModelAnchorer>(calibration, a, normal_max_gap_mm);
+  }
+}
+
+TrackResult ScanRegistrar::Register(ReconstructedView& view, uint64_t burst_seq, int64_t reference_ns) {
   D3D_CHECK_MSG(given_poses_.empty(), "ScanRegistrar: Register after RegisterAtPose");
   const auto t0 = Clock::now();
   const int64_t index = static_cast<int64_t>(views_.size());
-  TrackResult r = tracker_.Track(view.points_in_cam, view.normals, view.quality, view.texture);
+  Tracker::ViewAugmenter augment;
+  if (anchorer_) {
+    augment = [&](const Rigid3d& world_from_cam, const PointMap& model) {
+      ModelAnchorStats st;
+      const int64_t n = anchorer_->Anchor(model, world_from_cam, &view, &st);
+      ms_anchor_ += st.ms;
+      pixels_anchored_ += n;
+      views_anchored_ += n > 0;
+      return n > 0;
+    };
+  }
+  TrackResult r = tracker_.Track(view.points_in_cam, view.normals, view.quality, view.texture, augment);
   ms_ += MsSince(t0);
   if (r.accepted) ++accepted_;
   else ++rejected_;
@@ -58,6 +82,10 @@ TrackResult ScanRegistrar::Register(const ReconstructedView& view, uint64_t burs
   prev_state_ = r.state;
   views_.push_back({burst_seq, reference_ns, r.accepted, r.state});
   return r;
+}
+
+int64_t ScanRegistrar::AnchorAtPose(const Rigid3d& world_from_cam, ReconstructedView* view) {
+  return anchorer_ ? anchorer_->Anchor(tracker_.model(), world_from_cam, view) : 0;
 }
 
 void ScanRegistrar::RegisterAtPose(uint64_t burst_seq, int64_t reference_ns, const Rigid3d& world_from_cam) {
@@ -120,6 +148,9 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
       const Status s = provider(k, views[static_cast<size_t>(k)], &view);
       if (s.code() == StatusCode::kNotFound) continue;
       D3D_RETURN_IF_ERROR(s);
+      // The model-anchored parts again, against the whole model and at the pose the model's
+      // samples were inserted with (the tracked one): the order K does not depend on the pose.
+      registrar->AnchorAtPose(tracked[static_cast<size_t>(k)], &view);
       D3D_RETURN_IF_ERROR(refused->Fuse(view, pose));
     }
     ms_refuse = MsSince(t0);
@@ -151,6 +182,9 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   j["rejected"] = registrar->rejected();
   j["tracking_lost"] = registrar->lost_events();
   j["relocalised"] = registrar->relocalised();
+  j["views_model_anchored"] = registrar->views_model_anchored();
+  j["pixels_model_anchored"] = registrar->pixels_model_anchored();
+  j["ms_model_anchor_per_burst"] = registrar->ms_model_anchor() / std::max<double>(1.0, static_cast<double>(n_views));
   j["unrecovered"] = tracker.state() == TrackingState::kLost ? 1 : 0;
   j["final_state"] = TrackingStateName(tracker.state());
   j["keyframes"] = tracker.keyframes().size();

@@ -34,12 +34,14 @@
 #include "pipeline/fuse/tsdf.h"
 #include "pipeline/recon/reconstruct.h"
 #include "pipeline/register/tracker.h"
+#include "pipeline/scan/model_anchor.h"
 
 namespace d3d {
 
 struct ScanOptions {
   ReconstructOptions recon;
   TrackerOptions tracker;  // tracker.detect_loops: keyframe loop closures and the pose graph at the end
+  ModelAnchorOptions anchor;  // model-guided anchoring in the register stage (model_anchor.h)
   TsdfOptions tsdf;
   // Fuse the accepted views again at the optimised poses when the pose graph moved a view by more
   // than this (mm) and FinishScan is given a view provider; < 0 never.
@@ -76,9 +78,22 @@ struct ScanViewRecord {
 
 class ScanRegistrar {
  public:
+  // Tracking only: the views are registered as reconstructed.
   ScanRegistrar(const PinholeBrownConrady& camera, const TrackerOptions& options);
-  // Registers one reconstructed view (view index = the number of earlier calls).
-  TrackResult Register(const ReconstructedView& view, uint64_t burst_seq, int64_t reference_ns);
+  // Tracking with model-guided anchoring (model_anchor.h): after a view's pose is found, the parts
+  // its burst could not anchor are anchored against the model, added to the view and registered
+  // with it. normal_max_gap_mm: ReconstructOptions::normal_max_gap_mm. Throws std::invalid_argument
+  // for invalid options or calibration.
+  ScanRegistrar(const ProbeCalibration& calibration, const TrackerOptions& options, const ModelAnchorOptions& anchor,
+                double normal_max_gap_mm);
+  // Registers one reconstructed view (view index = the number of earlier calls). With model
+  // anchoring, `view` gains the anchored points (its unwrap, points and normals are rewritten in
+  // place); fuse it after this call.
+  TrackResult Register(ReconstructedView& view, uint64_t burst_seq, int64_t reference_ns);
+  // Model anchoring of a view reconstructed again (FinishScan's refusion), against the whole model
+  // (the tracker's, built at the tracked poses: give the view's tracked pose); returns the pixels
+  // anchored (0 without model anchoring).
+  int64_t AnchorAtPose(const Rigid3d& world_from_cam, ReconstructedView* view);
   // Records a view as accepted at a pose known from elsewhere, without registering it (d3d-fuse
   // --truth-poses: the fusion-only error floor). A scan uses either this or Register, not both.
   void RegisterAtPose(uint64_t burst_seq, int64_t reference_ns, const Rigid3d& world_from_cam);
@@ -95,9 +110,15 @@ class ScanRegistrar {
   int64_t relocalised() const { return relocalised_; }
   const nlohmann::json& events() const { return events_; }  // non-tracking states and refusals, with reasons
   double ms_register() const { return ms_; }                // total wall time in Register
+  int64_t pixels_model_anchored() const { return pixels_anchored_; }  // model anchoring, in Register
+  int64_t views_model_anchored() const { return views_anchored_; }    // views that gained points
+  double ms_model_anchor() const { return ms_anchor_; }                // of ms_register(): in the anchorer
 
  private:
   Tracker tracker_;
+  std::unique_ptr<ModelAnchorer> anchorer_;  // null: no model anchoring
+  int64_t pixels_anchored_ = 0, views_anchored_ = 0;
+  double ms_anchor_ = 0;
   std::vector<ScanViewRecord> views_;
   std::vector<Rigid3d> given_poses_;  // RegisterAtPose, one per view
   int64_t accepted_ = 0, rejected_ = 0, lost_events_ = 0, relocalised_ = 0;

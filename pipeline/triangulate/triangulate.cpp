@@ -176,6 +176,16 @@ void PhaseTriangulator::PhaseRange(cv::Mat* phase_min, cv::Mat* phase_max) const
     }
 }
 
+Eigen::Vector3d PhaseTriangulator::PointForPhase(int col, int row, double Phi) const {
+  const auto& cam = calibration_.camera;
+  if (col < 0 || row < 0 || col >= cam.width || row >= cam.height || !std::isfinite(Phi))
+    return Eigen::Vector3d::Constant(kNaN);
+  const size_t index = static_cast<size_t>(row) * static_cast<size_t>(cam.width) + static_cast<size_t>(col);
+  const double z = fast_ok_[index] ? FastDepth(index, Phi) : DepthForPhase(col, row, Phi);
+  if (!std::isfinite(z)) return Eigen::Vector3d::Constant(kNaN);
+  return rays_[index] * z;
+}
+
 Status PhaseTriangulator::Triangulate(const cv::Mat& Phi, cv::Mat* points_in_cam) const {
   const auto& cam = calibration_.camera;
   if (Phi.type() != CV_32F) return InvalidArgument("triangulate: absolute phase must be CV_32F");

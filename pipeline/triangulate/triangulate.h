@@ -63,6 +63,9 @@ class PhaseTriangulator {
   // Depth (camera z, mm) of pixel (col,row) for absolute phase Phi; NaN if there is no solution in
   // the measurement volume (with margin).
   double DepthForPhase(int col, int row, double Phi) const;
+  // Point (camera frame, mm) of pixel (col,row) for absolute phase Phi, as Triangulate computes it
+  // (fast path where it is accurate); NaN where Triangulate gives none (outside the volume).
+  Eigen::Vector3d PointForPhase(int col, int row, double Phi) const;
   // Absolute phase that pixel (col,row) sees at depth z_mm (exact, with distortion); NaN outside
   // the projector image.
   double PhaseAtDepth(int col, int row, double z_mm) const;

@@ -105,8 +105,15 @@ TEST(Triangulate, FastPathMatchesTheExactSolver) {
       if (!std::isfinite(exact)) continue;
       worst = std::max(worst, std::abs(exact - fast));
       ++compared;
+      if ((r * 640 + c) % 101 == 0) {  // the one-pixel call gives Triangulate's point
+        const Eigen::Vector3d p = tri.PointForPhase(c, r, phi);
+        const cv::Vec3f& q = points.at<cv::Vec3f>(r, c);
+        ASSERT_LT((p - Eigen::Vector3d(q[0], q[1], q[2])).norm(), 1e-5) << r << "," << c;
+      }
     }
   EXPECT_GT(compared, 250000);
+  EXPECT_FALSE(tri.PointForPhase(-1, 0, 10.0).allFinite());
+  EXPECT_FALSE(tri.PointForPhase(0, 0, std::nan("")).allFinite());
   std::printf("[ fast     ] fast path on %.1f %% of the pixels, worst |fast - exact| %.2e mm\n", 100.0 * tri.FastPathShare(), worst);
   EXPECT_LT(worst, 1e-4) << "mm (float32 output is ~4e-6 mm at 50 mm)";
 }

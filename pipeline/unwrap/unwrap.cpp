@@ -551,7 +551,7 @@ Status Unwrapper::Run(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat&
                       const cv::Mat& phase_min, const cv::Mat& phase_max, UnwrapResult* out) {
   if (out == nullptr) return InvalidArgument("UnwrapPhase: out is null");
   D3D_RETURN_IF_ERROR(CheckInputs(phi, quality, marker, phase_min, phase_max));
-  for (const cv::Mat* m : {&out->Phi, &out->order, &out->region}) {
+  for (const cv::Mat* m : {&out->Phi, &out->order, &out->region, &out->relative}) {
     for (const cv::Mat* in : {&phi, &quality, &marker, &phase_min, &phase_max}) {
       if (m->data != nullptr && m->data == in->data) {
         return InvalidArgument("UnwrapPhase: an output aliases an input");
@@ -603,6 +603,7 @@ Status Unwrapper::Run(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat&
   out->Phi.create(h_, w_, CV_32FC1);
   out->order.create(h_, w_, CV_32SC1);
   out->region.create(h_, w_, CV_32SC1);
+  out->relative.create(h_, w_, CV_32SC1);
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const float two_pi = internal::kTwoPiF;
   const bool drop_outside = options_.drop_outside_volume;
@@ -611,14 +612,16 @@ Status Unwrapper::Run(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat&
     float* Phi = out->Phi.ptr<float>(y);
     int32_t* ord = out->order.ptr<int32_t>(y);
     int32_t* reg = out->region.ptr<int32_t>(y);
+    int32_t* relo = out->relative.ptr<int32_t>(y);
     const int row = (y + 1) * stride_ + 1;
     for (int x = 0; x < w_; ++x) {
       const int i = row + x;
       usable += level_[i] != 0;
       float value = nan;
-      int32_t k = -1, rid = -1;
+      int32_t k = -1, rid = -1, rel = INT32_MIN;
       if (state_[i] == kMember) {
         rid = region_[i];
+        rel = rel_[i];
         const int off = offsets_[rid];
         if (off != INT_MIN && keep_[i] == 0) {
           ++neck;
@@ -637,6 +640,7 @@ Status Unwrapper::Run(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat&
       Phi[x] = value;
       ord[x] = k;
       reg[x] = rid;
+      relo[x] = rel;
     }
   }
   st.pixels_usable = usable + barrier_;

@@ -174,6 +174,9 @@ struct UnwrapResult {
   cv::Mat order;   // H×W CV_32S fringe order k = floor(Φ/2π), −1 where dropped
   cv::Mat region;  // H×W CV_32S index into `regions` for every pixel of a grown region (anchored
                    // or not), −1 for pixels in none (unusable or conflict)
+  cv::Mat relative;  // H×W CV_32S region-relative order r of every pixel of a grown region (its
+                     // absolute order is r + K for the region's offset K, once one is known: see
+                     // pipeline/scan/model_anchor.h), INT32_MIN for pixels in none
   std::vector<RegionInfo> regions;
   UnwrapStats stats;
 };

@@ -1,5 +1,6 @@
 #include "pipeline/unwrap/unwrap.h"
 
+#include <climits>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -319,6 +320,19 @@ TEST(Unwrap, SeparatedTeethOnlySomeWithMarker) {
     }
   }
   EXPECT_GT(e.KeptShare(), 0.5);
+  // Region-relative orders: every grown pixel has one, and an anchored pixel's order is it plus
+  // its region's offset; the dropped regions keep theirs (for model-guided anchoring).
+  int64_t relative_dropped = 0;
+  for (int y = 0; y < r.region.rows; ++y)
+    for (int x = 0; x < r.region.cols; ++x) {
+      const int rid = r.region.at<int32_t>(y, x), rel = r.relative.at<int32_t>(y, x), k = r.order.at<int32_t>(y, x);
+      ASSERT_EQ(rid < 0, rel == INT32_MIN) << x << "," << y;
+      if (k >= 0) {
+        ASSERT_EQ(k, rel + r.regions[static_cast<size_t>(rid)].offset) << x << "," << y;
+      }
+      relative_dropped += rid >= 0 && k < 0;
+    }
+  EXPECT_GT(relative_dropped, 0);
   if (HasFailure()) DumpRegions(r);
 }
 

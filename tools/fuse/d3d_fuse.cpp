@@ -18,6 +18,7 @@
 #include "common/core/progress.h"
 #include "common/mesh/mesh_io.h"
 #include "firmware/sim/session/sim_session.h"
+#include "pipeline/recon/evaluate.h"
 #include "pipeline/scan/scan_chain.h"
 
 namespace fs = std::filesystem;
@@ -51,6 +52,7 @@ int main(int argc, char** argv) {
   float min_mesh_weight = TsdfOptions{}.min_mesh_weight;
   double max_rmse_um = TrackerOptions{}.icp.max_rmse_mm * 1000;
   bool json = false, no_eval = false, no_loops = false, quiet = false, no_refuse = false, truth_poses = false;
+  bool no_model_anchor = false;
   app.add_option("--sim", sim_model, "scan with the virtual probe: 'typodont' or a mesh file (PLY/STL/OBJ, mm)");
   app.add_option("--bursts", bursts_dir, "a d3d-sim output folder (calibration.json, bursts/NNNNNN/, scene.ply)");
   app.add_option("--trajectory", trajectory, "--sim: full-arch | quadrant | tooth | a TUM file")->capture_default_str();
@@ -68,6 +70,8 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_flag("--no-eval", no_eval, "skip the evaluation against the scene");
   app.add_flag("--no-loops", no_loops, "no loop-closure detection / pose graph");
+  app.add_flag("--no-model-anchor", no_model_anchor,
+               "no model-guided anchoring (the parts of a view its burst could not anchor stay out)");
   app.add_flag("--quiet", quiet, "no progress bar");
   app.add_flag("--no-refuse", no_refuse,
                "keep the model fused at the tracked poses (default: when the pose graph moves a view by more than\n"
@@ -77,7 +81,8 @@ int main(int argc, char** argv) {
                "truth), which measures the fusion-only error floor");
   app.add_option("--trace", trace_path,
                  "debug: write one line per burst (burst, accepted, state, icp rmse um, overlap, eigen ratio,\n"
-                 "correspondences, new keyframe, loops, true step error um / deg) to this file");
+                 "correspondences, new keyframe, loops, true step error um / deg; with --sim also the registered view's\n"
+                 "RMS error um, wrong fringe orders % and tooth pixels reconstructed %) to this file");
   app.add_flag("--json", json, "print report.json as one line on stdout");
   CLI11_PARSE(app, argc, argv);
   if (sim_model.empty() == bursts_dir.empty()) {
@@ -127,6 +132,7 @@ int main(int argc, char** argv) {
     ScanOptions so;
     so.tracker.association = association == "kdtree" ? Association::kKdTree : Association::kProjective;
     so.tracker.detect_loops = !no_loops;
+    so.anchor.enabled = !no_model_anchor;
     so.tracker.icp.max_rmse_mm = max_rmse_um / 1000.0;
     so.tracker = TrackerOptionsForStep(so.tracker, every);  // a lower burst rate means larger steps
     so.tsdf.voxel_mm = voxel_mm;
@@ -135,12 +141,13 @@ int main(int argc, char** argv) {
     if (no_refuse) so.refuse_min_correction_mm = -1;
     so.Check();
     ScanReconstructor recon(calib, so.recon);
-    ScanRegistrar registrar(calib.camera, so.tracker);
+    ScanRegistrar registrar(calib, so.tracker, so.anchor, so.recon.normal_max_gap_mm);
     ScanFuser fuser(calib.camera, so.tsdf);
     // Burst `index` of the source, rendered or read (again, for the refusion pass).
+    bool trace_truth = false;  // per-burst truth maps, for the trace's reconstruction figures
     auto load_burst = [&](int64_t index, Burst* b) -> Status {
       if (session) {
-        *b = session->RenderBurst(index, false);
+        *b = session->RenderBurst(index, trace_truth);
         return Status::Ok();
       }
       return ReadBurstDir(burst_dirs[static_cast<size_t>(index)], false, b);
@@ -164,7 +171,9 @@ int main(int argc, char** argv) {
     std::ofstream trace;
     if (!trace_path.empty()) {
       trace.open(trace_path);
-      trace << "# burst accepted state rmse_um overlap eigen_ratio correspondences keyframe loops err_mm err_deg\n";
+      trace << "# burst accepted state rmse_um overlap eigen_ratio correspondences keyframe loops err_mm err_deg"
+               " view_rms_um view_order_error_pct tooth_valid_pct\n";
+      trace_truth = session != nullptr && !scene.faces.empty();
     }
     Rigid3d first_truth_from_est = Rigid3d::Identity();
     bool have_first = false;
@@ -204,10 +213,16 @@ int main(int argc, char** argv) {
           err_mm = TranslationDistanceMm(e, truth_pose);
           err_deg = RotationAngleRad(e, truth_pose) * 180 / M_PI;
         }
+        // The view as registered (with any model-anchored parts) against the renderer's truth.
+        CloudErrors ve;
+        ve.rms_um = ve.order_error_pct = ve.tooth_valid_pct = NAN;
+        if (trace_truth && b.reference_truth.has_maps())
+          ve = EvaluateCloud(view.points_in_cam, view.unwrap.Phi, b.reference_truth, scene, calib.pattern);
         char line[512];
-        std::snprintf(line, sizeof line, "%lld %d %s %.2f %.3f %.5f %d %d %d %.4f %.4f\n", static_cast<long long>(indices[k]),
-                      r.accepted ? 1 : 0, TrackingStateName(r.state), r.icp.rmse_mm * 1000, r.icp.overlap, r.icp.eigen_ratio,
-                      r.icp.correspondences, r.new_keyframe ? 1 : 0, r.loops_added, err_mm, err_deg);
+        std::snprintf(line, sizeof line, "%lld %d %s %.2f %.3f %.5f %d %d %d %.4f %.4f %.2f %.4f %.1f\n",
+                      static_cast<long long>(indices[k]), r.accepted ? 1 : 0, TrackingStateName(r.state), r.icp.rmse_mm * 1000,
+                      r.icp.overlap, r.icp.eigen_ratio, r.icp.correspondences, r.new_keyframe ? 1 : 0, r.loops_added, err_mm,
+                      err_deg, ve.rms_um, ve.order_error_pct, ve.tooth_valid_pct);
         trace << line;
       }
       ms_render += ms(t1 - t0).count();

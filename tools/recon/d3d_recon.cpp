@@ -15,6 +15,7 @@
 #include "firmware/sim/session/sim_session.h"
 #include "pipeline/recon/evaluate.h"
 #include "pipeline/recon/reconstruct.h"
+#include "pipeline/unwrap/quality_map.h"
 
 namespace fs = std::filesystem;
 using namespace d3d;
@@ -38,6 +39,51 @@ double PhaseRmsRad(const PhaseMaps& phase, const FrameTruth& truth, const Fringe
 
 cv::Mat Colourise(const cv::Mat& m, double lo, double hi) { return FalseColour(m, lo, hi, cv::COLORMAP_VIRIDIS); }
 
+// Why each pixel has no point, as colours (BGR): the first stage that dropped it.
+//   black    no wrapped phase (dark, saturated, too little modulation B)
+//   grey     quality 0: shadow, low modulation, saturated or isolated
+//   blue     quality 0: albedo edge (modulation_edge_ratio)
+//   orange   quality 0: phase noise or a discontinuity (max_laplace)
+//   cyan     in no unwrapping region (a conflict, a backward step)
+//   yellow   in a region too small to anchor
+//   magenta  in a region neither marker nor depth anchored (ambiguous)
+//   purple   in a region rejected: marker votes disagree, or ordering violations
+//   pink     in an anchored region, but cut off by neck pruning
+//   red      unwrapped, but outside the measurement volume or the projector
+//   white    a point
+cv::Mat DropReasonImage(const ReconstructedView& v) {
+  const cv::Vec3b kBlack{0, 0, 0}, kGrey{128, 128, 128}, kBlue{255, 0, 0}, kOrange{0, 140, 255}, kCyan{255, 255, 0},
+      kYellow{0, 255, 255}, kMagenta{255, 0, 255}, kPurple{128, 0, 128}, kPink{203, 192, 255}, kRed{0, 0, 255},
+      kWhite{255, 255, 255};
+  cv::Mat out(v.points_in_cam.size(), CV_8UC3);
+  for (int r = 0; r < out.rows; ++r)
+    for (int c = 0; c < out.cols; ++c) {
+      cv::Vec3b colour = kRed;
+      const int rid = v.unwrap.region.at<int32_t>(r, c);
+      if (std::isfinite(v.points_in_cam.at<cv::Vec3f>(r, c)[2])) {
+        colour = kWhite;
+      } else if (!v.phase.valid.at<uint8_t>(r, c)) {
+        colour = kBlack;
+      } else if (!(v.quality.at<float>(r, c) > 0)) {
+        const auto reason = static_cast<QualityReason>(v.quality_reason.at<uint8_t>(r, c));
+        colour = reason == QualityReason::kModulationEdge ? kBlue : reason == QualityReason::kPhaseNoise ? kOrange : kGrey;
+      } else if (rid < 0 || rid >= static_cast<int>(v.unwrap.regions.size())) {
+        colour = kCyan;
+      } else if (v.unwrap.order.at<int32_t>(r, c) < 0) {
+        switch (v.unwrap.regions[static_cast<size_t>(rid)].anchor) {
+          case RegionAnchor::kTooSmall: colour = kYellow; break;
+          case RegionAnchor::kAmbiguous: colour = kMagenta; break;
+          case RegionAnchor::kMarkerConflict:
+          case RegionAnchor::kInconsistent: colour = kPurple; break;
+          // Anchored: neck pruning, or outside the measurement volume (the unwrapper does not say which).
+          default: colour = kPink; break;
+        }
+      }
+      out.at<cv::Vec3b>(r, c) = colour;
+    }
+  return out;
+}
+
 Status WriteMaps(const std::string& dir, const ReconstructedView& v, const cv::Mat& error_um) {
   std::error_code ec;
   fs::create_directories(dir, ec);
@@ -52,7 +98,10 @@ Status WriteMaps(const std::string& dir, const ReconstructedView& v, const cv::M
                   cv::imwrite(dir + "/quality.png", Colourise(v.quality, 0, 1)) &&
                   cv::imwrite(dir + "/order.png", Colourise(order_f, kmin, std::max(kmax, 1.0))) &&
                   cv::imwrite(dir + "/marker.png", v.phase.marker) && cv::imwrite(dir + "/texture.png", v.texture) &&
-                  (error_um.empty() || cv::imwrite(dir + "/error_um.png", ErrorHeatMap(error_um, 25.0)));
+                  cv::imwrite(dir + "/dropped.png", DropReasonImage(v)) &&
+                  (v.phase.kappa.empty() || cv::imwrite(dir + "/kappa.png", Colourise(v.phase.kappa, 0, 1.5))) &&
+                  (error_um.empty() || (cv::imwrite(dir + "/error_um.png", ErrorHeatMap(error_um, 25.0)) &&
+                                          cv::imwrite(dir + "/error_um.tiff", error_um)));
   return ok ? Status::Ok() : IoError("cannot write maps in '" + dir + "'");
 }
 
@@ -86,7 +135,7 @@ int main(int argc, char** argv) {
   app.add_option("--seed", seed, "--sim: seed (default 1)");
   app.add_option("--calibration", calibration_path, "calibration.json (default: found beside the images)");
   app.add_option("--out", out_ply, "write the cloud as binary PLY (x y z nx ny nz intensity quality)");
-  app.add_option("--maps", maps_dir, "write PNG maps: phase, modulation, quality, order, marker, texture, error");
+  app.add_option("--maps", maps_dir, "write PNG maps: phase, modulation, quality, order, marker, texture, dropped (why a pixel has no point), kappa (harmonic attenuation), error (PNG, and TIFF in µm)");
   app.add_flag("--json", json, "print one JSON object as the last line");
   CLI11_PARSE(app, argc, argv);
   if (images.empty() == sim_model.empty()) {
