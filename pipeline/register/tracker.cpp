@@ -179,17 +179,18 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     // enough to change the fit (a view whose own points were only the smooth palate, say).
     SurfacePoints more = SampleOrganised(points, normals, quality, o_.sample_stride);
     const bool enough = static_cast<double>(more.size()) >= (1.0 + o_.reregister_min_gain) * static_cast<double>(samples.size());
-    IcpResult again;
-    if (enough) again = RunIcp(more, pose, o_.icp);
-    const double views = static_cast<double>(index_ - last_accepted_);
-    const bool consistent = TranslationDistanceMm(again.target_from_source, last_pose_) <= o_.max_step_mm * views &&
-                            RotationAngleRad(again.target_from_source, last_pose_) * 180 / M_PI <= o_.max_step_deg * views;
     if (!enough) {
       samples = std::move(more);  // fused and inserted at the pose found without them
-    } else if (again.ok && consistent) {
-      pose = again.target_from_source;
-      out.icp = again;
-      samples = std::move(more);
+    } else {
+      IcpResult again = RunIcp(more, pose, o_.icp);
+      const double views = static_cast<double>(index_ - last_accepted_);
+      const bool consistent = TranslationDistanceMm(again.target_from_source, last_pose_) <= o_.max_step_mm * views &&
+                              RotationAngleRad(again.target_from_source, last_pose_) * 180 / M_PI <= o_.max_step_deg * views;
+      if (again.ok && consistent) {
+        pose = again.target_from_source;
+        out.icp = again;
+        samples = std::move(more);
+      }
     }
   }
   out.accepted = true;

@@ -60,16 +60,12 @@ int64_t ModelAnchorer::Anchor(const PointMap& model, const Rigid3d& world_from_c
   const int n_regions = static_cast<int>(u.regions.size());
   // Group key: the region for an unanchored region's pixels; n_regions + region for the dropped
   // pixels of an anchored one (neck pruning, outside the volume).
-  auto anchored_region = [&](int rid) {
-    const RegionAnchor a = u.regions[static_cast<size_t>(rid)].anchor;
-    return a == RegionAnchor::kMarker || a == RegionAnchor::kDepth;
-  };
   auto key_of = [&](int i) -> int {
     const int rid = u.region.ptr<int32_t>()[i];
     if (rid < 0 || rid >= n_regions || u.order.ptr<int32_t>()[i] >= 0 || u.relative.ptr<int32_t>()[i] == INT32_MIN ||
         !std::isfinite(phi.ptr<float>()[i]) || !(view->quality.ptr<float>()[i] > 0))
       return -1;
-    return anchored_region(rid) ? n_regions + rid : rid;
+    return IsAnchored(u.regions[static_cast<size_t>(rid)].anchor) ? n_regions + rid : rid;
   };
   keys_.resize(static_cast<size_t>(w) * static_cast<size_t>(h));
   std::vector<int> count(static_cast<size_t>(2 * n_regions) + 1, 0);
@@ -161,27 +157,29 @@ int64_t ModelAnchorer::Anchor(const PointMap& model, const Rigid3d& world_from_c
   // wall nearly parallel to the ray that move stays on the wall, and two or three orders back it can
   // land on the far side of the tooth the ray went through (seen on the real arch, 4 mm behind);
   // such matches cannot tell K apart and do not count.
-  auto Verified = [&](const KdTreeTarget& tgt, const Eigen::Vector3f& p, const Eigen::Vector3f& ray_in_world) {
+  auto Verified = [&](const Eigen::Vector3f& p, const Eigen::Vector3f& ray_in_world) {
     Eigen::Vector3f q, nq;
-    return tgt.Find(p, gate, &q, &nq) && std::abs(nq.dot(p - q)) <= inlier && -nq.dot(ray_in_world) >= min_cos;
+    return target.Find(p, gate, &q, &nq) && std::abs(nq.dot(p - q)) <= inlier && -nq.dot(ray_in_world) >= min_cos;
   };
   // A pixel's own check at order k: its point confirmed by the model, and not also one order nearer
   // or farther (where the model holds two surfaces along the ray, the pixel cannot tell which one
   // it sees). A part of a group beyond a hidden order jump inside it (why many such regions were
   // rejected) lies a fringe order away from anything the model holds and fails the first test.
-  auto confirm = [&](int i, int k, Eigen::Vector3d* p_in_cam) {
+  // The pixel's point at order k, within its admissible range and the measurement volume.
+  auto point_at = [&](int i, int k, Eigen::Vector3d* p) {
     const double value = ph[i] + kTwoPi * k;
     if (k < 0 || (std::isfinite(pmin[i]) && std::isfinite(pmax[i]) && (value < pmin[i] || value > pmax[i]))) return false;
-    const Eigen::Vector3d p = triangulator_.PointForPhase(i % w, i / w, value);
-    if (!p.allFinite()) return false;
+    *p = triangulator_.PointForPhase(i % w, i / w, value);
+    return p->allFinite();
+  };
+  auto confirm = [&](int i, int k, const Eigen::Vector3d& p) {
     const Eigen::Vector3f ray = (R * p.cast<float>()).normalized();
-    if (!Verified(target, R * p.cast<float>() + t, ray)) return false;
+    if (!Verified(R * p.cast<float>() + t, ray)) return false;
     for (const int dk : {-1, 1}) {
       if (k + dk < 0) continue;
-      const Eigen::Vector3d p2 = triangulator_.PointForPhase(i % w, i / w, value + kTwoPi * dk);
-      if (p2.allFinite() && Verified(target, R * p2.cast<float>() + t, ray)) return false;
+      const Eigen::Vector3d p2 = triangulator_.PointForPhase(i % w, i / w, ph[i] + kTwoPi * (k + dk));
+      if (p2.allFinite() && Verified(R * p2.cast<float>() + t, ray)) return false;
     }
-    if (p_in_cam != nullptr) *p_in_cam = p;
     return true;
   };
   // The check runs on the 2 × 2 lattice: a pixel takes the verdict of its block's corner pixel when
@@ -198,7 +196,7 @@ int64_t ModelAnchorer::Anchor(const PointMap& model, const Rigid3d& world_from_c
       for (size_t s = 0; s < ns; ++s) {
         const Eigen::Vector3f& p = g.points[c * ns + s];
         if (!p.allFinite()) continue;
-        if (Verified(target, p, g.rays[s])) ++inliers;
+        if (Verified(p, g.rays[s])) ++inliers;
       }
       const double share = static_cast<double>(inliers) / static_cast<double>(ns);
       if (share > best) {
@@ -215,19 +213,21 @@ int64_t ModelAnchorer::Anchor(const PointMap& model, const Rigid3d& world_from_c
     for (int j = g.begin; j < g.end; ++j) {
       const int i = pixels[static_cast<size_t>(j)];
       const int k = rel[i] + best_k;
+      Eigen::Vector3d p;
+      if (!point_at(i, k, &p)) continue;
       const int corner = ((i / w) & ~1) * w + ((i % w) & ~1);
       if (corner != i && keys_[static_cast<size_t>(corner)] == key) {
         int8_t& v = verdict_[static_cast<size_t>(corner)];
-        if (v < 0) v = confirm(corner, rel[corner] + best_k, nullptr) ? 1 : 0;
+        if (v < 0) {
+          const int kc = rel[corner] + best_k;
+          Eigen::Vector3d pc;
+          v = point_at(corner, kc, &pc) && confirm(corner, kc, pc) ? 1 : 0;
+        }
         if (v == 0) continue;
-      } else if (!confirm(i, k, nullptr)) {
+      } else if (!confirm(i, k, p)) {
         continue;
       }
-      const double value = ph[i] + kTwoPi * k;
-      if (std::isfinite(pmin[i]) && std::isfinite(pmax[i]) && (value < pmin[i] || value > pmax[i])) continue;
-      const Eigen::Vector3d p = triangulator_.PointForPhase(i % w, i / w, value);
-      if (k < 0 || !p.allFinite()) continue;
-      u.Phi.ptr<float>()[i] = static_cast<float>(value);
+      u.Phi.ptr<float>()[i] = static_cast<float>(ph[i] + kTwoPi * k);
       u.order.ptr<int32_t>()[i] = k;
       view->points_in_cam.ptr<cv::Vec3f>()[i] = cv::Vec3f(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
       ++anchored;

@@ -584,8 +584,7 @@ Status Unwrapper::Run(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat&
   st.regions_total = static_cast<int>(out->regions.size());
   for (size_t r = 0; r < out->regions.size(); ++r) {
     const RegionInfo& info = out->regions[r];
-    const bool kept = info.anchor == RegionAnchor::kMarker || info.anchor == RegionAnchor::kDepth;
-    offsets_[r] = kept ? info.offset : INT_MIN;
+    offsets_[r] = IsAnchored(info.anchor) ? info.offset : INT_MIN;
     switch (info.anchor) {
       case RegionAnchor::kMarker: ++st.regions_marker; break;
       case RegionAnchor::kDepth: ++st.regions_depth; break;

@@ -138,6 +138,8 @@ enum class RegionAnchor : uint8_t {
   kInconsistent = 5,    // too many ordering violations: the region spans a discontinuity
 };
 const char* RegionAnchorName(RegionAnchor anchor);
+// The region got an offset K (marker or depth): its pixels have absolute orders.
+inline bool IsAnchored(RegionAnchor anchor) { return anchor == RegionAnchor::kMarker || anchor == RegionAnchor::kDepth; }
 
 struct RegionInfo {
   int pixels = 0;               // pixels of the region (after conflict drops)

@@ -48,8 +48,8 @@ cv::Mat Colourise(const cv::Mat& m, double lo, double hi) { return FalseColour(m
 //   yellow   in a region too small to anchor
 //   magenta  in a region neither marker nor depth anchored (ambiguous)
 //   purple   in a region rejected: marker votes disagree, or ordering violations
-//   pink     in an anchored region, but cut off by neck pruning
-//   red      unwrapped, but outside the measurement volume or the projector
+//   pink     in an anchored region, but dropped by neck pruning or outside the measurement volume
+//   red      an absolute phase, but no point (the triangulation's volume margin)
 //   white    a point
 cv::Mat DropReasonImage(const ReconstructedView& v) {
   const cv::Vec3b kBlack{0, 0, 0}, kGrey{128, 128, 128}, kBlue{255, 0, 0}, kOrange{0, 140, 255}, kCyan{255, 255, 0},
