@@ -288,7 +288,12 @@ Status ScanApp::Finish(const ScanTruth& truth, const ScanViewProvider& provider,
   times.ms_recon = ms_recon_;
   times.ms_register = registrar_->ms_register();
   times.ms_fuse = fuser_->ms_fuse();
-  const Status s = FinishScan(o_.scan, times, registrar_.get(), fuser_.get(), provider, truth, out);
+  Status s;
+  {
+    // A refusion replaces the fuser's volume: SaveNow (saver thread) waits meanwhile.
+    std::lock_guard<std::mutex> lock(model_mu_);
+    s = FinishScan(o_.scan, times, registrar_.get(), fuser_.get(), provider, truth, out);
+  }
   const nlohmann::json host = HostReport();
   if (!s.ok()) {  // still say what happened
     out->report = host;

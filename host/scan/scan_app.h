@@ -11,7 +11,7 @@
 //     preview read), track (register writes; fuse and preview read). One thread at a time, handed
 //     over by the graph's edges.
 //   ScanReconstructor: reconstruct thread.   ScanRegistrar (Tracker): register thread.
-//   ScanFuser (TSDF): fuse thread, under model_mu_, which SaveNow() (a saver thread) also takes.
+//   ScanFuser (TSDF): fuse thread, then Finish(), under model_mu_, which SaveNow() (a saver thread) also takes.
 //   Preview grid (the decimated model) and the TripleBuffer's back copy: preview thread.
 //   The TripleBuffer's front copy: the render thread (LatestSnapshot()).
 //   After Join(): everything belongs to the thread that calls Finish().

@@ -115,6 +115,11 @@ Status ScanFuser::Fuse(const ReconstructedView& view, const Rigid3d& world_from_
   return s;
 }
 
+void ScanFuser::AdoptVolume(ScanFuser&& other) {
+  D3D_CHECK_MSG(other.tsdf_ != nullptr, "ScanFuser::AdoptVolume: the other fuser has no volume");
+  tsdf_ = std::move(other.tsdf_);
+}
+
 Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegistrar* registrar, ScanFuser* fuser,
                   const ScanViewProvider& provider, const ScanTruth& truth, ScanResult* out) {
   *out = ScanResult{};
@@ -155,9 +160,18 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
     }
     ms_refuse = MsSince(t0);
   }
+  // Both volumes are held only until the refusion is complete; on an error above, the live model
+  // is untouched. The refused volume then becomes the model and the live one is freed.
+  const double tsdf_memory_mib =
+      static_cast<double>(fuser->volume().MemoryBytes() + (refused ? refused->volume().MemoryBytes() : 0)) / (1024.0 * 1024.0);
+  const bool refused_at_optimised_poses = refused != nullptr;
+  if (refused) {
+    fuser->AdoptVolume(std::move(*refused));
+    refused.reset();
+  }
   std::vector<Rigid3d> final_poses(views.size(), Rigid3d::Identity());
   for (int64_t k = 0; k < n_views; ++k) registrar->ViewPose(k, &final_poses[static_cast<size_t>(k)]);
-  const TsdfVolume& model = refused ? refused->volume() : fuser->volume();
+  const TsdfVolume& model = fuser->volume();
   const auto tm0 = Clock::now();
   out->mesh = model.ExtractMesh();
   const double ms_mesh = MsSince(tm0);
@@ -197,11 +211,11 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   j["ms_fuse_per_burst"] = times.ms_fuse / n;
   j["ms_mesh"] = ms_mesh;
   j["voxel_mm"] = model.options().voxel_mm;
-  j["refused_at_optimised_poses"] = refused != nullptr;
+  j["refused_at_optimised_poses"] = refused_at_optimised_poses;
   j["ms_refuse_total"] = ms_refuse;
   j["tsdf_active_voxels"] = model.ActiveVoxels();
   j["points_occluded"] = model.occluded_points();  // not fused: behind a known surface (tsdf.h)
-  j["tsdf_memory_mib"] = static_cast<double>(fuser->volume().MemoryBytes() + (refused ? refused->volume().MemoryBytes() : 0)) / (1024.0 * 1024.0);
+  j["tsdf_memory_mib"] = tsdf_memory_mib;  // both volumes at the end of a refusion
   j["mesh_vertices"] = out->mesh.vertices.size();
   j["mesh_faces"] = out->mesh.faces.size();
   j["events"] = registrar->events();

@@ -9,7 +9,8 @@
 //   ScanFuser          fuse thread:        accepted view + pose → TSDF (pipeline/fuse)
 //   FinishScan         one thread, after the others stopped (it reads the registrar and the fuser):
 //                      Tracker::Optimize (loop closures), optionally the accepted views fused again
-//                      at the optimised poses, mesh extraction, evaluation against the scene
+//                      at the optimised poses (that volume then replaces the fuser's, so no other
+//                      thread may read the fuser meanwhile), mesh extraction, evaluation against the scene
 //                      (pipeline/eval) when one is given, and the report (the fields of issue 5).
 //   WriteScanOutputs   DIR/scan.ply, DIR/scan.stl (binary, mm), DIR/poses.txt (TUM, mm),
 //                      DIR/report.json, DIR/heatmap.png (with an evaluation).
@@ -136,6 +137,10 @@ class ScanFuser {
   const PinholeBrownConrady& camera() const { return camera_; }
   int64_t fused() const { return fused_; }
   double ms_fuse() const { return ms_; }
+  // Replaces this fuser's volume by `other`'s (FinishScan, once a refusion is complete) and frees
+  // the old one before the mesh is extracted, so that the two volumes and the mesh are never held
+  // at once; fused() and ms_fuse() keep counting the views fused here. `other` is left empty.
+  void AdoptVolume(ScanFuser&& other);
 
  private:
   PinholeBrownConrady camera_;

@@ -10,6 +10,7 @@
 
 #include "common/mesh/mesh_io.h"
 #include "firmware/sim/session/sim_session.h"
+#include "pipeline/register/test_surfaces.h"
 
 namespace d3d {
 namespace {
@@ -89,6 +90,36 @@ TEST(ScanChain, ShortScanThroughThePiecesGivesAReport) {
   ASSERT_TRUE(LoadMesh(dir + "/scan.ply", &back).ok());
   EXPECT_EQ(back.faces.size(), with_poses.mesh.faces.size());
   std::filesystem::remove_all(dir);
+}
+
+TEST(ScanChain, AFuserAdoptsARefusedVolumeAndFreesItsOwn) {
+  using namespace d3d::testing;
+  const PinholeBrownConrady camera = TestCamera(160, 120, 500);
+  const HeightField surface(7);
+  auto view_at = [&](double x_mm) {
+    const SyntheticView s = RenderHeightField(surface, camera, LookDown(x_mm, 0, 30), 0.0, 1);
+    ReconstructedView v;
+    v.points_in_cam = s.points;
+    v.normals = s.normals;
+    v.quality = s.quality;
+    return std::make_pair(v, LookDown(x_mm, 0, 30));
+  };
+  TsdfOptions t;
+  ScanFuser live(camera, t), refused(camera, t);
+  const auto [here, here_pose] = view_at(0);
+  const auto [there, there_pose] = view_at(4);  // the refusion sees the surface 4 mm further along x
+  for (int i = 0; i < 2; ++i) ASSERT_TRUE(live.Fuse(here, here_pose).ok());
+  for (int i = 0; i < 3; ++i) ASSERT_TRUE(refused.Fuse(there, there_pose).ok());
+  const double live_lo_x = live.volume().ExtractMesh().Bounds().first.x();
+  const int64_t refused_voxels = refused.volume().ActiveVoxels();
+  ASSERT_GT(refused_voxels, 0);
+  live.AdoptVolume(std::move(refused));
+  EXPECT_EQ(live.volume().ActiveVoxels(), refused_voxels);
+  EXPECT_EQ(live.fused(), 2);  // the live views are still counted
+  const TriangleMesh mesh = live.volume().ExtractMesh();
+  ASSERT_FALSE(mesh.faces.empty());
+  EXPECT_GT(mesh.Bounds().first.x(), live_lo_x + 3.0);  // the refused model, not the live one
+  EXPECT_THROW(live.AdoptVolume(std::move(refused)), std::invalid_argument);  // nothing left to adopt
 }
 
 TEST(ScanChain, EmptyModelIsAnError) {
