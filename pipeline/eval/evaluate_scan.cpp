@@ -184,7 +184,7 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
   const size_t nv = scan.vertices.size();
   const size_t step = std::max<size_t>(1, nv / static_cast<size_t>(o.max_scan_points));
   r.signed_um.assign(nv, std::nanf(""));
-  std::vector<uint8_t> state(nv, 0);  // 0 not evaluated, 1 in figures, 2 outlier
+  std::vector<uint8_t> state(nv, 0);  // 0 not evaluated, 1 in figures, 2 outlier, 3 in figures and on a tooth
   tbb::parallel_for(tbb::blocked_range<size_t>(0, nv), [&](const tbb::blocked_range<size_t>& range) {
     for (size_t i = range.begin(); i < range.end(); ++i) {
       if (i % step) continue;
@@ -193,12 +193,12 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
         state[i] = 2;
         continue;
       }
-      state[i] = 1;
+      state[i] = ref.mesh().Label(h.face) == SurfaceLabel::kTooth ? 3 : 1;
       r.signed_um[i] = static_cast<float>(h.signed_mm * 1000.0);
     }
   });
-  std::vector<double> absd;
-  double s = 0, s2 = 0, sa = 0;
+  std::vector<double> absd, teeth_absd;
+  double s = 0, s2 = 0, sa = 0, ts = 0, ts2 = 0;
   int64_t outliers = 0, evaluated = 0;
   for (size_t i = 0; i < nv; ++i) {
     if (!state[i]) continue;
@@ -212,6 +212,18 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
     s2 += d * d;
     sa += std::abs(d);
     absd.push_back(std::abs(d));
+    if (state[i] == 3) {
+      ts += d;
+      ts2 += d * d;
+      teeth_absd.push_back(std::abs(d));
+    }
+  }
+  r.teeth_points = static_cast<int64_t>(teeth_absd.size());
+  if (r.teeth_points) {
+    const double n = static_cast<double>(r.teeth_points);
+    r.teeth_mean_um = ts / n;
+    r.teeth_rms_um = std::sqrt(ts2 / n);
+    r.teeth_p95_um = Percentile(teeth_absd, 0.95);
   }
   r.points = static_cast<int64_t>(absd.size());
   if (r.points) {

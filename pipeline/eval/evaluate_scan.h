@@ -63,6 +63,11 @@ struct TruenessReport {
   double outlier_pct = 0;             // scan points beyond max_distance_mm or past the reference's border
   double rms_um = 0, mean_um = 0, mean_abs_um = 0, p95_um = 0, max_um = 0;  // p95 of |d|
   double coverage_pct = 0;
+  // The same figures over the scan points whose closest reference face is a tooth (NaN-free: only
+  // when the reference is labelled, else teeth_points = 0), as studies that cut the scans to the
+  // teeth report them (e.g. Ender & Mehl 2013); gingiva is noisier (darker, more translucent).
+  int64_t teeth_points = 0;
+  double teeth_rms_um = 0, teeth_mean_um = 0, teeth_p95_um = 0;
   std::vector<float> signed_um;       // per scan vertex (NaN where excluded), for heat maps
 };
 

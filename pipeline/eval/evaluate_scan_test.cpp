@@ -56,6 +56,31 @@ TEST(EvaluateScan, AReferenceShiftedByAKnownAmount) {
   EXPECT_LT(ga.rms_um, 1.5);
 }
 
+TEST(EvaluateScan, TeethFiguresCountOnlyThePointsOnTeeth) {
+  // Left half of the reference labelled tooth, right half gingiva; the scan is 20 µm above it on
+  // the left and 60 µm on the right.
+  TriangleMesh ref = Sheet();
+  for (const auto& f : ref.faces) {
+    const double x = (ref.vertices[static_cast<size_t>(f[0])].x() + ref.vertices[static_cast<size_t>(f[1])].x() +
+                      ref.vertices[static_cast<size_t>(f[2])].x()) / 3;
+    ref.face_labels.push_back(x < 0 ? SurfaceLabel::kTooth : SurfaceLabel::kGingiva);
+  }
+  const MeshClosestPoint cp(ref);
+  TriangleMesh scan = Sheet(-9, 9);
+  for (auto& v : scan.vertices) v.z() += v.x() < 0 ? 0.020 : 0.060;
+  EvaluateOptions o;
+  o.align = false;
+  const TruenessReport r = EvaluateTrueness(scan, cp, Rigid3d::Identity(), o);
+  ASSERT_GT(r.teeth_points, 0);
+  EXPECT_NEAR(static_cast<double>(r.teeth_points) / static_cast<double>(r.points), 0.5, 0.03);
+  EXPECT_GT(r.teeth_mean_um, 14.0);  // 20 µm · cos(slope)
+  EXPECT_LE(r.teeth_p95_um, 21.0);   // none of the right half's 60 µm
+  EXPECT_GT(r.rms_um, 30.0);         // all points
+  // An unlabelled reference has no teeth figures.
+  const TruenessReport u = EvaluateTrueness(scan, MeshClosestPoint(Sheet()), Rigid3d::Identity(), o);
+  EXPECT_EQ(u.teeth_points, 0);
+}
+
 TEST(EvaluateScan, PrecisionAndTrajectoryError) {
   const TriangleMesh a = Sheet();
   TriangleMesh b = Sheet(-9, 9);

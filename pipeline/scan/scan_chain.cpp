@@ -261,6 +261,12 @@ void EvaluateScanAgainstScene(const TriangleMesh& mesh, const TriangleMesh& scen
   j["trueness_points"] = t.points;
   j["trueness_outlier_pct"] = t.outlier_pct;
   j["coverage_pct"] = t.coverage_pct;
+  if (t.teeth_points > 0) {
+    j["trueness_teeth_rms_um"] = t.teeth_rms_um;
+    j["trueness_teeth_mean_um"] = t.teeth_mean_um;
+    j["trueness_teeth_p95_um"] = t.teeth_p95_um;
+    j["trueness_teeth_points"] = t.teeth_points;
+  }
   j["best_fit_rmse_um"] = t.alignment_rmse_mm * 1000;
   if (heatmap != nullptr) {
     TriangleMesh in_ref = mesh;

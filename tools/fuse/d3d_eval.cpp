@@ -106,6 +106,12 @@ int main(int argc, char** argv) {
       j["points"] = t.points;
       j["outlier_pct"] = t.outlier_pct;
       j["coverage_pct"] = t.coverage_pct;
+      if (t.teeth_points > 0) {
+        j["trueness_teeth_rms_um"] = t.teeth_rms_um;
+        j["trueness_teeth_mean_um"] = t.teeth_mean_um;
+        j["trueness_teeth_p95_um"] = t.teeth_p95_um;
+        j["trueness_teeth_points"] = t.teeth_points;
+      }
       if (!heatmap.empty()) {
         TriangleMesh in_ref = scan;
         for (auto& v : in_ref.vertices) v = t.reference_from_scan * v;
