@@ -317,6 +317,51 @@ PrecisionReport EvaluatePrecision(const TriangleMesh& a, const TriangleMesh& b, 
   return p;
 }
 
+SeenSurface::SeenSurface(const TriangleMesh& reference, double depth_min_mm, double depth_max_mm, double max_incidence_deg)
+    : reference_(reference),
+      depth_min_mm_(depth_min_mm),
+      depth_max_mm_(depth_max_mm),
+      cos_max_incidence_(std::cos(max_incidence_deg * M_PI / 180.0)) {
+  D3D_CHECK_MSG(!reference.faces.empty(), "SeenSurface: empty reference");
+  D3D_CHECK_MSG(depth_min_mm >= 0 && depth_min_mm < depth_max_mm, "SeenSurface: depth limits out of order");
+  D3D_CHECK_MSG(max_incidence_deg > 0 && max_incidence_deg <= 90, "SeenSurface: max_incidence_deg must be in (0, 90]");
+  seen_.assign(reference.faces.size(), 0);
+}
+
+void SeenSurface::Add(const FrameTruth& truth) {
+  if (!truth.has_maps() || truth.face_index.empty()) return;
+  ++views_;
+  const Rigid3d& world_from_cam = truth.world_from_probe;
+  const Eigen::Vector3d centre = world_from_cam.translation();
+  const int n_faces = static_cast<int>(reference_.faces.size());
+  for (int y = 0; y < truth.face_index.rows; ++y) {
+    const int32_t* face = truth.face_index.ptr<int32_t>(y);
+    const uint8_t* vis = truth.visibility.ptr<uint8_t>(y);
+    const cv::Vec3f* p = truth.points_in_cam.ptr<cv::Vec3f>(y);
+    for (int x = 0; x < truth.face_index.cols; ++x) {
+      const int f = face[x];
+      if (f < 0 || f >= n_faces || vis[x] != 2 || seen_[static_cast<size_t>(f)]) continue;
+      if (!(p[x][2] >= depth_min_mm_ && p[x][2] <= depth_max_mm_)) continue;
+      const Eigen::Vector3d q = world_from_cam * Eigen::Vector3d(p[x][0], p[x][1], p[x][2]);
+      const double c = std::abs(reference_.FaceNormal(f).dot((centre - q).normalized()));
+      if (c >= cos_max_incidence_) seen_[static_cast<size_t>(f)] = 1;
+    }
+  }
+}
+
+double SeenSurface::SeenToothAreaPct() const {
+  bool has_teeth = false;
+  for (int f = 0; f < static_cast<int>(reference_.faces.size()) && !has_teeth; ++f) has_teeth = reference_.Label(f) == SurfaceLabel::kTooth;
+  double total = 0, seen = 0;
+  for (int f = 0; f < static_cast<int>(reference_.faces.size()); ++f) {
+    if (has_teeth && reference_.Label(f) != SurfaceLabel::kTooth) continue;
+    const double a = reference_.FaceArea(f);
+    total += a;
+    if (seen_[static_cast<size_t>(f)]) seen += a;
+  }
+  return total > 0 ? 100.0 * seen / total : 0;
+}
+
 AteReport AbsoluteTrajectoryError(const std::vector<Rigid3d>& est, const std::vector<Rigid3d>& truth, Rigid3d* out) {
   D3D_CHECK_MSG(est.size() == truth.size(), "AbsoluteTrajectoryError: sizes differ");
   AteReport r;

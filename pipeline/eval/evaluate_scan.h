@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "common/burst/burst.h"
 #include "common/core/rigid.h"
 #include "common/mesh/mesh.h"
 #include "pipeline/register/icp.h"
@@ -97,6 +98,31 @@ struct AteReport {
 };
 AteReport AbsoluteTrajectoryError(const std::vector<Rigid3d>& estimate, const std::vector<Rigid3d>& truth,
                                   Rigid3d* truth_from_estimate = nullptr);
+
+// The part of a reference surface that the probe saw, from the simulator's truth maps: the
+// acquisition's own coverage limit, against which a scan's coverage_pct reads (a face no view saw
+// cannot be in the model, however good the reconstruction). A face counts as seen when a pixel of
+// a view shows it lit and visible (FrameTruth visibility 2), within [depth_min_mm, depth_max_mm]
+// of the camera (z) and at an incidence (face normal vs the ray to the camera centre) below
+// max_incidence_deg (use the fusion's limit, TsdfOptions::max_incidence_deg). The reference is
+// copied. Throws std::invalid_argument for an empty reference or limits out of order.
+class SeenSurface {
+ public:
+  SeenSurface(const TriangleMesh& reference, double depth_min_mm, double depth_max_mm, double max_incidence_deg);
+  // One view's truth maps (face_index into the reference, world_from_probe = the camera's pose).
+  // Views without maps are ignored.
+  void Add(const FrameTruth& truth);
+  int64_t views() const { return views_; }
+  // Area share (%) of the tooth faces seen by at least one view (of all faces when the reference
+  // is not labelled).
+  double SeenToothAreaPct() const;
+
+ private:
+  TriangleMesh reference_;
+  double depth_min_mm_, depth_max_mm_, cos_max_incidence_;
+  std::vector<uint8_t> seen_;
+  int64_t views_ = 0;
+};
 
 // A deviation heat map: the scan's vertices seen along the smallest principal axis of the scan
 // (orthographic, z-buffered splats), coloured by signed deviation on a diverging blue–green–red

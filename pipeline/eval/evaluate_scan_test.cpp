@@ -81,6 +81,48 @@ TEST(EvaluateScan, TeethFiguresCountOnlyThePointsOnTeeth) {
   EXPECT_EQ(u.teeth_points, 0);
 }
 
+TEST(EvaluateScan, SeenSurfaceCountsTheToothFacesAViewShowed) {
+  // Four unit right triangles 50 mm in front of the camera (camera frame = world): 0 and 1 face
+  // the camera, 2 is tilted 85° (grazing), 3 faces it but is gingiva. All tooth but 3.
+  TriangleMesh ref;
+  auto add = [&](const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c, SurfaceLabel l) {
+    const int i = static_cast<int>(ref.vertices.size());
+    ref.vertices.insert(ref.vertices.end(), {a, b, c});
+    ref.faces.emplace_back(i, i + 1, i + 2);
+    ref.face_labels.push_back(l);
+  };
+  add({0, 0, 50}, {0, 1, 50}, {1, 0, 50}, SurfaceLabel::kTooth);  // normal −z: toward the camera
+  add({2, 0, 50}, {2, 1, 50}, {3, 0, 50}, SurfaceLabel::kTooth);
+  const double t = 85 * M_PI / 180;
+  add({4, 0, 50}, {4, 1, 50}, {4 + std::cos(t), 0, 50 + std::sin(t)}, SurfaceLabel::kTooth);
+  add({6, 0, 50}, {6, 1, 50}, {7, 0, 50}, SurfaceLabel::kGingiva);
+  ASSERT_LT(ref.FaceNormal(0).z(), -0.99);
+  FrameTruth truth;
+  truth.world_from_probe = Rigid3d::Identity();
+  truth.depth_mm = cv::Mat(1, 4, CV_32F, cv::Scalar(50));
+  truth.points_in_cam = cv::Mat(1, 4, CV_32FC3);
+  truth.face_index = (cv::Mat_<int32_t>(1, 4) << 0, 1, 2, 3);
+  truth.visibility = (cv::Mat_<uint8_t>(1, 4) << 2, 1, 2, 2);  // face 1 in the projector's shadow
+  for (int x = 0; x < 4; ++x) truth.points_in_cam.at<cv::Vec3f>(0, x) = cv::Vec3f(0.3f + 2 * x, 0.3f, 50.0f);
+  SeenSurface seen(ref, 42, 58, 80);
+  seen.Add(truth);
+  EXPECT_EQ(seen.views(), 1);
+  const double tooth_area = ref.FaceArea(0) + ref.FaceArea(1) + ref.FaceArea(2);
+  EXPECT_NEAR(seen.SeenToothAreaPct(), 100 * ref.FaceArea(0) / tooth_area, 1e-9);  // 1 shadowed, 2 grazing
+  // Lit now, but beyond the measurement volume: still not seen.
+  truth.visibility.at<uint8_t>(0, 1) = 2;
+  truth.points_in_cam.at<cv::Vec3f>(0, 1)[2] = 60.0f;
+  seen.Add(truth);
+  EXPECT_NEAR(seen.SeenToothAreaPct(), 100 * ref.FaceArea(0) / tooth_area, 1e-9);
+  // With the limit at 90°, the grazing face counts; a view without maps is ignored.
+  SeenSurface any(ref, 42, 58, 90);
+  any.Add(truth);
+  any.Add(FrameTruth{});
+  EXPECT_EQ(any.views(), 1);
+  EXPECT_NEAR(any.SeenToothAreaPct(), 100 * (ref.FaceArea(0) + ref.FaceArea(2)) / tooth_area, 1e-9);
+  EXPECT_THROW(SeenSurface(ref, 58, 42, 80), std::invalid_argument);
+}
+
 TEST(EvaluateScan, PrecisionAndTrajectoryError) {
   const TriangleMesh a = Sheet();
   TriangleMesh b = Sheet(-9, 9);

@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <optional>
 #include <nlohmann/json.hpp>
 
 #include "common/burst/burst_io.h"
@@ -52,7 +53,7 @@ int main(int argc, char** argv) {
   float min_mesh_weight = TsdfOptions{}.min_mesh_weight;
   double max_rmse_um = TrackerOptions{}.icp.max_rmse_mm * 1000;
   bool json = false, no_eval = false, no_loops = false, quiet = false, no_refuse = false, truth_poses = false;
-  bool no_model_anchor = false;
+  bool no_model_anchor = false, coverage_ceiling = false;
   app.add_option("--sim", sim_model, "scan with the virtual probe: 'typodont' or a mesh file (PLY/STL/OBJ, mm)");
   app.add_option("--bursts", bursts_dir, "a d3d-sim output folder (calibration.json, bursts/NNNNNN/, scene.ply)");
   app.add_option("--trajectory", trajectory, "--sim: full-arch | quadrant | tooth | a TUM file")->capture_default_str();
@@ -72,6 +73,9 @@ int main(int argc, char** argv) {
   app.add_flag("--no-loops", no_loops, "no loop-closure detection / pose graph");
   app.add_flag("--no-model-anchor", no_model_anchor,
                "no model-guided anchoring (the parts of a view its burst could not anchor stay out)");
+  app.add_flag("--coverage-ceiling", coverage_ceiling,
+               "--sim: also report coverage_seen_pct, the share of the reference tooth surface that the bursts saw\n"
+               "(lit, in the measurement volume, within the fusion's incidence limit): what coverage_pct can reach");
   app.add_flag("--quiet", quiet, "no progress bar");
   app.add_flag("--no-refuse", no_refuse,
                "keep the model fused at the tracked poses (default: when the pose graph moves a view by more than\n"
@@ -177,6 +181,9 @@ int main(int argc, char** argv) {
     }
     Rigid3d first_truth_from_est = Rigid3d::Identity();
     bool have_first = false;
+    std::optional<SeenSurface> seen;
+    if (coverage_ceiling && session && !scene.faces.empty())
+      seen.emplace(scene, calib.depth_min_mm, calib.depth_max_mm, so.tsdf.max_incidence_deg);
     using ms = std::chrono::duration<double, std::milli>;
     for (size_t k = 0; k < indices.size(); ++k) {
       const auto t0 = std::chrono::steady_clock::now();
@@ -187,6 +194,11 @@ int main(int argc, char** argv) {
       const auto t2 = std::chrono::steady_clock::now();
       const Rigid3d truth_pose = true_pose_of(b);
       true_poses[static_cast<uint64_t>(indices[k])] = truth_pose;
+      if (seen) {
+        FrameTruth seen_truth;
+        session->probe().RenderTruth(truth_pose, &seen_truth);
+        seen->Add(seen_truth);
+      }
       TrackResult r;
       if (truth_poses) {
         registrar.RegisterAtPose(static_cast<uint64_t>(indices[k]), b.reference_ns, truth_pose);
@@ -264,6 +276,7 @@ int main(int argc, char** argv) {
     j["truth_poses"] = truth_poses;
     j["ms_render_per_burst"] = ms_render / static_cast<double>(std::max<size_t>(indices.size(), 1));
     j["peak_rss_mib"] = PeakRssMiB();
+    if (seen) j["coverage_seen_pct"] = seen->SeenToothAreaPct();
     if (const Status s = WriteScanOutputs(out_dir, result); !s.ok()) return Fail(s);
     if (have_true_poses) {
       std::vector<Rigid3d> acc_truth;
