@@ -38,6 +38,7 @@ void TrackerOptions::Check() const {
                 "TrackerOptions: counts");
   D3D_CHECK_MSG(edge_information_scale > 0, "TrackerOptions: edge_information_scale > 0");
   D3D_CHECK_MSG(reregister_min_gain >= 0, "TrackerOptions: reregister_min_gain >= 0");
+  D3D_CHECK_MSG(map_max_rmse_ratio == 0 || map_max_rmse_ratio >= 1, "TrackerOptions: map_max_rmse_ratio 0 (off) or >= 1");
   D3D_CHECK_MSG(odometry_sigma_mm > 0 && odometry_sigma_rad > 0 && loop_sigma_mm > 0 && loop_sigma_rad > 0, "TrackerOptions: sigmas");
 }
 
@@ -200,7 +201,19 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   prev_accepted_ = out.state == TrackingState::kRelocalised ? -1 : last_accepted_;  // no velocity across a gap
   last_pose_ = pose;
   last_accepted_ = index_;
-  map_.Insert(SampleOrganised(points, normals, cv::Mat(), o_.map_stride), pose);
+  // Into the tracking model unless its residual stands out from the recent views' (see
+  // map_max_rmse_ratio); the first view (no ICP) always enters.
+  out.in_model = true;
+  if (out.icp.ok && out.icp.rmse_mm > 0) {
+    if (o_.map_max_rmse_ratio > 0 && recent_rmse_mm_.size() >= 8) {
+      std::vector<double> sorted = recent_rmse_mm_;
+      std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() / 2), sorted.end());
+      out.in_model = out.icp.rmse_mm <= o_.map_max_rmse_ratio * sorted[sorted.size() / 2];
+    }
+    if (recent_rmse_mm_.size() < 16) recent_rmse_mm_.push_back(out.icp.rmse_mm);
+    else recent_rmse_mm_[recent_rmse_next_++ % 16] = out.icp.rmse_mm;
+  }
+  if (out.in_model) map_.Insert(SampleOrganised(points, normals, cv::Mat(), o_.map_stride), pose);
   MaybeKeyframe(samples, points, normals, texture, pose, &out);
   const int kf = static_cast<int>(keyframes_.size()) - 1;
   anchor_.back() = kf;

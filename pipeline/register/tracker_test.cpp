@@ -180,6 +180,39 @@ TEST_F(TrackerScan, KeyframeIcpEdgesRemoveAnInjectedDrift) {
   EXPECT_TRUE(s.disagreeing_edges.empty());
 }
 
+TEST_F(TrackerScan, AViewThatFitsMuchWorseThanTheRecentOnesStaysOutOfTheModel) {
+  TrackerOptions o;
+  o.relocalise = false;  // neither is needed here: no keyframe features, no loop search
+  o.detect_loops = false;
+  const PinholeBrownConrady cam = TestCamera(160, 120, 500);  // the fixture's field of view, 4× fewer pixels
+  o.min_view_samples /= 4;
+  Tracker tracker(cam, o);
+  auto feed = [&](double x_mm, uint32_t seed, double noise_mm) {
+    const auto v = RenderHeightField(hf_, cam, Truth(x_mm, 0), noise_mm, seed);
+    return tracker.Track(v.points, v.normals, v.quality, v.texture);
+  };
+  uint32_t seed = 1;
+  double x = -4;
+  for (; x <= 4.01; x += 1.0) {  // 9 views: 8 ICP residuals, the history the test needs
+    const TrackResult r = feed(x, seed++, 0.004);
+    ASSERT_TRUE(r.accepted) << r.reason;
+    EXPECT_TRUE(r.in_model) << "x = " << x;
+  }
+  // A view three times as noisy: its pose is good and stands, but its samples stay out.
+  const size_t before = tracker.model().size();
+  const TrackResult noisy = feed(x, seed++, 0.012);
+  ASSERT_TRUE(noisy.accepted) << noisy.reason;
+  EXPECT_FALSE(noisy.in_model);
+  EXPECT_EQ(tracker.model().size(), before);
+  Rigid3d p;
+  ASSERT_TRUE(tracker.ViewPose(tracker.views() - 1, &p));
+  EXPECT_LT(TranslationDistanceMm(p, Truth(-4, 0).inverse() * Truth(x, 0)), 0.03);
+  const TrackResult next = feed(x + 1, seed++, 0.004);
+  EXPECT_TRUE(next.accepted && next.in_model);
+  o.map_max_rmse_ratio = 0.5;
+  EXPECT_THROW(o.Check(), std::invalid_argument);
+}
+
 TEST_F(TrackerScan, AnAugmentedViewIsRegisteredAgainWithItsNewPoints) {
   // Each view reaches the tracker with its right 60 % hidden; the augmenter (as model anchoring
   // does) writes the hidden part into the same buffers once the pose is known. The view is then

@@ -176,7 +176,7 @@ int main(int argc, char** argv) {
     if (!trace_path.empty()) {
       trace.open(trace_path);
       trace << "# burst accepted state rmse_um overlap eigen_ratio correspondences keyframe loops err_mm err_deg"
-               " view_rms_um view_order_error_pct tooth_valid_pct\n";
+               " view_rms_um view_order_error_pct tooth_valid_pct in_model\n";
       trace_truth = session != nullptr && !scene.faces.empty();
     }
     Rigid3d first_truth_from_est = Rigid3d::Identity();
@@ -231,10 +231,10 @@ int main(int argc, char** argv) {
         if (trace_truth && b.reference_truth.has_maps())
           ve = EvaluateCloud(view.points_in_cam, view.unwrap.Phi, b.reference_truth, scene, calib.pattern);
         char line[512];
-        std::snprintf(line, sizeof line, "%lld %d %s %.2f %.3f %.5f %d %d %d %.4f %.4f %.2f %.4f %.1f\n",
+        std::snprintf(line, sizeof line, "%lld %d %s %.2f %.3f %.5f %d %d %d %.4f %.4f %.2f %.4f %.1f %d\n",
                       static_cast<long long>(indices[k]), r.accepted ? 1 : 0, TrackingStateName(r.state), r.icp.rmse_mm * 1000,
                       r.icp.overlap, r.icp.eigen_ratio, r.icp.correspondences, r.new_keyframe ? 1 : 0, r.loops_added, err_mm,
-                      err_deg, ve.rms_um, ve.order_error_pct, ve.tooth_valid_pct);
+                      err_deg, ve.rms_um, ve.order_error_pct, ve.tooth_valid_pct, r.in_model ? 1 : 0);
         trace << line;
       }
       ms_render += ms(t1 - t0).count();
