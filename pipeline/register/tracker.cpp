@@ -39,6 +39,8 @@ void TrackerOptions::Check() const {
   D3D_CHECK_MSG(edge_information_scale > 0, "TrackerOptions: edge_information_scale > 0");
   D3D_CHECK_MSG(reregister_min_gain >= 0, "TrackerOptions: reregister_min_gain >= 0");
   D3D_CHECK_MSG(map_max_rmse_ratio == 0 || map_max_rmse_ratio >= 1, "TrackerOptions: map_max_rmse_ratio 0 (off) or >= 1");
+  D3D_CHECK_MSG(map_gate_min_overlap >= 0 && map_gate_min_overlap <= 1 && map_gate_max_run >= 0,
+                "TrackerOptions: map_gate_min_overlap in [0, 1], map_gate_max_run >= 0");
   D3D_CHECK_MSG(odometry_sigma_mm > 0 && odometry_sigma_rad > 0 && loop_sigma_mm > 0 && loop_sigma_rad > 0, "TrackerOptions: sigmas");
 }
 
@@ -205,7 +207,8 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   // map_max_rmse_ratio); the first view (no ICP) always enters.
   out.in_model = true;
   if (out.icp.ok && out.icp.rmse_mm > 0) {
-    if (o_.map_max_rmse_ratio > 0 && recent_rmse_mm_.size() >= 8) {
+    if (o_.map_max_rmse_ratio > 0 && recent_rmse_mm_.size() >= 8 && out.icp.overlap >= o_.map_gate_min_overlap &&
+        gated_run_ < o_.map_gate_max_run) {
       std::vector<double> sorted = recent_rmse_mm_;
       std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() / 2), sorted.end());
       out.in_model = out.icp.rmse_mm <= o_.map_max_rmse_ratio * sorted[sorted.size() / 2];
@@ -213,6 +216,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     if (recent_rmse_mm_.size() < 16) recent_rmse_mm_.push_back(out.icp.rmse_mm);
     else recent_rmse_mm_[recent_rmse_next_++ % 16] = out.icp.rmse_mm;
   }
+  gated_run_ = out.in_model ? 0 : gated_run_ + 1;
   if (out.in_model) map_.Insert(SampleOrganised(points, normals, cv::Mat(), o_.map_stride), pose);
   MaybeKeyframe(samples, points, normals, texture, pose, &out);
   const int kf = static_cast<int>(keyframes_.size()) - 1;

@@ -78,8 +78,13 @@ struct TrackerOptions {
   // a view that straddles two layers of the model (the same surface inserted by two passes that
   // drifted apart) fits both badly and, added, would grow a third layer at a wrong pose that later
   // views lock onto (typodont seed 3: a view 1.3 mm off at 22 µm among 15 µm views, then a run of
-  // views 1.7 mm off). 0 = every accepted view enters the model.
+  // views 1.7 mm off). Only a view that lies mostly on the model already (ICP overlap ≥
+  // map_gate_min_overlap) and at most map_gate_max_run views in a row: the model must keep growing
+  // where the probe goes (without both, a typodont scan lost the model for good at its 63rd view).
+  // 0 = every accepted view enters the model.
   double map_max_rmse_ratio = 1.4;
+  double map_gate_min_overlap = 0.8;
+  int map_gate_max_run = 2;
   double relocalise_max_rmse_mm = 0.04;  // stricter residual for a view re-entering the model (local search or features)
   double relocalise_min_overlap = 0.5;
   double loop_radius_mm = 10.0;   // keyframe centres closer than this are loop candidates
@@ -192,6 +197,7 @@ class Tracker {
   int64_t last_accepted_ = -1;
   std::vector<double> recent_rmse_mm_;  // ICP residuals of the last 16 accepted views (ring)
   size_t recent_rmse_next_ = 0;
+  int gated_run_ = 0;  // views in a row kept out of the model
   Rigid3d last_pose_ = Rigid3d::Identity(), prev_pose_ = Rigid3d::Identity();
   int64_t prev_accepted_ = -1;
   // Per view: anchor keyframe (−1 = refused) and keyframe_from_cam.

@@ -186,6 +186,7 @@ TEST_F(TrackerScan, AViewThatFitsMuchWorseThanTheRecentOnesStaysOutOfTheModel) {
   o.detect_loops = false;
   const PinholeBrownConrady cam = TestCamera(160, 120, 500);  // the fixture's field of view, 4× fewer pixels
   o.min_view_samples /= 4;
+  ASSERT_EQ(o.map_gate_max_run, 2);
   Tracker tracker(cam, o);
   auto feed = [&](double x_mm, uint32_t seed, double noise_mm) {
     const auto v = RenderHeightField(hf_, cam, Truth(x_mm, 0), noise_mm, seed);
@@ -207,6 +208,9 @@ TEST_F(TrackerScan, AViewThatFitsMuchWorseThanTheRecentOnesStaysOutOfTheModel) {
   Rigid3d p;
   ASSERT_TRUE(tracker.ViewPose(tracker.views() - 1, &p));
   EXPECT_LT(TranslationDistanceMm(p, Truth(-4, 0).inverse() * Truth(x, 0)), 0.03);
+  // At most map_gate_max_run (2) views in a row stay out: the model must keep growing.
+  EXPECT_FALSE(feed(x, seed++, 0.012).in_model);
+  EXPECT_TRUE(feed(x, seed++, 0.012).in_model);
   const TrackResult next = feed(x + 1, seed++, 0.004);
   EXPECT_TRUE(next.accepted && next.in_model);
   o.map_max_rmse_ratio = 0.5;
