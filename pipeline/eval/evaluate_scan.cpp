@@ -155,6 +155,13 @@ SurfacePoints ScanSamples(const TriangleMesh& scan, int max_points) {
   return s;
 }
 
+// True when some face of `m` is labelled tooth: coverage figures then count the tooth faces only.
+bool HasToothFaces(const TriangleMesh& m) {
+  for (int f = 0; f < static_cast<int>(m.faces.size()); ++f)
+    if (m.Label(f) == SurfaceLabel::kTooth) return true;
+  return false;
+}
+
 IcpOptions BestFitIcp() {
   IcpOptions o;
   o.levels = {{16, 30, 2.0, 0.8}, {4, 30, 0.5, 1.0}, {1, 30, 0.2, 1.0}};
@@ -237,9 +244,7 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
   r.outlier_pct = evaluated ? 100.0 * static_cast<double>(outliers) / static_cast<double>(evaluated) : 0;
   // Coverage: area samples of the reference (tooth faces when labelled) near a scan vertex.
   const TriangleMesh& R = ref.mesh();
-  bool has_teeth = false;
-  if (o.teeth_only_coverage)
-    for (int f = 0; f < static_cast<int>(R.faces.size()) && !has_teeth; ++f) has_teeth = R.Label(f) == SurfaceLabel::kTooth;
+  const bool has_teeth = o.teeth_only_coverage && HasToothFaces(R);
   std::vector<Eigen::Vector3f> scan_pts(nv);
   for (size_t i = 0; i < nv; ++i) scan_pts[i] = (r.reference_from_scan * scan.vertices[i]).cast<float>();
   PointKdTree tree(&scan_pts);
@@ -318,14 +323,20 @@ PrecisionReport EvaluatePrecision(const TriangleMesh& a, const TriangleMesh& b, 
 }
 
 SeenSurface::SeenSurface(const TriangleMesh& reference, double depth_min_mm, double depth_max_mm, double max_incidence_deg)
-    : reference_(reference),
-      depth_min_mm_(depth_min_mm),
-      depth_max_mm_(depth_max_mm),
-      cos_max_incidence_(std::cos(max_incidence_deg * M_PI / 180.0)) {
+    : depth_min_mm_(depth_min_mm), depth_max_mm_(depth_max_mm), cos_max_incidence_(std::cos(max_incidence_deg * M_PI / 180.0)) {
   D3D_CHECK_MSG(!reference.faces.empty(), "SeenSurface: empty reference");
   D3D_CHECK_MSG(depth_min_mm >= 0 && depth_min_mm < depth_max_mm, "SeenSurface: depth limits out of order");
   D3D_CHECK_MSG(max_incidence_deg > 0 && max_incidence_deg <= 90, "SeenSurface: max_incidence_deg must be in (0, 90]");
-  seen_.assign(reference.faces.size(), 0);
+  const bool has_teeth = HasToothFaces(reference);
+  const size_t n = reference.faces.size();
+  normals_.resize(n);
+  counted_area_.assign(n, 0.0);
+  for (size_t f = 0; f < n; ++f) {
+    const int i = static_cast<int>(f);
+    normals_[f] = reference.FaceNormal(i);
+    if (!has_teeth || reference.Label(i) == SurfaceLabel::kTooth) counted_area_[f] = reference.FaceArea(i);
+  }
+  seen_.assign(n, 0);
 }
 
 void SeenSurface::Add(const FrameTruth& truth) {
@@ -333,7 +344,7 @@ void SeenSurface::Add(const FrameTruth& truth) {
   ++views_;
   const Rigid3d& world_from_cam = truth.world_from_probe;
   const Eigen::Vector3d centre = world_from_cam.translation();
-  const int n_faces = static_cast<int>(reference_.faces.size());
+  const int n_faces = static_cast<int>(normals_.size());
   for (int y = 0; y < truth.face_index.rows; ++y) {
     const int32_t* face = truth.face_index.ptr<int32_t>(y);
     const uint8_t* vis = truth.visibility.ptr<uint8_t>(y);
@@ -343,21 +354,17 @@ void SeenSurface::Add(const FrameTruth& truth) {
       if (f < 0 || f >= n_faces || vis[x] != 2 || seen_[static_cast<size_t>(f)]) continue;
       if (!(p[x][2] >= depth_min_mm_ && p[x][2] <= depth_max_mm_)) continue;
       const Eigen::Vector3d q = world_from_cam * Eigen::Vector3d(p[x][0], p[x][1], p[x][2]);
-      const double c = std::abs(reference_.FaceNormal(f).dot((centre - q).normalized()));
+      const double c = std::abs(normals_[static_cast<size_t>(f)].dot((centre - q).normalized()));
       if (c >= cos_max_incidence_) seen_[static_cast<size_t>(f)] = 1;
     }
   }
 }
 
 double SeenSurface::SeenToothAreaPct() const {
-  bool has_teeth = false;
-  for (int f = 0; f < static_cast<int>(reference_.faces.size()) && !has_teeth; ++f) has_teeth = reference_.Label(f) == SurfaceLabel::kTooth;
   double total = 0, seen = 0;
-  for (int f = 0; f < static_cast<int>(reference_.faces.size()); ++f) {
-    if (has_teeth && reference_.Label(f) != SurfaceLabel::kTooth) continue;
-    const double a = reference_.FaceArea(f);
-    total += a;
-    if (seen_[static_cast<size_t>(f)]) seen += a;
+  for (size_t f = 0; f < counted_area_.size(); ++f) {
+    total += counted_area_[f];
+    if (seen_[f]) seen += counted_area_[f];
   }
   return total > 0 ? 100.0 * seen / total : 0;
 }

@@ -104,8 +104,8 @@ AteReport AbsoluteTrajectoryError(const std::vector<Rigid3d>& estimate, const st
 // cannot be in the model, however good the reconstruction). A face counts as seen when a pixel of
 // a view shows it lit and visible (FrameTruth visibility 2), within [depth_min_mm, depth_max_mm]
 // of the camera (z) and at an incidence (face normal vs the ray to the camera centre) below
-// max_incidence_deg (use the fusion's limit, TsdfOptions::max_incidence_deg). The reference is
-// copied. Throws std::invalid_argument for an empty reference or limits out of order.
+// max_incidence_deg (use the fusion's limit, TsdfOptions::max_incidence_deg). Keeps each face's
+// normal and counted area, not the mesh. Throws std::invalid_argument for an empty reference or limits out of order.
 class SeenSurface {
  public:
   SeenSurface(const TriangleMesh& reference, double depth_min_mm, double depth_max_mm, double max_incidence_deg);
@@ -118,8 +118,9 @@ class SeenSurface {
   double SeenToothAreaPct() const;
 
  private:
-  TriangleMesh reference_;
   double depth_min_mm_, depth_max_mm_, cos_max_incidence_;
+  std::vector<Eigen::Vector3d> normals_;  // per face, unit
+  std::vector<double> counted_area_;      // per face, mm²: its area if it counts (tooth), else 0
   std::vector<uint8_t> seen_;
   int64_t views_ = 0;
 };

@@ -213,8 +213,8 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
       std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() / 2), sorted.end());
       out.in_model = out.icp.rmse_mm <= o_.map_max_rmse_ratio * sorted[sorted.size() / 2];
     }
-    if (recent_rmse_mm_.size() < 16) recent_rmse_mm_.push_back(out.icp.rmse_mm);
-    else recent_rmse_mm_[recent_rmse_next_++ % 16] = out.icp.rmse_mm;
+    if (recent_rmse_mm_.size() < kRecentResiduals) recent_rmse_mm_.push_back(out.icp.rmse_mm);
+    else recent_rmse_mm_[recent_rmse_next_++ % kRecentResiduals] = out.icp.rmse_mm;
   }
   gated_run_ = out.in_model ? 0 : gated_run_ + 1;
   if (out.in_model) map_.Insert(SampleOrganised(points, normals, cv::Mat(), o_.map_stride), pose);

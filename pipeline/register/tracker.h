@@ -195,7 +195,8 @@ class Tracker {
   TrackingState state_ = TrackingState::kInitialising;
   int64_t index_ = -1;                // current view index
   int64_t last_accepted_ = -1;
-  std::vector<double> recent_rmse_mm_;  // ICP residuals of the last 16 accepted views (ring)
+  static constexpr size_t kRecentResiduals = 16;  // the "last 16" of map_max_rmse_ratio
+  std::vector<double> recent_rmse_mm_;  // ICP residuals of the last kRecentResiduals accepted views (ring)
   size_t recent_rmse_next_ = 0;
   int gated_run_ = 0;  // views in a row kept out of the model
   Rigid3d last_pose_ = Rigid3d::Identity(), prev_pose_ = Rigid3d::Identity();

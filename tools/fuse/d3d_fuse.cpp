@@ -195,9 +195,13 @@ int main(int argc, char** argv) {
       const Rigid3d truth_pose = true_pose_of(b);
       true_poses[static_cast<uint64_t>(indices[k])] = truth_pose;
       if (seen) {
-        FrameTruth seen_truth;
-        session->probe().RenderTruth(truth_pose, &seen_truth);
-        seen->Add(seen_truth);
+        if (b.reference_truth.has_maps()) {
+          seen->Add(b.reference_truth);  // already rendered for the trace, at the same pose
+        } else {
+          FrameTruth seen_truth;
+          session->probe().RenderTruth(truth_pose, &seen_truth);
+          seen->Add(seen_truth);
+        }
       }
       TrackResult r;
       if (truth_poses) {
