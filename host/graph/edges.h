@@ -10,7 +10,9 @@
 //               older item back: it is dropped (counted) and returned to the pool by the producer.
 //               So the consumer always takes the newest item, the oldest is the one dropped, and
 //               the producer never waits (wait-free push; the consumer sleeps on a futex,
-//               std::atomic::wait, when the slot is empty).
+//               std::atomic::wait, when the slot is empty). AwaitTaken() lets a producer that is
+//               itself a stage wait until the consumer has taken its previous item (the graph's
+//               demand-driven live mode, stage_graph.h).
 //  LosslessEdge (policy "lossless"): a bounded blocking SPSC ring (moodycamel
 //               BlockingReaderWriterCircularBuffer, Debian libreaderwriterqueue-dev): the producer
 //               blocks while it is full, nothing is dropped, order is kept.
@@ -42,6 +44,9 @@ class Edge {
   // is closed and empty.
   virtual bool Pop(T** item) = 0;
   virtual void Close() = 0;  // producer thread, after its last Push
+  // Producer thread: returns once the consumer has taken every item pushed so far (live: the slot
+  // is empty); lossless edges return at once (their Push waits for room instead).
+  virtual void AwaitTaken() {}
   // Any thread: items dropped by Push so far.
   uint64_t dropped() const { return dropped_.load(std::memory_order_relaxed); }
 
@@ -64,6 +69,7 @@ class LatestEdge final : public Edge<T> {
       const uint32_t v = version_.load(std::memory_order_acquire);
       if (T* got = slot_.exchange(nullptr, std::memory_order_acq_rel); got != nullptr) {
         *item = got;
+        Taken();
         return true;
       }
       if (closed_.load(std::memory_order_acquire)) {
@@ -71,9 +77,17 @@ class LatestEdge final : public Edge<T> {
         T* got = slot_.exchange(nullptr, std::memory_order_acq_rel);
         if (got == nullptr) return false;
         *item = got;
+        Taken();
         return true;
       }
       version_.wait(v, std::memory_order_acquire);
+    }
+  }
+  void AwaitTaken() override {
+    for (;;) {
+      const uint32_t v = taken_.load(std::memory_order_acquire);
+      if (slot_.load(std::memory_order_acquire) == nullptr) return;
+      taken_.wait(v, std::memory_order_acquire);
     }
   }
   void Close() override {
@@ -83,8 +97,13 @@ class LatestEdge final : public Edge<T> {
   }
 
  private:
+  void Taken() {
+    taken_.fetch_add(1, std::memory_order_release);
+    taken_.notify_one();
+  }
   std::atomic<T*> slot_{nullptr};
   std::atomic<uint32_t> version_{0};
+  std::atomic<uint32_t> taken_{0};  // bumped by the consumer after each take (AwaitTaken)
   std::atomic<bool> closed_{false};
 };
 

@@ -12,6 +12,12 @@
 // Pool size = 1 (source) + N (one per stage) + edge capacity × N (1 per live edge) + extra, so in
 // live mode the source never waits for an item; in lossless mode it waits (back-pressure).
 //
+// Demand-driven live mode (StageGraphOptions::live_demand_driven, default on): a stage does not
+// take its next item before the next stage has taken its previous output. The source's edge stays
+// latest-wins (the source never waits, and every drop happens there), while no CPU goes to items
+// that a slower stage downstream would drop anyway: on a machine with fewer cores than stages, the
+// stages that run are the ones whose output is used, and each stage starts on the newest burst.
+//
 // Per item the graph keeps an ItemMeta: `seq` (ingest order, 0, 1, …), `origin_ns` (the time the
 // item's latency is measured from, set by the source: capture or receive time, Unix epoch ns) and
 // whether a stage rejected it. A stage function returns false to reject an item: it is not passed
@@ -50,6 +56,7 @@ struct StageGraphOptions {
   size_t lossless_capacity = 4;  // items per lossless edge
   size_t extra_items = 1;        // pool items beyond the minimum
   size_t latency_samples = 1 << 16;  // kept for the percentiles (the latest ones, ring)
+  bool live_demand_driven = true;    // live: see the file comment (false: every edge latest-wins)
   void Check() const {
     if (lossless_capacity < 1 || latency_samples < 1) throw std::invalid_argument("StageGraphOptions: capacities must be >= 1");
   }
@@ -196,7 +203,10 @@ class StageGraph {
     bool have_prev = false;
     uint64_t prev_seq = 0;
     Node* n = nullptr;
-    while (edges_[i]->Pop(&n)) {
+    const bool await_taken = !last && o_.live_demand_driven;
+    for (;;) {
+      if (await_taken) edges_[i + 1]->AwaitTaken();
+      if (!edges_[i]->Pop(&n)) break;
       if (have_prev && n->meta.seq <= prev_seq) c.order_violations.fetch_add(1, std::memory_order_relaxed);
       have_prev = true;
       prev_seq = n->meta.seq;

@@ -33,10 +33,12 @@ struct RunResult {
 };
 
 // n items through 3 stages; stage 1 rejects values ≡ 3 (mod 7).
-RunResult RunGraph(EdgePolicy policy, uint64_t n, uint32_t seed, int source_us, std::vector<int> stage_us) {
+RunResult RunGraph(EdgePolicy policy, uint64_t n, uint32_t seed, int source_us, std::vector<int> stage_us,
+                   bool demand_driven = true) {
   RunResult r;
   StageGraphOptions o;
   o.policy = policy;
+  o.live_demand_driven = demand_driven;
   o.lossless_capacity = 3;
   uint64_t next = 0;
   Delays src_delay(seed, source_us);
@@ -108,11 +110,21 @@ TEST(StageGraph, LosslessKeepsEveryItemInOrderUnderRandomDelays) {
 }
 
 TEST(StageGraph, LiveDropsOldestCountsEveryDropAndKeepsOrder) {
+  for (bool demand_driven : {false, true})
   for (uint32_t seed : {4u, 5u, 6u}) {
+    SCOPED_TRACE(demand_driven ? "demand-driven" : "every edge latest-wins");
     const uint64_t n = 600;
     // A fast source and a slow middle stage: drops are certain.
-    const RunResult r = RunGraph(EdgePolicy::kLive, n, seed, 40, {100, 800, 200});
+    const RunResult r = RunGraph(EdgePolicy::kLive, n, seed, 40, {100, 800, 200}, demand_driven);
     EXPECT_EQ(r.ingested, n);
+    if (demand_driven) {
+      // Stage 0 never runs ahead of the slow stage 1: every drop happens at the source's edge, so
+      // no stage spends time on an item that is dropped later.
+      EXPECT_EQ(r.dropped_at[1], 0u) << "seed " << seed;
+      EXPECT_EQ(r.dropped_at[2], 0u) << "seed " << seed;
+    } else {
+      EXPECT_GT(r.dropped_at[1], 0u) << "seed " << seed;  // stage 0 keeps pace with the source; stage 1 drops
+    }
     EXPECT_GT(r.dropped, 0u) << "seed " << seed;
     EXPECT_EQ(r.order_violations, 0u);
     EXPECT_TRUE(r.stamps_ok);

@@ -13,6 +13,9 @@ namespace {
 int64_t SteadyNs() {
   return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
+int64_t UnixNs() {  // the clock of ReceivedSample::receive_ns
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
 }  // namespace
 
 Status CopyBurst(const proto::BurstMsg& msg, int64_t receive_ns, IngestedBurst* out) {
@@ -119,7 +122,8 @@ Status RecordingBurstSource::ReadBurst(uint64_t seq, IngestedBurst* out) {
 }
 
 void DdsSourceOptions::Check() const {
-  if (!(probe_timeout_s > 0) || !(idle_exit_s >= 0)) throw std::invalid_argument("DdsSourceOptions: probe_timeout_s > 0, idle_exit_s >= 0");
+  if (!(probe_timeout_s > 0) || !(idle_exit_s >= 0) || !(max_age_s >= 0))
+    throw std::invalid_argument("DdsSourceOptions: probe_timeout_s > 0, idle_exit_s >= 0, max_age_s >= 0");
 }
 
 DdsBurstSource::DdsBurstSource(BurstReceiver* receiver, const DdsSourceOptions& options) : rx_(receiver), o_(options) { o_.Check(); }
@@ -140,7 +144,7 @@ BurstSource::Result DdsBurstSource::Next(IngestedBurst* out) {
     const uint64_t queue_full = c.dropped[static_cast<size_t>(DropReason::kQueueFull)];
     const uint64_t malformed = c.dropped_total() - queue_full - c.dropped[static_cast<size_t>(DropReason::kSerial)];
     malformed_.store(malformed + copy_failures_, std::memory_order_relaxed);
-    dropped_.store(queue_full, std::memory_order_relaxed);  // accepted by the checks, then no room in the receiver's queue
+    dropped_.store(queue_full + stale_, std::memory_order_relaxed);  // accepted by the checks, then no room in the queue or too old
     received_.store(c.bursts_accepted + malformed, std::memory_order_relaxed);
     missing_.store(c.bursts_missing, std::memory_order_relaxed);
     if (!rx_->Pop(&sample_, 50'000'000)) {
@@ -150,6 +154,13 @@ BurstSource::Result DdsBurstSource::Next(IngestedBurst* out) {
       return Result::kNothing;
     }
     if (const auto* b = std::get_if<proto::BurstMsg>(&sample_.msg)) {
+      if (o_.max_age_s > 0 && UnixNs() - sample_.receive_ns > static_cast<int64_t>(o_.max_age_s * 1e9)) {
+        rx_->Recycle(std::move(sample_));
+        ++stale_;
+        dropped_.store(queue_full + stale_, std::memory_order_relaxed);
+        last_burst_ns_ = SteadyNs();  // the probe is there
+        continue;
+      }
       const Status s = CopyBurst(*b, sample_.receive_ns, out);
       rx_->Recycle(std::move(sample_));
       if (!s.ok()) {

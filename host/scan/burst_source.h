@@ -89,6 +89,10 @@ class RecordingBurstSource final : public BurstSource {
 struct DdsSourceOptions {
   double probe_timeout_s = 1.0;  // no burst for this long after some: "probe lost"
   double idle_exit_s = 0;        // > 0: end the scan after this long without a burst (after the first)
+  // > 0 (live): a burst that waited longer than this in the receiver's queue is dropped (counted in
+  // dropped()) rather than ingested: at start-up the graph would otherwise begin with the bursts that
+  // queued while it was being set up, seconds older than the next one it takes.
+  double max_age_s = 0;
   void Check() const;
 };
 
@@ -108,6 +112,7 @@ class DdsBurstSource final : public BurstSource {
   ReceivedSample sample_;
   int64_t last_burst_ns_ = 0;  // steady clock
   uint64_t copy_failures_ = 0;
+  uint64_t stale_ = 0;  // dropped for max_age_s
 };
 
 }  // namespace d3d

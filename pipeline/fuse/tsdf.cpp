@@ -45,13 +45,23 @@ openvdb::Coord LeafOrigin(const openvdb::Coord& ijk) {
   return openvdb::Coord(ijk.x() & ~(kLeafDim - 1), ijk.y() & ~(kLeafDim - 1), ijk.z() & ~(kLeafDim - 1));
 }
 
-// Leaves within `band` voxels of point p (index space).
-void TouchLeaves(const Eigen::Vector3d& p_index, double band, std::unordered_set<openvdb::Coord, CoordHash>* leaves) {
+// The origins of the first and last leaf (per axis) of the voxels within `band` (voxels) of a point
+// (index space).
+struct LeafRange {
+  openvdb::Coord a{std::numeric_limits<int>::min()}, b{std::numeric_limits<int>::min()};
+  bool operator==(const LeafRange& o) const { return a == o.a && b == o.b; }
+};
+LeafRange LeavesWithin(const Eigen::Vector3d& p_index, double band) {
   const openvdb::Coord lo(static_cast<int>(std::floor(p_index.x() - band)), static_cast<int>(std::floor(p_index.y() - band)),
                           static_cast<int>(std::floor(p_index.z() - band)));
   const openvdb::Coord hi(static_cast<int>(std::ceil(p_index.x() + band)), static_cast<int>(std::ceil(p_index.y() + band)),
                           static_cast<int>(std::ceil(p_index.z() + band)));
-  const openvdb::Coord a = LeafOrigin(lo), b = LeafOrigin(hi);
+  return {LeafOrigin(lo), LeafOrigin(hi)};
+}
+
+void TouchLeaves(const LeafRange& range, std::unordered_set<openvdb::Coord, CoordHash>* leaves) {
+  const openvdb::Coord& a = range.a;
+  const openvdb::Coord& b = range.b;
   for (int x = a.x(); x <= b.x(); x += kLeafDim)
     for (int y = a.y(); y <= b.y(); y += kLeafDim)
       for (int z = a.z(); z <= b.z(); z += kLeafDim) leaves->insert(openvdb::Coord(x, y, z));
@@ -136,10 +146,14 @@ Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& 
   std::unordered_set<openvdb::Coord, CoordHash> leaves;
   for (int r = 0; r < P.rows; r += o_.pixel_stride) {
     const cv::Vec3f* p = P.ptr<cv::Vec3f>(r);
+    LeafRange last;  // neighbouring pixels mostly touch the same leaves: insert only on a change
     for (int c = 0; c < P.cols; c += o_.pixel_stride) {
       if (!std::isfinite(p[c][0]) || !std::isfinite(p[c][2]) || occluded(r, c)) continue;
       const Eigen::Vector3d w = world_from_cam * Eigen::Vector3d(p[c][0], p[c][1], p[c][2]);
-      TouchLeaves(w * inv_voxel, band, &leaves);
+      const LeafRange range = LeavesWithin(w * inv_voxel, band);
+      if (range == last) continue;
+      last = range;
+      TouchLeaves(range, &leaves);
     }
   }
   auto& ttree = impl_->tsdf->tree();
@@ -151,23 +165,33 @@ Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& 
   const Rigid3d cam_from_world = world_from_cam.inverse();
   const Eigen::Matrix3d R = cam_from_world.linear();
   const Eigen::Vector3d t = cam_from_world.translation();
+  const Eigen::Matrix3d R_voxel = R * o_.voxel_mm;  // camera-frame step per index step along i, j, k
   const float trunc = static_cast<float>(o_.truncation_mm);
   const float maxw = o_.max_weight;
+  // The camera's projection (PinholeBrownConrady::Project, inlined: this loop runs for every voxel
+  // of every touched leaf) and the nearest pixel (round half up; negative coordinates are outside).
+  const double fx = camera.fx, fy = camera.fy, cx = camera.cx, cy = camera.cy;
+  const double k1 = camera.k1, k2 = camera.k2, k3 = camera.k3, p1 = camera.p1, p2 = camera.p2;
+  const int cols = P.cols, rows = P.rows;
   tbb::parallel_for(tbb::blocked_range<size_t>(0, nodes.size(), 16), [&](const tbb::blocked_range<size_t>& range) {
     for (size_t li = range.begin(); li < range.end(); ++li) {
       auto* tl = nodes[li].first;
       auto* wl = nodes[li].second;
       const openvdb::Coord origin = tl->origin();
+      const Eigen::Vector3d x_origin = R_voxel * Eigen::Vector3d(origin.x(), origin.y(), origin.z()) + t;
       for (openvdb::Index off = 0; off < openvdb::FloatTree::LeafNodeType::SIZE; ++off) {
-        const openvdb::Coord ijk = origin + openvdb::FloatTree::LeafNodeType::offsetToLocalCoord(off);
-        const Eigen::Vector3d x = R * (Eigen::Vector3d(ijk.x(), ijk.y(), ijk.z()) * o_.voxel_mm) + t;
+        const openvdb::Coord local = openvdb::FloatTree::LeafNodeType::offsetToLocalCoord(off);
+        const Eigen::Vector3d x = x_origin + R_voxel * Eigen::Vector3d(local.x(), local.y(), local.z());
         if (x.z() <= 0) continue;
-        const auto uv = camera.Project(x);
-        if (!uv) continue;
-        const int u = static_cast<int>(std::lround((*uv).x())), v = static_cast<int>(std::lround((*uv).y()));
-        if (u < 0 || v < 0 || u >= P.cols || v >= P.rows) continue;
-        const cv::Vec3f& pm = P.at<cv::Vec3f>(v, u);
-        const cv::Vec3f& nm = N.at<cv::Vec3f>(v, u);
+        const double xn = x.x() / x.z(), yn = x.y() / x.z();
+        const double r2 = xn * xn + yn * yn;
+        const double radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
+        const double ud = fx * (xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)) + cx;
+        const double vd = fy * (yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn) + cy;
+        if (!(ud >= -0.5 && vd >= -0.5 && ud < cols - 0.5 && vd < rows - 0.5)) continue;
+        const int u = static_cast<int>(ud + 0.5), v = static_cast<int>(vd + 0.5);
+        const cv::Vec3f& pm = P.ptr<cv::Vec3f>(v)[u];
+        const cv::Vec3f& nm = N.ptr<cv::Vec3f>(v)[u];
         if (!std::isfinite(pm[0]) || !std::isfinite(pm[2]) || occluded(v, u)) continue;
         const float q = Q.empty() ? 1.0f : Q.at<float>(v, u);
         if (!(q >= o_.min_point_weight)) continue;

@@ -76,8 +76,8 @@ bool ProjectiveTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector
 void IcpOptions::Check() const {
   D3D_CHECK_MSG(!levels.empty(), "IcpOptions: at least one level");
   for (const auto& l : levels) {
-    D3D_CHECK_MSG(l.stride >= 1 && l.max_iterations >= 1 && l.max_distance_mm > 0,
-                  "IcpOptions: level needs stride >= 1, max_iterations >= 1, max_distance_mm > 0");
+    D3D_CHECK_MSG(l.stride >= 1 && l.max_iterations >= 1 && l.max_distance_mm > 0 && l.max_samples >= 0,
+                  "IcpOptions: level needs stride >= 1, max_iterations >= 1, max_distance_mm > 0, max_samples >= 0");
     D3D_CHECK_MSG(l.point_to_plane_weight >= 0 && l.point_to_plane_weight <= 1, "point_to_plane_weight must be in [0, 1]");
   }
   D3D_CHECK_MSG(max_normal_angle_deg > 0 && max_normal_angle_deg <= 180, "max_normal_angle_deg must be in (0, 180]");
@@ -136,8 +136,10 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
     const IcpLevel& L = o.levels[li];
     const float gate = static_cast<float>(L.max_distance_mm);
     const double alpha = L.point_to_plane_weight;
+    size_t stride = static_cast<size_t>(L.stride);
+    if (L.max_samples > 0) stride = std::max(stride, (source.points.size() + L.max_samples - 1) / static_cast<size_t>(L.max_samples));
     std::vector<size_t> idx;
-    for (size_t i = 0; i < source.points.size(); i += static_cast<size_t>(L.stride)) idx.push_back(i);
+    for (size_t i = 0; i < source.points.size(); i += stride) idx.push_back(i);
     scratch.resize(idx.size());
     found.assign(idx.size(), 0);
     double prev_err = -1;

@@ -88,6 +88,9 @@ struct IcpLevel {
   // coarse levels but, with nearest-neighbour association, also damps (and biases) tangential
   // motion, so the finest level is pure point-to-plane by default.
   double point_to_plane_weight = 1.0;
+  // > 0: at most about this many source samples at this level (the stride grows to fit), so that a
+  // large view costs no more than a small one. 0: every stride-th sample.
+  int max_samples = 0;
 };
 
 struct IcpOptions {

@@ -63,6 +63,27 @@ TEST(Icp, RecoversAKnownTransformWithBothAssociations) {
   EXPECT_LT(TranslationDistanceMm(b.target_from_source, p.target_from_source), 0.004);
 }
 
+TEST(Icp, ALevelsSampleCapThinsItsSamplesAndKeepsThePose) {
+  const HeightField hf(11);
+  const Pair p = MakePair(hf, 1.5, 0.005);
+  const Rigid3d init = Perturbation(1.0, 0.3) * p.target_from_source;
+  KdTreeTarget kd(p.target);
+  IcpOptions capped;
+  const int cap = static_cast<int>(p.source.size() / 4);
+  for (IcpLevel& l : capped.levels) l.max_samples = cap;
+  const IcpResult all = RegisterIcp(p.source, kd, init, IcpOptions{});
+  const IcpResult few = RegisterIcp(p.source, kd, init, capped);
+  ASSERT_TRUE(all.ok) << all.reason;
+  ASSERT_TRUE(few.ok) << few.reason;
+  // The final level used at most the cap (correspondences ≤ samples) where it used ~all before.
+  EXPECT_GT(all.correspondences, 2 * cap);
+  EXPECT_LE(few.correspondences, cap);
+  EXPECT_LT(RotationAngleRad(few.target_from_source, p.target_from_source) * 180 / M_PI, 0.01);
+  EXPECT_LT(TranslationDistanceMm(few.target_from_source, p.target_from_source), 0.004);
+  capped.levels[0].max_samples = -1;
+  EXPECT_THROW(capped.Check(), std::invalid_argument);
+}
+
 TEST(Icp, CombinedMetricAtEveryLevelConverges) {
   const HeightField hf(12);
   const Pair p = MakePair(hf, 1.0, 0.0);

@@ -3,6 +3,11 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <condition_variable>
+#include <deque>
+#include <mutex>
+#include <thread>
+#include <utility>
 
 #include "common/core/status.h"
 
@@ -20,9 +25,10 @@ const char* TrackingStateName(TrackingState s) {
 
 IcpOptions DefaultTrackerIcp() {
   IcpOptions o;
-  o.levels = {{16, 12, 0.8, 0.7}, {4, 8, 0.25, 0.9}, {1, 6, 0.1, 1.0}};
-  o.min_overlap = 0.35;
-  o.max_rmse_mm = 0.05;
+  o.levels.back().stride = 2;
+  o.min_delta_translation_mm = 5e-4;
+  o.min_delta_rotation_rad = 2e-5;
+  o.min_relative_error_change = 1e-3;
   return o;
 }
 
@@ -32,16 +38,86 @@ void TrackerOptions::Check() const {
   features.Check();
   D3D_CHECK_MSG(sample_stride >= 1 && map_stride >= 1 && keyframe_stride >= 1, "TrackerOptions: strides >= 1");
   D3D_CHECK_MSG(target_scale > 0 && target_scale <= 2 && target_splat >= 0 && target_window >= 0, "TrackerOptions: target");
-  D3D_CHECK_MSG(max_step_mm > 0 && max_step_deg > 0, "TrackerOptions: max_step");
+  D3D_CHECK_MSG(max_step_mm > 0 && max_step_deg > 0 && view_period_ns >= 0, "TrackerOptions: max_step, view_period_ns");
   D3D_CHECK_MSG(keyframe_overlap > 0 && keyframe_overlap <= 1, "TrackerOptions: keyframe_overlap in (0, 1]");
   D3D_CHECK_MSG(relocalise_candidates >= 1 && loop_min_separation >= 1 && max_loop_candidates >= 0 && near_loop_candidates >= 0,
                 "TrackerOptions: counts");
   D3D_CHECK_MSG(edge_information_scale > 0, "TrackerOptions: edge_information_scale > 0");
   D3D_CHECK_MSG(reregister_min_gain >= 0, "TrackerOptions: reregister_min_gain >= 0");
+  D3D_CHECK_MSG(reregister_first_level >= 0 && reregister_first_level < static_cast<int>(icp.levels.size()),
+                "TrackerOptions: reregister_first_level must index icp.levels");
   D3D_CHECK_MSG(map_max_rmse_ratio == 0 || map_max_rmse_ratio >= 1, "TrackerOptions: map_max_rmse_ratio 0 (off) or >= 1");
   D3D_CHECK_MSG(map_gate_min_overlap >= 0 && map_gate_min_overlap <= 1 && map_gate_max_run >= 0,
                 "TrackerOptions: map_gate_min_overlap in [0, 1], map_gate_max_run >= 0");
   D3D_CHECK_MSG(odometry_sigma_mm > 0 && odometry_sigma_rad > 0 && loop_sigma_mm > 0 && loop_sigma_rad > 0, "TrackerOptions: sigmas");
+}
+
+// Keyframe features on a thread of their own (TrackerOptions::async_keyframe_features). The
+// tracker's thread submits a keyframe's points and texture (copies, owned by the job) and collects
+// the results; the worker touches only its job queue and result list, both under mu_.
+class Tracker::FeatureWorker {
+ public:
+  explicit FeatureWorker(const FeatureOptions& options) : o_(options), thread_([this] { Run(); }) {}
+  ~FeatureWorker() {
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      stop_ = true;
+    }
+    work_cv_.notify_one();
+    thread_.join();
+  }
+  void Submit(size_t keyframe, cv::Mat points, cv::Mat texture) {
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      jobs_.push_back({keyframe, std::move(points), std::move(texture)});
+      ++pending_;
+    }
+    work_cv_.notify_one();
+  }
+  // Waits until every submitted job is done; returns (keyframe, features) of those not yet taken.
+  std::vector<std::pair<size_t, ViewFeatures>> WaitAll() {
+    std::unique_lock<std::mutex> lock(mu_);
+    done_cv_.wait(lock, [this] { return pending_ == 0; });
+    return std::exchange(done_, {});
+  }
+
+ private:
+  struct Job {
+    size_t keyframe;
+    cv::Mat points, texture;
+  };
+  void Run() {
+    for (;;) {
+      Job job;
+      {
+        std::unique_lock<std::mutex> lock(mu_);
+        work_cv_.wait(lock, [this] { return stop_ || !jobs_.empty(); });
+        if (jobs_.empty()) return;  // stop_ and nothing left
+        job = std::move(jobs_.front());
+        jobs_.pop_front();
+      }
+      ViewFeatures f = ExtractViewFeatures(job.points, job.texture, o_);
+      {
+        std::lock_guard<std::mutex> lock(mu_);
+        done_.emplace_back(job.keyframe, std::move(f));
+        --pending_;
+      }
+      done_cv_.notify_all();
+    }
+  }
+  const FeatureOptions o_;
+  std::mutex mu_;
+  std::condition_variable work_cv_, done_cv_;
+  std::deque<Job> jobs_;
+  std::vector<std::pair<size_t, ViewFeatures>> done_;
+  size_t pending_ = 0;
+  bool stop_ = false;
+  std::thread thread_;  // last: started once the members above exist
+};
+
+void Tracker::CollectKeyframeFeatures() {
+  if (!feature_worker_) return;
+  for (auto& [k, f] : feature_worker_->WaitAll()) keyframes_[k].features = std::move(f);
 }
 
 Tracker::Tracker(const PinholeBrownConrady& camera, const TrackerOptions& options)
@@ -56,6 +132,7 @@ Tracker::Tracker(const PinholeBrownConrady& camera, const TrackerOptions& option
   k.width = camera.width;
   k.height = camera.height;
   pinhole_ = k.Scaled(o_.target_scale);
+  if (o_.async_keyframe_features && o_.relocalise) feature_worker_ = std::make_unique<FeatureWorker>(o_.features);
 }
 
 Tracker::~Tracker() = default;
@@ -96,10 +173,20 @@ double OverlapIndex(const SurfacePoints& a, const SurfacePoints& b, const Rigid3
 }
 }  // namespace
 
+bool Tracker::Timed() const {
+  return o_.view_period_ns > 0 && capture_ns_ > 0 && last_accepted_ns_ > 0 && capture_ns_ > last_accepted_ns_;
+}
+
+double Tracker::ViewsElapsed() const {
+  if (Timed()) return static_cast<double>(capture_ns_ - last_accepted_ns_) / static_cast<double>(o_.view_period_ns);
+  return static_cast<double>(index_ - last_accepted_);
+}
+
 TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, const cv::Mat& texture,
-                           const ViewAugmenter& augment) {
+                           const ViewAugmenter& augment, int64_t capture_ns) {
   const auto t0 = std::chrono::steady_clock::now();
   ++index_;
+  capture_ns_ = capture_ns;
   anchor_.push_back(-1);
   kf_from_cam_.push_back(Rigid3d::Identity());
   TrackResult out;
@@ -132,7 +219,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   } else if (state_ != TrackingState::kLost) {
     const Rigid3d pred = Predict();
     out.icp = RunIcp(samples, pred, o_.icp);
-    const double views = static_cast<double>(index_ - last_accepted_);
+    const double views = ViewsElapsed();
     const double step_mm = TranslationDistanceMm(out.icp.target_from_source, last_pose_);
     const double step_deg = RotationAngleRad(out.icp.target_from_source, last_pose_) * 180 / M_PI;
     if (!out.icp.ok) {
@@ -185,8 +272,10 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     if (!enough) {
       samples = std::move(more);  // fused and inserted at the pose found without them
     } else {
-      IcpResult again = RunIcp(more, pose, o_.icp);
-      const double views = static_cast<double>(index_ - last_accepted_);
+      IcpOptions fine = o_.icp;
+      fine.levels.erase(fine.levels.begin(), fine.levels.begin() + o_.reregister_first_level);
+      IcpResult again = RunIcp(more, pose, fine);
+      const double views = ViewsElapsed();
       const bool consistent = TranslationDistanceMm(again.target_from_source, last_pose_) <= o_.max_step_mm * views &&
                               RotationAngleRad(again.target_from_source, last_pose_) * 180 / M_PI <= o_.max_step_deg * views;
       if (again.ok && consistent) {
@@ -201,8 +290,10 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   state_ = out.state;
   prev_pose_ = last_pose_;
   prev_accepted_ = out.state == TrackingState::kRelocalised ? -1 : last_accepted_;  // no velocity across a gap
+  prev_accepted_ns_ = last_accepted_ns_;
   last_pose_ = pose;
   last_accepted_ = index_;
+  last_accepted_ns_ = capture_ns_;
   // Into the tracking model unless its residual stands out from the recent views' (see
   // map_max_rmse_ratio); the first view (no ICP) always enters.
   out.in_model = true;
@@ -227,10 +318,13 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
 }
 
 Rigid3d Tracker::Predict() const {
-  // Constant velocity, per elapsed view (views skipped for lack of points included).
+  // Constant velocity, per elapsed view (views skipped for lack of points included) or, with
+  // view_period_ns, per elapsed time.
   if (prev_accepted_ < 0 || last_accepted_ <= prev_accepted_) return last_pose_;
   const Rigid3d step = prev_pose_.inverse() * last_pose_;
-  const double k = static_cast<double>(index_ - last_accepted_) / static_cast<double>(last_accepted_ - prev_accepted_);
+  double k = static_cast<double>(index_ - last_accepted_) / static_cast<double>(last_accepted_ - prev_accepted_);
+  if (Timed() && prev_accepted_ns_ > 0 && last_accepted_ns_ > prev_accepted_ns_)
+    k = static_cast<double>(capture_ns_ - last_accepted_ns_) / static_cast<double>(last_accepted_ns_ - prev_accepted_ns_);
   return k <= 8 ? Rigid3d(last_pose_ * InterpolateRigid(Rigid3d::Identity(), step, k)) : last_pose_;
 }
 
@@ -254,7 +348,7 @@ bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out) 
   icp.max_rmse_mm = std::min(icp.max_rmse_mm, o_.relocalise_max_rmse_mm);
   // The search is local: its result must also be a consistent motion from the last accepted pose
   // (over the views elapsed); a far return is left to the feature relocalisation.
-  const double views = static_cast<double>(index_ - last_accepted_);
+  const double views = ViewsElapsed();
   std::string last_reason;
   for (size_t i = 0; i < starts.size(); ++i) {
     const IcpResult r = RunIcp(samples, starts[i], icp);
@@ -279,6 +373,7 @@ bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out) 
 
 bool Tracker::Relocalise(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& texture, TrackResult* out) {
   const ViewFeatures f = ExtractViewFeatures(points, texture, o_.features);
+  CollectKeyframeFeatures();
   // Local border search: keyframes nearest the last accepted view first.
   const Eigen::Vector3d here = last_pose_ * samples.Centroid();
   std::vector<std::pair<double, int>> order;
@@ -328,29 +423,40 @@ void Tracker::MaybeKeyframe(const SurfacePoints& /*samples*/, const cv::Mat& poi
   kf.node = graph_.AddNode(pose);
   kf.centre_in_cam = kfs.Centroid();
   kf.samples = std::move(kfs);
-  if (o_.relocalise) kf.features = ExtractViewFeatures(points, texture, o_.features);
+  if (o_.relocalise && feature_worker_) feature_worker_->Submit(keyframes_.size(), points.clone(), texture.clone());
+  else if (o_.relocalise) kf.features = ExtractViewFeatures(points, texture, o_.features);
   keyframes_.push_back(std::move(kf));
+  out->new_keyframe = true;
   const int k = static_cast<int>(keyframes_.size()) - 1;
+  if (o_.defer_keyframe_edges) deferred_edges_.push_back(k);
+  else out->loops_added = AddKeyframeEdges(k);
+}
+
+int Tracker::AddKeyframeEdges(int k) {
   if (k > 0) {
     PoseGraphEdge e;
     if (!o_.keyframe_icp_edges || !KeyframeEdge(k - 1, k, &e)) {
       e = PoseGraphEdge{};
       e.from = keyframes_[static_cast<size_t>(k - 1)].node;
       e.to = keyframes_[static_cast<size_t>(k)].node;
-      e.from_from_to = graph_.pose(e.from).inverse() * pose;
+      e.from_from_to = graph_.pose(e.from).inverse() * graph_.pose(e.to);
       e.sigma_translation_mm = o_.odometry_sigma_mm;
       e.sigma_rotation_rad = o_.odometry_sigma_rad;
     }
     e.loop = false;
     graph_.AddEdge(e);
   }
-  out->new_keyframe = true;
-  if (o_.detect_loops) out->loops_added = DetectLoops(static_cast<int>(keyframes_.size()) - 1);
+  return o_.detect_loops ? DetectLoops(k) : 0;
 }
 
 IcpOptions KeyframeIcp(const IcpOptions& base) {
   IcpOptions icp = base;
   icp.levels = {{4, 10, 0.5, 0.8}, {1, 10, 0.2, 1.0}, {1, 8, 0.1, 1.0}};
+  // Pose-graph edges keep IcpOptions' strict termination (a few per keyframe, not per burst).
+  const IcpOptions strict;
+  icp.min_delta_translation_mm = strict.min_delta_translation_mm;
+  icp.min_delta_rotation_rad = strict.min_delta_rotation_rad;
+  icp.min_relative_error_change = strict.min_relative_error_change;
   return icp;
 }
 
@@ -419,6 +525,10 @@ int Tracker::loop_edges() const {
 }
 
 Status Tracker::Optimize(const PoseGraphOptions& options, PoseGraphSummary* summary) {
+  // Deferred edges first, in keyframe order: the graph's poses have not moved since the keyframes
+  // were made (nothing but Optimize moves them), so these are the edges Track() would have added.
+  for (const int k : deferred_edges_) AddKeyframeEdges(k);
+  deferred_edges_.clear();
   return graph_.Optimize(options, summary);
 }
 

@@ -48,8 +48,17 @@ const char* TrackingStateName(TrackingState s);  // "initialising", "tracking", 
 
 enum class Association { kProjective, kKdTree };
 
+// Frame-to-model ICP of the tracker: IcpOptions' levels (gates 1.0 → 0.15 mm) with the finest
+// level on every 2nd sample (~15k of a full view: the pose's noise from 15k samples is ~0.2 µm,
+// below what the levels' termination leaves), and termination at pose updates below 0.5 µm /
+// 2e-5 rad (0.2 µm at the view's ~10 mm radius) or an error change below 0.1 %. IcpOptions'
+// defaults (0.1 µm, 2e-6 rad, 0.01 %) ran every level to its iteration cap; these cost ~60 % of
+// that for the same trueness (typodont, 90 bursts at 30 Hz: 7.35 vs 7.37 µm RMS, register stage
+// 139 → 88 ms per burst).
+IcpOptions DefaultTrackerIcp();
+
 struct TrackerOptions {
-  IcpOptions icp;                 // frame-to-model; see DefaultTrackerIcp()
+  IcpOptions icp = DefaultTrackerIcp();  // frame-to-model
   PointMapOptions map;
   // k-d tree by default: on the full-arch simulation, projective association into the model
   // rendered at half resolution gave 4× the trueness error (53 vs 14 µm RMS over the first 150
@@ -61,7 +70,13 @@ struct TrackerOptions {
   int target_splat = 1;           // projective: splat half-size (px of the model image)
   int target_window = 1;          // projective: search half-window (px)
   double gather_margin_mm = 1.0;  // k-d tree: model samples within the view's box ± this
-  double max_step_mm = 2.5;       // per burst: larger motion is "inconsistent motion"
+  double max_step_mm = 2.5;       // per view: larger motion is "inconsistent motion"
+  // The time of one view (ns) when views are not evenly spaced (a live host processes the newest
+  // burst whenever it is free, so the gaps between its views vary): with it and Track()'s capture
+  // times, the motion prediction is constant velocity per unit time and the max_step limits scale
+  // with the time elapsed (in views of this length) rather than with the views counted. 0: views
+  // are evenly spaced (d3d-fuse, lossless replay); capture times are then not used.
+  int64_t view_period_ns = 0;
   double max_step_deg = 10.0;
   double keyframe_overlap = 0.7;
   int keyframe_stride = 4;        // px lattice of a keyframe's samples
@@ -71,8 +86,11 @@ struct TrackerOptions {
   double local_search_gate_mm = 4.0;  // first-level association gate of the local search
   int min_view_samples = 5000;    // fewer samples (a fragment, ~6 % of the image): skipped, state unchanged
   // A view that a Track() augmenter enlarged is registered again when its samples grew by at least
-  // this share (the second ICP costs as much as the first: ~45 ms on this machine).
+  // this share.
   double reregister_min_gain = 0.25;
+  // That second ICP starts from the pose just found, so it runs icp's levels from this one on
+  // (the coarse levels would only re-find that pose).
+  int reregister_first_level = 1;
   // A view whose ICP residual is above this multiple of the median residual of the last 16
   // accepted views is accepted (its pose stands; it is fused) but not added to the tracking model:
   // a view that straddles two layers of the model (the same surface inserted by two passes that
@@ -103,12 +121,20 @@ struct TrackerOptions {
   double odometry_sigma_mm = 0.005, odometry_sigma_rad = 1e-4;  // pose graph edge σ (without ICP information)
   double loop_sigma_mm = 0.005, loop_sigma_rad = 1e-4;
   bool relocalise = true;
+  // Keyframe features (SIFT on three 640×480 images, ~150–300 ms here) are extracted on a worker
+  // thread of the tracker instead of inside Track(): a keyframe then costs Track() a copy of its
+  // points and texture (~1 ms) rather than a stall of ten bursts. Results are the same: a
+  // relocalisation first waits for every keyframe's features. For a live host, where Track() is
+  // on the critical path.
+  bool async_keyframe_features = false;
+  // A new keyframe's pose-graph edges (the ICP edge to the previous keyframe and the loop-closure
+  // search, up to 10 ICPs) are measured in Optimize() instead of in Track(). The graph's poses do
+  // not move before Optimize, so the edges are the same; only TrackResult::loops_added stays 0.
+  // For a live host (Track() on the critical path; the work moves to the end of the scan).
+  bool defer_keyframe_edges = false;
   bool detect_loops = true;
   void Check() const;             // throws std::invalid_argument
 };
-
-// Frame-to-model ICP levels used by default (association gates shrinking 0.8 → 0.1 mm).
-IcpOptions DefaultTrackerIcp();
 
 // ICP levels of keyframe-to-keyframe registration (gates 0.5 → 0.1 mm), acceptance from `base`.
 IcpOptions KeyframeIcp(const IcpOptions& base = DefaultTrackerIcp());
@@ -125,7 +151,7 @@ struct Keyframe {
   int64_t view = 0;                   // index of the view (Track call) it was made from
   int node = 0;                       // pose graph node
   SurfacePoints samples;              // camera frame
-  ViewFeatures features;              // camera frame
+  ViewFeatures features;              // camera frame (async_keyframe_features: once collected)
   Eigen::Vector3d centre_in_cam = Eigen::Vector3d::Zero();
 };
 
@@ -159,10 +185,12 @@ class Tracker {
 
   // points, normals: H×W CV_32FC3 camera frame (mm, NaN = none); quality H×W CV_32F or empty;
   // texture H×W CV_8U or empty (then relocalisation uses range features only).
+  // capture_ns: the view's capture time (ns, any epoch), used with TrackerOptions::view_period_ns.
   TrackResult Track(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, const cv::Mat& texture,
-                    const ViewAugmenter& augment = {});
+                    const ViewAugmenter& augment = {}, int64_t capture_ns = 0);
 
   TrackingState state() const { return state_; }
+  // With async_keyframe_features, a keyframe's features may still be pending (empty) here.
   const std::vector<Keyframe>& keyframes() const { return keyframes_; }
   const PoseGraph& graph() const { return graph_; }
   int64_t views() const { return static_cast<int64_t>(anchor_.size()); }
@@ -182,13 +210,21 @@ class Tracker {
   void MaybeKeyframe(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& normals,
                      const cv::Mat& texture, const Rigid3d& pose, TrackResult* out);
   int DetectLoops(int new_kf);
+  // The pose-graph edges of keyframe k (to k−1, and loop closures): returns the loops added.
+  int AddKeyframeEdges(int k);
   // ICP of keyframe `to`'s samples onto keyframe `from`'s from their current relative pose: an
   // edge with ICP's information (false when the ICP fails).
   bool KeyframeEdge(int from, int to, PoseGraphEdge* edge) const;
 
+  class FeatureWorker;  // async_keyframe_features (tracker.cpp)
+  // Waits for the feature worker's pending keyframes and moves their features into keyframes_.
+  void CollectKeyframeFeatures();
+
   PinholeBrownConrady camera_;
   PinholeIntrinsics pinhole_;
   TrackerOptions o_;
+  std::unique_ptr<FeatureWorker> feature_worker_;  // null unless async_keyframe_features
+  std::vector<int> deferred_edges_;                 // keyframes whose edges wait for Optimize (defer_keyframe_edges)
   PointMap map_;
   PoseGraph graph_;
   std::vector<Keyframe> keyframes_;
@@ -201,6 +237,9 @@ class Tracker {
   int gated_run_ = 0;  // views in a row kept out of the model
   Rigid3d last_pose_ = Rigid3d::Identity(), prev_pose_ = Rigid3d::Identity();
   int64_t prev_accepted_ = -1;
+  int64_t capture_ns_ = 0, last_accepted_ns_ = 0, prev_accepted_ns_ = 0;  // Track()'s capture times
+  bool Timed() const;           // view_period_ns and the capture times are in use
+  double ViewsElapsed() const;  // since the last accepted view: views counted, or time / view_period_ns
   // Per view: anchor keyframe (−1 = refused) and keyframe_from_cam.
   std::vector<int> anchor_;
   std::vector<Rigid3d> kf_from_cam_;

@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include <opencv2/core.hpp>
+
 #include "pipeline/register/test_surfaces.h"
 
 namespace d3d {
@@ -68,16 +70,104 @@ TEST_F(TrackerScan, TracksAStripRefusesABadViewAndRelocalises) {
   EXPECT_EQ(tracker.state(), TrackingState::kTracking);
 }
 
+TEST_F(TrackerScan, KeyframeWorkOffTrackGivesTheSameScan) {
+  // The same views through a tracker that does its keyframe work inside Track() and through one that
+  // hands the features to its worker thread and leaves the pose-graph edges to Optimize(): every
+  // result is identical, the feature relocalisation (which waits for the worker) and the optimised
+  // poses included.
+  // OpenCV's own loops (SIFT) sequential here: they run on oneTBB's workers, whose synchronisation
+  // ThreadSanitizer cannot see (tools/test.sh runs this test under it for the worker thread's).
+  struct SequentialOpenCv {
+    int before = cv::getNumThreads();
+    SequentialOpenCv() { cv::setNumThreads(0); }
+    ~SequentialOpenCv() { cv::setNumThreads(before); }
+  } sequential_opencv;
+  TrackerOptions o;
+  o.features.max_features = 800;
+  const PinholeBrownConrady cam = TestCamera(160, 120, 500);  // the fixture's field of view, 4× fewer pixels
+  o.min_view_samples /= 4;
+  TrackerOptions oa = o;
+  oa.async_keyframe_features = true;
+  oa.defer_keyframe_edges = true;
+  Tracker inline_features(cam, o), worker_features(cam, oa);
+  std::vector<Rigid3d> path;
+  for (double x = -3; x <= 3.01; x += 1.0) path.push_back(Truth(x, 0));
+  path.push_back(Truth(25, 0));      // off the model: lost
+  path.push_back(Truth(-3.1, 0.4));  // back over the strip: relocalised by features
+  path.push_back(Truth(-2.8, 0.4));
+  bool by_features = false;
+  for (size_t i = 0; i < path.size(); ++i) {
+    const auto v = RenderHeightField(hf_, cam, path[i], 0.004, static_cast<uint32_t>(i + 1));
+    const TrackResult a = inline_features.Track(v.points, v.normals, v.quality, v.texture);
+    const TrackResult b = worker_features.Track(v.points, v.normals, v.quality, v.texture);
+    EXPECT_EQ(a.accepted, b.accepted) << "view " << i;
+    EXPECT_EQ(a.state, b.state) << "view " << i;
+    EXPECT_EQ(a.reason, b.reason) << "view " << i;
+    EXPECT_EQ(a.new_keyframe, b.new_keyframe) << "view " << i;
+    EXPECT_EQ(b.loops_added, 0) << "view " << i;  // deferred
+    EXPECT_TRUE(a.world_from_cam.matrix() == b.world_from_cam.matrix()) << "view " << i;
+    by_features = by_features || b.reason.find("feature inliers") != std::string::npos;
+  }
+  EXPECT_TRUE(by_features) << "the path must exercise a feature relocalisation";
+  EXPECT_EQ(worker_features.state(), TrackingState::kTracking);
+  ASSERT_EQ(inline_features.keyframes().size(), worker_features.keyframes().size());
+  PoseGraphSummary sa, sb;
+  ASSERT_TRUE(inline_features.Optimize({}, &sa).ok());
+  ASSERT_TRUE(worker_features.Optimize({}, &sb).ok());
+  EXPECT_GT(inline_features.loop_edges(), 0) << "the path must close a loop";
+  EXPECT_EQ(inline_features.loop_edges(), worker_features.loop_edges());
+  for (int64_t i = 0; i < inline_features.views(); ++i) {
+    Rigid3d pa, pb;
+    ASSERT_EQ(inline_features.ViewPose(i, &pa), worker_features.ViewPose(i, &pb));
+    EXPECT_TRUE(pa.matrix() == pb.matrix()) << "view " << i;
+  }
+}
+
+TEST_F(TrackerScan, UnevenlySpacedViewsAreTrackedByCaptureTime) {
+  // A live host takes the newest burst whenever it is free: here the probe moves 1 mm per 33 ms
+  // and the views come 1 or 4 bursts apart. By capture time (view_period_ns) the motion prediction
+  // is exact and a 4 mm step is 4 views' worth of motion; counted in views it is neither.
+  TrackerOptions o;
+  o.relocalise = false;
+  o.detect_loops = false;
+  const PinholeBrownConrady cam = TestCamera(160, 120, 500);  // the fixture's field of view, 4× fewer pixels
+  o.min_view_samples /= 4;
+  const int64_t burst_ns = 33'333'333;
+  TrackerOptions timed = o;
+  timed.view_period_ns = burst_ns;
+  Tracker by_views(cam, o), by_time(cam, timed);
+  const std::vector<int> bursts = {0, 1, 2, 6, 7, 11, 12, 13};
+  auto truth = [](int burst) { return LookDown(-6.0 + burst, 0, 30, 0.05, 0.04, 0.1 + 0.01 * burst); };  // constant velocity
+  int not_tracked_by_views = 0;
+  for (size_t i = 0; i < bursts.size(); ++i) {
+    const auto v = RenderHeightField(hf_, cam, truth(bursts[i]), 0.004, static_cast<uint32_t>(i + 1));
+    const int64_t capture_ns = 1'000'000'000 + bursts[i] * burst_ns;
+    const TrackResult t = by_time.Track(v.points, v.normals, v.quality, v.texture, {}, capture_ns);
+    EXPECT_TRUE(t.accepted) << "burst " << bursts[i] << ": " << t.reason;
+    EXPECT_EQ(t.state, TrackingState::kTracking) << "burst " << bursts[i] << ": " << t.reason;
+    const TrackResult n = by_views.Track(v.points, v.normals, v.quality, v.texture, {}, capture_ns);
+    not_tracked_by_views += !(n.accepted && n.state == TrackingState::kTracking);
+  }
+  EXPECT_GT(not_tracked_by_views, 0);
+  Rigid3d p;
+  ASSERT_TRUE(by_time.ViewPose(by_time.views() - 1, &p));
+  EXPECT_LT(TranslationDistanceMm(p, truth(0).inverse() * truth(bursts.back())), 0.02);
+}
+
 TEST_F(TrackerScan, ProjectiveAssociationTracksToo) {
   TrackerOptions o;
   o.association = Association::kProjective;
   o.relocalise = false;
-  Tracker tracker(cam_, o);
+  o.detect_loops = false;
+  const PinholeBrownConrady cam = TestCamera(160, 120, 500);  // the fixture's field of view, 4× fewer pixels
+  o.min_view_samples /= 4;
+  Tracker tracker(cam, o);
   std::vector<Rigid3d> truth;
   uint32_t seed = 1;
   for (double x = -3; x <= 3.01; x += 0.5) {
     truth.push_back(Truth(x, 0.2));
-    const TrackResult r = Feed(&tracker, truth.back(), seed++);
+    const auto v = RenderHeightField(hf_, cam, truth.back(), 0.004, seed++);
+    const TrackResult r = tracker.Track(v.points, v.normals, v.quality, v.texture);
     ASSERT_TRUE(r.accepted) << r.reason;
   }
   Rigid3d p;

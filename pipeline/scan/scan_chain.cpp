@@ -71,7 +71,7 @@ TrackResult ScanRegistrar::Register(ReconstructedView& view, uint64_t burst_seq,
       return n > 0;
     };
   }
-  TrackResult r = tracker_.Track(view.points_in_cam, view.normals, view.quality, view.texture, augment);
+  TrackResult r = tracker_.Track(view.points_in_cam, view.normals, view.quality, view.texture, augment, reference_ns);
   ms_ += MsSince(t0);
   if (r.accepted) ++accepted_;
   else ++rejected_;
