@@ -10,7 +10,9 @@
 //   ScanItem (pool of the graph): frames (ingest writes), view (reconstruct writes; register, fuse and
 //     preview read), track (register writes; fuse and preview read). One thread at a time, handed
 //     over by the graph's edges.
-//   ScanReconstructor: reconstruct thread.   ScanRegistrar (Tracker): register thread.
+//   ScanReconstructor: reconstruct thread.   ScanRegistrar (Tracker): register thread; the tracker's
+//     keyframe-feature worker thread (d3d-scan turns it on) touches only the copies of a keyframe's
+//     points and texture it is handed and its own job and result lists (tracker.cpp).
 //   ScanFuser (TSDF): fuse thread, then Finish(), under model_mu_, which SaveNow() (a saver thread) also takes.
 //   Preview grid (the decimated model) and the TripleBuffer's back copy: preview thread.
 //   The TripleBuffer's front copy: the render thread (LatestSnapshot()).

@@ -53,8 +53,8 @@ void TrackerOptions::Check() const {
 }
 
 // Keyframe features on a thread of their own (TrackerOptions::async_keyframe_features). The
-// tracker's thread submits a keyframe's points and texture (copies, owned by the job) and collects
-// the results; the worker touches only its job queue and result list, both under mu_.
+// tracker's thread submits a keyframe's points and texture (copied into the job's own buffers) and
+// collects the results; the worker touches only the job it took, and its queues under mu_.
 class Tracker::FeatureWorker {
  public:
   explicit FeatureWorker(const FeatureOptions& options) : o_(options), thread_([this] { Run(); }) {}
@@ -66,10 +66,23 @@ class Tracker::FeatureWorker {
     work_cv_.notify_one();
     thread_.join();
   }
-  void Submit(size_t keyframe, cv::Mat points, cv::Mat texture) {
+  // Copies points and texture into a job's buffers (reused from finished jobs: after the first few
+  // keyframes a submission allocates nothing) and queues it.
+  void Submit(size_t keyframe, const cv::Mat& points, const cv::Mat& texture) {
+    Job job;
     {
       std::lock_guard<std::mutex> lock(mu_);
-      jobs_.push_back({keyframe, std::move(points), std::move(texture)});
+      if (!spare_.empty()) {
+        job = std::move(spare_.back());
+        spare_.pop_back();
+      }
+    }
+    job.keyframe = keyframe;
+    points.copyTo(job.points);
+    texture.copyTo(job.texture);
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      jobs_.push_back(std::move(job));
       ++pending_;
     }
     work_cv_.notify_one();
@@ -83,7 +96,7 @@ class Tracker::FeatureWorker {
 
  private:
   struct Job {
-    size_t keyframe;
+    size_t keyframe = 0;
     cv::Mat points, texture;
   };
   void Run() {
@@ -100,6 +113,7 @@ class Tracker::FeatureWorker {
       {
         std::lock_guard<std::mutex> lock(mu_);
         done_.emplace_back(job.keyframe, std::move(f));
+        spare_.push_back(std::move(job));
         --pending_;
       }
       done_cv_.notify_all();
@@ -109,6 +123,7 @@ class Tracker::FeatureWorker {
   std::mutex mu_;
   std::condition_variable work_cv_, done_cv_;
   std::deque<Job> jobs_;
+  std::vector<Job> spare_;  // finished jobs' buffers, for the next submissions
   std::vector<std::pair<size_t, ViewFeatures>> done_;
   size_t pending_ = 0;
   bool stop_ = false;
@@ -423,7 +438,7 @@ void Tracker::MaybeKeyframe(const SurfacePoints& /*samples*/, const cv::Mat& poi
   kf.node = graph_.AddNode(pose);
   kf.centre_in_cam = kfs.Centroid();
   kf.samples = std::move(kfs);
-  if (o_.relocalise && feature_worker_) feature_worker_->Submit(keyframes_.size(), points.clone(), texture.clone());
+  if (o_.relocalise && feature_worker_) feature_worker_->Submit(keyframes_.size(), points, texture);
   else if (o_.relocalise) kf.features = ExtractViewFeatures(points, texture, o_.features);
   keyframes_.push_back(std::move(kf));
   out->new_keyframe = true;
