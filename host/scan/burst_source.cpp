@@ -156,8 +156,7 @@ BurstSource::Result DdsBurstSource::Next(IngestedBurst* out) {
     if (const auto* b = std::get_if<proto::BurstMsg>(&sample_.msg)) {
       if (o_.max_age_s > 0 && UnixNs() - sample_.receive_ns > static_cast<int64_t>(o_.max_age_s * 1e9)) {
         rx_->Recycle(std::move(sample_));
-        ++stale_;
-        dropped_.store(queue_full + stale_, std::memory_order_relaxed);
+        ++stale_;  // counted in dropped_ at the top of the loop
         last_burst_ns_ = SteadyNs();  // the probe is there
         continue;
       }

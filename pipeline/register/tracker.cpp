@@ -197,6 +197,17 @@ double Tracker::ViewsElapsed() const {
   return static_cast<double>(index_ - last_accepted_);
 }
 
+bool Tracker::ConsistentMotion(const Rigid3d& pose, std::string* why) const {
+  const double views = ViewsElapsed();
+  const double step_mm = TranslationDistanceMm(pose, last_pose_);
+  const double step_deg = RotationAngleRad(pose, last_pose_) * 180 / M_PI;
+  if (step_mm > o_.max_step_mm * views || step_deg > o_.max_step_deg * views) {
+    if (why) *why = "inconsistent motion (" + std::to_string(step_mm) + " mm, " + std::to_string(step_deg) + " deg)";
+    return false;
+  }
+  return true;
+}
+
 TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, const cv::Mat& texture,
                            const ViewAugmenter& augment, int64_t capture_ns) {
   const auto t0 = std::chrono::steady_clock::now();
@@ -234,14 +245,9 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   } else if (state_ != TrackingState::kLost) {
     const Rigid3d pred = Predict();
     out.icp = RunIcp(samples, pred, o_.icp);
-    const double views = ViewsElapsed();
-    const double step_mm = TranslationDistanceMm(out.icp.target_from_source, last_pose_);
-    const double step_deg = RotationAngleRad(out.icp.target_from_source, last_pose_) * 180 / M_PI;
     if (!out.icp.ok) {
       out.reason = "icp: " + out.icp.reason;
-    } else if (step_mm > o_.max_step_mm * views || step_deg > o_.max_step_deg * views) {
-      out.reason = "inconsistent motion (" + std::to_string(step_mm) + " mm, " + std::to_string(step_deg) + " deg)";
-    } else {
+    } else if (ConsistentMotion(out.icp.target_from_source, &out.reason)) {
       accepted = true;
       pose = out.icp.target_from_source;
       out.state = TrackingState::kTracking;
@@ -290,10 +296,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
       IcpOptions fine = o_.icp;
       fine.levels.erase(fine.levels.begin(), fine.levels.begin() + o_.reregister_first_level);
       IcpResult again = RunIcp(more, pose, fine);
-      const double views = ViewsElapsed();
-      const bool consistent = TranslationDistanceMm(again.target_from_source, last_pose_) <= o_.max_step_mm * views &&
-                              RotationAngleRad(again.target_from_source, last_pose_) * 180 / M_PI <= o_.max_step_deg * views;
-      if (again.ok && consistent) {
+      if (again.ok && ConsistentMotion(again.target_from_source, nullptr)) {
         pose = again.target_from_source;
         out.icp = again;
         samples = std::move(more);
@@ -363,7 +366,6 @@ bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out) 
   icp.max_rmse_mm = std::min(icp.max_rmse_mm, o_.relocalise_max_rmse_mm);
   // The search is local: its result must also be a consistent motion from the last accepted pose
   // (over the views elapsed); a far return is left to the feature relocalisation.
-  const double views = ViewsElapsed();
   std::string last_reason;
   for (size_t i = 0; i < starts.size(); ++i) {
     const IcpResult r = RunIcp(samples, starts[i], icp);
@@ -371,12 +373,7 @@ bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out) 
       last_reason = r.reason;
       continue;
     }
-    const double step_mm = TranslationDistanceMm(r.target_from_source, last_pose_);
-    const double step_deg = RotationAngleRad(r.target_from_source, last_pose_) * 180 / M_PI;
-    if (step_mm > o_.max_step_mm * views || step_deg > o_.max_step_deg * views) {
-      last_reason = "inconsistent motion (" + std::to_string(step_mm) + " mm, " + std::to_string(step_deg) + " deg)";
-      continue;
-    }
+    if (!ConsistentMotion(r.target_from_source, &last_reason)) continue;
     out->icp = r;
     out->world_from_cam = r.target_from_source;
     out->reason = i == 0 ? "icp from the predicted pose" : i == 1 ? "icp from the last pose" : "icp from keyframe " + std::to_string(order[i - 2].second);

@@ -71,13 +71,13 @@ struct TrackerOptions {
   int target_window = 1;          // projective: search half-window (px)
   double gather_margin_mm = 1.0;  // k-d tree: model samples within the view's box ± this
   double max_step_mm = 2.5;       // per view: larger motion is "inconsistent motion"
+  double max_step_deg = 10.0;
   // The time of one view (ns) when views are not evenly spaced (a live host processes the newest
   // burst whenever it is free, so the gaps between its views vary): with it and Track()'s capture
   // times, the motion prediction is constant velocity per unit time and the max_step limits scale
   // with the time elapsed (in views of this length) rather than with the views counted. 0: views
   // are evenly spaced (d3d-fuse, lossless replay); capture times are then not used.
   int64_t view_period_ns = 0;
-  double max_step_deg = 10.0;
   double keyframe_overlap = 0.7;
   int keyframe_stride = 4;        // px lattice of a keyframe's samples
   FeatureOptions features;
@@ -240,6 +240,9 @@ class Tracker {
   int64_t capture_ns_ = 0, last_accepted_ns_ = 0, prev_accepted_ns_ = 0;  // Track()'s capture times
   bool Timed() const;           // view_period_ns and the capture times are in use
   double ViewsElapsed() const;  // since the last accepted view: views counted, or time / view_period_ns
+  // Whether `pose` is within max_step_mm / max_step_deg per view elapsed of the last accepted pose;
+  // if not, *why (when given) says by how much.
+  bool ConsistentMotion(const Rigid3d& pose, std::string* why) const;
   // Per view: anchor keyframe (−1 = refused) and keyframe_from_cam.
   std::vector<int> anchor_;
   std::vector<Rigid3d> kf_from_cam_;
