@@ -16,6 +16,12 @@ using Clock = std::chrono::steady_clock;
 double MsSince(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
 }  // namespace
 
+ReconstructOptions HandHeldReconstructOptions() {
+  ReconstructOptions o;
+  o.phase.motion_compensation = true;
+  return o;
+}
+
 void ScanOptions::Check() const {
   recon.Check();
   tracker.Check();
