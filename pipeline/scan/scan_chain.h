@@ -45,8 +45,10 @@ namespace d3d {
 // is structured (at Φ and 2Φ, with the sign of the motion), so consecutive views are distorted
 // alike and frame-to-model ICP drifts on it. Typodont full arch, seed 3, --every 2: rendered with
 // no in-burst motion the first 200 views fuse to 6.3 µm RMS (6.1 at the true poses), with it to
-// 35.2 µm; over the whole arch, compensation takes trueness from 14.1 to 10.1 µm RMS (p95 26.6 →
-// 18.3), ATE 0.090 → 0.061 mm, for ~8 ms more per burst in reconstruction.
+// 35.2 µm. Whole arch, RMS / p95 µm, ATE mm, without → with compensation: typodont s3 14.1 / 26.6 /
+// 0.090 → 10.1 / 18.3 / 0.061, s1 8.5 / 16.5 / 0.067 → 9.0 / 17.6 / 0.051; real arch s1 8.8 / 16.4 /
+// 0.057 → 7.3 / 14.4 / 0.057, s3 13.1 / 29.0 / 0.079 → 14.9 / 21.0 / 0.075 (a tail of border points).
+// Cost: ~8 ms more per burst in reconstruction.
 ReconstructOptions HandHeldReconstructOptions();
 
 struct ScanOptions {
