@@ -309,16 +309,56 @@ Rigid3d GlobalAlign(const TriangleMesh& scan, const MeshClosestPoint& ref) {
   return best;
 }
 
-PrecisionReport EvaluatePrecision(const TriangleMesh& a, const TriangleMesh& b, const Rigid3d& a_from_b, double max_d) {
+PrecisionReport EvaluatePrecision(const TriangleMesh& a, const TriangleMesh& b, const Rigid3d& a_from_b, double max_d,
+                                  double reciprocal_below_um) {
+  D3D_CHECK_MSG(reciprocal_below_um >= 0, "EvaluatePrecision: reciprocal_below_um must be >= 0");
   const MeshClosestPoint ref(a);
   EvaluateOptions o;
   o.max_distance_mm = max_d;
   o.teeth_only_coverage = false;
   const TruenessReport t = EvaluateTrueness(b, ref, a_from_b, o);
   PrecisionReport p;
-  p.rms_um = t.rms_um;
-  p.p95_um = t.p95_um;
-  p.points = t.points;
+  p.one_sided_rms_um = t.rms_um;
+  p.one_sided_p95_um = t.p95_um;
+  // The overlap test: p of b (in a's frame) and its closest point q on a measure the same surface
+  // when b's own closest point to q is about as far: |q − b| ≥ ½ |p − q|. Where a lacks the
+  // surface b has at p (a tooth wall one scan reached and the other did not, above a gingiva both
+  // have), q falls on that other surface, which b also measured, so |q − b| ≈ 0.
+  TriangleMesh b_in_a = b;
+  for (auto& v : b_in_a.vertices) v = t.reference_from_scan * v;
+  const MeshClosestPoint bcp(b_in_a);
+  const size_t nv = b_in_a.vertices.size();
+  std::vector<uint8_t> kept(nv, 0);
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, nv), [&](const tbb::blocked_range<size_t>& range) {
+    for (size_t i = range.begin(); i < range.end(); ++i) {
+      const float d_um = t.signed_um[i];
+      if (!std::isfinite(d_um)) continue;
+      if (std::abs(d_um) <= reciprocal_below_um) {
+        kept[i] = 1;
+        continue;
+      }
+      const MeshClosestPoint::Hit q = ref.Closest(b_in_a.vertices[i]);
+      const MeshClosestPoint::Hit back = bcp.Closest(q.point);
+      kept[i] = back.distance_mm >= 0.5 * q.distance_mm ? 1 : 2;
+    }
+  });
+  std::vector<double> absd;
+  double s2 = 0;
+  int64_t counted = 0;
+  for (size_t i = 0; i < nv; ++i) {
+    if (!kept[i]) continue;
+    ++counted;
+    if (kept[i] != 1) continue;
+    const double d = t.signed_um[i];
+    s2 += d * d;
+    absd.push_back(std::abs(d));
+  }
+  p.points = static_cast<int64_t>(absd.size());
+  p.not_reciprocal_pct = counted ? 100.0 * static_cast<double>(counted - p.points) / static_cast<double>(counted) : 0;
+  if (p.points) {
+    p.rms_um = std::sqrt(s2 / static_cast<double>(p.points));
+    p.p95_um = Percentile(absd, 0.95);
+  }
   return p;
 }
 

@@ -153,6 +153,41 @@ TEST(EvaluateScan, PrecisionAndTrajectoryError) {
   EXPECT_NEAR(r.max_mm, 1.0, 0.05);
 }
 
+// Precision counts the surface both scans have. b = a's sheet plus a wall a never reached, rising
+// from 0.05 to 0.45 mm above the sheet (a tooth wall above a gingiva both scans have): one-sided,
+// the wall's vertices meet a's sheet below them; reciprocally they do not count. A real difference
+// (a 60 µm bump that b has and a has not) is kept whole.
+TEST(EvaluateScan, PrecisionCountsOnlyTheSurfaceBothScansHave) {
+  const TriangleMesh a = Sheet();
+  TriangleMesh b = Sheet();
+  const auto h = [&](double x, double y) { return 0.8 * std::sin(0.7 * x) * std::cos(0.9 * y) + 0.3 * std::sin(2.3 * x + 1.1 * y); };
+  const int base = static_cast<int>(b.vertices.size()), ny = 81, nz = 9;
+  for (int j = 0; j < ny; ++j)
+    for (int k = 0; k < nz; ++k) {
+      const double y = -4 + 0.1 * j;
+      b.vertices.emplace_back(0.03, y, h(0.03, y) + 0.05 + 0.05 * k);
+    }
+  for (int j = 0; j + 1 < ny; ++j)
+    for (int k = 0; k + 1 < nz; ++k) {
+      const int v = base + j * nz + k;
+      b.faces.emplace_back(v, v + nz, v + nz + 1);
+      b.faces.emplace_back(v, v + nz + 1, v + 1);
+    }
+  const PrecisionReport wall = EvaluatePrecision(a, b);
+  EXPECT_GT(wall.one_sided_rms_um, 30.0);
+  EXPECT_LT(wall.rms_um, 1.0);
+  EXPECT_GT(wall.not_reciprocal_pct, 0.5);
+  EXPECT_GT(wall.points, 15000);
+  // A 60 µm bump of radius ~1 mm that only b has: measured, not thinned.
+  TriangleMesh bump = Sheet();
+  for (auto& v : bump.vertices) v.z() += 0.060 * std::exp(-(std::pow(v.x() - 3, 2) + std::pow(v.y(), 2)) / (2 * 0.5 * 0.5));
+  const PrecisionReport p = EvaluatePrecision(a, bump);
+  EXPECT_EQ(p.not_reciprocal_pct, 0.0);
+  EXPECT_DOUBLE_EQ(p.rms_um, p.one_sided_rms_um);
+  EXPECT_GT(p.rms_um, 3.0);
+  EXPECT_THROW(EvaluatePrecision(a, bump, Rigid3d::Identity(), 0.5, -1.0), std::invalid_argument);
+}
+
 TEST(EvaluateScan, HeatMapHasTheScanAndABar) {
   const TriangleMesh s = Sheet();
   std::vector<float> d(s.vertices.size());

@@ -21,6 +21,8 @@ void TsdfOptions::Check() const {
   D3D_CHECK_MSG(max_incidence_deg > 0 && max_incidence_deg <= 90, "TsdfOptions: max_incidence_deg in (0, 90]");
   D3D_CHECK_MSG(pixel_stride >= 1, "TsdfOptions: pixel_stride >= 1");
   D3D_CHECK_MSG(min_mesh_weight >= 0 && mesh_seed_weight >= 0, "TsdfOptions: mesh weights must be >= 0");
+  D3D_CHECK_MSG(max_cell_sdf_span == 0 || max_cell_sdf_span >= 1,
+                "TsdfOptions: max_cell_sdf_span must be 0 (no test) or >= 1 cell diagonal, got " << max_cell_sdf_span);
   D3D_CHECK_MSG(occlusion_margin_mm >= 0 && (occlusion_margin_mm == 0 || occlusion_reach_mm > occlusion_margin_mm),
                 "TsdfOptions: occlusion_margin_mm must be >= 0 and below occlusion_reach_mm");
   D3D_CHECK_MSG(occlusion_min_weight > 0 && occlusion_stride >= 1, "TsdfOptions: occlusion_min_weight > 0, occlusion_stride >= 1");
@@ -267,16 +269,26 @@ TriangleMesh TsdfVolume::ExtractMesh(float min_weight) const {
   openvdb::tools::volumeToMesh(*impl_->tsdf, pts, tris, quads, 0.0, 0.0, true);
   TriangleMesh mesh;
   // A vertex's weight: the least of the 8 voxel centres around it. Kept when ≥ min_weight.
+  // A vertex whose corners span more signed distance than a distance field can (see the
+  // options) gets weight 0: it is not kept and seeds nothing.
   std::vector<float> vertex_weight(pts.size(), 0.0f);
   const auto wacc = impl_->weight->getConstAccessor();
+  const auto dacc = impl_->tsdf->getConstAccessor();
   const double inv_voxel = 1.0 / o_.voxel_mm;
+  const float max_span = o_.max_cell_sdf_span > 0 ? static_cast<float>(o_.max_cell_sdf_span * std::sqrt(3.0) * o_.voxel_mm)
+                                                  : std::numeric_limits<float>::max();
   for (size_t i = 0; i < pts.size(); ++i) {
     const int x = static_cast<int>(std::floor(pts[i].x() * inv_voxel)), y = static_cast<int>(std::floor(pts[i].y() * inv_voxel)),
               z = static_cast<int>(std::floor(pts[i].z() * inv_voxel));
-    float w = std::numeric_limits<float>::max();
-    for (int k = 0; k < 8 && w >= min_weight; ++k)
-      w = std::min(w, wacc.getValue(openvdb::Coord(x + (k & 1), y + ((k >> 1) & 1), z + ((k >> 2) & 1))));
-    vertex_weight[i] = w;
+    float w = std::numeric_limits<float>::max(), dmin = w, dmax = -w;
+    for (int k = 0; k < 8 && w >= min_weight; ++k) {
+      const openvdb::Coord c(x + (k & 1), y + ((k >> 1) & 1), z + ((k >> 2) & 1));
+      w = std::min(w, wacc.getValue(c));
+      const float d = dacc.getValue(c);
+      dmin = std::min(dmin, d);
+      dmax = std::max(dmax, d);
+    }
+    vertex_weight[i] = w >= min_weight && dmax - dmin > max_span ? 0.0f : w;
   }
   // Kept polygons as triangles (OpenVDB's indices), reversed: OpenVDB orients polygons with
   // normals toward the inside (negative) of the level set; we want them toward the front

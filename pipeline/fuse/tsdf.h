@@ -18,6 +18,15 @@
 // pieces that hold at least one vertex whose corners all reach mesh_seed_weight are kept. A patch
 // one view alone measured wrongly (a fringe-order error shifts a patch by a fringe's depth) never
 // reaches the seed weight and goes; thin low-weight borders of the well-seen surface stay.
+// Span test: a sign change is a surface only where the field behaves as a distance. Across one
+// cell a distance field changes by at most the cell diagonal (√3·voxel); where two bands that
+// disagree meet (the back of the band behind a surface, at −truncation, next to voxels written
+// positive by views whose points lay deeper, within the occlusion margin), the sign flips in one
+// step by up to two truncations, and marching cubes puts a surface there, facing into the object. A vertex whose 8
+// voxels span more than max_cell_sdf_span diagonals is dropped. Real arch, seed 3, full arch: such
+// a layer 0.23–0.29 mm inside the teeth took the trueness RMS to 14.9 µm; at 3 diagonals (0.26 mm)
+// it is gone: 11.6 µm, coverage 95.6 → 95.4 % (at 2.5: 11.4 µm, 95.1 %; at 2: 11.4 µm, 94.7 %:
+// sharp edges, where views' tangent planes disagree, also span more than one diagonal).
 // Occlusion test (free-space consistency; the visibility reasoning of Merrell et al. 2007, "Real-
 // time visibility-based fusion of depth maps", ICCV, §4.2 "occlusion" conflicts): a camera cannot
 // see a point that lies behind a surface the model already knows well. Before a view is fused,
@@ -51,6 +60,10 @@ struct TsdfOptions {
   int pixel_stride = 1;            // leaf allocation samples every k-th pixel (integration uses all)
   float min_mesh_weight = 0.5f;    // see ExtractMesh
   float mesh_seed_weight = 2.0f;   // see ExtractMesh; <= min_mesh_weight: no hysteresis
+  // A mesh vertex is dropped when the signed distances of the 8 voxels around it span more than
+  // this many cell diagonals (√3·voxel_mm); a distance field spans at most one (see the file
+  // comment). 0 = no test, else ≥ 1.
+  double max_cell_sdf_span = 3.0;
   // Occlusion test (see the file comment): ray samples from margin to reach (mm) in front of each
   // point, every occlusion_stride-th pixel (its block shares the result). margin 0 = off.
   double occlusion_margin_mm = 0.6;

@@ -103,6 +103,42 @@ TEST(Tsdf, MeshHysteresisDropsAPatchOnlyOneWeakViewSawAndKeepsWeakBorders) {
   EXPECT_GT(count(v2.ExtractMesh(), 49.0, -1e9), 100);
 }
 
+// The zero level between two bands that do not agree is no surface: the plane z = 0 fused with its
+// normal +z (band z ∈ [−0.2, 0.2] mm), and a surface at z = −0.45 whose band ends at z = −0.25,
+// where the plane's band (D = −0.2) meets it (D = +0.2). The sign changes there in one voxel step by
+// 0.4 mm, far more than a distance field changes across a cell; that crossing is not meshed, and
+// both surfaces are.
+TEST(Tsdf, ACrossingBetweenTwoBandsThatDisagreeIsNotMeshed) {
+  TsdfOptions o;
+  o.voxel_mm = 0.05;
+  o.truncation_mm = 0.2;
+  auto mesh = [&](double max_span) {
+    o.max_cell_sdf_span = max_span;
+    TsdfVolume v(o);
+    std::vector<Eigen::Vector3f> pts, normals;
+    for (double z : {0.0, -0.45})
+      for (double x = -2; x <= 2; x += 0.025)
+        for (double y = -2; y <= 2; y += 0.025) {
+          pts.emplace_back(x, y, z);
+          normals.emplace_back(0, 0, 1);
+        }
+    for (int i = 0; i < 3; ++i) v.IntegratePoints(pts, normals, {});
+    return v.ExtractMesh();
+  };
+  auto count = [](const TriangleMesh& m, double z0, double z1) {
+    int n = 0;
+    for (const auto& p : m.vertices) n += p.z() > z0 && p.z() < z1 && std::abs(p.x()) < 1.5 && std::abs(p.y()) < 1.5;
+    return n;
+  };
+  const TriangleMesh without = mesh(0), with = mesh(TsdfOptions{}.max_cell_sdf_span);
+  EXPECT_GT(count(without, -0.3, -0.15), 1000) << "the crossing between the bands";
+  EXPECT_EQ(count(with, -0.3, -0.15), 0);
+  EXPECT_EQ(count(with, -0.05, 0.05), count(without, -0.05, 0.05));
+  EXPECT_EQ(count(with, -0.5, -0.4), count(without, -0.5, -0.4));
+  EXPECT_GT(count(with, -0.05, 0.05), 1000);
+  EXPECT_GT(count(with, -0.5, -0.4), 1000);
+}
+
 // Occlusion test: the plane z = 50 seen three times, then three views that put a patch 1.5 mm
 // behind it (a fringe-order error repeated by consecutive bursts: weight 3, above the mesh seed
 // weight). The camera cannot see behind the plane, so the patch is not fused and the mesh holds no
@@ -189,6 +225,9 @@ TEST(Tsdf, RejectsMismatchedInput) {
   cv::Mat P(10, 10, CV_32FC3), N(10, 11, CV_32FC3);
   EXPECT_FALSE(v.Integrate(P, N, cv::Mat(), Cam(), Rigid3d::Identity()).ok());
   EXPECT_THROW(TsdfVolume(TsdfOptions{.voxel_mm = -1}), std::invalid_argument);
+  TsdfOptions span;
+  span.max_cell_sdf_span = 0.5;  // would drop true surfaces
+  EXPECT_THROW(TsdfVolume{span}, std::invalid_argument);
 }
 
 }  // namespace

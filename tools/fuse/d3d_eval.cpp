@@ -53,7 +53,9 @@ int main(int argc, char** argv) {
   app.add_option("--heatmap", heatmap, "write the deviation heat map (PNG)");
   app.add_option("--heatmap-range", range_um, "heat map colour range ± (um)")->capture_default_str();
   app.add_option("--max-distance", max_distance, "scan points farther than this (mm) are outliers")->capture_default_str();
-  app.add_option("--precision", precision, "two or more scans of the same object: pairwise precision");
+  app.add_option("--precision", precision,
+                 "two or more scans of the same object: pairwise precision (RMS, p95 of |d| in um) over the surface both\n"
+                 "cover (reciprocal closest points; the one-sided figures are printed too)");
   app.add_option("--poses", poses_path, "estimated poses (TUM, mm); with --truth: ATE. Also the initial alignment");
   app.add_option("--truth", truth_path, "true poses (TUM, mm), matched by timestamp");
   app.add_flag("--no-global", no_global, "start ICP from identity instead of the global (principal axes) alignment");
@@ -130,7 +132,14 @@ int main(int argc, char** argv) {
           const MeshClosestPoint cp(scans[a]);
           const Rigid3d init = no_global ? Rigid3d::Identity() : GlobalAlign(scans[b], cp);
           const PrecisionReport p = EvaluatePrecision(scans[a], scans[b], init);
-          pj.push_back({{"a", precision[a]}, {"b", precision[b]}, {"rms_um", p.rms_um}, {"p95_um", p.p95_um}});
+          pj.push_back({{"a", precision[a]},
+                        {"b", precision[b]},
+                        {"rms_um", p.rms_um},
+                        {"p95_um", p.p95_um},
+                        {"points", p.points},
+                        {"not_reciprocal_pct", p.not_reciprocal_pct},
+                        {"one_sided_rms_um", p.one_sided_rms_um},
+                        {"one_sided_p95_um", p.one_sided_p95_um}});
           sum += p.rms_um;
           ++pairs;
         }

@@ -51,6 +51,7 @@ int main(int argc, char** argv) {
   int64_t max_bursts = -1, first = 0;
   double voxel_mm = 0.05, truncation_mm = 0.2;
   float min_mesh_weight = TsdfOptions{}.min_mesh_weight;
+  double max_cell_sdf_span = TsdfOptions{}.max_cell_sdf_span, occlusion_margin_mm = TsdfOptions{}.occlusion_margin_mm;
   double max_rmse_um = TrackerOptions{}.icp.max_rmse_mm * 1000;
   bool json = false, no_eval = false, no_loops = false, quiet = false, no_refuse = false, truth_poses = false;
   bool no_model_anchor = false, coverage_ceiling = false;
@@ -68,6 +69,12 @@ int main(int argc, char** argv) {
   app.add_option("--max-rmse-um", max_rmse_um, "tracking: a view whose ICP residual (RMS, um) is above this is refused")
       ->capture_default_str();
   app.add_option("--min-mesh-weight", min_mesh_weight, "mesh only where the fused weight (sum of point qualities) is at least this")
+      ->capture_default_str();
+  app.add_option("--max-cell-sdf-span", max_cell_sdf_span,
+                 "mesh: drop a vertex whose 8 voxels' signed distances span more than this many cell diagonals (0 = off)")
+      ->capture_default_str();
+  app.add_option("--occlusion-margin", occlusion_margin_mm,
+                 "fusion: a point more than this (mm) behind a surface the model knows is not fused (0 = no test)")
       ->capture_default_str();
   app.add_flag("--no-eval", no_eval, "skip the evaluation against the scene");
   app.add_flag("--no-loops", no_loops, "no loop-closure detection / pose graph");
@@ -142,6 +149,8 @@ int main(int argc, char** argv) {
     so.tsdf.voxel_mm = voxel_mm;
     so.tsdf.truncation_mm = truncation_mm;
     so.tsdf.min_mesh_weight = min_mesh_weight;
+    so.tsdf.max_cell_sdf_span = max_cell_sdf_span;
+    so.tsdf.occlusion_margin_mm = occlusion_margin_mm;
     if (no_refuse) so.refuse_min_correction_mm = -1;
     so.Check();
     ScanReconstructor recon(calib, so.recon);
