@@ -46,6 +46,7 @@
 #include <cmath>
 #include <cstddef>
 #include <limits>
+#include <map>
 #include <random>
 #include <unordered_map>
 #include <utility>
@@ -1299,33 +1300,69 @@ TriangleMesh MakeTypodont(const TypodontOptions& options, TypodontInfo* info) {
                              0.75 * options.gingiva_thickness_mm, options.gingiva_top_y_mm * scale,
                              options.palate_width_mm * scale, scale};
 
-  // Cut each crown where it is under the gingiva (all three corners above its surface + overlap).
-  const double overlap = 0.2 * scale;
+  // Cut each crown exactly where it enters the gingiva: a crown triangle wholly under the gum
+  // surface goes, one crossing it is clipped along the crossing (edge points interpolated linearly
+  // in the height above the surface, shared by both faces of the edge). Nothing of a crown stays
+  // inside the gum: a lab scan of a typodont has no such surface, and it would count as tooth
+  // surface no probe can reach (it was 4.5 % of the tooth area with a 0.2 mm overlap). The gingiva
+  // runs on under the crowns (its crest spans the walls), so the cut edge leaves no hole.
   TriangleMesh mesh;
   for (size_t ci = 0; ci < placed.size(); ++ci) {
     const PlacedCrown& c = placed[ci];
-    std::vector<char> hidden(c.vertices.size());
+    // Height of each vertex apical of the gum surface (> 0: inside the gingiva).
+    std::vector<double> depth(c.vertices.size());
     for (size_t i = 0; i < c.vertices.size(); ++i) {
       const double s = arch_sn[ci][i].x(), n = arch_sn[ci][i].y();
       const double gum_y = GumSurfaceY(gum_shape.CrestFast(s), walls.Hi(s) + gum_params.thickness,
                                        walls.Lo(s) - gum_params.thickness, gum_params.corner, n);
-      hidden[i] = c.vertices[i].y() > gum_y + overlap;
+      depth[i] = std::isfinite(gum_y) ? c.vertices[i].y() - gum_y : -1.0;
     }
     std::vector<int> remap(c.vertices.size(), -1);
-    int next = static_cast<int>(mesh.vertices.size());
-    for (const Vector3i& f : c.faces) {
-      if (hidden[f[0]] && hidden[f[1]] && hidden[f[2]]) continue;
-      Vector3i g;
-      for (int k = 0; k < 3; ++k) {
-        if (remap[f[k]] < 0) {
-          remap[f[k]] = next++;
-          mesh.vertices.push_back(c.vertices[f[k]]);
-        }
-        g[k] = remap[f[k]];
+    std::map<std::pair<int, int>, int> crossing;  // crown edge -> mesh vertex where it meets the gum
+    constexpr double kSnap = 0.05;  // share of an edge under which a crossing snaps to its kept end
+    auto keep = [&](int i) {
+      if (remap[i] < 0) {
+        remap[i] = static_cast<int>(mesh.vertices.size());
+        mesh.vertices.push_back(c.vertices[i]);
       }
-      mesh.faces.push_back(g);
+      return remap[i];
+    };
+    auto cross = [&](int a, int b) {
+      const auto key = std::minmax(a, b);
+      auto it = crossing.find(key);
+      if (it != crossing.end()) return it->second;
+      const double t = depth[key.first] / (depth[key.first] - depth[key.second]);
+      const int inside = depth[key.first] <= 0 ? key.first : key.second;
+      int v;
+      if ((inside == key.first ? t : 1.0 - t) < kSnap) {
+        v = keep(inside);  // the crossing all but meets the kept corner: no sliver
+      } else {
+        v = static_cast<int>(mesh.vertices.size());
+        mesh.vertices.push_back(c.vertices[key.first] + t * (c.vertices[key.second] - c.vertices[key.first]));
+      }
+      crossing.emplace(key, v);
+      return v;
+    };
+    auto add = [&](int a, int b, int d) {
+      mesh.faces.emplace_back(a, b, d);
       mesh.face_labels.push_back(SurfaceLabel::kTooth);
       mesh.face_tooth_ids.push_back(static_cast<uint8_t>(c.fdi));
+    };
+    for (const Vector3i& f : c.faces) {
+      // Sutherland-Hodgman against depth <= 0: the polygon kept has 3 or 4 corners (or none).
+      std::array<int, 4> poly{};
+      int corners = 0;
+      for (int k = 0; k < 3; ++k) {
+        const int a = f[k], b = f[(k + 1) % 3];
+        const bool a_in = depth[a] <= 0, b_in = depth[b] <= 0;
+        if (a_in) poly[corners++] = keep(a);
+        if (a_in != b_in) poly[corners++] = cross(a, b);
+      }
+      int distinct = 0;  // drop corners a snapped crossing merged with the next
+      for (int k = 0; k < corners; ++k)
+        if (poly[k] != poly[(k + 1) % corners]) poly[distinct++] = poly[k];
+      if (distinct >= 3) add(poly[0], poly[1], poly[2]);
+      if (distinct == 4) add(poly[0], poly[2], poly[3]);
     }
   }
 

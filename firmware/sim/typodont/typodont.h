@@ -65,7 +65,8 @@ struct TypodontInfo {
 // Builds the typodont: 14 crowns (face_labels kTooth, face_tooth_ids = FDI number) followed by one
 // gingiva surface (kGingiva, tooth id 0). Faces are counter-clockwise seen from outside and
 // vertex_normals are area-weighted smooth normals. Only surface a scanner could see is in the
-// mesh: crown parts below the gingival margin are removed, the gingiva overlaps the cut edge.
+// mesh: each crown is clipped exactly along the gum surface (no crown surface inside the gingiva,
+// which runs on under the crowns, so the cut edge leaves no hole).
 // With default options: about 475k triangles (crowns ~345k, gingiva ~130k), about 0.5 s in Release
 // on one core.
 // `info`, when given, receives the tooth landmarks and the arch curve.
