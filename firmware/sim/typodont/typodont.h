@@ -64,10 +64,11 @@ struct TypodontInfo {
 
 // Builds the typodont: 14 crowns (face_labels kTooth, face_tooth_ids = FDI number) followed by one
 // gingiva surface (kGingiva, tooth id 0). Faces are counter-clockwise seen from outside and
-// vertex_normals are area-weighted smooth normals. Only surface a scanner could see is in the
-// mesh: each crown is clipped exactly along the gum surface (no crown surface inside the gingiva,
-// which runs on under the crowns, so the cut edge leaves no hole).
-// With default options: about 475k triangles (crowns ~345k, gingiva ~130k), about 0.5 s in Release
+// vertex_normals are area-weighted smooth normals. No crown surface lies inside the gingiva: each
+// crown is clipped exactly along the gum surface (the gingiva runs on under the crowns, so the cut
+// leaves no hole). The interproximal walls near the contacts (crowns gap_mm apart) stay, though a
+// probe barely reaches them: they are most of what a full-arch scan leaves uncovered.
+// With default options: about 467k triangles (crowns ~339k, gingiva ~129k), 0.7-0.9 s in Release
 // on one core.
 // `info`, when given, receives the tooth landmarks and the arch curve.
 TriangleMesh MakeTypodont(const TypodontOptions& options = {}, TypodontInfo* info = nullptr);

@@ -409,7 +409,7 @@ void CheckMeshSanity(const TriangleMesh& m) {
 }
 
 void CheckCutEdgesCovered(const TriangleMesh& m) {
-  // Boundary edges of the crowns (used by one face) must lie just inside the gingiva: close to it.
+  // Boundary edges of the crowns (used by one face) lie where the crowns are cut: on the gingiva.
   std::map<std::pair<int, int>, int> edge_count;
   Grid gum(1.0);
   for (size_t f = 0; f < m.faces.size(); ++f) {
