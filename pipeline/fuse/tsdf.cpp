@@ -4,6 +4,7 @@
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/VolumeToMesh.h>
 #include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
@@ -67,6 +68,44 @@ void TouchLeaves(const LeafRange& range, std::unordered_set<openvdb::Coord, Coor
   for (int x = a.x(); x <= b.x(); x += kLeafDim)
     for (int y = a.y(); y <= b.y(); y += kLeafDim)
       for (int z = a.z(); z <= b.z(); z += kLeafDim) leaves->insert(openvdb::Coord(x, y, z));
+}
+
+// The camera's projection (PinholeBrownConrady::Project) in single precision, for a row of
+// kLeafDim voxel centres x0 + k·step (camera frame, mm): the row-major index of the nearest pixel
+// (round half up), or −1 outside the image or behind the camera. Eight lanes at once (GCC/Clang
+// vector extension); on x86-64 also built for AVX2 and chosen at run time (function
+// multiversioning), else SSE2's two halves.
+struct ProjectionF {
+  float fx, fy, cx, cy, k1, k2, k3, p1, p2, u_max, v_max;
+  int cols;
+};
+
+using Float8 = float __attribute__((vector_size(32)));
+using Int8 = int32_t __attribute__((vector_size(32)));
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define D3D_AVX2_CLONE __attribute__((target_clones("avx2", "default")))
+#else
+#define D3D_AVX2_CLONE
+#endif
+
+D3D_AVX2_CLONE void ProjectRow(const ProjectionF& c, const float* x0, const float* step,
+                                                                  int32_t* pixel) {
+  const Float8 kf = {0, 1, 2, 3, 4, 5, 6, 7};
+  const Float8 x = x0[0] + kf * step[0], y = x0[1] + kf * step[1], z = x0[2] + kf * step[2];
+  const Float8 iz = 1.0f / z;
+  const Float8 xn = x * iz, yn = y * iz;
+  const Float8 r2 = xn * xn + yn * yn;
+  const Float8 radial = 1.0f + r2 * (c.k1 + r2 * (c.k2 + r2 * c.k3));
+  const Float8 ud = c.fx * (xn * radial + 2.0f * c.p1 * xn * yn + c.p2 * (r2 + 2.0f * xn * xn)) + c.cx;
+  const Float8 vd = c.fy * (yn * radial + c.p1 * (r2 + 2.0f * yn * yn) + 2.0f * c.p2 * xn * yn) + c.cy;
+  const Int8 inside = (z > 0.0f) & (ud >= -0.5f) & (vd >= -0.5f) & (ud < c.u_max) & (vd < c.v_max);
+  const Float8 zero = {};
+  // Round half up; outside lanes are converted from 0 (no out-of-range conversion) and set to −1.
+  const Int8 u = __builtin_convertvector(inside ? ud + 0.5f : zero, Int8);
+  const Int8 v = __builtin_convertvector(inside ? vd + 0.5f : zero, Int8);
+  const Int8 index = (v * c.cols + u) | ~inside;
+  for (int k = 0; k < kLeafDim; ++k) pixel[k] = index[k];
 }
 
 }  // namespace
@@ -144,81 +183,124 @@ Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& 
     occluded_ += last_occluded_;
   }
   auto occluded = [&](int r, int c) { return test_occlusion && occluded_mask_.at<uint8_t>(r, c) != 0; };
-  // 1. Leaves near the view's points (serial: topology changes).
-  std::unordered_set<openvdb::Coord, CoordHash> leaves;
-  for (int r = 0; r < P.rows; r += o_.pixel_stride) {
-    const cv::Vec3f* p = P.ptr<cv::Vec3f>(r);
-    LeafRange last;  // neighbouring pixels mostly touch the same leaves: insert only on a change
-    for (int c = 0; c < P.cols; c += o_.pixel_stride) {
-      if (!std::isfinite(p[c][0]) || !std::isfinite(p[c][2]) || occluded(r, c)) continue;
-      const Eigen::Vector3d w = world_from_cam * Eigen::Vector3d(p[c][0], p[c][1], p[c][2]);
-      const LeafRange range = LeavesWithin(w * inv_voxel, band);
-      if (range == last) continue;
-      last = range;
-      TouchLeaves(range, &leaves);
+  // 1. Per pixel, once: what a voxel projecting there adds (the tests that depend on the pixel
+  // only, taken out of the voxel loop): its point, its normal turned toward the camera (NaN: no
+  // normal, the range difference is used), its weight (0: not fused: no point, occluded, quality
+  // below min_point_weight, or seen more grazing than max_incidence_deg).
+  fuse_pixels_.resize(static_cast<size_t>(P.rows) * static_cast<size_t>(P.cols));
+  tbb::parallel_for(tbb::blocked_range<int>(0, P.rows), [&](const tbb::blocked_range<int>& rows) {
+    for (int r = rows.begin(); r < rows.end(); ++r) {
+      const cv::Vec3f* p = P.ptr<cv::Vec3f>(r);
+      const cv::Vec3f* n = N.ptr<cv::Vec3f>(r);
+      const float* q = Q.empty() ? nullptr : Q.ptr<float>(r);
+      FusePixel* out = &fuse_pixels_[static_cast<size_t>(r) * static_cast<size_t>(P.cols)];
+      for (int c = 0; c < P.cols; ++c) {
+        FusePixel& f = out[c];
+        f.weight = 0.0f;
+        const float w = q ? q[c] : 1.0f;
+        if (!std::isfinite(p[c][0]) || !std::isfinite(p[c][2]) || occluded(r, c) || !(w >= o_.min_point_weight)) continue;
+        const Eigen::Vector3f pt(p[c][0], p[c][1], p[c][2]);
+        Eigen::Vector3f nt = Eigen::Vector3f::Constant(std::numeric_limits<float>::quiet_NaN());
+        if (std::isfinite(n[c][0]) && std::isfinite(n[c][2])) {
+          nt = Eigen::Vector3f(n[c][0], n[c][1], n[c][2]);
+          float cos_inc = -nt.dot(pt.normalized());
+          if (cos_inc < 0) {
+            nt = -nt;
+            cos_inc = -cos_inc;
+          }
+          if (cos_inc < cos_max) continue;
+        }
+        f.point = pt;
+        f.normal = nt;
+        f.range = pt.norm();
+        f.weight = w;
+      }
     }
+  });
+  // 2. Leaves near the view's points: collected in parallel (a set per worker thread), then
+  // allocated serially (topology changes). Their order does not matter: each voxel is written once
+  // per view, by the task that owns its leaf.
+  using LeafSet = std::unordered_set<openvdb::Coord, CoordHash>;
+  tbb::enumerable_thread_specific<LeafSet> leaves_per_thread;
+  tbb::parallel_for(tbb::blocked_range<int>(0, (P.rows + o_.pixel_stride - 1) / o_.pixel_stride),
+                    [&](const tbb::blocked_range<int>& strided_rows) {
+                      LeafSet& leaves = leaves_per_thread.local();
+                      for (int br = strided_rows.begin(); br < strided_rows.end(); ++br) {
+                        const int r = br * o_.pixel_stride;
+                        const cv::Vec3f* p = P.ptr<cv::Vec3f>(r);
+                        LeafRange last;  // neighbouring pixels mostly touch the same leaves: insert only on a change
+                        for (int c = 0; c < P.cols; c += o_.pixel_stride) {
+                          if (!std::isfinite(p[c][0]) || !std::isfinite(p[c][2]) || occluded(r, c)) continue;
+                          const Eigen::Vector3d w = world_from_cam * Eigen::Vector3d(p[c][0], p[c][1], p[c][2]);
+                          const LeafRange range = LeavesWithin(w * inv_voxel, band);
+                          if (range == last) continue;
+                          last = range;
+                          TouchLeaves(range, &leaves);
+                        }
+                      }
+                    });
+  LeafSet leaves;
+  for (LeafSet& part : leaves_per_thread) {
+    if (leaves.empty())
+      leaves.swap(part);
+    else
+      leaves.insert(part.begin(), part.end());
   }
   auto& ttree = impl_->tsdf->tree();
   auto& wtree = impl_->weight->tree();
   std::vector<std::pair<openvdb::FloatTree::LeafNodeType*, openvdb::FloatTree::LeafNodeType*>> nodes;
   nodes.reserve(leaves.size());
   for (const auto& o : leaves) nodes.emplace_back(ttree.touchLeaf(o), wtree.touchLeaf(o));
-  // 2. Every voxel of those leaves, projectively (parallel over leaves: each leaf is one task's).
+  // 3. Every voxel of those leaves, projectively (parallel over leaves: each leaf is one task's).
+  // Single precision: camera-frame coordinates are tens of mm, a voxel step 0.05 mm.
   const Rigid3d cam_from_world = world_from_cam.inverse();
-  const Eigen::Matrix3d R = cam_from_world.linear();
+  const Eigen::Matrix3f R_voxel = (cam_from_world.linear() * o_.voxel_mm).cast<float>();  // camera-frame step per i, j, k
   const Eigen::Vector3d t = cam_from_world.translation();
-  const Eigen::Matrix3d R_voxel = R * o_.voxel_mm;  // camera-frame step per index step along i, j, k
+  const Eigen::Matrix3d R_index = cam_from_world.linear() * o_.voxel_mm;
   const float trunc = static_cast<float>(o_.truncation_mm);
   const float maxw = o_.max_weight;
-  // The camera's projection (PinholeBrownConrady::Project, inlined: this loop runs for every voxel
-  // of every touched leaf) and the nearest pixel (round half up; negative coordinates are outside).
-  const double fx = camera.fx, fy = camera.fy, cx = camera.cx, cy = camera.cy;
-  const double k1 = camera.k1, k2 = camera.k2, k3 = camera.k3, p1 = camera.p1, p2 = camera.p2;
-  const int cols = P.cols, rows = P.rows;
+  // The camera's projection (PinholeBrownConrady::Project, inlined: it runs for every voxel of
+  // every touched leaf, a row of 8 at a time).
+  auto f = [](double v) { return static_cast<float>(v); };
+  const ProjectionF proj{f(camera.fx), f(camera.fy), f(camera.cx), f(camera.cy), f(camera.k1), f(camera.k2), f(camera.k3),
+                         f(camera.p1), f(camera.p2), f(P.cols - 0.5),   f(P.rows - 0.5),   P.cols};
+  const FusePixel* pixels = fuse_pixels_.data();
+  const Eigen::Vector3f step_i = R_voxel.col(0), step_j = R_voxel.col(1), step_k = R_voxel.col(2);
   tbb::parallel_for(tbb::blocked_range<size_t>(0, nodes.size(), 16), [&](const tbb::blocked_range<size_t>& range) {
+    int32_t pixel[kLeafDim];
     for (size_t li = range.begin(); li < range.end(); ++li) {
       auto* tl = nodes[li].first;
       auto* wl = nodes[li].second;
       const openvdb::Coord origin = tl->origin();
-      const Eigen::Vector3d x_origin = R_voxel * Eigen::Vector3d(origin.x(), origin.y(), origin.z()) + t;
-      for (openvdb::Index off = 0; off < openvdb::FloatTree::LeafNodeType::SIZE; ++off) {
-        const openvdb::Coord local = openvdb::FloatTree::LeafNodeType::offsetToLocalCoord(off);
-        const Eigen::Vector3d x = x_origin + R_voxel * Eigen::Vector3d(local.x(), local.y(), local.z());
-        if (x.z() <= 0) continue;
-        const double xn = x.x() / x.z(), yn = x.y() / x.z();
-        const double r2 = xn * xn + yn * yn;
-        const double radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
-        const double ud = fx * (xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)) + cx;
-        const double vd = fy * (yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn) + cy;
-        if (!(ud >= -0.5 && vd >= -0.5 && ud < cols - 0.5 && vd < rows - 0.5)) continue;
-        const int u = static_cast<int>(ud + 0.5), v = static_cast<int>(vd + 0.5);
-        const cv::Vec3f& pm = P.ptr<cv::Vec3f>(v)[u];
-        const cv::Vec3f& nm = N.ptr<cv::Vec3f>(v)[u];
-        if (!std::isfinite(pm[0]) || !std::isfinite(pm[2]) || occluded(v, u)) continue;
-        const float q = Q.empty() ? 1.0f : Q.at<float>(v, u);
-        if (!(q >= o_.min_point_weight)) continue;
-        const Eigen::Vector3f p(pm[0], pm[1], pm[2]);
-        float sdf;
-        if (std::isfinite(nm[0]) && std::isfinite(nm[2])) {
-          Eigen::Vector3f n(nm[0], nm[1], nm[2]);
-          const Eigen::Vector3f ray = p.normalized();
-          float cos_inc = -n.dot(ray);
-          if (cos_inc < 0) {
-            n = -n;
-            cos_inc = -cos_inc;
+      const Eigen::Vector3f x_origin = (R_index * Eigen::Vector3d(origin.x(), origin.y(), origin.z()) + t).cast<float>();
+      float* tdata = tl->buffer().data();
+      float* wdata = wl->buffer().data();
+      // Leaf offset = (i << 6) | (j << 3) | k (OpenVDB's LeafNode::coordToOffset): rows of 8 along k.
+      for (int i = 0; i < kLeafDim; ++i) {
+        for (int j = 0; j < kLeafDim; ++j) {
+          const Eigen::Vector3f row = x_origin + static_cast<float>(i) * step_i + static_cast<float>(j) * step_j;
+          ProjectRow(proj, row.data(), step_k.data(), pixel);
+          const openvdb::Index row_off = static_cast<openvdb::Index>((i << 6) | (j << 3));
+          for (int k = 0; k < kLeafDim; ++k) {
+            if (pixel[k] < 0) continue;
+            const FusePixel& px = pixels[pixel[k]];
+            const float q = px.weight;
+            if (q <= 0.0f) continue;
+            const Eigen::Vector3f x = row + static_cast<float>(k) * step_k;
+            float sdf = std::isfinite(px.normal.x()) ? px.normal.dot(x - px.point) : px.range - x.norm();
+            if (sdf < -trunc) continue;
+            if (sdf > trunc) sdf = trunc;
+            const openvdb::Index off = row_off + static_cast<openvdb::Index>(k);
+            // A new leaf's buffers hold the grids' backgrounds (weight 0): W = 0 where nothing was fused.
+            const float W = wdata[off];
+            const float D = W > 0 ? tdata[off] : 0.0f;
+            const float Wn = W + q;
+            tdata[off] = (D * W + sdf * q) / Wn;
+            wdata[off] = std::min(Wn, maxw);
+            tl->setValueOn(off);
+            wl->setValueOn(off);
           }
-          if (cos_inc < cos_max) continue;
-          sdf = n.dot(x.cast<float>() - p);
-        } else {
-          sdf = (p.norm() - static_cast<float>(x.norm()));
         }
-        if (sdf < -trunc) continue;
-        if (sdf > trunc) sdf = trunc;
-        const float W = wl->getValue(off);
-        const float D = W > 0 ? tl->getValue(off) : 0.0f;
-        const float Wn = W + q;
-        tl->setValueOn(off, (D * W + sdf * q) / Wn);
-        wl->setValueOn(off, std::min(Wn, maxw));
       }
     }
   });

@@ -37,6 +37,11 @@
 // one fringe order off across a hidden depth step lands 1–2 mm behind the surface, where no other
 // view's band reaches to correct it, and several consecutive views repeat it (real arch, seed 2,
 // without the test: 0.1 % of the mesh lay 0.2–0.8 mm inside the teeth, RMS 26 µm instead of 9).
+// Cost: the per-pixel tests are taken once per pixel, and the voxel loop projects rows of 8 voxels
+// at once in single precision (SIMD): 19–23 ms per 640×480 view on this 2-core machine, Open3D's
+// ScalableTSDFVolume 37–46 ms on the same views (d3d-bench-register; 47 ms before, in double
+// precision voxel by voxel). The fused field agrees with the double-precision loop's to 3 nm at
+// the 99th percentile (a voxel on a pixel border may round to the neighbouring pixel).
 // Thread model: one owner thread calls Integrate/ExtractMesh; Integrate uses TBB internally.
 #pragma once
 
@@ -117,6 +122,16 @@ class TsdfVolume {
   int64_t views_ = 0;
   int64_t last_occluded_ = 0, occluded_ = 0;
   cv::Mat occluded_mask_;  // scratch of Integrate: CV_8U per pixel, 1 = occluded
+  // Scratch of Integrate, per pixel (row-major, H×W): what a voxel projecting there adds. Owned by
+  // Integrate's caller, written before and read by the TBB tasks it waits for; kept across calls
+  // so that the hot path does not allocate.
+  struct FusePixel {
+    Eigen::Vector3f point;   // p_in_cam, mm
+    Eigen::Vector3f normal;  // unit, toward the camera; NaN: none (the range difference is used)
+    float range = 0;         // |p_in_cam|, mm
+    float weight = 0;        // the point's quality; 0 = not fused
+  };
+  std::vector<FusePixel> fuse_pixels_;
 };
 
 }  // namespace d3d

@@ -220,6 +220,76 @@ TEST(Tsdf, SphereMeshIsAccurateAndFacesOutward) {
   EXPECT_EQ(v.occluded_points(), 0) << "every view sees its own side of the sphere; grazing rays at the rim too";
 }
 
+// The voxel loop projects voxels with its own single-precision, 8-wide copy of the camera model:
+// every voxel must take its distance from the pixel PinholeBrownConrady::Project (double) rounds
+// it to, with the lens's distortion, at a pose that is not the identity, on a surface whose depth
+// and normal change from pixel to pixel (a wrong pixel gives a different value). A voxel exactly on
+// a pixel border may round the other way in single precision: a few are allowed.
+TEST(Tsdf, EachVoxelTakesTheDistanceOfThePixelItProjectsTo) {
+  PinholeBrownConrady cam;
+  cam.width = 200;
+  cam.height = 160;
+  cam.fx = cam.fy = 400;  // wide: normalised radius up to 0.3 at the corners
+  cam.cx = 99.5;
+  cam.cy = 79.5;
+  cam.k1 = -0.25;
+  cam.k2 = 0.08;
+  cam.k3 = -0.01;
+  cam.p1 = 0.002;
+  cam.p2 = -0.0015;
+  cv::Mat P(cam.height, cam.width, CV_32FC3), N(cam.height, cam.width, CV_32FC3);
+  for (int r = 0; r < cam.height; ++r)
+    for (int c = 0; c < cam.width; ++c) {
+      const auto ray = cam.PixelRay(Eigen::Vector2d(c, r));
+      ASSERT_TRUE(ray.has_value());
+      const double z = 50.0 + 0.4 * std::sin(0.9 * c) + 0.3 * std::cos(0.7 * r);
+      const Eigen::Vector3d p = *ray * z;
+      // Some pixels' normals face away from the camera: Integrate turns them around.
+      const Eigen::Vector3d n = Eigen::Vector3d(0.3 * std::sin(1.3 * c), 0.3 * std::cos(1.1 * r), (r + c) % 5 ? -1.0 : 1.0).normalized();
+      P.at<cv::Vec3f>(r, c) = cv::Vec3f(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
+      N.at<cv::Vec3f>(r, c) = cv::Vec3f(static_cast<float>(n.x()), static_cast<float>(n.y()), static_cast<float>(n.z()));
+    }
+  const Rigid3d world_from_cam = Rigid3d(Eigen::Translation3d(1.0, -2.0, 3.0) *
+                                         Eigen::AngleAxisd(0.3, Eigen::Vector3d(0.2, 1.0, -0.4).normalized()));
+  TsdfOptions o;
+  o.occlusion_margin_mm = 0;
+  TsdfVolume v(o);
+  ASSERT_TRUE(v.Integrate(P, N, cv::Mat(), cam, world_from_cam).ok());
+  const double trunc = o.truncation_mm, voxel = o.voxel_mm;
+  int compared = 0, mismatched = 0, corner = 0;
+  double worst = 0;
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> lateral(-0.1, 0.1);  // mm, ±0.8 px: anywhere in the pixel
+  for (int r = 0; r < cam.height; r += 3)
+    for (int c = 0; c < cam.width; c += 3)
+      for (double s : {-0.15, -0.05, 0.0, 0.05, 0.1, 0.15, 0.3}) {
+        const cv::Vec3f pc = P.at<cv::Vec3f>(r, c);
+        const Eigen::Vector3d p(pc[0], pc[1], pc[2]);
+        const Eigen::Vector3d x_world = world_from_cam * (p + s * p.normalized() + Eigen::Vector3d(lateral(rng), lateral(rng), 0));
+        const Eigen::Vector3d ijk = (x_world / voxel).array().round();
+        const Eigen::Vector3d voxel_centre = ijk * voxel;
+        const Eigen::Vector3d x = world_from_cam.inverse() * voxel_centre;
+        const auto uv = cam.Project(x);
+        if (!uv || !cam.InImage(*uv)) continue;
+        const int u = static_cast<int>(std::floor(uv->x() + 0.5)), w = static_cast<int>(std::floor(uv->y() + 0.5));
+        const cv::Vec3f pm = P.at<cv::Vec3f>(w, u), nm = N.at<cv::Vec3f>(w, u);
+        const Eigen::Vector3d q(pm[0], pm[1], pm[2]);
+        Eigen::Vector3d n(nm[0], nm[1], nm[2]);
+        if (n.dot(q) > 0) n = -n;  // toward the camera
+        if (-n.dot(q.normalized()) < std::cos(o.max_incidence_deg * M_PI / 180)) continue;  // not fused
+        const double expected = std::min(trunc, n.dot(x - q));
+        if (expected < -trunc) continue;  // not written
+        ++compared;
+        corner += std::hypot(uv->x() - cam.cx, uv->y() - cam.cy) > 100;
+        const double e = std::abs(v.SignedDistance(voxel_centre) - expected);
+        worst = std::max(worst, e);
+        mismatched += e > 1e-4;
+      }
+  EXPECT_GT(compared, 3000);
+  EXPECT_GT(corner, 300);  // the strongly distorted image corners are part of it
+  EXPECT_LE(mismatched, compared / 500) << "of " << compared << ", worst " << worst << " mm";
+}
+
 TEST(Tsdf, RejectsMismatchedInput) {
   TsdfVolume v;
   cv::Mat P(10, 10, CV_32FC3), N(10, 11, CV_32FC3);
