@@ -109,6 +109,7 @@ class ScanApp {
   // reconstruct thread
   ScanReconstructor recon_;
   double ms_recon_ = 0;
+  double ms_warm_up_ = 0;  // constructor: the pool items' warm-up (report: warm_up_ms)
   // register thread
   uint64_t reg_epoch_ = 0;
   std::unique_ptr<ScanRegistrar> registrar_;

@@ -64,7 +64,8 @@ struct ScanOptions {
 };
 
 // Tracker options for bursts `every` apart (d3d-fuse --every; a live host that drops bursts sees
-// larger steps): the first ICP level's association gate min(3, 0.8·√every) mm.
+// larger steps): the first ICP level's association gate min(3, 0.8·√every) mm, and the motion
+// check's max_step_mm / max_step_deg (per view) times `every`.
 TrackerOptions TrackerOptionsForStep(TrackerOptions options, double every);
 
 class ScanReconstructor {

@@ -6,6 +6,7 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <filesystem>
 
 #include "common/mesh/mesh_io.h"
@@ -133,6 +134,20 @@ TEST(ScanChain, EmptyModelIsAnError) {
   const Status s = FinishScan(o, {}, &reg, &fuser, {}, {}, &r);
   EXPECT_EQ(s.code(), StatusCode::kInternal);
   EXPECT_THROW(TrackerOptionsForStep({}, 0.5), std::invalid_argument);
+}
+
+// Bursts `every` apart: the motion check allows `every` times the per-view step (d3d-fuse --every
+// and a live host gate a view the same way), and the first ICP level gathers over min(3, 0.8·√every) mm.
+TEST(ScanChain, TrackerOptionsForStepScaleTheGates) {
+  const TrackerOptions base;
+  const TrackerOptions six = TrackerOptionsForStep(base, 6);
+  EXPECT_DOUBLE_EQ(six.max_step_mm, 6 * base.max_step_mm);
+  EXPECT_DOUBLE_EQ(six.max_step_deg, 6 * base.max_step_deg);
+  EXPECT_NEAR(six.icp.levels[0].max_distance_mm, 0.8 * std::sqrt(6.0), 1e-12);
+  EXPECT_DOUBLE_EQ(TrackerOptionsForStep(base, 100).icp.levels[0].max_distance_mm, 3.0);
+  const TrackerOptions one = TrackerOptionsForStep(base, 1);
+  EXPECT_DOUBLE_EQ(one.max_step_mm, base.max_step_mm);
+  EXPECT_DOUBLE_EQ(one.max_step_deg, base.max_step_deg);
 }
 
 }  // namespace

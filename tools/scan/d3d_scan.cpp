@@ -151,8 +151,6 @@ int main(int argc, char** argv) {
     ScanAppOptions ao;
     ao.policy = policy;
     ao.scan.tracker = TrackerOptionsForStep(ao.scan.tracker, step);
-    ao.scan.tracker.max_step_mm *= step;
-    ao.scan.tracker.max_step_deg *= step;
     // Keyframe work off the register stage's critical path: SIFT on the tracker's worker thread, the
     // pose-graph edges (keyframe and loop-closure ICPs) at the end of the scan. Same results.
     ao.scan.tracker.async_keyframe_features = true;
