@@ -89,8 +89,7 @@ using Int8 = int32_t __attribute__((vector_size(32)));
 #define D3D_AVX2_CLONE
 #endif
 
-D3D_AVX2_CLONE void ProjectRow(const ProjectionF& c, const float* x0, const float* step,
-                                                                  int32_t* pixel) {
+D3D_AVX2_CLONE void ProjectRow(const ProjectionF& c, const float* x0, const float* step, int32_t* pixel) {
   const Float8 kf = {0, 1, 2, 3, 4, 5, 6, 7};
   const Float8 x = x0[0] + kf * step[0], y = x0[1] + kf * step[1], z = x0[2] + kf * step[2];
   const Float8 iz = 1.0f / z;
@@ -254,9 +253,11 @@ Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& 
   // 3. Every voxel of those leaves, projectively (parallel over leaves: each leaf is one task's).
   // Single precision: camera-frame coordinates are tens of mm, a voxel step 0.05 mm.
   const Rigid3d cam_from_world = world_from_cam.inverse();
-  const Eigen::Matrix3f R_voxel = (cam_from_world.linear() * o_.voxel_mm).cast<float>();  // camera-frame step per i, j, k
   const Eigen::Vector3d t = cam_from_world.translation();
+  // Camera-frame step per index step along i, j, k: in double for each leaf's origin (indices in the
+  // thousands), in float for the steps within a leaf.
   const Eigen::Matrix3d R_index = cam_from_world.linear() * o_.voxel_mm;
+  const Eigen::Matrix3f R_voxel = R_index.cast<float>();
   const float trunc = static_cast<float>(o_.truncation_mm);
   const float maxw = o_.max_weight;
   // The camera's projection (PinholeBrownConrady::Project, inlined: it runs for every voxel of
