@@ -14,6 +14,7 @@ void FeatureOptions::Check() const {
   D3D_CHECK_MSG(use_texture || use_range, "FeatureOptions: at least one of texture / range");
   D3D_CHECK_MSG(max_features > 0 && ratio > 0 && ratio <= 1 && lift_window >= 0 && contrast_threshold > 0,
                 "FeatureOptions: invalid value");
+  D3D_CHECK_MSG(image_scale > 0 && image_scale <= 1, "FeatureOptions: image_scale must be in (0, 1]");
   ransac.Check();
 }
 
@@ -78,7 +79,21 @@ void Detect(const cv::Mat& image, const cv::Mat& mask, const cv::Mat& points, co
   cv::Ptr<cv::SIFT> sift = cv::SIFT::create(o.max_features, 3, o.contrast_threshold);
   std::vector<cv::KeyPoint> kps;
   cv::Mat desc;
-  sift->detectAndCompute(image, mask, kps, desc);
+  if (o.image_scale < 1) {
+    // SIFT on the downsampled image (area average; the mask by nearest neighbour), keypoints mapped
+    // back to full-resolution pixel coordinates (pixel centres: x = (x_s + 0.5) / s − 0.5).
+    cv::Mat small, small_mask;
+    cv::resize(image, small, cv::Size(), o.image_scale, o.image_scale, cv::INTER_AREA);
+    if (!mask.empty()) cv::resize(mask, small_mask, small.size(), 0, 0, cv::INTER_NEAREST);
+    sift->detectAndCompute(small, small_mask, kps, desc);
+    const float inv = static_cast<float>(1.0 / o.image_scale);
+    for (cv::KeyPoint& k : kps) {
+      k.pt = (k.pt + cv::Point2f(0.5f, 0.5f)) * inv - cv::Point2f(0.5f, 0.5f);
+      k.size *= inv;
+    }
+  } else {
+    sift->detectAndCompute(image, mask, kps, desc);
+  }
   cv::Mat keep_desc;
   for (size_t i = 0; i < kps.size(); ++i) {
     const int u0 = static_cast<int>(std::lround(kps[i].pt.x)), v0 = static_cast<int>(std::lround(kps[i].pt.y));

@@ -29,6 +29,12 @@ struct FeatureOptions {
   double max_gap_mm = 0.3;        // grid normals of the shaded rendering (GridNormals)
   int max_features = 1500;        // per image (strongest kept)
   double contrast_threshold = 0.02;  // OpenCV SIFT contrastThreshold (lower: more keypoints)
+  // SIFT runs on the images downsampled by this factor, (0, 1]; keypoints are mapped back to the
+  // full-resolution grid. OpenCV's SIFT doubles its input before the first octave, so at 0.5 the
+  // finest scale it searches is the camera's own pixel. The tracker's keyframes use 0.5 (see
+  // TrackerOptions::features); the Stanford bunny's range grids need 1.0 (bun045 → bun000 fails
+  // at 0.5).
+  double image_scale = 1.0;
   double ratio = 0.8;             // Lowe's ratio test
   bool mutual = true;             // keep a match only when it is the best in both directions
   int lift_window = 1;            // keypoint → 3-D: nearest finite point within ±window px

@@ -32,6 +32,12 @@ IcpOptions DefaultTrackerIcp() {
   return o;
 }
 
+FeatureOptions HalfScaleFeatures() {
+  FeatureOptions o;
+  o.image_scale = 0.5;
+  return o;
+}
+
 void TrackerOptions::Check() const {
   icp.Check();
   map.Check();
@@ -177,14 +183,21 @@ double Ms(std::chrono::steady_clock::time_point a) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - a).count();
 }
 
-// Fraction of `a` (frame A) that lies in occupied voxels of `b` (frame B) given B_from_A.
-double OverlapIndex(const SurfacePoints& a, const SurfacePoints& b, const Rigid3d& b_from_a, double voxel_mm) {
+constexpr double kOverlapVoxelMm = 0.1;  // voxel of the overlap index between keyframes
+
+// The occupancy map of samples `b` (their own frame) that OverlapIndex measures against.
+std::unique_ptr<PointMap> OccupancyMap(const SurfacePoints& b, double voxel_mm) {
   PointMapOptions o;
   o.voxel_mm = voxel_mm;
   o.block_mm = std::max(2.0, voxel_mm);
-  PointMap m(o);
-  m.Insert(b, Rigid3d::Identity());
-  return m.Overlap(a, b_from_a);
+  auto m = std::make_unique<PointMap>(o);
+  m->Insert(b, Rigid3d::Identity());
+  return m;
+}
+
+// Fraction of `a` (frame A) that lies in occupied voxels of `b` (frame B) given B_from_A.
+double OverlapIndex(const SurfacePoints& a, const SurfacePoints& b, const Rigid3d& b_from_a, double voxel_mm) {
+  return OccupancyMap(b, voxel_mm)->Overlap(a, b_from_a);
 }
 }  // namespace
 
@@ -428,13 +441,15 @@ void Tracker::MaybeKeyframe(const SurfacePoints& /*samples*/, const cv::Mat& poi
   if (!keyframes_.empty()) {
     const Keyframe& last = keyframes_.back();
     const Rigid3d last_from_cam = graph_.pose(last.node).inverse() * pose;
-    if (OverlapIndex(kfs, last.samples, last_from_cam, 0.1) >= o_.keyframe_overlap) return;
+    if (!last_keyframe_occupancy_) last_keyframe_occupancy_ = OccupancyMap(last.samples, kOverlapVoxelMm);
+    if (last_keyframe_occupancy_->Overlap(kfs, last_from_cam) >= o_.keyframe_overlap) return;
   }
   Keyframe kf;
   kf.view = index_;
   kf.node = graph_.AddNode(pose);
   kf.centre_in_cam = kfs.Centroid();
   kf.samples = std::move(kfs);
+  last_keyframe_occupancy_.reset();  // built for the new keyframe by the next view's test
   if (o_.relocalise && feature_worker_) feature_worker_->Submit(keyframes_.size(), points, texture);
   else if (o_.relocalise) kf.features = ExtractViewFeatures(points, texture, o_.features);
   keyframes_.push_back(std::move(kf));
@@ -518,7 +533,7 @@ int Tracker::DetectLoops(int k) {
     for (size_t i = 0; i < cand->size() && here < budget; ++i) {
       const Keyframe& b = keyframes_[static_cast<size_t>((*cand)[i].second)];
       const Rigid3d b_from_a = graph_.pose(b.node).inverse() * wa;
-      if (OverlapIndex(a.samples, b.samples, b_from_a, 0.1) < o_.loop_min_overlap) continue;
+      if (OverlapIndex(a.samples, b.samples, b_from_a, kOverlapVoxelMm) < o_.loop_min_overlap) continue;
       PoseGraphEdge e;
       if (!KeyframeEdge((*cand)[i].second, k, &e)) continue;
       e.loop = true;
