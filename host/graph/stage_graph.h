@@ -180,15 +180,14 @@ class StageGraph {
     pool_cv_.notify_one();
   }
 
-  // Names the calling thread "<prefix><name>" (at most 15 characters, the kernel's limit), so that
+  // Names the calling thread "g:<name>" (at most 15 characters, the kernel's limit), so that
   // top -H and perf show each stage's share of the cores.
-  static void NameThisThread(const char* prefix, const std::string& name) {
-    const std::string full = (std::string(prefix) + name).substr(0, 15);
-    pthread_setname_np(pthread_self(), full.c_str());
+  static void NameThisThread(const std::string& name) {
+    pthread_setname_np(pthread_self(), ("g:" + name).substr(0, 15).c_str());
   }
 
   void SourceLoop() {
-    NameThisThread("g:", "source");
+    NameThisThread("source");
     uint64_t seq = 0;
     Node* n = nullptr;
     while (!stop_.load(std::memory_order_acquire)) {
@@ -207,7 +206,7 @@ class StageGraph {
   }
 
   void StageLoop(size_t i) {
-    NameThisThread("g:", stages_[i].name);
+    NameThisThread(stages_[i].name);
     StageCounters& c = counters_[i];
     const bool last = i + 1 == stages_.size();
     bool have_prev = false;

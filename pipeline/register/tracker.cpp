@@ -441,7 +441,6 @@ void Tracker::MaybeKeyframe(const SurfacePoints& /*samples*/, const cv::Mat& poi
   if (!keyframes_.empty()) {
     const Keyframe& last = keyframes_.back();
     const Rigid3d last_from_cam = graph_.pose(last.node).inverse() * pose;
-    if (!last_keyframe_occupancy_) last_keyframe_occupancy_ = OccupancyMap(last.samples, kOverlapVoxelMm);
     if (last_keyframe_occupancy_->Overlap(kfs, last_from_cam) >= o_.keyframe_overlap) return;
   }
   Keyframe kf;
@@ -449,7 +448,7 @@ void Tracker::MaybeKeyframe(const SurfacePoints& /*samples*/, const cv::Mat& poi
   kf.node = graph_.AddNode(pose);
   kf.centre_in_cam = kfs.Centroid();
   kf.samples = std::move(kfs);
-  last_keyframe_occupancy_.reset();  // built for the new keyframe by the next view's test
+  last_keyframe_occupancy_ = OccupancyMap(kf.samples, kOverlapVoxelMm);
   if (o_.relocalise && feature_worker_) feature_worker_->Submit(keyframes_.size(), points, texture);
   else if (o_.relocalise) kf.features = ExtractViewFeatures(points, texture, o_.features);
   keyframes_.push_back(std::move(kf));

@@ -235,8 +235,9 @@ class Tracker {
   PointMap map_;
   PoseGraph graph_;
   std::vector<Keyframe> keyframes_;
-  // The newest keyframe's samples as an occupancy map (its camera frame), built once per keyframe:
-  // every view's keyframe test measures its overlap with it. Touched only by Track()'s thread.
+  // The newest keyframe's samples as an occupancy map (its camera frame), built when the keyframe is
+  // made: every later view's keyframe test measures its overlap with it. Touched only by Track()'s
+  // thread; null until the first keyframe.
   std::unique_ptr<PointMap> last_keyframe_occupancy_;
   TrackingState state_ = TrackingState::kInitialising;
   int64_t index_ = -1;                // current view index
