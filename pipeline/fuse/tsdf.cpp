@@ -142,9 +142,11 @@ Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& 
     occluded_mask_.setTo(0);
     const int k = o_.occlusion_stride;
     // Samples behind a known surface (D < −0.1·truncation, within the band's back half, at least
-    // 0.9·truncation thick along any ray) are what counts; the step is shorter than that. The band's
-    // front half is not used: a point's own surface, seen grazing, lies within it along its ray.
-    const double step = 0.8 * o_.truncation_mm;
+    // 0.9·truncation thick along any ray) are what counts; the step is shorter than that, less a
+    // voxel either side (a sample reads its nearest voxel centre: at 0.8·truncation, a band whose
+    // back began on a voxel boundary was stepped over). The band's front half is not used: a
+    // point's own surface, seen grazing, lies within it along its ray.
+    const double step = std::max(0.9 * o_.truncation_mm - 2.0 * o_.voxel_mm, 0.5 * o_.voxel_mm);
     const float behind = static_cast<float>(-0.1 * o_.truncation_mm);
     const Eigen::Vector3d centre = world_from_cam.translation();  // the camera's, world frame
     std::vector<int64_t> per_row((P.rows + k - 1) / k, 0);

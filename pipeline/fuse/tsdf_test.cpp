@@ -175,6 +175,27 @@ TEST(Tsdf, PointsBehindAKnownSurfaceAreNotFused) {
   }
 }
 
+// The occlusion test's ray samples read the nearest voxel centre, so their step must be shorter
+// than the band's back half less a voxel on either side, whatever the offset of the surface behind
+// it: for patches 0.80 to 2.0 mm behind the plane, every point is found occluded (at a step of
+// 0.8·truncation, some offsets stepped over the plane's back band).
+TEST(Tsdf, TheOcclusionTestFindsTheSurfaceAtAnyOffset) {
+  const auto c = Cam();
+  cv::Mat P, N;
+  PlaneView(0.0, 1, &P, &N);
+  const cv::Rect patch(20, 20, 40, 40);
+  TsdfVolume v{TsdfOptions{}};
+  for (int i = 0; i < 3; ++i) ASSERT_TRUE(v.Integrate(P, N, cv::Mat(), c, Rigid3d::Identity()).ok());
+  for (int step = 0; step <= 48; ++step) {
+    const float z = 50.8f + 0.025f * static_cast<float>(step);
+    cv::Mat ghost(P.size(), CV_32FC3, cv::Scalar::all(std::nanf("")));
+    for (int r = patch.y; r < patch.y + patch.height; ++r)
+      for (int k = patch.x; k < patch.x + patch.width; ++k) ghost.at<cv::Vec3f>(r, k) = P.at<cv::Vec3f>(r, k) * (z / 50.0f);
+    ASSERT_TRUE(v.Integrate(ghost, N, cv::Mat(), c, Rigid3d::Identity()).ok());
+    EXPECT_EQ(v.last_occluded_points(), patch.area()) << "patch at z = " << z << " mm";
+  }
+}
+
 TEST(Tsdf, SphereMeshIsAccurateAndFacesOutward) {
   // Six views of a sphere (r = 3 mm, centre at 50 mm): exact points, camera moved around it.
   const auto cam = Cam();

@@ -50,6 +50,8 @@ ReconstructOptions ScaleToFringePeriod(const ReconstructOptions& options, double
   o.unwrap.min_region_pixels = ScaleArea(o.unwrap.min_region_pixels, s);
   o.unwrap.min_marker_votes = ScaleArea(o.unwrap.min_marker_votes, s);
   o.unwrap.marker_rival_votes = ScaleArea(o.unwrap.marker_rival_votes, s);
+  o.unwrap.marker_tile_px = ScaleLength(o.unwrap.marker_tile_px, s, false);
+  o.unwrap.marker_tile_rival_votes = ScaleArea(o.unwrap.marker_tile_rival_votes, s);
   o.unwrap.max_violations = ScaleLength(o.unwrap.max_violations, s, false);
   o.unwrap.neck_radius = ScaleLength(o.unwrap.neck_radius, s, false);
   return o;
@@ -71,6 +73,17 @@ Reconstructor::Reconstructor(const ProbeCalibration& calibration, const Reconstr
       triangulator_(calibration, options_.triangulate) {
   options_.Check();
   triangulator_.PhaseRange(&phase_min_, &phase_max_);
+  // The unwrapper's stripe window is widened on the far side of the measurement volume
+  // (UnwrapOptions::marker_margin_above for a probe whose Φ grows with depth, as ours); where Φ
+  // falls with depth, the far side is below.
+  const auto& cam = calibration.camera;
+  const double near = triangulator_.PhaseAtDepth(cam.width / 2, cam.height / 2, calibration.depth_min_mm);
+  const double far = triangulator_.PhaseAtDepth(cam.width / 2, cam.height / 2, calibration.depth_max_mm);
+  if (std::isfinite(near) && std::isfinite(far) && far < near) {
+    UnwrapOptions u = WithMarkerOf(options_.unwrap, calibration.pattern);
+    std::swap(u.marker_margin_below, u.marker_margin_above);
+    unwrapper_ = Unwrapper(u);
+  }
 }
 
 Reconstructor::~Reconstructor() = default;

@@ -20,6 +20,13 @@ void UnwrapOptions::Check() const {
                 "UnwrapOptions: marker_width_periods must be in (0, 1], got " << marker_width_periods);
   D3D_CHECK_MSG(marker_edge_margin >= 0 && marker_edge_margin < M_PI * marker_width_periods,
                 "UnwrapOptions: marker_edge_margin must be in [0, π·width), got " << marker_edge_margin);
+  D3D_CHECK_MSG(marker_margin_below >= 0 && marker_margin_below <= 100 && marker_margin_above >= 0 &&
+                    marker_margin_above <= 100,
+                "UnwrapOptions: marker_margin_below/above must be in [0, 100], got " << marker_margin_below << ", "
+                                                                                     << marker_margin_above);
+  D3D_CHECK_MSG(marker_tile_px >= 4 && marker_tile_rival_votes >= 0 && marker_tile_rival_density > 0 &&
+                    marker_tile_rival_density <= 1,
+                "UnwrapOptions: marker_tile_px must be >= 4, marker_tile_rival_votes >= 0, marker_tile_rival_density in (0, 1]");
   D3D_CHECK_MSG(std::isfinite(min_quality) && min_quality > 0 && min_quality <= 1,
                 "UnwrapOptions: min_quality must be in (0, 1], got " << min_quality);
   D3D_CHECK_MSG(std::isfinite(seed_quality) && seed_quality >= min_quality && seed_quality <= 1,
@@ -167,6 +174,7 @@ void Unwrapper::Prepare(const cv::Mat& phi, const cv::Mat& quality, const cv::Ma
   const double inv_2pi = 1.0 / (2.0 * M_PI);
   const int first = options_.marker_first_order;
   const int spacing = options_.marker_spacing_orders;
+  const int margin_below = options_.marker_margin_below, margin_above = options_.marker_margin_above;
   const float core_lo =
       static_cast<float>(M_PI * (1.0 - options_.marker_width_periods) + options_.marker_edge_margin);
   const float core_hi =
@@ -212,14 +220,16 @@ void Unwrapper::Prepare(const cv::Mat& phi, const cv::Mat& quality, const cv::Ma
       int16_t stripe = kNone;
       if (ph >= core_lo && ph <= core_hi) {
         if (spacing == 0) {
-          // One stripe: its order, if the range admits it (or is unknown).
-          if (lo == kUnknown || (first >= lo && first <= hi)) stripe = static_cast<int16_t>(first);
+          // One stripe: its order, if the range widened by the margin admits it (or is unknown).
+          if (lo == kUnknown || (first >= lo - margin_below && first <= hi + margin_above))
+            stripe = static_cast<int16_t>(first);
         } else if (lo != kUnknown && lo <= hi) {
-          // Smallest stripe order ≥ lo; it must be the only one ≤ hi.
-          const int d = lo - first;
+          // Smallest stripe order in the widened window; it must be the only one in it.
+          const int slo = lo - margin_below, shi = hi + margin_above;
+          const int d = slo - first;
           const int j = d <= 0 ? 0 : (d + spacing - 1) / spacing;
           const int km = first + j * spacing;
-          if (km <= hi && km + spacing > hi) stripe = static_cast<int16_t>(km);
+          if (km <= shi && km + spacing > shi) stripe = static_cast<int16_t>(km);
         }
       }
       kstripe_[i] = stripe;
@@ -423,7 +433,6 @@ void Unwrapper::AnchorRegion(RegionInfo* info, int region_id) {
   }
   for (size_t k = 1; k < span; ++k) hist_[k] += hist_[k - 1];
   info->bounded_pixels = bounded;
-
   const size_t best = static_cast<size_t>(std::max_element(hits_.begin(), hits_.end()) - hits_.begin());
   if (hits_[best] >= options_.min_marker_votes) {
     info->offset = kspan_lo + static_cast<int>(best);
@@ -459,6 +468,67 @@ void Unwrapper::AnchorRegion(RegionInfo* info, int region_id) {
     info->offset = kspan_lo + static_cast<int>(pick);
     info->admitting_pixels = hist_[pick];
     info->anchor = RegionAnchor::kDepth;
+  }
+}
+
+void Unwrapper::RejectTileRivals(UnwrapResult* out) {
+  if (options_.marker_tile_rival_votes <= 0) return;
+  // Compact index of the marker-anchored regions.
+  constexpr int kMaxDelta = 10;  // rival offsets K' = K ± 1..10 (a stripe window holds one stripe)
+  constexpr int kDeltas = 2 * kMaxDelta + 1;
+  tile_region_.assign(out->regions.size(), -1);
+  int n = 0;
+  for (size_t r = 0; r < out->regions.size(); ++r)
+    if (out->regions[r].anchor == RegionAnchor::kMarker && offsets_[r] != INT_MIN) tile_region_[r] = n++;
+  if (n == 0) return;
+  const int tile = options_.marker_tile_px;
+  const int tiles_x = (w_ + tile - 1) / tile, tiles_y = (h_ + tile - 1) / tile;
+  const size_t cells = static_cast<size_t>(n) * static_cast<size_t>(tiles_x * tiles_y) * kDeltas;
+  tile_predicted_.assign(cells, 0);
+  tile_hits_.assign(cells, 0);
+  const bool drop_outside = options_.drop_outside_volume;
+  for (int y = 0; y < h_; ++y) {
+    const int row = (y + 1) * stride_ + 1;
+    for (int x = 0; x < w_; ++x) {
+      const int i = row + x;
+      const int16_t st = kstripe_[i];
+      if (st == kNone || state_[i] != kMember) continue;
+      const int rid = region_[i];
+      const int c = tile_region_[rid];
+      if (c < 0) continue;
+      // Only where the region's K is admissible (drop_outside_volume drops the rest whatever
+      // its order). Pixels dropped by neck pruning do count: the part of a far patch that shows
+      // its stripe can be cut off by a neck while the rest of the patch stays attached (real arch
+      // seed 2, burst 778: 416 of 435 hits in one tile lie in the pruned piece).
+      const int order = rel_[i] + offsets_[rid];
+      if (drop_outside && klo_[i] != kUnknown && (order < klo_[i] || order > khi_[i])) continue;
+      const int delta = st - order;  // the stripe this pixel would show under K + delta
+      if (delta == 0 || delta < -kMaxDelta || delta > kMaxDelta) continue;
+      const size_t cell = (static_cast<size_t>(c) * static_cast<size_t>(tiles_x * tiles_y) +
+                           static_cast<size_t>((y / tile) * tiles_x + x / tile)) * kDeltas + static_cast<size_t>(delta + kMaxDelta);
+      ++tile_predicted_[cell];
+      tile_hits_[cell] += (edge_[i] & kMarkerBit) != 0;
+    }
+  }
+  UnwrapStats& st = out->stats;
+  for (size_t r = 0; r < out->regions.size(); ++r) {
+    const int c = tile_region_[r];
+    if (c < 0) continue;
+    int rival = 0;
+    const size_t base = static_cast<size_t>(c) * static_cast<size_t>(tiles_x * tiles_y) * kDeltas;
+    for (size_t k = 0; k < static_cast<size_t>(tiles_x * tiles_y) * kDeltas; ++k) {
+      const int32_t h = tile_hits_[base + k];
+      if (h >= options_.marker_tile_rival_votes && h >= options_.marker_tile_rival_density * tile_predicted_[base + k])
+        rival = std::max(rival, static_cast<int>(h));
+    }
+    if (rival == 0) continue;
+    RegionInfo& info = out->regions[r];
+    info.anchor = RegionAnchor::kMarkerConflict;
+    info.marker_rival_hits = std::max(info.marker_rival_hits, rival);
+    offsets_[r] = INT_MIN;
+    --st.regions_marker;
+    ++st.regions_rejected;
+    st.pixels_rejected += info.pixels;
   }
 }
 
@@ -599,6 +669,7 @@ Status Unwrapper::Run(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat&
     }
   }
   PruneNecks(*out);
+  RejectTileRivals(out);
   out->Phi.create(h_, w_, CV_32FC1);
   out->order.create(h_, w_, CV_32SC1);
   out->region.create(h_, w_, CV_32SC1);

@@ -43,6 +43,8 @@
 //     d. neck pruning (neck_radius): a marker-anchored region keeps only the parts that the marker
 //        verifies on their own, where parts are what is left after eroding the region by
 //        neck_radius (so narrow leaks separate them); the rest is dropped (pixels_neck).
+//     e. tile rivals (marker_tile_*): the rival test of (a) again within each image tile, over the
+//        pixels of a marker-anchored region where its K is admissible; a rival there rejects it.
 //  4. Output: Φ and k for the pixels of anchored regions; with drop_outside_volume, pixels whose Φ
 //     falls outside their own admissible range (outside the measurement volume) are dropped too.
 // Dropped pixels get Φ = NaN and k = −1: an order that cannot be trusted is never guessed.
@@ -68,6 +70,21 @@ struct UnwrapOptions {
   // A marker pixel votes only if φ lies at least this far [rad] inside its stripe's edges, so that a
   // detection blurred across the stripe edge cannot vote for the neighbouring order.
   double marker_edge_margin = 0.6;
+  // A stripe-core pixel is attributed to the one stripe order within its admissible orders [lo, hi]
+  // widened to [lo − marker_margin_below, hi + marker_margin_above] (none if that window holds two
+  // stripes). The measurement volume is narrower than the stripe spacing (42–58 mm: 5.5–6.2 orders
+  // against 10), and surfaces just beyond its far limit are common (gingiva, palate and the walls
+  // of the next tooth behind a crown): a region that reaches past the far limit must still see its
+  // stripe there. Without the margin such a stripe votes for nothing, and a region that grew
+  // across a hidden one-order jump into that far part keeps the K of its near part; one order
+  // nearer, the far part then lies inside the volume and survives drop_outside_volume (real arch
+  // seed 2, burst 713: 10,261 pixels 1.7 mm off, fused into a 0.9 mm ghost). With the margin those
+  // stripe pixels are hits for the right K, a rival, and the region is rejected. Our probe's Φ
+  // grows with depth, so the far side is above; the Reconstructor swaps the two for a calibration
+  // whose Φ falls with depth. No margin on the near side: there it let false detections vote (real
+  // arch seed 2, burst 799: 10 of 16 predicted hits for K − 5 rejected a whole tooth).
+  int marker_margin_below = 0;
+  int marker_margin_above = 1;
 
   float min_quality = 0.05f;    // usable pixels: quality ≥ this
   float seed_quality = 0.5f;    // first-pass seeds: quality ≥ this
@@ -106,6 +123,18 @@ struct UnwrapOptions {
   double marker_max_stripe_share = 0.6;
   int marker_rival_votes = 10;      // another K with this many hits ...
   double marker_rival_density = 0.2;  // ... at this density rejects the region
+  // The same test within each marker_tile_px square tile of the image, over the pixels where the
+  // region's K is admissible: another K with at least marker_tile_rival_votes hits at a density
+  // ≥ marker_tile_rival_density in one tile rejects the region. A part beyond a hidden order jump that is small against its region shows its stripe
+  // densely where it is, but over the whole region that K also predicts a stripe on every pixel
+  // one order short of the region's true stripe, where nothing is detected, and its density stays
+  // far below marker_rival_density (real arch seed 2, burst 778: 646 of the part's 725 stripe
+  // pixels detected; 6,634 pixels kept 1.7 mm off). False detections are too sparse to fill a
+  // tile. With drop_outside_volume, a part outside the volume at the region's K is dropped
+  // whatever its order, so its stripe does not count. 0 votes = off.
+  int marker_tile_px = 32;
+  int marker_tile_rival_votes = 30;
+  double marker_tile_rival_density = 0.5;
   // Share of the region's bounded pixels that must admit the marker's K: a majority. A K one stripe
   // spacing off is admitted almost nowhere (the stripes are spaced wider than the admissible range);
   // a correct K is not admitted where the region reaches beyond the measurement volume (gum and
@@ -147,7 +176,7 @@ struct RegionInfo {
   int offset = 0;               // K: absolute order = relative order + K (valid if anchored)
   int marker_hits = 0;          // detected marker pixels on a stripe for the winning K
   int marker_predicted = 0;     // stripe-core pixels predicted in a stripe for the winning K
-  int marker_rival_hits = 0;    // hits of the strongest rival K (0 if none)
+  int marker_rival_hits = 0;    // hits of the strongest rival K (0 if none; in one tile if the tile test found it)
   int bounded_pixels = 0;       // pixels with a finite admissible range
   int admitting_pixels = 0;     // bounded pixels that admit the chosen (or best) K
   int candidates = 0;           // K admitted by ≥ depth_fraction (depth anchoring)
@@ -208,6 +237,7 @@ class Unwrapper {
   void GrowRegion(int seed, UnwrapResult* out);
   void AnchorRegion(RegionInfo* info, int region_id);
   void PruneNecks(const UnwrapResult& out);
+  void RejectTileRivals(UnwrapResult* out);
 
   UnwrapOptions options_;
   int w_ = 0, h_ = 0, stride_ = 0;  // padded grid: (w+2)×(h+2), one unusable pixel of border
@@ -226,6 +256,8 @@ class Unwrapper {
   std::vector<int32_t> members_;    // pixels of the region being grown
   std::vector<int32_t> hist_;       // per-K histograms of one region
   std::vector<int32_t> predicted_, hits_;
+  std::vector<int32_t> tile_region_;  // tile rival test: compact index of a marker-anchored region, or −1
+  std::vector<int32_t> tile_predicted_, tile_hits_;  // per region, tile and rival offset K' − K
   std::vector<int> offsets_;        // per region: K, or INT_MIN if not anchored
   std::vector<int32_t> lab_, ero_, tmp_;  // neck pruning: region labels, eroded labels, scratch
   std::vector<uint8_t> keep_;       // neck pruning: 1 = verified part of a marker region

@@ -109,6 +109,18 @@ SyntheticNoise Noise(uint64_t seed = 1) {
   return n;
 }
 
+// Two whole scenes composed: `from`'s pixels in `rect` replace those of *to (a depth map with a
+// step would darken the rows beside it).
+void CopyRect(const SyntheticScene& from, const cv::Rect& rect, SyntheticScene* to) {
+  for (auto [dst, src] : {std::pair{&to->depth, &from.depth}, {&to->Phi_true, &from.Phi_true},
+                          {&to->order_true, &from.order_true}, {&to->phi, &from.phi},
+                          {&to->modulation, &from.modulation}, {&to->valid, &from.valid},
+                          {&to->marker, &from.marker}, {&to->phase_min, &from.phase_min},
+                          {&to->phase_max, &from.phase_max}}) {
+    (*src)(rect).copyTo((*dst)(rect));
+  }
+}
+
 // Depth at which the scene is shifted by `fringes` relative to depth z on the same pixel.
 double DepthForShift(const SyntheticProbe& p, double z, double fringes) {
   // Φ ∝ −fp·b/Z: Δfringes = fp·b/T·(1/z − 1/z2).
@@ -257,13 +269,7 @@ TEST(Unwrap, NarrowLeakIntoAnUnverifiedPartIsPruned) {
   const SyntheticScene far =
       MakeFringeScene(PlaneDepth(probe, DepthForShift(probe, 48.0, 1.0), 0.0, 0.0), probe, Noise(13));
   const cv::Rect lower(0, 245, 640, 235);
-  for (auto [dst, src] : {std::pair{&s.depth, &far.depth}, {&s.Phi_true, &far.Phi_true},
-                          {&s.order_true, &far.order_true}, {&s.phi, &far.phi},
-                          {&s.modulation, &far.modulation}, {&s.valid, &far.valid},
-                          {&s.marker, &far.marker}, {&s.phase_min, &far.phase_min},
-                          {&s.phase_max, &far.phase_max}}) {
-    (*src)(lower).copyTo((*dst)(lower));
-  }
+  CopyRect(far, lower, &s);
   // A 150 px wide window of the bottom whose orders k and k − 1 avoid every stripe order.
   int x0 = -1;
   for (int x = 0; x + 150 <= 640 && x0 < 0; x += 5) {
@@ -301,6 +307,124 @@ TEST(Unwrap, NarrowLeakIntoAnUnverifiedPartIsPruned) {
   EXPECT_GT(Evaluate(s, r, top).KeptShare(), 0.95);
   EXPECT_GT(r.stats.pixels_neck, 10000);
   if (HasFailure()) DumpRegions(r);
+}
+
+// A plane at 57.9 mm (just inside the 42–58 mm volume) with, below it, a patch 1.0 fringe further
+// (61.8 mm, beyond the far limit) whose orders are 11–14, `rows` rows high: it shows stripe 14,
+// while with the plane's offset (one order less) it would show none. The integer step leaves no
+// trace in φ, so both grow into one region.
+struct HiddenStepScene {
+  SyntheticScene s;
+  cv::Mat patch, top;  // CV_8U masks
+};
+HiddenStepScene MakeHiddenStepIntoAFarPatch(const SyntheticProbe& probe, int rows) {
+  HiddenStepScene h;
+  SyntheticScene& s = h.s;
+  const double z_far = DepthForShift(probe, 57.9, 1.0);
+  EXPECT_GT(z_far, probe.z_max + 3.0);
+  s = MakeFringeScene(PlaneDepth(probe, 57.9, 0.0, 0.0), probe, Noise(21));
+  const SyntheticScene far = MakeFringeScene(PlaneDepth(probe, z_far, 0.0, 0.0), probe, Noise(22));
+  const cv::Rect lower(0, 240, 640, 240);
+  CopyRect(far, lower, &s);
+  // The patch: the lower half's columns with orders 11..14; the rest of the lower half is unlit.
+  h.patch = cv::Mat::zeros(480, 640, CV_8UC1);
+  h.top = h.patch.clone();
+  h.top(cv::Rect(0, 0, 640, 240)).setTo(255);
+  for (int x = 0; x < 640; ++x) {
+    const int k = s.order_true.at<int32_t>(300, x);
+    if (k >= 11 && k <= 14) h.patch(cv::Rect(x, 240, 1, rows)).setTo(255);
+  }
+  const cv::Mat unlit = ~(h.patch | h.top);
+  s.phi.setTo(kNaN, unlit);
+  s.valid.setTo(0, unlit);
+  s.marker.setTo(0, unlit);
+  s.order_true.setTo(-1, unlit);
+  return h;
+}
+
+// The patch's stripe order lies one order beyond its admissible ones; only the stripe window
+// widened on the far side (marker_margin_above) lets it vote, as a rival, and the region is
+// rejected. Without the margin the region took the plane's K, and the patch, one order nearer,
+// lies inside the volume and is kept a whole order off (real arch seed 2, burst 713).
+TEST(Unwrap, HiddenStepIntoAPartBeyondTheVolumeIsRejected) {
+  const SyntheticProbe probe;
+  const HiddenStepScene h = MakeHiddenStepIntoAFarPatch(probe, 240);
+  ASSERT_GT(cv::countNonZero(h.patch), 15000);
+  ASSERT_GT(cv::countNonZero(h.s.marker & h.patch), 3000) << "the patch shows its stripe";
+
+  UnwrapOptions no_margin;
+  no_margin.marker_margin_above = 0;
+  const Eval e0 = Evaluate(h.s, RunAll(h.s, no_margin), h.patch);
+  EXPECT_GT(e0.wrong, 10000) << "without the margin the patch should be kept one order off";
+
+  const UnwrapResult r = RunAll(h.s);
+  const Eval e = Evaluate(h.s, r);
+  EXPECT_EQ(e.wrong, 0);
+  EXPECT_EQ(Evaluate(h.s, r, h.patch).kept, 0);
+  EXPECT_GE(r.stats.regions_rejected, 1);
+  if (HasFailure()) DumpRegions(r);
+}
+
+// The same with a patch 40 rows high: over the whole region, its K also predicts a stripe on the
+// plane's pixels one order short of the plane's stripes, where nothing is detected, so its
+// density stays under marker_rival_density. In the patch's own tiles it is dense: the tile-local
+// rival test rejects the region (real arch seed 2, burst 778).
+TEST(Unwrap, ASmallPartBeyondAHiddenStepIsCaughtInItsTiles) {
+  const SyntheticProbe probe;
+  const HiddenStepScene h = MakeHiddenStepIntoAFarPatch(probe, 40);
+  ASSERT_GT(cv::countNonZero(h.s.marker & h.patch), 500) << "the patch shows its stripe";
+
+  UnwrapOptions no_tiles;
+  no_tiles.marker_tile_rival_votes = 0;
+  const UnwrapResult r0 = RunAll(h.s, no_tiles);
+  EXPECT_GT(Evaluate(h.s, r0, h.patch).wrong, 2000) << "the region-wide rival test alone should miss it";
+
+  const UnwrapResult r = RunAll(h.s);
+  EXPECT_EQ(Evaluate(h.s, r).wrong, 0);
+  EXPECT_EQ(Evaluate(h.s, r, h.patch).kept, 0);
+  if (HasFailure()) DumpRegions(r);
+}
+
+// The stripe window is not widened on the near side: there false detections would vote (real arch
+// seed 2, burst 799: 10 hits of 16 predicted for K − 5 rejected a whole tooth).
+TEST(Unwrap, FalseStripeHitsJustNearerThanTheVolumeDoNotVote) {
+  const SyntheticProbe probe;
+  // A plane 1 mm behind the near limit (0.5 orders): the lowest order its pixels admit is their own.
+  SyntheticScene s = MakeFringeScene(PlaneDepth(probe, probe.z_min + 1.0, 0.0, 0.0), probe, Noise(23));
+  // The columns one order past a stripe order are unlit except a 4-row bridge joining the parts;
+  // false detections over the bridge's stripe core in one of them would put some 60 hits on K − 1
+  // at a high density (the bridge is all K − 1 predicts), were the window widened below.
+  const auto past_stripe = [&](int k) { return (k - probe.marker_first_order) % probe.marker_spacing_orders == 1; };
+  cv::Mat cut = cv::Mat::zeros(480, 640, CV_8UC1);
+  for (int x = 0; x < 640; ++x)
+    if (past_stripe(s.order_true.at<int32_t>(300, x))) cut(cv::Rect(x, 0, 1, 480)).setTo(255);
+  cut(cv::Rect(0, 200, 640, 4)).setTo(0);
+  ASSERT_GT(cv::countNonZero(cut), 10000);
+  s.phi.setTo(kNaN, cut);
+  s.valid.setTo(0, cut);
+  s.marker.setTo(0, cut);
+  s.order_true.setTo(-1, cut);
+  s.marker(cv::Rect(0, 200, 640, 4)).setTo(0);
+  int placed = 0;
+  for (int y = 200; y < 204; ++y)
+    for (int x = 0; x < 640; ++x) {
+      const float phi = s.phi.at<float>(y, x);
+      if (s.order_true.at<int32_t>(y, x) == 15 && phi > 1.0f && phi < 5.2f) {
+        s.marker.at<uint8_t>(y, x) = 255;
+        ++placed;
+      }
+    }
+  ASSERT_GT(placed, 40);
+  const UnwrapResult r = RunAll(s);
+  EXPECT_EQ(Evaluate(s, r).wrong, 0);
+  EXPECT_GT(Evaluate(s, r).KeptShare(), 0.95);
+  if (HasFailure()) DumpRegions(r);
+  // Widened below, the window attributes them to stripe 14, a rival that rejects the plane.
+  UnwrapOptions near_margin;
+  near_margin.marker_margin_below = 1;
+  const UnwrapResult r1 = RunAll(s, near_margin);
+  EXPECT_LT(Evaluate(s, r1).KeptShare(), 0.5);
+  if (HasFailure()) DumpRegions(r1);
 }
 
 TEST(Unwrap, SeparatedTeethOnlySomeWithMarker) {

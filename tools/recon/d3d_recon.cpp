@@ -123,7 +123,7 @@ int main(int argc, char** argv) {
   std::string images, sim_model, calibration_path, out_ply, maps_dir, camera = "640x480", pose_text;
   int64_t index = -1, count = 1;
   uint32_t seed = 1;
-  bool json = false;
+  bool json = false, motion_compensation = false;
   app.add_option("--images", images, "burst folder (frame_K.png + burst.json)");
   app.add_option("--sim", sim_model, "render with the virtual probe: 'typodont' or a mesh file");
   app.add_option("--index", index, "--sim: burst index on the full-arch trajectory (default: the first pose)");
@@ -136,6 +136,9 @@ int main(int argc, char** argv) {
   app.add_option("--calibration", calibration_path, "calibration.json (default: found beside the images)");
   app.add_option("--out", out_ply, "write the cloud as binary PLY (x y z nx ny nz intensity quality)");
   app.add_option("--maps", maps_dir, "write PNG maps: phase, modulation, quality, order, marker, texture, dropped (why a pixel has no point), kappa (harmonic attenuation), error (PNG, and TIFF in µm)");
+  app.add_flag("--motion-compensation", motion_compensation,
+               "compensate the hand's motion within the burst (PhaseOptions::motion_compensation), as d3d-fuse and\n"
+               "d3d-scan reconstruct hand-held bursts");
   app.add_flag("--json", json, "print one JSON object as the last line");
   CLI11_PARSE(app, argc, argv);
   if (images.empty() == sim_model.empty()) {
@@ -204,7 +207,9 @@ int main(int argc, char** argv) {
         bursts.push_back(session->RenderBurst(k, true));
       }
     }
-    Reconstructor recon(calib);
+    ReconstructOptions recon_options;
+    recon_options.phase.motion_compensation = motion_compensation;
+    Reconstructor recon(calib, recon_options);
     std::vector<Figures> figures;
     ReconstructedView view;
     for (const Burst& b : bursts) {
