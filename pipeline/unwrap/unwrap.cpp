@@ -433,6 +433,7 @@ void Unwrapper::AnchorRegion(RegionInfo* info, int region_id) {
   }
   for (size_t k = 1; k < span; ++k) hist_[k] += hist_[k - 1];
   info->bounded_pixels = bounded;
+
   const size_t best = static_cast<size_t>(std::max_element(hits_.begin(), hits_.end()) - hits_.begin());
   if (hits_[best] >= options_.min_marker_votes) {
     info->offset = kspan_lo + static_cast<int>(best);
@@ -445,6 +446,35 @@ void Unwrapper::AnchorRegion(RegionInfo* info, int region_id) {
       if (hits_[k] >= options_.marker_rival_density * predicted_[k]) {
         rival = true;
         info->marker_rival_hits = std::max(info->marker_rival_hits, hits_[k]);
+      }
+    }
+    // The same test within each tile (UnwrapOptions::marker_tile_rival_votes), only where the
+    // winner's K is admissible (drop_outside_volume drops the rest whatever its order). Pixels
+    // that neck pruning drops later do count: the part of a far patch that shows its stripe can
+    // be cut off by a neck while the rest of the patch stays attached (real arch seed 2, burst
+    // 778: 416 of 435 hits in one tile lie in the pruned piece).
+    if (options_.marker_tile_rival_votes > 0) {
+      const int tile = options_.marker_tile_px;
+      const int tiles_x = (w_ + tile - 1) / tile, tiles = tiles_x * ((h_ + tile - 1) / tile);
+      tile_predicted_.assign(static_cast<size_t>(tiles) * span, 0);
+      tile_hits_.assign(tile_predicted_.size(), 0);
+      for (int i : members_) {
+        const int16_t st = kstripe_[i];
+        if (st == kNone) continue;
+        const int order = rel_[i] + info->offset;
+        if (options_.drop_outside_volume && klo_[i] != kUnknown && (order < klo_[i] || order > khi_[i])) continue;
+        const int x = i % stride_ - 1, y = i / stride_ - 1;
+        const size_t cell = static_cast<size_t>((y / tile) * tiles_x + x / tile) * span + static_cast<size_t>(st - rel_[i] - kspan_lo);
+        ++tile_predicted_[cell];
+        tile_hits_[cell] += (edge_[i] & kMarkerBit) != 0;
+      }
+      for (size_t cell = 0; cell < tile_hits_.size(); ++cell) {
+        const int32_t h = tile_hits_[cell];
+        if (cell % span == best || h < options_.marker_tile_rival_votes ||
+            h < options_.marker_tile_rival_density * tile_predicted_[cell])
+          continue;
+        rival = true;
+        info->marker_rival_hits = std::max(info->marker_rival_hits, static_cast<int>(h));
       }
     }
     const bool dense = hits_[best] >= options_.marker_density * predicted_[best];
@@ -468,67 +498,6 @@ void Unwrapper::AnchorRegion(RegionInfo* info, int region_id) {
     info->offset = kspan_lo + static_cast<int>(pick);
     info->admitting_pixels = hist_[pick];
     info->anchor = RegionAnchor::kDepth;
-  }
-}
-
-void Unwrapper::RejectTileRivals(UnwrapResult* out) {
-  if (options_.marker_tile_rival_votes <= 0) return;
-  // Compact index of the marker-anchored regions.
-  constexpr int kMaxDelta = 10;  // rival offsets K' = K ± 1..10 (a stripe window holds one stripe)
-  constexpr int kDeltas = 2 * kMaxDelta + 1;
-  tile_region_.assign(out->regions.size(), -1);
-  int n = 0;
-  for (size_t r = 0; r < out->regions.size(); ++r)
-    if (out->regions[r].anchor == RegionAnchor::kMarker && offsets_[r] != INT_MIN) tile_region_[r] = n++;
-  if (n == 0) return;
-  const int tile = options_.marker_tile_px;
-  const int tiles_x = (w_ + tile - 1) / tile, tiles_y = (h_ + tile - 1) / tile;
-  const size_t cells = static_cast<size_t>(n) * static_cast<size_t>(tiles_x * tiles_y) * kDeltas;
-  tile_predicted_.assign(cells, 0);
-  tile_hits_.assign(cells, 0);
-  const bool drop_outside = options_.drop_outside_volume;
-  for (int y = 0; y < h_; ++y) {
-    const int row = (y + 1) * stride_ + 1;
-    for (int x = 0; x < w_; ++x) {
-      const int i = row + x;
-      const int16_t st = kstripe_[i];
-      if (st == kNone || state_[i] != kMember) continue;
-      const int rid = region_[i];
-      const int c = tile_region_[rid];
-      if (c < 0) continue;
-      // Only where the region's K is admissible (drop_outside_volume drops the rest whatever
-      // its order). Pixels dropped by neck pruning do count: the part of a far patch that shows
-      // its stripe can be cut off by a neck while the rest of the patch stays attached (real arch
-      // seed 2, burst 778: 416 of 435 hits in one tile lie in the pruned piece).
-      const int order = rel_[i] + offsets_[rid];
-      if (drop_outside && klo_[i] != kUnknown && (order < klo_[i] || order > khi_[i])) continue;
-      const int delta = st - order;  // the stripe this pixel would show under K + delta
-      if (delta == 0 || delta < -kMaxDelta || delta > kMaxDelta) continue;
-      const size_t cell = (static_cast<size_t>(c) * static_cast<size_t>(tiles_x * tiles_y) +
-                           static_cast<size_t>((y / tile) * tiles_x + x / tile)) * kDeltas + static_cast<size_t>(delta + kMaxDelta);
-      ++tile_predicted_[cell];
-      tile_hits_[cell] += (edge_[i] & kMarkerBit) != 0;
-    }
-  }
-  UnwrapStats& st = out->stats;
-  for (size_t r = 0; r < out->regions.size(); ++r) {
-    const int c = tile_region_[r];
-    if (c < 0) continue;
-    int rival = 0;
-    const size_t base = static_cast<size_t>(c) * static_cast<size_t>(tiles_x * tiles_y) * kDeltas;
-    for (size_t k = 0; k < static_cast<size_t>(tiles_x * tiles_y) * kDeltas; ++k) {
-      const int32_t h = tile_hits_[base + k];
-      if (h >= options_.marker_tile_rival_votes && h >= options_.marker_tile_rival_density * tile_predicted_[base + k])
-        rival = std::max(rival, static_cast<int>(h));
-    }
-    if (rival == 0) continue;
-    RegionInfo& info = out->regions[r];
-    info.anchor = RegionAnchor::kMarkerConflict;
-    info.marker_rival_hits = std::max(info.marker_rival_hits, rival);
-    offsets_[r] = INT_MIN;
-    --st.regions_marker;
-    ++st.regions_rejected;
-    st.pixels_rejected += info.pixels;
   }
 }
 
@@ -669,7 +638,6 @@ Status Unwrapper::Run(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat&
     }
   }
   PruneNecks(*out);
-  RejectTileRivals(out);
   out->Phi.create(h_, w_, CV_32FC1);
   out->order.create(h_, w_, CV_32SC1);
   out->region.create(h_, w_, CV_32SC1);

@@ -31,9 +31,10 @@
 //        (Φ ∈ [phase_min, phase_max]; the stripes are spaced wider than that range, so at most one
 //        is), and a *hit* if it is also detected (marker ≠ 0). The K with most hits wins if it has
 //        ≥ min_marker_votes hits, a hit density hits/predicted ≥ marker_density, no rival (another
-//        K with ≥ marker_rival_votes hits at density ≥ marker_rival_density: a second stripe that
-//        disagrees, i.e. a hidden jump inside the region), and ≥ marker_depth_fraction of the
-//        region's pixels with known bounds admit it; otherwise the region is rejected. False
+//        K with ≥ marker_rival_votes hits at density ≥ marker_rival_density, region-wide or within
+//        one image tile (marker_tile_*): a second stripe that disagrees, i.e. a hidden jump inside
+//        the region), and ≥ marker_depth_fraction of the region's pixels with known bounds admit
+//        it; otherwise the region is rejected. False
 //        detections scatter over many K at low density and do not anchor anything.
 //     b. depth (An et al. 2016, Opt. Express 24(16):18445, geometric constraint): K is admissible
 //        at a pixel if Φ = φ + 2π(r + K) ∈ [phase_min − volume_margin, phase_max + volume_margin]. If
@@ -43,8 +44,6 @@
 //     d. neck pruning (neck_radius): a marker-anchored region keeps only the parts that the marker
 //        verifies on their own, where parts are what is left after eroding the region by
 //        neck_radius (so narrow leaks separate them); the rest is dropped (pixels_neck).
-//     e. tile rivals (marker_tile_*): the rival test of (a) again within each image tile, over the
-//        pixels of a marker-anchored region where its K is admissible; a rival there rejects it.
 //  4. Output: Φ and k for the pixels of anchored regions; with drop_outside_volume, pixels whose Φ
 //     falls outside their own admissible range (outside the measurement volume) are dropped too.
 // Dropped pixels get Φ = NaN and k = −1: an order that cannot be trusted is never guessed.
@@ -237,7 +236,6 @@ class Unwrapper {
   void GrowRegion(int seed, UnwrapResult* out);
   void AnchorRegion(RegionInfo* info, int region_id);
   void PruneNecks(const UnwrapResult& out);
-  void RejectTileRivals(UnwrapResult* out);
 
   UnwrapOptions options_;
   int w_ = 0, h_ = 0, stride_ = 0;  // padded grid: (w+2)×(h+2), one unusable pixel of border
@@ -256,8 +254,7 @@ class Unwrapper {
   std::vector<int32_t> members_;    // pixels of the region being grown
   std::vector<int32_t> hist_;       // per-K histograms of one region
   std::vector<int32_t> predicted_, hits_;
-  std::vector<int32_t> tile_region_;  // tile rival test: compact index of a marker-anchored region, or −1
-  std::vector<int32_t> tile_predicted_, tile_hits_;  // per region, tile and rival offset K' − K
+  std::vector<int32_t> tile_predicted_, tile_hits_;  // per tile and K of one region (tile-major)
   std::vector<int> offsets_;        // per region: K, or INT_MIN if not anchored
   std::vector<int32_t> lab_, ero_, tmp_;  // neck pruning: region labels, eroded labels, scratch
   std::vector<uint8_t> keep_;       // neck pruning: 1 = verified part of a marker region
