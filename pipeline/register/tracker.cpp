@@ -211,9 +211,18 @@ double Tracker::ViewsElapsed() const {
 }
 
 bool Tracker::ConsistentMotion(const Rigid3d& pose, std::string* why) const {
-  const double views = ViewsElapsed();
-  const double step_mm = TranslationDistanceMm(pose, last_pose_);
-  const double step_deg = RotationAngleRad(pose, last_pose_) * 180 / M_PI;
+  return ConsistentMotionFrom(last_pose_, ViewsElapsed(), pose, why);
+}
+
+double Tracker::ViewsSinceCandidate() const {
+  if (o_.view_period_ns > 0 && capture_ns_ > 0 && candidate_.capture_ns > 0 && capture_ns_ > candidate_.capture_ns)
+    return static_cast<double>(capture_ns_ - candidate_.capture_ns) / static_cast<double>(o_.view_period_ns);
+  return static_cast<double>(index_ - candidate_.view);
+}
+
+bool Tracker::ConsistentMotionFrom(const Rigid3d& from, double views, const Rigid3d& pose, std::string* why) const {
+  const double step_mm = TranslationDistanceMm(pose, from);
+  const double step_deg = RotationAngleRad(pose, from) * 180 / M_PI;
   if (step_mm > o_.max_step_mm * views || step_deg > o_.max_step_deg * views) {
     if (why) *why = "inconsistent motion (" + std::to_string(step_mm) + " mm, " + std::to_string(step_deg) + " deg)";
     return false;
@@ -267,30 +276,49 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     }
   } else {
     out.reason = "lost";
+    if (candidate_.pending) {
+      // The view after a re-entry candidate: it confirms it, or the candidate is dropped.
+      const std::string how = candidate_.how;
+      const int64_t at = candidate_.view;
+      if (ConfirmReentry(samples, &out)) {
+        accepted = true;
+        pose = out.world_from_cam;
+        out.state = TrackingState::kRelocalised;
+        out.reason = "lost; relocalised: re-entry of view " + std::to_string(at) + " (" + how + ") confirmed";
+      } else {
+        out.reason = "lost; re-entry of view " + std::to_string(at) + " not confirmed: " + out.reason;
+      }
+    }
   }
-  if (!accepted && !keyframes_.empty()) {
+  // A view re-entering the model after a loss waits for the next view's confirmation (see
+  // TrackerOptions::confirm_reentry); one refused while tracking is recovered at once.
+  const bool needs_confirmation = o_.confirm_reentry && state_ == TrackingState::kLost;
+  auto reentered = [&](const std::string& why) {
+    if (needs_confirmation) {
+      candidate_.pending = true;
+      candidate_.view = index_;
+      candidate_.capture_ns = capture_ns_;
+      candidate_.world_from_cam = out.world_from_cam;
+      candidate_.how = out.reason;
+      out.reason = why + "; re-entry candidate (" + out.reason + "), to be confirmed by the next view";
+      return false;
+    }
+    pose = out.world_from_cam;
+    out.state = TrackingState::kRelocalised;
+    out.reason = why + "; relocalised: " + out.reason;
+    return true;
+  };
+  if (!accepted && !candidate_.pending && !keyframes_.empty()) {
     // Local search first: ICP from the last accepted pose and from the keyframes nearest to it
     // (the probe usually comes back where it left the model).
     const std::string why = out.reason;
-    if (RelocaliseLocally(samples, &out)) {
-      accepted = true;
-      pose = out.world_from_cam;
-      out.state = TrackingState::kRelocalised;
-      out.reason = why + "; relocalised: " + out.reason;
-    } else {
-      out.reason = why + "; local search failed: " + out.reason;
-    }
+    if (RelocaliseLocally(samples, &out)) accepted = reentered(why);
+    else out.reason = why + "; local search failed: " + out.reason;
   }
-  if (!accepted && o_.relocalise && !keyframes_.empty()) {
+  if (!accepted && !candidate_.pending && o_.relocalise && !keyframes_.empty()) {
     const std::string why = out.reason;
-    if (Relocalise(samples, points, texture, &out)) {
-      accepted = true;
-      pose = out.world_from_cam;
-      out.state = TrackingState::kRelocalised;
-      out.reason = why + "; relocalised: " + out.reason;
-    } else {
-      out.reason = why + "; relocalisation failed: " + out.reason;
-    }
+    if (Relocalise(samples, points, texture, &out)) accepted = reentered(why);
+    else out.reason = why + "; relocalisation failed: " + out.reason;
   }
   if (!accepted) {
     state_ = state_ == TrackingState::kInitialising ? state_ : TrackingState::kLost;
@@ -357,6 +385,22 @@ Rigid3d Tracker::Predict() const {
   if (Timed() && prev_accepted_ns_ > 0 && last_accepted_ns_ > prev_accepted_ns_)
     k = static_cast<double>(capture_ns_ - last_accepted_ns_) / static_cast<double>(last_accepted_ns_ - prev_accepted_ns_);
   return k <= 8 ? Rigid3d(last_pose_ * InterpolateRigid(Rigid3d::Identity(), step, k)) : last_pose_;
+}
+
+bool Tracker::ConfirmReentry(const SurfacePoints& samples, TrackResult* out) {
+  candidate_.pending = false;
+  IcpOptions icp = o_.icp;
+  icp.levels.front().max_distance_mm = std::max(icp.levels.front().max_distance_mm, o_.local_search_gate_mm);
+  icp.max_rmse_mm = std::min(icp.max_rmse_mm, o_.relocalise_max_rmse_mm);
+  const IcpResult r = RunIcp(samples, candidate_.world_from_cam, icp);
+  if (!r.ok) {
+    out->reason = "icp: " + r.reason;
+    return false;
+  }
+  if (!ConsistentMotionFrom(candidate_.world_from_cam, ViewsSinceCandidate(), r.target_from_source, &out->reason)) return false;
+  out->icp = r;
+  out->world_from_cam = r.target_from_source;
+  return true;
 }
 
 bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out) {

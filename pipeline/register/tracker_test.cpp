@@ -20,8 +20,15 @@ class TrackerScan : public ::testing::Test {
     const auto v = RenderHeightField(hf_, cam_, pose, noise_mm, seed);
     return t->Track(v.points, v.normals, v.quality, v.texture);
   }
+  // The same at the fixture's field of view with 4× fewer pixels (small_cam_; use
+  // min_view_samples / 4).
+  TrackResult FeedSmall(Tracker* t, const Rigid3d& pose, uint32_t seed) {
+    const auto v = RenderHeightField(hf_, small_cam_, pose, 0.004, seed);
+    return t->Track(v.points, v.normals, v.quality, v.texture);
+  }
   HeightField hf_;
   PinholeBrownConrady cam_;
+  PinholeBrownConrady small_cam_ = TestCamera(160, 120, 500);
 };
 
 TEST_F(TrackerScan, TracksAStripRefusesABadViewAndRelocalises) {
@@ -57,17 +64,68 @@ TEST_F(TrackerScan, TracksAStripRefusesABadViewAndRelocalises) {
   EXPECT_FALSE(bad.accepted);
   EXPECT_EQ(bad.state, TrackingState::kLost);
   EXPECT_FALSE(bad.reason.empty());
-  // The probe comes back somewhere else over the scanned strip: relocalised by features.
+  // The probe comes back somewhere else over the scanned strip: placed by features, a re-entry
+  // candidate that the next view confirms.
   const Rigid3d back = Truth(-3.1, 0.4);
-  const TrackResult re = Feed(&tracker, back, 999);
+  const TrackResult candidate = Feed(&tracker, back, 999);
+  EXPECT_FALSE(candidate.accepted);
+  EXPECT_EQ(candidate.state, TrackingState::kLost);
+  EXPECT_NE(candidate.reason.find("re-entry candidate"), std::string::npos) << candidate.reason;
+  const Rigid3d back2 = Truth(-2.9, 0.4);
+  const TrackResult re = Feed(&tracker, back2, 1000);
   ASSERT_TRUE(re.accepted) << re.reason;
   EXPECT_EQ(re.state, TrackingState::kRelocalised);
-  EXPECT_LT(TranslationDistanceMm(re.world_from_cam, first_inv * back), 0.02);
+  EXPECT_NE(re.reason.find("confirmed"), std::string::npos) << re.reason;
+  EXPECT_LT(TranslationDistanceMm(re.world_from_cam, first_inv * back2), 0.02);
   // And keeps tracking from there.
-  const TrackResult next = Feed(&tracker, Truth(-2.8, 0.4), 1000);
+  const TrackResult next = Feed(&tracker, Truth(-2.6, 0.4), 1001);
   ASSERT_TRUE(next.accepted) << next.reason;
   EXPECT_EQ(next.state, TrackingState::kTracking);
   EXPECT_EQ(tracker.state(), TrackingState::kTracking);
+}
+
+// A re-entry after a loss is accepted only when two views in a row agree on it: a candidate that
+// the next view contradicts (here the next view is 6 mm away, as when the first was fitted onto a
+// similar part of the model elsewhere) is dropped and nothing is fused at it; that next view
+// becomes the candidate in its turn. With confirm_reentry off, the first view re-enters at once.
+TEST_F(TrackerScan, AReentryTheNextViewContradictsIsDropped) {
+  for (const bool confirm : {true, false}) {
+    TrackerOptions o;
+    o.confirm_reentry = confirm;
+    o.min_view_samples /= 4;
+    Tracker tracker(small_cam_, o);
+    std::vector<Rigid3d> truth;
+    uint32_t seed = 1;
+    for (double x = -4; x <= 4.01; x += 1.0) {
+      truth.push_back(Truth(x, 0));
+      ASSERT_TRUE(FeedSmall(&tracker, truth.back(), seed++).accepted) << "x = " << x;
+    }
+    const Rigid3d first_inv = truth[0].inverse();
+    ASSERT_FALSE(FeedSmall(&tracker, Truth(25, 0), 77).accepted);  // off the model: lost
+    ASSERT_EQ(tracker.state(), TrackingState::kLost);
+    const TrackResult a = FeedSmall(&tracker, Truth(-3.1, 0.3), 100);
+    if (!confirm) {
+      ASSERT_TRUE(a.accepted) << a.reason;
+      EXPECT_EQ(a.state, TrackingState::kRelocalised);
+      continue;
+    }
+    EXPECT_FALSE(a.accepted) << a.reason;
+    ASSERT_NE(a.reason.find("re-entry candidate"), std::string::npos) << a.reason;
+    const Rigid3d far = Truth(2.9, 0.3);  // 6 mm from the candidate, one view later
+    const TrackResult b = FeedSmall(&tracker, far, 101);
+    EXPECT_FALSE(b.accepted) << b.reason;
+    EXPECT_EQ(b.state, TrackingState::kLost);
+    EXPECT_NE(b.reason.find("not confirmed"), std::string::npos) << b.reason;
+    EXPECT_NE(b.reason.find("re-entry candidate"), std::string::npos) << b.reason;  // b in its turn
+    const Rigid3d c_pose = Truth(3.1, 0.3);
+    const TrackResult c = FeedSmall(&tracker, c_pose, 102);
+    ASSERT_TRUE(c.accepted) << c.reason;
+    EXPECT_EQ(c.state, TrackingState::kRelocalised);
+    EXPECT_LT(TranslationDistanceMm(c.world_from_cam, first_inv * c_pose), 0.02);
+    Rigid3d p;
+    EXPECT_FALSE(tracker.ViewPose(tracker.views() - 3, &p));  // a: never accepted
+    EXPECT_FALSE(tracker.ViewPose(tracker.views() - 2, &p));  // b: never accepted
+  }
 }
 
 TEST_F(TrackerScan, KeyframeWorkOffTrackGivesTheSameScan) {
@@ -93,8 +151,9 @@ TEST_F(TrackerScan, KeyframeWorkOffTrackGivesTheSameScan) {
   std::vector<Rigid3d> path;
   for (double x = -3; x <= 3.01; x += 1.0) path.push_back(Truth(x, 0));
   path.push_back(Truth(25, 0));      // off the model: lost
-  path.push_back(Truth(-3.1, 0.4));  // back over the strip: relocalised by features
-  path.push_back(Truth(-2.8, 0.4));
+  path.push_back(Truth(-3.1, 0.4));  // back over the strip: a re-entry candidate, by features ...
+  path.push_back(Truth(-2.8, 0.4));  // ... confirmed here
+  path.push_back(Truth(-2.5, 0.4));
   bool by_features = false;
   for (size_t i = 0; i < path.size(); ++i) {
     const auto v = RenderHeightField(hf_, cam, path[i], 0.004, static_cast<uint32_t>(i + 1));
@@ -159,15 +218,13 @@ TEST_F(TrackerScan, ProjectiveAssociationTracksToo) {
   o.association = Association::kProjective;
   o.relocalise = false;
   o.detect_loops = false;
-  const PinholeBrownConrady cam = TestCamera(160, 120, 500);  // the fixture's field of view, 4× fewer pixels
   o.min_view_samples /= 4;
-  Tracker tracker(cam, o);
+  Tracker tracker(small_cam_, o);
   std::vector<Rigid3d> truth;
   uint32_t seed = 1;
   for (double x = -3; x <= 3.01; x += 0.5) {
     truth.push_back(Truth(x, 0.2));
-    const auto v = RenderHeightField(hf_, cam, truth.back(), 0.004, seed++);
-    const TrackResult r = tracker.Track(v.points, v.normals, v.quality, v.texture);
+    const TrackResult r = FeedSmall(&tracker, truth.back(), seed++);
     ASSERT_TRUE(r.accepted) << r.reason;
   }
   Rigid3d p;
@@ -210,7 +267,10 @@ TEST_F(TrackerScan, ALostTrackReentersOnlyAtTheRelocalisationResidual) {
   const double rmse_um = std::stod(refused.reason.substr(at + high.size()));
   EXPECT_GT(rmse_um, 1000 * o.relocalise_max_rmse_mm);
   EXPECT_LT(rmse_um, 1000 * o.icp.max_rmse_mm);
-  const TrackResult back = Feed(&tracker, Truth(2.3, 0), 5);
+  const TrackResult candidate = Feed(&tracker, Truth(2.3, 0), 5);
+  EXPECT_FALSE(candidate.accepted);
+  EXPECT_NE(candidate.reason.find("re-entry candidate (icp from"), std::string::npos) << candidate.reason;
+  const TrackResult back = Feed(&tracker, Truth(2.4, 0), 6);  // confirms it
   ASSERT_TRUE(back.accepted) << back.reason;
   EXPECT_EQ(back.state, TrackingState::kRelocalised);
 }
