@@ -40,7 +40,7 @@ ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& opti
     : calibration_(calibration), o_(options), source_(source), recon_(calibration, options.scan.recon) {
   o_.Check();
   registrar_ = std::make_unique<ScanRegistrar>(calibration_, o_.scan.tracker, o_.scan.anchor, o_.scan.recon.normal_max_gap_mm);
-  fuser_ = std::make_unique<ScanFuser>(calibration_.camera, o_.scan.tsdf);
+  fuser_ = std::make_unique<ScanFuser>(calibration_.camera, o_.scan.tsdf, o_.scan.free_space);
   cells_.reserve(o_.preview_max_points);
   model_points_.reserve(o_.preview_max_points);
   model_normals_.reserve(o_.preview_max_points);
@@ -135,7 +135,7 @@ bool ScanApp::RegisterStage(ScanItem& item) {
 bool ScanApp::FuseStage(ScanItem& item) {
   std::lock_guard<std::mutex> lock(model_mu_);
   if (item.epoch != fuse_epoch_) {
-    fuser_ = std::make_unique<ScanFuser>(calibration_.camera, o_.scan.tsdf);
+    fuser_ = std::make_unique<ScanFuser>(calibration_.camera, o_.scan.tsdf, o_.scan.free_space);
     fuse_epoch_ = item.epoch;
   }
   if (item.track.accepted) {

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <opencv2/imgcodecs.hpp>
 #include <stdexcept>
 
@@ -112,12 +113,22 @@ bool ScanRegistrar::ViewPose(int64_t index, Rigid3d* world_from_cam) const {
   return tracker_.ViewPose(index, world_from_cam);
 }
 
-ScanFuser::ScanFuser(const PinholeBrownConrady& camera, const TsdfOptions& options)
-    : camera_(camera), tsdf_(std::make_unique<TsdfVolume>(options)) {}
+ScanFuser::ScanFuser(const PinholeBrownConrady& camera, const TsdfOptions& options, const FreeSpaceOptions& free_space)
+    : camera_(camera), tsdf_(std::make_unique<TsdfVolume>(options)), free_space_options_(free_space), free_space_(camera, free_space) {}
 
 Status ScanFuser::Fuse(const ReconstructedView& view, const Rigid3d& world_from_cam) {
   const auto t0 = Clock::now();
-  const Status s = tsdf_->Integrate(view.points_in_cam, view.normals, view.quality, camera_, world_from_cam);
+  const cv::Mat* points = &view.points_in_cam;
+  if (view.points_in_cam.type() == CV_32FC3 && view.points_in_cam.rows == camera_.height && view.points_in_cam.cols == camera_.width) {
+    const int64_t n = free_space_.TestAndRemember(view.points_in_cam, world_from_cam, &rejected_);
+    if (n > 0) {
+      view.points_in_cam.copyTo(masked_);
+      masked_.setTo(cv::Scalar::all(std::numeric_limits<double>::quiet_NaN()), rejected_);
+      points = &masked_;
+      free_space_rejected_ += n;
+    }
+  }  // else Integrate reports the mismatch
+  const Status s = tsdf_->Integrate(*points, view.normals, view.quality, camera_, world_from_cam);
   ms_ += MsSince(t0);
   if (s.ok()) ++fused_;
   return s;
@@ -126,6 +137,7 @@ Status ScanFuser::Fuse(const ReconstructedView& view, const Rigid3d& world_from_
 void ScanFuser::AdoptVolume(ScanFuser&& other) {
   D3D_CHECK_MSG(other.tsdf_ != nullptr, "ScanFuser::AdoptVolume: the other fuser has no volume");
   tsdf_ = std::move(other.tsdf_);
+  free_space_rejected_ = other.free_space_rejected_;  // the count of the volume's own views
 }
 
 Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegistrar* registrar, ScanFuser* fuser,
@@ -153,7 +165,7 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   double ms_refuse = 0;
   if (loops && provider && options.refuse_min_correction_mm >= 0 && max_correction_mm > options.refuse_min_correction_mm) {
     const auto t0 = Clock::now();
-    refused = std::make_unique<ScanFuser>(fuser->camera(), fuser->volume().options());
+    refused = std::make_unique<ScanFuser>(fuser->camera(), fuser->volume().options(), fuser->free_space_options());
     ReconstructedView view;
     for (int64_t k = 0; k < n_views; ++k) {
       Rigid3d pose;
@@ -223,6 +235,7 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   j["ms_refuse_total"] = ms_refuse;
   j["tsdf_active_voxels"] = model.ActiveVoxels();
   j["points_occluded"] = model.occluded_points();  // not fused: behind a known surface (tsdf.h)
+  j["points_free_space_rejected"] = fuser->free_space_rejected();  // not fused: in seen-through space (free_space.h)
   j["tsdf_memory_mib"] = tsdf_memory_mib;  // both volumes at the end of a refusion
   j["mesh_vertices"] = out->mesh.vertices.size();
   j["mesh_faces"] = out->mesh.faces.size();

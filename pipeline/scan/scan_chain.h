@@ -32,6 +32,7 @@
 #include "common/core/status.h"
 #include "common/mesh/mesh.h"
 #include "pipeline/eval/evaluate_scan.h"
+#include "pipeline/fuse/free_space.h"
 #include "pipeline/fuse/tsdf.h"
 #include "pipeline/recon/reconstruct.h"
 #include "pipeline/register/tracker.h"
@@ -56,6 +57,7 @@ struct ScanOptions {
   TrackerOptions tracker;  // tracker.detect_loops: keyframe loop closures and the pose graph at the end
   ModelAnchorOptions anchor;  // model-guided anchoring in the register stage (model_anchor.h)
   TsdfOptions tsdf;
+  FreeSpaceOptions free_space;  // ScanFuser: points in space earlier views saw through are not fused
   // Fuse the accepted views again at the optimised poses when the pose graph moved a view by more
   // than this (mm) and FinishScan is given a view provider; < 0 never.
   double refuse_min_correction_mm = 0.01;
@@ -143,8 +145,11 @@ class ScanRegistrar {
 
 class ScanFuser {
  public:
-  ScanFuser(const PinholeBrownConrady& camera, const TsdfOptions& options);
+  ScanFuser(const PinholeBrownConrady& camera, const TsdfOptions& options, const FreeSpaceOptions& free_space = {});
+  // Fuses the view's points except those the free-space test rejects (pipeline/fuse/free_space.h).
   [[nodiscard]] Status Fuse(const ReconstructedView& view, const Rigid3d& world_from_cam);
+  const FreeSpaceOptions& free_space_options() const { return free_space_options_; }
+  int64_t free_space_rejected() const { return free_space_rejected_; }  // points, over all views
   TsdfVolume& volume() { return *tsdf_; }
   const TsdfVolume& volume() const { return *tsdf_; }
   const PinholeBrownConrady& camera() const { return camera_; }
@@ -152,12 +157,17 @@ class ScanFuser {
   double ms_fuse() const { return ms_; }
   // Replaces this fuser's volume by `other`'s (FinishScan, once a refusion is complete) and frees
   // the old one before the mesh is extracted, so that the two volumes and the mesh are never held
-  // at once; fused() and ms_fuse() keep counting the views fused here. `other` is left empty.
+  // at once; fused() and ms_fuse() keep counting the views fused here, free_space_rejected() takes
+  // `other`'s (the points its volume left out). `other` is left empty.
   void AdoptVolume(ScanFuser&& other);
 
  private:
   PinholeBrownConrady camera_;
   std::unique_ptr<TsdfVolume> tsdf_;
+  FreeSpaceOptions free_space_options_;
+  FreeSpaceTest free_space_;
+  cv::Mat rejected_, masked_;  // per view, reused: the free-space test's mask, the points without them
+  int64_t free_space_rejected_ = 0;
   int64_t fused_ = 0;
   double ms_ = 0;
 };

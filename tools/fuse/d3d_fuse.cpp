@@ -54,7 +54,7 @@ int main(int argc, char** argv) {
   double max_cell_sdf_span = TsdfOptions{}.max_cell_sdf_span, occlusion_margin_mm = TsdfOptions{}.occlusion_margin_mm;
   double max_rmse_um = TrackerOptions{}.icp.max_rmse_mm * 1000;
   bool json = false, no_eval = false, no_loops = false, quiet = false, no_refuse = false, truth_poses = false;
-  bool no_model_anchor = false, coverage_ceiling = false;
+  bool no_model_anchor = false, coverage_ceiling = false, no_free_space = false;
   app.add_option("--sim", sim_model, "scan with the virtual probe: 'typodont' or a mesh file (PLY/STL/OBJ, mm)");
   app.add_option("--bursts", bursts_dir, "a d3d-sim output folder (calibration.json, bursts/NNNNNN/, scene.ply)");
   app.add_option("--trajectory", trajectory, "--sim: full-arch | quadrant | tooth | a TUM file")->capture_default_str();
@@ -76,6 +76,8 @@ int main(int argc, char** argv) {
   app.add_option("--occlusion-margin", occlusion_margin_mm,
                  "fusion: a point more than this (mm) behind a surface the model knows is not fused (0 = no test)")
       ->capture_default_str();
+  app.add_flag("--no-free-space", no_free_space,
+               "fusion: no free-space test (by default a point in space that earlier views saw through is not fused)");
   app.add_flag("--no-eval", no_eval, "skip the evaluation against the scene");
   app.add_flag("--no-loops", no_loops, "no loop-closure detection / pose graph");
   app.add_flag("--no-model-anchor", no_model_anchor,
@@ -144,6 +146,7 @@ int main(int argc, char** argv) {
     so.tracker.association = association == "kdtree" ? Association::kKdTree : Association::kProjective;
     so.tracker.detect_loops = !no_loops;
     so.anchor.enabled = !no_model_anchor;
+    so.free_space.enabled = !no_free_space;
     so.tracker.icp.max_rmse_mm = max_rmse_um / 1000.0;
     so.tracker = TrackerOptionsForStep(so.tracker, every);  // a lower burst rate means larger steps
     so.tsdf.voxel_mm = voxel_mm;
@@ -155,7 +158,7 @@ int main(int argc, char** argv) {
     so.Check();
     ScanReconstructor recon(calib, so.recon);
     ScanRegistrar registrar(calib, so.tracker, so.anchor, so.recon.normal_max_gap_mm);
-    ScanFuser fuser(calib.camera, so.tsdf);
+    ScanFuser fuser(calib.camera, so.tsdf, so.free_space);
     // Burst `index` of the source, rendered or read (again, for the refusion pass).
     bool trace_truth = false;  // per-burst truth maps, for the trace's reconstruction figures
     auto load_burst = [&](int64_t index, Burst* b) -> Status {
