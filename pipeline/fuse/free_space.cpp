@@ -64,25 +64,22 @@ int64_t FreeSpaceTest::TestAndRemember(const cv::Mat& points_in_cam, const Rigid
   int64_t n = 0;
   if (o_.enabled && !refs_.empty()) {
     // The nearest references by camera centre.
-    std::vector<std::pair<double, int>>& order = order_;
-    order.clear();
+    order_.clear();
     for (int k = 0; k < static_cast<int>(refs_.size()); ++k) {
       const double d = (refs_[static_cast<size_t>(k)].centre_in_world - world_from_cam.translation()).norm();
-      if (d <= o_.max_centre_distance_mm) order.emplace_back(d, k);
+      if (d <= o_.max_centre_distance_mm) order_.emplace_back(d, k);
     }
-    std::sort(order.begin(), order.end());
+    std::sort(order_.begin(), order_.end());
     near_.clear();
-    for (size_t i = 0; i < order.size() && near_.size() < static_cast<size_t>(o_.nearest_references); ++i) near_.push_back(order[i].second);
+    for (size_t i = 0; i < order_.size() && near_.size() < static_cast<size_t>(o_.nearest_references); ++i) near_.push_back(order_[i].second);
     if (static_cast<int>(near_.size()) >= o_.min_votes) {
       // ref_from_cam for each tested reference, as float for the per-point loop.
-      std::vector<Eigen::Matrix3f>& rot = rot_;
-      std::vector<Eigen::Vector3f>& trans = trans_;
-      rot.resize(near_.size());
-      trans.resize(near_.size());
+      rot_.resize(near_.size());
+      trans_.resize(near_.size());
       for (size_t i = 0; i < near_.size(); ++i) {
         const Rigid3d ref_from_cam = refs_[static_cast<size_t>(near_[i])].cam_from_world * world_from_cam;
-        rot[i] = ref_from_cam.linear().cast<float>();
-        trans[i] = ref_from_cam.translation().cast<float>();
+        rot_[i] = ref_from_cam.linear().cast<float>();
+        trans_[i] = ref_from_cam.translation().cast<float>();
       }
       const float margin = static_cast<float>(o_.margin_mm);
       const float fx = static_cast<float>(fx_), fy = static_cast<float>(fy_), cx = static_cast<float>(cx_), cy = static_cast<float>(cy_);
@@ -93,7 +90,7 @@ int64_t FreeSpaceTest::TestAndRemember(const cv::Mat& points_in_cam, const Rigid
         for (size_t i = 0; i < near_.size() && votes < o_.min_votes; ++i) {
           // Stop when min_votes is out of reach of the references left.
           if (votes + static_cast<int>(near_.size() - i) < o_.min_votes) break;
-          const Eigen::Vector3f r = rot[i] * q + trans[i];
+          const Eigen::Vector3f r = rot_[i] * q + trans_[i];
           if (!(r.z() > 0)) continue;
           const int u = static_cast<int>(std::floor(fx * r.x() / r.z() + cx));
           const int v = static_cast<int>(std::floor(fy * r.y() / r.z() + cy));

@@ -64,6 +64,7 @@ class FreeSpaceTest {
   int64_t TestAndRemember(const cv::Mat& points_in_cam, const Rigid3d& world_from_cam, cv::Mat* rejected);
 
   int references() const { return static_cast<int>(refs_.size()); }
+  const FreeSpaceOptions& options() const { return o_; }
 
  private:
   struct Reference {

@@ -38,6 +38,12 @@ cv::Mat Render(const PinholeBrownConrady& cam, const Rigid3d& world_from_cam, co
   return pts;
 }
 
+// Moves a view's points in `patch` to `scale` of their depth (along their rays).
+void ScalePatch(cv::Mat* points, const cv::Rect& patch, float scale) {
+  for (int v = patch.y; v < patch.y + patch.height; ++v)
+    for (int u = patch.x; u < patch.x + patch.width; ++u) points->at<cv::Vec3f>(v, u) *= scale;
+}
+
 // A step: the plane z = 50 mm for x < 0, z = 45 mm for x ≥ 0, and the wall x = 0 between them.
 double Step(const Eigen::Vector3d& o, const Eigen::Vector3d& d) {
   double best = std::numeric_limits<double>::infinity();
@@ -72,8 +78,7 @@ TEST(FreeSpace, APatchInFrontOfWhatEarlierViewsSawIsRejected) {
   const Rigid3d pose = WorldFromCam(0.4, 0.5);
   cv::Mat pts = Render(cam, pose, plane);
   const cv::Rect patch(60, 40, 30, 20);
-  for (int v = patch.y; v < patch.y + patch.height; ++v)
-    for (int u = patch.x; u < patch.x + patch.width; ++u) pts.at<cv::Vec3f>(v, u) *= (47.5f / 50.0f);
+  ScalePatch(&pts, patch, 47.5f / 50.0f);
   const int64_t n = test.TestAndRemember(pts, pose, &rejected);
   EXPECT_EQ(n, patch.area());
   EXPECT_EQ(cv::countNonZero(rejected(patch)), patch.area());
@@ -84,8 +89,7 @@ TEST(FreeSpace, APatchInFrontOfWhatEarlierViewsSawIsRejected) {
     (void)again.TestAndRemember(Render(cam, p, plane), p, &rejected);
   }
   cv::Mat near = Render(cam, pose, plane);
-  for (int v = patch.y; v < patch.y + patch.height; ++v)
-    for (int u = patch.x; u < patch.x + patch.width; ++u) near.at<cv::Vec3f>(v, u) *= (49.5f / 50.0f);
+  ScalePatch(&near, patch, 49.5f / 50.0f);
   EXPECT_EQ(again.TestAndRemember(near, pose, &rejected), 0);
 }
 

@@ -387,12 +387,20 @@ Rigid3d Tracker::Predict() const {
   return k <= 8 ? Rigid3d(last_pose_ * InterpolateRigid(Rigid3d::Identity(), step, k)) : last_pose_;
 }
 
-bool Tracker::ConfirmReentry(const SurfacePoints& samples, TrackResult* out) {
-  candidate_.pending = false;
+IcpOptions Tracker::LocalSearchIcp() const {
   IcpOptions icp = o_.icp;
   icp.levels.front().max_distance_mm = std::max(icp.levels.front().max_distance_mm, o_.local_search_gate_mm);
+  // A view found this way re-enters the model (after ICP from the prediction failed, or after a gap
+  // or a loss) and must meet relocalise_max_rmse_mm like a feature relocalisation: on the typodont,
+  // views fitted onto the neighbouring, similar tooth after a gap came back at 59–60 µm (6.7 and
+  // 31 mm off) under tracking's 60 µm, while every correct re-entry on the real arch was at 11–31 µm.
   icp.max_rmse_mm = std::min(icp.max_rmse_mm, o_.relocalise_max_rmse_mm);
-  const IcpResult r = RunIcp(samples, candidate_.world_from_cam, icp);
+  return icp;
+}
+
+bool Tracker::ConfirmReentry(const SurfacePoints& samples, TrackResult* out) {
+  candidate_.pending = false;
+  const IcpResult r = RunIcp(samples, candidate_.world_from_cam, LocalSearchIcp());
   if (!r.ok) {
     out->reason = "icp: " + r.reason;
     return false;
@@ -414,13 +422,7 @@ bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out) 
   std::vector<Rigid3d> starts = {Predict(), last_pose_};
   for (int i = 0; i < std::min<int>(o_.local_candidates, static_cast<int>(order.size())); ++i)
     starts.push_back(graph_.pose(keyframes_[static_cast<size_t>(order[static_cast<size_t>(i)].second)].node));
-  IcpOptions icp = o_.icp;
-  icp.levels.front().max_distance_mm = std::max(icp.levels.front().max_distance_mm, o_.local_search_gate_mm);
-  // A view found here re-enters the model (after ICP from the prediction failed, or after a gap or
-  // a loss) and must meet relocalise_max_rmse_mm like a feature relocalisation: on the typodont,
-  // views fitted onto the neighbouring, similar tooth after a gap came back at 59–60 µm (6.7 and
-  // 31 mm off) under tracking's 60 µm, while every correct re-entry on the real arch was at 11–31 µm.
-  icp.max_rmse_mm = std::min(icp.max_rmse_mm, o_.relocalise_max_rmse_mm);
+  const IcpOptions icp = LocalSearchIcp();
   // The search is local: its result must also be a consistent motion from the last accepted pose
   // (over the views elapsed); a far return is left to the feature relocalisation.
   std::string last_reason;

@@ -227,6 +227,9 @@ class Tracker {
  private:
   IcpResult RunIcp(const SurfacePoints& source, const Rigid3d& initial, const IcpOptions& icp) const;
   Rigid3d Predict() const;
+  // ICP of the local search and of a re-entry's confirmation: o_.icp with the first level's gate
+  // widened to local_search_gate_mm and the residual limit relocalise_max_rmse_mm.
+  IcpOptions LocalSearchIcp() const;
   bool RelocaliseLocally(const SurfacePoints& samples, TrackResult* out);
   bool Relocalise(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& texture, TrackResult* out);
   void MaybeKeyframe(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& normals,

@@ -114,7 +114,7 @@ bool ScanRegistrar::ViewPose(int64_t index, Rigid3d* world_from_cam) const {
 }
 
 ScanFuser::ScanFuser(const PinholeBrownConrady& camera, const TsdfOptions& options, const FreeSpaceOptions& free_space)
-    : camera_(camera), tsdf_(std::make_unique<TsdfVolume>(options)), free_space_options_(free_space), free_space_(camera, free_space) {}
+    : camera_(camera), tsdf_(std::make_unique<TsdfVolume>(options)), free_space_(camera, free_space) {}
 
 Status ScanFuser::Fuse(const ReconstructedView& view, const Rigid3d& world_from_cam) {
   const auto t0 = Clock::now();

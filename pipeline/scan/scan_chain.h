@@ -148,7 +148,7 @@ class ScanFuser {
   ScanFuser(const PinholeBrownConrady& camera, const TsdfOptions& options, const FreeSpaceOptions& free_space = {});
   // Fuses the view's points except those the free-space test rejects (pipeline/fuse/free_space.h).
   [[nodiscard]] Status Fuse(const ReconstructedView& view, const Rigid3d& world_from_cam);
-  const FreeSpaceOptions& free_space_options() const { return free_space_options_; }
+  const FreeSpaceOptions& free_space_options() const { return free_space_.options(); }
   int64_t free_space_rejected() const { return free_space_rejected_; }  // points, over all views
   TsdfVolume& volume() { return *tsdf_; }
   const TsdfVolume& volume() const { return *tsdf_; }
@@ -164,7 +164,6 @@ class ScanFuser {
  private:
   PinholeBrownConrady camera_;
   std::unique_ptr<TsdfVolume> tsdf_;
-  FreeSpaceOptions free_space_options_;
   FreeSpaceTest free_space_;
   cv::Mat rejected_, masked_;  // per view, reused: the free-space test's mask, the points without them
   int64_t free_space_rejected_ = 0;
