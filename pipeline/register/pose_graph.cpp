@@ -41,9 +41,15 @@ struct RelativePoseCost {
     const Eigen::Quaternion<T> q_ab = qa_inv * qb;
     const Eigen::Matrix<T, 3, 1> p_ab = qa_inv * (pb - pa);
     const Eigen::Quaternion<T> dq = q_.template cast<T>().conjugate() * q_ab;
+    // q and −q are the same rotation, and the nodes' quaternions come in either sign (Eigen's
+    // conversion from a matrix picks one by the largest diagonal entry, so two nearby orientations
+    // can land in opposite hemispheres). 2·vec(dq) is the small rotation θ only for the
+    // representative with w ≥ 0; with the other, r_θ flips sign while r_t does not, and an
+    // information that couples rotation and translation (ICP's) then weighs a wrong residual.
+    const T sign = dq.w() < T(0) ? T(-1) : T(1);
     Eigen::Matrix<T, 6, 1> r0;
     r0.template head<3>() = p_ab - t_.template cast<T>();
-    r0.template tail<3>() = T(2.0) * dq.vec();
+    r0.template tail<3>() = T(2.0) * sign * dq.vec();
     Eigen::Map<Eigen::Matrix<T, 6, 1>> r(res);
     r = S_.template cast<T>() * r0;
     return true;

@@ -2,11 +2,13 @@
 // (nonlinear least squares; the residual of Ceres' own pose_graph_3d example formulation,
 // Kümmerle et al. 2011 g2o / Grisetti et al. 2010 "A tutorial on graph-based SLAM"):
 //   for an edge i→j with measurement T_ij = node_i_from_node_j,
-//   r = [ R_iᵀ (t_j − t_i) − t_ij ;  2 · vec(q_ijᵀ · q_iᵀ q_j) ] scaled by (1/σ_t, 1/σ_r),
-// (or whitened by the edge's full information matrix, e.g. from the ICP that measured it),
-// with each node's pose world_from_node as (t, unit quaternion on Ceres' EigenQuaternionManifold),
-// the first node held fixed, and a Huber loss on loop-closure edges so that one false closure
-// cannot bend the whole arch. Units: mm, rad.
+//   r = [ R_iᵀ (t_j − t_i) − t_ij ;  2 · vec(q_ijᵀ · q_iᵀ q_j) ] scaled by (1/σ_t, 1/σ_r)
+// (or whitened by the edge's full information matrix, e.g. from the ICP that measured it), where
+// the quaternion product is taken with w ≥ 0: q and −q are the same rotation, but only that sign
+// gives r_θ = θ, and a full information couples the sign of r_θ with r_t. Each node's pose
+// world_from_node is (t, unit quaternion on Ceres' EigenQuaternionManifold), the first node is held
+// fixed, and loop-closure edges have a Huber loss so that one false closure cannot bend the whole
+// arch. Units: mm, rad.
 #pragma once
 
 #include <string>

@@ -148,5 +148,63 @@ TEST(PoseGraph, AWeakDirectionGivesWayToWellMeasuredEdges) {
   EXPECT_LT(TranslationDistanceMm(g.pose(2), truth[2]), 0.005);
 }
 
+// A change of world frame (every node moved by the same rigid G) changes nothing relative: the
+// edges' residuals and the optimised relative poses stay the same. With G a half turn about an
+// axis between +x and −y, the nodes' quaternions fall in opposite hemispheres (Eigen picks the
+// sign by the largest diagonal entry, x for some nodes and y for others), and an information that
+// couples rotation and translation (ICP's always does) must still weigh the same residual.
+TEST(PoseGraph, AChangeOfWorldFrameChangesNothingRelative) {
+  std::mt19937 rng(11);
+  std::normal_distribution<double> N(0, 1);
+  const int n = 6;
+  std::vector<Rigid3d> truth;
+  for (int i = 0; i < n; ++i) {
+    Rigid3d t = CirclePose(i, 40, 25);
+    t.linear() = Eigen::AngleAxisd(0.03 * N(rng), Eigen::Vector3d(N(rng), N(rng), N(rng)).normalized()) * t.linear();
+    truth.push_back(t);
+  }
+  std::vector<PoseGraphEdge> edges;
+  for (int a = 0; a < n; ++a)
+    for (int b = a + 1; b < std::min(n, a + 3); ++b) {
+      PoseGraphEdge e;
+      e.from = a;
+      e.to = b;
+      e.from_from_to = truth[static_cast<size_t>(a)].inverse() * truth[static_cast<size_t>(b)];
+      e.from_from_to.translation() += Eigen::Vector3d(0.02 * N(rng), 0.02 * N(rng), 0.02 * N(rng));  // measurement noise
+      Eigen::Matrix<double, 6, 6> A;
+      for (int i = 0; i < 36; ++i) A(i / 6, i % 6) = N(rng);
+      e.information = EdgeInformationFromIcp(A * A.transpose() * 1e4, e.from_from_to, 1.0);
+      e.loop = b - a > 1;
+      edges.push_back(e);
+    }
+  auto build = [&](const Rigid3d& G) {
+    PoseGraph g;
+    for (const Rigid3d& t : truth) g.AddNode(G * t);
+    for (const PoseGraphEdge& e : edges) g.AddEdge(e);
+    return g;
+  };
+  PoseGraph ref = build(Rigid3d::Identity());
+  std::vector<double> ref_residuals;
+  for (int k = 0; k < static_cast<int>(edges.size()); ++k) ref_residuals.push_back(ref.EdgeResidual(k));
+  PoseGraphSummary s;
+  ASSERT_TRUE(ref.Optimize({}, &s).ok());
+  for (const double tilt : {0.0, 0.01, -0.01}) {
+    Rigid3d G = Rigid3d::Identity();
+    G.linear() = Eigen::AngleAxisd(M_PI, Eigen::Vector3d(1, -1, tilt).normalized()).toRotationMatrix();
+    G.translation() = Eigen::Vector3d(5, -3, 2);
+    PoseGraph g = build(G);
+    for (int k = 0; k < static_cast<int>(edges.size()); ++k)
+      EXPECT_NEAR(g.EdgeResidual(k), ref_residuals[static_cast<size_t>(k)], 1e-6 * (1 + ref_residuals[static_cast<size_t>(k)]))
+          << "edge " << k << ", tilt " << tilt;
+    ASSERT_TRUE(g.Optimize({}, &s).ok());
+    for (int i = 1; i < n; ++i) {
+      const Rigid3d rel = (G * ref.pose(0)).inverse() * g.pose(i);
+      const Rigid3d rel_ref = ref.pose(0).inverse() * ref.pose(i);
+      EXPECT_LT(TranslationDistanceMm(rel, rel_ref), 1e-5) << "node " << i << ", tilt " << tilt;
+      EXPECT_LT(RotationAngleRad(rel, rel_ref), 1e-7) << "node " << i << ", tilt " << tilt;
+    }
+  }
+}
+
 }  // namespace
 }  // namespace d3d

@@ -38,6 +38,37 @@ int Fail(const Status& s) {
   return 1;
 }
 
+void PrintPose(std::FILE* f, const Rigid3d& p) {
+  const Eigen::Quaterniond q(p.linear());
+  std::fprintf(f, " %.6f %.6f %.6f %.9f %.9f %.9f %.9f", p.translation().x(), p.translation().y(), p.translation().z(),
+               q.x(), q.y(), q.z(), q.w());
+}
+
+// --pose-graph: the keyframes' nodes (optimised pose, and the true one when known) and every edge
+// with its measurement and information, for offline study of what bends the arch.
+Status WritePoseGraph(const std::string& path, const ScanRegistrar& registrar, const std::map<uint64_t, Rigid3d>& true_poses) {
+  std::FILE* f = std::fopen(path.c_str(), "w");
+  if (!f) return IoError("cannot write '" + path + "'");
+  std::fprintf(f, "# node <node> <view> <burst> <optimised t q> [<true t q>]\n"
+                  "# edge <from> <to> <loop> <measured from_from_to t q> <information 6x6 row-major>\n");
+  const Tracker& tracker = registrar.tracker();
+  for (const Keyframe& kf : tracker.keyframes()) {
+    const uint64_t burst = registrar.views()[static_cast<size_t>(kf.view)].burst_seq;
+    std::fprintf(f, "node %d %lld %llu", kf.node, static_cast<long long>(kf.view), static_cast<unsigned long long>(burst));
+    PrintPose(f, tracker.graph().pose(kf.node));
+    if (const auto it = true_poses.find(burst); it != true_poses.end()) PrintPose(f, it->second);
+    std::fprintf(f, "\n");
+  }
+  for (const PoseGraphEdge& e : tracker.graph().edges()) {
+    std::fprintf(f, "edge %d %d %d", e.from, e.to, e.loop ? 1 : 0);
+    PrintPose(f, e.from_from_to);
+    for (int i = 0; i < 36; ++i) std::fprintf(f, " %.6g", e.information(i / 6, i % 6));
+    std::fprintf(f, "\n");
+  }
+  const bool ok = std::ferror(f) == 0;
+  return std::fclose(f) == 0 && ok ? Status::Ok() : IoError("cannot write '" + path + "'");
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -45,7 +76,7 @@ int main(int argc, char** argv) {
                "Input: the virtual probe (--sim MODEL) or a folder of bursts written by d3d-sim (--bursts DIR).\n"
                "Output: DIR/scan.ply, DIR/scan.stl, DIR/poses.txt (TUM, mm), DIR/report.json, DIR/heatmap.png,\n"
                "DIR/truth_poses.txt (the true poses of the fused views, scene frame, when the source knows them)."};
-  std::string sim_model, bursts_dir, trajectory = "full-arch", out_dir, association = "kdtree", trace_path;
+  std::string sim_model, bursts_dir, trajectory = "full-arch", out_dir, association = "kdtree", trace_path, graph_path;
   uint32_t seed = 1;
   int every = 1;
   int64_t max_bursts = -1, first = 0;
@@ -96,6 +127,10 @@ int main(int argc, char** argv) {
                  "debug: write one line per burst (burst, accepted, state, icp rmse um, overlap, eigen ratio,\n"
                  "correspondences, new keyframe, loops, true step error um / deg; with --sim also the registered view's\n"
                  "RMS error um, wrong fringe orders % and tooth pixels reconstructed %) to this file");
+  app.add_option("--pose-graph", graph_path,
+                 "debug: write the optimised pose graph to this file: one line per keyframe (node, view, burst, optimised\n"
+                 "and, when known, true world_from_cam: t mm, quaternion x y z w) and per edge (from, to, loop, measured\n"
+                 "from_from_to, its 6x6 information row-major, zeros when the edge uses its sigmas)");
   app.add_flag("--json", json, "print report.json as one line on stdout");
   CLI11_PARSE(app, argc, argv);
   if (sim_model.empty() == bursts_dir.empty()) {
@@ -300,6 +335,9 @@ int main(int argc, char** argv) {
         if (v.accepted) acc_truth.push_back(true_poses.at(v.burst_seq));
       if (const Status s = WriteTumPoses((fs::path(out_dir) / "truth_poses.txt").string(), result.pose_t_ns, acc_truth); !s.ok())
         return Fail(s);
+    }
+    if (!graph_path.empty()) {
+      if (const Status s = WritePoseGraph(graph_path, registrar, true_poses); !s.ok()) return Fail(s);
     }
     if (json) std::printf("%s\n", j.dump().c_str());
     else {
