@@ -1,6 +1,7 @@
 #include "common/core/rigid.h"
 
 #include <cmath>
+#include <cstdio>
 
 #include "common/core/status.h"
 
@@ -11,6 +12,14 @@ Rigid3d RigidFromQuaternion(const Eigen::Quaterniond& q, const Eigen::Vector3d& 
   T.linear() = q.normalized().toRotationMatrix();
   T.translation() = t_mm;
   return T;
+}
+
+std::string TumPoseFields(const Rigid3d& pose) {
+  const Eigen::Quaterniond q(pose.linear());
+  const Eigen::Vector3d t = pose.translation();
+  char buf[192];
+  std::snprintf(buf, sizeof buf, "%.6f %.6f %.6f %.9f %.9f %.9f %.9f", t.x(), t.y(), t.z(), q.x(), q.y(), q.z(), q.w());
+  return buf;
 }
 
 Rigid3d InterpolateRigid(const Rigid3d& a, const Rigid3d& b, double s) {

@@ -20,6 +20,10 @@ Rigid3d InterpolateRigid(const Rigid3d& a, const Rigid3d& b, double s);
 double RotationAngleRad(const Rigid3d& a, const Rigid3d& b);
 double TranslationDistanceMm(const Rigid3d& a, const Rigid3d& b);
 
+// The pose fields of a TUM trajectory line, "tx ty tz qx qy qz qw" (translation in mm to 1 nm,
+// quaternion to 1e-9), space-separated with no leading or trailing space.
+std::string TumPoseFields(const Rigid3d& pose);
+
 // Rotation whose z axis is `forward` and whose x axis is as close as possible to `right_hint`
 // (both in the target frame; they must not be parallel). Used to aim cameras and projectors.
 Eigen::Matrix3d LookRotation(const Eigen::Vector3d& forward, const Eigen::Vector3d& right_hint);

@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <sstream>
+#include <string>
 
 namespace d3d {
 namespace {
@@ -25,6 +27,24 @@ TEST(Rigid, LookRotationIsProperAndAims) {
   EXPECT_TRUE(R.col(2).isApprox(Eigen::Vector3d(0, 0, -1)));
   EXPECT_TRUE(R.col(0).isApprox(Eigen::Vector3d(1, 0, 0)));
   EXPECT_THROW(LookRotation({0, 0, 1}, {0, 0, 2}), std::invalid_argument);
+}
+
+TEST(Rigid, TumPoseFieldsReadBackToThePose) {
+  const Rigid3d p =
+      RigidFromQuaternion(Eigen::Quaterniond(Eigen::AngleAxisd(2.5, Eigen::Vector3d(1, -2, 0.5).normalized())), {-12.25, 3.5, 48.125});
+  const std::string s = TumPoseFields(p);
+  EXPECT_EQ(s.front(), '-');
+  EXPECT_NE(s.back(), ' ');
+  std::istringstream in(s);
+  double t[3], q[4];
+  for (double& v : t) in >> v;
+  for (double& v : q) in >> v;
+  ASSERT_FALSE(in.fail()) << s;
+  std::string rest;
+  EXPECT_FALSE(in >> rest) << "7 fields, not more: " << s;
+  const Rigid3d r = RigidFromQuaternion(Eigen::Quaterniond(q[3], q[0], q[1], q[2]), {t[0], t[1], t[2]});
+  EXPECT_LT(TranslationDistanceMm(r, p), 1e-6);
+  EXPECT_LT(RotationAngleRad(r, p), 1e-8);
 }
 
 }  // namespace

@@ -49,6 +49,8 @@ void TrackerOptions::Check() const {
   D3D_CHECK_MSG(relocalise_candidates >= 1 && loop_min_separation >= 1 && max_loop_candidates >= 0 && near_loop_candidates >= 0,
                 "TrackerOptions: counts");
   D3D_CHECK_MSG(edge_information_scale > 0, "TrackerOptions: edge_information_scale > 0");
+  D3D_CHECK_MSG(near_loop_information_factor > 0 && near_loop_information_factor <= 1,
+                "TrackerOptions: near_loop_information_factor in (0, 1]");
   D3D_CHECK_MSG(reregister_min_gain >= 0, "TrackerOptions: reregister_min_gain >= 0");
   D3D_CHECK_MSG(reregister_first_level >= 0 && reregister_first_level < static_cast<int>(icp.levels.size()),
                 "TrackerOptions: reregister_first_level must index icp.levels");
@@ -198,6 +200,14 @@ std::unique_ptr<PointMap> OccupancyMap(const SurfacePoints& b, double voxel_mm) 
 // Fraction of `a` (frame A) that lies in occupied voxels of `b` (frame B) given B_from_A.
 double OverlapIndex(const SurfacePoints& a, const SurfacePoints& b, const Rigid3d& b_from_a, double voxel_mm) {
   return OccupancyMap(b, voxel_mm)->Overlap(a, b_from_a);
+}
+
+// Multiplies an edge's weight by `factor`: its information matrix, or (an edge on σs) its
+// variances by 1/factor.
+void ScaleInformation(double factor, PoseGraphEdge* e) {
+  e->information *= factor;
+  e->sigma_translation_mm /= std::sqrt(factor);
+  e->sigma_rotation_rad /= std::sqrt(factor);
 }
 }  // namespace
 
@@ -582,6 +592,7 @@ int Tracker::DetectLoops(int k) {
       PoseGraphEdge e;
       if (!KeyframeEdge((*cand)[i].second, k, &e)) continue;
       e.loop = true;
+      if (cand == &near) ScaleInformation(o_.near_loop_information_factor, &e);
       graph_.AddEdge(e);
       ++here;
     }

@@ -279,6 +279,58 @@ TEST_F(TrackerScan, ALostTrackReentersOnlyAtTheRelocalisationResidual) {
 // drifting tracked poses: a chain of views with an injected drift (every step turns 0.05° and
 // advances 11 µm too far, as a biased frame-to-model registration would) is straightened by the
 // pose graph of measured edges (consecutive and second neighbours).
+TEST_F(TrackerScan, NearLoopsCarryTheirFactorOfTheInformation) {
+  // The same views through trackers with near_loop_information_factor 1 and 0.25: the same edges,
+  // and only the loops to recent keyframes (fewer than loop_min_separation back) weigh a quarter.
+  TrackerOptions o;
+  o.min_view_samples /= 4;
+  o.keyframe_overlap = 0.85;   // a keyframe every ~1.5 mm
+  o.loop_min_separation = 3;   // a short strip there and back has both kinds of loop
+  o.near_loop_information_factor = 1;
+  TrackerOptions oq = o;
+  oq.near_loop_information_factor = 0.25;
+  Tracker full(small_cam_, o), quarter(small_cam_, oq);
+  std::vector<Rigid3d> path;
+  for (double x = -4; x <= 4.01; x += 0.5) path.push_back(Truth(x, 0));
+  for (double x = 4; x >= -4.01; x -= 0.5) path.push_back(Truth(x, 1.5));
+  for (size_t i = 0; i < path.size(); ++i) {
+    const auto v = RenderHeightField(hf_, small_cam_, path[i], 0.004, static_cast<uint32_t>(i + 1));
+    ASSERT_TRUE(full.Track(v.points, v.normals, v.quality, v.texture).accepted) << "view " << i;
+    ASSERT_TRUE(quarter.Track(v.points, v.normals, v.quality, v.texture).accepted) << "view " << i;
+  }
+  const auto& a = full.graph().edges();
+  const auto& b = quarter.graph().edges();
+  ASSERT_EQ(a.size(), b.size());
+  int near = 0, far = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    ASSERT_EQ(a[i].from, b[i].from);
+    ASSERT_EQ(a[i].to, b[i].to);
+    ASSERT_EQ(a[i].loop, b[i].loop);
+    EXPECT_TRUE(a[i].from_from_to.matrix() == b[i].from_from_to.matrix()) << "edge " << i;
+    const bool is_near = a[i].loop && a[i].to - a[i].from < o.loop_min_separation;
+    near += is_near;
+    far += a[i].loop && !is_near;
+    const double f = is_near ? 0.25 : 1.0;
+    EXPECT_LE((b[i].information - f * a[i].information).norm(), 1e-9 * a[i].information.norm()) << "edge " << i;
+    // An odometry edge whose keyframe ICP failed is on σs (no information).
+    EXPECT_NEAR(b[i].sigma_translation_mm, a[i].sigma_translation_mm / std::sqrt(f), 1e-12) << "edge " << i;
+    EXPECT_NEAR(b[i].sigma_rotation_rad, a[i].sigma_rotation_rad / std::sqrt(f), 1e-12) << "edge " << i;
+    if (a[i].loop) {
+      EXPECT_GT(a[i].information.norm(), 0) << "edge " << i;
+    }
+  }
+  std::printf("[ loops    ] %zu keyframes, %d near and %d far loops\n", full.keyframes().size(), near, far);
+  EXPECT_GT(near, 0) << "the strip must make near loops";
+  EXPECT_GT(far, 0) << "the strip must make far loops";
+  EXPECT_THROW(
+      [] {
+        TrackerOptions bad;
+        bad.near_loop_information_factor = 0;
+        bad.Check();
+      }(),
+      std::invalid_argument);
+}
+
 TEST_F(TrackerScan, KeyframeIcpEdgesRemoveAnInjectedDrift) {
   const int n = 8;
   std::vector<Rigid3d> truth;

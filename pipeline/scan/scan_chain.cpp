@@ -300,13 +300,11 @@ Status WriteTumPoses(const std::string& path, const std::vector<int64_t>& t_ns, 
   std::ofstream f(path);
   if (!f) return IoError("cannot write '" + path + "'");
   f << "# timestamp_s tx ty tz qx qy qz qw (translation in mm; model_from_probe, model = first view's camera)\n";
-  char line[256];
+  char stamp[48];
   for (size_t i = 0; i < poses.size() && i < t_ns.size(); ++i) {
-    const Eigen::Quaterniond q(poses[i].linear());
-    const Eigen::Vector3d t = poses[i].translation();
-    std::snprintf(line, sizeof line, "%lld.%09lld %.6f %.6f %.6f %.9f %.9f %.9f %.9f\n", static_cast<long long>(t_ns[i] / 1000000000),
-                  static_cast<long long>(t_ns[i] % 1000000000), t.x(), t.y(), t.z(), q.x(), q.y(), q.z(), q.w());
-    f << line;
+    std::snprintf(stamp, sizeof stamp, "%lld.%09lld", static_cast<long long>(t_ns[i] / 1000000000),
+                  static_cast<long long>(t_ns[i] % 1000000000));
+    f << stamp << ' ' << TumPoseFields(poses[i]) << '\n';
   }
   return f ? Status::Ok() : IoError("write failed: '" + path + "'");
 }

@@ -38,18 +38,15 @@ int Fail(const Status& s) {
   return 1;
 }
 
-void PrintPose(std::FILE* f, const Rigid3d& p) {
-  const Eigen::Quaterniond q(p.linear());
-  std::fprintf(f, " %.6f %.6f %.6f %.9f %.9f %.9f %.9f", p.translation().x(), p.translation().y(), p.translation().z(),
-               q.x(), q.y(), q.z(), q.w());
-}
+void PrintPose(std::FILE* f, const Rigid3d& p) { std::fprintf(f, " %s", TumPoseFields(p).c_str()); }
 
-// --pose-graph: the keyframes' nodes (optimised pose, and the true one when known) and every edge
+// --pose-graph: the keyframes' nodes (their pose in the graph: optimised, or the tracked one when
+// the graph was not optimised (--no-loops); and the true one when known) and every edge
 // with its measurement and information, for offline study of what bends the arch.
 Status WritePoseGraph(const std::string& path, const ScanRegistrar& registrar, const std::map<uint64_t, Rigid3d>& true_poses) {
   std::FILE* f = std::fopen(path.c_str(), "w");
   if (!f) return IoError("cannot write '" + path + "'");
-  std::fprintf(f, "# node <node> <view> <burst> <optimised t q> [<true t q>]\n"
+  std::fprintf(f, "# node <node> <view> <burst> <graph t q> [<true t q>]\n"
                   "# edge <from> <to> <loop> <measured from_from_to t q> <information 6x6 row-major>\n");
   const Tracker& tracker = registrar.tracker();
   for (const Keyframe& kf : tracker.keyframes()) {
@@ -128,9 +125,10 @@ int main(int argc, char** argv) {
                  "correspondences, new keyframe, loops, true step error um / deg; with --sim also the registered view's\n"
                  "RMS error um, wrong fringe orders % and tooth pixels reconstructed %) to this file");
   app.add_option("--pose-graph", graph_path,
-                 "debug: write the optimised pose graph to this file: one line per keyframe (node, view, burst, optimised\n"
-                 "and, when known, true world_from_cam: t mm, quaternion x y z w) and per edge (from, to, loop, measured\n"
-                 "from_from_to, its 6x6 information row-major, zeros when the edge uses its sigmas)");
+                 "debug: write the pose graph to this file: one line per keyframe (node, view, burst, its world_from_cam\n"
+                 "in the graph: optimised, or with --no-loops the tracked one; and, when known, the true one: t mm,\n"
+                 "quaternion x y z w) and per edge (from, to, loop, measured from_from_to, its 6x6 information\n"
+                 "row-major, zeros when the edge uses its sigmas)");
   app.add_flag("--json", json, "print report.json as one line on stdout");
   CLI11_PARSE(app, argc, argv);
   if (sim_model.empty() == bursts_dir.empty()) {
