@@ -50,8 +50,13 @@ double DistortionMapDifferencePx(const PinholeBrownConrady& a, const PinholeBrow
   return worst;
 }
 
+// Without the edge fill (pipeline/unwrap/edge_fill.h): the pixels it fills beside the sphere's
+// silhouette carry the camera blur's error (tens of µm), whatever the calibration, and would mask
+// what this measures.
 double ReconstructionRmsUm(const Burst& burst, const TriangleMesh& scene, const ProbeCalibration& calibration) {
-  Reconstructor recon(calibration);
+  ReconstructOptions options;
+  options.edge_fill.passes = 0;
+  Reconstructor recon(calibration, options);
   std::vector<cv::Mat> frames;
   for (int n = 0; n < calibration.pattern.steps; ++n) frames.push_back(burst.frames[static_cast<size_t>(n)].image);
   ReconstructedView view;

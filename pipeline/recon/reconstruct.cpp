@@ -54,6 +54,7 @@ ReconstructOptions ScaleToFringePeriod(const ReconstructOptions& options, double
   o.unwrap.marker_tile_rival_votes = ScaleArea(o.unwrap.marker_tile_rival_votes, s);
   o.unwrap.max_violations = ScaleLength(o.unwrap.max_violations, s, false);
   o.unwrap.neck_radius = ScaleLength(o.unwrap.neck_radius, s, false);
+  o.edge_fill.passes = ScaleLength(o.edge_fill.passes, s, false);
   return o;
 }
 
@@ -61,6 +62,7 @@ void ReconstructOptions::Check() const {
   phase.Check();
   quality.Check();
   unwrap.Check();
+  edge_fill.Check();
   triangulate.Check();
   D3D_CHECK_MSG(normal_max_gap_mm > 0, "normal_max_gap_mm must be positive");
 }
@@ -70,6 +72,7 @@ Reconstructor::Reconstructor(const ProbeCalibration& calibration, const Reconstr
       options_(Effective(calibration, options)),
       phase_(calibration.pattern, calibration.projector_gamma, options_.phase),
       unwrapper_(WithMarkerOf(options_.unwrap, calibration.pattern)),
+      edge_filler_(options_.edge_fill, options_.unwrap),
       triangulator_(calibration, options_.triangulate) {
   options_.Check();
   triangulator_.PhaseRange(&phase_min_, &phase_max_);
@@ -111,6 +114,10 @@ Status Reconstructor::Reconstruct(const std::vector<cv::Mat>& frames, Reconstruc
   out->ms_quality = MsSince(t);
   t = std::chrono::steady_clock::now();
   D3D_RETURN_IF_ERROR(unwrapper_.Run(out->phase.phi, out->quality, out->phase.marker, phase_min_, phase_max_, &out->unwrap));
+  EdgeFillStats fill;
+  D3D_RETURN_IF_ERROR(edge_filler_.Fill(out->phase.phi, out->phase.modulation, out->quality_reason, phase_min_, phase_max_,
+                                        &out->unwrap.Phi, &out->unwrap.order, &out->quality, &fill));
+  out->pixels_edge_filled = fill.pixels_filled;
   out->ms_unwrap = MsSince(t);
   t = std::chrono::steady_clock::now();
   D3D_RETURN_IF_ERROR(triangulator_.Triangulate(out->unwrap.Phi, &out->points_in_cam));

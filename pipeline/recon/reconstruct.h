@@ -4,6 +4,7 @@
 //   frames → wrapped phase φ, modulation B, marker (PhaseEstimator)
 //          → quality map (ComputeQualityMap: modulation–Laplace)
 //          → absolute phase Φ, fringe order k (Unwrapper: quality-guided, marker/volume anchored)
+//          → Φ for the albedo-edge cut beside the anchored pixels (EdgeFiller)
 //          → points (PhaseTriangulator), normals (OrganisedNormals)
 // A Reconstructor owns every per-pixel constant and buffer, so a warm call does not allocate
 // for the same image size. Not thread-safe: one per thread.
@@ -17,6 +18,7 @@
 #include "common/core/status.h"
 #include "pipeline/phase/phase.h"
 #include "pipeline/triangulate/triangulate.h"
+#include "pipeline/unwrap/edge_fill.h"
 #include "pipeline/unwrap/quality_map.h"
 #include "pipeline/unwrap/unwrap.h"
 
@@ -26,6 +28,7 @@ struct ReconstructOptions {
   PhaseOptions phase;
   QualityOptions quality;
   UnwrapOptions unwrap;          // marker orders are taken from the calibration's pattern
+  EdgeFillOptions edge_fill;     // Φ for the albedo-edge cut beside anchored pixels (edge_fill.h)
   TriangulateOptions triangulate;
   double normal_max_gap_mm = 0.15;  // neighbours farther apart than this are a depth discontinuity
   // The stages' pixel sizes (marker detector boxes, κ tiles, region and vote counts, neck radius)
@@ -58,6 +61,7 @@ struct ReconstructedView {
   PhaseMaps phase;        // φ, B, A, marker ... (pipeline/phase)
   UnwrapResult unwrap;    // Φ, k, regions ... (pipeline/unwrap)
   int64_t points = 0;     // finite points
+  int64_t pixels_edge_filled = 0;  // of the unwrapped pixels, those filled in the albedo-edge cut (EdgeFiller)
   // Wall time of each stage on the calling thread, milliseconds.
   double ms_phase = 0, ms_quality = 0, ms_unwrap = 0, ms_triangulate = 0, ms_total = 0;
 };
@@ -82,6 +86,7 @@ class Reconstructor {
   ReconstructOptions options_;
   PhaseEstimator phase_;
   Unwrapper unwrapper_;
+  EdgeFiller edge_filler_;
   PhaseTriangulator triangulator_;
   cv::Mat phase_min_, phase_max_;
 };

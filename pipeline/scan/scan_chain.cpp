@@ -69,6 +69,10 @@ TrackResult ScanRegistrar::Register(ReconstructedView& view, uint64_t burst_seq,
   D3D_CHECK_MSG(given_poses_.empty(), "ScanRegistrar: Register after RegisterAtPose");
   const auto t0 = Clock::now();
   const int64_t index = static_cast<int64_t>(views_.size());
+  // The tracker reads the view's own buffers, or copies without the edge-filled points; the
+  // augmenter writes into the view, and then into the copies again.
+  const bool copy = view.pixels_edge_filled > 0;
+  if (copy) CopyWithoutEdgeFill(view);
   Tracker::ViewAugmenter augment;
   if (anchorer_) {
     augment = [&](const Rigid3d& world_from_cam, const PointMap& model) {
@@ -77,10 +81,12 @@ TrackResult ScanRegistrar::Register(ReconstructedView& view, uint64_t burst_seq,
       ms_anchor_ += st.ms;
       pixels_anchored_ += n;
       views_anchored_ += n > 0;
+      if (n > 0 && copy) CopyWithoutEdgeFill(view);
       return n > 0;
     };
   }
-  TrackResult r = tracker_.Track(view.points_in_cam, view.normals, view.quality, view.texture, augment, reference_ns);
+  TrackResult r = tracker_.Track(copy ? track_points_ : view.points_in_cam, copy ? track_normals_ : view.normals, view.quality,
+                                 view.texture, augment, reference_ns);
   ms_ += MsSince(t0);
   if (r.accepted) ++accepted_;
   else ++rejected_;
@@ -91,6 +97,22 @@ TrackResult ScanRegistrar::Register(ReconstructedView& view, uint64_t burst_seq,
   prev_state_ = r.state;
   views_.push_back({burst_seq, reference_ns, r.accepted, r.state});
   return r;
+}
+
+void ScanRegistrar::CopyWithoutEdgeFill(const ReconstructedView& view) {
+  // copyTo into a buffer of the same size and type keeps its data, so the headers the tracker
+  // holds during Track see the new values.
+  view.points_in_cam.copyTo(track_points_);
+  view.normals.copyTo(track_normals_);
+  const uint8_t edge = static_cast<uint8_t>(QualityReason::kModulationEdge);
+  const cv::Vec3f nan = cv::Vec3f::all(std::numeric_limits<float>::quiet_NaN());
+  for (int r = 0; r < track_points_.rows; ++r) {
+    const uint8_t* reason = view.quality_reason.ptr<uint8_t>(r);
+    cv::Vec3f* p = track_points_.ptr<cv::Vec3f>(r);
+    cv::Vec3f* n = track_normals_.ptr<cv::Vec3f>(r);
+    for (int c = 0; c < track_points_.cols; ++c)
+      if (reason[c] == edge) p[c] = n[c] = nan;
+  }
 }
 
 int64_t ScanRegistrar::AnchorAtPose(const Rigid3d& world_from_cam, ReconstructedView* view) {

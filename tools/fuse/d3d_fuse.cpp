@@ -82,6 +82,8 @@ int main(int argc, char** argv) {
   double max_cell_sdf_span = TsdfOptions{}.max_cell_sdf_span, occlusion_margin_mm = TsdfOptions{}.occlusion_margin_mm;
   double max_rmse_um = TrackerOptions{}.icp.max_rmse_mm * 1000;
   bool json = false, no_eval = false, no_loops = false, quiet = false, no_refuse = false, truth_poses = false;
+  int edge_fill_passes = EdgeFillOptions{}.passes;
+  float edge_fill_quality = EdgeFillOptions{}.quality_factor;
   bool no_model_anchor = false, coverage_ceiling = false, no_free_space = false;
   app.add_option("--sim", sim_model, "scan with the virtual probe: 'typodont' or a mesh file (PLY/STL/OBJ, mm)");
   app.add_option("--bursts", bursts_dir, "a d3d-sim output folder (calibration.json, bursts/NNNNNN/, scene.ply)");
@@ -108,6 +110,12 @@ int main(int argc, char** argv) {
                "fusion: no free-space test (by default a point in space that earlier views saw through is not fused)");
   app.add_flag("--no-eval", no_eval, "skip the evaluation against the scene");
   app.add_flag("--no-loops", no_loops, "no loop-closure detection / pose graph");
+  app.add_option("--edge-fill-passes", edge_fill_passes,
+                 "reconstruction: pixel layers of the albedo-edge cut given the phase of the anchored pixels beside them (0 = off)")
+      ->check(CLI::Range(0, 64));
+  app.add_option("--edge-fill-quality", edge_fill_quality,
+                 "reconstruction: a pixel filled in the albedo-edge cut weighs this times the anchored pixel it came from")
+      ->check(CLI::Range(0.001f, 1.0f));
   app.add_flag("--no-model-anchor", no_model_anchor,
                "no model-guided anchoring (the parts of a view its burst could not anchor stay out)");
   app.add_flag("--coverage-ceiling", coverage_ceiling,
@@ -179,6 +187,8 @@ int main(int argc, char** argv) {
     so.tracker.association = association == "kdtree" ? Association::kKdTree : Association::kProjective;
     so.tracker.detect_loops = !no_loops;
     so.anchor.enabled = !no_model_anchor;
+    so.recon.edge_fill.passes = edge_fill_passes;
+    so.recon.edge_fill.quality_factor = edge_fill_quality;
     so.free_space.enabled = !no_free_space;
     so.tracker.icp.max_rmse_mm = max_rmse_um / 1000.0;
     so.tracker = TrackerOptionsForStep(so.tracker, every);  // a lower burst rate means larger steps

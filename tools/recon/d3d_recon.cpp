@@ -51,17 +51,18 @@ cv::Mat Colourise(const cv::Mat& m, double lo, double hi) { return FalseColour(m
 //   pink     in an anchored region, but dropped by neck pruning or outside the measurement volume
 //   red      an absolute phase, but no point (the triangulation's volume margin)
 //   white    a point
+//   sky blue a point in the albedo-edge cut, its phase filled from the anchored pixels beside it
 cv::Mat DropReasonImage(const ReconstructedView& v) {
   const cv::Vec3b kBlack{0, 0, 0}, kGrey{128, 128, 128}, kBlue{255, 0, 0}, kOrange{0, 140, 255}, kCyan{255, 255, 0},
       kYellow{0, 255, 255}, kMagenta{255, 0, 255}, kPurple{128, 0, 128}, kPink{203, 192, 255}, kRed{0, 0, 255},
-      kWhite{255, 255, 255};
+      kWhite{255, 255, 255}, kSky{255, 191, 0};
   cv::Mat out(v.points_in_cam.size(), CV_8UC3);
   for (int r = 0; r < out.rows; ++r)
     for (int c = 0; c < out.cols; ++c) {
       cv::Vec3b colour = kRed;
       const int rid = v.unwrap.region.at<int32_t>(r, c);
       if (std::isfinite(v.points_in_cam.at<cv::Vec3f>(r, c)[2])) {
-        colour = kWhite;
+        colour = v.quality_reason.at<uint8_t>(r, c) == static_cast<uint8_t>(QualityReason::kModulationEdge) ? kSky : kWhite;
       } else if (!v.phase.valid.at<uint8_t>(r, c)) {
         colour = kBlack;
       } else if (!(v.quality.at<float>(r, c) > 0)) {
@@ -112,6 +113,7 @@ struct Figures {
   double phase_rms_rad = std::nan("");
   double ms = 0;
   int64_t points = 0;
+  int64_t pixels_edge_filled = 0;  // of the points, those in the albedo-edge cut (EdgeFiller)
 };
 
 }  // namespace
@@ -222,6 +224,7 @@ int main(int argc, char** argv) {
       Figures f;
       f.ms = view.ms_total;
       f.points = view.points;
+      f.pixels_edge_filled = view.pixels_edge_filled;
       f.unwrap = view.unwrap.stats;
       f.largest_regions.resize(std::min<size_t>(view.unwrap.regions.size(), 6));
       std::partial_sort_copy(view.unwrap.regions.begin(), view.unwrap.regions.end(), f.largest_regions.begin(),
@@ -289,7 +292,7 @@ int main(int argc, char** argv) {
                      {"pixels_valid", u.pixels_valid},       {"pixels_discontinuity", u.pixels_discontinuity},
                      {"pixels_conflict", u.pixels_conflict}, {"pixels_small", u.pixels_small},
                      {"pixels_rejected", u.pixels_rejected}, {"pixels_outside", u.pixels_outside},
-                     {"pixels_neck", u.pixels_neck}};
+                     {"pixels_neck", u.pixels_neck},         {"pixels_edge_filled", figures.front().pixels_edge_filled}};
       for (const RegionInfo& r : figures.front().largest_regions)
         j["unwrap"]["largest_regions"].push_back({{"pixels", r.pixels}, {"anchor", RegionAnchorName(r.anchor)},
                                                   {"offset", r.offset}, {"marker_hits", r.marker_hits},
