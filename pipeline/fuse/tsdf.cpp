@@ -27,11 +27,15 @@ void TsdfOptions::Check() const {
   D3D_CHECK_MSG(occlusion_margin_mm >= 0 && (occlusion_margin_mm == 0 || occlusion_reach_mm > occlusion_margin_mm),
                 "TsdfOptions: occlusion_margin_mm must be >= 0 and below occlusion_reach_mm");
   D3D_CHECK_MSG(occlusion_min_weight > 0 && occlusion_stride >= 1, "TsdfOptions: occlusion_min_weight > 0, occlusion_stride >= 1");
+  D3D_CHECK_MSG(secondary_fade_weight >= 0, "TsdfOptions: secondary_fade_weight must be >= 0, got " << secondary_fade_weight);
 }
 
 struct TsdfVolume::Impl {
-  openvdb::FloatGrid::Ptr tsdf;
+  openvdb::FloatGrid::Ptr tsdf;    // D' (the surface's field) and W of all fused points (file comment)
   openvdb::FloatGrid::Ptr weight;
+  // D_s and W_s of the secondary points alone, only where λ > 0 (leaves without any go).
+  openvdb::FloatGrid::Ptr secondary_tsdf;
+  openvdb::FloatGrid::Ptr secondary_weight;
 };
 
 namespace {
@@ -121,15 +125,20 @@ TsdfVolume::TsdfVolume(const TsdfOptions& options) : o_(options), impl_(std::mak
   impl_->tsdf->setGridClass(openvdb::GRID_LEVEL_SET);
   impl_->tsdf->setName("tsdf_mm");
   impl_->weight->setName("weight");
+  impl_->secondary_tsdf = openvdb::FloatGrid::create(trunc);
+  impl_->secondary_weight = openvdb::FloatGrid::create(0.0f);
+  impl_->secondary_tsdf->setTransform(xf->copy());
+  impl_->secondary_weight->setTransform(xf->copy());
 }
 
 TsdfVolume::~TsdfVolume() = default;
 
 Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& Q, const PinholeBrownConrady& camera,
-                             const Rigid3d& world_from_cam) {
+                             const Rigid3d& world_from_cam, const cv::Mat& S) {
   if (P.type() != CV_32FC3 || N.type() != CV_32FC3 || P.size() != N.size())
     return InvalidArgument("tsdf: points and normals must be CV_32FC3 of one size");
   if (!Q.empty() && (Q.type() != CV_32F || Q.size() != P.size())) return InvalidArgument("tsdf: quality must be CV_32F like points");
+  if (!S.empty() && (S.type() != CV_8U || S.size() != P.size())) return InvalidArgument("tsdf: secondary must be CV_8U like points");
   if (P.cols != camera.width || P.rows != camera.height) return InvalidArgument("tsdf: image size differs from the camera's");
   const double inv_voxel = 1.0 / o_.voxel_mm;
   const double band = o_.truncation_mm * inv_voxel + 1.0;
@@ -194,10 +203,12 @@ Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& 
       const cv::Vec3f* p = P.ptr<cv::Vec3f>(r);
       const cv::Vec3f* n = N.ptr<cv::Vec3f>(r);
       const float* q = Q.empty() ? nullptr : Q.ptr<float>(r);
+      const uint8_t* sec = S.empty() ? nullptr : S.ptr<uint8_t>(r);
       FusePixel* out = &fuse_pixels_[static_cast<size_t>(r) * static_cast<size_t>(P.cols)];
       for (int c = 0; c < P.cols; ++c) {
         FusePixel& f = out[c];
         f.weight = 0.0f;
+        f.secondary = sec != nullptr && sec[c] != 0;
         const float w = q ? q[c] : 1.0f;
         if (!std::isfinite(p[c][0]) || !std::isfinite(p[c][2]) || occluded(r, c) || !(w >= o_.min_point_weight)) continue;
         const Eigen::Vector3f pt(p[c][0], p[c][1], p[c][2]);
@@ -220,38 +231,70 @@ Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& 
   });
   // 2. Leaves near the view's points: collected in parallel (a set per worker thread), then
   // allocated serially (topology changes). Their order does not matter: each voxel is written once
-  // per view, by the task that owns its leaf.
+  // per view, by the task that owns its leaf. The secondary grids get the leaves near the view's
+  // secondary points (a subset), and keep those where secondary bookkeeping remains (step 4).
+  const bool fade = o_.secondary_fade_weight > 0;
   using LeafSet = std::unordered_set<openvdb::Coord, CoordHash>;
-  tbb::enumerable_thread_specific<LeafSet> leaves_per_thread;
+  tbb::enumerable_thread_specific<LeafSet> leaves_per_thread, secondary_per_thread;
   tbb::parallel_for(tbb::blocked_range<int>(0, (P.rows + o_.pixel_stride - 1) / o_.pixel_stride),
                     [&](const tbb::blocked_range<int>& strided_rows) {
                       LeafSet& leaves = leaves_per_thread.local();
+                      LeafSet& secondary_leaves = secondary_per_thread.local();
                       for (int br = strided_rows.begin(); br < strided_rows.end(); ++br) {
                         const int r = br * o_.pixel_stride;
                         const cv::Vec3f* p = P.ptr<cv::Vec3f>(r);
-                        LeafRange last;  // neighbouring pixels mostly touch the same leaves: insert only on a change
+                        const FusePixel* fp = &fuse_pixels_[static_cast<size_t>(r) * static_cast<size_t>(P.cols)];
+                        // Neighbouring pixels mostly touch the same leaves: insert only on a change.
+                        LeafRange last, last_secondary;
                         for (int c = 0; c < P.cols; c += o_.pixel_stride) {
                           if (!std::isfinite(p[c][0]) || !std::isfinite(p[c][2]) || occluded(r, c)) continue;
                           const Eigen::Vector3d w = world_from_cam * Eigen::Vector3d(p[c][0], p[c][1], p[c][2]);
                           const LeafRange range = LeavesWithin(w * inv_voxel, band);
+                          if (fade && fp[c].secondary && fp[c].weight > 0 && !(range == last_secondary)) {
+                            last_secondary = range;
+                            TouchLeaves(range, &secondary_leaves);
+                          }
                           if (range == last) continue;
                           last = range;
                           TouchLeaves(range, &leaves);
                         }
                       }
                     });
-  LeafSet leaves;
-  for (LeafSet& part : leaves_per_thread) {
-    if (leaves.empty())
-      leaves.swap(part);
-    else
-      leaves.insert(part.begin(), part.end());
-  }
+  auto merge = [](tbb::enumerable_thread_specific<LeafSet>& parts) {
+    LeafSet all;
+    for (LeafSet& part : parts) {
+      if (all.empty())
+        all.swap(part);
+      else
+        all.insert(part.begin(), part.end());
+    }
+    return all;
+  };
+  const LeafSet leaves = merge(leaves_per_thread);
+  const LeafSet secondary_leaves = merge(secondary_per_thread);
+  using Leaf = openvdb::FloatTree::LeafNodeType;
+  struct Node {
+    Leaf *tsdf, *weight;                       // D', W
+    Leaf *secondary_tsdf, *secondary_weight;   // D_s, W_s, or null (none here)
+  };
   auto& ttree = impl_->tsdf->tree();
   auto& wtree = impl_->weight->tree();
-  std::vector<std::pair<openvdb::FloatTree::LeafNodeType*, openvdb::FloatTree::LeafNodeType*>> nodes;
+  auto& sttree = impl_->secondary_tsdf->tree();
+  auto& swtree = impl_->secondary_weight->tree();
+  std::vector<Node> nodes;
   nodes.reserve(leaves.size());
-  for (const auto& o : leaves) nodes.emplace_back(ttree.touchLeaf(o), wtree.touchLeaf(o));
+  for (const auto& o : leaves) {
+    Node n{ttree.touchLeaf(o), wtree.touchLeaf(o), nullptr, nullptr};
+    if (secondary_leaves.count(o) != 0) {
+      n.secondary_tsdf = sttree.touchLeaf(o);
+      n.secondary_weight = swtree.touchLeaf(o);
+    } else if (fade) {  // bookkeeping earlier views left here, if any
+      n.secondary_tsdf = sttree.probeLeaf(o);
+      n.secondary_weight = n.secondary_tsdf ? swtree.probeLeaf(o) : nullptr;
+      if (n.secondary_weight == nullptr) n.secondary_tsdf = nullptr;
+    }
+    nodes.push_back(n);
+  }
   // 3. Every voxel of those leaves, projectively (parallel over leaves: each leaf is one task's).
   // Single precision: camera-frame coordinates are tens of mm, a voxel step 0.05 mm.
   const Rigid3d cam_from_world = world_from_cam.inverse();
@@ -262,6 +305,8 @@ Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& 
   const Eigen::Matrix3f R_voxel = R_index.cast<float>();
   const float trunc = static_cast<float>(o_.truncation_mm);
   const float maxw = o_.max_weight;
+  const float fade_weight = o_.secondary_fade_weight;
+  auto lambda = [fade_weight](float primary_weight) { return std::max(0.0f, 1.0f - primary_weight / fade_weight); };
   // The camera's projection (PinholeBrownConrady::Project, inlined: it runs for every voxel of
   // every touched leaf, a row of 8 at a time).
   auto f = [](double v) { return static_cast<float>(v); };
@@ -269,15 +314,20 @@ Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& 
                          f(camera.p1), f(camera.p2), f(P.cols - 0.5),   f(P.rows - 0.5),   P.cols};
   const FusePixel* pixels = fuse_pixels_.data();
   const Eigen::Vector3f step_i = R_voxel.col(0), step_j = R_voxel.col(1), step_k = R_voxel.col(2);
+  // Per node: whether its secondary leaf still holds bookkeeping (W_s > 0 somewhere) after the view.
+  std::vector<uint8_t> secondary_left(nodes.size(), 0);
   tbb::parallel_for(tbb::blocked_range<size_t>(0, nodes.size(), 16), [&](const tbb::blocked_range<size_t>& range) {
     int32_t pixel[kLeafDim];
     for (size_t li = range.begin(); li < range.end(); ++li) {
-      auto* tl = nodes[li].first;
-      auto* wl = nodes[li].second;
+      const Node& node = nodes[li];
+      Leaf* tl = node.tsdf;
+      Leaf* wl = node.weight;
       const openvdb::Coord origin = tl->origin();
       const Eigen::Vector3f x_origin = (R_index * Eigen::Vector3d(origin.x(), origin.y(), origin.z()) + t).cast<float>();
       float* tdata = tl->buffer().data();
       float* wdata = wl->buffer().data();
+      float* sdata = node.secondary_tsdf ? node.secondary_tsdf->buffer().data() : nullptr;
+      float* swdata = node.secondary_weight ? node.secondary_weight->buffer().data() : nullptr;
       // Leaf offset = (i << 6) | (j << 3) | k (OpenVDB's LeafNode::coordToOffset): rows of 8 along k.
       for (int i = 0; i < kLeafDim; ++i) {
         for (int j = 0; j < kLeafDim; ++j) {
@@ -289,6 +339,8 @@ Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& 
             const FusePixel& px = pixels[pixel[k]];
             const float q = px.weight;
             if (q <= 0.0f) continue;
+            const bool secondary = fade && px.secondary;
+            if (secondary && swdata == nullptr) continue;  // beyond the leaves near its point: left out
             const Eigen::Vector3f x = row + static_cast<float>(k) * step_k;
             float sdf = std::isfinite(px.normal.x()) ? px.normal.dot(x - px.point) : px.range - x.norm();
             if (sdf < -trunc) continue;
@@ -297,16 +349,57 @@ Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& 
             // A new leaf's buffers hold the grids' backgrounds (weight 0): W = 0 where nothing was fused.
             const float W = wdata[off];
             const float D = W > 0 ? tdata[off] : 0.0f;
-            const float Wn = W + q;
-            tdata[off] = (D * W + sdf * q) / Wn;
-            wdata[off] = std::min(Wn, maxw);
+            const float Ws = swdata != nullptr ? swdata[off] : 0.0f;
+            if (!secondary && Ws <= 0.0f) {  // no secondary points here: the plain running average
+              const float Wn = W + q;
+              tdata[off] = (D * W + sdf * q) / Wn;
+              wdata[off] = std::min(Wn, maxw);
+            } else {
+              // Two channels (file comment): recover D_p from D' = (W_p·D_p + λ·W_s·D_s)/(W_p + λ·W_s),
+              // add the measurement to its channel, blend again; a voxel whose λ reaches 0 keeps D_p only.
+              float Wp = std::max(0.0f, W - Ws);
+              if (secondary && Wp >= fade_weight) continue;  // λ = 0: the primary points' surface
+              const float Ds = Ws > 0 ? sdata[off] : 0.0f;
+              const float l0 = lambda(Wp);
+              float Dp = Wp > 0 ? ((Wp + l0 * Ws) * D - l0 * Ws * Ds) / Wp : 0.0f;
+              float Dsn = Ds, Wsn = Ws;
+              if (secondary) {
+                Wsn = Ws + q;
+                Dsn = (Ds * Ws + sdf * q) / Wsn;
+              } else {
+                Dp = (Dp * Wp + sdf * q) / (Wp + q);
+                Wp += q;
+              }
+              const float l1 = lambda(Wp);
+              if (l1 <= 0.0f) {
+                tdata[off] = Dp;
+                wdata[off] = std::min(Wp, maxw);
+                Wsn = 0.0f;
+                Dsn = trunc;
+              } else {
+                tdata[off] = (Wp * Dp + l1 * Wsn * Dsn) / (Wp + l1 * Wsn);
+                wdata[off] = std::min(Wp + Wsn, maxw);
+              }
+              sdata[off] = Dsn;
+              swdata[off] = Wsn;
+            }
             tl->setValueOn(off);
             wl->setValueOn(off);
           }
         }
       }
+      if (swdata != nullptr)
+        secondary_left[li] = std::any_of(swdata, swdata + Leaf::SIZE, [](float w) { return w > 0.0f; }) ? 1 : 0;
     }
   });
+  // 4. Secondary leaves without bookkeeping left go (they hold only backgrounds): the secondary
+  // grids stay as sparse as the surface that only secondary points (or weak primary ones) saw.
+  for (size_t li = 0; li < nodes.size(); ++li)
+    if (nodes[li].secondary_weight != nullptr && !secondary_left[li]) {
+      const openvdb::Coord o = nodes[li].tsdf->origin();
+      sttree.addTile(1, o, sttree.background(), false);
+      swtree.addTile(1, o, swtree.background(), false);
+    }
   ++views_;
   return Status::Ok();
 }
@@ -348,17 +441,18 @@ void TsdfVolume::IntegratePoints(const std::vector<Eigen::Vector3f>& points, con
 
 TriangleMesh TsdfVolume::ExtractMesh(float min_weight) const {
   if (min_weight < 0) min_weight = o_.min_mesh_weight;
+  const openvdb::FloatGrid& field = *impl_->tsdf;
   std::vector<openvdb::Vec3s> pts;
   std::vector<openvdb::Vec3I> tris;
   std::vector<openvdb::Vec4I> quads;
-  openvdb::tools::volumeToMesh(*impl_->tsdf, pts, tris, quads, 0.0, 0.0, true);
+  openvdb::tools::volumeToMesh(field, pts, tris, quads, 0.0, 0.0, true);
   TriangleMesh mesh;
   // A vertex's weight: the least of the 8 voxel centres around it. Kept when ≥ min_weight.
   // A vertex whose corners span more signed distance than a distance field can (see the
   // options) gets weight 0: it is not kept and seeds nothing.
   std::vector<float> vertex_weight(pts.size(), 0.0f);
   const auto wacc = impl_->weight->getConstAccessor();
-  const auto dacc = impl_->tsdf->getConstAccessor();
+  const auto dacc = field.getConstAccessor();
   const double inv_voxel = 1.0 / o_.voxel_mm;
   const float max_span = o_.max_cell_sdf_span > 0 ? static_cast<float>(o_.max_cell_sdf_span * std::sqrt(3.0) * o_.voxel_mm)
                                                   : std::numeric_limits<float>::max();
@@ -436,8 +530,11 @@ float TsdfVolume::Weight(const Eigen::Vector3d& p) const {
 
 int64_t TsdfVolume::ActiveVoxels() const { return static_cast<int64_t>(impl_->tsdf->activeVoxelCount()); }
 
+int64_t TsdfVolume::SecondaryLeaves() const { return static_cast<int64_t>(impl_->secondary_weight->tree().leafCount()); }
+
 int64_t TsdfVolume::MemoryBytes() const {
-  return static_cast<int64_t>(impl_->tsdf->memUsage() + impl_->weight->memUsage());
+  return static_cast<int64_t>(impl_->tsdf->memUsage() + impl_->weight->memUsage() + impl_->secondary_tsdf->memUsage() +
+                              impl_->secondary_weight->memUsage());
 }
 
 }  // namespace d3d

@@ -37,6 +37,27 @@
 // one fringe order off across a hidden depth step lands 1–2 mm behind the surface, where no other
 // view's band reaches to correct it, and several consecutive views repeat it (real arch, seed 2,
 // without the test: 0.1 % of the mesh lay 0.2–0.8 mm inside the teeth, RMS 26 µm instead of 9).
+// Secondary points (a two-channel field): a view may mark some points as secondary, measured but
+// less trusted (the edge fill's, pipeline/unwrap/edge_fill.h: 3–4× the phase error of the
+// anchored points beside them). They should make surface where nothing better was seen and not
+// pull the surface where primary points were. With the primary and secondary points' own running
+// averages D_p, W_p and D_s, W_s, a voxel holds
+//   D' = (W_p·D_p + λ·W_s·D_s) / (W_p + λ·W_s),  W = W_p + W_s,  λ = max(0, 1 − W_p / secondary_fade_weight),
+// so secondary points count fully where no primary point was fused, fade out as primary weight
+// builds up, and count nothing beyond secondary_fade_weight; D' is continuous in W_p, so no seam
+// forms where the two meet. D' is what is meshed and what the occlusion test reads. The volume
+// stores D', W, and D_s, W_s in secondary grids; D_p follows from them, so each measurement updates
+// its channel and D' is blended again. Once λ reaches 0 a voxel keeps D' = D_p, W = W_p and drops
+// its secondary share (λ only falls: later secondary points there are not fused), and a secondary
+// leaf without bookkeeping left is freed at the end of the view, so the secondary grids hold only
+// the surface that primary points saw weakly or not at all. (With max_weight reached, W_p is
+// approximate; the default cap is never reached.) Measured with secondary_fade_weight 2, full
+// typodont arch: trueness RMS at true poses, seed 1, 9.23 → 8.74 µm; tracked, seeds 2 / 3,
+// 9.23 → 8.83 / 12.29 → 12.20 µm; coverage unchanged (±0.02 pp). But the secondary grids kept
+// 37,745 leaves (seed 3): a leaf stays while any of its voxels has W_p < 2, and the far side of
+// the band, which few views reach, has such voxels almost everywhere. With two volumes held at
+// the refusion, the peak RSS rose 1872 → 2312 MiB, over the 2 GiB budget, so it is off by
+// default until the bookkeeping is limited to the voxels near the zero level.
 // Cost: the per-pixel tests are taken once per pixel, and the voxel loop projects rows of 8 voxels
 // at once in single precision (SIMD): 19–23 ms per 640×480 view on this 2-core machine, Open3D's
 // ScalableTSDFVolume 37–46 ms on the same views (d3d-bench-register; 47 ms before, in double
@@ -75,6 +96,10 @@ struct TsdfOptions {
   double occlusion_reach_mm = 2.5;  // one fringe order is 1.4–1.9 mm of depth on the probe
   float occlusion_min_weight = 2.0f;
   int occlusion_stride = 2;
+  // Secondary points (Integrate's `secondary` mask: edge-filled ones) enter the surface with their
+  // weight times λ = max(0, 1 − W_p / secondary_fade_weight), W_p the voxel's weight from primary
+  // points (file comment). 0 (default) = secondary points count like the rest; 2 is the value measured.
+  float secondary_fade_weight = 0.0f;
   void Check() const;              // throws std::invalid_argument
 };
 
@@ -89,10 +114,12 @@ class TsdfVolume {
 
   // Fuses one organised view. points_in_cam, normals_in_cam: H×W CV_32FC3 (mm, NaN = none);
   // quality: H×W CV_32F in [0, 1] or empty (weight 1); camera: the intrinsics the view was
-  // measured with (H×W = its size); world_from_cam: the view's registered pose.
+  // measured with (H×W = its size); world_from_cam: the view's registered pose; secondary: H×W
+  // CV_8U, nonzero = a secondary point (less trusted: see secondary_fade_weight), or empty (none).
   // INVALID_ARGUMENT for mismatched sizes or types.
   [[nodiscard]] Status Integrate(const cv::Mat& points_in_cam, const cv::Mat& normals_in_cam, const cv::Mat& quality,
-                                 const PinholeBrownConrady& camera, const Rigid3d& world_from_cam);
+                                 const PinholeBrownConrady& camera, const Rigid3d& world_from_cam,
+                                 const cv::Mat& secondary = cv::Mat());
 
   // Fuses an unorganised set of points with normals (world frame) by splatting each point's
   // tangent-plane distance into the voxels within truncation of it (used by tests and for clouds
@@ -105,12 +132,15 @@ class TsdfVolume {
   // in the connected pieces that reach options().mesh_seed_weight somewhere (see the file comment).
   TriangleMesh ExtractMesh(float min_weight = -1.0f) const;
 
-  // Signed distance (mm) and weight at a world point (trilinear; weight 0 where unobserved).
+  // Signed distance (mm) and weight of all fused points (primary and secondary alike) at a world
+  // point (trilinear; weight 0 where unobserved).
   float SignedDistance(const Eigen::Vector3d& p_in_world) const;
   float Weight(const Eigen::Vector3d& p_in_world) const;
 
   int64_t ActiveVoxels() const;
-  int64_t MemoryBytes() const;  // both grids, as OpenVDB counts them
+  int64_t MemoryBytes() const;  // all grids, as OpenVDB counts them
+  // Leaves (8³ voxels) of the secondary grids: where secondary points still shape the surface.
+  int64_t SecondaryLeaves() const;
   int64_t views() const { return views_; }
   int64_t last_occluded_points() const { return last_occluded_; }  // of the last Integrate
   int64_t occluded_points() const { return occluded_; }            // over all views
@@ -130,6 +160,7 @@ class TsdfVolume {
     Eigen::Vector3f normal;  // unit, toward the camera; NaN: none (the range difference is used)
     float range = 0;         // |p_in_cam|, mm
     float weight = 0;        // the point's quality; 0 = not fused
+    bool secondary = false;  // from Integrate's secondary mask
   };
   std::vector<FusePixel> fuse_pixels_;
 };

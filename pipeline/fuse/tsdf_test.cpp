@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <memory>
 #include <random>
 
 namespace d3d {
@@ -311,10 +312,80 @@ TEST(Tsdf, EachVoxelTakesTheDistanceOfThePixelItProjectsTo) {
   EXPECT_LE(mismatched, compared / 500) << "of " << compared << ", worst " << worst << " mm";
 }
 
+// Secondary points (the edge fill's) shape the surface only where primary ones are weak: the plane
+// z = 50 mm seen by primary points three times at quality 1 on the left (columns < 60, W_p = 3),
+// three times at quality 1/3 in the middle (columns 60–119, W_p = 1), not at all on the right; and
+// secondary points 40 µm nearer (z = 49.96: as an edge fill's bias) three times everywhere (W_s = 3).
+// With secondary_fade_weight 2: λ = 0 on the left, the surface is the primary points' (z = 50);
+// λ = 0.5 in the middle, z = 50 − 0.04·1.5/2.5; on the right the secondary points alone make it
+// (z = 49.96). With fade 0 they count like the rest: the left is pulled half way.
+TEST(Tsdf, SecondaryPointsShapeTheSurfaceOnlyWherePrimaryOnesAreWeak) {
+  const auto c = Cam();
+  cv::Mat P, N, S;
+  PlaneView(0.0, 1, &P, &N);
+  const cv::Mat S_points = P * (49.96 / 50.0);
+  cv::Mat primary_quality(c.height, c.width, CV_32F, cv::Scalar(0)), secondary_quality(c.height, c.width, CV_32F, cv::Scalar(1));
+  primary_quality.colRange(0, 60).setTo(1.0f);
+  primary_quality.colRange(60, 120).setTo(1.0f / 3.0f);
+  const cv::Mat all_secondary(c.height, c.width, CV_8U, cv::Scalar(255));
+  // Mean z (mm) of the mesh's vertices over columns [c0, c1) of the image, |y| < 1.5 mm.
+  auto mean_z = [&](const TriangleMesh& m, int c0, int c1) {
+    const double x0 = (c0 - c.cx) / c.fx * 50, x1 = (c1 - c.cx) / c.fx * 50;
+    double s = 0;
+    int n = 0;
+    for (const auto& p : m.vertices)
+      if (p.x() > x0 && p.x() < x1 && std::abs(p.y()) < 1.5) {
+        s += p.z();
+        ++n;
+      }
+    EXPECT_GT(n, 500) << "columns " << c0 << "–" << c1 << " are not meshed";
+    return n > 0 ? s / n : 0.0;
+  };
+  auto fuse = [&](float fade) {
+    TsdfOptions o;
+    o.voxel_mm = 0.05;
+    o.secondary_fade_weight = fade;
+    auto v = std::make_unique<TsdfVolume>(o);
+    for (int i = 0; i < 3; ++i) {
+      EXPECT_TRUE(v->Integrate(P, N, primary_quality, c, Rigid3d::Identity()).ok());
+      EXPECT_TRUE(v->Integrate(S_points, N, secondary_quality, c, Rigid3d::Identity(), all_secondary).ok());
+    }
+    return v->ExtractMesh();
+  };
+  const TriangleMesh faded = fuse(2.0f);
+  EXPECT_NEAR(mean_z(faded, 10, 50), 50.0, 0.002);
+  EXPECT_NEAR(mean_z(faded, 70, 110), 50.0 - 0.04 * 1.5 / 2.5, 0.002);
+  EXPECT_NEAR(mean_z(faded, 140, 190), 49.96, 0.002);
+  const TriangleMesh alike = fuse(0.0f);
+  EXPECT_NEAR(mean_z(alike, 10, 50), 49.98, 0.002);
+  EXPECT_NEAR(mean_z(alike, 70, 110), 50.0 - 0.04 * 3 / 4, 0.002);
+  EXPECT_NEAR(mean_z(alike, 140, 190), 49.96, 0.002);
+  // The secondary bookkeeping stays only where λ > 0: the middle and right (about 4.5 of 7.5 mm in
+  // x, 4 mm in y, 0.4 mm leaves: some 130 leaves in one or two layers in z); where the primary points
+  // are strong everywhere, none.
+  TsdfOptions o;
+  o.voxel_mm = 0.05;
+  o.secondary_fade_weight = 2.0f;
+  TsdfVolume v(o), strong_everywhere(o);
+  const cv::Mat strong(c.height, c.width, CV_32F, cv::Scalar(1));
+  for (int i = 0; i < 3; ++i) {
+    ASSERT_TRUE(v.Integrate(P, N, primary_quality, c, Rigid3d::Identity()).ok());
+    ASSERT_TRUE(v.Integrate(S_points, N, secondary_quality, c, Rigid3d::Identity(), all_secondary).ok());
+    ASSERT_TRUE(strong_everywhere.Integrate(P, N, strong, c, Rigid3d::Identity()).ok());
+  }
+  ASSERT_TRUE(strong_everywhere.Integrate(S_points, N, secondary_quality, c, Rigid3d::Identity(), all_secondary).ok());
+  EXPECT_GT(v.SecondaryLeaves(), 100);
+  EXPECT_LT(v.SecondaryLeaves(), 400);
+  EXPECT_EQ(strong_everywhere.SecondaryLeaves(), 0);
+}
+
 TEST(Tsdf, RejectsMismatchedInput) {
   TsdfVolume v;
   cv::Mat P(10, 10, CV_32FC3), N(10, 11, CV_32FC3);
   EXPECT_FALSE(v.Integrate(P, N, cv::Mat(), Cam(), Rigid3d::Identity()).ok());
+  const cv::Mat P_cam(Cam().height, Cam().width, CV_32FC3, cv::Scalar::all(1)), wrong_secondary(Cam().height, Cam().width, CV_32F);
+  EXPECT_FALSE(v.Integrate(P_cam, P_cam, cv::Mat(), Cam(), Rigid3d::Identity(), wrong_secondary).ok());
+  EXPECT_THROW(TsdfVolume(TsdfOptions{.secondary_fade_weight = -1}), std::invalid_argument);
   EXPECT_THROW(TsdfVolume(TsdfOptions{.voxel_mm = -1}), std::invalid_argument);
   TsdfOptions span;
   span.max_cell_sdf_span = 0.5;  // would drop true surfaces

@@ -150,7 +150,11 @@ Status ScanFuser::Fuse(const ReconstructedView& view, const Rigid3d& world_from_
       free_space_rejected_ += n;
     }
   }  // else Integrate reports the mismatch
-  const Status s = tsdf_->Integrate(*points, view.normals, view.quality, camera_, world_from_cam);
+  // The edge fill's points (pipeline/unwrap/edge_fill.h) are the volume's secondary points.
+  const bool has_reason = tsdf_->options().secondary_fade_weight > 0 && view.quality_reason.type() == CV_8U &&
+                          view.quality_reason.size() == view.points_in_cam.size();
+  if (has_reason) cv::compare(view.quality_reason, static_cast<double>(QualityReason::kModulationEdge), secondary_, cv::CMP_EQ);
+  const Status s = tsdf_->Integrate(*points, view.normals, view.quality, camera_, world_from_cam, has_reason ? secondary_ : cv::Mat());
   ms_ += MsSince(t0);
   if (s.ok()) ++fused_;
   return s;
@@ -256,6 +260,7 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   j["refused_at_optimised_poses"] = refused_at_optimised_poses;
   j["ms_refuse_total"] = ms_refuse;
   j["tsdf_active_voxels"] = model.ActiveVoxels();
+  j["tsdf_secondary_leaves"] = model.SecondaryLeaves();  // where edge-filled points still shape the surface (tsdf.h)
   j["points_occluded"] = model.occluded_points();  // not fused: behind a known surface (tsdf.h)
   j["points_free_space_rejected"] = fuser->free_space_rejected();  // not fused: in seen-through space (free_space.h)
   j["tsdf_memory_mib"] = tsdf_memory_mib;  // both volumes at the end of a refusion

@@ -155,7 +155,9 @@ class ScanRegistrar {
 class ScanFuser {
  public:
   ScanFuser(const PinholeBrownConrady& camera, const TsdfOptions& options, const FreeSpaceOptions& free_space = {});
-  // Fuses the view's points except those the free-space test rejects (pipeline/fuse/free_space.h).
+  // Fuses the view's points except those the free-space test rejects (pipeline/fuse/free_space.h);
+  // the edge fill's points (quality reason kModulationEdge) as the volume's secondary points when
+  // its options fade them (TsdfOptions::secondary_fade_weight).
   [[nodiscard]] Status Fuse(const ReconstructedView& view, const Rigid3d& world_from_cam);
   const FreeSpaceOptions& free_space_options() const { return free_space_.options(); }
   int64_t free_space_rejected() const { return free_space_rejected_; }  // points, over all views
@@ -175,6 +177,7 @@ class ScanFuser {
   std::unique_ptr<TsdfVolume> tsdf_;
   FreeSpaceTest free_space_;
   cv::Mat rejected_, masked_;  // per view, reused: the free-space test's mask, the points without them
+  cv::Mat secondary_;          // per view, reused: CV_8U, 255 = an edge-filled point
   int64_t free_space_rejected_ = 0;
   int64_t fused_ = 0;
   double ms_ = 0;

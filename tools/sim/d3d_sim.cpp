@@ -59,7 +59,15 @@ cv::Mat PreviewPicture(const Burst& burst, const ProbeCalibration& calib) {
     cv::cvtColor(g, c, cv::COLOR_GRAY2BGR);
     return c;
   };
+  const size_t marker = static_cast<size_t>(std::max(0, calib.pattern.marker_frame));
+  cv::Mat top, bottom, all;
+  cv::hconcat(grey(burst.frames[0].image), grey(burst.frames[std::min(marker, burst.frames.size() - 1)].image), top);
   const FrameTruth& t = burst.reference_truth;
+  if (t.depth_mm.empty()) {  // --truth none: the frames only
+    cv::putText(top, "burst " + std::to_string(burst.sequence) + ": frame 0 | frame " + std::to_string(marker) + " (marker)",
+                cv::Point(10, top.rows - 12), cv::FONT_HERSHEY_SIMPLEX, 0.6, cv::Scalar(0, 255, 255), 1, cv::LINE_AA);
+    return top;
+  }
   cv::Mat depth8;
   t.depth_mm.convertTo(depth8, CV_8U, 255.0 / (calib.depth_max_mm - calib.depth_min_mm),
                        -255.0 * calib.depth_min_mm / (calib.depth_max_mm - calib.depth_min_mm));
@@ -70,9 +78,6 @@ cv::Mat PreviewPicture(const Burst& burst, const ProbeCalibration& calib) {
   labels.setTo(cv::Scalar(235, 235, 235), t.label == static_cast<int>(SurfaceLabel::kTooth));
   labels.setTo(cv::Scalar(150, 120, 230), t.label == static_cast<int>(SurfaceLabel::kGingiva));
   labels.setTo(cv::Scalar(90, 30, 10), t.visibility == 1);
-  const size_t marker = static_cast<size_t>(std::max(0, calib.pattern.marker_frame));
-  cv::Mat top, bottom, all;
-  cv::hconcat(grey(burst.frames[0].image), grey(burst.frames[std::min(marker, burst.frames.size() - 1)].image), top);
   cv::hconcat(depth, labels, bottom);
   cv::vconcat(top, bottom, all);
   const std::string caption = "burst " + std::to_string(burst.sequence) + ": frame 0 | frame " + std::to_string(marker) +
@@ -96,7 +101,7 @@ int main(int argc, char** argv) {
                "  OUT/trajectory.tum    the true trajectory (TUM: t[s] tx ty tz[mm] qx qy qz qw)\n"
                "  OUT/scene.ply         the scene mesh (mm)\n"
                "  OUT/bursts/NNNNNN/    frame_K.png, burst.json (timestamps, poses), truth_ref/ and truth_K/ (*.npy|png)\n"
-               "  OUT/preview.png       the middle burst: frames, true depth, surfaces\n"
+               "  OUT/preview.png       the middle burst: frames, true depth, surfaces (frames only with --truth none)\n"
                "  OUT/summary.json      what was rendered"};
   SimSessionOptions opt;
   std::string out_dir, camera = "640x480", patterns = "burst", truth = "ref";
