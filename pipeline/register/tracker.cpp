@@ -46,6 +46,8 @@ void TrackerOptions::Check() const {
   D3D_CHECK_MSG(target_scale > 0 && target_scale <= 2 && target_splat >= 0 && target_window >= 0, "TrackerOptions: target");
   D3D_CHECK_MSG(max_step_mm > 0 && max_step_deg > 0 && view_period_ns >= 0, "TrackerOptions: max_step, view_period_ns");
   D3D_CHECK_MSG(keyframe_overlap > 0 && keyframe_overlap <= 1, "TrackerOptions: keyframe_overlap in (0, 1]");
+  D3D_CHECK_MSG(keyframe_max_rotation_deg >= 0 && keyframe_max_views >= 0,
+                "TrackerOptions: keyframe_max_rotation_deg and keyframe_max_views >= 0 (0 = off)");
   D3D_CHECK_MSG(relocalise_candidates >= 1 && loop_min_separation >= 1 && max_loop_candidates >= 0 && near_loop_candidates >= 0,
                 "TrackerOptions: counts");
   D3D_CHECK_MSG(edge_information_scale > 0, "TrackerOptions: edge_information_scale > 0");
@@ -497,7 +499,10 @@ void Tracker::MaybeKeyframe(const SurfacePoints& /*samples*/, const cv::Mat& poi
   if (!keyframes_.empty()) {
     const Keyframe& last = keyframes_.back();
     const Rigid3d last_from_cam = graph_.pose(last.node).inverse() * pose;
-    if (last_keyframe_occupancy_->Overlap(kfs, last_from_cam) >= o_.keyframe_overlap) return;
+    const bool turned = o_.keyframe_max_rotation_deg > 0 &&
+                        Eigen::AngleAxisd(last_from_cam.rotation()).angle() * 180.0 / M_PI > o_.keyframe_max_rotation_deg;
+    const bool aged = o_.keyframe_max_views > 0 && index_ - last.view >= o_.keyframe_max_views;
+    if (!turned && !aged && last_keyframe_occupancy_->Overlap(kfs, last_from_cam) >= o_.keyframe_overlap) return;
   }
   Keyframe kf;
   kf.view = index_;

@@ -18,7 +18,8 @@
 //     the last accepted view first (where the probe left the model), up to relocalise_candidates;
 //     RANSAC → ICP against the model; the first that passes is accepted (state kRelocalised).
 //  5. Keyframes: a view whose overlap index with the last keyframe (fraction of its samples in
-//     the keyframe's occupied voxels) falls below keyframe_overlap becomes a keyframe: samples,
+//     the keyframe's occupied voxels) falls below keyframe_overlap (or, optionally, that turned or
+//     waited too long since it) becomes a keyframe: samples,
 //     features and pose kept; an odometry edge joins it to the previous keyframe, measured by ICP
 //     between the two keyframes' samples (keyframe_icp_edges) with ICP's information matrix.
 //  6. Loop closure: a new keyframe is registered by ICP to other keyframes (up to
@@ -82,6 +83,17 @@ struct TrackerOptions {
   // are evenly spaced (d3d-fuse, lossless replay); capture times are then not used.
   int64_t view_period_ns = 0;
   double keyframe_overlap = 0.7;
+  // A view also becomes a keyframe when the camera turned by more than keyframe_max_rotation_deg
+  // since the last keyframe, or keyframe_max_views views passed since it (0 = off, overlap only).
+  // Why: a probe rolling around a distal molar (the full-arch transitions) or lingering over one
+  // spot keeps its overlap with the last keyframe, so 100–180 views hang on one keyframe through
+  // their tracked poses and no loop reaches them; the tracked views there were 23–32 µm off at the
+  // surface against 8–12 elsewhere. Measured with 8° and 45 views (full arch, trueness RMS µm):
+  // typodont s3 12.29 → 9.84 and real arch s3 11.07 → 10.29, but typodont s2 9.23 → 11.72 and
+  // real s2 11.72 → 12.31 (keyframes 110–117 → 154–158, loops 190–225 → 422–463); precision
+  // s2–s3 typodont 15.6 → 11.4, real 15.2 → 15.0 µm. Seed 1 is not measured yet, so both are off.
+  double keyframe_max_rotation_deg = 0.0;
+  int keyframe_max_views = 0;
   int keyframe_stride = 4;        // px lattice of a keyframe's samples
   // Keyframe and relocalisation features. SIFT on half-size images (image_scale 0.5): measured on
   // 45 view pairs 3, 6 and 12 bursts apart along each arch's path (640 × 480 views), it aligns as

@@ -331,6 +331,42 @@ TEST_F(TrackerScan, NearLoopsCarryTheirFactorOfTheInformation) {
       std::invalid_argument);
 }
 
+// A probe that turns in place or lingers over one spot keeps a high overlap with its last
+// keyframe, so the overlap rule alone makes no new keyframe however far the tracked poses wander
+// from it; keyframe_max_rotation_deg and keyframe_max_views make one anyway.
+TEST_F(TrackerScan, AProbeThatTurnsOrLingersMakesKeyframesAnyway) {
+  TrackerOptions o;
+  o.relocalise = false;  // no keyframe features needed
+  o.min_view_samples /= 4;
+  std::vector<Rigid3d> path;
+  for (int i = 0; i <= 12; ++i) path.push_back(Truth(0, 0) * Rigid3d(Eigen::AngleAxisd(i * M_PI / 180, Eigen::Vector3d::UnitZ())));
+  auto keyframe_views = [&](const TrackerOptions& options) {
+    Tracker t(small_cam_, options);
+    std::vector<int64_t> views;
+    for (size_t i = 0; i < path.size(); ++i) {
+      const auto v = RenderHeightField(hf_, small_cam_, path[i], 0.004, static_cast<uint32_t>(i + 1));
+      const TrackResult r = t.Track(v.points, v.normals, v.quality, v.texture);
+      EXPECT_TRUE(r.accepted) << "view " << i << ": " << r.reason;
+      if (r.new_keyframe) views.push_back(static_cast<int64_t>(i));
+    }
+    return views;
+  };
+  EXPECT_EQ(keyframe_views(o), (std::vector<int64_t>{0}));  // 1° per view about the optical axis
+  TrackerOptions turn = o;
+  turn.keyframe_max_rotation_deg = 4.5;
+  EXPECT_EQ(keyframe_views(turn), (std::vector<int64_t>{0, 5, 10}));
+  TrackerOptions linger = o;
+  linger.keyframe_max_views = 4;
+  EXPECT_EQ(keyframe_views(linger), (std::vector<int64_t>{0, 4, 8, 12}));
+  EXPECT_THROW(
+      [] {
+        TrackerOptions bad;
+        bad.keyframe_max_views = -1;
+        bad.Check();
+      }(),
+      std::invalid_argument);
+}
+
 TEST_F(TrackerScan, KeyframeIcpEdgesRemoveAnInjectedDrift) {
   const int n = 8;
   std::vector<Rigid3d> truth;

@@ -85,6 +85,8 @@ int main(int argc, char** argv) {
   int edge_fill_passes = EdgeFillOptions{}.passes;
   float edge_fill_quality = EdgeFillOptions{}.quality_factor;
   float secondary_fade_weight = TsdfOptions{}.secondary_fade_weight;
+  double keyframe_max_rotation_deg = TrackerOptions{}.keyframe_max_rotation_deg;
+  int keyframe_max_views = TrackerOptions{}.keyframe_max_views;
   bool no_model_anchor = false, coverage_ceiling = false, no_free_space = false;
   app.add_option("--sim", sim_model, "scan with the virtual probe: 'typodont' or a mesh file (PLY/STL/OBJ, mm)");
   app.add_option("--bursts", bursts_dir, "a d3d-sim output folder (calibration.json, bursts/NNNNNN/, scene.ply)");
@@ -117,6 +119,12 @@ int main(int argc, char** argv) {
   app.add_option("--edge-fill-quality", edge_fill_quality,
                  "reconstruction: a pixel filled in the albedo-edge cut weighs this times the anchored pixel it came from")
       ->check(CLI::Range(0.001f, 1.0f));
+  app.add_option("--keyframe-max-rotation", keyframe_max_rotation_deg,
+                 "tracking: a view that turned more than this (deg) since the last keyframe is one too (0 = off)")
+      ->capture_default_str();
+  app.add_option("--keyframe-max-views", keyframe_max_views,
+                 "tracking: a view this many views after the last keyframe is one too (0 = off)")
+      ->capture_default_str();
   app.add_option("--edge-fill-fade", secondary_fade_weight,
                  "fusion: edge-filled points shape the surface only until the other points' fused weight reaches this (0 = they count "
                  "like the rest; 2 measured: trueness -0.1..-0.5 um, memory +360 MiB)")
@@ -202,6 +210,8 @@ int main(int argc, char** argv) {
     so.tsdf.truncation_mm = truncation_mm;
     so.tsdf.min_mesh_weight = min_mesh_weight;
     so.tsdf.secondary_fade_weight = secondary_fade_weight;
+    so.tracker.keyframe_max_rotation_deg = keyframe_max_rotation_deg;
+    so.tracker.keyframe_max_views = keyframe_max_views;
     so.tsdf.max_cell_sdf_span = max_cell_sdf_span;
     so.tsdf.occlusion_margin_mm = occlusion_margin_mm;
     if (no_refuse) so.refuse_min_correction_mm = -1;
