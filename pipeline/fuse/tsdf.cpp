@@ -441,18 +441,17 @@ void TsdfVolume::IntegratePoints(const std::vector<Eigen::Vector3f>& points, con
 
 TriangleMesh TsdfVolume::ExtractMesh(float min_weight) const {
   if (min_weight < 0) min_weight = o_.min_mesh_weight;
-  const openvdb::FloatGrid& field = *impl_->tsdf;
   std::vector<openvdb::Vec3s> pts;
   std::vector<openvdb::Vec3I> tris;
   std::vector<openvdb::Vec4I> quads;
-  openvdb::tools::volumeToMesh(field, pts, tris, quads, 0.0, 0.0, true);
+  openvdb::tools::volumeToMesh(*impl_->tsdf, pts, tris, quads, 0.0, 0.0, true);
   TriangleMesh mesh;
   // A vertex's weight: the least of the 8 voxel centres around it. Kept when ≥ min_weight.
   // A vertex whose corners span more signed distance than a distance field can (see the
   // options) gets weight 0: it is not kept and seeds nothing.
   std::vector<float> vertex_weight(pts.size(), 0.0f);
   const auto wacc = impl_->weight->getConstAccessor();
-  const auto dacc = field.getConstAccessor();
+  const auto dacc = impl_->tsdf->getConstAccessor();
   const double inv_voxel = 1.0 / o_.voxel_mm;
   const float max_span = o_.max_cell_sdf_span > 0 ? static_cast<float>(o_.max_cell_sdf_span * std::sqrt(3.0) * o_.voxel_mm)
                                                   : std::numeric_limits<float>::max();

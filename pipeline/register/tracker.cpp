@@ -500,7 +500,7 @@ void Tracker::MaybeKeyframe(const SurfacePoints& /*samples*/, const cv::Mat& poi
     const Keyframe& last = keyframes_.back();
     const Rigid3d last_from_cam = graph_.pose(last.node).inverse() * pose;
     const bool turned = o_.keyframe_max_rotation_deg > 0 &&
-                        Eigen::AngleAxisd(last_from_cam.rotation()).angle() * 180.0 / M_PI > o_.keyframe_max_rotation_deg;
+                        RotationAngleRad(graph_.pose(last.node), pose) * 180.0 / M_PI > o_.keyframe_max_rotation_deg;
     const bool aged = o_.keyframe_max_views > 0 && index_ - last.view >= o_.keyframe_max_views;
     if (!turned && !aged && last_keyframe_occupancy_->Overlap(kfs, last_from_cam) >= o_.keyframe_overlap) return;
   }
