@@ -338,6 +338,8 @@ TEST_F(TrackerScan, AProbeThatTurnsOrLingersMakesKeyframesAnyway) {
   TrackerOptions o;
   o.relocalise = false;  // no keyframe features needed
   o.min_view_samples /= 4;
+  o.keyframe_max_rotation_deg = 0;  // overlap only
+  o.keyframe_max_views = 0;
   std::vector<Rigid3d> path;
   for (int i = 0; i <= 12; ++i) path.push_back(Truth(0, 0) * Rigid3d(Eigen::AngleAxisd(i * M_PI / 180, Eigen::Vector3d::UnitZ())));
   auto keyframe_views = [&](const TrackerOptions& options) {
