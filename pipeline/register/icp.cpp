@@ -7,6 +7,7 @@
 #include <cmath>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
 
 #include "common/core/status.h"
 
@@ -104,6 +105,56 @@ double Median(std::vector<float>* v) {
   return *mid;
 }
 
+// Gauss–Newton sums of the combined metric over a set of matches (see RegisterIcp).
+struct NormalEquations {
+  Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();   // α·plane + (1 − α)·point
+  Eigen::Matrix<double, 6, 6> Hp = Eigen::Matrix<double, 6, 6>::Zero();  // plane only (α < 1)
+  Eigen::Matrix<double, 6, 1> g = Eigen::Matrix<double, 6, 1>::Zero();
+  double err = 0, wsum = 0, r2sum = 0;
+  void Add(const NormalEquations& o) {
+    H += o.H;
+    Hp += o.Hp;
+    g += o.g;
+    err += o.err;
+    wsum += o.wsum;
+    r2sum += o.r2sum;
+  }
+};
+constexpr size_t kAccumulateChunk = 4096;  // matches per chunk of the parallel sums
+
+// Adds matches [b, e) with Tukey biweight w = w0 (1 − (r/c)²)² (|r| < c) to *ne: point-to-plane
+// J = [p × n; n] (left perturbation [ω, t]) with weight α, point-to-point J = [−[p]×, I] with 1 − α
+// (Low 2004 for the linearised plane term; the combined metric of the dissertation's ICP). With
+// α = 1 the plane-only sums are H itself, so Hp is left zero.
+void Accumulate(const std::vector<Match>& matches, size_t b, size_t e, double alpha, double c, NormalEquations* ne) {
+  for (size_t k = b; k < e; ++k) {
+    const Match& m = matches[k];
+    const double r = m.r;
+    if (std::abs(r) >= c) continue;
+    const double u = r / c;
+    const double w = m.w0 * (1 - u * u) * (1 - u * u);
+    const Eigen::Vector3d p = m.p.cast<double>(), q = m.q.cast<double>(), n = m.n.cast<double>();
+    Eigen::Matrix<double, 6, 1> J;
+    J.head<3>() = p.cross(n);
+    J.tail<3>() = n;
+    ne->H.noalias() += alpha * w * J * J.transpose();
+    ne->g.noalias() += alpha * w * r * J;
+    if (alpha < 1) {
+      ne->Hp.noalias() += w * J * J.transpose();
+      const Eigen::Vector3d d = p - q;
+      Eigen::Matrix<double, 3, 6> Jp;
+      Jp.leftCols<3>() << 0, p.z(), -p.y(), -p.z(), 0, p.x(), p.y(), -p.x(), 0;  // −[p]×
+      Jp.rightCols<3>().setIdentity();
+      ne->H.noalias() += (1 - alpha) * w * Jp.transpose() * Jp;
+      ne->g.noalias() += (1 - alpha) * w * Jp.transpose() * d;
+      ne->err += (1 - alpha) * w * d.squaredNorm();
+    }
+    ne->err += alpha * w * r * r;
+    ne->wsum += w;
+    ne->r2sum += r * r;
+  }
+}
+
 Rigid3d ExpSe3(const Eigen::Matrix<double, 6, 1>& x) {
   Rigid3d d = Rigid3d::Identity();
   const Eigen::Vector3d w = x.head<3>();
@@ -127,6 +178,7 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
   std::vector<Match> matches;
   std::vector<uint8_t> found;
   std::vector<Match> scratch;
+  std::vector<float> absr;
   Eigen::Matrix<double, 6, 6> H_plane_last = Eigen::Matrix<double, 6, 6>::Zero();
   double sigma_last = o.min_sigma_mm;
   int associated_last = 0, samples_last = 0;
@@ -182,38 +234,32 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
         res.overlap = idx.empty() ? 0 : static_cast<double>(nm) / static_cast<double>(idx.size());
         return res;
       }
-      std::vector<float> absr(static_cast<size_t>(nm));
+      absr.resize(static_cast<size_t>(nm));
       for (int k = 0; k < nm; ++k) absr[static_cast<size_t>(k)] = std::abs(matches[static_cast<size_t>(k)].r);
       const double sigma = std::max(o.min_sigma_mm, 1.4826 * Median(&absr));
       const double c = 4.685 * sigma;
-      Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero(), Hp = H;
-      Eigen::Matrix<double, 6, 1> g = Eigen::Matrix<double, 6, 1>::Zero();
-      double err = 0, wsum = 0, r2sum = 0;
-      for (const Match& m : matches) {
-        const double r = m.r;
-        if (std::abs(r) >= c) continue;
-        const double u = r / c;
-        const double w = m.w0 * (1 - u * u) * (1 - u * u);
-        const Eigen::Vector3d p = m.p.cast<double>(), q = m.q.cast<double>(), n = m.n.cast<double>();
-        Eigen::Matrix<double, 6, 1> J;
-        J.head<3>() = p.cross(n);
-        J.tail<3>() = n;
-        H.noalias() += alpha * w * J * J.transpose();
-        Hp.noalias() += w * J * J.transpose();
-        g.noalias() += alpha * w * r * J;
-        if (alpha < 1) {
-          const Eigen::Vector3d e = p - q;
-          Eigen::Matrix<double, 3, 6> Jp;
-          Jp.leftCols<3>() << 0, p.z(), -p.y(), -p.z(), 0, p.x(), p.y(), -p.x(), 0;  // −[p]×
-          Jp.rightCols<3>().setIdentity();
-          H.noalias() += (1 - alpha) * w * Jp.transpose() * Jp;
-          g.noalias() += (1 - alpha) * w * Jp.transpose() * e;
-          err += (1 - alpha) * w * e.squaredNorm();
-        }
-        err += alpha * w * r * r;
-        wsum += w;
-        r2sum += r * r;
+      NormalEquations ne;
+      if (o.threads > 1) {
+        // Fixed chunks summed in a fixed tree: the same result for any thread count or schedule.
+        ne = tbb::parallel_deterministic_reduce(
+            tbb::blocked_range<size_t>(0, matches.size(), kAccumulateChunk), NormalEquations{},
+            [&](const tbb::blocked_range<size_t>& r, NormalEquations acc) {
+              Accumulate(matches, r.begin(), r.end(), alpha, c, &acc);
+              return acc;
+            },
+            [](NormalEquations a, const NormalEquations& b) {
+              a.Add(b);
+              return a;
+            },
+            tbb::simple_partitioner());
+      } else {
+        Accumulate(matches, 0, matches.size(), alpha, c, &ne);
       }
+      const Eigen::Matrix<double, 6, 6>& Hp = alpha < 1 ? ne.Hp : ne.H;  // α = 1: the same sums
+      Eigen::Matrix<double, 6, 6>& H = ne.H;
+      const Eigen::Matrix<double, 6, 1>& g = ne.g;
+      double err = ne.err;
+      const double wsum = ne.wsum, r2sum = ne.r2sum;
       if (!(wsum > 0)) {
         res.reason = "no inlier correspondences";
         return res;
