@@ -68,4 +68,19 @@ bool PinholeBrownConrady::InImage(const Eigen::Vector2d& pixel) const {
   return pixel.x() >= -0.5 && pixel.y() >= -0.5 && pixel.x() < width - 0.5 && pixel.y() < height - 0.5;
 }
 
+PinholeBrownConrady BinnedCamera(const PinholeBrownConrady& camera, int factor) {
+  D3D_CHECK_MSG(factor >= 1, "binning factor must be >= 1, got " << factor);
+  D3D_CHECK_MSG(camera.width % factor == 0 && camera.height % factor == 0,
+                "camera size " << camera.width << "x" << camera.height << " is not divisible by the binning factor " << factor);
+  PinholeBrownConrady b = camera;
+  const double f = factor, half = 0.5 * (factor - 1);
+  b.width = camera.width / factor;
+  b.height = camera.height / factor;
+  b.fx = camera.fx / f;
+  b.fy = camera.fy / f;
+  b.cx = (camera.cx - half) / f;
+  b.cy = (camera.cy - half) / f;
+  return b;
+}
+
 }  // namespace d3d

@@ -36,4 +36,11 @@ struct PinholeBrownConrady {
   bool InImage(const Eigen::Vector2d& pixel) const;
 };
 
+// The camera whose pixels are `factor` × `factor` blocks of `camera`'s (a binned read-out, or the
+// frames averaged over such blocks): size / factor, fx, fy / factor, and the principal point moved
+// so that binned pixel (u', v') is centred where its block's centre was, u = factor·u' + (factor − 1)/2:
+// cx' = (cx − (factor − 1)/2) / factor (cy alike). Distortion acts on normalised coordinates and is
+// unchanged. Throws std::invalid_argument for factor < 1 or a size not divisible by factor.
+PinholeBrownConrady BinnedCamera(const PinholeBrownConrady& camera, int factor);
+
 }  // namespace d3d

@@ -47,6 +47,29 @@ TEST(CameraModel, ProjectAndPixelRayAreInverseOverTheImage) {
   }
 }
 
+TEST(CameraModel, BinnedCameraSeesAPointAtItsBlocksCentre) {
+  const PinholeBrownConrady c = TestCamera();
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> x(-6, 6), y(-5, 5), z(40, 60);
+  for (int factor : {2, 4}) {
+    const PinholeBrownConrady b = BinnedCamera(c, factor);
+    EXPECT_EQ(b.width, 640 / factor);
+    EXPECT_EQ(b.height, 480 / factor);
+    // Full-resolution pixel u lies in binned pixel floor(u / factor) (pixel centres at integers,
+    // edges at half-integers): u = factor·u' + (factor − 1)/2.
+    for (int i = 0; i < 200; ++i) {
+      const Eigen::Vector3d p(x(rng), y(rng), z(rng));
+      const Eigen::Vector2d full = *c.Project(p), binned = *b.Project(p);
+      EXPECT_NEAR(factor * binned.x() + 0.5 * (factor - 1), full.x(), 1e-9);
+      EXPECT_NEAR(factor * binned.y() + 0.5 * (factor - 1), full.y(), 1e-9);
+      EXPECT_EQ(c.InImage(full), b.InImage(binned));
+    }
+  }
+  EXPECT_EQ(BinnedCamera(c, 1).cx, c.cx);
+  EXPECT_THROW(BinnedCamera(c, 0), std::invalid_argument);
+  EXPECT_THROW(BinnedCamera(c, 7), std::invalid_argument);  // 640 is not a multiple of 7
+}
+
 TEST(CameraModel, RejectsPointsBehindAndBadIntrinsics) {
   const PinholeBrownConrady c = TestCamera();
   EXPECT_FALSE(c.Project({0, 0, -1}).has_value());

@@ -192,4 +192,10 @@ Status ProbeCalibration::Load(const std::string& path, ProbeCalibration* out) {
   return FromJson(ss.str(), out);
 }
 
+ProbeCalibration BinnedCalibration(const ProbeCalibration& calibration, int factor) {
+  ProbeCalibration b = calibration;
+  b.camera = BinnedCamera(calibration.camera, factor);
+  return b;
+}
+
 }  // namespace d3d

@@ -71,4 +71,9 @@ struct ProbeCalibration {
   double TriangulationAngleRad() const;
 };
 
+// The calibration of the same probe read out with camera pixels binned `factor` × `factor`
+// (BinnedCamera, camera_model.h); projector, pose, pattern and volume unchanged. Throws
+// std::invalid_argument for factor < 1 or a camera size not divisible by it.
+ProbeCalibration BinnedCalibration(const ProbeCalibration& calibration, int factor);
+
 }  // namespace d3d

@@ -37,7 +37,10 @@ void ScanAppOptions::Check() const {
 }
 
 ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& options, BurstSource* source)
-    : calibration_(calibration), o_(options), source_(source), recon_(calibration, options.scan.recon) {
+    : calibration_(options.scan.bin > 1 ? BinnedCalibration(calibration, options.scan.bin) : calibration),
+      o_(options),
+      source_(source),
+      recon_(calibration, options.scan.recon, options.scan.bin) {
   o_.Check();
   registrar_ = std::make_unique<ScanRegistrar>(calibration_, o_.scan.tracker, o_.scan.anchor, o_.scan.recon.normal_max_gap_mm);
   fuser_ = std::make_unique<ScanFuser>(calibration_.camera, o_.scan.tsdf, o_.scan.free_space);
@@ -48,7 +51,7 @@ ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& opti
   StageGraphOptions go;
   go.policy = o_.policy;
   go.lossless_capacity = o_.lossless_capacity;
-  const int w = calibration_.camera.width, h = calibration_.camera.height;
+  const int w = calibration.camera.width, h = calibration.camera.height;  // the probe's frames
   graph_ = std::make_unique<Graph>(
       go,
       [w, h] {

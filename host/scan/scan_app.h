@@ -90,6 +90,7 @@ class ScanApp {
   [[nodiscard]] Status Finish(const ScanTruth& truth, const ScanViewProvider& provider, ScanResult* out);
   // The host's figures (any time; percentiles only after Join()).
   nlohmann::json HostReport() const;
+  // The views' calibration: the probe's, binned when options.scan.bin > 1.
   const ProbeCalibration& calibration() const { return calibration_; }
   const ScanAppOptions& options() const { return o_; }
 
@@ -101,7 +102,7 @@ class ScanApp {
   bool FuseStage(ScanItem& item);
   bool PreviewStage(ScanItem& item);
 
-  ProbeCalibration calibration_;
+  ProbeCalibration calibration_;  // the views' (binned with o_.scan.bin)
   ScanAppOptions o_;
   BurstSource* source_;
   std::atomic<bool> paused_{false};

@@ -2,7 +2,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <opencv2/imgproc.hpp>
+
+#include "common/core/status.h"
 
 namespace d3d {
 
@@ -29,6 +32,7 @@ CloudErrors EvaluateCloud(const cv::Mat& points, const cv::Mat& Phi, const Frame
         continue;
       }
       const cv::Vec3f& t = truth.points_in_cam.at<cv::Vec3f>(r, c);
+      if (!std::isfinite(t[2])) continue;  // BinnedTruth: a block across a depth step, not evaluated
       const Eigen::Vector3d delta(p[0] - t[0], p[1] - t[1], p[2] - t[2]);
       const int face = truth.face_index.at<int32_t>(r, c);
       double d;
@@ -45,7 +49,7 @@ CloudErrors EvaluateCloud(const cv::Mat& points, const cv::Mat& Phi, const Frame
       sum += um;
       sum2 += um * um;
       ++e.points;
-      if (!Phi.empty() && vis == 2 && std::isfinite(Phi.at<float>(r, c))) {
+      if (!Phi.empty() && vis == 2 && std::isfinite(Phi.at<float>(r, c)) && std::isfinite(truth.projector_uv.at<cv::Vec2f>(r, c)[0])) {
         const double true_phase = spec.AbsolutePhase(truth.projector_uv.at<cv::Vec2f>(r, c)[spec.axis == 'y' ? 1 : 0]);
         ++e.order_checked;
         e.order_errors += std::abs(Phi.at<float>(r, c) - true_phase) > M_PI;
@@ -65,6 +69,54 @@ CloudErrors EvaluateCloud(const cv::Mat& points, const cv::Mat& Phi, const Frame
   e.order_error_pct = e.order_checked ? 100.0 * static_cast<double>(e.order_errors) / static_cast<double>(e.order_checked) : 0.0;
   e.tooth_valid_pct = e.tooth_lit ? 100.0 * static_cast<double>(e.tooth_valid) / static_cast<double>(e.tooth_lit) : 0.0;
   return e;
+}
+
+FrameTruth BinnedTruth(const FrameTruth& truth, int factor) {
+  D3D_CHECK_MSG(truth.has_maps() && factor >= 1, "BinnedTruth: needs maps and factor >= 1");
+  const int H = truth.depth_mm.rows, W = truth.depth_mm.cols;
+  D3D_CHECK_MSG(H % factor == 0 && W % factor == 0, "BinnedTruth: " << W << "x" << H << " is not divisible by " << factor);
+  const int h = H / factor, w = W / factor;
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  FrameTruth b;
+  b.world_from_probe = truth.world_from_probe;
+  b.depth_mm.create(h, w, CV_32F);
+  b.points_in_cam.create(h, w, CV_32FC3);
+  b.projector_uv.create(h, w, CV_32FC2);
+  b.visibility.create(h, w, CV_8U);
+  b.label.create(h, w, CV_8U);
+  b.face_index.create(h, w, CV_32S);
+  const double n = factor * factor;
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      uint8_t vis = 2;
+      const uint8_t label = truth.label.at<uint8_t>(y * factor, x * factor);
+      bool one_label = true;
+      cv::Vec3d p(0, 0, 0);
+      cv::Vec2d uv(0, 0);
+      double depth = 0, zmin = std::numeric_limits<double>::infinity(), zmax = -zmin;
+      for (int dy = 0; dy < factor; ++dy)
+        for (int dx = 0; dx < factor; ++dx) {
+          const int r = y * factor + dy, c = x * factor + dx;
+          vis = std::min(vis, truth.visibility.at<uint8_t>(r, c));
+          one_label = one_label && truth.label.at<uint8_t>(r, c) == label;
+          p += cv::Vec3d(truth.points_in_cam.at<cv::Vec3f>(r, c));
+          uv += cv::Vec2d(truth.projector_uv.at<cv::Vec2f>(r, c));
+          const double z = truth.depth_mm.at<float>(r, c);
+          depth += z;
+          zmin = std::min(zmin, z);
+          zmax = std::max(zmax, z);
+        }
+      // One smooth piece of surface: every pixel sees it and its depth spans at most a few pixel widths.
+      const bool surface = vis >= 1 && std::isfinite(p[2]) && std::isfinite(depth) && zmax - zmin <= 0.1;
+      const bool lit = surface && vis == 2 && std::isfinite(uv[0]) && std::isfinite(uv[1]);
+      b.visibility.at<uint8_t>(y, x) = vis;
+      b.label.at<uint8_t>(y, x) = surface && one_label ? label : 0;
+      b.points_in_cam.at<cv::Vec3f>(y, x) = surface ? cv::Vec3f(p / n) : cv::Vec3f(nan, nan, nan);
+      b.depth_mm.at<float>(y, x) = surface ? static_cast<float>(depth / n) : nan;
+      b.projector_uv.at<cv::Vec2f>(y, x) = lit ? cv::Vec2f(uv / n) : cv::Vec2f(nan, nan);
+      b.face_index.at<int32_t>(y, x) = surface ? truth.face_index.at<int32_t>(y * factor, x * factor) : -1;
+    }
+  return b;
 }
 
 cv::Mat FalseColour(const cv::Mat& values, double lo, double hi, int colormap) {

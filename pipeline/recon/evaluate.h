@@ -34,6 +34,16 @@ struct CloudErrors {
 CloudErrors EvaluateCloud(const cv::Mat& points_in_cam, const cv::Mat& Phi, const FrameTruth& truth,
                           const TriangleMesh& scene, const FringePatternSpec& spec, cv::Mat* error_um = nullptr);
 
+// The truth of `truth`'s frame as a camera binned factor × factor sees it (BinFrame, BinnedCamera), to
+// evaluate a binned reconstruction with EvaluateCloud: a binned pixel whose block
+// sees one smooth piece of surface (every pixel a surface, depth span ≤ 0.1 mm) gets the block's mean
+// surface point and depth (the surface point at the block's centre, to ~(25 µm)² × curvature / 2),
+// its top-left pixel's face (for the normal) and label (0 when the labels differ), and the mean
+// projector pixel when the whole block is lit; visibility is the block's least. A block across a
+// depth step has no point (EvaluateCloud skips it). `truth` must have maps with sizes divisible by
+// factor (std::invalid_argument).
+FrameTruth BinnedTruth(const FrameTruth& truth, int factor);
+
 // False colour of a single-channel map: values in [lo, hi] through an OpenCV colour map
 // (cv::COLORMAP_*), clipped outside; black where the value is NaN. H×W CV_8UC3 (BGR).
 cv::Mat FalseColour(const cv::Mat& values, double lo, double hi, int colormap);

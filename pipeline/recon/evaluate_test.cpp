@@ -60,5 +60,42 @@ TEST(EvaluateCloud, KnownOffsetsAlongTheNormalAndWrongOrders) {
   EXPECT_EQ(heat.at<cv::Vec3b>(nan_r, nan_c), cv::Vec3b(0, 0, 0));
 }
 
+TEST(EvaluateCloud, BinnedTruthSeesTheSurfaceAtTheBinnedPixel) {
+  // A tilted plane's truth binned 2×2: each binned pixel's point lies on the plane and on the ray of
+  // that pixel of the binned camera (BinnedCamera), its projector pixel is the block's mean, and a
+  // block with one unlit pixel is not lit.
+  const Eigen::Vector3d n = Eigen::Vector3d(0.25, -0.1, -1).normalized(), p0(0, 0, 50);
+  RenderOptions opt;
+  opt.texture = false;
+  VirtualProbe probe(PlaneMesh(n, p0), MakeDefaultProbeDesign(), opt);
+  FrameTruth t;
+  probe.RenderTruth(Rigid3d::Identity(), &t);
+  t.visibility.at<uint8_t>(241, 321) = 1;  // block (120, 160): one pixel unlit
+  const FrameTruth b = BinnedTruth(t, 2);
+  ASSERT_EQ(b.points_in_cam.size(), cv::Size(320, 240));
+  const PinholeBrownConrady cam = BinnedCamera(probe.calibration().camera, 2);
+  int checked = 0;
+  for (int y = 0; y < 240; y += 7)
+    for (int x = 0; x < 320; x += 7) {
+      if (b.visibility.at<uint8_t>(y, x) != 2) continue;
+      const cv::Vec3f& q = b.points_in_cam.at<cv::Vec3f>(y, x);
+      const Eigen::Vector3d p(q[0], q[1], q[2]);
+      EXPECT_LT(std::abs(n.dot(p - p0)) * 1000, 0.01) << y << " " << x;  // µm
+      const Eigen::Vector2d uv = *cam.Project(p);
+      EXPECT_LT((uv - Eigen::Vector2d(x, y)).norm(), 0.01) << y << " " << x;
+      const cv::Vec2f pu = b.projector_uv.at<cv::Vec2f>(y, x);
+      cv::Vec2f mean(0, 0);
+      for (int dy = 0; dy < 2; ++dy)
+        for (int dx = 0; dx < 2; ++dx) mean += t.projector_uv.at<cv::Vec2f>(2 * y + dy, 2 * x + dx) * 0.25f;
+      EXPECT_NEAR(pu[0], mean[0], 1e-3);
+      ++checked;
+    }
+  EXPECT_GT(checked, 1000);
+  EXPECT_EQ(b.visibility.at<uint8_t>(120, 160), 1);
+  EXPECT_TRUE(std::isnan(b.projector_uv.at<cv::Vec2f>(120, 160)[0]));
+  EXPECT_TRUE(std::isfinite(b.points_in_cam.at<cv::Vec3f>(120, 160)[2]));  // still a surface
+  EXPECT_THROW(BinnedTruth(t, 7), std::invalid_argument);
+}
+
 }  // namespace
 }  // namespace d3d

@@ -48,9 +48,18 @@ inline constexpr double kReferenceFringePeriodCamPx = 24.0 * 2000.0 / 2100.0;
 double FringePeriodCamPx(const ProbeCalibration& calibration);
 
 // `options` with every pixel-size field scaled by s = fringe_period_cam_px / kReferenceFringePeriodCamPx:
-// lengths by s (odd sizes stay odd), pixel counts (areas) by s². s = 1 returns `options` unchanged.
+// lengths by s (odd sizes stay odd; the unwrapper's neck radius rounds down), pixel counts (areas)
+// by s². |s − 1| < 0.05 returns `options` unchanged.
 // Throws std::invalid_argument for a non-positive period.
 ReconstructOptions ScaleToFringePeriod(const ReconstructOptions& options, double fringe_period_cam_px);
+
+// Averages `frame` (H×W CV_8U or CV_16U) over `factor` × `factor` pixel blocks into `binned`
+// ((H/factor)×(W/factor), same type; reallocated only when its size or type differs), rounding to
+// nearest, as a binned sensor read-out would (pixel centres: BinnedCamera, calib/model/camera_model.h).
+// A block with any pixel at full scale (255 / 65535) stays at full scale, so that the quality map
+// still sees the clipping (a clipped sinusoid biases φ). INVALID_ARGUMENT for another type, factor < 1
+// or a size not divisible by factor.
+[[nodiscard]] Status BinFrame(const cv::Mat& frame, int factor, cv::Mat* binned);
 
 struct ReconstructedView {
   cv::Mat points_in_cam;  // H×W CV_32FC3, mm, NaN where no point

@@ -39,15 +39,49 @@ TrackerOptions TrackerOptionsForStep(TrackerOptions options, double every) {
   return options;
 }
 
-ScanReconstructor::ScanReconstructor(const ProbeCalibration& calibration, const ReconstructOptions& options)
-    : recon_(calibration, options) {}
+ScanOptions ScanOptionsForBin(ScanOptions options, int bin) {
+  if (bin < 1) throw std::invalid_argument("ScanOptionsForBin: bin must be >= 1");
+  options.bin = bin;
+  if (bin == 1) return options;
+  TrackerOptions& t = options.tracker;
+  const int old_stride = t.sample_stride;
+  const auto lattice = [bin](int stride) { return std::max(1, static_cast<int>(std::lround(static_cast<double>(stride) / bin))); };
+  t.sample_stride = lattice(t.sample_stride);
+  t.map_stride = lattice(t.map_stride);
+  t.keyframe_stride = lattice(t.keyframe_stride);
+  // A view of the same share of the image gives (old_stride / (bin · stride))² times the samples.
+  const double share = static_cast<double>(old_stride) / (bin * t.sample_stride);
+  t.min_view_samples = std::max(1, static_cast<int>(std::lround(t.min_view_samples * share * share)));
+  t.features.image_scale = std::min(1.0, t.features.image_scale * bin);
+  t.target_scale = std::min(2.0, t.target_scale * bin);
+  options.tsdf.occlusion_stride = lattice(options.tsdf.occlusion_stride);
+  return options;
+}
+
+ScanReconstructor::ScanReconstructor(const ProbeCalibration& calibration, const ReconstructOptions& options, int bin)
+    : bin_(bin), recon_(bin > 1 ? BinnedCalibration(calibration, bin) : calibration, options) {
+  if (bin < 1) throw std::invalid_argument("ScanReconstructor: bin must be >= 1");
+}
 
 Status ScanReconstructor::Reconstruct(const std::vector<cv::Mat>& frames, ReconstructedView* out) {
   const size_t steps = static_cast<size_t>(recon_.calibration().pattern.steps);
   if (frames.size() < steps)
     return InvalidArgument("burst has " + std::to_string(frames.size()) + " frames, the pattern needs " + std::to_string(steps));
   phase_frames_.resize(steps);
-  for (size_t i = 0; i < steps; ++i) phase_frames_[i] = frames[i];  // headers only
+  if (bin_ == 1) {
+    for (size_t i = 0; i < steps; ++i) phase_frames_[i] = frames[i];  // headers only
+  } else {
+    binned_frames_.resize(steps);
+    const PinholeBrownConrady& cam = recon_.calibration().camera;
+    for (size_t i = 0; i < steps; ++i) {
+      if (frames[i].cols != cam.width * bin_ || frames[i].rows != cam.height * bin_)
+        return InvalidArgument("reconstruct: a frame is " + std::to_string(frames[i].cols) + "x" + std::to_string(frames[i].rows) +
+                               " but the calibration's camera is " + std::to_string(cam.width * bin_) + "x" +
+                               std::to_string(cam.height * bin_));
+      D3D_RETURN_IF_ERROR(BinFrame(frames[i], bin_, &binned_frames_[i]));
+      phase_frames_[i] = binned_frames_[i];
+    }
+  }
   return recon_.Reconstruct(phase_frames_, out);
 }
 

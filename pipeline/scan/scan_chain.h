@@ -53,6 +53,11 @@ namespace d3d {
 ReconstructOptions HandHeldReconstructOptions();
 
 struct ScanOptions {
+  // Camera pixels averaged over bin × bin blocks before reconstruction (BinFrame, pipeline/recon):
+  // views, tracking and fusion then work on (H/bin) × (W/bin) maps with BinnedCalibration, about
+  // bin² less work per burst. Set it with ScanOptionsForBin, which also scales the pixel lattices of
+  // the tracker and the fusion. 1 = full resolution.
+  int bin = 1;
   ReconstructOptions recon = HandHeldReconstructOptions();
   TrackerOptions tracker;  // tracker.detect_loops: keyframe loop closures and the pose graph at the end
   ModelAnchorOptions anchor;  // model-guided anchoring in the register stage (model_anchor.h)
@@ -70,18 +75,34 @@ struct ScanOptions {
 // check's max_step_mm / max_step_deg (per view) times `every`.
 TrackerOptions TrackerOptionsForStep(TrackerOptions options, double every);
 
+// `options` for views binned bin × bin (ScanOptions::bin): the tracker's pixel lattices (ICP
+// samples, model samples, keyframe samples) divided by bin, at least 1, with min_view_samples
+// scaled to the same share of the view, its keyframe features on larger images (image_scale × bin,
+// at most 1: OpenCV's SIFT then still searches down to the binned pixel) and the projective model
+// image at the same size in full-resolution pixels; the TSDF's occlusion lattice divided by bin.
+// bin = 1 returns `options`. Throws std::invalid_argument for bin < 1.
+ScanOptions ScanOptionsForBin(ScanOptions options, int bin);
+
 class ScanReconstructor {
  public:
-  // Throws std::invalid_argument for an invalid calibration or options.
-  ScanReconstructor(const ProbeCalibration& calibration, const ReconstructOptions& options);
+  // `calibration` is the probe's (full resolution); with bin > 1 each frame is averaged over bin × bin
+  // blocks (BinFrame) and reconstructed with BinnedCalibration(calibration, bin). Throws
+  // std::invalid_argument for an invalid calibration or options, bin < 1 or a camera size not
+  // divisible by bin.
+  ScanReconstructor(const ProbeCalibration& calibration, const ReconstructOptions& options, int bin = 1);
   // frames: the burst's frames (at least calibration.pattern.steps; extra ones, e.g. a texture
-  // frame, are ignored), H×W CV_8U/CV_16U. INVALID_ARGUMENT for too few or mis-sized frames.
+  // frame, are ignored), H×W CV_8U/CV_16U of the probe's camera size. INVALID_ARGUMENT for too few
+  // or mis-sized frames.
   [[nodiscard]] Status Reconstruct(const std::vector<cv::Mat>& frames, ReconstructedView* out);
+  // The calibration of the reconstructed views (binned when bin > 1).
   const ProbeCalibration& calibration() const { return recon_.calibration(); }
+  int bin() const { return bin_; }
 
  private:
+  int bin_;
   Reconstructor recon_;
   std::vector<cv::Mat> phase_frames_;
+  std::vector<cv::Mat> binned_frames_;  // bin > 1: the binned frames, reused
 };
 
 // One Track() call.

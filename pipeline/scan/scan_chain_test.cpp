@@ -10,53 +10,83 @@
 #include <filesystem>
 
 #include "common/mesh/mesh_io.h"
+#include "firmware/sim/render/probe_design.h"
 #include "firmware/sim/session/sim_session.h"
 #include "pipeline/register/test_surfaces.h"
 
 namespace d3d {
 namespace {
 
-TEST(ScanChain, ShortScanThroughThePiecesGivesAReport) {
+// The quadrant path's bursts 30, 32, ..., 58 through the pieces, views binned `bin` × `bin`.
+struct ShortScan {
+  ScanOptions o;
+  ProbeCalibration view_calibration;  // of the reconstructed views
+  std::unique_ptr<ScanRegistrar> reg;
+  std::unique_ptr<ScanFuser> fuser;
+  ScanTimes times;
+};
+
+std::unique_ptr<SimSession> QuadrantSession() {
   SimSessionOptions so;
   so.model = "typodont";
   so.trajectory = "quadrant";
   so.seed = 3;
   std::unique_ptr<SimSession> session;
-  ASSERT_TRUE(SimSession::Create(so, &session).ok());
-  const ProbeCalibration& calib = session->calibration();
+  if (!SimSession::Create(so, &session).ok()) return nullptr;
+  return session;
+}
+
+void RunShortScan(SimSession& session, int bin, ShortScan* s) {
   ScanOptions o;
   o.tracker = TrackerOptionsForStep(o.tracker, 2);
-  ASSERT_NO_THROW(o.Check());
-  ScanReconstructor recon(calib, o.recon);
-  ScanRegistrar reg(calib.camera, o.tracker);
-  ScanFuser fuser(calib.camera, o.tsdf);
-  ScanTimes times;
+  s->o = ScanOptionsForBin(o, bin);
+  ASSERT_NO_THROW(s->o.Check());
+  ScanReconstructor recon(session.calibration(), s->o.recon, s->o.bin);
+  s->view_calibration = recon.calibration();
+  s->reg = std::make_unique<ScanRegistrar>(s->view_calibration.camera, s->o.tracker);
+  s->fuser = std::make_unique<ScanFuser>(s->view_calibration.camera, s->o.tsdf);
   ReconstructedView view;
-  std::map<uint64_t, int64_t> seq_to_ref;
   for (int64_t i = 30; i < 60; i += 2) {
-    const Burst b = session->RenderBurst(i, false);
+    const Burst b = session.RenderBurst(i, false);
     std::vector<cv::Mat> frames;
     for (const auto& f : b.frames) frames.push_back(f.image);
     ASSERT_TRUE(recon.Reconstruct(frames, &view).ok());
-    const TrackResult r = reg.Register(view, static_cast<uint64_t>(i), b.reference_ns);
+    ASSERT_EQ(view.points_in_cam.cols, session.calibration().camera.width / bin);
+    const TrackResult r = s->reg->Register(view, static_cast<uint64_t>(i), b.reference_ns);
     if (r.accepted) {
-      ASSERT_TRUE(fuser.Fuse(view, r.world_from_cam).ok());
+      ASSERT_TRUE(s->fuser->Fuse(view, r.world_from_cam).ok());
     }
-    times.ms_recon += view.ms_total;
-    ++times.bursts;
-    seq_to_ref[static_cast<uint64_t>(i)] = b.reference_ns;
+    s->times.ms_recon += view.ms_total;
+    ++s->times.bursts;
   }
-  EXPECT_EQ(reg.views().size(), 15u);
-  EXPECT_GE(reg.accepted(), 12);
-  EXPECT_EQ(fuser.fused(), reg.accepted());
-  times.ms_register = reg.ms_register();
-  times.ms_fuse = fuser.ms_fuse();
+  s->times.ms_register = s->reg->ms_register();
+  s->times.ms_fuse = s->fuser->ms_fuse();
+}
+
+ScanTruth TruthOf(SimSession* session) {
   ScanTruth truth;
   truth.reference = &session->scene();
-  truth.true_pose = [&](const ScanViewRecord& v, Rigid3d* p) {
+  truth.true_pose = [session](const ScanViewRecord& v, Rigid3d* p) {
     *p = session->trajectory().WorldFromProbe(v.reference_ns);
     return true;
   };
+  return truth;
+}
+
+TEST(ScanChain, ShortScanThroughThePiecesGivesAReport) {
+  std::unique_ptr<SimSession> session = QuadrantSession();
+  ASSERT_TRUE(session);
+  ShortScan scan;
+  RunShortScan(*session, 1, &scan);
+  ASSERT_FALSE(HasFatalFailure());
+  const ScanOptions& o = scan.o;
+  ScanRegistrar& reg = *scan.reg;
+  ScanFuser& fuser = *scan.fuser;
+  const ScanTimes& times = scan.times;
+  EXPECT_EQ(reg.views().size(), 15u);
+  EXPECT_GE(reg.accepted(), 12);
+  EXPECT_EQ(fuser.fused(), reg.accepted());
+  const ScanTruth truth = TruthOf(session.get());
   ScanResult with_poses;
   ASSERT_TRUE(FinishScan(o, times, &reg, &fuser, {}, truth, &with_poses).ok());
   const nlohmann::json& j = with_poses.report;
@@ -91,6 +121,52 @@ TEST(ScanChain, ShortScanThroughThePiecesGivesAReport) {
   ASSERT_TRUE(LoadMesh(dir + "/scan.ply", &back).ok());
   EXPECT_EQ(back.faces.size(), with_poses.mesh.faces.size());
   std::filesystem::remove_all(dir);
+}
+
+// The same scan from 2×2-binned frames (d3d-scan's default): views of 320 × 240 with the binned
+// calibration, as many accepted, the model as true.
+TEST(ScanChain, ABinnedScanIsAsTrue) {
+  std::unique_ptr<SimSession> session = QuadrantSession();
+  ASSERT_TRUE(session);
+  ShortScan scan;
+  RunShortScan(*session, 2, &scan);
+  ASSERT_FALSE(HasFatalFailure());
+  EXPECT_EQ(scan.view_calibration.camera.width, 320);
+  EXPECT_DOUBLE_EQ(scan.view_calibration.camera.fx, session->calibration().camera.fx / 2);
+  EXPECT_GE(scan.reg->accepted(), 12);
+  ScanResult r;
+  ASSERT_TRUE(FinishScan(scan.o, scan.times, scan.reg.get(), scan.fuser.get(), {}, TruthOf(session.get()), &r).ok());
+  std::printf("[ binned   ] accepted %lld of 15, trueness %.2f um RMS, p95 %.2f, ATE %.3f mm, %.1f ms per burst\n",
+              static_cast<long long>(scan.reg->accepted()), r.report["trueness_rms_um"].get<double>(),
+              r.report["trueness_p95_um"].get<double>(), r.report["ate_mm"].get<double>(), r.report["ms_per_burst"].get<double>());
+  EXPECT_LT(r.report["trueness_rms_um"].get<double>(), 20.0);
+  EXPECT_LT(r.report["trueness_p95_um"].get<double>(), 45.0);
+  EXPECT_LT(r.report["ate_mm"].get<double>(), 0.1);
+}
+
+// Binned views: the tracker's and the fusion's pixel lattices shrink with the pixels, the rest of
+// the options stay.
+TEST(ScanChain, ScanOptionsForBinScaleThePixelLattices) {
+  const ScanOptions base;
+  const ScanOptions two = ScanOptionsForBin(base, 2);
+  EXPECT_EQ(two.bin, 2);
+  EXPECT_EQ(two.tracker.sample_stride, 1);   // 2 → 1
+  EXPECT_EQ(two.tracker.map_stride, 2);      // 3 → 1.5, rounded
+  EXPECT_EQ(two.tracker.keyframe_stride, 2);
+  EXPECT_EQ(two.tracker.min_view_samples, base.tracker.min_view_samples);  // the same share of the view
+  EXPECT_DOUBLE_EQ(two.tracker.features.image_scale, std::min(1.0, 2 * base.tracker.features.image_scale));
+  EXPECT_DOUBLE_EQ(two.tracker.target_scale, 2 * base.tracker.target_scale);
+  EXPECT_EQ(two.tsdf.occlusion_stride, 1);
+  EXPECT_DOUBLE_EQ(two.tsdf.voxel_mm, base.tsdf.voxel_mm);
+  EXPECT_EQ(two.tracker.icp.levels.size(), base.tracker.icp.levels.size());
+  const ScanOptions four = ScanOptionsForBin(base, 4);
+  EXPECT_EQ(four.tracker.sample_stride, 1);  // 2 / 4 → at least 1: samples of a quarter the share
+  EXPECT_EQ(four.tracker.min_view_samples, base.tracker.min_view_samples / 4);
+  const ScanOptions one = ScanOptionsForBin(base, 1);
+  EXPECT_EQ(one.tracker.sample_stride, base.tracker.sample_stride);
+  EXPECT_EQ(one.tsdf.occlusion_stride, base.tsdf.occlusion_stride);
+  EXPECT_THROW(ScanOptionsForBin(base, 0), std::invalid_argument);
+  EXPECT_THROW(ScanReconstructor(MakeDefaultProbeDesign().calibration, base.recon, 7), std::invalid_argument);  // 640 % 7
 }
 
 TEST(ScanChain, AFuserAdoptsARefusedVolumeAndFreesItsOwn) {

@@ -76,6 +76,7 @@ int main(int argc, char** argv) {
   std::string sim_model, bursts_dir, trajectory = "full-arch", out_dir, association = "kdtree", trace_path, graph_path;
   uint32_t seed = 1;
   int every = 1;
+  int bin = 1;
   int64_t max_bursts = -1, first = 0;
   double voxel_mm = 0.05, truncation_mm = 0.2;
   float min_mesh_weight = TsdfOptions{}.min_mesh_weight;
@@ -94,6 +95,8 @@ int main(int argc, char** argv) {
   app.add_option("--seed", seed, "--sim: seed of hand motion and sensor noise")->capture_default_str();
   app.add_option("--out", out_dir, "output folder")->required();
   app.add_option("--every", every, "use every N-th burst (a lower burst rate, for quick runs)")->capture_default_str();
+  app.add_option("--bin", bin, "average the camera's pixels over NxN blocks before reconstruction (d3d-scan's live profile uses 2)")
+      ->capture_default_str();
   app.add_option("--first", first, "first burst index")->capture_default_str();
   app.add_option("--max-bursts", max_bursts, "stop after this many bursts used (default: all)");
   app.add_option("--association", association, "ICP data association: kdtree (default: the more accurate) | projective")->capture_default_str();
@@ -157,8 +160,8 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "d3d-fuse: give exactly one of --sim MODEL or --bursts DIR\n");
     return 2;
   }
-  if (every < 1 || (association != "projective" && association != "kdtree")) {
-    std::fprintf(stderr, "d3d-fuse: --every must be >= 1 and --association projective|kdtree\n");
+  if (every < 1 || bin < 1 || (association != "projective" && association != "kdtree")) {
+    std::fprintf(stderr, "d3d-fuse: --every and --bin must be >= 1 and --association projective|kdtree\n");
     return 2;
   }
   try {
@@ -215,10 +218,12 @@ int main(int argc, char** argv) {
     so.tsdf.max_cell_sdf_span = max_cell_sdf_span;
     so.tsdf.occlusion_margin_mm = occlusion_margin_mm;
     if (no_refuse) so.refuse_min_correction_mm = -1;
+    so = ScanOptionsForBin(so, bin);
     so.Check();
-    ScanReconstructor recon(calib, so.recon);
-    ScanRegistrar registrar(calib, so.tracker, so.anchor, so.recon.normal_max_gap_mm);
-    ScanFuser fuser(calib.camera, so.tsdf, so.free_space);
+    ScanReconstructor recon(calib, so.recon, so.bin);
+    const ProbeCalibration& view_calib = recon.calibration();  // of the (binned) views
+    ScanRegistrar registrar(view_calib, so.tracker, so.anchor, so.recon.normal_max_gap_mm);
+    ScanFuser fuser(view_calib.camera, so.tsdf, so.free_space);
     // Burst `index` of the source, rendered or read (again, for the refusion pass).
     bool trace_truth = false;  // per-burst truth maps, for the trace's reconstruction figures
     auto load_burst = [&](int64_t index, Burst* b) -> Status {
@@ -305,7 +310,8 @@ int main(int argc, char** argv) {
         CloudErrors ve;
         ve.rms_um = ve.order_error_pct = ve.tooth_valid_pct = NAN;
         if (trace_truth && b.reference_truth.has_maps())
-          ve = EvaluateCloud(view.points_in_cam, view.unwrap.Phi, b.reference_truth, scene, calib.pattern);
+          ve = EvaluateCloud(view.points_in_cam, view.unwrap.Phi, bin > 1 ? BinnedTruth(b.reference_truth, bin) : b.reference_truth,
+                             scene, calib.pattern);
         char line[512];
         std::snprintf(line, sizeof line, "%lld %d %s %.2f %.3f %.5f %d %d %d %.4f %.4f %.2f %.4f %.1f %d\n",
                       static_cast<long long>(indices[k]), r.accepted ? 1 : 0, TrackingStateName(r.state), r.icp.rmse_mm * 1000,
@@ -349,6 +355,7 @@ int main(int argc, char** argv) {
     j["trajectory"] = trajectory;
     j["seed"] = seed;
     j["every"] = every;
+    j["bin"] = bin;
     j["truth_poses"] = truth_poses;
     j["ms_render_per_burst"] = ms_render / static_cast<double>(std::max<size_t>(indices.size(), 1));
     j["peak_rss_mib"] = PeakRssMiB();

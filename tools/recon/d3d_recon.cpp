@@ -30,6 +30,7 @@ double PhaseRmsRad(const PhaseMaps& phase, const FrameTruth& truth, const Fringe
     for (int c = 0; c < phase.phi.cols; ++c) {
       if (!phase.valid.at<uint8_t>(r, c) || truth.visibility.at<uint8_t>(r, c) != 2) continue;
       const double Phi = spec.AbsolutePhase(truth.projector_uv.at<cv::Vec2f>(r, c)[spec.axis == 'y' ? 1 : 0]);
+      if (!std::isfinite(Phi)) continue;  // a binned block across a depth step
       const double e = std::remainder(phase.phi.at<float>(r, c) - Phi, 2 * M_PI);
       sum2 += e * e;
       ++n;
@@ -124,6 +125,7 @@ int main(int argc, char** argv) {
                "in a parent folder) or the virtual probe (--sim). With truth, prints accuracy figures."};
   std::string images, sim_model, calibration_path, out_ply, maps_dir, camera = "640x480", pose_text;
   int64_t index = -1, count = 1;
+  int bin = 1;
   uint32_t seed = 1;
   bool json = false, motion_compensation = false;
   app.add_option("--images", images, "burst folder (frame_K.png + burst.json)");
@@ -141,6 +143,9 @@ int main(int argc, char** argv) {
   app.add_flag("--motion-compensation", motion_compensation,
                "compensate the hand's motion within the burst (PhaseOptions::motion_compensation), as d3d-fuse and\n"
                "d3d-scan reconstruct hand-held bursts");
+  app.add_option("--bin", bin, "average the frames over NxN pixel blocks and reconstruct with the binned calibration, as d3d-scan\n"
+                               "does (default 1; the truth is binned alike: BinnedTruth)")
+      ->capture_default_str();
   app.add_flag("--json", json, "print one JSON object as the last line");
   CLI11_PARSE(app, argc, argv);
   if (images.empty() == sim_model.empty()) {
@@ -211,12 +216,24 @@ int main(int argc, char** argv) {
     }
     ReconstructOptions recon_options;
     recon_options.phase.motion_compensation = motion_compensation;
+    if (bin < 1) {
+      std::fprintf(stderr, "d3d-recon: --bin must be >= 1\n");
+      return 2;
+    }
+    if (bin > 1) calib = BinnedCalibration(calib, bin);
     Reconstructor recon(calib, recon_options);
     std::vector<Figures> figures;
     ReconstructedView view;
     for (const Burst& b : bursts) {
       std::vector<cv::Mat> frames;
-      for (int k = 0; k < calib.pattern.steps && k < static_cast<int>(b.frames.size()); ++k) frames.push_back(b.frames[static_cast<size_t>(k)].image);
+      for (int k = 0; k < calib.pattern.steps && k < static_cast<int>(b.frames.size()); ++k) {
+        frames.push_back(b.frames[static_cast<size_t>(k)].image);
+        if (bin > 1)
+          if (const Status s = BinFrame(b.frames[static_cast<size_t>(k)].image, bin, &frames.back()); !s.ok()) {
+            std::fprintf(stderr, "d3d-recon: %s\n", s.ToString().c_str());
+            return 1;
+          }
+      }
       if (const Status s = recon.Reconstruct(frames, &view); !s.ok()) {
         std::fprintf(stderr, "d3d-recon: burst %llu: %s\n", static_cast<unsigned long long>(b.sequence), s.ToString().c_str());
         return 1;
@@ -232,8 +249,9 @@ int main(int argc, char** argv) {
                              [](const RegionInfo& a, const RegionInfo& b) { return a.pixels > b.pixels; });
       cv::Mat error_um;
       if (have_truth) {
-        f.err = EvaluateCloud(view.points_in_cam, view.unwrap.Phi, b.reference_truth, scene, calib.pattern, &error_um);
-        f.phase_rms_rad = PhaseRmsRad(view.phase, b.reference_truth, calib.pattern);
+        const FrameTruth truth = bin > 1 ? BinnedTruth(b.reference_truth, bin) : b.reference_truth;
+        f.err = EvaluateCloud(view.points_in_cam, view.unwrap.Phi, truth, scene, calib.pattern, &error_um);
+        f.phase_rms_rad = PhaseRmsRad(view.phase, truth, calib.pattern);
       }
       figures.push_back(f);
       if (&b == &bursts.front()) {

@@ -48,10 +48,10 @@ double SteadyS() { return std::chrono::duration<double>(std::chrono::steady_cloc
 int main(int argc, char** argv) {
   CLI::App cli{"d3d-scan: the host application: live scan from the probe over DDS (or --replay FILE), live preview,\n"
                "and the fused model with its report. Writes DIR/scan.ply, scan.stl, poses.txt, report.json, preview.png."};
-  std::string replay, out_dir = "scan_out", screenshot, policy_text, reference, sim_trajectory, serial;
+  std::string replay, out_dir = "scan_out", screenshot, policy_text, reference, sim_trajectory, serial, association = "kdtree";
   bool headless = false, json = false, no_preview = false, refuse = false, quiet = false;
   double duration_s = 0, probe_timeout_s = 1.0, idle_exit_s = 0, wait_probe_s = 120, preview_fps = 20, replay_rate = 0, step = 0;
-  int domain = 0, threads = 2, width = 960, height = 720;
+  int domain = 0, threads = 2, width = 960, height = 720, bin = 2;
   uint32_t sim_seed = 1;
   double sim_rate = 30;
   cli.add_option("--replay", replay, "replay a recording (d3d-record) through the same graph instead of listening on DDS");
@@ -73,6 +73,11 @@ int main(int argc, char** argv) {
                  "the probe's burst rate (Hz): the true poses' timing with --sim-trajectory; live, the tracker's view period is --step / rate")
       ->capture_default_str();
   cli.add_flag("--refuse", refuse, "--replay: fuse the accepted bursts again at the pose-graph poses at the end");
+  cli.add_option("--bin", bin,
+                 "average the camera's pixels over NxN blocks before reconstruction (1 = full resolution; 2 keeps up with a "
+                 "30 Hz probe on 2 cores)")
+      ->capture_default_str();
+  cli.add_option("--association", association, "the tracker's ICP data association: kdtree | projective")->capture_default_str();
   cli.add_option("--step", step, "expected bursts between processed views for the tracker's gates (default: 1 lossless, 6 live)");
   cli.add_option("--domain", domain, "DDS domain id")->capture_default_str();
   cli.add_option("--serial", serial, "listen to this probe only (default: any)");
@@ -98,6 +103,10 @@ int main(int argc, char** argv) {
   }
   if (step <= 0) step = policy == EdgePolicy::kLive ? 6 : 1;
   if (threads < 1) threads = 1;
+  if (bin < 1 || (association != "kdtree" && association != "projective")) {
+    std::fprintf(stderr, "d3d-scan: --bin must be >= 1 and --association kdtree or projective\n");
+    return 2;
+  }
   cv::setNumThreads(threads);
   tbb::global_control tbb_cap(tbb::global_control::max_allowed_parallelism, static_cast<size_t>(threads));
   setenv("LP_NUM_THREADS", "1", 0);
@@ -155,7 +164,11 @@ int main(int argc, char** argv) {
     // pose-graph edges (keyframe and loop-closure ICPs) at the end of the scan. Same results.
     ao.scan.tracker.async_keyframe_features = true;
     ao.scan.tracker.defer_keyframe_edges = true;
-    ao.scan.tracker.icp.threads = threads;  // ICP association on the oneTBB pool when the other stages leave a core idle
+    ao.scan.tracker.association = association == "projective" ? Association::kProjective : Association::kKdTree;
+    // The ICP runs on the register thread alone: the graph's stages keep both cores busy, and its
+    // oneTBB workers only contended with them (600-burst typodont recording at 30 Hz, live, 2x2
+    // binned: register 144 -> 78 ms per burst, 6.8 -> 10.8-12.1 bursts/s processed).
+    ao.scan.tracker.icp.threads = 1;
     // At most ~1.6k / 4k / 8k ICP samples per level, whatever the view's size: the register stage is
     // the graph's slowest, and a view full of surface cost it 3x a small one (typodont, 90 bursts at
     // 30 Hz: register 89 -> 76 ms per burst, trueness 7.37 -> 7.37 um, ATE 0.026 -> 0.029 mm).
@@ -165,6 +178,8 @@ int main(int argc, char** argv) {
     // capture time, in views of `step` bursts.
     if (policy == EdgePolicy::kLive && sim_rate > 0) ao.scan.tracker.view_period_ns = std::llround(step * 1e9 / sim_rate);
     ao.scan.refuse_min_correction_mm = refuse ? 0.01 : -1;
+    ao.scan = ScanOptionsForBin(ao.scan, bin);
+    ao.view_stride_px = std::max(2, ao.view_stride_px / bin);
     ScanApp app(calib, ao, source);
 
     std::unique_ptr<Viewer> viewer;
@@ -301,7 +316,7 @@ int main(int argc, char** argv) {
     std::unique_ptr<ScanReconstructor> re_recon;
     IngestedBurst re_burst;
     if (rec && refuse) {
-      re_recon = std::make_unique<ScanReconstructor>(calib, ao.scan.recon);
+      re_recon = std::make_unique<ScanReconstructor>(calib, ao.scan.recon, ao.scan.bin);
       provider = [&](int64_t, const ScanViewRecord& v, ReconstructedView* view) -> Status {
         D3D_RETURN_IF_ERROR(rec->ReadBurst(v.burst_seq, &re_burst));
         return re_recon->Reconstruct(re_burst.frames, view);
@@ -315,6 +330,7 @@ int main(int argc, char** argv) {
     result.report["step"] = step;
     result.report["rss_mb_per_s"] = rss_timeline;
     result.report["threads"] = threads;
+    result.report["bin"] = bin;
     if (rec) result.report["recording_problems"] = rec->diagnostics().problems;
     if (!fs_status.ok()) {
       std::fprintf(stderr, "d3d-scan: %s\n", fs_status.ToString().c_str());
