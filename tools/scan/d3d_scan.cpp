@@ -74,8 +74,8 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   cli.add_flag("--refuse", refuse, "--replay: fuse the accepted bursts again at the pose-graph poses at the end");
   cli.add_option("--bin", bin,
-                 "average the camera's pixels over NxN blocks before reconstruction (1 = full resolution; 2 keeps up with a "
-                 "30 Hz probe on 2 cores)")
+                 "average the camera's pixels over NxN blocks before reconstruction (1 = full resolution; 2: views of a quarter "
+                 "the pixels, ~4x less reconstruction work)")
       ->capture_default_str();
   cli.add_option("--association", association, "the tracker's ICP data association: kdtree | projective")->capture_default_str();
   cli.add_option("--step", step, "expected bursts between processed views for the tracker's gates (default: 1 lossless, 6 live)");
