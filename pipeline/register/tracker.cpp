@@ -23,6 +23,24 @@ const char* TrackingStateName(TrackingState s) {
   return "?";
 }
 
+const char* AssociationName(Association a) {
+  switch (a) {
+    case Association::kProjective: return "projective";
+    case Association::kKdTree: return "kdtree";
+    case Association::kGrid: return "grid";
+  }
+  return "?";
+}
+
+bool ParseAssociation(const std::string& name, Association* out) {
+  for (Association a : {Association::kProjective, Association::kKdTree, Association::kGrid})
+    if (name == AssociationName(a)) {
+      *out = a;
+      return true;
+    }
+  return false;
+}
+
 IcpOptions DefaultTrackerIcp() {
   IcpOptions o;
   o.levels.back().stride = 2;
@@ -178,8 +196,11 @@ IcpResult Tracker::RunIcp(const SurfacePoints& source, const Rigid3d& initial, c
     hi = hi.cwiseMax(w);
   }
   const Eigen::Vector3f m = Eigen::Vector3f::Constant(static_cast<float>(o_.gather_margin_mm));
-  KdTreeTarget target(map_.Gather(lo - m, hi + m));
-  return RegisterIcp(source, target, initial, icp);
+  if (o_.association == Association::kKdTree) return RegisterIcp(source, KdTreeTarget(map_.Gather(lo - m, hi + m)), initial, icp);
+  std::vector<double> gates;
+  for (const IcpLevel& level : icp.levels) gates.push_back(level.max_distance_mm);
+  grid_.Build(map_.Gather(lo - m, hi + m), gates);
+  return RegisterIcp(source, grid_, initial, icp);
 }
 
 namespace {

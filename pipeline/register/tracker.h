@@ -4,8 +4,8 @@
 // Per view (an organised cloud in the camera frame):
 //  1. Prediction: constant velocity from the last two accepted poses (over skipped views too).
 //  2. Frame-to-model ICP (icp.h) against the PointMap of every accepted view, by projective
-//     association in the model rendered from the prediction, or a k-d tree over the model
-//     samples near it (options.association).
+//     association in the model rendered from the prediction, or the exact nearest model sample
+//     near it, found on uniform grids (grid_target.h) or by a k-d tree (options.association).
 //     A view with too few points (probe lifted, out of range) is skipped without a state change.
 //  3. Checks: ICP ok (overlap, residual, degeneracy) and consistent motion (the step from the last
 //     accepted pose, per elapsed burst, below max_step_mm / max_step_deg). A view failing them is
@@ -38,6 +38,7 @@
 
 #include "calib/model/camera_model.h"
 #include "pipeline/register/features.h"
+#include "pipeline/register/grid_target.h"
 #include "pipeline/register/icp.h"
 #include "pipeline/register/point_map.h"
 #include "pipeline/register/pose_graph.h"
@@ -47,7 +48,13 @@ namespace d3d {
 enum class TrackingState { kInitialising, kTracking, kLost, kRelocalised };
 const char* TrackingStateName(TrackingState s);  // "initialising", "tracking", "lost", "relocalised"
 
-enum class Association { kProjective, kKdTree };
+// Frame-to-model data association: projective (the model rendered from the prediction), or the
+// exact nearest model sample within the gate, by a nanoflann k-d tree or by uniform grids
+// (GridTarget: the same matches, faster).
+enum class Association { kProjective, kKdTree, kGrid };
+const char* AssociationName(Association a);  // "projective", "kdtree", "grid"
+// Parses AssociationName's names; false for any other text.
+bool ParseAssociation(const std::string& name, Association* out);
 
 // Frame-to-model ICP of the tracker: IcpOptions' levels (gates 1.0 → 0.15 mm) with the finest
 // level on every 2nd sample (~15k of a full view: the pose's noise from 15k samples is ~0.2 µm,
@@ -64,16 +71,19 @@ FeatureOptions HalfScaleFeatures();
 struct TrackerOptions {
   IcpOptions icp = DefaultTrackerIcp();  // frame-to-model
   PointMapOptions map;
-  // k-d tree by default: on the full-arch simulation, projective association into the model
+  // Nearest neighbour (grid; the k-d tree finds the same samples) by default: on the full-arch
+  // simulation, projective association into the model
   // rendered at half resolution gave 4× the trueness error (53 vs 14 µm RMS over the first 150
   // bursts at 15 Hz) for ~30 % less time.
-  Association association = Association::kKdTree;
+  // The grid replaced the k-d tree as the default: identical poses and mesh on a 450-burst typodont
+  // replay, register stage 72 -> 47 ms per burst (see grid_target.h).
+  Association association = Association::kGrid;
   int sample_stride = 2;          // px lattice of the ICP source samples
   int map_stride = 3;             // px lattice of the samples added to the model
   double target_scale = 0.5;      // projective: model image size / camera size
   int target_splat = 1;           // projective: splat half-size (px of the model image)
   int target_window = 1;          // projective: search half-window (px)
-  double gather_margin_mm = 1.0;  // k-d tree: model samples within the view's box ± this
+  double gather_margin_mm = 1.0;  // grid, k-d tree: model samples within the view's box ± this
   double max_step_mm = 2.5;       // per view: larger motion is "inconsistent motion"
   double max_step_deg = 10.0;
   // The time of one view (ns) when views are not evenly spaced (a live host processes the newest
@@ -278,6 +288,8 @@ class Tracker {
   std::unique_ptr<FeatureWorker> feature_worker_;  // null unless async_keyframe_features
   std::vector<int> deferred_edges_;                 // keyframes whose edges wait for Optimize (defer_keyframe_edges)
   PointMap map_;
+  // RunIcp's association grids (kGrid), rebuilt for every ICP and reused: Track()'s thread only.
+  mutable GridTarget grid_;
   PoseGraph graph_;
   std::vector<Keyframe> keyframes_;
   // The newest keyframe's samples as an occupancy map (its camera frame), built when the keyframe is

@@ -40,6 +40,7 @@
 #include "calib/model/probe_calibration.h"
 #include "common/core/rigid.h"
 #include "pipeline/recon/reconstruct.h"
+#include "pipeline/register/grid_target.h"
 #include "pipeline/register/point_map.h"
 #include "pipeline/triangulate/triangulate.h"
 
@@ -93,6 +94,7 @@ class ModelAnchorer {
   cv::Mat phase_min_, phase_max_;
   std::vector<int32_t> keys_;     // per pixel: its group key, −1 for none (per call)
   std::vector<int8_t> verdict_;   // per lattice pixel: −1 unchecked, 0 refused, 1 confirmed (per call)
+  GridTarget near_;               // the model near the view, for the nearest-sample look-ups (per call, buffers reused)
 };
 
 }  // namespace d3d

@@ -2,7 +2,7 @@
 // libopen3d-dev 0.16) on the same data, in one run:
 //  1. Stanford bunny pairs from identity: initial alignment by SIFT on range images and by FPFH
 //     (ours), each + ICP: pose error against bun.conf (deg, mm) and ms; a table on stderr.
-//  2. ICP on the same pairs from the same initial pose: ours (combined metric, k-d tree and
+//  2. ICP on the same pairs from the same initial pose: ours (combined metric, grid, k-d tree and
 //     projective association, 1 and 2 threads) vs Open3D's point-to-plane ICP: ms and final error
 //     (RMS displacement of the source points between the estimated and the true transform).
 //  3. TSDF integration of the same virtual-probe views: ours (OpenVDB) vs Open3D's
@@ -27,6 +27,7 @@
 #include "pipeline/register/pairwise.h"
 #include "pipeline/register/range_grid_io.h"
 #include "pipeline/register/tracker.h"
+#include "pipeline/scan/scan_chain.h"
 
 using namespace d3d;
 namespace o3r = open3d::pipelines::registration;
@@ -66,15 +67,22 @@ nlohmann::json RunIcpCase(const IcpCase& c, int repeats) {
   j["source_points"] = c.source.size();
   j["target_points"] = c.target.size();
   j["initial_error_um"] = PointRmsUm(c.source, c.init, c.truth);
-  auto time_ours = [&](bool projective, int threads) {
+  enum class Assoc { kKdTree, kGrid, kProjective };
+  std::vector<double> gates;
+  for (const IcpLevel& l : c.ours.levels) gates.push_back(l.max_distance_mm);
+  auto time_ours = [&](Assoc assoc, int threads) {
     IcpOptions o = c.ours;
     o.threads = threads;
     IcpResult r;
     double best = 1e30;
     for (int k = 0; k < repeats; ++k) {
       const double t0 = Now();
-      if (projective) {
+      if (assoc == Assoc::kProjective) {
         ProjectiveTarget t(c.target_points, c.target_normals, c.k, Rigid3d::Identity(), 1);
+        r = RegisterIcp(c.source, t, c.init, o);
+      } else if (assoc == Assoc::kGrid) {
+        GridTarget t;
+        t.Build(c.target, gates);
         r = RegisterIcp(c.source, t, c.init, o);
       } else {
         KdTreeTarget t(c.target);
@@ -85,13 +93,12 @@ nlohmann::json RunIcpCase(const IcpCase& c, int repeats) {
     return std::pair{r, best};
   };
   for (int threads : {1, 2}) {
-    const auto [r, ms] = time_ours(false, threads);
-    j["ours_kdtree_t" + std::to_string(threads)] = {{"ms", ms}, {"error_um", PointRmsUm(c.source, r.target_from_source, c.truth)},
-                                                   {"ok", r.ok}, {"iterations", r.iterations}, {"rmse_um", r.rmse_mm * 1000}};
-    if (!c.target_points.empty()) {
-      const auto [p, pms] = time_ours(true, threads);
-      j["ours_projective_t" + std::to_string(threads)] = {{"ms", pms}, {"error_um", PointRmsUm(c.source, p.target_from_source, c.truth)},
-                                                         {"ok", p.ok}, {"iterations", p.iterations}, {"rmse_um", p.rmse_mm * 1000}};
+    for (const auto& [assoc, name] : {std::pair{Assoc::kKdTree, "kdtree"}, std::pair{Assoc::kGrid, "grid"}, std::pair{Assoc::kProjective, "projective"}}) {
+      if (assoc == Assoc::kProjective && c.target_points.empty()) continue;
+      const auto [r, ms] = time_ours(assoc, threads);
+      j[std::string("ours_") + name + "_t" + std::to_string(threads)] = {
+          {"ms", ms}, {"error_um", PointRmsUm(c.source, r.target_from_source, c.truth)}, {"ok", r.ok}, {"iterations", r.iterations},
+          {"rmse_um", r.rmse_mm * 1000}};
     }
   }
   const auto src = ToO3d(c.source, false), tgt = ToO3d(c.target, true);
@@ -239,6 +246,23 @@ int main(int argc, char** argv) {
       c.ours.min_relative_error_change = tr.min_relative_error_change;
     }
     c.o3d_max_distance_mm = 1.0;
+    cases.push_back(std::move(c));
+  }
+  for (const double every : {1.0, 6.0}) {
+    // The tracker's frame-to-model ICP (DefaultTrackerIcp, its sample caps in d3d-scan, the first
+    // gate of TrackerOptionsForStep: 0.8 mm lossless, 1.96 mm for a live host's views 6 bursts
+    // apart) on a model-like target (every 3rd pixel, ~the tracking model's 0.08 mm spacing),
+    // started 0.3 mm / 0.5 deg off as from a motion prediction.
+    const size_t to = static_cast<size_t>(std::min<double>(every, static_cast<double>(views.size() - 1)));
+    IcpCase c;
+    c.name = "virtual-probe bursts 300->" + std::to_string(300 + to) + ", tracker ICP";
+    c.source = SampleOrganised(views[to].points_in_cam, views[to].normals, views[to].quality, 2);
+    c.target = SampleOrganised(views[0].points_in_cam, views[0].normals, cv::Mat(), 3);
+    c.truth = poses[0].inverse() * poses[to];
+    c.init = Perturb(c.truth, 0.5, 0.3);
+    c.ours = TrackerOptionsForStep(TrackerOptions{}, every).icp;
+    for (auto [level, cap] : {std::pair{0, 1600}, std::pair{1, 4000}, std::pair{2, 8000}}) c.ours.levels[static_cast<size_t>(level)].max_samples = cap;
+    c.o3d_max_distance_mm = c.ours.levels[0].max_distance_mm;
     cases.push_back(std::move(c));
   }
   nlohmann::json icp = nlohmann::json::array();

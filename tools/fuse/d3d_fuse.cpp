@@ -73,7 +73,7 @@ int main(int argc, char** argv) {
                "Input: the virtual probe (--sim MODEL) or a folder of bursts written by d3d-sim (--bursts DIR).\n"
                "Output: DIR/scan.ply, DIR/scan.stl, DIR/poses.txt (TUM, mm), DIR/report.json, DIR/heatmap.png,\n"
                "DIR/truth_poses.txt (the true poses of the fused views, scene frame, when the source knows them)."};
-  std::string sim_model, bursts_dir, trajectory = "full-arch", out_dir, association = "kdtree", trace_path, graph_path;
+  std::string sim_model, bursts_dir, trajectory = "full-arch", out_dir, association = "grid", trace_path, graph_path;
   uint32_t seed = 1;
   int every = 1;
   int bin = 1;
@@ -99,7 +99,7 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--first", first, "first burst index")->capture_default_str();
   app.add_option("--max-bursts", max_bursts, "stop after this many bursts used (default: all)");
-  app.add_option("--association", association, "ICP data association: kdtree (default: the more accurate) | projective")->capture_default_str();
+  app.add_option("--association", association, "ICP data association: grid (default; exact nearest model sample) | kdtree (the same matches by nanoflann) | projective")->capture_default_str();
   app.add_option("--voxel", voxel_mm, "TSDF voxel (mm)")->capture_default_str();
   app.add_option("--truncation", truncation_mm, "TSDF truncation (mm)")->capture_default_str();
   app.add_option("--max-rmse-um", max_rmse_um, "tracking: a view whose ICP residual (RMS, um) is above this is refused")
@@ -160,8 +160,9 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "d3d-fuse: give exactly one of --sim MODEL or --bursts DIR\n");
     return 2;
   }
-  if (every < 1 || bin < 1 || (association != "projective" && association != "kdtree")) {
-    std::fprintf(stderr, "d3d-fuse: --every and --bin must be >= 1 and --association projective|kdtree\n");
+  Association assoc = Association::kGrid;
+  if (every < 1 || bin < 1 || !ParseAssociation(association, &assoc)) {
+    std::fprintf(stderr, "d3d-fuse: --every and --bin must be >= 1 and --association grid|kdtree|projective\n");
     return 2;
   }
   try {
@@ -201,7 +202,7 @@ int main(int argc, char** argv) {
     }
     // The chain of pipeline/scan, all on this thread.
     ScanOptions so;
-    so.tracker.association = association == "kdtree" ? Association::kKdTree : Association::kProjective;
+    so.tracker.association = assoc;
     so.tracker.detect_loops = !no_loops;
     so.anchor.enabled = !no_model_anchor;
     so.recon.edge_fill.passes = edge_fill_passes;

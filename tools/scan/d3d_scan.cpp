@@ -48,7 +48,7 @@ double SteadyS() { return std::chrono::duration<double>(std::chrono::steady_cloc
 int main(int argc, char** argv) {
   CLI::App cli{"d3d-scan: the host application: live scan from the probe over DDS (or --replay FILE), live preview,\n"
                "and the fused model with its report. Writes DIR/scan.ply, scan.stl, poses.txt, report.json, preview.png."};
-  std::string replay, out_dir = "scan_out", screenshot, policy_text, reference, sim_trajectory, serial, association = "kdtree";
+  std::string replay, out_dir = "scan_out", screenshot, policy_text, reference, sim_trajectory, serial, association = "grid";
   bool headless = false, json = false, no_preview = false, refuse = false, quiet = false;
   double duration_s = 0, probe_timeout_s = 1.0, idle_exit_s = 0, wait_probe_s = 120, preview_fps = 20, replay_rate = 0, step = 0;
   int domain = 0, threads = 2, width = 960, height = 720, bin = 2;
@@ -77,7 +77,7 @@ int main(int argc, char** argv) {
                  "average the camera's pixels over NxN blocks before reconstruction (1 = full resolution; 2: views of a quarter "
                  "the pixels, ~4x less reconstruction work)")
       ->capture_default_str();
-  cli.add_option("--association", association, "the tracker's ICP data association: kdtree | projective")->capture_default_str();
+  cli.add_option("--association", association, "the tracker's ICP data association: grid (exact nearest model sample) | kdtree (the same by nanoflann) | projective")->capture_default_str();
   cli.add_option("--step", step, "expected bursts between processed views for the tracker's gates (default: 1 lossless, 6 live)");
   cli.add_option("--domain", domain, "DDS domain id")->capture_default_str();
   cli.add_option("--serial", serial, "listen to this probe only (default: any)");
@@ -103,8 +103,9 @@ int main(int argc, char** argv) {
   }
   if (step <= 0) step = policy == EdgePolicy::kLive ? 6 : 1;
   if (threads < 1) threads = 1;
-  if (bin < 1 || (association != "kdtree" && association != "projective")) {
-    std::fprintf(stderr, "d3d-scan: --bin must be >= 1 and --association kdtree or projective\n");
+  Association assoc = Association::kGrid;
+  if (bin < 1 || !ParseAssociation(association, &assoc)) {
+    std::fprintf(stderr, "d3d-scan: --bin must be >= 1 and --association grid, kdtree or projective\n");
     return 2;
   }
   cv::setNumThreads(threads);
@@ -164,7 +165,7 @@ int main(int argc, char** argv) {
     // pose-graph edges (keyframe and loop-closure ICPs) at the end of the scan. Same results.
     ao.scan.tracker.async_keyframe_features = true;
     ao.scan.tracker.defer_keyframe_edges = true;
-    ao.scan.tracker.association = association == "projective" ? Association::kProjective : Association::kKdTree;
+    ao.scan.tracker.association = assoc;
     // The ICP runs on the register thread alone: the graph's stages keep both cores busy, and its
     // oneTBB workers only contended with them (600-burst typodont recording at 30 Hz, live, 2x2
     // binned: register 144 -> 78 ms per burst, 6.8 -> 10.8-12.1 bursts/s processed).

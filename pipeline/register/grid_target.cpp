@@ -1,0 +1,211 @@
+#include "pipeline/register/grid_target.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "common/core/status.h"
+
+namespace d3d {
+namespace {
+constexpr uint32_t kNoSlot = std::numeric_limits<uint32_t>::max();
+// Boxes are widened by this much (mm) in the skip tests, so that rounding in a box's corner (float
+// coordinates of tens of mm: ulp ~4e-6 mm) never skips a sample the exact test would take.
+constexpr float kBoxSlackMm = 1e-4f;
+
+bool Finite(const Eigen::Vector3f& p) { return std::isfinite(p.x()) && std::isfinite(p.y()) && std::isfinite(p.z()); }
+
+// Squared distance from v to the interval [a, a + c] (widened by kBoxSlackMm) along one axis.
+inline float AxisGap2(float v, float a, float c) {
+  const float lo = a - kBoxSlackMm, hi = a + c + kBoxSlackMm;
+  const float d = v < lo ? lo - v : (v > hi ? v - hi : 0.0f);
+  return d * d;
+}
+
+inline int Clamp(int v, int n) { return std::min(std::max(v, 0), n - 1); }
+}  // namespace
+
+void GridTarget::Build(const SurfacePoints& target, const std::vector<double>& gates_mm) {
+  D3D_CHECK_MSG(target.normals.size() == target.points.size(), "GridTarget needs a normal per point");
+  std::vector<double> gates = gates_mm;
+  for (double g : gates) D3D_CHECK_MSG(g > 0 && std::isfinite(g), "GridTarget: gates must be > 0");
+  std::sort(gates.begin(), gates.end());
+  gates.erase(std::unique(gates.begin(), gates.end()), gates.end());
+
+  normals_.assign(target.normals.begin(), target.normals.end());
+  lo_ = Eigen::Vector3f::Constant(std::numeric_limits<float>::max());
+  hi_ = Eigen::Vector3f::Constant(std::numeric_limits<float>::lowest());
+  bool any = false;
+  for (const Eigen::Vector3f& p : target.points)
+    if (Finite(p)) {
+      lo_ = lo_.cwiseMin(p);
+      hi_ = hi_.cwiseMax(p);
+      any = true;
+    }
+  used_grids_ = 0;
+  if (!any) return;
+  if (grids_.size() < gates.size()) grids_.resize(gates.size());
+  for (size_t i = 0; i < gates.size(); ++i) {
+    grids_[i].gate = static_cast<float>(gates[i]);
+    BuildGrid(&grids_[i], target);
+  }
+  used_grids_ = gates.size();
+}
+
+void GridTarget::BuildGrid(Grid* g, const SurfacePoints& target) {
+  // Cells of the gate's edge, each split into sub³ sub-cells of about kSubCellMm; fewer sub-cells,
+  // then coarser cells, while the slots would exceed kMaxCells.
+  float cell = g->gate;
+  int sub = std::clamp(static_cast<int>(std::lround(g->gate / kSubCellMm)), 1, 8);
+  const Eigen::Vector3f extent = hi_ - lo_;
+  for (;;) {
+    g->nx = static_cast<int>(std::floor(extent.x() / cell)) + 1;
+    g->ny = static_cast<int>(std::floor(extent.y() / cell)) + 1;
+    g->nz = static_cast<int>(std::floor(extent.z() / cell)) + 1;
+    if (int64_t{g->nx} * g->ny * g->nz * sub * sub * sub <= kMaxCells) break;
+    if (sub > 1) --sub;
+    else cell *= 1.25f;
+  }
+  g->cell = cell;
+  g->sub = sub;
+  g->sub_cell = cell / static_cast<float>(sub);
+  g->origin = lo_;
+  const size_t slots = static_cast<size_t>(g->nx) * static_cast<size_t>(g->ny) * static_cast<size_t>(g->nz) *
+                       static_cast<size_t>(sub * sub * sub);
+  const size_t n = target.points.size();
+  // Counting sort of the samples by slot: cell-major (x fastest), then sub-cell (x fastest).
+  g->start.assign(slots + 1, 0);
+  slot_of_.resize(n);
+  const float inv = 1.0f / cell, inv_sub = 1.0f / g->sub_cell;
+  for (size_t i = 0; i < n; ++i) {
+    const Eigen::Vector3f& p = target.points[i];
+    if (!Finite(p)) {
+      slot_of_[i] = kNoSlot;
+      continue;
+    }
+    const Eigen::Vector3f rel = p - lo_;
+    const int x = Clamp(static_cast<int>(rel.x() * inv), g->nx), y = Clamp(static_cast<int>(rel.y() * inv), g->ny),
+              z = Clamp(static_cast<int>(rel.z() * inv), g->nz);
+    const int a = Clamp(static_cast<int>((rel.x() - static_cast<float>(x) * cell) * inv_sub), sub),
+              b = Clamp(static_cast<int>((rel.y() - static_cast<float>(y) * cell) * inv_sub), sub),
+              d = Clamp(static_cast<int>((rel.z() - static_cast<float>(z) * cell) * inv_sub), sub);
+    const size_t c = (static_cast<size_t>(z) * g->ny + y) * g->nx + x;
+    const uint32_t s = static_cast<uint32_t>(c * static_cast<size_t>(sub * sub * sub) + static_cast<size_t>((d * sub + b) * sub + a));
+    slot_of_[i] = s;
+    ++g->start[s + 1];
+  }
+  for (size_t s = 0; s < slots; ++s) g->start[s + 1] += g->start[s];
+  const size_t kept = g->start[slots];
+  g->points.resize(kept);
+  g->index.resize(kept);
+  // Scatter with a running cursor per slot (start[s] advanced, then shifted back).
+  for (size_t i = 0; i < n; ++i) {
+    const uint32_t s = slot_of_[i];
+    if (s == kNoSlot) continue;
+    const uint32_t at = g->start[s]++;
+    g->points[at] = target.points[i];
+    g->index[at] = static_cast<uint32_t>(i);
+  }
+  for (size_t s = slots; s > 0; --s) g->start[s] = g->start[s - 1];
+  g->start[0] = 0;
+}
+
+const GridTarget::Grid* GridTarget::GridFor(float r) const {
+  if (used_grids_ == 0) return nullptr;
+  for (size_t i = 0; i < used_grids_; ++i)
+    if (grids_[i].gate >= r) return &grids_[i];
+  return &grids_[used_grids_ - 1];
+}
+
+bool GridTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* point, Eigen::Vector3f* normal) const {
+  const Grid* g = GridFor(max_d);
+  if (g == nullptr || !(max_d > 0) || !Finite(q)) return false;
+  const float c = g->cell, f = g->sub_cell;
+  const int sub = g->sub, sub3 = sub * sub * sub;
+  const int ring = std::max(1, static_cast<int>(std::ceil(max_d / c)));
+  const Eigen::Vector3f rel = q - g->origin;
+  // The cells within the ring, clamped to the grid (in float first, so far queries do not overflow int).
+  const auto range = [ring](float v, int n, int* a, int* b) {
+    if (v < -ring || v >= static_cast<float>(n + ring)) return false;
+    const int i = static_cast<int>(std::floor(v));
+    *a = std::max(0, i - ring);
+    *b = std::min(n - 1, i + ring);
+    return *a <= *b;
+  };
+  int x0, x1, y0, y1, z0, z1;
+  if (!range(rel.x() / c, g->nx, &x0, &x1) || !range(rel.y() / c, g->ny, &y0, &y1) || !range(rel.z() / c, g->nz, &z0, &z1))
+    return false;
+  float best = max_d * max_d;  // strict: a sample is taken when its distance² is below this
+  int64_t found = -1;
+  const auto scan_slot = [&](size_t slot) {
+    const uint32_t e = g->start[slot + 1];
+    for (uint32_t k = g->start[slot]; k < e; ++k) {
+      const Eigen::Vector3f& p = g->points[k];
+      // nanoflann's L2_Simple_Adaptor order: ((0 + d0²) + d1²) + d2² in float.
+      float d2 = 0.0f;
+      const float dx = q.x() - p.x(), dy = q.y() - p.y(), dz = q.z() - p.z();
+      d2 += dx * dx;
+      d2 += dy * dy;
+      d2 += dz * dz;
+      if (d2 < best) {
+        best = d2;
+        found = k;
+      }
+    }
+  };
+  const auto cell_index = [g](int x, int y, int z) { return (static_cast<size_t>(z) * g->ny + y) * g->nx + x; };
+  // The query's own sub-cell first: its nearest sample bounds the search, and every cell or
+  // sub-cell whose box lies farther than the best match so far is skipped.
+  size_t own = std::numeric_limits<size_t>::max();
+  {
+    const int cx = static_cast<int>(std::floor(rel.x() / c)), cy = static_cast<int>(std::floor(rel.y() / c)),
+              cz = static_cast<int>(std::floor(rel.z() / c));
+    if (cx >= 0 && cx < g->nx && cy >= 0 && cy < g->ny && cz >= 0 && cz < g->nz) {
+      const int a = Clamp(static_cast<int>((rel.x() - static_cast<float>(cx) * c) / f), sub),
+                b = Clamp(static_cast<int>((rel.y() - static_cast<float>(cy) * c) / f), sub),
+                d = Clamp(static_cast<int>((rel.z() - static_cast<float>(cz) * c) / f), sub);
+      own = cell_index(cx, cy, cz) * static_cast<size_t>(sub3) + static_cast<size_t>((d * sub + b) * sub + a);
+      scan_slot(own);
+    }
+  }
+  const auto beyond = [&best](float gap2) { return gap2 > best; };
+  for (int z = z0; z <= z1; ++z) {
+    const float oz = static_cast<float>(z) * c;
+    const float gz = AxisGap2(rel.z(), oz, c);
+    if (beyond(gz)) continue;
+    for (int y = y0; y <= y1; ++y) {
+      const float oy = static_cast<float>(y) * c;
+      const float gyz = gz + AxisGap2(rel.y(), oy, c);
+      if (beyond(gyz)) continue;
+      for (int x = x0; x <= x1; ++x) {
+        const float ox = static_cast<float>(x) * c;
+        if (beyond(gyz + AxisGap2(rel.x(), ox, c))) continue;
+        const size_t base = cell_index(x, y, z) * static_cast<size_t>(sub3);
+        if (sub == 1) {
+          if (base != own) scan_slot(base);
+          continue;
+        }
+        if (g->start[base] == g->start[base + static_cast<size_t>(sub3)]) continue;  // an empty cell
+        for (int d = 0; d < sub; ++d) {
+          const float hz = AxisGap2(rel.z(), oz + static_cast<float>(d) * f, f);
+          if (beyond(hz)) continue;
+          for (int b = 0; b < sub; ++b) {
+            const float hyz = hz + AxisGap2(rel.y(), oy + static_cast<float>(b) * f, f);
+            if (beyond(hyz)) continue;
+            for (int a = 0; a < sub; ++a) {
+              const size_t slot = base + static_cast<size_t>((d * sub + b) * sub + a);
+              if (slot == own || beyond(hyz + AxisGap2(rel.x(), ox + static_cast<float>(a) * f, f))) continue;
+              scan_slot(slot);
+            }
+          }
+        }
+      }
+    }
+  }
+  if (found < 0) return false;
+  *point = g->points[static_cast<size_t>(found)];
+  *normal = normals_[g->index[static_cast<size_t>(found)]];
+  return std::isfinite((*normal)[0]);
+}
+
+}  // namespace d3d

@@ -1,0 +1,146 @@
+#include "pipeline/register/grid_target.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <random>
+
+#include "pipeline/register/icp.h"
+#include "pipeline/register/test_surfaces.h"
+
+namespace d3d {
+namespace {
+
+using testing::HeightField;
+using testing::LookDown;
+using testing::RenderHeightField;
+using testing::TestCamera;
+
+// A view of the bumpy surface, samples every 2nd pixel, one with a NaN normal (a NaN point would
+// spoil the k-d tree's splits, not the grid: see RebuildsAndRefusesBadInput).
+SurfacePoints Surface() {
+  const HeightField hf(5);
+  const auto v = RenderHeightField(hf, TestCamera(), LookDown(0, 0, 30), 0.005, 1);
+  SurfacePoints s = SampleOrganised(v.points, v.normals, v.quality, 2);
+  s.normals[20] = Eigen::Vector3f::Constant(std::numeric_limits<float>::quiet_NaN());
+  return s;
+}
+
+// Queries near the surface (a sample moved by up to ±`spread` mm per axis) and some far away.
+std::vector<Eigen::Vector3f> Queries(const SurfacePoints& s, float spread, int n, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_int_distribution<size_t> pick(0, s.size() - 1);
+  std::uniform_real_distribution<float> off(-spread, spread);
+  std::vector<Eigen::Vector3f> q;
+  for (int i = 0; i < n; ++i) {
+    const Eigen::Vector3f p = s.points[pick(rng)];
+    q.push_back(p + Eigen::Vector3f(off(rng), off(rng), off(rng)));
+  }
+  q.push_back(Eigen::Vector3f(1e6f, -1e6f, 1e6f));  // far outside the grid
+  q.push_back(Eigen::Vector3f(0, 0, -50));
+  return q;
+}
+
+// Every query gets the k-d tree's match (same point, same normal, same refusals), for the gates
+// the grids were built for and for one between them and one beyond them (more rings searched).
+TEST(GridTarget, FindsWhatTheKdTreeFinds) {
+  const SurfacePoints s = Surface();
+  const KdTreeTarget tree(s);
+  GridTarget grid;
+  grid.Build(s, {1.0, 0.3, 0.15, 1.96});
+  int matched = 0, refused = 0;
+  for (float gate : {0.15f, 0.3f, 1.0f, 1.96f, 0.2f, 2.5f}) {
+    for (const Eigen::Vector3f& q : Queries(s, 2 * gate, 3000, 7)) {
+      Eigen::Vector3f pt, nt, pg, ng;
+      const bool t = tree.Find(q, gate, &pt, &nt);
+      const bool g = grid.Find(q, gate, &pg, &ng);
+      ASSERT_EQ(t, g) << "gate " << gate << " query " << q.transpose();
+      if (!t) {
+        ++refused;
+        continue;
+      }
+      ++matched;
+      ASSERT_EQ(pt, pg) << "gate " << gate << " query " << q.transpose();
+      ASSERT_EQ(nt, ng);
+    }
+  }
+  EXPECT_GT(matched, 5000);  // both outcomes exercised
+  EXPECT_GT(refused, 1000);
+}
+
+// A target spread over metres gets coarser cells than its gates (kMaxCells), and stays exact.
+TEST(GridTarget, ACappedGridIsStillExact) {
+  SurfacePoints s = Surface();
+  const size_t n = s.size();
+  for (size_t i = 0; i < n; i += 3) {  // a second copy 5 m away
+    s.points.push_back(s.points[i] + Eigen::Vector3f(5000, 3000, 2000));
+    s.normals.push_back(s.normals[i]);
+  }
+  const KdTreeTarget tree(s);
+  GridTarget grid;
+  grid.Build(s, {0.15});
+  for (const Eigen::Vector3f& q : Queries(s, 0.3f, 3000, 9)) {
+    Eigen::Vector3f pt, nt, pg, ng;
+    const bool t = tree.Find(q, 0.15f, &pt, &nt);
+    ASSERT_EQ(t, grid.Find(q, 0.15f, &pg, &ng)) << q.transpose();
+    if (t) {
+      ASSERT_EQ(pt, pg);
+    }
+  }
+}
+
+// Rebuilt over another target, the grid forgets the first; an empty target finds nothing; bad
+// input throws at set-up.
+TEST(GridTarget, RebuildsAndRefusesBadInput) {
+  GridTarget grid;
+  SurfacePoints a;
+  a.points = {Eigen::Vector3f(0, 0, 0)};
+  a.normals = {Eigen::Vector3f(0, 0, 1)};
+  grid.Build(a, {0.5});
+  Eigen::Vector3f p, n;
+  EXPECT_TRUE(grid.Find(Eigen::Vector3f(0.1f, 0, 0), 0.5f, &p, &n));
+  SurfacePoints b;
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  b.points = {Eigen::Vector3f(10, 0, 0), Eigen::Vector3f(nan, 0, 0)};  // a non-finite sample is left out
+  b.normals = {Eigen::Vector3f(1, 0, 0), Eigen::Vector3f(0, 1, 0)};
+  grid.Build(b, {0.5});
+  EXPECT_FALSE(grid.Find(Eigen::Vector3f(0.1f, 0, 0), 0.5f, &p, &n));
+  EXPECT_TRUE(grid.Find(Eigen::Vector3f(10.2f, 0, 0), 0.5f, &p, &n));
+  EXPECT_EQ(n, Eigen::Vector3f(1, 0, 0));
+  EXPECT_FALSE(grid.Find(Eigen::Vector3f(10.6f, 0, 0), 0.5f, &p, &n));  // beyond the gate
+  grid.Build(SurfacePoints{}, {0.5});
+  EXPECT_FALSE(grid.Find(Eigen::Vector3f(10, 0, 0), 0.5f, &p, &n));
+  SurfacePoints no_normals;
+  no_normals.points = {Eigen::Vector3f(0, 0, 0)};
+  EXPECT_THROW(grid.Build(no_normals, {0.5}), std::invalid_argument);
+  EXPECT_THROW(grid.Build(a, {0.0}), std::invalid_argument);
+}
+
+// ICP with either association ends at the same pose.
+TEST(GridTarget, IcpGivesTheKdTreesPose) {
+  const HeightField hf(11);
+  const auto cam = TestCamera();
+  const Rigid3d wa = LookDown(0, 0, 30), wb = LookDown(1.5, 0.3, 30.2, 0.03, -0.04, 0.05);
+  const auto va = RenderHeightField(hf, cam, wa, 0.005, 1), vb = RenderHeightField(hf, cam, wb, 0.005, 2);
+  const SurfacePoints target = SampleOrganised(va.points, va.normals, va.quality, 1);
+  const SurfacePoints source = SampleOrganised(vb.points, vb.normals, vb.quality, 2);
+  Rigid3d init = wa.inverse() * wb;
+  init.translation() += Eigen::Vector3d(0.2, -0.1, 0.05);
+  const IcpOptions o;
+  std::vector<double> gates;
+  for (const IcpLevel& l : o.levels) gates.push_back(l.max_distance_mm);
+  GridTarget grid;
+  grid.Build(target, gates);
+  const IcpResult rt = RegisterIcp(source, KdTreeTarget(target), init, o);
+  const IcpResult rg = RegisterIcp(source, grid, init, o);
+  ASSERT_TRUE(rt.ok) << rt.reason;
+  ASSERT_TRUE(rg.ok) << rg.reason;
+  EXPECT_EQ(rt.iterations, rg.iterations);
+  EXPECT_EQ(rt.correspondences, rg.correspondences);
+  EXPECT_TRUE(rt.target_from_source.matrix().isApprox(rg.target_from_source.matrix(), 1e-12));
+  EXPECT_LT(TranslationDistanceMm(rg.target_from_source, wa.inverse() * wb), 0.005);
+}
+
+}  // namespace
+}  // namespace d3d
