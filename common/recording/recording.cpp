@@ -389,7 +389,6 @@ void RecordingReader::ScanChunks() {
 
 Status RecordingReader::ReadChunk(size_t i, std::vector<RecordedMessage>* messages) {
   D3D_CHECK_MSG(i < chunks_.size(), "chunk " << i << " of " << chunks_.size());
-  messages->clear();
   const ChunkInfo& c = chunks_[i];
   auto fail = [&](const std::string& why) {
     const std::string m = "chunk " + std::to_string(i) + " at offset " + Hex(c.offset) + ": " + why;
@@ -401,19 +400,21 @@ Status RecordingReader::ReadChunk(size_t i, std::vector<RecordedMessage>* messag
     messages->clear();
     return Corrupt(m);
   };
-  std::string b;
+  std::string& b = compressed_;
   if (!source_->Read(c.offset, kChunkHeaderBytes + c.compressed_size, &b)) return fail("cut off");
   const std::string_view data = std::string_view(b).substr(kChunkHeaderBytes);
   if (Crc32(data) != Get<uint32_t>(b, 32)) return fail("data CRC mismatch");
   const unsigned long long content = ZSTD_getFrameContentSize(data.data(), data.size());
   if (content != c.uncompressed_size) return fail("zstd frame size differs from the chunk header");
-  std::string raw(c.uncompressed_size, '\0');
+  std::string& raw = raw_;
+  raw.resize(c.uncompressed_size);  // zero-fills only what the buffer had never held
   const size_t d = ZSTD_decompress(raw.data(), raw.size(), data.data(), data.size());
   if (ZSTD_isError(d) || d != raw.size()) return fail("does not decompress");
-  size_t at = 0;
+  size_t at = 0, count = 0;
   while (at < raw.size()) {
     if (raw.size() - at < kMessageHeaderBytes) return fail("message header cut off");
-    RecordedMessage m;
+    if (count == messages->size()) messages->emplace_back();
+    RecordedMessage& m = (*messages)[count++];  // an earlier chunk's message: its buffer is reused
     m.channel = Get<uint16_t>(raw, at);
     m.log_time_ns = Get<int64_t>(raw, at + 2);
     const uint32_t n = Get<uint32_t>(raw, at + 10);
@@ -421,8 +422,8 @@ Status RecordingReader::ReadChunk(size_t i, std::vector<RecordedMessage>* messag
     if (raw.size() - at < n) return fail("message cut off");
     m.data.assign(raw, at, n);
     at += n;
-    messages->push_back(std::move(m));
   }
+  messages->resize(count);
   if (messages->size() != c.message_count) return fail("message count differs from the chunk header");
   return Status::Ok();
 }

@@ -151,6 +151,9 @@ class RecordingReader {
 
   // Decompresses chunk i into *messages (replaced). CORRUPT if its CRC fails, it does not
   // decompress, or its messages are malformed (then *messages is empty and diagnostics() records it).
+  // The compressed and decompressed bytes go through buffers the reader keeps, and the messages
+  // already in *messages are reused: a replay that passes the same vector for every chunk
+  // allocates (and page-faults) nothing once the first chunks were read.
   [[nodiscard]] Status ReadChunk(size_t i, std::vector<RecordedMessage>* messages);
   // Calls fn for every message of every intact chunk in file order; corrupt chunks are skipped and
   // recorded in diagnostics(). Stops early (returning OK) when fn returns false.
@@ -168,6 +171,7 @@ class RecordingReader {
   std::vector<ChunkInfo> chunks_;
   std::vector<bool> chunk_reported_;
   RecordingDiagnostics diagnostics_;
+  std::string compressed_, raw_;  // ReadChunk's buffers, kept across chunks
 };
 
 }  // namespace d3d
