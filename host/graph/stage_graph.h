@@ -21,13 +21,17 @@
 // Per item the graph keeps an ItemMeta: `seq` (ingest order, 0, 1, …), `origin_ns` (the time the
 // item's latency is measured from, set by the source: capture or receive time, Unix epoch ns) and
 // whether a stage rejected it. A stage function returns false to reject an item: it is not passed
-// on (counted per stage). Latency = wall clock (Unix epoch) when the last stage finished − origin_ns.
+// on (counted per stage). Latency = wall clock (Unix epoch) when the latency stage finished −
+// origin_ns: by default the last stage; a graph whose user sees an item before its last stage ends
+// (d3d-scan: the preview, before the fuse stage) names that stage (StageGraphOptions::latency_stage),
+// and the latency to the last stage's end is kept as well (DoneLatencyPercentileMs).
 //
 // Threads: Start() spawns the source thread and one thread per stage; RequestStop() (any thread)
 // makes the source end at its next call; every edge is then closed in order and drained (lossless:
 // every item already ingested is processed). Join() (the thread that called Start) waits for all.
 // Counters are atomics readable from any thread at any time; the latency samples are written by
-// the last stage's thread and read by LatencyPercentileMs() only after Join().
+// the latency stage's and the last stage's threads and read by LatencyPercentileMs() and
+// DoneLatencyPercentileMs() only after Join().
 #pragma once
 
 #include <algorithm>
@@ -58,8 +62,10 @@ struct StageGraphOptions {
   size_t extra_items = 1;        // pool items beyond the minimum
   size_t latency_samples = 1 << 16;  // kept for the percentiles (the latest ones, ring)
   bool live_demand_driven = true;    // live: see the file comment (false: every edge latest-wins)
+  int latency_stage = -1;            // the stage whose end is an item's latency (-1: the last)
   void Check() const {
     if (lossless_capacity < 1 || latency_samples < 1) throw std::invalid_argument("StageGraphOptions: capacities must be >= 1");
+    if (latency_stage < -1) throw std::invalid_argument("StageGraphOptions: latency_stage must be -1 (the last) or a stage index");
   }
 };
 
@@ -97,6 +103,8 @@ class StageGraph {
       : o_(options), source_(std::move(source)), stages_(std::move(stages)), counters_(stages_.size()) {
     o_.Check();
     if (stages_.empty()) throw std::invalid_argument("StageGraph: no stage");
+    if (o_.latency_stage >= static_cast<int>(stages_.size())) throw std::invalid_argument("StageGraph: latency_stage beyond the stages");
+    latency_stage_ = o_.latency_stage < 0 ? stages_.size() - 1 : static_cast<size_t>(o_.latency_stage);
     const size_t per_edge = o_.policy == EdgePolicy::kLive ? 1 : o_.lossless_capacity;
     const size_t n_items = 1 + stages_.size() * (1 + per_edge) + o_.extra_items;
     for (size_t i = 0; i < n_items; ++i) {
@@ -106,6 +114,7 @@ class StageGraph {
     }
     for (size_t i = 0; i < stages_.size(); ++i) edges_.push_back(MakeEdge<Node>(o_.policy, o_.lossless_capacity));
     latency_ms_.reserve(o_.latency_samples);
+    done_latency_ms_.reserve(o_.latency_samples);
   }
   ~StageGraph() {
     RequestStop();
@@ -154,8 +163,10 @@ class StageGraph {
   int64_t last_done_ns() const { return last_done_ns_.load(std::memory_order_relaxed); }
   int64_t start_ns() const { return t_start_ns_; }
 
-  // After Join(): latency percentile over the kept samples (ms).
+  // After Join(): latency percentile over the kept samples (ms): to the latency stage's end, and
+  // to the last stage's end (the same unless latency_stage names an earlier stage).
   double LatencyPercentileMs(double pct) const { return PercentileOf(latency_ms_, pct); }
+  double DoneLatencyPercentileMs(double pct) const { return PercentileOf(done_latency_ms_, pct); }
   size_t latency_count() const { return latency_ms_.size(); }
 
  private:
@@ -230,12 +241,17 @@ class StageGraph {
         GiveBack(n);
         continue;
       }
-      if (last) {
-        const int64_t now = GraphNowNs();
-        const double ms = static_cast<double>(now - n->meta.origin_ns) * 1e-6;
+      if (i == latency_stage_) {
+        const double ms = static_cast<double>(GraphNowNs() - n->meta.origin_ns) * 1e-6;
         if (latency_ms_.size() < o_.latency_samples) latency_ms_.push_back(ms);
         else latency_ms_[latency_next_++ % o_.latency_samples] = ms;
         last_latency_ms_.store(ms, std::memory_order_relaxed);
+      }
+      if (last) {
+        const int64_t now = GraphNowNs();
+        const double ms = static_cast<double>(now - n->meta.origin_ns) * 1e-6;
+        if (done_latency_ms_.size() < o_.latency_samples) done_latency_ms_.push_back(ms);
+        else done_latency_ms_[done_latency_next_++ % o_.latency_samples] = ms;
         if (completed_.fetch_add(1, std::memory_order_relaxed) == 0) first_done_ns_.store(now, std::memory_order_relaxed);
         last_done_ns_.store(now, std::memory_order_relaxed);
         GiveBack(n);
@@ -262,8 +278,11 @@ class StageGraph {
   std::atomic<double> last_latency_ms_{0};
   std::atomic<int64_t> first_done_ns_{0}, last_done_ns_{0};
   int64_t t_start_ns_ = 0;
-  std::vector<double> latency_ms_;  // last stage's thread; read after Join
+  size_t latency_stage_ = 0;
+  std::vector<double> latency_ms_;  // the latency stage's thread; read after Join
   size_t latency_next_ = 0;
+  std::vector<double> done_latency_ms_;  // the last stage's thread; read after Join
+  size_t done_latency_next_ = 0;
 };
 
 }  // namespace d3d

@@ -89,7 +89,6 @@ BurstSource::Result RecordingBurstSource::Next(IngestedBurst* out) {
       malformed_.fetch_add(1, std::memory_order_relaxed);
       continue;
     }
-    seq_chunk_.emplace_back(msg_.burst_seq, chunk_ - 1);
     ++delivered_;
     if (o_.rate > 0) {
       if (t0_file_ < 0) {
@@ -103,22 +102,6 @@ BurstSource::Result RecordingBurstSource::Next(IngestedBurst* out) {
     }
     return Result::kBurst;
   }
-}
-
-Status RecordingBurstSource::ReadBurst(uint64_t seq, IngestedBurst* out) {
-  for (const auto& [s, chunk] : seq_chunk_) {
-    if (s != seq) continue;
-    if (reread_chunk_ != chunk) {
-      D3D_RETURN_IF_ERROR(reader_->ReadChunk(chunk, &reread_));
-      reread_chunk_ = chunk;
-    }
-    proto::BurstMsg b;
-    for (const RecordedMessage& m : reread_) {
-      if (m.channel != burst_channel_ || !proto::Decode(m.data, &b).ok() || b.burst_seq != seq) continue;
-      return CopyBurst(b, m.log_time_ns, out);
-    }
-  }
-  return Status(StatusCode::kNotFound, "burst " + std::to_string(seq) + " is not in the recording");
 }
 
 void DdsSourceOptions::Check() const {

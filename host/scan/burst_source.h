@@ -67,9 +67,6 @@ class RecordingBurstSource final : public BurstSource {
   const RecordingHeader& header() const { return reader_->header(); }
   const RecordingDiagnostics& diagnostics() const { return reader_->diagnostics(); }
   Result Next(IngestedBurst* out) override;
-  // Any thread after the graph stopped (or before it started): burst `seq` read again from the file
-  // (for the refusion pass). NOT_FOUND if the recording has no such burst.
-  [[nodiscard]] Status ReadBurst(uint64_t seq, IngestedBurst* out);
 
  private:
   RecordingSourceOptions o_;
@@ -80,10 +77,7 @@ class RecordingBurstSource final : public BurstSource {
   int64_t delivered_ = 0;
   std::vector<RecordedMessage> messages_;
   proto::BurstMsg msg_;
-  std::vector<std::pair<uint64_t, size_t>> seq_chunk_;  // burst seq → chunk, in file order
   int64_t t0_file_ = -1, t0_wall_ = 0;
-  std::vector<RecordedMessage> reread_;
-  size_t reread_chunk_ = static_cast<size_t>(-1);
 };
 
 struct DdsSourceOptions {

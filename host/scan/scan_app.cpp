@@ -51,6 +51,7 @@ ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& opti
   StageGraphOptions go;
   go.policy = o_.policy;
   go.lossless_capacity = o_.lossless_capacity;
+  go.latency_stage = 2;  // the preview: what the dentist sees (the fuse stage after it only feeds the saved model)
   const int w = calibration.camera.width, h = calibration.camera.height;  // the probe's frames
   graph_ = std::make_unique<Graph>(
       go,
@@ -63,8 +64,8 @@ ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& opti
       [this](ScanItem& it, ItemMeta* meta) { return Ingest(it, meta); },
       std::vector<Graph::Stage>{{"reconstruct", [this](ScanItem& it, const ItemMeta&) { return ReconstructStage(it); }},
                                 {"register", [this](ScanItem& it, const ItemMeta&) { return RegisterStage(it); }},
-                                {"fuse", [this](ScanItem& it, const ItemMeta&) { return FuseStage(it); }},
-                                {"preview", [this](ScanItem& it, const ItemMeta&) { return PreviewStage(it); }}});
+                                {"preview", [this](ScanItem& it, const ItemMeta&) { return PreviewStage(it); }},
+                                {"fuse", [this](ScanItem& it, const ItemMeta&) { return FuseStage(it); }}});
   // Live warm-up (set-up, before Start): one reconstruction of a blank burst into every pool item, so
   // that each item's reconstructed maps (~18 MB) are allocated and paged in now rather than by its
   // first burst. Without it each of the first ~8 bursts of a live scan took 3-5x its steady time to
@@ -122,6 +123,7 @@ bool ScanApp::ReconstructStage(ScanItem& item) {
     return false;
   }
   ms_recon_ += item.view.ms_total;
+  item.packed_ok = o_.keep_views && packer_.Pack(recon_.frames_used(), &item.packed).ok();
   return true;
 }
 
@@ -139,11 +141,13 @@ bool ScanApp::FuseStage(ScanItem& item) {
   std::lock_guard<std::mutex> lock(model_mu_);
   if (item.epoch != fuse_epoch_) {
     fuser_ = std::make_unique<ScanFuser>(calibration_.camera, o_.scan.tsdf, o_.scan.free_space);
+    archive_.Clear();
     fuse_epoch_ = item.epoch;
   }
   if (item.track.accepted) {
     item.fused = fuser_->Fuse(item.view, item.track.world_from_cam).ok();
     if (item.fused) fused_.fetch_add(1, std::memory_order_relaxed);
+    if (item.fused && item.packed_ok) archive_.Add(item.burst.burst_seq, item.packed);
   }
   return true;
 }
@@ -162,7 +166,7 @@ bool ScanApp::PreviewStage(ScanItem& item) {
   const float inv_cell = static_cast<float>(1.0 / o_.preview_cell_mm);
   const cv::Mat& pts = item.view.points_in_cam;
   const cv::Mat& nrm = item.view.normals;
-  if (item.fused) {
+  if (item.track.accepted) {
     ++bursts_in_model_;
     for (int y = 0; y < pts.rows; y += o_.preview_stride_px) {
       const auto* p = pts.ptr<cv::Vec3f>(y);
@@ -192,8 +196,8 @@ bool ScanApp::PreviewStage(ScanItem& item) {
     for (int x = o_.view_stride_px / 2; x < pts.cols; x += o_.view_stride_px)
       if (std::isfinite(p[x][2])) s.view_points.push_back(r * Eigen::Vector3f(p[x][0], p[x][1], p[x][2]) + t);
   }
-  s.view_accepted = item.fused;
-  s.have_pose = item.track.state != TrackingState::kInitialising || item.fused;
+  s.view_accepted = item.track.accepted;
+  s.have_pose = item.track.state != TrackingState::kInitialising || item.track.accepted;
   s.model_from_cam = model_from_cam;
   const PinholeBrownConrady& cam = calibration_.camera;
   s.tan_half_x = static_cast<float>(0.5 * cam.width / cam.fx);
@@ -281,6 +285,9 @@ nlohmann::json ScanApp::HostReport() const {
   j["latency_ms_p50"] = graph_->LatencyPercentileMs(50);
   j["latency_ms_p95"] = graph_->LatencyPercentileMs(95);
   j["latency_ms_max"] = graph_->LatencyPercentileMs(100);
+  // ... and to the end of the fuse stage (the saved model; the preview does not wait for it).
+  j["latency_fused_ms_p50"] = graph_->DoneLatencyPercentileMs(50);
+  j["latency_fused_ms_p95"] = graph_->DoneLatencyPercentileMs(95);
   j["latency_origin"] = latency_origin_capture_.load() > 0 ? (latency_origin_receive_.load() > 0 ? "capture+receive" : "capture")
                                                            : (latency_origin_receive_.load() > 0 ? "receive" : "ingest");
   nlohmann::json stages;
@@ -308,13 +315,27 @@ Status ScanApp::Finish(const ScanTruth& truth, const ScanViewProvider& provider,
   times.ms_recon = ms_recon_;
   times.ms_register = registrar_->ms_register();
   times.ms_fuse = fuser_->ms_fuse();
+  // Without a provider, the kept views: their frames again through a reconstructor of the binned
+  // calibration (the frames are binned already), so each view comes back as it was fused.
+  ScanViewProvider kept;
+  std::unique_ptr<ScanReconstructor> re_recon;
+  std::vector<cv::Mat> frames;
+  if (!provider && o_.keep_views && archive_.size() > 0) {
+    re_recon = std::make_unique<ScanReconstructor>(calibration_, o_.scan.recon, 1);
+    kept = [&](int64_t, const ScanViewRecord& v, ReconstructedView* view) -> Status {
+      D3D_RETURN_IF_ERROR(archive_.Get(v.burst_seq, &frames));
+      return re_recon->Reconstruct(frames, view);
+    };
+  }
   Status s;
   {
     // A refusion replaces the fuser's volume: SaveNow (saver thread) waits meanwhile.
     std::lock_guard<std::mutex> lock(model_mu_);
-    s = FinishScan(o_.scan, times, registrar_.get(), fuser_.get(), provider, truth, out);
+    s = FinishScan(o_.scan, times, registrar_.get(), fuser_.get(), provider ? provider : kept, truth, out);
   }
-  const nlohmann::json host = HostReport();
+  nlohmann::json host = HostReport();
+  host["views_kept"] = archive_.size();
+  host["views_kept_mib"] = static_cast<double>(archive_.bytes()) / (1024.0 * 1024.0);
   if (!s.ok()) {  // still say what happened
     out->report = host;
     out->report["bursts"] = registrar_->views().size();

@@ -1,19 +1,24 @@
 // The host application's scan: a stage graph (host/graph) on dedicated threads
 //
-//   ingest (BurstSource) → reconstruct → register → fuse → preview snapshot
+//   ingest (BurstSource) → reconstruct → register → preview snapshot → fuse
 //
 // running the scan chain's pieces (pipeline/scan), with a live preview handed to the render thread
 // through a triple buffer, control from any thread (pause, reset, save) and the host's figures
 // (bursts received / processed / dropped, bursts/s, latency percentiles, per-stage timing).
+// The preview is built from the registered views' points (a decimated point model), not from the
+// TSDF, so it comes before the fuse stage: a burst is on screen once it is registered, and the
+// latency (capture to preview) does not include its fusion, which only the saved model waits for
+// (the report gives both: latency_ms_* and latency_fused_ms_*). A burst processed = fused or refused.
 //
 // Buffers and threads (who owns what):
 //   ScanItem (pool of the graph): frames (ingest writes), view (reconstruct writes; register, fuse and
-//     preview read), track (register writes; fuse and preview read). One thread at a time, handed
-//     over by the graph's edges.
+//     preview read), track (register writes; fuse and preview read), packed (reconstruct writes, fuse
+//     reads). One thread at a time, handed over by the graph's edges.
 //   ScanReconstructor: reconstruct thread.   ScanRegistrar (Tracker): register thread; the tracker's
 //     keyframe-feature worker thread (d3d-scan turns it on) touches only the copies of a keyframe's
 //     points and texture it is handed and its own job and result lists (tracker.cpp).
-//   ScanFuser (TSDF): fuse thread, then Finish(), under model_mu_, which SaveNow() (a saver thread) also takes.
+//   ScanFuser (TSDF) and the ViewArchive: fuse thread, then Finish(), under model_mu_, which SaveNow()
+//     (a saver thread) also takes. FramePacker: reconstruct thread.
 //   Preview grid (the decimated model) and the TripleBuffer's back copy: preview thread.
 //   The TripleBuffer's front copy: the render thread (LatestSnapshot()).
 //   After Join(): everything belongs to the thread that calls Finish().
@@ -34,6 +39,7 @@
 #include "host/graph/stage_graph.h"
 #include "host/scan/burst_source.h"
 #include "pipeline/scan/scan_chain.h"
+#include "pipeline/scan/view_archive.h"
 #include "viewer/preview.h"
 
 namespace d3d {
@@ -46,6 +52,10 @@ struct ScanAppOptions {
   size_t preview_max_points = 150000;  // the preview stops adding points beyond this (llvmpipe: ~100k at 20 fps)
   int preview_stride_px = 3;         // pixels sampled per view for the preview model
   int view_stride_px = 8;            // pixels sampled for the highlighted current view
+  // Keep the frames of every fused view (zstd, ~150-200 kB per burst at bin 2: pipeline/scan/
+  // view_archive.h) so that Finish can fuse them again at the pose graph's poses when it is given
+  // no view provider (with ScanOptions::refuse_min_correction_mm >= 0). Memory grows with the scan.
+  bool keep_views = true;
   void Check() const;                // throws std::invalid_argument
 };
 
@@ -56,6 +66,8 @@ struct ScanItem {
   ReconstructedView view;
   TrackResult track;
   bool fused = false;
+  std::string packed;       // keep_views: the reconstructed frames, packed (reconstruct writes, fuse reads)
+  bool packed_ok = false;
 };
 
 class ScanApp {
@@ -86,7 +98,7 @@ class ScanApp {
   PreviewStatus CurrentStatus() const;
 
   // After Join(): pose graph, mesh, evaluation (FinishScan) with the host's figures added to the
-  // report. `provider` may be empty (no refusion pass).
+  // report. `provider` may be empty: the kept views are then fused again (keep_views), if any.
   [[nodiscard]] Status Finish(const ScanTruth& truth, const ScanViewProvider& provider, ScanResult* out);
   // The host's figures (any time; percentiles only after Join()).
   nlohmann::json HostReport() const;
@@ -113,6 +125,7 @@ class ScanApp {
   ScanReconstructor recon_;
   double ms_recon_ = 0;
   double ms_warm_up_ = 0;  // constructor: the pool items' warm-up (report: warm_up_ms)
+  FramePacker packer_;
   // register thread
   uint64_t reg_epoch_ = 0;
   std::unique_ptr<ScanRegistrar> registrar_;
@@ -120,6 +133,7 @@ class ScanApp {
   std::mutex model_mu_;
   uint64_t fuse_epoch_ = 0;
   std::unique_ptr<ScanFuser> fuser_;
+  ViewArchive archive_;  // keep_views: the fused views' frames (fuse thread, then Finish)
   // preview thread
   uint64_t preview_epoch_ = 0;
   std::unordered_map<uint64_t, uint32_t> cells_;

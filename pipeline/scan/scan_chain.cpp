@@ -54,7 +54,7 @@ ScanOptions ScanOptionsForBin(ScanOptions options, int bin) {
   t.min_view_samples = std::max(1, static_cast<int>(std::lround(t.min_view_samples * share * share)));
   t.features.image_scale = std::min(1.0, t.features.image_scale * bin);
   t.target_scale = std::min(2.0, t.target_scale * bin);
-  options.tsdf.occlusion_stride = lattice(options.tsdf.occlusion_stride);
+  // The occlusion test keeps its lattice in binned pixels (blocks of 2k × 2k camera pixels at bin 2).
   return options;
 }
 

@@ -79,7 +79,11 @@ TrackerOptions TrackerOptionsForStep(TrackerOptions options, double every);
 // samples, model samples, keyframe samples) divided by bin, at least 1, with min_view_samples
 // scaled to the same share of the view, its keyframe features on larger images (image_scale × bin,
 // at most 1: OpenCV's SIFT then still searches down to the binned pixel) and the projective model
-// image at the same size in full-resolution pixels; the TSDF's occlusion lattice divided by bin.
+// image at the same size in full-resolution pixels. The TSDF's occlusion lattice stays in binned
+// pixels (at bin 2, one ray per 4 × 4 camera pixels): divided by bin it tested every binned pixel,
+// 6 % of a lossless host's CPU; on the 450-burst typodont replay (refused at the pose graph's
+// poses) every second one gives trueness 11.534 → 11.538 µm RMS, points occluded 107 → 104, and
+// the test takes 2.7 % of the CPU.
 // bin = 1 returns `options`. Throws std::invalid_argument for bin < 1.
 ScanOptions ScanOptionsForBin(ScanOptions options, int bin);
 
@@ -96,6 +100,10 @@ class ScanReconstructor {
   [[nodiscard]] Status Reconstruct(const std::vector<cv::Mat>& frames, ReconstructedView* out);
   // The calibration of the reconstructed views (binned when bin > 1).
   const ProbeCalibration& calibration() const { return recon_.calibration(); }
+  // The frames the last Reconstruct ran on: binned (this object's buffers, rewritten by the next
+  // call) when bin > 1, else headers of the caller's frames. A ScanReconstructor built with
+  // calibration() and bin 1 reconstructs them into the same view bit for bit (ViewArchive).
+  const std::vector<cv::Mat>& frames_used() const { return phase_frames_; }
   int bin() const { return bin_; }
 
  private:

@@ -156,7 +156,7 @@ TEST(ScanChain, ScanOptionsForBinScaleThePixelLattices) {
   EXPECT_EQ(two.tracker.min_view_samples, base.tracker.min_view_samples);  // the same share of the view
   EXPECT_DOUBLE_EQ(two.tracker.features.image_scale, std::min(1.0, 2 * base.tracker.features.image_scale));
   EXPECT_DOUBLE_EQ(two.tracker.target_scale, 2 * base.tracker.target_scale);
-  EXPECT_EQ(two.tsdf.occlusion_stride, 1);
+  EXPECT_EQ(two.tsdf.occlusion_stride, base.tsdf.occlusion_stride);  // kept in binned pixels (see ScanOptionsForBin)
   EXPECT_DOUBLE_EQ(two.tsdf.voxel_mm, base.tsdf.voxel_mm);
   EXPECT_EQ(two.tracker.icp.levels.size(), base.tracker.icp.levels.size());
   const ScanOptions four = ScanOptionsForBin(base, 4);

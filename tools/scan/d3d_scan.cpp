@@ -49,7 +49,7 @@ int main(int argc, char** argv) {
   CLI::App cli{"d3d-scan: the host application: live scan from the probe over DDS (or --replay FILE), live preview,\n"
                "and the fused model with its report. Writes DIR/scan.ply, scan.stl, poses.txt, report.json, preview.png."};
   std::string replay, out_dir = "scan_out", screenshot, policy_text, reference, sim_trajectory, serial, association = "grid";
-  bool headless = false, json = false, no_preview = false, refuse = false, quiet = false;
+  bool headless = false, json = false, no_preview = false, refuse = true, quiet = false;
   double duration_s = 0, probe_timeout_s = 1.0, idle_exit_s = 0, wait_probe_s = 120, preview_fps = 20, replay_rate = 0, step = 0;
   int domain = 0, threads = 2, width = 960, height = 720, bin = 2;
   uint32_t sim_seed = 1;
@@ -72,7 +72,9 @@ int main(int argc, char** argv) {
   cli.add_option("--sim-rate", sim_rate,
                  "the probe's burst rate (Hz): the true poses' timing with --sim-trajectory; live, the tracker's view period is --step / rate")
       ->capture_default_str();
-  cli.add_flag("--refuse", refuse, "--replay: fuse the accepted bursts again at the pose-graph poses at the end");
+  cli.add_flag("--refuse,!--no-refuse", refuse,
+               "keep the fused bursts' frames (zstd, ~0.15 MB each at --bin 2) and fuse them again at the pose graph's poses at "
+               "the end (default; the mesh then does not depend on how the tracker drifted, live or lossless)");
   cli.add_option("--bin", bin,
                  "average the camera's pixels over NxN blocks before reconstruction (1 = full resolution; 2: views of a quarter "
                  "the pixels, ~4x less reconstruction work)")
@@ -179,6 +181,7 @@ int main(int argc, char** argv) {
     // capture time, in views of `step` bursts.
     if (policy == EdgePolicy::kLive && sim_rate > 0) ao.scan.tracker.view_period_ns = std::llround(step * 1e9 / sim_rate);
     ao.scan.refuse_min_correction_mm = refuse ? 0.01 : -1;
+    ao.keep_views = refuse;
     ao.scan = ScanOptionsForBin(ao.scan, bin);
     ao.view_stride_px = std::max(2, ao.view_stride_px / bin);
     ScanApp app(calib, ao, source);
@@ -313,18 +316,9 @@ int main(int argc, char** argv) {
         };
       }
     }
-    ScanViewProvider provider;
-    std::unique_ptr<ScanReconstructor> re_recon;
-    IngestedBurst re_burst;
-    if (rec && refuse) {
-      re_recon = std::make_unique<ScanReconstructor>(calib, ao.scan.recon, ao.scan.bin);
-      provider = [&](int64_t, const ScanViewRecord& v, ReconstructedView* view) -> Status {
-        D3D_RETURN_IF_ERROR(rec->ReadBurst(v.burst_seq, &re_burst));
-        return re_recon->Reconstruct(re_burst.frames, view);
-      };
-    }
+    // Refusion (--refuse): the app's kept views.
     ScanResult result;
-    const Status fs_status = app.Finish(truth, provider, &result);
+    const Status fs_status = app.Finish(truth, ScanViewProvider(), &result);
     result.report["input"] = replay.empty() ? "dds" : replay;
     result.report["preview_fps"] = viewer && preview_s > 0 ? static_cast<double>(frames) / preview_s : 0.0;
     result.report["preview"] = viewer ? (viewer->headless() ? "offscreen" : "window") : "none";
