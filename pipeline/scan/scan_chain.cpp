@@ -1,13 +1,17 @@
 #include "pipeline/scan/scan_chain.h"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
+#include <condition_variable>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <mutex>
 #include <opencv2/imgcodecs.hpp>
 #include <stdexcept>
+#include <thread>
 
 #include "common/mesh/mesh_io.h"
 
@@ -226,18 +230,65 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   if (loops && provider && options.refuse_min_correction_mm >= 0 && max_correction_mm > options.refuse_min_correction_mm) {
     const auto t0 = Clock::now();
     refused = std::make_unique<ScanFuser>(fuser->camera(), fuser->volume().options(), fuser->free_space_options());
-    ReconstructedView view;
-    for (int64_t k = 0; k < n_views; ++k) {
-      Rigid3d pose;
-      if (!registrar->ViewPose(k, &pose)) continue;
-      const Status s = provider(k, views[static_cast<size_t>(k)], &view);
-      if (s.code() == StatusCode::kNotFound) continue;
-      D3D_RETURN_IF_ERROR(s);
-      // The model-anchored parts again, against the whole model and at the pose the model's
-      // samples were inserted with (the tracked one): the order K does not depend on the pose.
-      registrar->AnchorAtPose(tracked[static_cast<size_t>(k)], &view);
-      D3D_RETURN_IF_ERROR(refused->Fuse(view, pose));
+    std::vector<Rigid3d> poses(views.size(), Rigid3d::Identity());
+    std::vector<int64_t> todo;
+    for (int64_t k = 0; k < n_views; ++k)
+      if (registrar->ViewPose(k, &poses[static_cast<size_t>(k)])) todo.push_back(k);
+    // Two threads: a helper gets each view again (provider) and anchors it while this thread fuses
+    // the one before, in the same order as one thread would (the same volume bit for bit); two
+    // view buffers between them. The helper alone calls the provider and the anchorer (the
+    // registrar's model is only read meanwhile); this thread alone touches `refused`.
+    struct Slot {
+      ReconstructedView view;
+      int64_t k = -1;
+      Status status;
+    };
+    std::array<Slot, 2> slots;
+    std::mutex mu;
+    std::condition_variable cv;
+    size_t produced = 0, consumed = 0;
+    bool abort = false;
+    std::thread helper([&] {
+      for (const int64_t k : todo) {
+        {
+          std::unique_lock<std::mutex> lock(mu);
+          cv.wait(lock, [&] { return produced - consumed < slots.size() || abort; });
+          if (abort) return;
+        }
+        Slot& slot = slots[produced % slots.size()];
+        slot.k = k;
+        slot.status = provider(k, views[static_cast<size_t>(k)], &slot.view);
+        // The model-anchored parts again, against the whole model and at the pose the model's
+        // samples were inserted with (the tracked one): the order K does not depend on the pose.
+        if (slot.status.ok()) registrar->AnchorAtPose(tracked[static_cast<size_t>(k)], &slot.view);
+        const bool stop = !slot.status.ok() && slot.status.code() != StatusCode::kNotFound;
+        {
+          std::lock_guard<std::mutex> lock(mu);
+          ++produced;
+        }
+        cv.notify_all();
+        if (stop) return;
+      }
+    });
+    Status failed = Status::Ok();
+    for (size_t i = 0; i < todo.size() && failed.ok(); ++i) {
+      {
+        std::unique_lock<std::mutex> lock(mu);
+        cv.wait(lock, [&] { return consumed < produced; });
+      }
+      Slot& slot = slots[consumed % slots.size()];
+      if (slot.status.code() != StatusCode::kNotFound) {
+        failed = slot.status.ok() ? refused->Fuse(slot.view, poses[static_cast<size_t>(slot.k)]) : slot.status;
+      }
+      {
+        std::lock_guard<std::mutex> lock(mu);
+        ++consumed;
+        abort = !failed.ok();
+      }
+      cv.notify_all();
     }
+    helper.join();
+    D3D_RETURN_IF_ERROR(failed);
     ms_refuse = MsSince(t0);
   }
   // Both volumes are held only until the refusion is complete; on an error above, the live model

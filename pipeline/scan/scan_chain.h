@@ -10,7 +10,8 @@
 //   FinishScan         one thread, after the others stopped (it reads the registrar and the fuser):
 //                      Tracker::Optimize (loop closures), optionally the accepted views fused again
 //                      at the optimised poses (that volume then replaces the fuser's, so no other
-//                      thread may read the fuser meanwhile), mesh extraction, evaluation against the scene
+//                      thread may read the fuser meanwhile; a helper thread of its own calls the
+//                      provider and the registrar's anchorer for the next views meanwhile), mesh extraction, evaluation against the scene
 //                      (pipeline/eval) when one is given, and the report (the fields of issue 5).
 //   WriteScanOutputs   DIR/scan.ply, DIR/scan.stl (binary, mm), DIR/poses.txt (TUM, mm),
 //                      DIR/report.json, DIR/heatmap.png (with an evaluation).
@@ -221,7 +222,8 @@ struct ScanTruth {
 };
 
 // Reconstructs view `view_index` (burst `record.burst_seq`) again for the refusion pass; a non-OK
-// status aborts FinishScan, NOT_FOUND skips the view.
+// status aborts FinishScan, NOT_FOUND skips the view. Called by FinishScan's helper thread, one view
+// at a time in view order (so it must not touch what the calling thread uses meanwhile).
 using ScanViewProvider = std::function<Status(int64_t view_index, const ScanViewRecord& record, ReconstructedView* out)>;
 
 struct ScanTimes {

@@ -13,6 +13,7 @@
 #include "firmware/sim/render/probe_design.h"
 #include "firmware/sim/session/sim_session.h"
 #include "pipeline/register/test_surfaces.h"
+#include "pipeline/scan/view_archive.h"
 
 namespace d3d {
 namespace {
@@ -36,7 +37,7 @@ std::unique_ptr<SimSession> QuadrantSession() {
   return session;
 }
 
-void RunShortScan(SimSession& session, int bin, ShortScan* s) {
+void RunShortScan(SimSession& session, int bin, ShortScan* s, ViewArchive* kept = nullptr) {
   ScanOptions o;
   o.tracker = TrackerOptionsForStep(o.tracker, 2);
   s->o = ScanOptionsForBin(o, bin);
@@ -46,12 +47,18 @@ void RunShortScan(SimSession& session, int bin, ShortScan* s) {
   s->reg = std::make_unique<ScanRegistrar>(s->view_calibration.camera, s->o.tracker);
   s->fuser = std::make_unique<ScanFuser>(s->view_calibration.camera, s->o.tsdf);
   ReconstructedView view;
+  FramePacker packer;
   for (int64_t i = 30; i < 60; i += 2) {
     const Burst b = session.RenderBurst(i, false);
     std::vector<cv::Mat> frames;
     for (const auto& f : b.frames) frames.push_back(f.image);
     ASSERT_TRUE(recon.Reconstruct(frames, &view).ok());
     ASSERT_EQ(view.points_in_cam.cols, session.calibration().camera.width / bin);
+    if (kept != nullptr) {
+      std::string blob;
+      ASSERT_TRUE(packer.Pack(recon.frames_used(), &blob).ok());
+      kept->Add(static_cast<uint64_t>(i), blob);
+    }
     const TrackResult r = s->reg->Register(view, static_cast<uint64_t>(i), b.reference_ns);
     if (r.accepted) {
       ASSERT_TRUE(s->fuser->Fuse(view, r.world_from_cam).ok());
@@ -197,6 +204,63 @@ TEST(ScanChain, AFuserAdoptsARefusedVolumeAndFreesItsOwn) {
   ASSERT_FALSE(mesh.faces.empty());
   EXPECT_GT(mesh.Bounds().first.x(), live_lo_x + 3.0);  // the refused model, not the live one
   EXPECT_THROW(live.AdoptVolume(std::move(refused)), std::invalid_argument);  // nothing left to adopt
+}
+
+// The refusion at the pose graph's poses (FinishScan with a provider), from the frames a host keeps
+// (ViewArchive): the volume is the one the views fused again in order at their final poses give
+// (the helper thread that gets the views changes nothing), views the provider cannot find are
+// skipped, and a provider error ends the scan with that error and leaves the live model alone.
+TEST(ScanChain, RefusionFusesTheKeptViewsAtTheFinalPosesInOrder) {
+  std::unique_ptr<SimSession> session = QuadrantSession();
+  ASSERT_TRUE(session);
+  ShortScan scan;
+  ViewArchive kept;
+  RunShortScan(*session, 2, &scan, &kept);
+  ASSERT_EQ(kept.size(), 15u);
+  scan.o.refuse_min_correction_mm = 0;  // any correction of the pose graph
+  ScanReconstructor again(scan.view_calibration, scan.o.recon, 1);
+  std::vector<cv::Mat> frames;
+  int64_t asked = 0;
+  const ScanViewProvider provider = [&](int64_t k, const ScanViewRecord& v, ReconstructedView* out) -> Status {
+    ++asked;
+    if (k == 3) return NotFound("view 3 was not kept");
+    D3D_RETURN_IF_ERROR(kept.Get(v.burst_seq, &frames));
+    return again.Reconstruct(frames, out);
+  };
+  ScanResult result;
+  ASSERT_TRUE(FinishScan(scan.o, scan.times, scan.reg.get(), scan.fuser.get(), provider, {}, &result).ok());
+  ASSERT_TRUE(result.report["refused_at_optimised_poses"].get<bool>()) << "pose graph correction "
+                                                                     << result.report["pose_graph_max_correction_mm"];
+  EXPECT_EQ(asked, scan.reg->accepted());
+  // The same views, one thread, in order, at the final poses.
+  ScanFuser reference(scan.view_calibration.camera, scan.o.tsdf, scan.o.free_space);
+  ReconstructedView view;
+  for (int64_t k = 0; k < static_cast<int64_t>(scan.reg->views().size()); ++k) {
+    Rigid3d pose;
+    if (k == 3 || !scan.reg->ViewPose(k, &pose)) continue;
+    ASSERT_TRUE(kept.Get(scan.reg->views()[static_cast<size_t>(k)].burst_seq, &frames).ok());
+    ASSERT_TRUE(again.Reconstruct(frames, &view).ok());
+    ASSERT_TRUE(reference.Fuse(view, pose).ok());
+  }
+  TriangleMesh expected = reference.volume().ExtractMesh();
+  expected.ComputeVertexNormals();
+  ASSERT_EQ(result.mesh.vertices.size(), expected.vertices.size());
+  ASSERT_EQ(result.mesh.faces.size(), expected.faces.size());
+  for (size_t i = 0; i < expected.vertices.size(); ++i) ASSERT_EQ(result.mesh.vertices[i], expected.vertices[i]) << i;
+
+  // A provider that fails at the fifth view: that error, and the live model as it was.
+  ShortScan other;
+  RunShortScan(*session, 2, &other);
+  other.o.refuse_min_correction_mm = 0;
+  const int64_t live_voxels = other.fuser->volume().ActiveVoxels();
+  const ScanViewProvider failing = [&](int64_t k, const ScanViewRecord& v, ReconstructedView* out) -> Status {
+    if (k == 4) return Corrupt("view 4 is damaged");
+    D3D_RETURN_IF_ERROR(kept.Get(v.burst_seq, &frames));
+    return again.Reconstruct(frames, out);
+  };
+  const Status s = FinishScan(other.o, other.times, other.reg.get(), other.fuser.get(), failing, {}, &result);
+  EXPECT_EQ(s.code(), StatusCode::kCorrupt) << s.ToString();
+  EXPECT_EQ(other.fuser->volume().ActiveVoxels(), live_voxels);
 }
 
 TEST(ScanChain, EmptyModelIsAnError) {
