@@ -243,15 +243,12 @@ class StageGraph {
       }
       if (i == latency_stage_) {
         const double ms = static_cast<double>(GraphNowNs() - n->meta.origin_ns) * 1e-6;
-        if (latency_ms_.size() < o_.latency_samples) latency_ms_.push_back(ms);
-        else latency_ms_[latency_next_++ % o_.latency_samples] = ms;
+        KeepLatency(ms, &latency_ms_, &latency_next_);
         last_latency_ms_.store(ms, std::memory_order_relaxed);
       }
       if (last) {
         const int64_t now = GraphNowNs();
-        const double ms = static_cast<double>(now - n->meta.origin_ns) * 1e-6;
-        if (done_latency_ms_.size() < o_.latency_samples) done_latency_ms_.push_back(ms);
-        else done_latency_ms_[done_latency_next_++ % o_.latency_samples] = ms;
+        KeepLatency(static_cast<double>(now - n->meta.origin_ns) * 1e-6, &done_latency_ms_, &done_latency_next_);
         if (completed_.fetch_add(1, std::memory_order_relaxed) == 0) first_done_ns_.store(now, std::memory_order_relaxed);
         last_done_ns_.store(now, std::memory_order_relaxed);
         GiveBack(n);
@@ -278,6 +275,11 @@ class StageGraph {
   std::atomic<double> last_latency_ms_{0};
   std::atomic<int64_t> first_done_ns_{0}, last_done_ns_{0};
   int64_t t_start_ns_ = 0;
+  // Appends ms to a ring of the latest o_.latency_samples samples (*next: the slot to overwrite).
+  void KeepLatency(double ms, std::vector<double>* ring, size_t* next) const {
+    if (ring->size() < o_.latency_samples) ring->push_back(ms);
+    else (*ring)[(*next)++ % o_.latency_samples] = ms;
+  }
   size_t latency_stage_ = 0;
   std::vector<double> latency_ms_;  // the latency stage's thread; read after Join
   size_t latency_next_ = 0;

@@ -196,10 +196,11 @@ IcpResult Tracker::RunIcp(const SurfacePoints& source, const Rigid3d& initial, c
     hi = hi.cwiseMax(w);
   }
   const Eigen::Vector3f m = Eigen::Vector3f::Constant(static_cast<float>(o_.gather_margin_mm));
-  if (o_.association == Association::kKdTree) return RegisterIcp(source, KdTreeTarget(map_.Gather(lo - m, hi + m)), initial, icp);
+  SurfacePoints near = map_.Gather(lo - m, hi + m);
+  if (o_.association == Association::kKdTree) return RegisterIcp(source, KdTreeTarget(std::move(near)), initial, icp);
   std::vector<double> gates;
   for (const IcpLevel& level : icp.levels) gates.push_back(level.max_distance_mm);
-  grid_.Build(map_.Gather(lo - m, hi + m), gates);
+  grid_.Build(near, gates);
   return RegisterIcp(source, grid_, initial, icp);
 }
 
