@@ -86,12 +86,20 @@ void MakeRecording(const std::string& path) {
 
 bool HaveXvfbRun() { return std::system("command -v xvfb-run > /dev/null 2>&1") == 0; }
 
-TEST(ScanReplay, LosslessReplayThroughTheHostGivesTheReportAndAPicture) {
-  const fs::path dir = fs::temp_directory_path() / "d3d_scan_replay_test";
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  const std::string rec = (dir / "short.d3drec").string();
+// A fresh folder `name` in the temp folder with the short recording in it; returns its path.
+std::string FreshRecording(const std::string& name, fs::path* dir) {
+  *dir = fs::temp_directory_path() / name;
+  fs::remove_all(*dir);
+  fs::create_directories(*dir);
+  const std::string rec = (*dir / "short.d3drec").string();
   MakeRecording(rec);
+  return rec;
+}
+
+TEST(ScanReplay, LosslessReplayThroughTheHostGivesTheReportAndAPicture) {
+  fs::path dir;
+  const std::string rec = FreshRecording("d3d_scan_replay_test", &dir);
+  ASSERT_FALSE(HasFatalFailure());
   ASSERT_TRUE(fs::exists(rec));
   const std::string common = kBin + "/d3d-scan --replay " + rec + " --reference typodont --sim-trajectory full-arch --sim-seed 1 --quiet --json";
   const std::string run1 = common + " --headless --out " + (dir / "a").string() + " > " + (dir / "a.json").string() + " 2> " + (dir / "a.err").string();
@@ -137,6 +145,31 @@ TEST(ScanReplay, LosslessReplayThroughTheHostGivesTheReportAndAPicture) {
     const double lit = static_cast<double>(cv::countNonZero(middle > 90)) / static_cast<double>(middle.total());
     EXPECT_GT(lit, 0.03) << run << ": the preview looks empty";
   }
+  fs::remove_all(dir);
+}
+
+// "Undo last seconds" from the command line (--undo-after: the 'u' key pressed right after the
+// 12th burst): the views of the last 0.1 s leave the scan and the report says so.
+TEST(ScanReplay, AScriptedUndoTakesTheLastViewsOut) {
+  fs::path dir;
+  const std::string rec = FreshRecording("d3d_scan_replay_undo_test", &dir);
+  ASSERT_FALSE(HasFatalFailure());
+  const std::string run = kBin + "/d3d-scan --replay " + rec +
+                          " --reference typodont --sim-trajectory full-arch --sim-seed 1 --quiet --no-preview --undo-after 12 --undo-seconds 0.1 --out " +
+                          (dir / "u").string() + " > " + (dir / "u.out").string() + " 2> " + (dir / "u.err").string();
+  ASSERT_EQ(std::system(run.c_str()), 0) << ReadAll(dir / "u.err");
+  const nlohmann::json j = nlohmann::json::parse(ReadAll(dir / "u" / "report.json"));
+  EXPECT_EQ(j["bursts_processed"], kCount);  // the undo request is not a burst
+  EXPECT_EQ(j["undo_requests"], 1);
+  EXPECT_EQ(j["undos_applied"], 1);
+  EXPECT_GE(j["views_undone"].get<int>(), 3);  // 100 ms of bursts 33.3 ms apart
+  EXPECT_LE(j["views_undone"].get<int>(), 4);
+  EXPECT_TRUE(j["refused_at_optimised_poses"].get<bool>());
+  EXPECT_EQ(j["views_kept"], j["fused"].get<int>() - j["views_undone"].get<int>());
+  EXPECT_LT(j["trueness_rms_um"].get<double>(), 20.0);
+  bool logged = false;
+  for (const auto& e : j["events"]) logged |= e["state"] == "undo";
+  EXPECT_TRUE(logged) << j["events"].dump();
   fs::remove_all(dir);
 }
 

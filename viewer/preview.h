@@ -18,8 +18,8 @@ enum class PreviewCue : uint8_t { kWaiting, kTracking, kLost, kRelocalised, kPro
 const char* PreviewCueText(PreviewCue c);  // "WAITING FOR PROBE", "TRACKING", "LOST", "RELOCALISED", "PROBE LOST", "PAUSED"
 
 struct PreviewSnapshot {
-  uint64_t epoch = 0;                    // bumps on a model reset: points restart from empty
-  std::vector<Eigen::Vector3f> points;   // model, decimated (one per preview cell), append-only within an epoch
+  uint64_t generation = 0;               // bumps on a model reset or an undo: points are copied anew
+  std::vector<Eigen::Vector3f> points;   // model, decimated (one per preview cell), append-only within a generation
   std::vector<Eigen::Vector3f> normals;  // unit, per point
   std::vector<Eigen::Vector3f> view_points;  // the latest view (decimated), model frame
   bool view_accepted = false;            // the latest view was fused (else refused: drawn red)
@@ -28,7 +28,7 @@ struct PreviewSnapshot {
   float tan_half_x = 0.16f, tan_half_y = 0.12f;  // camera field (frustum), tan of the half angles
   float near_mm = 42, far_mm = 58;               // measurement volume along the optical axis
   PreviewCue cue = PreviewCue::kWaiting;
-  uint64_t bursts_in_model = 0;          // views fused
+  uint64_t bursts_in_model = 0;          // views in the model (accepted, not undone)
   uint64_t last_burst_seq = 0;
   double model_area_mm2 = 0;             // preview cells × cell area: the scan's coverage so far
 };

@@ -111,6 +111,7 @@ struct Viewer::Impl {
       if (action != GLFW_PRESS) return;
       if (key == GLFW_KEY_SPACE) self->actions.push_back(ViewerAction::kPause);
       else if (key == GLFW_KEY_R) self->actions.push_back(ViewerAction::kReset);
+      else if (key == GLFW_KEY_U) self->actions.push_back(ViewerAction::kUndo);
       else if (key == GLFW_KEY_S) self->actions.push_back(ViewerAction::kSave);
       else if (key == GLFW_KEY_Q || key == GLFW_KEY_ESCAPE) self->actions.push_back(ViewerAction::kQuit);
       else if (key == GLFW_KEY_F) self->auto_fit = true;
@@ -230,7 +231,7 @@ struct Viewer::Impl {
       y += 22;
     }
     if (!headless_mode()) {
-      const char* keys = "drag: orbit   wheel: zoom   f: fit   space: pause   r: reset   s: save   q: quit";
+      const char* keys = "drag: orbit   wheel: zoom   f: fit   space: pause   r: reset   u: undo   s: save   q: quit";
       cv::putText(hud, keys, {12, height - 14}, cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(200, 200, 200, 255), 1, cv::LINE_AA);
     }
     if (hud_tex == 0) glGenTextures(1, &hud_tex);

@@ -4,7 +4,7 @@
 // tracking colour, and a status panel (state, bursts, bursts/s, latency, coverage, fps, keys).
 //
 // Input (window only): left drag orbits, wheel zooms, keys: space = pause, r = reset the model,
-// s = save, q / Esc = quit, f = fit the view to the model again. Actions are queued and taken by
+// u = undo the last seconds, s = save, q / Esc = quit, f = fit the view to the model again. Actions are queued and taken by
 // the caller with TakeActions(); the viewer never waits for the pipeline.
 //
 // Thread: everything here runs on the one render thread that created the viewer (GLFW requires
@@ -30,7 +30,7 @@ struct ViewerOptions {
   void Check() const;             // throws std::invalid_argument
 };
 
-enum class ViewerAction { kPause, kReset, kSave, kQuit };
+enum class ViewerAction { kPause, kReset, kUndo, kSave, kQuit };
 
 class Viewer {
  public:

@@ -2,9 +2,12 @@
 
 #include <sys/resource.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
+#include <limits>
 #include <stdexcept>
 
 #include "common/mesh/mesh_io.h"
@@ -34,6 +37,7 @@ void ScanAppOptions::Check() const {
   if (lossless_capacity < 1) throw std::invalid_argument("ScanAppOptions: lossless_capacity must be >= 1");
   if (!(preview_cell_mm > 0) || preview_stride_px < 1 || view_stride_px < 1)
     throw std::invalid_argument("ScanAppOptions: preview cell > 0 and strides >= 1");
+  if (!(undo_seconds > 0) || undo_max_views < 0) throw std::invalid_argument("ScanAppOptions: undo_seconds > 0 and undo_max_views >= 0");
 }
 
 ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& options, BurstSource* source)
@@ -42,6 +46,9 @@ ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& opti
       source_(source),
       recon_(calibration, options.scan.recon, options.scan.bin) {
   o_.Check();
+  // Undo needs the tracker's journal and the kept frames (the fused model is made again without
+  // the undone views).
+  o_.scan.tracker.map.undo_inserts = o_.keep_views ? o_.undo_max_views : 0;
   registrar_ = std::make_unique<ScanRegistrar>(calibration_, o_.scan.tracker, o_.scan.anchor, o_.scan.recon.normal_max_gap_mm);
   fuser_ = std::make_unique<ScanFuser>(calibration_.camera, o_.scan.tsdf, o_.scan.free_space);
   cells_.reserve(o_.preview_max_points);
@@ -92,7 +99,38 @@ void ScanApp::Start() { graph_->Start(); }
 void ScanApp::RequestStop() { graph_->RequestStop(); }
 void ScanApp::Join() { graph_->Join(); }
 
+bool ScanApp::RequestUndo() {
+  if (!undo_available()) return false;
+  undo_requests_.fetch_add(1);
+  return true;
+}
+
+std::string ScanApp::LastUndoMessage() const {
+  std::lock_guard<std::mutex> lock(undo_mu_);
+  return undo_message_;
+}
+
+int64_t ScanApp::UndoCut(uint64_t from_gen, uint64_t to_gen) const {
+  std::lock_guard<std::mutex> lock(undo_mu_);
+  int64_t cut = std::numeric_limits<int64_t>::max();
+  for (uint64_t g = from_gen; g < to_gen && g < undo_log_.size(); ++g) cut = std::min(cut, undo_log_[g]);
+  return cut;
+}
+
 ScanApp::Graph::SourceResult ScanApp::Ingest(ScanItem& item, ItemMeta* meta) {
+  const uint64_t undo = undo_requests_.load();
+  if (undo != undo_ingested_) {
+    // An undo request goes down the graph at once, without a burst (paused, or no probe).
+    undo_ingested_ = undo;
+    item.control = true;
+    item.undo_requests = undo;
+    item.epoch = epoch_.load(std::memory_order_relaxed);
+    item.recon_ok = false;
+    item.fused = false;
+    item.packed_ok = false;
+    control_items_.fetch_add(1, std::memory_order_relaxed);
+    return Graph::SourceResult::kItem;
+  }
   const BurstSource::Result r = source_->Next(&item.burst);
   if (r == BurstSource::Result::kEnd) return Graph::SourceResult::kEnd;
   if (r == BurstSource::Result::kNothing) return Graph::SourceResult::kSkip;
@@ -100,9 +138,14 @@ ScanApp::Graph::SourceResult ScanApp::Ingest(ScanItem& item, ItemMeta* meta) {
     paused_bursts_.fetch_add(1, std::memory_order_relaxed);
     return Graph::SourceResult::kSkip;
   }
+  item.control = false;
+  item.undo_requests = undo_ingested_;
   item.epoch = epoch_.load(std::memory_order_relaxed);
   item.recon_ok = false;
   item.fused = false;
+  ++bursts_ingested_;
+  for (const uint64_t n : o_.undo_after_bursts)
+    if (n == bursts_ingested_) (void)RequestUndo();  // sent before the next burst
   // Latency origin: the capture time when the probe's clock agrees with ours (live), else the
   // time the host received the burst (a replayed recording carries its old capture times).
   const int64_t now = GraphNowNs();
@@ -117,6 +160,7 @@ ScanApp::Graph::SourceResult ScanApp::Ingest(ScanItem& item, ItemMeta* meta) {
 }
 
 bool ScanApp::ReconstructStage(ScanItem& item) {
+  if (item.control) return true;
   item.recon_ok = recon_.Reconstruct(item.burst.frames, &item.view).ok();
   if (!item.recon_ok) {
     failed_.fetch_add(1, std::memory_order_relaxed);
@@ -132,6 +176,35 @@ bool ScanApp::RegisterStage(ScanItem& item) {
     registrar_ = std::make_unique<ScanRegistrar>(calibration_, o_.scan.tracker, o_.scan.anchor, o_.scan.recon.normal_max_gap_mm);
     reg_epoch_ = item.epoch;
   }
+  for (; reg_undo_requests_ < item.undo_requests; ++reg_undo_requests_) {
+    const ScanRegistrar::UndoResult u = registrar_->UndoLastSeconds(o_.undo_seconds);
+    char text[160];
+    if (u.ok)
+      std::snprintf(text, sizeof text, "undid %.1f s: %lld views%s", u.seconds_undone, static_cast<long long>(u.views_undone),
+                    u.clamped ? " (as far back as undo reaches)" : "");
+    else
+      std::snprintf(text, sizeof text, "nothing undone: %s", u.reason.c_str());
+    {
+      std::lock_guard<std::mutex> lock(undo_mu_);
+      if (u.ok) undo_log_.push_back(u.first_view);
+      undo_message_ = text;
+    }
+    if (u.ok) {
+      ++reg_undo_gen_;
+      views_undone_.fetch_add(static_cast<uint64_t>(u.views_undone));
+    } else {
+      undos_refused_.fetch_add(1);
+    }
+    undos_done_.fetch_add(1);
+  }
+  item.undo_gen = reg_undo_gen_;
+  if (item.control) {
+    item.track = TrackResult{};
+    item.track.state = registrar_->tracker().state();
+    item.view_index = -1;
+    return true;
+  }
+  item.view_index = static_cast<int64_t>(registrar_->views().size());
   item.track = registrar_->Register(item.view, item.burst.burst_seq, item.burst.capture_ns);
   if (!item.track.accepted) refused_.fetch_add(1, std::memory_order_relaxed);
   return true;  // refused views still go on: the preview shows them (red)
@@ -142,12 +215,31 @@ bool ScanApp::FuseStage(ScanItem& item) {
   if (item.epoch != fuse_epoch_) {
     fuser_ = std::make_unique<ScanFuser>(calibration_.camera, o_.scan.tsdf, o_.scan.free_space);
     archive_.Clear();
+    fused_views_.clear();
+    volume_has_undone_ = false;
     fuse_epoch_ = item.epoch;
+  }
+  if (item.undo_gen > fuse_undo_gen_) {
+    // The undone views' frames go; the volume keeps them until it is fused again (SaveNow, Finish).
+    const int64_t cut = UndoCut(fuse_undo_gen_, item.undo_gen);
+    while (!fused_views_.empty() && fused_views_.back().view_index >= cut) {
+      (void)archive_.Remove(fused_views_.back().burst_seq);
+      fused_views_.pop_back();
+      volume_has_undone_ = true;
+    }
+    fuse_undo_gen_ = item.undo_gen;
+  }
+  if (item.control) {
+    control_done_.fetch_add(1);
+    return true;
   }
   if (item.track.accepted) {
     item.fused = fuser_->Fuse(item.view, item.track.world_from_cam).ok();
     if (item.fused) fused_.fetch_add(1, std::memory_order_relaxed);
-    if (item.fused && item.packed_ok) archive_.Add(item.burst.burst_seq, item.packed);
+    if (item.fused && item.packed_ok) {
+      archive_.Add(item.burst.burst_seq, item.packed);
+      fused_views_.push_back({item.view_index, item.burst.burst_seq, item.track.world_from_cam});
+    }
   }
   return true;
 }
@@ -157,17 +249,36 @@ bool ScanApp::PreviewStage(ScanItem& item) {
     cells_.clear();
     model_points_.clear();
     model_normals_.clear();
+    preview_views_.clear();
     bursts_in_model_ = 0;
     preview_epoch_ = item.epoch;
+    ++preview_generation_;
+  }
+  const float inv_cell = static_cast<float>(1.0 / o_.preview_cell_mm);
+  if (item.undo_gen > preview_undo_gen_) {
+    // The undone views' points: the model's tail from the first of them.
+    const int64_t cut = UndoCut(preview_undo_gen_, item.undo_gen);
+    size_t keep = preview_views_.size();
+    while (keep > 0 && preview_views_[keep - 1].first >= cut) --keep;
+    if (keep < preview_views_.size()) {
+      const size_t points = preview_views_[keep].second;
+      for (size_t i = points; i < model_points_.size(); ++i) cells_.erase(CellKey(model_points_[i], inv_cell));
+      model_points_.resize(points);
+      model_normals_.resize(points);
+      bursts_in_model_ -= preview_views_.size() - keep;
+      preview_views_.resize(keep);
+      ++preview_generation_;
+    }
+    preview_undo_gen_ = item.undo_gen;
   }
   const Eigen::Matrix4f model_from_cam = item.track.world_from_cam.matrix().cast<float>();
   const Eigen::Matrix3f r = model_from_cam.topLeftCorner<3, 3>();
   const Eigen::Vector3f t = model_from_cam.topRightCorner<3, 1>();
-  const float inv_cell = static_cast<float>(1.0 / o_.preview_cell_mm);
   const cv::Mat& pts = item.view.points_in_cam;
   const cv::Mat& nrm = item.view.normals;
-  if (item.track.accepted) {
+  if (!item.control && item.track.accepted) {
     ++bursts_in_model_;
+    preview_views_.emplace_back(item.view_index, model_points_.size());
     for (int y = 0; y < pts.rows; y += o_.preview_stride_px) {
       const auto* p = pts.ptr<cv::Vec3f>(y);
       const auto* n = nrm.ptr<cv::Vec3f>(y);
@@ -182,22 +293,23 @@ bool ScanApp::PreviewStage(ScanItem& item) {
     }
   }
   PreviewSnapshot& s = preview_.Back();
-  if (s.epoch != preview_epoch_ || s.points.size() > model_points_.size()) {
+  if (s.generation != preview_generation_ || s.points.size() > model_points_.size()) {
     s.points.clear();
     s.normals.clear();
-    s.epoch = preview_epoch_;
+    s.generation = preview_generation_;
   }
-  // The model is append-only within an epoch: copy the new tail only.
+  // The model is append-only within a generation: copy the new tail only.
   s.points.insert(s.points.end(), model_points_.begin() + static_cast<std::ptrdiff_t>(s.points.size()), model_points_.end());
   s.normals.insert(s.normals.end(), model_normals_.begin() + static_cast<std::ptrdiff_t>(s.normals.size()), model_normals_.end());
   s.view_points.clear();
-  for (int y = o_.view_stride_px / 2; y < pts.rows; y += o_.view_stride_px) {
+  for (int y = o_.view_stride_px / 2; !item.control && y < pts.rows; y += o_.view_stride_px) {
     const auto* p = pts.ptr<cv::Vec3f>(y);
     for (int x = o_.view_stride_px / 2; x < pts.cols; x += o_.view_stride_px)
       if (std::isfinite(p[x][2])) s.view_points.push_back(r * Eigen::Vector3f(p[x][0], p[x][1], p[x][2]) + t);
   }
   s.view_accepted = item.track.accepted;
-  s.have_pose = item.track.state != TrackingState::kInitialising || item.track.accepted;
+  // A control item (undo) has no view: no probe pose until the next burst.
+  s.have_pose = !item.control && (item.track.state != TrackingState::kInitialising || item.track.accepted);
   s.model_from_cam = model_from_cam;
   const PinholeBrownConrady& cam = calibration_.camera;
   s.tan_half_x = static_cast<float>(0.5 * cam.width / cam.fx);
@@ -206,7 +318,8 @@ bool ScanApp::PreviewStage(ScanItem& item) {
   s.far_mm = static_cast<float>(calibration_.depth_max_mm);
   s.cue = CueOf(item.track.state);
   s.bursts_in_model = bursts_in_model_;
-  s.last_burst_seq = item.burst.burst_seq;
+  if (!item.control) last_burst_seq_ = item.burst.burst_seq;
+  s.last_burst_seq = last_burst_seq_;
   s.model_area_mm2 = static_cast<double>(model_points_.size()) * o_.preview_cell_mm * o_.preview_cell_mm;
   preview_.Publish();
   // Status line: percentiles of the latest 64 latencies (the graph's, of the bursts before this one).
@@ -222,6 +335,20 @@ Status ScanApp::SaveNow(const std::string& dir) {
   TriangleMesh mesh;
   {
     std::lock_guard<std::mutex> lock(model_mu_);
+    if (volume_has_undone_) {
+      // The kept views again, at their tracked poses, into a volume that then replaces the live one.
+      ScanReconstructor again(calibration_, o_.scan.recon, 1);  // the kept frames are binned already
+      ScanFuser rebuilt(calibration_.camera, o_.scan.tsdf, o_.scan.free_space);
+      std::vector<cv::Mat> frames;
+      ReconstructedView view;
+      for (const FusedView& v : fused_views_) {
+        D3D_RETURN_IF_ERROR(archive_.Get(v.burst_seq, &frames));
+        D3D_RETURN_IF_ERROR(again.Reconstruct(frames, &view));
+        D3D_RETURN_IF_ERROR(rebuilt.Fuse(view, v.world_from_cam));
+      }
+      fuser_->AdoptVolume(std::move(rebuilt));
+      volume_has_undone_ = false;
+    }
     mesh = fuser_->volume().ExtractMesh();
   }
   if (mesh.faces.empty()) return Status(StatusCode::kInternal, "the model is empty: nothing to save");
@@ -232,15 +359,21 @@ Status ScanApp::SaveNow(const std::string& dir) {
   return SaveStlBinary((std::filesystem::path(dir) / "scan.stl").string(), mesh);
 }
 
+uint64_t ScanApp::BurstsCompleted() const {
+  const uint64_t control = control_done_.load();  // before completed(): the graph counts an item after its last stage
+  const uint64_t all = graph_->completed();
+  return all > control ? all - control : 0;
+}
+
 PreviewStatus ScanApp::CurrentStatus() const {
   PreviewStatus st;
   st.bursts_received = source_->received();
-  st.bursts_processed = graph_->completed();
+  st.bursts_processed = BurstsCompleted();
   st.bursts_fused = fused_.load(std::memory_order_relaxed);
   st.bursts_dropped = graph_->dropped() + source_->dropped();
   st.bursts_rejected = refused_.load(std::memory_order_relaxed) + failed_.load(std::memory_order_relaxed);
   const int64_t span = graph_->last_done_ns() - graph_->first_done_ns();
-  st.bursts_per_s = span > 0 ? static_cast<double>(graph_->completed() - 1) / (static_cast<double>(span) * 1e-9) : 0.0;
+  st.bursts_per_s = span > 0 ? static_cast<double>(st.bursts_processed - 1) / (static_cast<double>(span) * 1e-9) : 0.0;
   st.latency_ms_p50 = recent_p50_.load(std::memory_order_relaxed);
   st.latency_ms_p95 = recent_p95_.load(std::memory_order_relaxed);
   if (paused_.load()) {
@@ -258,7 +391,7 @@ PreviewStatus ScanApp::CurrentStatus() const {
 
 nlohmann::json ScanApp::HostReport() const {
   nlohmann::json j;
-  const uint64_t processed = graph_->completed();
+  const uint64_t processed = BurstsCompleted();
   j["policy"] = EdgePolicyName(o_.policy);
   j["bursts_received"] = source_->received();
   j["bursts_malformed"] = source_->malformed();
@@ -269,6 +402,10 @@ nlohmann::json ScanApp::HostReport() const {
   j["bursts_refused"] = refused_.load();
   j["bursts_failed"] = failed_.load();
   j["bursts_paused"] = paused_bursts_.load();
+  j["undo_requests"] = undo_requests_.load();
+  j["undos_applied"] = undos_done_.load() - undos_refused_.load();
+  j["undos_refused"] = undos_refused_.load();
+  j["views_undone_live"] = views_undone_.load();
   // Every burst that reached the host and was neither processed nor malformed, failed or paused was
   // dropped for lack of time (where: "drops"; the receiver's figure counts samples of every topic).
   const uint64_t accounted = processed + source_->malformed() + failed_.load() + paused_bursts_.load();
@@ -320,7 +457,7 @@ Status ScanApp::Finish(const ScanTruth& truth, const ScanViewProvider& provider,
   ScanViewProvider kept;
   std::unique_ptr<ScanReconstructor> re_recon;
   std::vector<cv::Mat> frames;
-  if (!provider && o_.keep_views && archive_.size() > 0) {
+  if (!provider && o_.keep_views && (archive_.size() > 0 || registrar_->views_undone() > 0)) {
     re_recon = std::make_unique<ScanReconstructor>(calibration_, o_.scan.recon, 1);
     kept = [&](int64_t, const ScanViewRecord& v, ReconstructedView* view) -> Status {
       D3D_RETURN_IF_ERROR(archive_.Get(v.burst_seq, &frames));

@@ -3,7 +3,7 @@
 //   ingest (BurstSource) → reconstruct → register → preview snapshot → fuse
 //
 // running the scan chain's pieces (pipeline/scan), with a live preview handed to the render thread
-// through a triple buffer, control from any thread (pause, reset, save) and the host's figures
+// through a triple buffer, control from any thread (pause, reset, undo, save) and the host's figures
 // (bursts received / processed / dropped, bursts/s, latency percentiles, per-stage timing).
 // The preview is built from the registered views' points (a decimated point model), not from the
 // TSDF, so it comes before the fuse stage: a burst is on screen once it is registered, and the
@@ -22,9 +22,16 @@
 //   Preview grid (the decimated model) and the TripleBuffer's back copy: preview thread.
 //   The TripleBuffer's front copy: the render thread (LatestSnapshot()).
 //   After Join(): everything belongs to the thread that calls Finish().
-// Control flags (pause, reset epoch) and counters are atomics. Reset bumps an epoch that travels
-// with the items, so each stage resets its own state when the first item of the new epoch arrives
-// (in order, without locks).
+// Control flags (pause, reset epoch, undo requests) and counters are atomics. Reset bumps an epoch
+// that travels with the items, so each stage resets its own state when the first item of the new
+// epoch arrives (in order, without locks).
+// Undo ("undo last seconds", RequestUndo): the ingest thread sends the request down the graph as a
+// control item (no burst: it goes through while paused or while the probe is away) and stamps the
+// request count on every burst after it (a live edge may drop the control item). The register stage
+// takes the views back (ScanRegistrar::UndoLastSeconds) and logs where each undo cut the views
+// (undo_log_, under undo_mu_; read only when an item brings a newer undo); the preview stage drops
+// those views' points, the fuse stage their kept frames. The live TSDF cannot forget a view, so it
+// still holds them: SaveNow fuses the kept views again first, and Finish always does.
 #pragma once
 
 #include <atomic>
@@ -56,11 +63,23 @@ struct ScanAppOptions {
   // view_archive.h) so that Finish can fuse them again at the pose graph's poses when it is given
   // no view provider (with ScanOptions::refuse_min_correction_mm >= 0). Memory grows with the scan.
   bool keep_views = true;
+  // Undo: each request takes back the views captured in the last undo_seconds (of the views still
+  // in the model); the tracker's undo journal reaches back undo_max_views views
+  // (TrackerOptions::map.undo_inserts; ~0.4 MB per view at bin 2). 0 or keep_views off = no undo
+  // (the fused model could not leave the undone views out).
+  double undo_seconds = 2.0;
+  int undo_max_views = 150;
+  // Scripted undo requests (tests, demos): one right after the N-th burst ingested, for each N.
+  std::vector<uint64_t> undo_after_bursts;
   void Check() const;                // throws std::invalid_argument
 };
 
 struct ScanItem {
   uint64_t epoch = 0;
+  bool control = false;        // an undo request without a burst (ingest writes; every stage lets it through)
+  uint64_t undo_requests = 0;  // undo requests up to this item (ingest writes)
+  uint64_t undo_gen = 0;       // undos the register stage had done by this item (register writes)
+  int64_t view_index = -1;     // the registrar's index of this view (register writes)
   IngestedBurst burst;
   bool recon_ok = false;
   ReconstructedView view;
@@ -88,8 +107,20 @@ class ScanApp {
   void SetPaused(bool paused) { paused_.store(paused); }
   bool paused() const { return paused_.load(); }
   void Reset() { epoch_.fetch_add(1); }
+  // Takes back the views of the last options().undo_seconds (any thread; applied in order with the
+  // bursts, see the file comment). false when undo is off (undo_max_views 0 or keep_views off).
+  bool RequestUndo();
+  bool undo_available() const { return o_.scan.tracker.map.undo_inserts > 0; }
+  // What the latest undo did ("undid 2.0 s: 57 views", or why nothing), and how many undos have
+  // been applied or refused so far (any thread).
+  std::string LastUndoMessage() const;
+  uint64_t undos_done() const { return undos_done_.load(); }
   // Any thread but the stages': extracts the current model (waits for the fuse stage's current
-  // burst) and writes DIR/scan.ply and DIR/scan.stl. INTERNAL for an empty model.
+  // burst) and writes DIR/scan.ply and DIR/scan.stl. After an undo the live volume still holds the
+  // undone views: the kept views are first fused again into a new volume at their tracked poses
+  // (~20 ms per view, the fuse stage waits; without the register thread's model anchoring, which
+  // Finish's refusion adds back), which then replaces the live one. INTERNAL for an empty model;
+  // a kept view that cannot be read back: its error.
   [[nodiscard]] Status SaveNow(const std::string& dir);
 
   // Render thread only: the newest snapshot (nullptr before the first).
@@ -120,7 +151,19 @@ class ScanApp {
   std::atomic<bool> paused_{false};
   std::atomic<uint64_t> epoch_{0};
   std::atomic<uint64_t> paused_bursts_{0}, failed_{0}, fused_{0}, refused_{0};
+  // Undo: requests (any thread), control items sent (ingest) and through the last stage (fuse),
+  // undos applied and views taken back (register), requests that took nothing back.
+  std::atomic<uint64_t> undo_requests_{0}, control_items_{0}, control_done_{0}, undos_done_{0}, views_undone_{0}, undos_refused_{0};
+  uint64_t BurstsCompleted() const;  // items the graph completed that carried a burst
+  mutable std::mutex undo_mu_;
+  std::vector<int64_t> undo_log_;  // per undo (register stage appends): its first view taken back
+  std::string undo_message_;
+  // The smallest first view of undos [from_gen, to_gen) (what a stage that applied from_gen must cut).
+  int64_t UndoCut(uint64_t from_gen, uint64_t to_gen) const;
   std::atomic<uint64_t> latency_origin_capture_{0}, latency_origin_receive_{0};
+  // ingest thread
+  uint64_t undo_ingested_ = 0;  // undo requests already sent down the graph
+  uint64_t bursts_ingested_ = 0;
   // reconstruct thread
   ScanReconstructor recon_;
   double ms_recon_ = 0;
@@ -128,17 +171,28 @@ class ScanApp {
   FramePacker packer_;
   // register thread
   uint64_t reg_epoch_ = 0;
+  uint64_t reg_undo_requests_ = 0, reg_undo_gen_ = 0;
   std::unique_ptr<ScanRegistrar> registrar_;
   // fuse thread (+ SaveNow under model_mu_)
   std::mutex model_mu_;
-  uint64_t fuse_epoch_ = 0;
+  uint64_t fuse_epoch_ = 0, fuse_undo_gen_ = 0;
   std::unique_ptr<ScanFuser> fuser_;
   ViewArchive archive_;  // keep_views: the fused views' frames (fuse thread, then Finish)
+  struct FusedView {
+    int64_t view_index;
+    uint64_t burst_seq;
+    Rigid3d world_from_cam;  // tracked
+  };
+  std::vector<FusedView> fused_views_;  // keep_views: the archive's views, in order
+  bool volume_has_undone_ = false;      // the live volume holds views an undo took back
   // preview thread
-  uint64_t preview_epoch_ = 0;
+  uint64_t preview_epoch_ = 0, preview_undo_gen_ = 0;
+  uint64_t preview_generation_ = 0;  // bumps when the model loses points (reset, undo): snapshots copy it anew
   std::unordered_map<uint64_t, uint32_t> cells_;
   std::vector<Eigen::Vector3f> model_points_, model_normals_;
+  std::vector<std::pair<int64_t, size_t>> preview_views_;  // accepted views: (view index, model points before it)
   uint64_t bursts_in_model_ = 0;
+  uint64_t last_burst_seq_ = 0;
   TripleBuffer<PreviewSnapshot> preview_;
   // Rolling window of latencies for the status line: preview thread; its percentiles are atomics.
   std::vector<double> recent_latency_ms_;

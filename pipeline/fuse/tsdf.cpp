@@ -91,7 +91,9 @@ struct ProjectionF {
 using Float8 = float __attribute__((vector_size(32)));
 using Int8 = int32_t __attribute__((vector_size(32)));
 
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+// Not under ThreadSanitizer: the clone's ifunc resolver runs while the program is relocated,
+// before the sanitizer's runtime is set up, and crashes the process.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && !defined(__SANITIZE_THREAD__)
 #define D3D_AVX2_CLONE __attribute__((target_clones("avx2", "default")))
 #else
 #define D3D_AVX2_CLONE

@@ -10,6 +10,7 @@ namespace d3d {
 void PointMapOptions::Check() const {
   D3D_CHECK_MSG(voxel_mm > 0 && block_mm >= voxel_mm, "PointMapOptions: need 0 < voxel_mm <= block_mm");
   D3D_CHECK_MSG(max_weight >= 1, "PointMapOptions: max_weight must be >= 1");
+  D3D_CHECK_MSG(undo_inserts >= 0, "PointMapOptions: undo_inserts must be >= 0");
 }
 
 PointMap::PointMap(const PointMapOptions& options) : o_(options) { o_.Check(); }
@@ -19,6 +20,24 @@ void PointMap::Insert(const SurfacePoints& s, const Rigid3d& world_from_source) 
   const Eigen::Matrix3f R = world_from_source.linear().cast<float>();
   const Eigen::Vector3f t = world_from_source.translation().cast<float>();
   const float inv = static_cast<float>(1.0 / o_.voxel_mm), binv = static_cast<float>(1.0 / o_.block_mm);
+  ++inserts_;
+  Entry* entry = nullptr;
+  if (o_.undo_inserts > 0) {
+    if (static_cast<int>(journal_.size()) == o_.undo_inserts) {  // the oldest can no longer be undone
+      spare_.push_back(std::move(journal_.front()));
+      journal_.pop_front();
+    }
+    if (!spare_.empty()) {
+      journal_.push_back(std::move(spare_.back()));
+      spare_.pop_back();
+    } else {
+      journal_.emplace_back();
+    }
+    entry = &journal_.back();
+    entry->samples_before = points_.size();
+    entry->updates.clear();
+    entry->created.clear();
+  }
   for (size_t i = 0; i < s.size(); ++i) {
     const Eigen::Vector3f p = R * s.points[i] + t;
     const Eigen::Vector3f n = R * s.normals[i];
@@ -28,16 +47,57 @@ void PointMap::Insert(const SurfacePoints& s, const Rigid3d& world_from_source) 
       points_.push_back(p);
       normals_.push_back(n);
       weights_.push_back(1.0f);
-      blocks_[VoxelKeyOf(p, binv)].push_back(it->second);
+      const uint64_t b = VoxelKeyOf(p, binv);
+      blocks_[b].push_back(it->second);
+      if (entry) entry->created.push_back({k, b});
     } else {
       const uint32_t j = it->second;
       if (normals_[j].dot(n) < 0.5f) continue;  // the other side of a thin wall
       const float w = weights_[j];
+      if (entry) entry->updates.push_back({j, w, points_[j], normals_[j]});
       points_[j] = (points_[j] * w + p) / (w + 1);
       normals_[j] = (normals_[j] * w + n).normalized();
       weights_[j] = std::min(w + 1, o_.max_weight);
     }
   }
+}
+
+bool PointMap::RollBackTo(int64_t insert) {
+  if (insert < oldest_undoable_insert() || insert > inserts_) return false;
+  while (inserts_ > insert) {
+    Entry& e = journal_.back();
+    // Updates newest first restore each sample's value from before this Insert (a sample this
+    // Insert updated twice gets the older value last); then the samples it created, newest first:
+    // each is the last index of its block's list.
+    for (auto u = e.updates.rbegin(); u != e.updates.rend(); ++u) {
+      points_[u->index] = u->point;
+      normals_[u->index] = u->normal;
+      weights_[u->index] = u->weight;
+    }
+    for (size_t c = e.created.size(); c-- > 0;) {
+      voxel_.erase(e.created[c].voxel);
+      const auto b = blocks_.find(e.created[c].block);
+      b->second.pop_back();
+      if (b->second.empty()) blocks_.erase(b);
+    }
+    points_.resize(e.samples_before);
+    normals_.resize(e.samples_before);
+    weights_.resize(e.samples_before);
+    spare_.push_back(std::move(e));
+    journal_.pop_back();
+    --inserts_;
+  }
+  return true;
+}
+
+int64_t PointMap::journal_bytes() const {
+  const auto of = [](const Entry& e) {
+    return static_cast<int64_t>(e.updates.capacity() * sizeof(Update) + e.created.capacity() * sizeof(Created));
+  };
+  int64_t bytes = 0;
+  for (const Entry& e : journal_) bytes += of(e);
+  for (const Entry& e : spare_) bytes += of(e);
+  return bytes;
 }
 
 SurfacePoints PointMap::Gather(const Eigen::Vector3f& lo, const Eigen::Vector3f& hi) const {

@@ -2,11 +2,15 @@
 // surface samples (running means of point and normal per voxel). Frame-to-model ICP associates
 // new views with it, either through a k-d tree over the samples near the view or through an
 // image of the samples rendered from the predicted pose (projective association).
+// With an undo journal (PointMapOptions::undo_inserts > 0) the last Inserts can be rolled back
+// exactly: what each one changed (the samples it created, the old mean, normal and weight of those
+// it updated) is kept for the newest undo_inserts of them (the tracker's "undo last seconds").
 // Not thread-safe; owned by the tracker's thread.
 #pragma once
 
 #include <Eigen/Core>
 #include <cstdint>
+#include <deque>
 #include <opencv2/core.hpp>
 #include <unordered_map>
 #include <vector>
@@ -21,7 +25,11 @@ struct PointMapOptions {
   double voxel_mm = 0.08;        // one sample per voxel
   double block_mm = 2.0;         // spatial index cell for region queries
   float max_weight = 50.0f;      // running mean becomes a moving average beyond this count
-  void Check() const;
+  // Inserts that RollBackTo can undo (the newest ones); 0 = no journal. Memory: ~32 bytes per
+  // sample an Insert updates and 16 per sample it creates (a binned 320 × 240 view on the
+  // tracker's map lattice: ~10-20k samples, ~0.3-0.6 MB per Insert).
+  int undo_inserts = 0;
+  void Check() const;  // throws std::invalid_argument
 };
 
 class PointMap {
@@ -42,8 +50,41 @@ class PointMap {
   // its 26 neighbours: the overlap index of a view with the model.
   double Overlap(const SurfacePoints& samples_in_source, const Rigid3d& world_from_source) const;
 
+  // The samples in insertion order (world, mm), their unit normals and running-mean weights.
+  const std::vector<Eigen::Vector3f>& points() const { return points_; }
+  const std::vector<Eigen::Vector3f>& normals() const { return normals_; }
+  const std::vector<float>& weights() const { return weights_; }
+
+  // Undo journal. inserts(): Insert calls so far. oldest_undoable_insert(): the first Insert that
+  // RollBackTo can still undo (inserts() when there is none: no journal, or none yet).
+  int64_t inserts() const { return inserts_; }
+  int64_t oldest_undoable_insert() const { return inserts_ - static_cast<int64_t>(journal_.size()); }
+  // Undoes Inserts insert, insert+1, …, inserts()−1 (newest first): the map is then what it was
+  // before Insert number `insert` (the same samples in the same order with the same values; hash
+  // tables hold the same keys). false (map untouched) when insert < oldest_undoable_insert() or
+  // insert > inserts().
+  bool RollBackTo(int64_t insert);
+  // Bytes the journal holds (capacity of its buffers).
+  int64_t journal_bytes() const;
+
  private:
+  struct Update {  // an Insert changed sample `index` from these values
+    uint32_t index;
+    float weight;
+    Eigen::Vector3f point, normal;
+  };
+  struct Created {  // an Insert created a sample under these keys
+    uint64_t voxel, block;
+  };
+  struct Entry {  // one Insert
+    size_t samples_before = 0;
+    std::vector<Update> updates;
+    std::vector<Created> created;  // in sample order (samples_before, samples_before + 1, …)
+  };
   PointMapOptions o_;
+  std::deque<Entry> journal_;   // the newest undo_inserts Inserts, oldest first
+  std::vector<Entry> spare_;    // entries dropped from the journal, reused (their capacity)
+  int64_t inserts_ = 0;
   std::vector<Eigen::Vector3f> points_, normals_;
   std::vector<float> weights_;
   std::unordered_map<uint64_t, uint32_t> voxel_;                // voxel key → sample index

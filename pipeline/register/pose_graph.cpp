@@ -4,6 +4,7 @@
 
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <cmath>
 
 namespace d3d {
@@ -78,6 +79,13 @@ Eigen::Matrix<double, 6, 6> EdgeInformationFromIcp(const Eigen::Matrix<double, 6
 int PoseGraph::AddNode(const Rigid3d& p) {
   poses_.push_back(p);
   return static_cast<int>(poses_.size()) - 1;
+}
+
+void PoseGraph::Truncate(int n) {
+  D3D_CHECK_MSG(n >= 0 && n <= num_nodes(), "PoseGraph::Truncate: " << n << " nodes of " << num_nodes());
+  poses_.resize(static_cast<size_t>(n));
+  edges_.erase(std::remove_if(edges_.begin(), edges_.end(), [n](const PoseGraphEdge& e) { return e.from >= n || e.to >= n; }),
+               edges_.end());
 }
 
 void PoseGraph::AddEdge(const PoseGraphEdge& e) {

@@ -60,6 +60,9 @@ class PoseGraph {
  public:
   int AddNode(const Rigid3d& world_from_node);
   void AddEdge(const PoseGraphEdge& edge);  // throws std::invalid_argument for unknown nodes
+  // Keeps nodes 0 … num_nodes − 1 and the edges between them (in their order); the others go.
+  // Throws std::invalid_argument for num_nodes < 0 or above num_nodes().
+  void Truncate(int num_nodes);
   int num_nodes() const { return static_cast<int>(poses_.size()); }
   const std::vector<PoseGraphEdge>& edges() const { return edges_; }
   const Rigid3d& pose(int node) const { return poses_[static_cast<size_t>(node)]; }

@@ -271,6 +271,9 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   capture_ns_ = capture_ns;
   anchor_.push_back(-1);
   kf_from_cam_.push_back(Rigid3d::Identity());
+  view_log_.emplace_back();
+  view_log_.back().map_inserts_before = map_.inserts();
+  view_log_.back().capture_ns = capture_ns;
   TrackResult out;
   SurfacePoints samples = SampleOrganised(points, normals, quality, o_.sample_stride);
   bool augmented = false;
@@ -397,10 +400,16 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
       std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() / 2), sorted.end());
       out.in_model = out.icp.rmse_mm <= o_.map_max_rmse_ratio * sorted[sorted.size() / 2];
     }
-    if (recent_rmse_mm_.size() < kRecentResiduals) recent_rmse_mm_.push_back(out.icp.rmse_mm);
-    else recent_rmse_mm_[recent_rmse_next_++ % kRecentResiduals] = out.icp.rmse_mm;
+    PushRecentRmse(out.icp.rmse_mm);
+    view_log_.back().rmse_pushed_mm = out.icp.rmse_mm;
   }
   gated_run_ = out.in_model ? 0 : gated_run_ + 1;
+  ViewLog& log = view_log_.back();
+  log.in_model = out.in_model;
+  log.pose = pose;
+  log.prev_pose = prev_pose_;
+  log.prev_accepted = prev_accepted_;
+  log.prev_accepted_ns = prev_accepted_ns_;
   if (out.in_model) map_.Insert(SampleOrganised(points, normals, cv::Mat(), o_.map_stride), pose);
   MaybeKeyframe(samples, points, normals, texture, pose, &out);
   const int kf = static_cast<int>(keyframes_.size()) - 1;
@@ -640,6 +649,71 @@ Status Tracker::Optimize(const PoseGraphOptions& options, PoseGraphSummary* summ
   for (const int k : deferred_edges_) AddKeyframeEdges(k);
   deferred_edges_.clear();
   return graph_.Optimize(options, summary);
+}
+
+void Tracker::PushRecentRmse(double rmse_mm) {
+  if (recent_rmse_mm_.size() < kRecentResiduals) recent_rmse_mm_.push_back(rmse_mm);
+  else recent_rmse_mm_[recent_rmse_next_++ % kRecentResiduals] = rmse_mm;
+}
+
+int64_t Tracker::first_undoable_view() const {
+  // Views' Insert counts do not decrease: the first view whose model state the journal still has.
+  const int64_t oldest = map_.oldest_undoable_insert();
+  const auto it = std::lower_bound(view_log_.begin(), view_log_.end(), oldest,
+                                   [](const ViewLog& v, int64_t n) { return v.map_inserts_before < n; });
+  return static_cast<int64_t>(it - view_log_.begin());
+}
+
+Tracker::UndoResult Tracker::UndoFrom(int64_t first_view) {
+  UndoResult r;
+  if (first_view > views() || first_view < first_undoable_view()) {
+    r.reason = "view " + std::to_string(first_view) + " is outside what can be undone (views " + std::to_string(first_undoable_view()) +
+               " to " + std::to_string(views()) + ")";
+    return r;
+  }
+  CollectKeyframeFeatures();  // no job of the feature worker may name a keyframe that goes
+  const size_t f = static_cast<size_t>(first_view);
+  if (f < view_log_.size()) {
+    const bool rolled_back = map_.RollBackTo(view_log_[f].map_inserts_before);
+    D3D_CHECK_MSG(rolled_back, "Tracker::UndoFrom: the model's journal does not reach view " << first_view);
+  }
+  for (size_t v = f; v < anchor_.size(); ++v) {
+    r.views_undone += anchor_[v] >= 0;
+    anchor_[v] = -1;
+  }
+  size_t keep = 0;
+  while (keep < keyframes_.size() && keyframes_[keep].view < first_view) ++keep;
+  r.keyframes_undone = static_cast<int>(keyframes_.size() - keep);
+  keyframes_.resize(keep);
+  D3D_CHECK_MSG(keep == 0 || keyframes_.back().node == static_cast<int>(keep) - 1, "Tracker::UndoFrom: keyframe nodes out of order");
+  graph_.Truncate(static_cast<int>(keep));
+  deferred_edges_.erase(std::remove_if(deferred_edges_.begin(), deferred_edges_.end(), [keep](int k) { return k >= static_cast<int>(keep); }),
+                        deferred_edges_.end());
+  last_keyframe_occupancy_ = keep > 0 ? OccupancyMap(keyframes_.back().samples, kOverlapVoxelMm) : nullptr;
+  // The motion state, residual history and map gate as the kept views left them (replayed in order).
+  recent_rmse_mm_.clear();
+  recent_rmse_next_ = 0;
+  gated_run_ = 0;
+  last_accepted_ = prev_accepted_ = -1;
+  last_pose_ = prev_pose_ = Rigid3d::Identity();
+  last_accepted_ns_ = prev_accepted_ns_ = 0;
+  for (size_t v = 0; v < f; ++v) {
+    if (anchor_[v] < 0) continue;
+    const ViewLog& log = view_log_[v];
+    if (log.rmse_pushed_mm >= 0) PushRecentRmse(log.rmse_pushed_mm);
+    gated_run_ = log.in_model ? 0 : gated_run_ + 1;
+    last_accepted_ = static_cast<int64_t>(v);
+    last_pose_ = log.pose;
+    last_accepted_ns_ = log.capture_ns;
+    prev_pose_ = log.prev_pose;
+    prev_accepted_ = log.prev_accepted;
+    prev_accepted_ns_ = log.prev_accepted_ns;
+  }
+  candidate_ = ReentryCandidate{};
+  state_ = last_accepted_ < 0 ? TrackingState::kInitialising : TrackingState::kLost;
+  if (last_accepted_ < 0) D3D_CHECK_MSG(map_.empty(), "Tracker::UndoFrom: no view left but the model is not empty");
+  r.ok = true;
+  return r;
 }
 
 bool Tracker::ViewPose(int64_t view, Rigid3d* world_from_cam) const {

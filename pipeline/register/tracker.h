@@ -28,6 +28,9 @@
 //     current poses): each success becomes a loop edge (robust loss, ICP information).
 // Optimize() solves the pose graph (pose_graph.h) and re-expresses every accepted view through its
 // anchor keyframe: world_from_cam = world_from_keyframe (optimised) · keyframe_from_cam (tracked).
+// UndoFrom() takes the newest views back out (the host's "undo last seconds"): they become refused
+// views, and the model, keyframes, pose graph and motion state are what they were before them
+// (the model exactly, through PointMap's undo journal: TrackerOptions::map.undo_inserts).
 #pragma once
 
 #include <functional>
@@ -257,6 +260,25 @@ class Tracker {
 
   // Optimises the pose graph (loop closures) and returns the summary.
   [[nodiscard]] Status Optimize(const PoseGraphOptions& options, PoseGraphSummary* summary);
+
+  // The first view UndoFrom can take back: the model's undo journal (options.map.undo_inserts)
+  // reaches back to it. views() when it reaches no view (no journal).
+  int64_t first_undoable_view() const;
+  struct UndoResult {
+    bool ok = false;
+    std::string reason;          // why not (ok = false)
+    int64_t views_undone = 0;    // accepted views taken back
+    int keyframes_undone = 0;
+  };
+  // Takes back views first_view … views() − 1, before Optimize (after it the graph's poses are no
+  // longer the tracked ones): each becomes a refused view (ViewPose false); the tracking model
+  // loses their samples (the running means they updated get their old values back), the keyframes
+  // made from them go with their pose-graph nodes and every edge touching those, and the motion
+  // model, residual history and map gate restart from the last view kept. The next view is then
+  // searched as after a loss (state kLost: local search, features, confirmed re-entry), or starts a
+  // new model (kInitialising) when no accepted view is left. View indices go on counting. Not ok
+  // (nothing changed) when first_view < first_undoable_view() or first_view > views().
+  UndoResult UndoFrom(int64_t first_view);
   // Pose of view i after Optimize (its tracked pose before): false if the view was refused.
   bool ViewPose(int64_t view, Rigid3d* world_from_cam) const;
   int loop_edges() const;
@@ -302,6 +324,7 @@ class Tracker {
   static constexpr size_t kRecentResiduals = 16;  // the "last 16" of map_max_rmse_ratio
   std::vector<double> recent_rmse_mm_;  // ICP residuals of the last kRecentResiduals accepted views (ring)
   size_t recent_rmse_next_ = 0;
+  void PushRecentRmse(double rmse_mm);
   int gated_run_ = 0;  // views in a row kept out of the model
   Rigid3d last_pose_ = Rigid3d::Identity(), prev_pose_ = Rigid3d::Identity();
   int64_t prev_accepted_ = -1;
@@ -327,6 +350,18 @@ class Tracker {
   // Per view: anchor keyframe (−1 = refused) and keyframe_from_cam.
   std::vector<int> anchor_;
   std::vector<Rigid3d> kf_from_cam_;
+  // Per view, what UndoFrom needs to restore the state from before it: the model's Insert count at
+  // its start, and for an accepted view its pose, capture time, residual pushed to recent_rmse_mm_
+  // (< 0: none), whether it entered the model, and the motion state its acceptance left behind.
+  struct ViewLog {
+    int64_t map_inserts_before = 0;
+    int64_t capture_ns = 0;
+    double rmse_pushed_mm = -1;
+    bool in_model = false;
+    Rigid3d pose = Rigid3d::Identity(), prev_pose = Rigid3d::Identity();
+    int64_t prev_accepted = -1, prev_accepted_ns = 0;
+  };
+  std::vector<ViewLog> view_log_;
 };
 
 }  // namespace d3d

@@ -128,6 +128,114 @@ TEST_F(TrackerScan, AReentryTheNextViewContradictsIsDropped) {
   }
 }
 
+// "Undo last seconds": the views taken back leave the tracker as one that never saw them (the
+// model sample for sample, keyframes, pose graph, kept poses), and the scan goes on from there.
+TEST_F(TrackerScan, UndoLeavesTheTrackerAsIfTheViewsHadNeverComeAndTheScanGoesOn) {
+  for (const bool async : {false, true}) {
+    SCOPED_TRACE(async ? "async keyframe features" : "features in Track");
+    TrackerOptions o;
+    o.min_view_samples /= 4;
+    o.map.undo_inserts = 20;
+    o.async_keyframe_features = async;
+    o.keyframe_max_views = 3;  // keyframes among the views taken back too
+    Tracker all(small_cam_, o), kept(small_cam_, o);
+    std::vector<Rigid3d> truth;
+    uint32_t seed = 1;
+    constexpr int kKept = 8, kViews = 14;
+    for (int i = 0; i < kViews; ++i) {
+      truth.push_back(Truth(-6 + 0.8 * i, 0.1 * i));
+      ASSERT_TRUE(FeedSmall(&all, truth.back(), seed).accepted) << "view " << i;
+      if (i < kKept) {
+        ASSERT_TRUE(FeedSmall(&kept, truth.back(), seed).accepted) << "view " << i;
+      }
+      ++seed;
+    }
+    ASSERT_EQ(all.first_undoable_view(), 0);
+    const int kf_before = static_cast<int>(all.keyframes().size());
+    ASSERT_GT(kf_before, static_cast<int>(kept.keyframes().size()));
+    const Tracker::UndoResult u = all.UndoFrom(kKept);
+    ASSERT_TRUE(u.ok) << u.reason;
+    EXPECT_EQ(u.views_undone, kViews - kKept);
+    EXPECT_EQ(u.keyframes_undone, kf_before - static_cast<int>(kept.keyframes().size()));
+    // The model: the same samples in the same order, bit for bit.
+    ASSERT_EQ(all.model().size(), kept.model().size());
+    EXPECT_TRUE(all.model().points() == kept.model().points());
+    EXPECT_TRUE(all.model().normals() == kept.model().normals());
+    EXPECT_TRUE(all.model().weights() == kept.model().weights());
+    // Keyframes and pose graph.
+    ASSERT_EQ(all.keyframes().size(), kept.keyframes().size());
+    for (size_t k = 0; k < kept.keyframes().size(); ++k) EXPECT_EQ(all.keyframes()[k].view, kept.keyframes()[k].view);
+    ASSERT_EQ(all.graph().num_nodes(), kept.graph().num_nodes());
+    ASSERT_EQ(all.graph().edges().size(), kept.graph().edges().size());
+    for (size_t e = 0; e < kept.graph().edges().size(); ++e) {
+      EXPECT_EQ(all.graph().edges()[e].from, kept.graph().edges()[e].from);
+      EXPECT_EQ(all.graph().edges()[e].to, kept.graph().edges()[e].to);
+    }
+    for (int64_t v = 0; v < kViews; ++v) {
+      Rigid3d a, b;
+      const bool have = all.ViewPose(v, &a);
+      EXPECT_EQ(have, v < kKept) << "view " << v;
+      if (have && kept.ViewPose(v, &b)) {
+        EXPECT_TRUE(a.matrix() == b.matrix()) << "view " << v;
+      }
+    }
+    EXPECT_EQ(all.state(), TrackingState::kLost);
+    // The probe is back over the kept part: a re-entry, confirmed by the next view, then tracking.
+    const Rigid3d first_inv = truth[0].inverse();
+    int accepted = 0;
+    for (int i = 0; i < 6; ++i) {
+      const Rigid3d pose = Truth(-0.6 + 0.5 * i, 0.4);
+      const TrackResult r = FeedSmall(&all, pose, 200 + i);
+      if (i == 0) {
+        EXPECT_FALSE(r.accepted);
+        EXPECT_NE(r.reason.find("re-entry candidate"), std::string::npos) << r.reason;
+        continue;
+      }
+      ASSERT_TRUE(r.accepted) << "view " << i << ": " << r.reason;
+      EXPECT_EQ(r.state, i == 1 ? TrackingState::kRelocalised : TrackingState::kTracking);
+      EXPECT_LT(TranslationDistanceMm(r.world_from_cam, first_inv * pose), 0.02) << "view " << i;
+      ++accepted;
+    }
+    EXPECT_EQ(accepted, 5);
+    PoseGraphSummary summary;
+    EXPECT_TRUE(all.Optimize({}, &summary).ok());
+  }
+}
+
+TEST_F(TrackerScan, UndoReachesAsFarAsTheJournalAndEverythingMeansANewStart) {
+  TrackerOptions o;
+  o.min_view_samples /= 4;
+  o.map.undo_inserts = 3;
+  Tracker tracker(small_cam_, o);
+  uint32_t seed = 1;
+  for (int i = 0; i < 6; ++i) ASSERT_TRUE(FeedSmall(&tracker, Truth(-3 + 0.8 * i, 0), seed++).accepted);
+  EXPECT_EQ(tracker.first_undoable_view(), 3);
+  const size_t samples = tracker.model().size();
+  const Tracker::UndoResult beyond = tracker.UndoFrom(2);
+  EXPECT_FALSE(beyond.ok);
+  EXPECT_FALSE(beyond.reason.empty());
+  EXPECT_EQ(tracker.model().size(), samples);  // nothing changed
+  EXPECT_EQ(tracker.state(), TrackingState::kTracking);
+  EXPECT_FALSE(tracker.UndoFrom(7).ok);
+  // All of a scan's views (its journal reaches the first): an empty model, and the next view
+  // starts a new one.
+  TrackerOptions deep = o;
+  deep.map.undo_inserts = 10;
+  Tracker fresh(small_cam_, deep);
+  for (int i = 0; i < 4; ++i) ASSERT_TRUE(FeedSmall(&fresh, Truth(-3 + 0.8 * i, 0), seed++).accepted);
+  const Tracker::UndoResult all = fresh.UndoFrom(0);
+  ASSERT_TRUE(all.ok) << all.reason;
+  EXPECT_EQ(all.views_undone, 4);
+  EXPECT_TRUE(fresh.model().empty());
+  EXPECT_TRUE(fresh.keyframes().empty());
+  EXPECT_EQ(fresh.graph().num_nodes(), 0);
+  EXPECT_EQ(fresh.state(), TrackingState::kInitialising);
+  const TrackResult r = FeedSmall(&fresh, Truth(2, 0), seed++);
+  ASSERT_TRUE(r.accepted) << r.reason;
+  EXPECT_TRUE(r.world_from_cam.matrix().isApprox(Rigid3d::Identity().matrix()));
+  EXPECT_EQ(fresh.views(), 5);
+}
+
 TEST_F(TrackerScan, KeyframeWorkOffTrackGivesTheSameScan) {
   // The same views through a tracker that does its keyframe work inside Track() and through one that
   // hands the features to its worker thread and leaves the pose-graph edges to Optimize(): every

@@ -164,6 +164,57 @@ void ScanRegistrar::RegisterAtPose(uint64_t burst_seq, int64_t reference_ns, con
   ++accepted_;
 }
 
+ScanRegistrar::UndoResult ScanRegistrar::UndoLastSeconds(double seconds) {
+  UndoResult r;
+  if (!given_poses_.empty()) {
+    r.reason = "views given at known poses cannot be undone";
+    return r;
+  }
+  int64_t last = static_cast<int64_t>(views_.size()) - 1;
+  while (last >= 0 && !views_[static_cast<size_t>(last)].accepted) --last;
+  if (last < 0) {
+    r.reason = "no view to undo";
+    return r;
+  }
+  // The first view captured within `seconds` of the newest accepted one.
+  const int64_t end_ns = views_[static_cast<size_t>(last)].reference_ns;
+  int64_t first = last;
+  if (end_ns > 0) {
+    const int64_t from_ns = end_ns - static_cast<int64_t>(std::llround(std::max(0.0, seconds) * 1e9));
+    while (first > 0 && views_[static_cast<size_t>(first - 1)].reference_ns >= from_ns) --first;
+  }
+  const int64_t reachable = tracker_.first_undoable_view();
+  if (first < reachable) {
+    first = reachable;
+    r.clamped = true;
+  }
+  if (first > last) {
+    r.reason = "the undo journal reaches no accepted view (TrackerOptions::map.undo_inserts)";
+    return r;
+  }
+  const Tracker::UndoResult t = tracker_.UndoFrom(first);
+  if (!t.ok) {
+    r.reason = t.reason;
+    return r;
+  }
+  for (size_t k = static_cast<size_t>(first); k < views_.size(); ++k) views_[k].accepted = false;
+  r.ok = true;
+  r.first_view = first;
+  r.views_undone = t.views_undone;
+  r.seconds_undone = static_cast<double>(end_ns - views_[static_cast<size_t>(first)].reference_ns) * 1e-9;
+  accepted_ -= t.views_undone;
+  views_undone_ += t.views_undone;
+  prev_state_ = tracker_.state();  // the search that follows is not a tracking loss
+  events_.push_back({{"view", first},
+                     {"burst", views_[static_cast<size_t>(first)].burst_seq},
+                     {"state", "undo"},
+                     {"views_undone", t.views_undone},
+                     {"keyframes_undone", t.keyframes_undone},
+                     {"to_burst", views_[static_cast<size_t>(last)].burst_seq},
+                     {"reason", r.clamped ? "undo (as far back as the journal reaches)" : "undo"}});
+  return r;
+}
+
 bool ScanRegistrar::ViewPose(int64_t index, Rigid3d* world_from_cam) const {
   if (index < 0 || index >= static_cast<int64_t>(views_.size())) return false;
   if (!given_poses_.empty()) {
@@ -227,7 +278,11 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   // Refusion at the optimised poses, when the views can be had again.
   std::unique_ptr<ScanFuser> refused;
   double ms_refuse = 0;
-  if (loops && provider && options.refuse_min_correction_mm >= 0 && max_correction_mm > options.refuse_min_correction_mm) {
+  // Undone views are still in the fuser's volume: only the kept views fused again leave them out.
+  const bool undone = registrar->views_undone() > 0;
+  if (undone && !provider)
+    return Status(StatusCode::kInvalidArgument, "views were undone but there is no view provider to fuse the kept ones again");
+  if (provider && (undone || (loops && options.refuse_min_correction_mm >= 0 && max_correction_mm > options.refuse_min_correction_mm))) {
     const auto t0 = Clock::now();
     refused = std::make_unique<ScanFuser>(fuser->camera(), fuser->volume().options(), fuser->free_space_options());
     std::vector<Rigid3d> poses(views.size(), Rigid3d::Identity());
@@ -325,6 +380,8 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   j["bursts"] = n_views;
   j["fused"] = fuser->fused();
   j["rejected"] = registrar->rejected();
+  j["views_undone"] = registrar->views_undone();
+  j["undo_journal_mib"] = static_cast<double>(tracker.model().journal_bytes()) / (1024.0 * 1024.0);  // TrackerOptions::map.undo_inserts
   j["tracking_lost"] = registrar->lost_events();
   j["relocalised"] = registrar->relocalised();
   j["views_model_anchored"] = registrar->views_model_anchored();

@@ -65,7 +65,8 @@ struct ScanOptions {
   TsdfOptions tsdf;
   FreeSpaceOptions free_space;  // ScanFuser: points in space earlier views saw through are not fused
   // Fuse the accepted views again at the optimised poses when the pose graph moved a view by more
-  // than this (mm) and FinishScan is given a view provider; < 0 never.
+  // than this (mm) and FinishScan is given a view provider; < 0 never (unless views were undone:
+  // then always).
   double refuse_min_correction_mm = 0.01;
   EvaluateOptions eval;
   void Check() const;  // throws std::invalid_argument
@@ -149,8 +150,24 @@ class ScanRegistrar {
   // --truth-poses: the fusion-only error floor). A scan uses either this or Register, not both.
   void RegisterAtPose(uint64_t burst_seq, int64_t reference_ns, const Rigid3d& world_from_cam);
   // The current pose of view `index` (0-based, in call order): the given one (RegisterAtPose) or
-  // the tracker's (after Optimize, the optimised one); false for a refused view.
+  // the tracker's (after Optimize, the optimised one); false for a refused or undone view.
   bool ViewPose(int64_t index, Rigid3d* world_from_cam) const;
+  // "Undo last seconds" (Register's views only, before FinishScan): the accepted views captured
+  // within `seconds` of the newest accepted one (reference_ns; without capture times, the newest
+  // accepted view only), back to the oldest the tracker can still undo
+  // (TrackerOptions::map.undo_inserts), are taken back (Tracker::UndoFrom): they stay in views()
+  // as not accepted, count in views_undone() and an "undo" event, and leave the pose graph and the
+  // refusion. A fuser that fused them still holds them: FinishScan then fuses the kept views again.
+  struct UndoResult {
+    bool ok = false;
+    std::string reason;           // why nothing was undone
+    int64_t first_view = -1;      // views first_view … views().size() − 1 were taken back
+    int64_t views_undone = 0;     // of them accepted ones
+    bool clamped = false;         // the journal did not reach back `seconds`
+    double seconds_undone = 0;    // capture time from the first undone view to the newest one
+  };
+  UndoResult UndoLastSeconds(double seconds);
+  int64_t views_undone() const { return views_undone_; }
 
   Tracker& tracker() { return tracker_; }
   const Tracker& tracker() const { return tracker_; }
@@ -176,7 +193,7 @@ class ScanRegistrar {
   // (reused buffers; the register thread's).
   cv::Mat track_points_, track_normals_;
   void CopyWithoutEdgeFill(const ReconstructedView& view);
-  int64_t accepted_ = 0, rejected_ = 0, lost_events_ = 0, relocalised_ = 0;
+  int64_t accepted_ = 0, rejected_ = 0, lost_events_ = 0, relocalised_ = 0, views_undone_ = 0;
   TrackingState prev_state_ = TrackingState::kInitialising;
   nlohmann::json events_ = nlohmann::json::array();
   double ms_ = 0;
@@ -239,7 +256,9 @@ struct ScanResult {
   cv::Mat heatmap;                   // deviation heat map (empty without evaluation)
 };
 
-// After the stages stopped: see the file comment. The report holds bursts, fused, rejected,
+// After the stages stopped: see the file comment. When the registrar undid views
+// (ScanRegistrar::UndoLastSeconds) the fuser's volume still holds them, so the kept views are always
+// fused again (INVALID_ARGUMENT without a provider). The report holds bursts, fused, rejected, views_undone,
 // tracking_lost, relocalised, unrecovered, final_state, keyframes, loop_edges,
 // pose_graph_max_correction_mm, ms_per_burst (+ per stage), ms_mesh, tsdf_* , mesh_*, events and,
 // with a reference: trueness_rms_um, trueness_mean_um, trueness_mean_abs_um, trueness_p95_um,

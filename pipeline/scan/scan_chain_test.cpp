@@ -6,6 +6,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 
@@ -37,9 +38,13 @@ std::unique_ptr<SimSession> QuadrantSession() {
   return session;
 }
 
-void RunShortScan(SimSession& session, int bin, ShortScan* s, ViewArchive* kept = nullptr) {
+// undo_after > 0: after that many views, UndoLastSeconds(undo_seconds) (result in *undo), and
+// then the bursts `after_undo` (the probe went back over the model).
+void RunShortScan(SimSession& session, int bin, ShortScan* s, ViewArchive* kept = nullptr, int undo_after = 0,
+                  double undo_seconds = 0, ScanRegistrar::UndoResult* undo = nullptr, const std::vector<int64_t>& after_undo = {}) {
   ScanOptions o;
   o.tracker = TrackerOptionsForStep(o.tracker, 2);
+  o.tracker.map.undo_inserts = undo_after > 0 ? 30 : 0;
   s->o = ScanOptionsForBin(o, bin);
   ASSERT_NO_THROW(s->o.Check());
   ScanReconstructor recon(session.calibration(), s->o.recon, s->o.bin);
@@ -48,7 +53,10 @@ void RunShortScan(SimSession& session, int bin, ShortScan* s, ViewArchive* kept 
   s->fuser = std::make_unique<ScanFuser>(s->view_calibration.camera, s->o.tsdf);
   ReconstructedView view;
   FramePacker packer;
-  for (int64_t i = 30; i < 60; i += 2) {
+  std::vector<int64_t> bursts;
+  for (int64_t i = 30; i < (undo_after > 0 ? 30 + 2 * undo_after : 60); i += 2) bursts.push_back(i);
+  bursts.insert(bursts.end(), after_undo.begin(), after_undo.end());
+  for (const int64_t i : bursts) {
     const Burst b = session.RenderBurst(i, false);
     std::vector<cv::Mat> frames;
     for (const auto& f : b.frames) frames.push_back(f.image);
@@ -65,6 +73,7 @@ void RunShortScan(SimSession& session, int bin, ShortScan* s, ViewArchive* kept 
     }
     s->times.ms_recon += view.ms_total;
     ++s->times.bursts;
+    if (undo_after > 0 && s->times.bursts == undo_after) *undo = s->reg->UndoLastSeconds(undo_seconds);
   }
   s->times.ms_register = s->reg->ms_register();
   s->times.ms_fuse = s->fuser->ms_fuse();
@@ -261,6 +270,67 @@ TEST(ScanChain, RefusionFusesTheKeptViewsAtTheFinalPosesInOrder) {
   const Status s = FinishScan(other.o, other.times, other.reg.get(), other.fuser.get(), failing, {}, &result);
   EXPECT_EQ(s.code(), StatusCode::kCorrupt) << s.ToString();
   EXPECT_EQ(other.fuser->volume().ActiveVoxels(), live_voxels);
+}
+
+// "Undo last seconds" in the chain: the views of the last 0.15 s (3 views 66.7 ms apart) are taken
+// back mid-scan, the probe goes back over the model (bursts 41, 43, …: between the views kept and
+// on over the undone ones) and the scan goes on, and the saved model is the kept views fused again
+// at their final poses, whatever refuse_min_correction_mm says: the undone views are in none of it.
+TEST(ScanChain, UndoneViewsLeaveTheSavedModel) {
+  std::unique_ptr<SimSession> session = QuadrantSession();
+  ASSERT_TRUE(session);
+  ShortScan scan;
+  ViewArchive kept;
+  ScanRegistrar::UndoResult undo;
+  std::vector<int64_t> again_bursts;
+  for (int64_t i = 41; i < 60; i += 2) again_bursts.push_back(i);
+  RunShortScan(*session, 2, &scan, &kept, 10, 0.15, &undo, again_bursts);
+  ASSERT_FALSE(HasFatalFailure());
+  ASSERT_TRUE(undo.ok) << undo.reason;
+  EXPECT_EQ(undo.first_view, 7);
+  EXPECT_EQ(undo.views_undone, 3);
+  EXPECT_FALSE(undo.clamped);
+  EXPECT_NEAR(undo.seconds_undone, 2 / 15.0, 1e-3);
+  const ScanRegistrar& reg = *scan.reg;
+  EXPECT_EQ(reg.views_undone(), 3);
+  for (size_t k = 7; k < 10; ++k) EXPECT_FALSE(reg.views()[k].accepted) << k;
+  // Back over the model: a re-entry confirmed by the next view, then tracking on.
+  ASSERT_EQ(reg.views().size(), 20u);
+  int64_t after = 0;
+  for (size_t k = 10; k < reg.views().size(); ++k) after += reg.views()[k].accepted;
+  EXPECT_GE(after, 8) << reg.events().dump();
+  scan.o.refuse_min_correction_mm = -1;  // "never": the undo overrides it
+  ScanReconstructor again(scan.view_calibration, scan.o.recon, 1);
+  std::vector<cv::Mat> frames;
+  std::vector<uint64_t> asked;
+  const ScanViewProvider provider = [&](int64_t, const ScanViewRecord& v, ReconstructedView* out) -> Status {
+    asked.push_back(v.burst_seq);
+    D3D_RETURN_IF_ERROR(kept.Get(v.burst_seq, &frames));
+    return again.Reconstruct(frames, out);
+  };
+  ScanResult no_provider;
+  EXPECT_EQ(FinishScan(scan.o, scan.times, scan.reg.get(), scan.fuser.get(), {}, {}, &no_provider).code(), StatusCode::kInvalidArgument);
+  ScanResult result;
+  ASSERT_TRUE(FinishScan(scan.o, scan.times, scan.reg.get(), scan.fuser.get(), provider, TruthOf(session.get()), &result).ok());
+  EXPECT_TRUE(result.report["refused_at_optimised_poses"].get<bool>());
+  EXPECT_EQ(result.report["views_undone"], 3);
+  for (const uint64_t seq : {44u, 46u, 48u}) EXPECT_EQ(std::count(asked.begin(), asked.end(), seq), 0) << "burst " << seq;
+  EXPECT_EQ(static_cast<int64_t>(asked.size()), reg.accepted());
+  EXPECT_EQ(result.poses.size(), static_cast<size_t>(reg.accepted()));
+  EXPECT_LT(result.report["trueness_rms_um"].get<double>(), 20.0);
+  // The kept views, one thread, in order, at the final poses: the same mesh.
+  ScanFuser reference(scan.view_calibration.camera, scan.o.tsdf, scan.o.free_space);
+  ReconstructedView view;
+  for (int64_t k = 0; k < static_cast<int64_t>(reg.views().size()); ++k) {
+    Rigid3d pose;
+    if (!reg.ViewPose(k, &pose)) continue;
+    ASSERT_TRUE(kept.Get(reg.views()[static_cast<size_t>(k)].burst_seq, &frames).ok());
+    ASSERT_TRUE(again.Reconstruct(frames, &view).ok());
+    ASSERT_TRUE(reference.Fuse(view, pose).ok());
+  }
+  TriangleMesh expected = reference.volume().ExtractMesh();
+  ASSERT_EQ(result.mesh.vertices.size(), expected.vertices.size());
+  for (size_t i = 0; i < expected.vertices.size(); ++i) ASSERT_EQ(result.mesh.vertices[i], expected.vertices[i]) << i;
 }
 
 TEST(ScanChain, EmptyModelIsAnError) {

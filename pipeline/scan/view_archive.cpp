@@ -120,6 +120,17 @@ Status ViewArchive::Get(uint64_t burst_seq, std::vector<cv::Mat>* frames) const 
   return UnpackFrames(e->blob, frames);
 }
 
+bool ViewArchive::Remove(uint64_t burst_seq) {
+  // Undone views are the newest: search from the back.
+  for (auto it = entries_.rbegin(); it != entries_.rend(); ++it) {
+    if (it->burst_seq != burst_seq) continue;
+    bytes_ -= static_cast<int64_t>(it->blob.size());
+    entries_.erase(std::next(it).base());
+    return true;
+  }
+  return false;
+}
+
 void ViewArchive::Clear() {
   entries_.clear();
   sorted_ = true;

@@ -57,6 +57,8 @@ class ViewArchive {
   void Add(uint64_t burst_seq, std::string_view blob);
   // The frames kept for burst_seq. NOT_FOUND when it was never added; CORRUPT as UnpackFrames.
   [[nodiscard]] Status Get(uint64_t burst_seq, std::vector<cv::Mat>* frames) const;
+  // Drops the latest entry for burst_seq (a view taken back by an undo); false when there is none.
+  bool Remove(uint64_t burst_seq);
   void Clear();
   size_t size() const { return entries_.size(); }
   int64_t bytes() const { return bytes_; }  // compressed bytes held

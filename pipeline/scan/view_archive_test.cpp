@@ -103,6 +103,19 @@ TEST(ViewArchive, FindsEachBurstAndSaysWhichIsMissing) {
   EXPECT_TRUE(Same(again, back));
   ASSERT_TRUE(archive.Get(12, &back).ok());
   EXPECT_TRUE(Same(kept[3], back));
+  // An undo drops the newest entry of a number: the older one is found again, then none.
+  const int64_t bytes = archive.bytes();
+  EXPECT_TRUE(archive.Remove(4));
+  EXPECT_EQ(archive.size(), 4u);
+  EXPECT_LT(archive.bytes(), bytes);
+  ASSERT_TRUE(archive.Get(4, &back).ok());
+  EXPECT_TRUE(Same(kept[1], back));
+  EXPECT_TRUE(archive.Remove(4));
+  EXPECT_EQ(archive.Get(4, &back).code(), StatusCode::kNotFound);
+  EXPECT_FALSE(archive.Remove(4));
+  EXPECT_TRUE(archive.Remove(12));
+  ASSERT_TRUE(archive.Get(9, &back).ok());
+  EXPECT_TRUE(Same(kept[2], back));
   archive.Clear();
   EXPECT_EQ(archive.size(), 0u);
   EXPECT_EQ(archive.bytes(), 0);

@@ -32,9 +32,10 @@ namespace fs = std::filesystem;
 using namespace d3d;
 
 namespace {
-std::atomic<bool> g_stop{false}, g_save{false};
+std::atomic<bool> g_stop{false}, g_save{false}, g_undo{false};
 void OnSignal(int) { g_stop.store(true); }
 void OnSave(int) { g_save.store(true); }
+void OnUndo(int) { g_undo.store(true); }
 // Resident set size now (MiB), from /proc/self/statm.
 double RssMiB() {
   std::ifstream f("/proc/self/statm");
@@ -50,6 +51,9 @@ int main(int argc, char** argv) {
                "and the fused model with its report. Writes DIR/scan.ply, scan.stl, poses.txt, report.json, preview.png."};
   std::string replay, out_dir = "scan_out", screenshot, policy_text, reference, sim_trajectory, serial, association = "grid";
   bool headless = false, json = false, no_preview = false, refuse = true, quiet = false;
+  double undo_seconds = 2.0;
+  int undo_views = 150;
+  std::vector<uint64_t> undo_after;
   double duration_s = 0, probe_timeout_s = 1.0, idle_exit_s = 0, wait_probe_s = 120, preview_fps = 20, replay_rate = 0, step = 0;
   int domain = 0, threads = 2, width = 960, height = 720, bin = 2;
   uint32_t sim_seed = 1;
@@ -90,12 +94,16 @@ int main(int argc, char** argv) {
   cli.add_option("--preview-fps", preview_fps, "preview frame-rate cap")->capture_default_str();
   cli.add_option("--size", width, "preview width (px; height = 3/4)")->capture_default_str();
   cli.add_flag("--json", json, "print report.json as one line on stdout");
-  cli.add_flag("--quiet", quiet, "no status line on stderr (SIGUSR1 saves the model now, as the 's' key)");
+  cli.add_flag("--quiet", quiet, "no status line on stderr (SIGUSR1 saves the model now, as the 's' key; SIGUSR2 undoes, as 'u')");
+  cli.add_option("--undo-seconds", undo_seconds, "the 'u' key takes back the views of this many seconds of scanning")->capture_default_str();
+  cli.add_option("--undo-views", undo_views, "how many views back undo can reach (0 = no undo; ~0.4 MB each)")->capture_default_str();
+  cli.add_option("--undo-after", undo_after, "scripted undo: press 'u' right after the N-th burst (repeatable; tests and demos)");
   CLI11_PARSE(cli, argc, argv);
   height = width * 3 / 4;
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
   std::signal(SIGUSR1, OnSave);  // save the model now (as the 's' key)
+  std::signal(SIGUSR2, OnUndo);  // undo the last seconds (as the 'u' key)
   EdgePolicy policy = replay.empty() ? EdgePolicy::kLive : EdgePolicy::kLossless;
   if (policy_text == "live") policy = EdgePolicy::kLive;
   else if (policy_text == "lossless") policy = EdgePolicy::kLossless;
@@ -182,6 +190,9 @@ int main(int argc, char** argv) {
     if (policy == EdgePolicy::kLive && sim_rate > 0) ao.scan.tracker.view_period_ns = std::llround(step * 1e9 / sim_rate);
     ao.scan.refuse_min_correction_mm = refuse ? 0.01 : -1;
     ao.keep_views = refuse;
+    ao.undo_seconds = undo_seconds;
+    ao.undo_max_views = undo_views;
+    ao.undo_after_bursts = undo_after;
     ao.scan = ScanOptionsForBin(ao.scan, bin);
     ao.view_stride_px = std::max(2, ao.view_stride_px / bin);
     ScanApp app(calib, ao, source);
@@ -213,9 +224,25 @@ int main(int argc, char** argv) {
     std::thread saver;
     std::atomic<bool> saving{false};
     const double frame_dt = 1.0 / std::max(1.0, preview_fps);
+    uint64_t undos_seen = 0;
+    const auto undo = [&](double now) {
+      if (app.RequestUndo()) return;
+      std::lock_guard<std::mutex> lock(message_mu);
+      message = "undo is off (--no-refuse or --undo-views 0)";
+      message_until = now + 3;
+    };
     while (!app.finished()) {
       const double now = SteadyS();
       if (g_stop.load() || (duration_s > 0 && now - t0 >= duration_s)) break;
+      if (g_undo.exchange(false)) undo(now);
+      if (app.undos_done() != undos_seen) {  // what the last undo did, on the status line
+        undos_seen = app.undos_done();
+        const std::string m = app.LastUndoMessage();
+        if (!quiet) std::fprintf(stderr, "\nd3d-scan: %s\n", m.c_str());
+        std::lock_guard<std::mutex> lock(message_mu);
+        message = m;
+        message_until = now + 3;
+      }
       if (g_save.exchange(false) && !saving.exchange(true)) {
         if (saver.joinable()) saver.join();
         saver = std::thread([&app, &saving, out_dir, &message, &message_until, &message_mu] {
@@ -246,6 +273,7 @@ int main(int argc, char** argv) {
           for (ViewerAction a : viewer->TakeActions()) {
             if (a == ViewerAction::kQuit) g_stop.store(true);
             else if (a == ViewerAction::kPause) app.SetPaused(!app.paused());
+            else if (a == ViewerAction::kUndo) undo(now);
             else if (a == ViewerAction::kReset) {
               app.Reset();
               std::lock_guard<std::mutex> lock(message_mu);
