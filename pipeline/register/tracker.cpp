@@ -74,6 +74,7 @@ void TrackerOptions::Check() const {
   D3D_CHECK_MSG(reregister_min_gain >= 0, "TrackerOptions: reregister_min_gain >= 0");
   D3D_CHECK_MSG(reregister_first_level >= 0 && reregister_first_level < static_cast<int>(icp.levels.size()),
                 "TrackerOptions: reregister_first_level must index icp.levels");
+  D3D_CHECK_MSG(reentry_direct_max_views >= 0, "TrackerOptions: reentry_direct_max_views >= 0");
   D3D_CHECK_MSG(map_max_rmse_ratio == 0 || map_max_rmse_ratio >= 1, "TrackerOptions: map_max_rmse_ratio 0 (off) or >= 1");
   D3D_CHECK_MSG(map_gate_min_overlap >= 0 && map_gate_min_overlap <= 1 && map_gate_max_run >= 0,
                 "TrackerOptions: map_gate_min_overlap in [0, 1], map_gate_max_run >= 0");
@@ -329,7 +330,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   }
   // A view re-entering the model after a loss waits for the next view's confirmation (see
   // TrackerOptions::confirm_reentry); one refused while tracking is recovered at once.
-  const bool needs_confirmation = o_.confirm_reentry && state_ == TrackingState::kLost;
+  bool needs_confirmation = o_.confirm_reentry && state_ == TrackingState::kLost;
   auto reentered = [&](const std::string& why) {
     if (needs_confirmation) {
       candidate_.pending = true;
@@ -349,8 +350,14 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     // Local search first: ICP from the last accepted pose and from the keyframes nearest to it
     // (the probe usually comes back where it left the model).
     const std::string why = out.reason;
-    if (RelocaliseLocally(samples, &out)) accepted = reentered(why);
-    else out.reason = why + "; local search failed: " + out.reason;
+    bool from_prediction = false;
+    if (RelocaliseLocally(samples, &out, &from_prediction)) {
+      // One bad view in a track that never left: no confirmation (reentry_direct_max_views).
+      if (from_prediction && ViewsElapsed() <= o_.reentry_direct_max_views) needs_confirmation = false;
+      accepted = reentered(why);
+    } else {
+      out.reason = why + "; local search failed: " + out.reason;
+    }
   }
   if (!accepted && !candidate_.pending && o_.relocalise && !keyframes_.empty()) {
     const std::string why = out.reason;
@@ -454,7 +461,8 @@ bool Tracker::ConfirmReentry(const SurfacePoints& samples, TrackResult* out) {
   return true;
 }
 
-bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out) {
+bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out, bool* from_prediction) {
+  *from_prediction = false;
   const Eigen::Vector3d here = last_pose_ * samples.Centroid();
   std::vector<std::pair<double, int>> order;
   for (int k = 0; k < static_cast<int>(keyframes_.size()); ++k) {
@@ -478,6 +486,7 @@ bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out) 
     if (!ConsistentMotion(r.target_from_source, &last_reason)) continue;
     out->icp = r;
     out->world_from_cam = r.target_from_source;
+    *from_prediction = i == 0;
     out->reason = i == 0 ? "icp from the predicted pose" : i == 1 ? "icp from the last pose" : "icp from keyframe " + std::to_string(order[i - 2].second);
     return true;
   }

@@ -156,6 +156,15 @@ struct TrackerOptions {
   // while tracking is still recovered at once by the local search (its motion check then spans
   // one or two views). false: a re-entry is accepted at once.
   bool confirm_reentry = true;
+  // ... except a re-entry that ICP from the motion prediction finds at most this many views
+  // (by time with view_period_ns) after the last accepted view: the track resumes at once
+  // (kRelocalised), as after a view refused while tracking. That is one bad view (a degenerate
+  // stretch) in a track that never left, not a return from elsewhere. Live typodont replay: a
+  // view refused as degenerate at burst 217 left the next one (burst 219, found from the
+  // prediction 1.3 views after the last accepted) a candidate; the host's next view came 9 bursts
+  // later, where the probe had moved past the model's border, failed to confirm it (overlap 0.20),
+  // and the scan never re-entered (130 of 450 bursts processed). 0 = always confirm.
+  double reentry_direct_max_views = 2.0;
   double loop_radius_mm = 10.0;   // keyframe centres closer than this are loop candidates
   int loop_min_separation = 10;   // keyframes
   double loop_min_overlap = 0.3;
@@ -289,7 +298,8 @@ class Tracker {
   // ICP of the local search and of a re-entry's confirmation: o_.icp with the first level's gate
   // widened to local_search_gate_mm and the residual limit relocalise_max_rmse_mm.
   IcpOptions LocalSearchIcp() const;
-  bool RelocaliseLocally(const SurfacePoints& samples, TrackResult* out);
+  // *from_prediction: the fit started from the motion prediction.
+  bool RelocaliseLocally(const SurfacePoints& samples, TrackResult* out, bool* from_prediction);
   bool Relocalise(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& texture, TrackResult* out);
   void MaybeKeyframe(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& normals,
                      const cv::Mat& texture, const Rigid3d& pose, TrackResult* out);

@@ -236,6 +236,43 @@ TEST_F(TrackerScan, UndoReachesAsFarAsTheJournalAndEverythingMeansANewStart) {
   EXPECT_EQ(fresh.views(), 5);
 }
 
+// One bad view in a track that never left (reentry_direct_max_views): the next view, found by ICP
+// from the motion prediction, resumes the track at once; with the rule off it is only a candidate.
+TEST_F(TrackerScan, AfterOneBadViewTheTrackResumesFromThePrediction) {
+  for (const double direct : {2.0, 0.0}) {
+    SCOPED_TRACE(direct);
+    TrackerOptions o;
+    o.min_view_samples /= 4;
+    o.reentry_direct_max_views = direct;
+    Tracker tracker(small_cam_, o);
+    uint32_t seed = 1;
+    std::vector<Rigid3d> truth;
+    for (int i = 0; i < 8; ++i) {
+      truth.push_back(Truth(-4 + 0.8 * i, 0));
+      ASSERT_TRUE(FeedSmall(&tracker, truth.back(), seed++).accepted) << i;
+    }
+    ASSERT_FALSE(FeedSmall(&tracker, Truth(25, 0), 77).accepted);  // a bad view: lost
+    ASSERT_EQ(tracker.state(), TrackingState::kLost);
+    const Rigid3d next = Truth(-4 + 0.8 * 9, 0);  // where the probe was going
+    const TrackResult r = FeedSmall(&tracker, next, seed++);
+    if (direct == 0) {
+      EXPECT_FALSE(r.accepted);
+      EXPECT_NE(r.reason.find("re-entry candidate (icp from the predicted pose)"), std::string::npos) << r.reason;
+      continue;
+    }
+    ASSERT_TRUE(r.accepted) << r.reason;
+    EXPECT_EQ(r.state, TrackingState::kRelocalised);
+    EXPECT_NE(r.reason.find("icp from the predicted pose"), std::string::npos) << r.reason;
+    EXPECT_LT(TranslationDistanceMm(r.world_from_cam, truth[0].inverse() * next), 0.02);
+    // Two bad views: more than 2 views since the last accepted one, a candidate again.
+    ASSERT_FALSE(FeedSmall(&tracker, Truth(25, 0), 78).accepted);
+    ASSERT_FALSE(FeedSmall(&tracker, Truth(26, 0), 79).accepted);
+    const TrackResult c = FeedSmall(&tracker, Truth(-4 + 0.8 * 12, 0), seed++);
+    EXPECT_FALSE(c.accepted) << c.reason;
+    EXPECT_NE(c.reason.find("re-entry candidate"), std::string::npos) << c.reason;
+  }
+}
+
 TEST_F(TrackerScan, KeyframeWorkOffTrackGivesTheSameScan) {
   // The same views through a tracker that does its keyframe work inside Track() and through one that
   // hands the features to its worker thread and leaves the pose-graph edges to Optimize(): every
