@@ -118,6 +118,8 @@ int64_t ScanApp::UndoCut(uint64_t from_gen, uint64_t to_gen) const {
 }
 
 ScanApp::Graph::SourceResult ScanApp::Ingest(ScanItem& item, ItemMeta* meta) {
+  item.recon_ok = false;
+  item.fused = false;
   const uint64_t undo = undo_requests_.load();
   if (undo != undo_ingested_) {
     // An undo request goes down the graph at once, without a burst (paused, or no probe).
@@ -125,8 +127,6 @@ ScanApp::Graph::SourceResult ScanApp::Ingest(ScanItem& item, ItemMeta* meta) {
     item.control = true;
     item.undo_requests = undo;
     item.epoch = epoch_.load(std::memory_order_relaxed);
-    item.recon_ok = false;
-    item.fused = false;
     item.packed_ok = false;
     control_items_.fetch_add(1, std::memory_order_relaxed);
     return Graph::SourceResult::kItem;
@@ -141,8 +141,6 @@ ScanApp::Graph::SourceResult ScanApp::Ingest(ScanItem& item, ItemMeta* meta) {
   item.control = false;
   item.undo_requests = undo_ingested_;
   item.epoch = epoch_.load(std::memory_order_relaxed);
-  item.recon_ok = false;
-  item.fused = false;
   ++bursts_ingested_;
   for (const uint64_t n : o_.undo_after_bursts)
     if (n == bursts_ingested_) (void)RequestUndo();  // sent before the next burst

@@ -391,12 +391,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   out.accepted = true;
   out.world_from_cam = pose;
   state_ = out.state;
-  prev_pose_ = last_pose_;
-  prev_accepted_ = out.state == TrackingState::kRelocalised ? -1 : last_accepted_;  // no velocity across a gap
-  prev_accepted_ns_ = last_accepted_ns_;
-  last_pose_ = pose;
-  last_accepted_ = index_;
-  last_accepted_ns_ = capture_ns_;
+  AdvanceMotion(index_, pose, capture_ns_, out.state == TrackingState::kRelocalised);
   // Into the tracking model unless its residual stands out from the recent views' (see
   // map_max_rmse_ratio); the first view (no ICP) always enters.
   out.in_model = true;
@@ -413,10 +408,8 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   gated_run_ = out.in_model ? 0 : gated_run_ + 1;
   ViewLog& log = view_log_.back();
   log.in_model = out.in_model;
+  log.relocalised = out.state == TrackingState::kRelocalised;
   log.pose = pose;
-  log.prev_pose = prev_pose_;
-  log.prev_accepted = prev_accepted_;
-  log.prev_accepted_ns = prev_accepted_ns_;
   if (out.in_model) map_.Insert(SampleOrganised(points, normals, cv::Mat(), o_.map_stride), pose);
   MaybeKeyframe(samples, points, normals, texture, pose, &out);
   const int kf = static_cast<int>(keyframes_.size()) - 1;
@@ -660,6 +653,15 @@ Status Tracker::Optimize(const PoseGraphOptions& options, PoseGraphSummary* summ
   return graph_.Optimize(options, summary);
 }
 
+void Tracker::AdvanceMotion(int64_t view, const Rigid3d& pose, int64_t capture_ns, bool relocalised) {
+  prev_pose_ = last_pose_;
+  prev_accepted_ = relocalised ? -1 : last_accepted_;  // no velocity across a gap
+  prev_accepted_ns_ = last_accepted_ns_;
+  last_pose_ = pose;
+  last_accepted_ = view;
+  last_accepted_ns_ = capture_ns;
+}
+
 void Tracker::PushRecentRmse(double rmse_mm) {
   if (recent_rmse_mm_.size() < kRecentResiduals) recent_rmse_mm_.push_back(rmse_mm);
   else recent_rmse_mm_[recent_rmse_next_++ % kRecentResiduals] = rmse_mm;
@@ -711,12 +713,7 @@ Tracker::UndoResult Tracker::UndoFrom(int64_t first_view) {
     const ViewLog& log = view_log_[v];
     if (log.rmse_pushed_mm >= 0) PushRecentRmse(log.rmse_pushed_mm);
     gated_run_ = log.in_model ? 0 : gated_run_ + 1;
-    last_accepted_ = static_cast<int64_t>(v);
-    last_pose_ = log.pose;
-    last_accepted_ns_ = log.capture_ns;
-    prev_pose_ = log.prev_pose;
-    prev_accepted_ = log.prev_accepted;
-    prev_accepted_ns_ = log.prev_accepted_ns;
+    AdvanceMotion(static_cast<int64_t>(v), log.pose, log.capture_ns, log.relocalised);
   }
   candidate_ = ReentryCandidate{};
   state_ = last_accepted_ < 0 ? TrackingState::kInitialising : TrackingState::kLost;

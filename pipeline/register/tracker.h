@@ -335,6 +335,9 @@ class Tracker {
   std::vector<double> recent_rmse_mm_;  // ICP residuals of the last kRecentResiduals accepted views (ring)
   size_t recent_rmse_next_ = 0;
   void PushRecentRmse(double rmse_mm);
+  // The motion state after accepting `view` (Track, and UndoFrom's replay of the kept views): the
+  // last accepted becomes the previous one (none after a re-entry: no velocity across a gap).
+  void AdvanceMotion(int64_t view, const Rigid3d& pose, int64_t capture_ns, bool relocalised);
   int gated_run_ = 0;  // views in a row kept out of the model
   Rigid3d last_pose_ = Rigid3d::Identity(), prev_pose_ = Rigid3d::Identity();
   int64_t prev_accepted_ = -1;
@@ -360,16 +363,16 @@ class Tracker {
   // Per view: anchor keyframe (−1 = refused) and keyframe_from_cam.
   std::vector<int> anchor_;
   std::vector<Rigid3d> kf_from_cam_;
-  // Per view, what UndoFrom needs to restore the state from before it: the model's Insert count at
-  // its start, and for an accepted view its pose, capture time, residual pushed to recent_rmse_mm_
-  // (< 0: none), whether it entered the model, and the motion state its acceptance left behind.
+  // Per view, what UndoFrom needs to replay the state the kept views left: the model's Insert count
+  // at its start, and for an accepted view its pose, capture time, residual pushed to
+  // recent_rmse_mm_ (< 0: none), whether it entered the model and whether it was a re-entry.
   struct ViewLog {
     int64_t map_inserts_before = 0;
     int64_t capture_ns = 0;
     double rmse_pushed_mm = -1;
     bool in_model = false;
-    Rigid3d pose = Rigid3d::Identity(), prev_pose = Rigid3d::Identity();
-    int64_t prev_accepted = -1, prev_accepted_ns = 0;
+    bool relocalised = false;
+    Rigid3d pose = Rigid3d::Identity();
   };
   std::vector<ViewLog> view_log_;
 };
