@@ -13,6 +13,8 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <sstream>
+#include <string>
+#include <vector>
 
 #include "common/recording/recording.h"
 #include "firmware/sim/session/sim_session.h"
@@ -170,6 +172,52 @@ TEST(ScanReplay, AScriptedUndoTakesTheLastViewsOut) {
   bool logged = false;
   for (const auto& e : j["events"]) logged |= e["state"] == "undo";
   EXPECT_TRUE(logged) << j["events"].dump();
+  fs::remove_all(dir);
+}
+
+// --replay-views: a live run's views again, losslessly. Here the "live run" is every other view of
+// a full replay: only the bursts whose capture times its poses.txt lists go through, the others are
+// skipped (not received, not dropped), and the run uses the live tracker's gates (--step 6).
+TEST(ScanReplay, ReplayViewsTakesOnlyTheListedBursts) {
+  fs::path dir;
+  const std::string rec = FreshRecording("d3d_scan_replay_views_test", &dir);
+  ASSERT_FALSE(HasFatalFailure());
+  const std::string common = kBin + "/d3d-scan --replay " + rec + " --quiet --no-preview";
+  const std::string full = common + " --out " + (dir / "a").string() + " > " + (dir / "a.out").string() + " 2> " + (dir / "a.err").string();
+  ASSERT_EQ(std::system(full.c_str()), 0) << ReadAll(dir / "a.err");
+  std::vector<std::string> stamps;  // the timestamps of every other pose, as the TUM file gives them
+  {
+    std::ifstream in(dir / "a" / "poses.txt");
+    std::ofstream out(dir / "views.txt");
+    int k = 0;
+    for (std::string line; std::getline(in, line);) {
+      if (line.empty() || line[0] == '#') continue;
+      if (k++ % 2 != 0) continue;
+      out << line << "\n";
+      stamps.push_back(line.substr(0, line.find(' ')));
+    }
+  }
+  ASSERT_EQ(stamps.size(), static_cast<size_t>(kCount / 2));
+  const std::string views = common + " --replay-views " + (dir / "views.txt").string() + " --out " + (dir / "b").string() + " > " +
+                            (dir / "b.out").string() + " 2> " + (dir / "b.err").string();
+  ASSERT_EQ(std::system(views.c_str()), 0) << ReadAll(dir / "b.err");
+  const nlohmann::json j = nlohmann::json::parse(ReadAll(dir / "b" / "report.json"));
+  EXPECT_EQ(j["bursts_processed"], kCount / 2);
+  EXPECT_EQ(j["bursts_skipped"], kCount / 2);
+  EXPECT_EQ(j["bursts_received"], kCount / 2 + 1);  // and the malformed one, which is never selected
+  EXPECT_EQ(j["bursts_dropped"], 0);
+  EXPECT_EQ(j["step"], 6.0);
+  std::vector<std::string> got;
+  std::ifstream in(dir / "b" / "poses.txt");
+  for (std::string line; std::getline(in, line);)
+    if (!line.empty() && line[0] != '#') got.push_back(line.substr(0, line.find(' ')));
+  EXPECT_EQ(got, stamps);
+  // A file that is no trajectory is refused before anything runs.
+  std::ofstream(dir / "bad.txt") << "not a pose\n";
+  const std::string bad = common + " --replay-views " + (dir / "bad.txt").string() + " --out " + (dir / "c").string() + " 2> " +
+                          (dir / "c.err").string();
+  EXPECT_NE(std::system(bad.c_str()), 0);
+  EXPECT_NE(ReadAll(dir / "c.err").find("--replay-views"), std::string::npos) << ReadAll(dir / "c.err");
   fs::remove_all(dir);
 }
 

@@ -1,5 +1,6 @@
 #include "host/scan/burst_source.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cstring>
 #include <stdexcept>
@@ -36,12 +37,21 @@ Status CopyBurst(const proto::BurstMsg& msg, int64_t receive_ns, IngestedBurst* 
 
 void RecordingSourceOptions::Check() const {
   if (!(rate >= 0) || max_bursts < 0) throw std::invalid_argument("RecordingSourceOptions: rate and max_bursts must be >= 0");
+  if (select_tolerance_ns < 0) throw std::invalid_argument("RecordingSourceOptions: select_tolerance_ns must be >= 0");
+}
+
+bool RecordingBurstSource::Selected(int64_t capture_ns) const {
+  const std::vector<int64_t>& t = o_.select_capture_ns;  // sorted by Open
+  if (t.empty()) return true;
+  const auto it = std::lower_bound(t.begin(), t.end(), capture_ns - o_.select_tolerance_ns);
+  return it != t.end() && *it <= capture_ns + o_.select_tolerance_ns;
 }
 
 Status RecordingBurstSource::Open(const std::string& path, const RecordingSourceOptions& options, std::unique_ptr<RecordingBurstSource>* out) {
   options.Check();
   auto s = std::unique_ptr<RecordingBurstSource>(new RecordingBurstSource());
   s->o_ = options;
+  std::sort(s->o_.select_capture_ns.begin(), s->o_.select_capture_ns.end());
   D3D_RETURN_IF_ERROR(RecordingReader::OpenFile(path, &s->reader_));
   const RecordingChannel* cb = s->reader_->header().FindTopic(proto::kTopicPhaseBurst);
   if (cb == nullptr) return InvalidArgument(path + ": no " + std::string(proto::kTopicPhaseBurst) + " channel");
@@ -76,8 +86,8 @@ BurstSource::Result RecordingBurstSource::Next(IngestedBurst* out) {
     }
     const RecordedMessage& m = messages_[message_++];
     if (m.channel != burst_channel_) continue;
-    received_.fetch_add(1, std::memory_order_relaxed);
     if (!proto::Decode(m.data, &msg_).ok()) {
+      received_.fetch_add(1, std::memory_order_relaxed);
       malformed_.fetch_add(1, std::memory_order_relaxed);
       continue;
     }
@@ -86,9 +96,15 @@ BurstSource::Result RecordingBurstSource::Next(IngestedBurst* out) {
     std::vector<d3d_proto_ImageFrame> storage;
     proto::ToDds(msg_, &dds, &storage);
     if (CheckBurst(dds, &detail) != DropReason::kCount || !CopyBurst(msg_, m.log_time_ns, out).ok()) {
+      received_.fetch_add(1, std::memory_order_relaxed);
       malformed_.fetch_add(1, std::memory_order_relaxed);
       continue;
     }
+    if (!Selected(out->capture_ns)) {  // not one of the chosen views: as if never sent
+      skipped_.fetch_add(1, std::memory_order_relaxed);
+      continue;
+    }
+    received_.fetch_add(1, std::memory_order_relaxed);
     ++delivered_;
     if (o_.rate > 0) {
       if (t0_file_ < 0) {

@@ -55,7 +55,14 @@ class BurstSource {
 struct RecordingSourceOptions {
   double rate = 0;  // 0: as fast as the graph takes them (lossless replay); > 0: paced by the recorded times × rate
   int64_t max_bursts = 0;  // > 0: end after this many bursts
-  void Check() const;
+  // Non-empty: only the bursts whose capture time (IngestedBurst::capture_ns, ns) lies within
+  // select_tolerance_ns of one of these times are delivered, the rest are skipped (skipped(), not
+  // counted in received()).
+  // E.g. the times of a live run's poses.txt: the same views again, losslessly, to reproduce what
+  // the live host's tracker saw. Any order; max_bursts counts delivered bursts.
+  std::vector<int64_t> select_capture_ns;
+  int64_t select_tolerance_ns = 1000000;  // 1 ms; bursts are ≥ 10 ms apart
+  void Check() const;  // throws std::invalid_argument
 };
 
 class RecordingBurstSource final : public BurstSource {
@@ -67,9 +74,13 @@ class RecordingBurstSource final : public BurstSource {
   const RecordingHeader& header() const { return reader_->header(); }
   const RecordingDiagnostics& diagnostics() const { return reader_->diagnostics(); }
   Result Next(IngestedBurst* out) override;
+  // Bursts left out by select_capture_ns (well-formed, not delivered).
+  uint64_t skipped() const { return skipped_.load(std::memory_order_relaxed); }
 
  private:
+  bool Selected(int64_t capture_ns) const;
   RecordingSourceOptions o_;
+  std::atomic<uint64_t> skipped_{0};
   std::unique_ptr<RecordingReader> reader_;
   ProbeCalibration calibration_;
   uint16_t burst_channel_ = 0;

@@ -24,6 +24,7 @@
 
 #include "common/mesh/mesh_io.h"
 #include "firmware/sim/session/sim_session.h"
+#include "firmware/sim/trajectory/trajectory.h"
 #include "host/scan/scan_app.h"
 #include "tools/dds/tool_dds.h"
 #include "viewer/viewer.h"
@@ -63,6 +64,10 @@ int main(int argc, char** argv) {
   int64_t max_bursts = 0;
   size_t rx_queue = 0;
   cli.add_option("--frames", max_bursts, "--replay: use the first N bursts only (0 = all)")->capture_default_str();
+  std::string replay_views;
+  cli.add_option("--replay-views", replay_views,
+                 "--replay: only the bursts whose capture times this TUM file lists (e.g. a live run's poses.txt: its views again, "
+                 "losslessly, with the live tracker's gates: --step 6 by default and motion by capture time)");
   cli.add_option("--rx-queue", rx_queue, "live: bursts the DDS receiver may hold for the graph (default: 8 live, 300 lossless)");
   cli.add_option("--out", out_dir, "output folder")->capture_default_str();
   cli.add_flag("--headless", headless, "render the preview offscreen (EGL, no display needed)");
@@ -111,7 +116,13 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "d3d-scan: --policy must be live or lossless\n");
     return 2;
   }
-  if (step <= 0) step = policy == EdgePolicy::kLive ? 6 : 1;
+  if (!replay_views.empty() && replay.empty()) {
+    std::fprintf(stderr, "d3d-scan: --replay-views needs --replay (the recording the live run scanned)\n");
+    return 2;
+  }
+  // A live run's views (--replay-views) come as unevenly as they did live: the live tracker's gates.
+  const bool live_views = policy == EdgePolicy::kLive || !replay_views.empty();
+  if (step <= 0) step = live_views ? 6 : 1;
   if (threads < 1) threads = 1;
   Association assoc = Association::kGrid;
   if (bin < 1 || !ParseAssociation(association, &assoc)) {
@@ -134,6 +145,14 @@ int main(int argc, char** argv) {
       RecordingSourceOptions ro;
       ro.rate = replay_rate;
       ro.max_bursts = max_bursts;
+      if (!replay_views.empty()) {
+        Trajectory views;
+        if (const Status s = Trajectory::LoadTum(replay_views, &views); !s.ok()) {
+          std::fprintf(stderr, "d3d-scan: --replay-views: %s\n", s.ToString().c_str());
+          return 2;
+        }
+        for (const TimedPose& k : views.keys()) ro.select_capture_ns.push_back(k.t_ns);
+      }
       if (const Status s = RecordingBurstSource::Open(replay, ro, &rec); !s.ok()) {
         std::fprintf(stderr, "d3d-scan: %s: %s\n", replay.c_str(), s.ToString().c_str());
         return 2;
@@ -187,7 +206,7 @@ int main(int argc, char** argv) {
       if (level < static_cast<int>(ao.scan.tracker.icp.levels.size())) ao.scan.tracker.icp.levels[static_cast<size_t>(level)].max_samples = cap;
     // Live, the gaps between processed views vary with the load: motion prediction and limits by
     // capture time, in views of `step` bursts.
-    if (policy == EdgePolicy::kLive && sim_rate > 0) ao.scan.tracker.view_period_ns = std::llround(step * 1e9 / sim_rate);
+    if (live_views && sim_rate > 0) ao.scan.tracker.view_period_ns = std::llround(step * 1e9 / sim_rate);
     ao.scan.refuse_min_correction_mm = refuse ? 0.01 : -1;
     ao.keep_views = refuse;
     ao.undo_seconds = undo_seconds;
@@ -355,6 +374,10 @@ int main(int argc, char** argv) {
     result.report["threads"] = threads;
     result.report["bin"] = bin;
     if (rec) result.report["recording_problems"] = rec->diagnostics().problems;
+    if (rec && !replay_views.empty()) {
+      result.report["replay_views"] = replay_views;
+      result.report["bursts_skipped"] = rec->skipped();
+    }
     if (!fs_status.ok()) {
       std::fprintf(stderr, "d3d-scan: %s\n", fs_status.ToString().c_str());
       std::error_code ec;
