@@ -431,6 +431,28 @@ AteReport AbsoluteTrajectoryError(const std::vector<Rigid3d>& est, const std::ve
   return r;
 }
 
+RpeReport RelativePoseError(const std::vector<Rigid3d>& est, const std::vector<Rigid3d>& truth) {
+  D3D_CHECK_MSG(est.size() == truth.size(), "RelativePoseError: sizes differ");
+  RpeReport r;
+  double s2 = 0, sr = 0;
+  for (size_t k = 1; k < est.size(); ++k) {
+    const Rigid3d e = (truth[k - 1].inverse() * truth[k]).inverse() * (est[k - 1].inverse() * est[k]);
+    const double d = e.translation().norm();
+    s2 += d * d;
+    sr += RotationAngleRad(e, Rigid3d::Identity()) * 180.0 / M_PI;
+    if (d > r.max_mm) {
+      r.max_mm = d;
+      r.max_pose = static_cast<int>(k);
+    }
+    ++r.steps;
+  }
+  if (r.steps > 0) {
+    r.rmse_mm = std::sqrt(s2 / r.steps);
+    r.mean_deg = sr / r.steps;
+  }
+  return r;
+}
+
 cv::Mat DeviationHeatMap(const TriangleMesh& scan, const std::vector<float>& signed_um, double range_um, int width_px) {
   D3D_CHECK_MSG(signed_um.size() == scan.vertices.size(), "DeviationHeatMap: one value per vertex");
   cv::Mat img(10, 10, CV_8UC3, cv::Scalar(255, 255, 255));

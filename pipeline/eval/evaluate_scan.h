@@ -115,6 +115,21 @@ struct AteReport {
 AteReport AbsoluteTrajectoryError(const std::vector<Rigid3d>& estimate, const std::vector<Rigid3d>& truth,
                                   Rigid3d* truth_from_estimate = nullptr);
 
+// Relative pose error between consecutive poses (Sturm et al. 2012, "A benchmark for the
+// evaluation of RGB-D SLAM systems", IROS, eq. 1 with Δ = one pose): for k ≥ 1,
+//   E_k = (Q_{k−1}⁻¹ Q_k)⁻¹ (P_{k−1}⁻¹ P_k),  P estimate, Q truth (any frames: E_k is invariant),
+// RMS and largest |translation(E_k)| (mm) and the k of the largest, mean rotation angle (deg). Where
+// ATE says how far a trajectory wandered, this says where it jumped: a view registered off
+// (sliding along a weakly constrained direction, say) shows as one large step, and every later
+// view that followed it is unaffected. Throws std::invalid_argument for unpaired inputs; fewer than 2
+// poses: all zero.
+struct RpeReport {
+  double rmse_mm = 0, mean_deg = 0, max_mm = 0;
+  int max_pose = 0;  // k of the largest step error (the pose that moved off its predecessor)
+  int steps = 0;
+};
+RpeReport RelativePoseError(const std::vector<Rigid3d>& estimate, const std::vector<Rigid3d>& truth);
+
 // The part of a reference surface that the probe saw, from the simulator's truth maps: the
 // acquisition's own coverage limit, against which a scan's coverage_pct reads (a face no view saw
 // cannot be in the model, however good the reconstruction). A face counts as seen when a pixel of

@@ -23,6 +23,14 @@ TriangleMesh Sheet(double x0 = -10, double x1 = 10, double step = 0.1) {
   return m;
 }
 
+// A frame to see a trajectory in: 0.8 rad about y, then (5, 6, 7) mm.
+Rigid3d AnotherFrame() {
+  Rigid3d W = Rigid3d::Identity();
+  W.linear() = Eigen::AngleAxisd(0.8, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  W.translation() = Eigen::Vector3d(5, 6, 7);
+  return W;
+}
+
 TEST(EvaluateScan, AReferenceShiftedByAKnownAmount) {
   const TriangleMesh ref = Sheet();
   const MeshClosestPoint cp(ref);
@@ -134,9 +142,7 @@ TEST(EvaluateScan, PrecisionAndTrajectoryError) {
   EXPECT_GT(p.points, 1000);
   // ATE: a trajectory seen in another frame, with one pose off by 1 mm.
   std::vector<Rigid3d> truth, est;
-  Rigid3d W = Rigid3d::Identity();
-  W.linear() = Eigen::AngleAxisd(0.8, Eigen::Vector3d::UnitY()).toRotationMatrix();
-  W.translation() = Eigen::Vector3d(5, 6, 7);
+  const Rigid3d W = AnotherFrame();
   for (int i = 0; i < 50; ++i) {
     Rigid3d t = Rigid3d::Identity();
     t.translation() = Eigen::Vector3d(i, std::sin(0.2 * i) * 5, 0.1 * i);
@@ -151,6 +157,36 @@ TEST(EvaluateScan, PrecisionAndTrajectoryError) {
   r = AbsoluteTrajectoryError(est, truth);
   EXPECT_NEAR(r.rmse_mm, std::sqrt(1.0 / 50), 0.02);
   EXPECT_NEAR(r.max_mm, 1.0, 0.05);
+}
+
+// RPE: the same trajectory in another frame has none; a jump of 0.2 mm at pose 20 that every
+// later pose keeps (a view registered off, then followed: the rest of the estimate moved as one)
+// is one step error, at pose 20, while the ATE spreads it over the whole trajectory.
+TEST(EvaluateScan, RelativePoseErrorFindsTheJump) {
+  std::vector<Rigid3d> truth, est;
+  const Rigid3d W = AnotherFrame();
+  for (int i = 0; i < 50; ++i) {
+    Rigid3d t = Rigid3d::Identity();
+    t.linear() = Eigen::AngleAxisd(0.02 * i, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    t.translation() = Eigen::Vector3d(0.3 * i, std::sin(0.2 * i) * 5, 0.1 * i);
+    truth.push_back(t);
+    est.push_back(W * t);
+  }
+  RpeReport r = RelativePoseError(est, truth);
+  EXPECT_EQ(r.steps, 49);
+  EXPECT_LT(r.rmse_mm, 1e-9);
+  EXPECT_LT(r.mean_deg, 1e-6);
+  Rigid3d jump = Rigid3d::Identity();  // in the estimate's frame, applied to poses 20..49
+  jump.translation() = Eigen::Vector3d(0.12, -0.16, 0);
+  for (int i = 20; i < 50; ++i) est[static_cast<size_t>(i)] = jump * est[static_cast<size_t>(i)];
+  r = RelativePoseError(est, truth);
+  EXPECT_EQ(r.max_pose, 20);
+  EXPECT_NEAR(r.max_mm, 0.2, 1e-9);
+  EXPECT_NEAR(r.rmse_mm, 0.2 / 7, 1e-9);  // one step of 49
+  EXPECT_LT(r.mean_deg, 1e-6);
+  EXPECT_GT(AbsoluteTrajectoryError(est, truth).rmse_mm, 0.05);  // ATE: off from pose 20 on
+  EXPECT_THROW(RelativePoseError(est, std::vector<Rigid3d>(3)), std::invalid_argument);
+  EXPECT_EQ(RelativePoseError({est[0]}, {truth[0]}).steps, 0);
 }
 
 // Precision counts the surface both scans have. b = a's sheet plus a wall a never reached, rising

@@ -443,6 +443,12 @@ void EvaluateScanAgainstScene(const TriangleMesh& mesh, const TriangleMesh& scen
     j["ate_max_mm"] = smax;
     j["ate_trajectory_aligned_mm"] = ate_traj.rmse_mm;
     j["ate_trajectory_aligned_deg"] = ate_traj.mean_deg;
+    // Where the trajectory jumped (views in poses.txt order, 0-based): see RelativePoseError.
+    const RpeReport rpe = RelativePoseError(poses, true_poses);
+    j["rpe_mm"] = rpe.rmse_mm;
+    j["rpe_deg"] = rpe.mean_deg;
+    j["rpe_max_mm"] = rpe.max_mm;
+    j["rpe_max_pose"] = rpe.max_pose;
   }
   j["trueness_rms_um"] = t.rms_um;
   j["trueness_mean_um"] = t.mean_um;

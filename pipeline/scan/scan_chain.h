@@ -262,7 +262,8 @@ struct ScanResult {
 // tracking_lost, relocalised, unrecovered, final_state, keyframes, loop_edges,
 // pose_graph_max_correction_mm, ms_per_burst (+ per stage), ms_mesh, tsdf_* , mesh_*, events and,
 // with a reference: trueness_rms_um, trueness_mean_um, trueness_mean_abs_um, trueness_p95_um,
-// coverage_pct, best_fit_rmse_um, and ate_mm / ate_deg (NaN-free: only when true poses are known).
+// coverage_pct, best_fit_rmse_um, and ate_mm / ate_deg and rpe_mm / rpe_deg / rpe_max_mm /
+// rpe_max_pose (relative pose error between consecutive views; NaN-free: only when true poses are known).
 // INTERNAL when the model is empty (no view accepted).
 [[nodiscard]] Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegistrar* registrar, ScanFuser* fuser,
                                 const ScanViewProvider& provider, const ScanTruth& truth, ScanResult* out);
