@@ -9,7 +9,6 @@
 #include <filesystem>
 #include <limits>
 #include <stdexcept>
-#include <thread>
 
 #include "common/mesh/mesh_io.h"
 
@@ -190,7 +189,6 @@ bool ScanApp::RegisterStage(ScanItem& item) {
     }
     if (u.ok) {
       ++reg_undo_gen_;
-      undo_gen_applied_.store(reg_undo_gen_);
       views_undone_.fetch_add(static_cast<uint64_t>(u.views_undone));
     } else {
       undos_refused_.fetch_add(1);
@@ -228,6 +226,9 @@ bool ScanApp::FuseStage(ScanItem& item) {
       volume_has_undone_ = true;
     }
     fuse_undo_gen_ = item.undo_gen;
+  }
+  if (item.undo_requests > fuse_undo_requests_) {  // those undos are applied up to here (SaveNow waits for it)
+    fuse_undo_requests_ = item.undo_requests;
     model_cv_.notify_all();
   }
   if (item.control) {
@@ -333,21 +334,16 @@ bool ScanApp::PreviewStage(ScanItem& item) {
 }
 
 Status ScanApp::SaveNow(const std::string& dir) {
-  // Undos asked for before this save: applied by the register stage, then their views' frames
-  // taken out by the fuse stage (the request travels down the graph; a save right after 'u' came
-  // before the fuse stage saw it and saved the undone views).
-  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+  // Undos asked for before this save: the request travels down the graph, and a save right after
+  // 'u' came before the fuse stage had taken the undone views out and saved them. Every item
+  // carries the request count; once one reaches the fuse stage, the register stage has applied
+  // those undos and the fuse stage has cut their views.
   const uint64_t requested = undo_requests_.load();
-  while (undos_done_.load() < requested) {
-    if (std::chrono::steady_clock::now() > until) return Unavailable("save: the last undo has not reached the model yet (graph stalled?)");
-    std::this_thread::sleep_for(std::chrono::milliseconds(2));
-  }
   TriangleMesh mesh;
   {
     std::unique_lock<std::mutex> lock(model_mu_);
-    const uint64_t applied = undo_gen_applied_.load();
-    if (!model_cv_.wait_until(lock, until, [&] { return fuse_undo_gen_ >= applied; }))
-      return Unavailable("save: the fuse stage has not taken the undone views out yet (graph stalled?)");
+    if (!model_cv_.wait_for(lock, std::chrono::seconds(10), [&] { return fuse_undo_requests_ >= requested; }))
+      return Unavailable("save: the last undo has not reached the model yet (graph stalled?)");
     if (volume_has_undone_) {
       // The kept views again, at their tracked poses, into a volume that then replaces the live one.
       ScanReconstructor again(calibration_, o_.scan.recon, 1);  // the kept frames are binned already

@@ -118,9 +118,9 @@ class ScanApp {
   uint64_t undos_done() const { return undos_done_.load(); }
   // Any thread but the stages': extracts the current model (waits for the fuse stage's current
   // burst) and writes DIR/scan.ply and DIR/scan.stl. An undo asked for before the call is in the
-  // saved model: it first waits (at most 10 s) until the register stage has applied every undo
-  // requested so far and the fuse stage has taken those views' frames out (UNAVAILABLE if that
-  // does not happen in time: a stalled graph). After an undo the live volume still holds the
+  // saved model: it first waits (at most 10 s) until an item carrying that request has reached
+  // the fuse stage, which has then taken those views' frames out (UNAVAILABLE if that does not
+  // happen in time: a stalled graph). After an undo the live volume still holds the
   // undone views: the kept views are first fused again into a new volume at their tracked poses
   // (~20 ms per view, the fuse stage waits; without the register thread's model anchoring, which
   // Finish's refusion adds back), which then replaces the live one. INTERNAL for an empty model;
@@ -176,12 +176,12 @@ class ScanApp {
   // register thread
   uint64_t reg_epoch_ = 0;
   uint64_t reg_undo_requests_ = 0, reg_undo_gen_ = 0;
-  std::atomic<uint64_t> undo_gen_applied_{0};  // reg_undo_gen_ for SaveNow (register writes)
   std::unique_ptr<ScanRegistrar> registrar_;
   // fuse thread (+ SaveNow under model_mu_)
   std::mutex model_mu_;
-  std::condition_variable model_cv_;  // the fuse stage moved fuse_undo_gen_ (SaveNow waits for it)
+  std::condition_variable model_cv_;  // the fuse stage moved fuse_undo_requests_ (SaveNow waits for it)
   uint64_t fuse_epoch_ = 0, fuse_undo_gen_ = 0;
+  uint64_t fuse_undo_requests_ = 0;  // undo requests applied up to the fuse stage's last item
   std::unique_ptr<ScanFuser> fuser_;
   ViewArchive archive_;  // keep_views: the fused views' frames (fuse thread, then Finish)
   struct FusedView {
