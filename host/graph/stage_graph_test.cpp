@@ -175,13 +175,29 @@ TEST(StageGraph, StopDrainsLosslessAndEndsLive) {
   }
 }
 
+// n items (values 0 … n−1) through `stages` with options `o`; returns the graph after Join().
+std::unique_ptr<StageGraph<TestItem>> RunCounting(const StageGraphOptions& o, uint64_t n,
+                                                  const std::vector<StageGraph<TestItem>::Stage>& stages) {
+  uint64_t next = 0;
+  auto g = std::make_unique<StageGraph<TestItem>>(
+      o, [] { return std::make_unique<TestItem>(); },
+      [&next, n](TestItem& it, ItemMeta*) {
+        if (next == n) return StageGraph<TestItem>::SourceResult::kEnd;
+        it.value = next++;
+        return StageGraph<TestItem>::SourceResult::kItem;
+      },
+      stages);
+  g->Start();
+  g->Join();
+  return g;
+}
+
 TEST(StageGraph, LatencyEndsAtTheNamedStageAndTheLastStageIsKeptToo) {
   // Stage 1 is where a user sees the item (d3d-scan: the preview); stage 2 (the fuse) takes 8 ms
   // more. Latency samples: one per item at stage 1's end, and one per item at the last stage's.
   StageGraphOptions o;
   o.policy = EdgePolicy::kLossless;
   o.latency_stage = 1;
-  uint64_t next = 0;
   const uint64_t n = 30;
   std::vector<StageGraph<TestItem>::Stage> stages = {
       {"a", [](TestItem&, const ItemMeta&) { return true; }},
@@ -190,16 +206,8 @@ TEST(StageGraph, LatencyEndsAtTheNamedStageAndTheLastStageIsKeptToo) {
          std::this_thread::sleep_for(std::chrono::milliseconds(8));
          return true;
        }}};
-  StageGraph<TestItem> g(
-      o, [] { return std::make_unique<TestItem>(); },
-      [&](TestItem& it, ItemMeta*) {
-        if (next == n) return StageGraph<TestItem>::SourceResult::kEnd;
-        it.value = next++;
-        return StageGraph<TestItem>::SourceResult::kItem;
-      },
-      stages);
-  g.Start();
-  g.Join();
+  const auto graph = RunCounting(o, n, stages);
+  const StageGraph<TestItem>& g = *graph;
   ASSERT_EQ(g.completed(), n);
   EXPECT_EQ(g.latency_count(), n);
   // Every item spends >= 8 ms in the last stage after it was seen: the done latency's median is
@@ -210,6 +218,33 @@ TEST(StageGraph, LatencyEndsAtTheNamedStageAndTheLastStageIsKeptToo) {
   EXPECT_THROW(StageGraph<TestItem>(o, [] { return std::make_unique<TestItem>(); },
                                     [](TestItem&, ItemMeta*) { return StageGraph<TestItem>::SourceResult::kEnd; }, stages),
                std::invalid_argument);
+}
+
+TEST(StageGraph, CpuTimeCountsWorkNotWaiting) {
+  // Stage "sleep" waits 5 ms per item, stage "spin" works until its thread has used 5 ms of CPU.
+  // Both show ≥ 5 ms of wall time per item; only the spinning one shows the CPU time.
+  StageGraphOptions o;
+  o.policy = EdgePolicy::kLossless;
+  const uint64_t n = 10;
+  std::vector<StageGraph<TestItem>::Stage> stages = {
+      {"sleep", [](TestItem&, const ItemMeta&) {
+         std::this_thread::sleep_for(std::chrono::milliseconds(5));
+         return true;
+       }},
+      {"spin", [](TestItem& it, const ItemMeta&) {
+         const uint64_t until = ThreadCpuNs() + 5000000;
+         while (ThreadCpuNs() < until) ++it.value;
+         return true;
+       }}};
+  const auto graph = RunCounting(o, n, stages);
+  const StageGraph<TestItem>& g = *graph;
+  ASSERT_EQ(g.completed(), n);
+  const StageCounters& sleep = g.stage(0);
+  const StageCounters& spin = g.stage(1);
+  EXPECT_GE(sleep.busy_ns.load(), n * 5000000);
+  EXPECT_LT(sleep.cpu_ns.load(), n * 1000000);  // waking up costs microseconds, not the 5 ms
+  EXPECT_GE(spin.cpu_ns.load(), n * 5000000);
+  EXPECT_GE(spin.busy_ns.load(), spin.cpu_ns.load());
 }
 
 TEST(TripleBuffer, ReaderSeesOnlyWholePublishedValuesNewestLast) {

@@ -443,6 +443,7 @@ nlohmann::json ScanApp::HostReport() const {
     stages[graph_->stage_name(i)] = {{"items", n},
                                      {"ms_mean", n > 0 ? static_cast<double>(c.busy_ns.load()) * 1e-6 / static_cast<double>(n) : 0.0},
                                      {"ms_max", static_cast<double>(c.max_ns.load()) * 1e-6},
+                                     {"cpu_ms_mean", n > 0 ? static_cast<double>(c.cpu_ns.load()) * 1e-6 / static_cast<double>(n) : 0.0},
                                      {"order_violations", c.order_violations.load()}};
   }
   j["stages"] = stages;
