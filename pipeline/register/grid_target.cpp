@@ -25,14 +25,14 @@ inline float AxisGap2(float v, float a, float c) {
 inline int Clamp(int v, int n) { return std::min(std::max(v, 0), n - 1); }
 }  // namespace
 
-void GridTarget::Build(const SurfacePoints& target, const std::vector<double>& gates_mm) {
+void GridTarget::Build(const SurfacePoints& target, const std::vector<double>& gates_mm, double decimate_min_gate_mm) {
   D3D_CHECK_MSG(target.normals.size() == target.points.size(), "GridTarget needs a normal per point");
   std::vector<double> gates = gates_mm;
   for (double g : gates) D3D_CHECK_MSG(g > 0 && std::isfinite(g), "GridTarget: gates must be > 0");
   std::sort(gates.begin(), gates.end());
   gates.erase(std::unique(gates.begin(), gates.end()), gates.end());
 
-  normals_.assign(target.normals.begin(), target.normals.end());
+  size_ = target.points.size();
   lo_ = Eigen::Vector3f::Constant(std::numeric_limits<float>::max());
   hi_ = Eigen::Vector3f::Constant(std::numeric_limits<float>::lowest());
   bool any = false;
@@ -47,12 +47,12 @@ void GridTarget::Build(const SurfacePoints& target, const std::vector<double>& g
   if (grids_.size() < gates.size()) grids_.resize(gates.size());
   for (size_t i = 0; i < gates.size(); ++i) {
     grids_[i].gate = static_cast<float>(gates[i]);
-    BuildGrid(&grids_[i], target);
+    BuildGrid(&grids_[i], target, decimate_min_gate_mm > 0 && gates[i] >= decimate_min_gate_mm);
   }
   used_grids_ = gates.size();
 }
 
-void GridTarget::BuildGrid(Grid* g, const SurfacePoints& target) {
+void GridTarget::BuildGrid(Grid* g, const SurfacePoints& target, bool decimate) {
   // Cells of the gate's edge, each split into sub³ sub-cells of about kSubCellMm; fewer sub-cells,
   // then coarser cells, while the slots would exceed kMaxCells.
   float cell = g->gate;
@@ -68,6 +68,7 @@ void GridTarget::BuildGrid(Grid* g, const SurfacePoints& target) {
   }
   g->cell = cell;
   g->sub = sub;
+  g->decimated = decimate;
   g->sub_cell = cell / static_cast<float>(sub);
   g->origin = lo_;
   const size_t slots = static_cast<size_t>(g->nx) * static_cast<size_t>(g->ny) * static_cast<size_t>(g->nz) *
@@ -77,6 +78,10 @@ void GridTarget::BuildGrid(Grid* g, const SurfacePoints& target) {
   g->start.assign(slots + 1, 0);
   slot_of_.resize(n);
   const float inv = 1.0f / cell, inv_sub = 1.0f / g->sub_cell;
+  constexpr int kV = kDecimateVoxels;
+  static_assert(kV * kV * kV <= 64, "a cell's voxels fit one 64-bit mask");
+  const float inv_voxel = static_cast<float>(kV) / cell;
+  if (decimate) voxel_taken_.assign(static_cast<size_t>(g->nx) * g->ny * g->nz, 0);
   for (size_t i = 0; i < n; ++i) {
     const Eigen::Vector3f& p = target.points[i];
     if (!Finite(p)) {
@@ -90,6 +95,21 @@ void GridTarget::BuildGrid(Grid* g, const SurfacePoints& target) {
               b = Clamp(static_cast<int>((rel.y() - static_cast<float>(y) * cell) * inv_sub), sub),
               d = Clamp(static_cast<int>((rel.z() - static_cast<float>(z) * cell) * inv_sub), sub);
     const size_t c = (static_cast<size_t>(z) * g->ny + y) * g->nx + x;
+    if (decimate) {  // the first sample of each voxel only, one with a normal (Find refuses the others)
+      if (!Finite(target.normals[i])) {
+        slot_of_[i] = kNoSlot;
+        continue;
+      }
+      const int vx = Clamp(static_cast<int>((rel.x() - static_cast<float>(x) * cell) * inv_voxel), kV),
+                vy = Clamp(static_cast<int>((rel.y() - static_cast<float>(y) * cell) * inv_voxel), kV),
+                vz = Clamp(static_cast<int>((rel.z() - static_cast<float>(z) * cell) * inv_voxel), kV);
+      const uint64_t bit = uint64_t{1} << ((vz * kV + vy) * kV + vx);
+      if (voxel_taken_[c] & bit) {
+        slot_of_[i] = kNoSlot;
+        continue;
+      }
+      voxel_taken_[c] |= bit;
+    }
     const uint32_t s = static_cast<uint32_t>(c * static_cast<size_t>(sub * sub * sub) + static_cast<size_t>((d * sub + b) * sub + a));
     slot_of_[i] = s;
     ++g->start[s + 1];
@@ -97,14 +117,14 @@ void GridTarget::BuildGrid(Grid* g, const SurfacePoints& target) {
   for (size_t s = 0; s < slots; ++s) g->start[s + 1] += g->start[s];
   const size_t kept = g->start[slots];
   g->points.resize(kept);
-  g->index.resize(kept);
+  g->normals.resize(kept);
   // Scatter with a running cursor per slot (start[s] advanced, then shifted back).
   for (size_t i = 0; i < n; ++i) {
     const uint32_t s = slot_of_[i];
     if (s == kNoSlot) continue;
     const uint32_t at = g->start[s]++;
     g->points[at] = target.points[i];
-    g->index[at] = static_cast<uint32_t>(i);
+    g->normals[at] = target.normals[i];
   }
   for (size_t s = slots; s > 0; --s) g->start[s] = g->start[s - 1];
   g->start[0] = 0;
@@ -115,6 +135,11 @@ const GridTarget::Grid* GridTarget::GridFor(float r) const {
   for (size_t i = 0; i < used_grids_; ++i)
     if (grids_[i].gate >= r) return &grids_[i];
   return &grids_[used_grids_ - 1];
+}
+
+size_t GridTarget::samples(float max_distance_mm) const {
+  const Grid* g = GridFor(max_distance_mm);
+  return g == nullptr ? 0 : g->points.size();
 }
 
 bool GridTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* point, Eigen::Vector3f* normal) const {
@@ -204,7 +229,7 @@ bool GridTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* po
   }
   if (found < 0) return false;
   *point = g->points[static_cast<size_t>(found)];
-  *normal = normals_[g->index[static_cast<size_t>(found)]];
+  *normal = g->normals[static_cast<size_t>(found)];
   return std::isfinite((*normal)[0]);
 }
 

@@ -69,6 +69,48 @@ TEST(GridTarget, FindsWhatTheKdTreeFinds) {
   EXPECT_GT(refused, 1000);
 }
 
+// Decimated above 0.5 mm: the 1.0 mm grid keeps one sample per 0.25 mm voxel, and finds the
+// nearest of those: never nearer than the exact nearest sample, never farther than it plus a voxel
+// diagonal, always a sample of the target with its own normal. The 0.15 mm grid stays exact.
+TEST(GridTarget, ADecimatedGridKeepsOneSamplePerVoxel) {
+  const SurfacePoints s = Surface();
+  const KdTreeTarget tree(s);
+  GridTarget grid;
+  grid.Build(s, {1.0, 0.15}, 0.5);
+  EXPECT_EQ(grid.samples(0.15f), s.size());
+  EXPECT_GT(grid.samples(1.0f), 0u);
+  EXPECT_LT(grid.samples(1.0f), s.size() / 3);
+  const float voxel = 1.0f / GridTarget::kDecimateVoxels, diagonal = std::sqrt(3.0f) * voxel;
+  int exact = 0, decimated = 0, farther = 0;
+  for (const Eigen::Vector3f& q : Queries(s, 0.3f, 3000, 11)) {
+    Eigen::Vector3f pt, nt, pg, ng;
+    const bool t = tree.Find(q, 0.15f, &pt, &nt);
+    ASSERT_EQ(t, grid.Find(q, 0.15f, &pg, &ng)) << q.transpose();
+    if (t) {
+      ASSERT_EQ(pt, pg);
+      ++exact;
+    }
+    if (!tree.Find(q, 1.0f - diagonal, &pt, &nt)) continue;
+    ASSERT_TRUE(grid.Find(q, 1.0f, &pg, &ng)) << q.transpose();
+    const float d_exact = (q - pt).norm(), d_grid = (q - pg).norm();
+    EXPECT_GE(d_grid, d_exact - 1e-5f);
+    EXPECT_LE(d_grid, d_exact + diagonal + 1e-5f);
+    farther += d_grid > d_exact + 1e-5f;
+    Eigen::Vector3f p_same, n_same;  // a sample of the target, with its own normal
+    ASSERT_TRUE(tree.Find(pg, 1e-4f, &p_same, &n_same));
+    EXPECT_EQ(p_same, pg);
+    if (std::isfinite(n_same.x())) {
+      EXPECT_EQ(n_same, ng);
+    }
+    ++decimated;
+  }
+  EXPECT_GT(exact, 1000);
+  EXPECT_GT(decimated, 2500);
+  EXPECT_GT(farther, decimated / 4);  // the decimation did leave samples out
+  grid.Build(s, {1.0, 0.15});         // not decimated: every sample again
+  EXPECT_EQ(grid.samples(1.0f), s.size());
+}
+
 // A target spread over metres gets coarser cells than its gates (kMaxCells), and stays exact.
 TEST(GridTarget, ACappedGridIsStillExact) {
   SurfacePoints s = Surface();

@@ -60,6 +60,7 @@ void TrackerOptions::Check() const {
   icp.Check();
   map.Check();
   features.Check();
+  D3D_CHECK_MSG(grid_decimate_min_gate_mm >= 0, "TrackerOptions: grid_decimate_min_gate_mm >= 0 (0 = off)");
   D3D_CHECK_MSG(sample_stride >= 1 && map_stride >= 1 && keyframe_stride >= 1, "TrackerOptions: strides >= 1");
   D3D_CHECK_MSG(target_scale > 0 && target_scale <= 2 && target_splat >= 0 && target_window >= 0, "TrackerOptions: target");
   D3D_CHECK_MSG(max_step_mm > 0 && max_step_deg > 0 && view_period_ns >= 0, "TrackerOptions: max_step, view_period_ns");
@@ -201,7 +202,7 @@ IcpResult Tracker::RunIcp(const SurfacePoints& source, const Rigid3d& initial, c
   if (o_.association == Association::kKdTree) return RegisterIcp(source, KdTreeTarget(std::move(near)), initial, icp);
   std::vector<double> gates;
   for (const IcpLevel& level : icp.levels) gates.push_back(level.max_distance_mm);
-  grid_.Build(near, gates);
+  grid_.Build(near, gates, o_.grid_decimate_min_gate_mm);
   return RegisterIcp(source, grid_, initial, icp);
 }
 

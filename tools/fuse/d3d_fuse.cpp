@@ -99,7 +99,7 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--first", first, "first burst index")->capture_default_str();
   app.add_option("--max-bursts", max_bursts, "stop after this many bursts used (default: all)");
-  app.add_option("--association", association, "ICP data association: grid (default; exact nearest model sample) | kdtree (the same matches by nanoflann) | projective")->capture_default_str();
+  app.add_option("--association", association, "ICP data association: grid (default; nearest model sample, on a decimated model at the coarse level) | kdtree (exact nearest at every level, by nanoflann) | projective")->capture_default_str();
   app.add_option("--voxel", voxel_mm, "TSDF voxel (mm)")->capture_default_str();
   app.add_option("--truncation", truncation_mm, "TSDF truncation (mm)")->capture_default_str();
   app.add_option("--max-rmse-um", max_rmse_um, "tracking: a view whose ICP residual (RMS, um) is above this is refused")

@@ -88,7 +88,7 @@ int main(int argc, char** argv) {
                  "average the camera's pixels over NxN blocks before reconstruction (1 = full resolution; 2: views of a quarter "
                  "the pixels, ~4x less reconstruction work)")
       ->capture_default_str();
-  cli.add_option("--association", association, "the tracker's ICP data association: grid (exact nearest model sample) | kdtree (the same by nanoflann) | projective")->capture_default_str();
+  cli.add_option("--association", association, "the tracker's ICP data association: grid (nearest model sample, on a decimated model at the coarse level) | kdtree (exact nearest at every level, by nanoflann) | projective")->capture_default_str();
   cli.add_option("--step", step, "expected bursts between processed views for the tracker's gates (default: 1 lossless, 6 live)");
   cli.add_option("--domain", domain, "DDS domain id")->capture_default_str();
   cli.add_option("--serial", serial, "listen to this probe only (default: any)");
