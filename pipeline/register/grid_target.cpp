@@ -68,7 +68,6 @@ void GridTarget::BuildGrid(Grid* g, const SurfacePoints& target, bool decimate) 
   }
   g->cell = cell;
   g->sub = sub;
-  g->decimated = decimate;
   g->sub_cell = cell / static_cast<float>(sub);
   g->origin = lo_;
   const size_t slots = static_cast<size_t>(g->nx) * static_cast<size_t>(g->ny) * static_cast<size_t>(g->nz) *
@@ -81,6 +80,8 @@ void GridTarget::BuildGrid(Grid* g, const SurfacePoints& target, bool decimate) 
   constexpr int kV = kDecimateVoxels;
   static_assert(kV * kV * kV <= 64, "a cell's voxels fit one 64-bit mask");
   const float inv_voxel = static_cast<float>(kV) / cell;
+  // One 64-bit mask per cell: 64 kB for the tracker's ~20 mm targets at 1 mm cells (a grid capped
+  // at kMaxCells cells would take 64 MB).
   if (decimate) voxel_taken_.assign(static_cast<size_t>(g->nx) * g->ny * g->nz, 0);
   for (size_t i = 0; i < n; ++i) {
     const Eigen::Vector3f& p = target.points[i];

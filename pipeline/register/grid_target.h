@@ -70,7 +70,6 @@ class GridTarget final : public IcpTarget {
     float gate = 0;       // the gate this grid serves (mm)
     float cell = 0;       // cell edge (mm), ≥ gate unless the grid was capped
     int sub = 1;          // sub-cells per cell edge
-    bool decimated = false;  // one sample per (cell / kDecimateVoxels)³ voxel
     float sub_cell = 0;   // cell / sub
     Eigen::Vector3f origin = Eigen::Vector3f::Zero();
     int nx = 0, ny = 0, nz = 0;
