@@ -38,6 +38,18 @@ void ScanAppOptions::Check() const {
   if (!(preview_cell_mm > 0) || preview_stride_px < 1 || view_stride_px < 1)
     throw std::invalid_argument("ScanAppOptions: preview cell > 0 and strides >= 1");
   if (!(undo_seconds > 0) || undo_max_views < 0) throw std::invalid_argument("ScanAppOptions: undo_seconds > 0 and undo_max_views >= 0");
+  if (!(live_voxel_mm >= 0)) throw std::invalid_argument("ScanAppOptions: live_voxel_mm >= 0 (0 = the scan's voxel)");
+  if (keep_views && live_voxel_mm > 0) {
+    TsdfOptions live = scan.tsdf;
+    live.voxel_mm = live_voxel_mm;
+    live.Check();  // e.g. a voxel above the truncation
+  }
+}
+
+TsdfOptions ScanApp::LiveTsdf() const {
+  TsdfOptions t = o_.scan.tsdf;
+  if (o_.keep_views && o_.live_voxel_mm > 0) t.voxel_mm = o_.live_voxel_mm;
+  return t;
 }
 
 ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& options, BurstSource* source)
@@ -50,7 +62,7 @@ ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& opti
   // the undone views).
   o_.scan.tracker.map.undo_inserts = o_.keep_views ? o_.undo_max_views : 0;
   registrar_ = std::make_unique<ScanRegistrar>(calibration_, o_.scan.tracker, o_.scan.anchor, o_.scan.recon.normal_max_gap_mm);
-  fuser_ = std::make_unique<ScanFuser>(calibration_.camera, o_.scan.tsdf, o_.scan.free_space);
+  fuser_ = std::make_unique<ScanFuser>(calibration_.camera, LiveTsdf(), o_.scan.free_space);
   cells_.reserve(o_.preview_max_points);
   model_points_.reserve(o_.preview_max_points);
   model_normals_.reserve(o_.preview_max_points);
@@ -211,7 +223,7 @@ bool ScanApp::RegisterStage(ScanItem& item) {
 bool ScanApp::FuseStage(ScanItem& item) {
   std::lock_guard<std::mutex> lock(model_mu_);
   if (item.epoch != fuse_epoch_) {
-    fuser_ = std::make_unique<ScanFuser>(calibration_.camera, o_.scan.tsdf, o_.scan.free_space);
+    fuser_ = std::make_unique<ScanFuser>(calibration_.camera, LiveTsdf(), o_.scan.free_space);
     archive_.Clear();
     fused_views_.clear();
     volume_has_undone_ = false;
@@ -347,7 +359,7 @@ Status ScanApp::SaveNow(const std::string& dir) {
     if (volume_has_undone_) {
       // The kept views again, at their tracked poses, into a volume that then replaces the live one.
       ScanReconstructor again(calibration_, o_.scan.recon, 1);  // the kept frames are binned already
-      ScanFuser rebuilt(calibration_.camera, o_.scan.tsdf, o_.scan.free_space);
+      ScanFuser rebuilt(calibration_.camera, LiveTsdf(), o_.scan.free_space);
       std::vector<cv::Mat> frames;
       ReconstructedView view;
       for (const FusedView& v : fused_views_) {
@@ -440,14 +452,16 @@ nlohmann::json ScanApp::HostReport() const {
   for (size_t i = 0; i < graph_->num_stages(); ++i) {
     const StageCounters& c = graph_->stage(i);
     const uint64_t n = c.processed.load();
+    const auto ms_mean = [n](uint64_t ns) { return n > 0 ? static_cast<double>(ns) * 1e-6 / static_cast<double>(n) : 0.0; };
     stages[graph_->stage_name(i)] = {{"items", n},
-                                     {"ms_mean", n > 0 ? static_cast<double>(c.busy_ns.load()) * 1e-6 / static_cast<double>(n) : 0.0},
+                                     {"ms_mean", ms_mean(c.busy_ns.load())},
                                      {"ms_max", static_cast<double>(c.max_ns.load()) * 1e-6},
-                                     {"cpu_ms_mean", n > 0 ? static_cast<double>(c.cpu_ns.load()) * 1e-6 / static_cast<double>(n) : 0.0},
+                                     {"cpu_ms_mean", ms_mean(c.cpu_ns.load())},
                                      {"order_violations", c.order_violations.load()}};
   }
   j["stages"] = stages;
   j["probe_returns"] = source_->probe_returns();
+  j["live_voxel_mm"] = LiveTsdf().voxel_mm;  // the live volume's (SaveNow); the final model's is voxel_mm
   j["warm_up_ms"] = ms_warm_up_;
   j["warm_up_items"] = o_.policy == EdgePolicy::kLive ? graph_->pool_size() : 0;
   rusage u{};

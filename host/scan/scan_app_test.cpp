@@ -154,6 +154,9 @@ TEST(ScanAppUndo, UndoneViewsLeaveThePreviewTheSavedModelAndTheReport) {
   EXPECT_EQ(j["undos_applied"], 1);
   EXPECT_EQ(j["views_undone"], 3);
   EXPECT_TRUE(j["refused_at_optimised_poses"].get<bool>());
+  // The saves above wrote the coarse live volume; the final model is at the scan's voxel.
+  EXPECT_DOUBLE_EQ(j["live_voxel_mm"].get<double>(), ScanAppOptions{}.live_voxel_mm);
+  EXPECT_DOUBLE_EQ(j["voxel_mm"].get<double>(), ScanAppOptions{}.scan.tsdf.voxel_mm);
   EXPECT_EQ(j["views_kept"], result.poses.size());  // the undone views' frames were dropped
   EXPECT_GE(result.poses.size(), 17u) << j["events"].dump();
   EXPECT_LT(j["trueness_rms_um"].get<double>(), 20.0);

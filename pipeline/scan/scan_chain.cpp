@@ -282,9 +282,16 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   const bool undone = registrar->views_undone() > 0;
   if (undone && !provider)
     return Status(StatusCode::kInvalidArgument, "views were undone but there is no view provider to fuse the kept ones again");
-  if (provider && (undone || (loops && options.refuse_min_correction_mm >= 0 && max_correction_mm > options.refuse_min_correction_mm))) {
+  // A live volume of another voxel than the scan's (a host's coarse live model) is never the result.
+  const bool other_voxel = fuser->volume().options().voxel_mm != options.tsdf.voxel_mm;
+  if (other_voxel && !provider)
+    return Status(StatusCode::kInvalidArgument, "the live volume's voxel (" + std::to_string(fuser->volume().options().voxel_mm) +
+                                                    " mm) is not the scan's (" + std::to_string(options.tsdf.voxel_mm) +
+                                                    " mm) and there is no view provider to fuse the views again");
+  if (provider && (undone || other_voxel ||
+                   (loops && options.refuse_min_correction_mm >= 0 && max_correction_mm > options.refuse_min_correction_mm))) {
     const auto t0 = Clock::now();
-    refused = std::make_unique<ScanFuser>(fuser->camera(), fuser->volume().options(), fuser->free_space_options());
+    refused = std::make_unique<ScanFuser>(fuser->camera(), options.tsdf, fuser->free_space_options());
     std::vector<Rigid3d> poses(views.size(), Rigid3d::Identity());
     std::vector<int64_t> todo;
     for (int64_t k = 0; k < n_views; ++k)

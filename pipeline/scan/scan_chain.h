@@ -65,8 +65,8 @@ struct ScanOptions {
   TsdfOptions tsdf;
   FreeSpaceOptions free_space;  // ScanFuser: points in space earlier views saw through are not fused
   // Fuse the accepted views again at the optimised poses when the pose graph moved a view by more
-  // than this (mm) and FinishScan is given a view provider; < 0 never (unless views were undone:
-  // then always).
+  // than this (mm) and FinishScan is given a view provider; < 0 never (unless views were undone, or
+  // the live volume's voxel is not tsdf.voxel_mm: then always).
   double refuse_min_correction_mm = 0.01;
   EvaluateOptions eval;
   void Check() const;  // throws std::invalid_argument
@@ -258,7 +258,9 @@ struct ScanResult {
 
 // After the stages stopped: see the file comment. When the registrar undid views
 // (ScanRegistrar::UndoLastSeconds) the fuser's volume still holds them, so the kept views are always
-// fused again (INVALID_ARGUMENT without a provider). The report holds bursts, fused, rejected, views_undone,
+// fused again (INVALID_ARGUMENT without a provider); so are they when the fuser's volume has another
+// voxel than options.tsdf (a host's coarse live volume, ScanAppOptions::live_voxel_mm): the refusion
+// is always at options.tsdf. The report holds bursts, fused, rejected, views_undone,
 // tracking_lost, relocalised, unrecovered, final_state, keyframes, loop_edges,
 // pose_graph_max_correction_mm, ms_per_burst (+ per stage), ms_mesh, tsdf_* , mesh_*, events and,
 // with a reference: trueness_rms_um, trueness_mean_um, trueness_mean_abs_um, trueness_p95_um,

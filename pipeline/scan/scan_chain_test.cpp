@@ -26,6 +26,7 @@ struct ShortScan {
   std::unique_ptr<ScanRegistrar> reg;
   std::unique_ptr<ScanFuser> fuser;
   ScanTimes times;
+  double live_voxel_mm = 0;  // > 0: the fuser's voxel (a host's coarse live volume), else o.tsdf's
 };
 
 std::unique_ptr<SimSession> QuadrantSession() {
@@ -50,7 +51,9 @@ void RunShortScan(SimSession& session, int bin, ShortScan* s, ViewArchive* kept 
   ScanReconstructor recon(session.calibration(), s->o.recon, s->o.bin);
   s->view_calibration = recon.calibration();
   s->reg = std::make_unique<ScanRegistrar>(s->view_calibration.camera, s->o.tracker);
-  s->fuser = std::make_unique<ScanFuser>(s->view_calibration.camera, s->o.tsdf);
+  TsdfOptions live = s->o.tsdf;
+  if (s->live_voxel_mm > 0) live.voxel_mm = s->live_voxel_mm;
+  s->fuser = std::make_unique<ScanFuser>(s->view_calibration.camera, live);
   ReconstructedView view;
   FramePacker packer;
   std::vector<int64_t> bursts;
@@ -77,6 +80,23 @@ void RunShortScan(SimSession& session, int bin, ShortScan* s, ViewArchive* kept 
   }
   s->times.ms_register = s->reg->ms_register();
   s->times.ms_fuse = s->fuser->ms_fuse();
+}
+
+// The kept views of `scan` (all accepted ones but `skip`), one thread, in order, at their final
+// poses, fused at the scan's options: what a refusion must give.
+TriangleMesh FusedAtFinalPoses(const ShortScan& scan, const ViewArchive& kept, int64_t skip = -1) {
+  ScanReconstructor again(scan.view_calibration, scan.o.recon, 1);
+  ScanFuser reference(scan.view_calibration.camera, scan.o.tsdf, scan.o.free_space);
+  std::vector<cv::Mat> frames;
+  ReconstructedView view;
+  for (int64_t k = 0; k < static_cast<int64_t>(scan.reg->views().size()); ++k) {
+    Rigid3d pose;
+    if (k == skip || !scan.reg->ViewPose(k, &pose)) continue;
+    EXPECT_TRUE(kept.Get(scan.reg->views()[static_cast<size_t>(k)].burst_seq, &frames).ok());
+    EXPECT_TRUE(again.Reconstruct(frames, &view).ok());
+    EXPECT_TRUE(reference.Fuse(view, pose).ok());
+  }
+  return reference.volume().ExtractMesh();
 }
 
 ScanTruth TruthOf(SimSession* session) {
@@ -242,16 +262,8 @@ TEST(ScanChain, RefusionFusesTheKeptViewsAtTheFinalPosesInOrder) {
                                                                      << result.report["pose_graph_max_correction_mm"];
   EXPECT_EQ(asked, scan.reg->accepted());
   // The same views, one thread, in order, at the final poses.
-  ScanFuser reference(scan.view_calibration.camera, scan.o.tsdf, scan.o.free_space);
-  ReconstructedView view;
-  for (int64_t k = 0; k < static_cast<int64_t>(scan.reg->views().size()); ++k) {
-    Rigid3d pose;
-    if (k == 3 || !scan.reg->ViewPose(k, &pose)) continue;
-    ASSERT_TRUE(kept.Get(scan.reg->views()[static_cast<size_t>(k)].burst_seq, &frames).ok());
-    ASSERT_TRUE(again.Reconstruct(frames, &view).ok());
-    ASSERT_TRUE(reference.Fuse(view, pose).ok());
-  }
-  TriangleMesh expected = reference.volume().ExtractMesh();
+  TriangleMesh expected = FusedAtFinalPoses(scan, kept, 3);
+  ASSERT_FALSE(HasFailure());
   expected.ComputeVertexNormals();
   ASSERT_EQ(result.mesh.vertices.size(), expected.vertices.size());
   ASSERT_EQ(result.mesh.faces.size(), expected.faces.size());
@@ -319,18 +331,46 @@ TEST(ScanChain, UndoneViewsLeaveTheSavedModel) {
   EXPECT_EQ(result.poses.size(), static_cast<size_t>(reg.accepted()));
   EXPECT_LT(result.report["trueness_rms_um"].get<double>(), 20.0);
   // The kept views, one thread, in order, at the final poses: the same mesh.
-  ScanFuser reference(scan.view_calibration.camera, scan.o.tsdf, scan.o.free_space);
-  ReconstructedView view;
-  for (int64_t k = 0; k < static_cast<int64_t>(reg.views().size()); ++k) {
-    Rigid3d pose;
-    if (!reg.ViewPose(k, &pose)) continue;
-    ASSERT_TRUE(kept.Get(reg.views()[static_cast<size_t>(k)].burst_seq, &frames).ok());
-    ASSERT_TRUE(again.Reconstruct(frames, &view).ok());
-    ASSERT_TRUE(reference.Fuse(view, pose).ok());
-  }
-  TriangleMesh expected = reference.volume().ExtractMesh();
+  const TriangleMesh expected = FusedAtFinalPoses(scan, kept);
+  ASSERT_FALSE(HasFailure());
   ASSERT_EQ(result.mesh.vertices.size(), expected.vertices.size());
   for (size_t i = 0; i < expected.vertices.size(); ++i) ASSERT_EQ(result.mesh.vertices[i], expected.vertices[i]) << i;
+}
+
+// A host's live volume at a coarser voxel (ScanAppOptions::live_voxel_mm) is never the result:
+// with a provider the views are always fused again, at the scan's voxel, whatever
+// refuse_min_correction_mm says, into the very mesh the kept views give at their final poses;
+// without one, FinishScan refuses (the coarse model would pass for the scan's).
+TEST(ScanChain, ACoarseLiveVolumeIsAlwaysFusedAgainAtTheScansVoxel) {
+  std::unique_ptr<SimSession> session = QuadrantSession();
+  ASSERT_TRUE(session);
+  ShortScan scan;
+  scan.live_voxel_mm = 2 * ScanOptions{}.tsdf.voxel_mm;
+  ViewArchive kept;
+  RunShortScan(*session, 2, &scan, &kept);
+  ASSERT_FALSE(HasFatalFailure());
+  ASSERT_DOUBLE_EQ(scan.fuser->volume().options().voxel_mm, scan.live_voxel_mm);
+  scan.o.refuse_min_correction_mm = -1;  // "never": the coarse live volume overrides it
+  ScanResult no_provider;
+  const Status refused = FinishScan(scan.o, scan.times, scan.reg.get(), scan.fuser.get(), {}, {}, &no_provider);
+  EXPECT_EQ(refused.code(), StatusCode::kInvalidArgument) << refused.ToString();
+  EXPECT_NE(refused.message().find("voxel"), std::string::npos) << refused.ToString();
+  ScanReconstructor again(scan.view_calibration, scan.o.recon, 1);
+  std::vector<cv::Mat> frames;
+  const ScanViewProvider provider = [&](int64_t, const ScanViewRecord& v, ReconstructedView* out) -> Status {
+    D3D_RETURN_IF_ERROR(kept.Get(v.burst_seq, &frames));
+    return again.Reconstruct(frames, out);
+  };
+  ScanResult result;
+  ASSERT_TRUE(FinishScan(scan.o, scan.times, scan.reg.get(), scan.fuser.get(), provider, TruthOf(session.get()), &result).ok());
+  EXPECT_TRUE(result.report["refused_at_optimised_poses"].get<bool>());
+  EXPECT_DOUBLE_EQ(result.report["voxel_mm"].get<double>(), scan.o.tsdf.voxel_mm);
+  EXPECT_DOUBLE_EQ(scan.fuser->volume().options().voxel_mm, scan.o.tsdf.voxel_mm);  // the fuser adopted the refused volume
+  const TriangleMesh expected = FusedAtFinalPoses(scan, kept);
+  ASSERT_FALSE(HasFailure());
+  ASSERT_EQ(result.mesh.vertices.size(), expected.vertices.size());
+  for (size_t i = 0; i < expected.vertices.size(); ++i) ASSERT_EQ(result.mesh.vertices[i], expected.vertices[i]) << i;
+  EXPECT_LT(result.report["trueness_rms_um"].get<double>(), 20.0);
 }
 
 TEST(ScanChain, EmptyModelIsAnError) {

@@ -84,6 +84,11 @@ int main(int argc, char** argv) {
   cli.add_flag("--refuse,!--no-refuse", refuse,
                "keep the fused bursts' frames (zstd, ~0.15 MB each at --bin 2) and fuse them again at the pose graph's poses at "
                "the end (default; the mesh then does not depend on how the tracker drifted, live or lossless)");
+  double live_voxel_mm = ScanAppOptions{}.live_voxel_mm;
+  cli.add_option("--live-voxel", live_voxel_mm,
+                 "--refuse: voxel (mm) of the live volume the fuse stage fuses each burst into, which a save mid-scan ('s') "
+                 "writes; the final model is fused again at 0.05 mm (0 = live at 0.05 mm too, ~2x the fuse stage's CPU)")
+      ->capture_default_str();
   cli.add_option("--bin", bin,
                  "average the camera's pixels over NxN blocks before reconstruction (1 = full resolution; 2: views of a quarter "
                  "the pixels, ~4x less reconstruction work)")
@@ -209,6 +214,7 @@ int main(int argc, char** argv) {
     if (live_views && sim_rate > 0) ao.scan.tracker.view_period_ns = std::llround(step * 1e9 / sim_rate);
     ao.scan.refuse_min_correction_mm = refuse ? 0.01 : -1;
     ao.keep_views = refuse;
+    ao.live_voxel_mm = live_voxel_mm;
     ao.undo_seconds = undo_seconds;
     ao.undo_max_views = undo_views;
     ao.undo_after_bursts = undo_after;
