@@ -14,9 +14,11 @@
 //   ScanItem (pool of the graph): frames (ingest writes), view (reconstruct writes; register, fuse and
 //     preview read), track (register writes; fuse and preview read), packed (reconstruct writes, fuse
 //     reads). One thread at a time, handed over by the graph's edges.
-//   ScanReconstructor: reconstruct thread.   ScanRegistrar (Tracker): register thread; the tracker's
-//     keyframe-feature worker thread (d3d-scan turns it on) touches only the copies of a keyframe's
-//     points and texture it is handed and its own job and result lists (tracker.cpp).
+//   ScanReconstructor: reconstruct thread.   ScanRegistrar (Tracker): register thread (with
+//     d3d-scan's keyframe features on demand, their SIFT too, when a relocalisation needs them);
+//     with TrackerOptions::FeatureTiming::kWorker, the tracker's keyframe-feature worker thread
+//     touches only the copies of a keyframe's points and texture it is handed and its own job and
+//     result lists (tracker.cpp).
 //   ScanFuser (the live TSDF, at ScanAppOptions::live_voxel_mm) and the ViewArchive: fuse thread,
 //     then Finish(), under model_mu_, which SaveNow() (a saver thread) also takes.
 //   FramePacker: reconstruct thread.

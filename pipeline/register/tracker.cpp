@@ -82,7 +82,7 @@ void TrackerOptions::Check() const {
   D3D_CHECK_MSG(odometry_sigma_mm > 0 && odometry_sigma_rad > 0 && loop_sigma_mm > 0 && loop_sigma_rad > 0, "TrackerOptions: sigmas");
 }
 
-// Keyframe features on a thread of their own (TrackerOptions::async_keyframe_features). The
+// Keyframe features on a thread of their own (TrackerOptions::keyframe_feature_timing kWorker). The
 // tracker's thread submits a keyframe's points and texture (copied into the job's own buffers) and
 // collects the results; the worker touches only the job it took, and its queues under mu_.
 class Tracker::FeatureWorker {
@@ -177,7 +177,8 @@ Tracker::Tracker(const PinholeBrownConrady& camera, const TrackerOptions& option
   k.width = camera.width;
   k.height = camera.height;
   pinhole_ = k.Scaled(o_.target_scale);
-  if (o_.async_keyframe_features && o_.relocalise) feature_worker_ = std::make_unique<FeatureWorker>(o_.features);
+  if (o_.keyframe_feature_timing == TrackerOptions::FeatureTiming::kWorker && o_.relocalise)
+    feature_worker_ = std::make_unique<FeatureWorker>(o_.features);
 }
 
 Tracker::~Tracker() = default;
@@ -505,7 +506,13 @@ bool Tracker::Relocalise(const SurfacePoints& samples, const cv::Mat& points, co
   icp.min_overlap = o_.relocalise_min_overlap;
   std::string last_reason = "no keyframe";
   for (int i = 0; i < std::min<int>(o_.relocalise_candidates, static_cast<int>(order.size())); ++i) {
-    const Keyframe& kf = keyframes_[static_cast<size_t>(order[static_cast<size_t>(i)].second)];
+    Keyframe& kf = keyframes_[static_cast<size_t>(order[static_cast<size_t>(i)].second)];
+    if (kf.features_pending) {  // kOnDemand: the first relocalisation that needs them
+      kf.features = ExtractViewFeatures(kf.feature_points, kf.feature_texture, o_.features);
+      kf.features_pending = false;
+      kf.feature_points.release();
+      kf.feature_texture.release();
+    }
     const FeatureAlignResult a = AlignByFeatures(f, kf.features, o_.features);
     if (!a.ok) {
       last_reason = a.reason;
@@ -544,8 +551,17 @@ void Tracker::MaybeKeyframe(const SurfacePoints& /*samples*/, const cv::Mat& poi
   kf.centre_in_cam = kfs.Centroid();
   kf.samples = std::move(kfs);
   last_keyframe_occupancy_ = OccupancyMap(kf.samples, kOverlapVoxelMm);
-  if (o_.relocalise && feature_worker_) feature_worker_->Submit(keyframes_.size(), points, texture);
-  else if (o_.relocalise) kf.features = ExtractViewFeatures(points, texture, o_.features);
+  if (o_.relocalise) {
+    switch (o_.keyframe_feature_timing) {
+      case TrackerOptions::FeatureTiming::kInTrack: kf.features = ExtractViewFeatures(points, texture, o_.features); break;
+      case TrackerOptions::FeatureTiming::kWorker: feature_worker_->Submit(keyframes_.size(), points, texture); break;
+      case TrackerOptions::FeatureTiming::kOnDemand:
+        kf.features_pending = true;
+        points.copyTo(kf.feature_points);
+        texture.copyTo(kf.feature_texture);
+        break;
+    }
+  }
   keyframes_.push_back(std::move(kf));
   out->new_keyframe = true;
   const int k = static_cast<int>(keyframes_.size()) - 1;

@@ -203,12 +203,21 @@ struct TrackerOptions {
   double odometry_sigma_mm = 0.005, odometry_sigma_rad = 1e-4;  // pose graph edge σ (without ICP information)
   double loop_sigma_mm = 0.005, loop_sigma_rad = 1e-4;
   bool relocalise = true;
-  // Keyframe features (SIFT on three 640×480 images, ~150–300 ms here) are extracted on a worker
-  // thread of the tracker instead of inside Track(): a keyframe then costs Track() a copy of its
-  // points and texture (~1 ms) rather than a stall of ten bursts. Results are the same: a
-  // relocalisation first waits for every keyframe's features. For a live host, where Track() is
-  // on the critical path.
-  bool async_keyframe_features = false;
+  // When a keyframe's features (SIFT on three images: ~150–300 ms at 640×480, ~75 ms at 320×240
+  // here) are extracted. Only relocalisation (step 4) reads them. Results are the same in every
+  // mode (the same features of the same points and texture).
+  //  kInTrack:  in Track(), when the keyframe is made.
+  //  kWorker:   on a worker thread of the tracker: a keyframe costs Track() a copy of its points and
+  //             texture (~1 ms) rather than a stall of several bursts; a relocalisation first waits
+  //             for every keyframe's features. The CPU is still spent: on a loaded 2-core host the
+  //             worker took 11 % of the process's CPU (issue 6).
+  //  kOnDemand: when a relocalisation first matches against the keyframe; until then it keeps a copy
+  //             of its points and texture (~1 MB at 320×240: less than its features, up to 1500 × 3
+  //             SIFT descriptors of 512 B), freed once extracted. A scan that never relocalises by
+  //             features never spends that CPU; the first relocalisation after a loss extracts up to
+  //             relocalise_candidates keyframes' features (~75 ms each at 320×240).
+  enum class FeatureTiming { kInTrack, kWorker, kOnDemand };
+  FeatureTiming keyframe_feature_timing = FeatureTiming::kInTrack;
   // A new keyframe's pose-graph edges (the ICP edge to the previous keyframe and the loop-closure
   // search, up to 10 ICPs) are measured in Optimize() instead of in Track(). The graph's poses do
   // not move before Optimize, so the edges are the same; only TrackResult::loops_added stays 0.
@@ -233,7 +242,11 @@ struct Keyframe {
   int64_t view = 0;                   // index of the view (Track call) it was made from
   int node = 0;                       // pose graph node
   SurfacePoints samples;              // camera frame
-  ViewFeatures features;              // camera frame (async_keyframe_features: once collected)
+  ViewFeatures features;              // camera frame (kWorker: once collected; kOnDemand: once extracted)
+  // kOnDemand: the inputs of its features (points H×W CV_32FC3, texture H×W CV_8U or empty) until
+  // a relocalisation extracts them (features_pending false, both released).
+  bool features_pending = false;
+  cv::Mat feature_points, feature_texture;
   Eigen::Vector3d centre_in_cam = Eigen::Vector3d::Zero();
 };
 
@@ -272,7 +285,8 @@ class Tracker {
                     const ViewAugmenter& augment = {}, int64_t capture_ns = 0);
 
   TrackingState state() const { return state_; }
-  // With async_keyframe_features, a keyframe's features may still be pending (empty) here.
+  // With keyframe_feature_timing kWorker or kOnDemand, a keyframe's features may still be pending
+  // (empty) here.
   const std::vector<Keyframe>& keyframes() const { return keyframes_; }
   const PoseGraph& graph() const { return graph_; }
   int64_t views() const { return static_cast<int64_t>(anchor_.size()); }
@@ -321,14 +335,14 @@ class Tracker {
   // edge with ICP's information (false when the ICP fails).
   bool KeyframeEdge(int from, int to, PoseGraphEdge* edge) const;
 
-  class FeatureWorker;  // async_keyframe_features (tracker.cpp)
+  class FeatureWorker;  // keyframe_feature_timing kWorker (tracker.cpp)
   // Waits for the feature worker's pending keyframes and moves their features into keyframes_.
   void CollectKeyframeFeatures();
 
   PinholeBrownConrady camera_;
   PinholeIntrinsics pinhole_;
   TrackerOptions o_;
-  std::unique_ptr<FeatureWorker> feature_worker_;  // null unless async_keyframe_features
+  std::unique_ptr<FeatureWorker> feature_worker_;  // null unless keyframe_feature_timing is kWorker
   std::vector<int> deferred_edges_;                 // keyframes whose edges wait for Optimize (defer_keyframe_edges)
   PointMap map_;
   // RunIcp's association grids (kGrid), rebuilt for every ICP and reused: Track()'s thread only.

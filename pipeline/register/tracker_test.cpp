@@ -131,12 +131,13 @@ TEST_F(TrackerScan, AReentryTheNextViewContradictsIsDropped) {
 // "Undo last seconds": the views taken back leave the tracker as one that never saw them (the
 // model sample for sample, keyframes, pose graph, kept poses), and the scan goes on from there.
 TEST_F(TrackerScan, UndoLeavesTheTrackerAsIfTheViewsHadNeverComeAndTheScanGoesOn) {
-  for (const bool async : {false, true}) {
-    SCOPED_TRACE(async ? "async keyframe features" : "features in Track");
+  using Timing = TrackerOptions::FeatureTiming;
+  for (const Timing timing : {Timing::kInTrack, Timing::kWorker, Timing::kOnDemand}) {
+    SCOPED_TRACE(timing == Timing::kInTrack ? "features in Track" : timing == Timing::kWorker ? "features on the worker" : "features on demand");
     TrackerOptions o;
     o.min_view_samples /= 4;
     o.map.undo_inserts = 20;
-    o.async_keyframe_features = async;
+    o.keyframe_feature_timing = timing;
     o.keyframe_max_views = 3;  // keyframes among the views taken back too
     Tracker all(small_cam_, o), kept(small_cam_, o);
     std::vector<Rigid3d> truth;
@@ -274,10 +275,11 @@ TEST_F(TrackerScan, AfterOneBadViewTheTrackResumesFromThePrediction) {
 }
 
 TEST_F(TrackerScan, KeyframeWorkOffTrackGivesTheSameScan) {
-  // The same views through a tracker that does its keyframe work inside Track() and through one that
-  // hands the features to its worker thread and leaves the pose-graph edges to Optimize(): every
-  // result is identical, the feature relocalisation (which waits for the worker) and the optimised
-  // poses included.
+  // The same views through a tracker that does its keyframe work inside Track() and through ones
+  // that hand the features to the worker thread or extract them on demand, and leave the pose-graph
+  // edges to Optimize(): every result is identical, the feature relocalisation (which waits for the
+  // worker, or extracts the candidates' features) and the optimised poses included. On demand, no
+  // keyframe has features before the loss, and only the relocalisation's candidates have them after.
   // OpenCV's own loops (SIFT) sequential here: they run on oneTBB's workers, whose synchronisation
   // ThreadSanitizer cannot see (tools/test.sh runs this test under it for the worker thread's).
   struct SequentialOpenCv {
@@ -289,41 +291,67 @@ TEST_F(TrackerScan, KeyframeWorkOffTrackGivesTheSameScan) {
   o.features.max_features = 800;
   const PinholeBrownConrady cam = TestCamera(160, 120, 500);  // the fixture's field of view, 4× fewer pixels
   o.min_view_samples /= 4;
-  TrackerOptions oa = o;
-  oa.async_keyframe_features = true;
-  oa.defer_keyframe_edges = true;
-  Tracker inline_features(cam, o), worker_features(cam, oa);
-  std::vector<Rigid3d> path;
-  for (double x = -3; x <= 3.01; x += 1.0) path.push_back(Truth(x, 0));
-  path.push_back(Truth(25, 0));      // off the model: lost
-  path.push_back(Truth(-3.1, 0.4));  // back over the strip: a re-entry candidate, by features ...
-  path.push_back(Truth(-2.8, 0.4));  // ... confirmed here
-  path.push_back(Truth(-2.5, 0.4));
-  bool by_features = false;
-  for (size_t i = 0; i < path.size(); ++i) {
-    const auto v = RenderHeightField(hf_, cam, path[i], 0.004, static_cast<uint32_t>(i + 1));
-    const TrackResult a = inline_features.Track(v.points, v.normals, v.quality, v.texture);
-    const TrackResult b = worker_features.Track(v.points, v.normals, v.quality, v.texture);
-    EXPECT_EQ(a.accepted, b.accepted) << "view " << i;
-    EXPECT_EQ(a.state, b.state) << "view " << i;
-    EXPECT_EQ(a.reason, b.reason) << "view " << i;
-    EXPECT_EQ(a.new_keyframe, b.new_keyframe) << "view " << i;
-    EXPECT_EQ(b.loops_added, 0) << "view " << i;  // deferred
-    EXPECT_TRUE(a.world_from_cam.matrix() == b.world_from_cam.matrix()) << "view " << i;
-    by_features = by_features || b.reason.find("feature inliers") != std::string::npos;
-  }
-  EXPECT_TRUE(by_features) << "the path must exercise a feature relocalisation";
-  EXPECT_EQ(worker_features.state(), TrackingState::kTracking);
-  ASSERT_EQ(inline_features.keyframes().size(), worker_features.keyframes().size());
-  PoseGraphSummary sa, sb;
-  ASSERT_TRUE(inline_features.Optimize({}, &sa).ok());
-  ASSERT_TRUE(worker_features.Optimize({}, &sb).ok());
-  EXPECT_GT(inline_features.loop_edges(), 0) << "the path must close a loop";
-  EXPECT_EQ(inline_features.loop_edges(), worker_features.loop_edges());
-  for (int64_t i = 0; i < inline_features.views(); ++i) {
-    Rigid3d pa, pb;
-    ASSERT_EQ(inline_features.ViewPose(i, &pa), worker_features.ViewPose(i, &pb));
-    EXPECT_TRUE(pa.matrix() == pb.matrix()) << "view " << i;
+  o.relocalise_candidates = 2;
+  using Timing = TrackerOptions::FeatureTiming;
+  for (const Timing timing : {Timing::kWorker, Timing::kOnDemand}) {
+    SCOPED_TRACE(timing == Timing::kWorker ? "features on the worker" : "features on demand");
+    TrackerOptions oa = o;
+    oa.keyframe_feature_timing = timing;
+    oa.defer_keyframe_edges = true;
+    Tracker inline_features(cam, o), off_track(cam, oa);
+    std::vector<Rigid3d> path;
+    for (double x = -3; x <= 3.01; x += 1.0) path.push_back(Truth(x, 0));
+    const size_t lost_at = path.size();
+    path.push_back(Truth(25, 0));      // off the model: lost
+    path.push_back(Truth(-3.1, 0.4));  // back over the strip: a re-entry candidate, by features ...
+    path.push_back(Truth(-2.8, 0.4));  // ... confirmed here
+    path.push_back(Truth(-2.5, 0.4));
+    bool by_features = false;
+    for (size_t i = 0; i < path.size(); ++i) {
+      if (timing == Timing::kOnDemand && i == lost_at) {
+        for (const Keyframe& kf : off_track.keyframes()) {
+          EXPECT_TRUE(kf.features_pending);
+          EXPECT_EQ(kf.features.size(), 0u);
+          EXPECT_FALSE(kf.feature_points.empty());
+        }
+      }
+      const auto v = RenderHeightField(hf_, cam, path[i], 0.004, static_cast<uint32_t>(i + 1));
+      const TrackResult a = inline_features.Track(v.points, v.normals, v.quality, v.texture);
+      const TrackResult b = off_track.Track(v.points, v.normals, v.quality, v.texture);
+      EXPECT_EQ(a.accepted, b.accepted) << "view " << i;
+      EXPECT_EQ(a.state, b.state) << "view " << i;
+      EXPECT_EQ(a.reason, b.reason) << "view " << i;
+      EXPECT_EQ(a.new_keyframe, b.new_keyframe) << "view " << i;
+      EXPECT_EQ(b.loops_added, 0) << "view " << i;  // deferred
+      EXPECT_TRUE(a.world_from_cam.matrix() == b.world_from_cam.matrix()) << "view " << i;
+      by_features = by_features || b.reason.find("feature inliers") != std::string::npos;
+    }
+    EXPECT_TRUE(by_features) << "the path must exercise a feature relocalisation";
+    EXPECT_EQ(off_track.state(), TrackingState::kTracking);
+    ASSERT_EQ(inline_features.keyframes().size(), off_track.keyframes().size());
+    if (timing == Timing::kOnDemand) {
+      size_t extracted = 0;
+      for (const Keyframe& kf : off_track.keyframes()) {
+        EXPECT_EQ(kf.features_pending, kf.features.size() == 0);
+        if (!kf.features_pending) {
+          EXPECT_TRUE(kf.feature_points.empty());  // the inputs are freed
+        }
+        extracted += !kf.features_pending;
+      }
+      EXPECT_GE(extracted, 1u);
+      EXPECT_LE(extracted, static_cast<size_t>(o.relocalise_candidates));
+      EXPECT_LT(extracted, off_track.keyframes().size()) << "the path must leave keyframes no relocalisation needed";
+    }
+    PoseGraphSummary sa, sb;
+    ASSERT_TRUE(inline_features.Optimize({}, &sa).ok());
+    ASSERT_TRUE(off_track.Optimize({}, &sb).ok());
+    EXPECT_GT(inline_features.loop_edges(), 0) << "the path must close a loop";
+    EXPECT_EQ(inline_features.loop_edges(), off_track.loop_edges());
+    for (int64_t i = 0; i < inline_features.views(); ++i) {
+      Rigid3d pa, pb;
+      ASSERT_EQ(inline_features.ViewPose(i, &pa), off_track.ViewPose(i, &pb));
+      EXPECT_TRUE(pa.matrix() == pb.matrix()) << "view " << i;
+    }
   }
 }
 
