@@ -126,6 +126,34 @@ TEST(Icp, CombinedMetricAtEveryLevelConverges) {
   EXPECT_LT(TranslationDistanceMm(a.target_from_source, p.target_from_source), 0.03);
 }
 
+// The point-to-point term alone (α = 0; its sums come in closed form from the matches' moments)
+// and half-and-half: a view registered onto its own samples from a start closer than half their
+// spacing (so every nearest neighbour is the true one) comes back to the identity; the information
+// stays the plane term's, whatever α.
+TEST(Icp, PointToPointTermAloneConverges) {
+  const HeightField hf(12);
+  const Pair p = MakePair(hf, 1.0, 0.0);
+  KdTreeTarget kd(p.target);
+  IcpLevel level;
+  level.max_iterations = 30;
+  level.max_distance_mm = 0.3;
+  IcpOptions plane;
+  plane.levels.assign(1, level);
+  const Rigid3d start = Perturbation(0.02, 0.01);
+  const IcpResult by_plane = RegisterIcp(p.target, kd, start, plane);
+  ASSERT_TRUE(by_plane.ok) << by_plane.reason;
+  for (const double alpha : {0.0, 0.5}) {
+    SCOPED_TRACE(alpha);
+    IcpOptions o = plane;
+    o.levels[0].point_to_plane_weight = alpha;
+    const IcpResult a = RegisterIcp(p.target, kd, start, o);
+    ASSERT_TRUE(a.ok) << a.reason;
+    EXPECT_LT(TranslationDistanceMm(a.target_from_source, Rigid3d::Identity()), 1e-4);
+    EXPECT_LT(RotationAngleRad(a.target_from_source, Rigid3d::Identity()), 1e-6);
+    EXPECT_LT((a.information - by_plane.information).norm(), 1e-3 * by_plane.information.norm());
+  }
+}
+
 TEST(Icp, PlaneIsDegenerate) {
   HeightField hf(13);
   hf.flat = 1;
