@@ -75,8 +75,29 @@ void ReconstructOptions::Check() const {
 }
 
 namespace {
+// 2 × 2 blocks (the host's default bin): two source rows at a time in one pass, which the
+// compiler vectorises; the same values as the general loop below.
+template <typename T>
+void BinBlocks2(const cv::Mat& src, T full_scale, cv::Mat* dst) {
+  for (int yb = 0; yb < dst->rows; ++yb) {
+    const T* s0 = src.ptr<T>(2 * yb);
+    const T* s1 = src.ptr<T>(2 * yb + 1);
+    T* d = dst->ptr<T>(yb);
+    for (int xb = 0; xb < dst->cols; ++xb) {
+      const T a = s0[2 * xb], b = s0[2 * xb + 1], c = s1[2 * xb], e = s1[2 * xb + 1];
+      const uint32_t sum = uint32_t{a} + b + c + e;
+      const bool clip = (a == full_scale) | (b == full_scale) | (c == full_scale) | (e == full_scale);
+      d[xb] = clip ? full_scale : static_cast<T>((sum + 2) / 4);
+    }
+  }
+}
+
 template <typename T>
 void BinBlocks(const cv::Mat& src, int f, T full_scale, cv::Mat* dst) {
+  if (f == 2) {
+    BinBlocks2<T>(src, full_scale, dst);
+    return;
+  }
   const uint32_t n = static_cast<uint32_t>(f * f), half = n / 2;
   std::vector<uint32_t> sum(static_cast<size_t>(dst->cols));
   std::vector<uint8_t> clipped(static_cast<size_t>(dst->cols));

@@ -79,6 +79,37 @@ TEST(Reconstruct, BinFrameAveragesBlocksAndKeepsClipping) {
   EXPECT_EQ(BinFrame(cv::Mat(4, 4, CV_32F), 2, &b).code(), StatusCode::kInvalidArgument);
 }
 
+// Every bin factor against the definition, block by block, on a random frame with clipped pixels
+// (2 × 2 has a loop of its own).
+TEST(Reconstruct, BinFrameMatchesTheDefinitionForEveryFactor) {
+  cv::Mat f(48, 72, CV_8U);
+  cv::RNG rng(7);
+  rng.fill(f, cv::RNG::UNIFORM, 0, 256);
+  for (int k = 0; k < 40; ++k) f.at<uint8_t>(rng.uniform(0, f.rows), rng.uniform(0, f.cols)) = 255;
+  for (const int factor : {2, 3, 4}) {
+    SCOPED_TRACE(factor);
+    cv::Mat b;
+    ASSERT_TRUE(BinFrame(f, factor, &b).ok());
+    ASSERT_EQ(b.size(), cv::Size(f.cols / factor, f.rows / factor));
+    int clipped = 0;
+    for (int y = 0; y < b.rows; ++y)
+      for (int x = 0; x < b.cols; ++x) {
+        uint32_t sum = 0;
+        bool clip = false;
+        for (int dy = 0; dy < factor; ++dy)
+          for (int dx = 0; dx < factor; ++dx) {
+            const uint8_t v = f.at<uint8_t>(y * factor + dy, x * factor + dx);
+            sum += v;
+            clip = clip || v == 255;
+          }
+        const uint32_t n = static_cast<uint32_t>(factor * factor);
+        clipped += clip;
+        ASSERT_EQ(b.at<uint8_t>(y, x), clip ? 255 : (sum + n / 2) / n) << x << "," << y;
+      }
+    EXPECT_GT(clipped, 0);
+  }
+}
+
 // Signed distances (µm) of a view's finite points to the plane n·p = n·p0, n normalised.
 std::vector<double> PlaneDistancesUm(const cv::Mat& points, Eigen::Vector3d n, const Eigen::Vector3d& p0) {
   n.normalize();
