@@ -39,16 +39,12 @@ void ScanAppOptions::Check() const {
     throw std::invalid_argument("ScanAppOptions: preview cell > 0 and strides >= 1");
   if (!(undo_seconds > 0) || undo_max_views < 0) throw std::invalid_argument("ScanAppOptions: undo_seconds > 0 and undo_max_views >= 0");
   if (!(live_voxel_mm >= 0)) throw std::invalid_argument("ScanAppOptions: live_voxel_mm >= 0 (0 = the scan's voxel)");
-  if (keep_views && live_voxel_mm > 0) {
-    TsdfOptions live = scan.tsdf;
-    live.voxel_mm = live_voxel_mm;
-    live.Check();  // e.g. a voxel above the truncation
-  }
+  LiveTsdf().Check();  // e.g. a live voxel above the truncation
 }
 
-TsdfOptions ScanApp::LiveTsdf() const {
-  TsdfOptions t = o_.scan.tsdf;
-  if (o_.keep_views && o_.live_voxel_mm > 0) t.voxel_mm = o_.live_voxel_mm;
+TsdfOptions ScanAppOptions::LiveTsdf() const {
+  TsdfOptions t = scan.tsdf;
+  if (keep_views && live_voxel_mm > 0) t.voxel_mm = live_voxel_mm;
   return t;
 }
 
@@ -62,7 +58,7 @@ ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& opti
   // the undone views).
   o_.scan.tracker.map.undo_inserts = o_.keep_views ? o_.undo_max_views : 0;
   registrar_ = std::make_unique<ScanRegistrar>(calibration_, o_.scan.tracker, o_.scan.anchor, o_.scan.recon.normal_max_gap_mm);
-  fuser_ = std::make_unique<ScanFuser>(calibration_.camera, LiveTsdf(), o_.scan.free_space);
+  fuser_ = std::make_unique<ScanFuser>(calibration_.camera, o_.LiveTsdf(), o_.scan.free_space);
   cells_.reserve(o_.preview_max_points);
   model_points_.reserve(o_.preview_max_points);
   model_normals_.reserve(o_.preview_max_points);
@@ -223,7 +219,7 @@ bool ScanApp::RegisterStage(ScanItem& item) {
 bool ScanApp::FuseStage(ScanItem& item) {
   std::lock_guard<std::mutex> lock(model_mu_);
   if (item.epoch != fuse_epoch_) {
-    fuser_ = std::make_unique<ScanFuser>(calibration_.camera, LiveTsdf(), o_.scan.free_space);
+    fuser_ = std::make_unique<ScanFuser>(calibration_.camera, o_.LiveTsdf(), o_.scan.free_space);
     archive_.Clear();
     fused_views_.clear();
     volume_has_undone_ = false;
@@ -359,7 +355,7 @@ Status ScanApp::SaveNow(const std::string& dir) {
     if (volume_has_undone_) {
       // The kept views again, at their tracked poses, into a volume that then replaces the live one.
       ScanReconstructor again(calibration_, o_.scan.recon, 1);  // the kept frames are binned already
-      ScanFuser rebuilt(calibration_.camera, LiveTsdf(), o_.scan.free_space);
+      ScanFuser rebuilt(calibration_.camera, o_.LiveTsdf(), o_.scan.free_space);
       std::vector<cv::Mat> frames;
       ReconstructedView view;
       for (const FusedView& v : fused_views_) {
@@ -461,7 +457,7 @@ nlohmann::json ScanApp::HostReport() const {
   }
   j["stages"] = stages;
   j["probe_returns"] = source_->probe_returns();
-  j["live_voxel_mm"] = LiveTsdf().voxel_mm;  // the live volume's (SaveNow); the final model's is voxel_mm
+  j["live_voxel_mm"] = o_.LiveTsdf().voxel_mm;  // the live volume's (SaveNow); the final model's is voxel_mm
   j["warm_up_ms"] = ms_warm_up_;
   j["warm_up_items"] = o_.policy == EdgePolicy::kLive ? graph_->pool_size() : 0;
   rusage u{};

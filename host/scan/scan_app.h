@@ -76,6 +76,8 @@ struct ScanAppOptions {
   // lossless throughput rose 22.9 → 26.9 bursts/s. A 0.1 mm model of the same views was as true
   // (9.4 vs 10.9 µm RMS) with 0.8 pp less coverage (thin edges).
   double live_voxel_mm = 0.1;
+  // The live volume's options: scan.tsdf, at live_voxel_mm when keep_views is on.
+  TsdfOptions LiveTsdf() const;
   // Undo: each request takes back the views captured in the last undo_seconds (of the views still
   // in the model); the tracker's undo journal reaches back undo_max_views views
   // (TrackerOptions::map.undo_inserts; ~0.4 MB per view at bin 2). 0 or keep_views off = no undo
@@ -184,8 +186,6 @@ class ScanApp {
   // reconstruct thread
   ScanReconstructor recon_;
   double ms_recon_ = 0;
-  // The live volume's options: scan.tsdf at live_voxel_mm (see ScanAppOptions::live_voxel_mm).
-  TsdfOptions LiveTsdf() const;
   double ms_warm_up_ = 0;  // constructor: the pool items' warm-up (report: warm_up_ms)
   FramePacker packer_;
   // register thread

@@ -42,6 +42,22 @@ std::vector<Eigen::Vector3f> Queries(const SurfacePoints& s, float spread, int n
   return q;
 }
 
+// The grid's answer to q within `gate` is the k-d tree's: the same refusal, or the same sample with
+// the same normal. *found: whether there is a match.
+::testing::AssertionResult SameAsKdTree(const KdTreeTarget& tree, const GridTarget& grid, const Eigen::Vector3f& q, float gate,
+                                        bool* found) {
+  Eigen::Vector3f pt, nt, pg, ng;
+  *found = tree.Find(q, gate, &pt, &nt);
+  const bool g = grid.Find(q, gate, &pg, &ng);
+  if (*found != g)
+    return ::testing::AssertionFailure() << "gate " << gate << " query " << q.transpose() << ": k-d tree " << *found << ", grid " << g;
+  if (*found && (pt != pg || nt != ng))
+    return ::testing::AssertionFailure() << "gate " << gate << " query " << q.transpose() << ": k-d tree " << pt.transpose()
+                                         << " (normal " << nt.transpose() << "), grid " << pg.transpose() << " (normal "
+                                         << ng.transpose() << ")";
+  return ::testing::AssertionSuccess();
+}
+
 // Every query gets the k-d tree's match (same point, same normal, same refusals), for the gates
 // the grids were built for and for one between them and one beyond them (more rings searched).
 TEST(GridTarget, FindsWhatTheKdTreeFinds) {
@@ -52,17 +68,10 @@ TEST(GridTarget, FindsWhatTheKdTreeFinds) {
   int matched = 0, refused = 0;
   for (float gate : {0.15f, 0.3f, 1.0f, 1.96f, 0.2f, 2.5f}) {
     for (const Eigen::Vector3f& q : Queries(s, 2 * gate, 3000, 7)) {
-      Eigen::Vector3f pt, nt, pg, ng;
-      const bool t = tree.Find(q, gate, &pt, &nt);
-      const bool g = grid.Find(q, gate, &pg, &ng);
-      ASSERT_EQ(t, g) << "gate " << gate << " query " << q.transpose();
-      if (!t) {
-        ++refused;
-        continue;
-      }
-      ++matched;
-      ASSERT_EQ(pt, pg) << "gate " << gate << " query " << q.transpose();
-      ASSERT_EQ(nt, ng);
+      bool found = false;
+      ASSERT_TRUE(SameAsKdTree(tree, grid, q, gate, &found));
+      matched += found;
+      refused += !found;
     }
   }
   EXPECT_GT(matched, 5000);  // both outcomes exercised
@@ -83,13 +92,10 @@ TEST(GridTarget, ADecimatedGridKeepsOneSamplePerVoxel) {
   const float voxel = 1.0f / GridTarget::kDecimateVoxels, diagonal = std::sqrt(3.0f) * voxel;
   int exact = 0, decimated = 0, farther = 0;
   for (const Eigen::Vector3f& q : Queries(s, 0.3f, 3000, 11)) {
+    bool found = false;
+    ASSERT_TRUE(SameAsKdTree(tree, grid, q, 0.15f, &found));
+    exact += found;
     Eigen::Vector3f pt, nt, pg, ng;
-    const bool t = tree.Find(q, 0.15f, &pt, &nt);
-    ASSERT_EQ(t, grid.Find(q, 0.15f, &pg, &ng)) << q.transpose();
-    if (t) {
-      ASSERT_EQ(pt, pg);
-      ++exact;
-    }
     if (!tree.Find(q, 1.0f - diagonal, &pt, &nt)) continue;
     ASSERT_TRUE(grid.Find(q, 1.0f, &pg, &ng)) << q.transpose();
     const float d_exact = (q - pt).norm(), d_grid = (q - pg).norm();
@@ -123,12 +129,8 @@ TEST(GridTarget, ACappedGridIsStillExact) {
   GridTarget grid;
   grid.Build(s, {0.15});
   for (const Eigen::Vector3f& q : Queries(s, 0.3f, 3000, 9)) {
-    Eigen::Vector3f pt, nt, pg, ng;
-    const bool t = tree.Find(q, 0.15f, &pt, &nt);
-    ASSERT_EQ(t, grid.Find(q, 0.15f, &pg, &ng)) << q.transpose();
-    if (t) {
-      ASSERT_EQ(pt, pg);
-    }
+    bool found = false;
+    ASSERT_TRUE(SameAsKdTree(tree, grid, q, 0.15f, &found));
   }
 }
 

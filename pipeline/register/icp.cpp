@@ -113,11 +113,10 @@ struct NormalEquations {
   Eigen::Matrix<double, 6, 6> P = Eigen::Matrix<double, 6, 6>::Zero();  // Σ w J Jᵀ, upper triangle until Finish
   Eigen::Matrix<double, 6, 1> gp = Eigen::Matrix<double, 6, 1>::Zero();  // Σ w r J
   double errp = 0;                                                      // Σ w r²
-  // Point term (α < 1), with d = p − q: Σ w p, Σ w p pᵀ (upper triangle), Σ w |p|², Σ w p × d,
-  // Σ w d, Σ w |d|².
+  // Point term (α < 1), with d = p − q: Σ w p, Σ w p pᵀ (upper triangle; its trace is Σ w |p|²),
+  // Σ w p × d, Σ w d, Σ w |d|².
   Eigen::Vector3d sp = Eigen::Vector3d::Zero();
   Eigen::Matrix3d spp = Eigen::Matrix3d::Zero();
-  double spp_trace = 0;
   Eigen::Vector3d spxd = Eigen::Vector3d::Zero(), sd = Eigen::Vector3d::Zero();
   double sdd = 0;
   double wsum = 0, r2sum = 0;  // Σ w, Σ r² (inliers)
@@ -127,7 +126,6 @@ struct NormalEquations {
     errp += o.errp;
     sp += o.sp;
     spp += o.spp;
-    spp_trace += o.spp_trace;
     spxd += o.spxd;
     sd += o.sd;
     sdd += o.sdd;
@@ -149,7 +147,7 @@ struct NormalEquations {
       Eigen::Matrix3d skew;
       skew << 0, -sp.z(), sp.y(), sp.z(), 0, -sp.x(), -sp.y(), sp.x(), 0;  // [Σw p]×
       Eigen::Matrix<double, 6, 6> Q;
-      Q.topLeftCorner<3, 3>() = spp_trace * Eigen::Matrix3d::Identity() - spp;
+      Q.topLeftCorner<3, 3>() = spp.trace() * Eigen::Matrix3d::Identity() - spp;
       Q.topRightCorner<3, 3>() = skew;
       Q.bottomLeftCorner<3, 3>() = -skew;
       Q.bottomRightCorner<3, 3>() = wsum * Eigen::Matrix3d::Identity();
@@ -189,7 +187,6 @@ void Accumulate(const std::vector<Match>& matches, size_t b, size_t e, double al
       ne->sp += wp;
       for (int j = 0; j < 3; ++j)
         for (int i = 0; i <= j; ++i) ne->spp(i, j) += wp(j) * p(i);
-      ne->spp_trace += wp.dot(p);
       ne->spxd += wp.cross(d);
       ne->sd += w * d;
       ne->sdd += w * d.squaredNorm();

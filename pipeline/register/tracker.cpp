@@ -507,9 +507,8 @@ bool Tracker::Relocalise(const SurfacePoints& samples, const cv::Mat& points, co
   std::string last_reason = "no keyframe";
   for (int i = 0; i < std::min<int>(o_.relocalise_candidates, static_cast<int>(order.size())); ++i) {
     Keyframe& kf = keyframes_[static_cast<size_t>(order[static_cast<size_t>(i)].second)];
-    if (kf.features_pending) {  // kOnDemand: the first relocalisation that needs them
+    if (kf.features_pending()) {  // kOnDemand: the first relocalisation that needs them
       kf.features = ExtractViewFeatures(kf.feature_points, kf.feature_texture, o_.features);
-      kf.features_pending = false;
       kf.feature_points.release();
       kf.feature_texture.release();
     }
@@ -556,7 +555,6 @@ void Tracker::MaybeKeyframe(const SurfacePoints& /*samples*/, const cv::Mat& poi
       case TrackerOptions::FeatureTiming::kInTrack: kf.features = ExtractViewFeatures(points, texture, o_.features); break;
       case TrackerOptions::FeatureTiming::kWorker: feature_worker_->Submit(keyframes_.size(), points, texture); break;
       case TrackerOptions::FeatureTiming::kOnDemand:
-        kf.features_pending = true;
         points.copyTo(kf.feature_points);
         texture.copyTo(kf.feature_texture);
         break;

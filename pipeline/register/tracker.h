@@ -244,9 +244,9 @@ struct Keyframe {
   SurfacePoints samples;              // camera frame
   ViewFeatures features;              // camera frame (kWorker: once collected; kOnDemand: once extracted)
   // kOnDemand: the inputs of its features (points H×W CV_32FC3, texture H×W CV_8U or empty) until
-  // a relocalisation extracts them (features_pending false, both released).
-  bool features_pending = false;
+  // a relocalisation extracts them (both released then). A keyframe's points are never empty.
   cv::Mat feature_points, feature_texture;
+  bool features_pending() const { return !feature_points.empty(); }
   Eigen::Vector3d centre_in_cam = Eigen::Vector3d::Zero();
 };
 

@@ -310,9 +310,9 @@ TEST_F(TrackerScan, KeyframeWorkOffTrackGivesTheSameScan) {
     for (size_t i = 0; i < path.size(); ++i) {
       if (timing == Timing::kOnDemand && i == lost_at) {
         for (const Keyframe& kf : off_track.keyframes()) {
-          EXPECT_TRUE(kf.features_pending);
+          EXPECT_TRUE(kf.features_pending());
           EXPECT_EQ(kf.features.size(), 0u);
-          EXPECT_FALSE(kf.feature_points.empty());
+          EXPECT_FALSE(kf.feature_texture.empty());  // the inputs are kept
         }
       }
       const auto v = RenderHeightField(hf_, cam, path[i], 0.004, static_cast<uint32_t>(i + 1));
@@ -332,11 +332,11 @@ TEST_F(TrackerScan, KeyframeWorkOffTrackGivesTheSameScan) {
     if (timing == Timing::kOnDemand) {
       size_t extracted = 0;
       for (const Keyframe& kf : off_track.keyframes()) {
-        EXPECT_EQ(kf.features_pending, kf.features.size() == 0);
-        if (!kf.features_pending) {
-          EXPECT_TRUE(kf.feature_points.empty());  // the inputs are freed
+        EXPECT_EQ(kf.features_pending(), kf.features.size() == 0);
+        if (!kf.features_pending()) {
+          EXPECT_TRUE(kf.feature_texture.empty());  // the inputs are freed
         }
-        extracted += !kf.features_pending;
+        extracted += !kf.features_pending();
       }
       EXPECT_GE(extracted, 1u);
       EXPECT_LE(extracted, static_cast<size_t>(o.relocalise_candidates));

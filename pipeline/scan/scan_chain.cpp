@@ -288,8 +288,8 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
     return Status(StatusCode::kInvalidArgument, "the live volume's voxel (" + std::to_string(fuser->volume().options().voxel_mm) +
                                                     " mm) is not the scan's (" + std::to_string(options.tsdf.voxel_mm) +
                                                     " mm) and there is no view provider to fuse the views again");
-  if (provider && (undone || other_voxel ||
-                   (loops && options.refuse_min_correction_mm >= 0 && max_correction_mm > options.refuse_min_correction_mm))) {
+  const bool must_refuse = undone || other_voxel;
+  if (provider && (must_refuse || (loops && options.refuse_min_correction_mm >= 0 && max_correction_mm > options.refuse_min_correction_mm))) {
     const auto t0 = Clock::now();
     refused = std::make_unique<ScanFuser>(fuser->camera(), options.tsdf, fuser->free_space_options());
     std::vector<Rigid3d> poses(views.size(), Rigid3d::Identity());
