@@ -14,4 +14,15 @@ const char* PreviewCueText(PreviewCue c) {
   return "?";
 }
 
+bool PanelRefresh::Due(PreviewCue cue, const std::string& message, const std::string& text, int64_t now_ns, bool force) {
+  const bool state_changed = !drawn_ || force || cue != cue_ || message != message_;
+  if (!state_changed && (text == text_ || now_ns - drawn_ns_ < period_ns_)) return false;
+  drawn_ = true;
+  cue_ = cue;
+  message_ = message;
+  text_ = text;
+  drawn_ns_ = now_ns;
+  return true;
+}
+
 }  // namespace d3d

@@ -33,6 +33,27 @@ struct PreviewSnapshot {
   double model_area_mm2 = 0;             // preview cells × cell area: the scan's coverage so far
 };
 
+// When the preview's status panel is drawn again. Its counters change with every burst, and its
+// anti-aliased text was the render thread's largest cost on a software renderer (d3d-bench-preview:
+// ~60 % of the thread's CPU when redrawn every frame), so a change of the text alone is shown at
+// most every period_ns; a change of cue or message (tracking lost, "saved …") at once.
+// Thread: the render thread's.
+class PanelRefresh {
+ public:
+  explicit PanelRefresh(int64_t period_ns = 250'000'000) : period_ns_(period_ns) {}
+  // True when the panel must be drawn again at now_ns (any monotonic clock, ns), and then counts
+  // it as drawn: the first call, `force`, a new cue or message, or a new text with period_ns
+  // passed since the last draw.
+  bool Due(PreviewCue cue, const std::string& message, const std::string& text, int64_t now_ns, bool force);
+
+ private:
+  int64_t period_ns_;
+  bool drawn_ = false;
+  PreviewCue cue_ = PreviewCue::kWaiting;
+  std::string message_, text_;
+  int64_t drawn_ns_ = 0;
+};
+
 // Counters the render thread reads each frame (atomics behind it; see host/scan/scan_app.h).
 struct PreviewStatus {
   PreviewCue cue_override = PreviewCue::kTracking;  // kProbeLost / kPaused / kWaiting override the snapshot's cue

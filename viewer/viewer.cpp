@@ -9,6 +9,7 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <opencv2/imgproc.hpp>
@@ -59,6 +60,10 @@ struct FboFns {
 
 }  // namespace
 
+// Status panel: the rows it takes at the top of the frame (cue box and four lines of text), and
+// the keys line's strip at the bottom of a window.
+constexpr int kHudPanelRows = 150, kHudKeysRows = 28;
+
 struct Viewer::Impl {
   ViewerOptions o;
   // Window path.
@@ -78,7 +83,7 @@ struct Viewer::Impl {
   // Render buffers (reused).
   std::vector<uint8_t> colours;
   cv::Mat hud;  // BGRA
-  std::string hud_text;
+  PanelRefresh hud_refresh;
   GLuint hud_tex = 0;
   bool hud_dirty = true;
 
@@ -216,10 +221,14 @@ struct Viewer::Impl {
     std::string text = PreviewCueText(cue);
     for (const char* l : {l1, l2, l3}) text.append("\n").append(l);
     text.append("\n").append(st.message);
-    if (text == hud_text && !hud_dirty) return;
-    hud_text = text;
+    const int64_t now_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now().time_since_epoch()).count();
+    if (!hud_refresh.Due(cue, st.message, text, now_ns, hud_dirty)) return;
     hud_dirty = false;
-    hud.create(height, width, CV_8UC4);
+    // The texture holds the panel's rows (kHudPanelRows) and, in a window, the keys line below
+    // them (kHudKeysRows): only those strips are drawn, not a quad over the whole frame
+    // (llvmpipe blends every pixel of a quad, and the texture is uploaded whenever the text changes).
+    const int keys_rows = headless_mode() ? 0 : kHudKeysRows;
+    hud.create(kHudPanelRows + keys_rows, width, CV_8UC4);
     hud.setTo(cv::Scalar(0, 0, 0, 0));
     const cv::Scalar colour = CueColourBgr(cue);
     cv::rectangle(hud, cv::Rect(10, 10, 250, 34), cv::Scalar(colour[0], colour[1], colour[2], 255), cv::FILLED);
@@ -230,16 +239,16 @@ struct Viewer::Impl {
       cv::putText(hud, l, {12, y}, cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(255, 255, 255, 255), 1, cv::LINE_AA);
       y += 22;
     }
-    if (!headless_mode()) {
+    if (keys_rows > 0) {
       const char* keys = "drag: orbit   wheel: zoom   f: fit   space: pause   r: reset   u: undo   s: save   q: quit";
-      cv::putText(hud, keys, {12, height - 14}, cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(200, 200, 200, 255), 1, cv::LINE_AA);
+      cv::putText(hud, keys, {12, kHudPanelRows + keys_rows - 10}, cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(200, 200, 200, 255), 1, cv::LINE_AA);
     }
     if (hud_tex == 0) glGenTextures(1, &hud_tex);
     glBindTexture(GL_TEXTURE_2D, hud_tex);
     glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
     glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
     glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
-    glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA8, width, height, 0, GL_BGRA, GL_UNSIGNED_BYTE, hud.data);
+    glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA8, hud.cols, hud.rows, 0, GL_BGRA, GL_UNSIGNED_BYTE, hud.data);
   }
   bool headless_mode() const { return window == nullptr; }
 
@@ -334,15 +343,22 @@ struct Viewer::Impl {
     glBlendFunc(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA);
     glBindTexture(GL_TEXTURE_2D, hud_tex);
     glColor4f(1, 1, 1, 1);
+    // Texture rows [r0, r1) onto frame rows [y0, y0 + r1 − r0).
+    const auto strip = [&](int r0, int r1, int y0) {
+      const float t0 = static_cast<float>(r0) / static_cast<float>(hud.rows), t1 = static_cast<float>(r1) / static_cast<float>(hud.rows);
+      const float w = static_cast<float>(width), ya = static_cast<float>(y0), yb = static_cast<float>(y0 + r1 - r0);
+      glTexCoord2f(0, t0);
+      glVertex2f(0, ya);
+      glTexCoord2f(1, t0);
+      glVertex2f(w, ya);
+      glTexCoord2f(1, t1);
+      glVertex2f(w, yb);
+      glTexCoord2f(0, t1);
+      glVertex2f(0, yb);
+    };
     glBegin(GL_QUADS);
-    glTexCoord2f(0, 0);
-    glVertex2f(0, 0);
-    glTexCoord2f(1, 0);
-    glVertex2f(static_cast<float>(width), 0);
-    glTexCoord2f(1, 1);
-    glVertex2f(static_cast<float>(width), static_cast<float>(height));
-    glTexCoord2f(0, 1);
-    glVertex2f(0, static_cast<float>(height));
+    strip(0, kHudPanelRows, 0);
+    if (hud.rows > kHudPanelRows) strip(kHudPanelRows, hud.rows, height - (hud.rows - kHudPanelRows));
     glEnd();
     glDisable(GL_BLEND);
     glDisable(GL_TEXTURE_2D);
@@ -375,6 +391,7 @@ bool Viewer::Render(const PreviewSnapshot* snapshot, const PreviewStatus& status
     m.width = std::max(w, 1);
     m.height = std::max(h, 1);
   }
+  if (capture != nullptr) m.hud_dirty = true;  // a saved picture shows the current counters
   m.Draw(snapshot, status, fps);
   glFinish();
   if (capture != nullptr) {

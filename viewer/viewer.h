@@ -1,7 +1,9 @@
 // The live preview window (GLFW + OpenGL) or its offscreen twin (EGL, Mesa's surfaceless
 // platform: no display needed), drawing a PreviewSnapshot: the fused model as shaded points, the
 // current view highlighted (orange when fused, red when refused), the probe frustum in the
-// tracking colour, and a status panel (state, bursts, bursts/s, latency, coverage, fps, keys).
+// tracking colour, and a status panel (state, bursts, bursts/s, latency, coverage, fps, keys):
+// a strip at the top (and the keys line at the bottom of a window), its counters redrawn at most
+// 4 times a second, a change of state or message at once (PanelRefresh, preview.h).
 //
 // Input (window only): left drag orbits, wheel zooms, keys: space = pause, r = reset the model,
 // u = undo the last seconds, s = save, q / Esc = quit, f = fit the view to the model again. Actions are queued and taken by
