@@ -25,6 +25,7 @@
 #pragma once
 
 #include <atomic>
+#include <chrono>
 #include <cstdint>
 #include <memory>
 #include <readerwriterqueue/readerwritercircularbuffer.h>
@@ -49,6 +50,9 @@ class Edge {
   virtual void AwaitTaken() {}
   // Any thread: items dropped by Push so far.
   uint64_t dropped() const { return dropped_.load(std::memory_order_relaxed); }
+  // Any thread: when the consumer last took an item (steady clock, ns; 0: never). Live edges only
+  // (the graph's just-in-time start); lossless edges return 0.
+  virtual int64_t last_taken_ns() const { return 0; }
 
  protected:
   std::atomic<uint64_t> dropped_{0};
@@ -95,15 +99,19 @@ class LatestEdge final : public Edge<T> {
     version_.fetch_add(1, std::memory_order_release);
     version_.notify_one();
   }
+  int64_t last_taken_ns() const override { return taken_ns_.load(std::memory_order_acquire); }
 
  private:
   void Taken() {
+    taken_ns_.store(std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now().time_since_epoch()).count(),
+                    std::memory_order_release);
     taken_.fetch_add(1, std::memory_order_release);
     taken_.notify_one();
   }
   std::atomic<T*> slot_{nullptr};
   std::atomic<uint32_t> version_{0};
   std::atomic<uint32_t> taken_{0};  // bumped by the consumer after each take (AwaitTaken)
+  std::atomic<int64_t> taken_ns_{0};  // steady clock of the last take (last_taken_ns)
   std::atomic<bool> closed_{false};
 };
 

@@ -67,6 +67,7 @@ ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& opti
   go.policy = o_.policy;
   go.lossless_capacity = o_.lossless_capacity;
   go.latency_stage = 2;  // the preview: what the dentist sees (the fuse stage after it only feeds the saved model)
+  go.live_just_in_time = o_.live_just_in_time;
   const int w = calibration.camera.width, h = calibration.camera.height;  // the probe's frames
   graph_ = std::make_unique<Graph>(
       go,
@@ -453,6 +454,7 @@ nlohmann::json ScanApp::HostReport() const {
                                      {"ms_mean", ms_mean(c.busy_ns.load())},
                                      {"ms_max", static_cast<double>(c.max_ns.load()) * 1e-6},
                                      {"cpu_ms_mean", ms_mean(c.cpu_ns.load())},
+                                     {"held_ms_mean", ms_mean(c.held_ns.load())},
                                      {"order_violations", c.order_violations.load()}};
   }
   j["stages"] = stages;

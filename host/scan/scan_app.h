@@ -59,6 +59,9 @@ struct ScanAppOptions {
   ScanOptions scan;
   EdgePolicy policy = EdgePolicy::kLossless;
   size_t lossless_capacity = 3;      // items per lossless edge
+  // Live: the reconstruct stage starts each burst just in time for the register stage
+  // (StageGraphOptions::live_just_in_time), on a newer burst instead of one that then waits.
+  bool live_just_in_time = true;
   double preview_cell_mm = 0.2;      // one preview point per cell of this size
   size_t preview_max_points = 150000;  // the preview stops adding points beyond this (llvmpipe: ~100k at 20 fps)
   int preview_stride_px = 3;         // pixels sampled per view for the preview model

@@ -84,6 +84,11 @@ int main(int argc, char** argv) {
   cli.add_flag("--refuse,!--no-refuse", refuse,
                "keep the fused bursts' frames (zstd, ~0.15 MB each at --bin 2) and fuse them again at the pose graph's poses at "
                "the end (default; the mesh then does not depend on how the tracker drifted, live or lossless)");
+  bool just_in_time = ScanAppOptions{}.live_just_in_time;
+  cli.add_flag("--just-in-time,!--no-just-in-time", just_in_time,
+               "live: start reconstructing a burst just in time for the register stage, on a newer burst, instead of as soon as "
+               "the register stage took the last one")
+      ->capture_default_str();
   double live_voxel_mm = ScanAppOptions{}.live_voxel_mm;
   cli.add_option("--live-voxel", live_voxel_mm,
                  "--refuse: voxel (mm) of the live volume the fuse stage fuses each burst into, which a save mid-scan ('s') "
@@ -216,6 +221,7 @@ int main(int argc, char** argv) {
     ao.scan.refuse_min_correction_mm = refuse ? 0.01 : -1;
     ao.keep_views = refuse;
     ao.live_voxel_mm = live_voxel_mm;
+    ao.live_just_in_time = just_in_time;
     ao.undo_seconds = undo_seconds;
     ao.undo_max_views = undo_views;
     ao.undo_after_bursts = undo_after;
