@@ -32,6 +32,11 @@
 
 namespace d3d {
 
+// Steady clock (ns): the edges' take times and the graph's just-in-time start.
+inline int64_t SteadyNowNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
 enum class EdgePolicy { kLive, kLossless };
 const char* EdgePolicyName(EdgePolicy p);  // "live", "lossless"
 
@@ -103,8 +108,7 @@ class LatestEdge final : public Edge<T> {
 
  private:
   void Taken() {
-    taken_ns_.store(std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now().time_since_epoch()).count(),
-                    std::memory_order_release);
+    taken_ns_.store(SteadyNowNs(), std::memory_order_release);
     taken_.fetch_add(1, std::memory_order_release);
     taken_.notify_one();
   }

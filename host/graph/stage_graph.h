@@ -125,9 +125,10 @@ class StageGraph {
 
   StageGraph(const StageGraphOptions& options, const std::function<std::unique_ptr<Item>()>& factory, SourceFn source,
              std::vector<Stage> stages)
-      : o_(options), source_(std::move(source)), stages_(std::move(stages)), counters_(stages_.size()), median_ns_(stages_.size()) {
+      : o_(options), source_(std::move(source)), stages_(std::move(stages)), counters_(stages_.size()) {
     o_.Check();
     if (stages_.empty()) throw std::invalid_argument("StageGraph: no stage");
+    just_in_time_ = o_.policy == EdgePolicy::kLive && o_.live_demand_driven && o_.live_just_in_time && stages_.size() >= 2;
     if (o_.latency_stage >= static_cast<int>(stages_.size())) throw std::invalid_argument("StageGraph: latency_stage beyond the stages");
     latency_stage_ = o_.latency_stage < 0 ? stages_.size() - 1 : static_cast<size_t>(o_.latency_stage);
     const size_t per_edge = o_.policy == EdgePolicy::kLive ? 1 : o_.lossless_capacity;
@@ -249,11 +250,12 @@ class StageGraph {
     uint64_t prev_seq = 0;
     Node* n = nullptr;
     const bool await_taken = !last && o_.live_demand_driven;
-    const bool just_in_time = await_taken && i == 0 && o_.policy == EdgePolicy::kLive && o_.live_just_in_time;
-    RecentTimes own;  // this stage's wall time per item, recent
+    // Just in time: stage 0 holds back by its own and stage 1's recent median times per item.
+    const bool timed = just_in_time_ && i <= 1;
+    RecentTimes own;  // this stage's wall time per item, recent (timed stages only)
     for (;;) {
       if (await_taken) edges_[i + 1]->AwaitTaken();
-      if (just_in_time) HoldUntilJustInTime(own.Percentile(50), &c);
+      if (timed && i == 0) HoldUntilJustInTime(own.Median(), &c);
       if (!edges_[i]->Pop(&n)) break;
       if (have_prev && n->meta.seq <= prev_seq) c.order_violations.fetch_add(1, std::memory_order_relaxed);
       have_prev = true;
@@ -266,8 +268,10 @@ class StageGraph {
       c.busy_ns.fetch_add(ns, std::memory_order_relaxed);
       c.cpu_ns.fetch_add(ThreadCpuNs() - cpu0, std::memory_order_relaxed);
       if (ns > c.max_ns.load(std::memory_order_relaxed)) c.max_ns.store(ns, std::memory_order_relaxed);
-      own.Add(static_cast<int64_t>(ns));
-      median_ns_[i].store(own.Percentile(50), std::memory_order_relaxed);
+      if (timed) {
+        own.Add(static_cast<int64_t>(ns));
+        if (i == 1) second_median_ns_.store(own.Median(), std::memory_order_relaxed);
+      }
       if (!ok) {
         c.rejected.fetch_add(1, std::memory_order_relaxed);
         GiveBack(n);
@@ -292,16 +296,17 @@ class StageGraph {
     else finished_.store(true, std::memory_order_release);
   }
 
-  // The latest kN wall times per item of one stage (its own thread; no allocation).
+  // The latest kN wall times per item of one stage (its own thread). Its median, unlike
+  // PercentileOf, allocates nothing: it runs once per item.
   class RecentTimes {
    public:
     void Add(int64_t ns) { ring_[count_++ % kN] = ns; }
-    // Nearest-rank percentile of the kept times; 0 until kMin were added.
-    int64_t Percentile(double pct) const {
+    // Nearest-rank median of the kept times; 0 until kMin were added.
+    int64_t Median() const {
       const size_t n = std::min<size_t>(count_, kN);
       if (n < kMin) return 0;
       std::array<int64_t, kN> v = ring_;
-      const size_t k = std::min(n - 1, static_cast<size_t>(std::max(0.0, pct / 100.0 * static_cast<double>(n) - 1e-9)));
+      const size_t k = (n + 1) / 2 - 1;
       std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.begin() + static_cast<std::ptrdiff_t>(n));
       return v[k];
     }
@@ -316,24 +321,22 @@ class StageGraph {
   // last output + (its median time per item) − own_ns (stage 0's median) − margin (file comment).
   // No hold before both stages have timings, or once a stop was requested.
   void HoldUntilJustInTime(int64_t own_ns, StageCounters* c) {
-    const int64_t next_ns = median_ns_[1].load(std::memory_order_relaxed);
+    const int64_t next_ns = second_median_ns_.load(std::memory_order_relaxed);
     const int64_t taken = edges_[1]->last_taken_ns();
     if (own_ns <= 0 || next_ns <= 0 || taken <= 0 || stop_.load(std::memory_order_acquire)) return;
     const int64_t start = taken + next_ns - own_ns - static_cast<int64_t>(o_.just_in_time_margin_ms * 1e6);
-    const int64_t now = SteadyNs();
+    const int64_t now = SteadyNowNs();
     if (start <= now) return;
     std::this_thread::sleep_for(std::chrono::nanoseconds(start - now));
-    c->held_ns.fetch_add(static_cast<uint64_t>(SteadyNs() - now), std::memory_order_relaxed);
-  }
-  static int64_t SteadyNs() {
-    return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now().time_since_epoch()).count();
+    c->held_ns.fetch_add(static_cast<uint64_t>(SteadyNowNs() - now), std::memory_order_relaxed);
   }
 
   StageGraphOptions o_;
   SourceFn source_;
   std::vector<Stage> stages_;
   std::vector<StageCounters> counters_;
-  std::vector<std::atomic<int64_t>> median_ns_;  // per stage: its recent median time per item (written by its thread)
+  bool just_in_time_ = false;                    // the options ask for it and the graph can do it (set-up)
+  std::atomic<int64_t> second_median_ns_{0};     // stage 1's recent median time per item (its thread writes)
   std::vector<std::unique_ptr<Node>> nodes_;
   std::vector<std::unique_ptr<Edge<Node>>> edges_;
   std::mutex pool_mu_;

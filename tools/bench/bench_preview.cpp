@@ -16,9 +16,9 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
-#include <ctime>
 #include <memory>
 
+#include "host/graph/stage_graph.h"
 #include "viewer/viewer.h"
 
 using namespace d3d;
@@ -31,11 +31,7 @@ double ProcessCpuMs() {
   getrusage(RUSAGE_SELF, &u);
   return 1e3 * static_cast<double>(u.ru_utime.tv_sec + u.ru_stime.tv_sec) + 1e-3 * static_cast<double>(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
 }
-double ThreadCpuMs() {
-  timespec t{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
-  return 1e3 * static_cast<double>(t.tv_sec) + 1e-6 * static_cast<double>(t.tv_nsec);
-}
+double ThreadCpuMs() { return 1e-6 * static_cast<double>(ThreadCpuNs()); }  // the graph's per-stage CPU clock
 
 // Point i of an arch-like strip: a half torus (radius 25 mm, tube 4 mm), filled in scan order
 // along the arch, normals outward. Deterministic.
