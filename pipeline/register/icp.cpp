@@ -79,6 +79,8 @@ void IcpOptions::Check() const {
   for (const auto& l : levels) {
     D3D_CHECK_MSG(l.stride >= 1 && l.max_iterations >= 1 && l.max_distance_mm > 0 && l.max_samples >= 0,
                   "IcpOptions: level needs stride >= 1, max_iterations >= 1, max_distance_mm > 0, max_samples >= 0");
+    D3D_CHECK_MSG(l.min_delta_rotation_rad >= 0 && l.min_delta_translation_mm >= 0,
+                  "IcpOptions: a level's min_delta_rotation_rad and min_delta_translation_mm >= 0 (0 = IcpOptions')");
     D3D_CHECK_MSG(l.point_to_plane_weight >= 0 && l.point_to_plane_weight <= 1, "point_to_plane_weight must be in [0, 1]");
   }
   D3D_CHECK_MSG(max_normal_angle_deg > 0 && max_normal_angle_deg <= 180, "max_normal_angle_deg must be in (0, 180]");
@@ -229,6 +231,9 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
     const IcpLevel& L = o.levels[li];
     const float gate = static_cast<float>(L.max_distance_mm);
     const double alpha = L.point_to_plane_weight;
+    const double min_delta_rotation_rad = L.min_delta_rotation_rad > 0 ? L.min_delta_rotation_rad : o.min_delta_rotation_rad;
+    const double min_delta_translation_mm =
+        L.min_delta_translation_mm > 0 ? L.min_delta_translation_mm : o.min_delta_translation_mm;
     size_t stride = static_cast<size_t>(L.stride);
     if (L.max_samples > 0) stride = std::max(stride, (source.points.size() + L.max_samples - 1) / static_cast<size_t>(L.max_samples));
     std::vector<size_t> idx;
@@ -319,7 +324,7 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
       }
       T = ExpSe3(x) * T;
       err /= wsum;
-      const bool small = x.head<3>().norm() < o.min_delta_rotation_rad && x.tail<3>().norm() < o.min_delta_translation_mm;
+      const bool small = x.head<3>().norm() < min_delta_rotation_rad && x.tail<3>().norm() < min_delta_translation_mm;
       const bool flat = prev_err > 0 && std::abs(prev_err - err) <= o.min_relative_error_change * prev_err;
       prev_err = err;
       if (small || flat) break;

@@ -91,6 +91,11 @@ struct IcpLevel {
   // > 0: at most about this many source samples at this level (the stride grows to fit), so that a
   // large view costs no more than a small one. 0: every stride-th sample.
   int max_samples = 0;
+  // > 0: this level ends at updates below these (rad, mm) instead of IcpOptions'
+  // min_delta_rotation_rad / min_delta_translation_mm. A coarse level only has to bring the pose
+  // well inside the next level's gate; its own last micrometres are found again by the next level.
+  double min_delta_rotation_rad = 0;
+  double min_delta_translation_mm = 0;
 };
 
 struct IcpOptions {
@@ -99,7 +104,7 @@ struct IcpOptions {
   double max_normal_angle_deg = 45;        // association refused when normals disagree more
   double min_sigma_mm = 0.004;             // floor of the robust scale
   double min_delta_rotation_rad = 2e-6;    // level ends when the update is smaller ...
-  double min_delta_translation_mm = 1e-4;  // ... in both rotation and translation
+  double min_delta_translation_mm = 1e-4;  // ... in both rotation and translation (see IcpLevel)
   double min_relative_error_change = 1e-4; // ... or the error stops changing
   // Acceptance (a registration failing these comes back not ok, with the reason):
   double min_overlap = 0.3;                // fraction of final-level source samples associated

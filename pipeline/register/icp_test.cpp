@@ -92,6 +92,28 @@ TEST(Icp, ALevelsSampleCapThinsItsSamplesAndKeepsThePose) {
   EXPECT_THROW(capped.Check(), std::invalid_argument);
 }
 
+// A level's own termination ends it sooner; the next level finds the pose all the same. With the
+// coarse levels' micrometre ends ignored the first level runs on (more iterations): fails.
+TEST(Icp, ALevelsOwnTerminationEndsItSoonerAndTheNextLevelKeepsThePose) {
+  const auto [p, init] = StandardPair();
+  KdTreeTarget kd(p.target);
+  IcpOptions strict;
+  strict.levels = {{4, 30, 1.0, 1.0}, {1, 30, 0.3, 1.0}};
+  IcpOptions loose = strict;
+  loose.levels[0].min_delta_translation_mm = 0.02;
+  loose.levels[0].min_delta_rotation_rad = 1e-3;
+  const IcpResult a = RegisterIcp(p.source, kd, init, strict);
+  const IcpResult b = RegisterIcp(p.source, kd, init, loose);
+  ASSERT_TRUE(a.ok) << a.reason;
+  ASSERT_TRUE(b.ok) << b.reason;
+  EXPECT_LT(b.iterations, a.iterations);  // 10 against 14
+  EXPECT_LT(RotationAngleRad(b.target_from_source, p.target_from_source) * 180 / M_PI, 0.01);
+  EXPECT_LT(TranslationDistanceMm(b.target_from_source, p.target_from_source), 0.006);  // 4.4 µm, as strict
+  EXPECT_LT(TranslationDistanceMm(a.target_from_source, b.target_from_source), 0.001);  // 0.03 µm
+  loose.levels[1].min_delta_rotation_rad = -1;
+  EXPECT_THROW(loose.Check(), std::invalid_argument);
+}
+
 // threads > 1 forms the normal equations in fixed chunks summed in a fixed order: the same pose as
 // one thread up to rounding, and bit for bit the same from run to run (lossless replay must repeat).
 TEST(Icp, TwoThreadsAgreeWithOneAndRepeatExactly) {

@@ -44,6 +44,13 @@ bool ParseAssociation(const std::string& name, Association* out) {
 IcpOptions DefaultTrackerIcp() {
   IcpOptions o;
   o.levels.back().stride = 2;
+  // Coarse levels pure point-to-plane and ended at a few micrometres (see tracker.h).
+  o.levels[0].point_to_plane_weight = 1.0;
+  o.levels[0].min_delta_translation_mm = 0.010;
+  o.levels[0].min_delta_rotation_rad = 1e-3;
+  o.levels[1].point_to_plane_weight = 1.0;
+  o.levels[1].min_delta_translation_mm = 0.005;
+  o.levels[1].min_delta_rotation_rad = 5e-4;
   o.min_delta_translation_mm = 5e-4;
   o.min_delta_rotation_rad = 2e-5;
   o.min_relative_error_change = 1e-3;
@@ -435,6 +442,9 @@ Rigid3d Tracker::Predict() const {
 IcpOptions Tracker::LocalSearchIcp() const {
   IcpOptions icp = o_.icp;
   icp.levels.front().max_distance_mm = std::max(icp.levels.front().max_distance_mm, o_.local_search_gate_mm);
+  // Its wide first level keeps IcpOptions' point-to-point share, which widens the basin: a
+  // re-entry starts from a pose up to millimetres off, tracking from one a view's motion off.
+  icp.levels.front().point_to_plane_weight = IcpOptions().levels.front().point_to_plane_weight;
   // A view found this way re-enters the model (after ICP from the prediction failed, or after a gap
   // or a loss) and must meet relocalise_max_rmse_mm like a feature relocalisation: on the typodont,
   // views fitted onto the neighbouring, similar tooth after a gap came back at 59–60 µm (6.7 and
