@@ -74,10 +74,10 @@ bool ParseAssociation(const std::string& name, Association* out);
 // iterations on average; the finest level, pure point-to-plane, 3–5. Measured with the views of
 // 7 live runs of the 450-burst typodont recording (d3d-scan --replay-views): in one run, ICP
 // iterations per level 5422 / 4457 / 2451 → 2979 / 2260 / 1961 and nearest-sample queries
-// 41.6 → 27.2 million (keyframe edges, unchanged, included);
-// register stage CPU 25.6–34.6 → 19.4–23.6 ms per burst (live: 28–34 → 20–25), trueness 13.06 → 13.03 µm RMS on
-// average (per run −0.85 … +0.56 µm); lossless replay 11.65 → 12.15 µm. The local search's wide
-// first level keeps the point-to-point share (LocalSearchIcp).
+// 41.6 → 27.2 million (keyframe edges, unchanged, included); register stage CPU 25.6–34.6 →
+// 19.4–23.6 ms per burst (live: 28–34 → 20–25), trueness 13.06 → 13.03 µm RMS on average (per
+// run −0.85 … +0.56 µm); lossless replay 11.65 → 12.15 µm. The local search's wide first level
+// keeps the point-to-point share (LocalSearchIcp).
 IcpOptions DefaultTrackerIcp();
 
 // FeatureOptions with image_scale 0.5 (the tracker's keyframe features; see TrackerOptions::features).
