@@ -123,15 +123,30 @@ TEST(ScanReplay, LosslessReplayThroughTheHostGivesTheReportAndAPicture) {
   EXPECT_GT(j["bursts_per_s"].get<double>(), 0.0);
   for (const auto& [name, s] : j["stages"].items()) EXPECT_EQ(s["order_violations"], 0) << name;
   for (const char* f : {"scan.ply", "scan.stl", "poses.txt", "report.json"}) EXPECT_TRUE(fs::exists(dir / "a" / f)) << f;
+  // The kept frames went to an unnamed file in the --out folder: memory held their index only, and
+  // the folder holds just the outputs.
+  EXPECT_TRUE(j["views_spilled"].get<bool>());
+  EXPECT_EQ(j["views_spill_failures"], 0);
+  EXPECT_GT(j["views_kept_mib"].get<double>(), 0.5);
+  EXPECT_LT(j["views_kept_memory_mib"].get<double>(), 0.01);
+  for (const auto& e : fs::directory_iterator(dir / "a")) {
+    const std::string name = e.path().filename().string();
+    EXPECT_TRUE(name == "scan.ply" || name == "scan.stl" || name == "poses.txt" || name == "report.json" || name == "preview.png" ||
+                name == "heatmap.png")
+        << "left in --out: " << name;
+  }
 
-  // The second run: same bytes out (lossless is deterministic), in a window under Xvfb if possible.
+  // The second run: same bytes out (lossless is deterministic), in a window under Xvfb if possible,
+  // with the kept frames in memory (the mesh does not depend on where they were kept).
   const bool xvfb = HaveXvfbRun();
-  const std::string run2 = (xvfb ? "xvfb-run -a " + common : common + " --headless") + " --out " + (dir / "b").string() + " > " +
-                           (dir / "b.json").string() + " 2> " + (dir / "b.err").string();
+  const std::string run2 = (xvfb ? "xvfb-run -a " + common : common + " --headless") + " --spill-views memory --out " + (dir / "b").string() +
+                           " > " + (dir / "b.json").string() + " 2> " + (dir / "b.err").string();
   ASSERT_EQ(std::system(run2.c_str()), 0) << ReadAll(dir / "b.err");
   EXPECT_EQ(ReadAll(dir / "a" / "scan.ply"), ReadAll(dir / "b" / "scan.ply")) << "lossless replay is not bit-identical";
   EXPECT_EQ(ReadAll(dir / "a" / "poses.txt"), ReadAll(dir / "b" / "poses.txt"));
   const nlohmann::json j2 = nlohmann::json::parse(ReadAll(dir / "b" / "report.json"));
+  EXPECT_FALSE(j2["views_spilled"].get<bool>());
+  EXPECT_GE(j2["views_kept_memory_mib"].get<double>(), j2["views_kept_mib"].get<double>());
   if (xvfb) {
     EXPECT_EQ(j2["preview"], "window") << ReadAll(dir / "b.err");
   }

@@ -59,6 +59,9 @@ ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& opti
   o_.scan.tracker.map.undo_inserts = o_.keep_views ? o_.undo_max_views : 0;
   registrar_ = std::make_unique<ScanRegistrar>(calibration_, o_.scan.tracker, o_.scan.anchor, o_.scan.recon.normal_max_gap_mm);
   fuser_ = std::make_unique<ScanFuser>(calibration_.camera, o_.LiveTsdf(), o_.scan.free_space);
+  if (o_.keep_views && !o_.views_spill_dir.empty()) {
+    if (const Status s = archive_.SpillTo(o_.views_spill_dir); !s.ok()) spill_error_ = s.ToString();
+  }
   cells_.reserve(o_.preview_max_points);
   model_points_.reserve(o_.preview_max_points);
   model_normals_.reserve(o_.preview_max_points);
@@ -248,7 +251,7 @@ bool ScanApp::FuseStage(ScanItem& item) {
     item.fused = fuser_->Fuse(item.view, item.track.world_from_cam).ok();
     if (item.fused) fused_.fetch_add(1, std::memory_order_relaxed);
     if (item.fused && item.packed_ok) {
-      archive_.Add(item.burst.burst_seq, item.packed);
+      if (const Status s = archive_.Add(item.burst.burst_seq, item.packed); !s.ok() && spill_failures_++ == 0) spill_failure_ = s.ToString();
       fused_views_.push_back({item.view_index, item.burst.burst_seq, item.track.world_from_cam});
     }
   }
@@ -495,6 +498,11 @@ Status ScanApp::Finish(const ScanTruth& truth, const ScanViewProvider& provider,
   nlohmann::json host = HostReport();
   host["views_kept"] = archive_.size();
   host["views_kept_mib"] = static_cast<double>(archive_.bytes()) / (1024.0 * 1024.0);
+  host["views_kept_memory_mib"] = static_cast<double>(archive_.memory_bytes()) / (1024.0 * 1024.0);
+  host["views_spilled"] = archive_.spilling();
+  if (!spill_error_.empty()) host["views_spill_error"] = spill_error_;
+  host["views_spill_failures"] = spill_failures_;
+  if (spill_failures_ > 0) host["views_spill_failure"] = spill_failure_;
   if (!s.ok()) {  // still say what happened
     out->report = host;
     out->report["bursts"] = registrar_->views().size();

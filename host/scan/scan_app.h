@@ -68,8 +68,15 @@ struct ScanAppOptions {
   int view_stride_px = 8;            // pixels sampled for the highlighted current view
   // Keep the frames of every fused view (zstd, ~150-200 kB per burst at bin 2: pipeline/scan/
   // view_archive.h) so that Finish can fuse them again at the pose graph's poses when it is given
-  // no view provider (with ScanOptions::refuse_min_correction_mm >= 0). Memory grows with the scan.
+  // no view provider (with ScanOptions::refuse_min_correction_mm >= 0). In memory they grow with the
+  // scan (4-5 MB/s live); see views_spill_dir.
   bool keep_views = true;
+  // keep_views: a directory for the kept frames (an unnamed temporary file there, ViewArchive::
+  // SpillTo; gone when the scan app is), so that memory holds only their index (~56 bytes a view)
+  // and stays flat however long the scan. Empty = in memory. When no file can be made there the
+  // frames stay in memory and the report says why (views_spill_error); a write that fails later keeps
+  // that view's frames in memory (views_spill_failures).
+  std::string views_spill_dir;
   // Voxel edge (mm) of the live TSDF the fuse stage fuses every burst into, when keep_views is on
   // (else the scan's: the live volume is then the result); 0 = scan.tsdf.voxel_mm. The live volume
   // is what SaveNow saves mid-scan; Finish always fuses the kept views again at scan.tsdf.voxel_mm
@@ -120,6 +127,9 @@ class ScanApp {
   void RequestStop();  // any thread: the source ends; lossless edges drain
   void Join();
   bool finished() const { return graph_->finished(); }
+  // Why the kept frames stay in memory although views_spill_dir was given (empty: they spill, or were
+  // not to). Set by the constructor.
+  const std::string& views_spill_error() const { return spill_error_; }
 
   // Control, any thread.
   void SetPaused(bool paused) { paused_.store(paused); }
@@ -202,6 +212,9 @@ class ScanApp {
   uint64_t fuse_undo_requests_ = 0;  // undo requests applied up to the fuse stage's last item
   std::unique_ptr<ScanFuser> fuser_;
   ViewArchive archive_;  // keep_views: the fused views' frames (fuse thread, then Finish)
+  std::string spill_error_;        // constructor: why the archive could not spill (report)
+  uint64_t spill_failures_ = 0;    // fuse thread: Adds whose spill write failed (kept in memory)
+  std::string spill_failure_;      // ... the first one's error
   struct FusedView {
     int64_t view_index;
     uint64_t burst_seq;

@@ -518,9 +518,14 @@ bool Tracker::Relocalise(const SurfacePoints& samples, const cv::Mat& points, co
   for (int i = 0; i < std::min<int>(o_.relocalise_candidates, static_cast<int>(order.size())); ++i) {
     Keyframe& kf = keyframes_[static_cast<size_t>(order[static_cast<size_t>(i)].second)];
     if (kf.features_pending()) {  // kOnDemand: the first relocalisation that needs them
-      kf.features = ExtractViewFeatures(kf.feature_points, kf.feature_texture, o_.features);
-      kf.feature_points.release();
-      kf.feature_texture.release();
+      std::vector<cv::Mat> points, texture;
+      // Packed by this tracker: unpacking fails only on damaged memory, and then no features are
+      // better than wrong ones (the keyframe is simply not matched).
+      if (UnpackFrames(kf.packed_feature_points, &points).ok() &&
+          (kf.packed_feature_texture.empty() || UnpackFrames(kf.packed_feature_texture, &texture).ok()))
+        kf.features = ExtractViewFeatures(points[0], texture.empty() ? cv::Mat() : texture[0], o_.features);
+      std::string().swap(kf.packed_feature_points);
+      std::string().swap(kf.packed_feature_texture);
     }
     const FeatureAlignResult a = AlignByFeatures(f, kf.features, o_.features);
     if (!a.ok) {
@@ -565,8 +570,15 @@ void Tracker::MaybeKeyframe(const SurfacePoints& /*samples*/, const cv::Mat& poi
       case TrackerOptions::FeatureTiming::kInTrack: kf.features = ExtractViewFeatures(points, texture, o_.features); break;
       case TrackerOptions::FeatureTiming::kWorker: feature_worker_->Submit(keyframes_.size(), points, texture); break;
       case TrackerOptions::FeatureTiming::kOnDemand:
-        points.copyTo(kf.feature_points);
-        texture.copyTo(kf.feature_texture);
+        // zstd fails only on exhausted memory: the features are then extracted now (kInTrack).
+        if (!packer_.Pack({points}, &kf.packed_feature_points).ok() ||
+            (!texture.empty() && !packer_.Pack({texture}, &kf.packed_feature_texture).ok())) {
+          kf.packed_feature_points.clear();
+          kf.packed_feature_texture.clear();
+          kf.features = ExtractViewFeatures(points, texture, o_.features);
+        }
+        kf.packed_feature_points.shrink_to_fit();  // Pack sized it for the worst case
+        kf.packed_feature_texture.shrink_to_fit();
         break;
     }
   }
@@ -575,6 +587,21 @@ void Tracker::MaybeKeyframe(const SurfacePoints& /*samples*/, const cv::Mat& poi
   const int k = static_cast<int>(keyframes_.size()) - 1;
   if (o_.defer_keyframe_edges) deferred_edges_.push_back(k);
   else out->loops_added = AddKeyframeEdges(k);
+}
+
+int64_t Keyframe::bytes() const {
+  const auto mat = [](const cv::Mat& m) { return static_cast<int64_t>(m.total() * m.elemSize()); };
+  const auto points = [](const std::vector<Eigen::Vector3f>& v) { return static_cast<int64_t>(v.capacity() * sizeof(Eigen::Vector3f)); };
+  return points(samples.points) + points(samples.normals) +
+         static_cast<int64_t>(samples.weights.capacity() * sizeof(float)) + points(features.texture_points) + points(features.range_points) +
+         points(features.shaded_points) + mat(features.texture_descriptors) + mat(features.range_descriptors) +
+         mat(features.shaded_descriptors) + static_cast<int64_t>(packed_feature_points.capacity() + packed_feature_texture.capacity());
+}
+
+int64_t Tracker::keyframe_bytes() const {
+  int64_t bytes = 0;
+  for (const Keyframe& kf : keyframes_) bytes += kf.bytes();
+  return bytes;
 }
 
 int Tracker::AddKeyframeEdges(int k) {

@@ -40,6 +40,7 @@
 #include <vector>
 
 #include "calib/model/camera_model.h"
+#include "common/pack/frame_pack.h"
 #include "pipeline/register/features.h"
 #include "pipeline/register/grid_target.h"
 #include "pipeline/register/icp.h"
@@ -255,10 +256,15 @@ struct Keyframe {
   int node = 0;                       // pose graph node
   SurfacePoints samples;              // camera frame
   ViewFeatures features;              // camera frame (kWorker: once collected; kOnDemand: once extracted)
-  // kOnDemand: the inputs of its features (points H×W CV_32FC3, texture H×W CV_8U or empty) until
-  // a relocalisation extracts them (both released then). A keyframe's points are never empty.
-  cv::Mat feature_points, feature_texture;
-  bool features_pending() const { return !feature_points.empty(); }
+  // kOnDemand: the inputs of its features (points H×W CV_32FC3, texture H×W CV_8U or empty), packed
+  // losslessly (common/pack/frame_pack.h; texture: empty when there is none) until a relocalisation
+  // extracts them (both released then). Packed points take ~0.1-0.38 MB against 0.92 MB unpacked
+  // at 320 × 240 (most pixels of a view hold no point): the keyframes are what a long scan's memory
+  // keeps growing with. A keyframe's points are never empty.
+  std::string packed_feature_points, packed_feature_texture;
+  bool features_pending() const { return !packed_feature_points.empty(); }
+  // Bytes the keyframe holds: samples, features and packed feature inputs.
+  int64_t bytes() const;
   Eigen::Vector3d centre_in_cam = Eigen::Vector3d::Zero();
 };
 
@@ -300,6 +306,7 @@ class Tracker {
   // With keyframe_feature_timing kWorker or kOnDemand, a keyframe's features may still be pending
   // (empty) here.
   const std::vector<Keyframe>& keyframes() const { return keyframes_; }
+  int64_t keyframe_bytes() const;  // the keyframes' Keyframe::bytes(), summed
   const PoseGraph& graph() const { return graph_; }
   int64_t views() const { return static_cast<int64_t>(anchor_.size()); }
   const PointMap& model() const { return map_; }
@@ -355,6 +362,7 @@ class Tracker {
   PinholeIntrinsics pinhole_;
   TrackerOptions o_;
   std::unique_ptr<FeatureWorker> feature_worker_;  // null unless keyframe_feature_timing is kWorker
+  FramePacker packer_;                              // kOnDemand: packs a new keyframe's feature inputs (Track()'s thread)
   std::vector<int> deferred_edges_;                 // keyframes whose edges wait for Optimize (defer_keyframe_edges)
   PointMap map_;
   // RunIcp's association grids (kGrid), rebuilt for every ICP and reused: Track()'s thread only.

@@ -312,7 +312,7 @@ TEST_F(TrackerScan, KeyframeWorkOffTrackGivesTheSameScan) {
         for (const Keyframe& kf : off_track.keyframes()) {
           EXPECT_TRUE(kf.features_pending());
           EXPECT_EQ(kf.features.size(), 0u);
-          EXPECT_FALSE(kf.feature_texture.empty());  // the inputs are kept
+          EXPECT_FALSE(kf.packed_feature_texture.empty());  // the inputs are kept (packed)
         }
       }
       const auto v = RenderHeightField(hf_, cam, path[i], 0.004, static_cast<uint32_t>(i + 1));
@@ -334,7 +334,7 @@ TEST_F(TrackerScan, KeyframeWorkOffTrackGivesTheSameScan) {
       for (const Keyframe& kf : off_track.keyframes()) {
         EXPECT_EQ(kf.features_pending(), kf.features.size() == 0);
         if (!kf.features_pending()) {
-          EXPECT_TRUE(kf.feature_texture.empty());  // the inputs are freed
+          EXPECT_TRUE(kf.packed_feature_texture.empty());  // the inputs are freed
         }
         extracted += !kf.features_pending();
       }

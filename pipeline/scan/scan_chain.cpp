@@ -389,6 +389,8 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   j["rejected"] = registrar->rejected();
   j["views_undone"] = registrar->views_undone();
   j["undo_journal_mib"] = static_cast<double>(tracker.model().journal_bytes()) / (1024.0 * 1024.0);  // TrackerOptions::map.undo_inserts
+  j["keyframes_mib"] = static_cast<double>(tracker.keyframe_bytes()) / (1024.0 * 1024.0);  // samples, features, packed feature inputs
+  j["model_samples"] = tracker.model().size();  // the tracking model's samples (one per 0.08 mm voxel)
   j["tracking_lost"] = registrar->lost_events();
   j["relocalised"] = registrar->relocalised();
   j["views_model_anchored"] = registrar->views_model_anchored();

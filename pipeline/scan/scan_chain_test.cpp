@@ -68,7 +68,7 @@ void RunShortScan(SimSession& session, int bin, ShortScan* s, ViewArchive* kept 
     if (kept != nullptr) {
       std::string blob;
       ASSERT_TRUE(packer.Pack(recon.frames_used(), &blob).ok());
-      kept->Add(static_cast<uint64_t>(i), blob);
+      ASSERT_TRUE(kept->Add(static_cast<uint64_t>(i), blob).ok());
     }
     const TrackResult r = s->reg->Register(view, static_cast<uint64_t>(i), b.reference_ns);
     if (r.accepted) {

@@ -1,109 +1,60 @@
 #include "pipeline/scan/view_archive.h"
 
-#include <zstd.h>
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include <algorithm>
+#include <cerrno>
+#include <cstdlib>
 #include <cstring>
-#include <stdexcept>
 
 namespace d3d {
-namespace {
-constexpr size_t kHeaderBytes = 16;  // uint32 count, rows, cols, type (little-endian host order)
 
-void PutU32(std::string* s, size_t at, uint32_t v) { std::memcpy(s->data() + at, &v, 4); }
-uint32_t GetU32(std::string_view s, size_t at) {
-  uint32_t v;
-  std::memcpy(&v, s.data() + at, 4);
-  return v;
-}
-}  // namespace
-
-FramePacker::FramePacker(int level) : ctx_(ZSTD_createCCtx()), level_(level) {
-  if (level < 1 || level > 19) {
-    ZSTD_freeCCtx(static_cast<ZSTD_CCtx*>(ctx_));
-    throw std::invalid_argument("FramePacker: zstd level must be in [1, 19], got " + std::to_string(level));
-  }
-  if (ctx_ == nullptr) throw std::runtime_error("FramePacker: ZSTD_createCCtx failed");
+ViewArchive::~ViewArchive() {
+  if (fd_ >= 0) ::close(fd_);
 }
 
-FramePacker::~FramePacker() { ZSTD_freeCCtx(static_cast<ZSTD_CCtx*>(ctx_)); }
-
-Status FramePacker::Pack(const std::vector<cv::Mat>& frames, std::string* blob) {
-  if (frames.empty() || frames.size() > 255) return InvalidArgument("pack: 1 to 255 frames, got " + std::to_string(frames.size()));
-  const cv::Mat& f0 = frames[0];
-  if (f0.type() != CV_8UC1 && f0.type() != CV_16UC1) return InvalidArgument("pack: frames must be CV_8UC1 or CV_16UC1");
-  if (f0.empty()) return InvalidArgument("pack: empty frame");
-  for (const cv::Mat& f : frames)
-    if (f.size() != f0.size() || f.type() != f0.type()) return InvalidArgument("pack: the frames differ in size or type");
-  const size_t row_bytes = static_cast<size_t>(f0.cols) * f0.elemSize();
-  const size_t frame_bytes = row_bytes * static_cast<size_t>(f0.rows);
-  raw_.resize(frame_bytes * frames.size());
-  for (size_t i = 0; i < frames.size(); ++i) {
-    char* dst = raw_.data() + i * frame_bytes;
-    if (frames[i].isContinuous()) {
-      std::memcpy(dst, frames[i].data, frame_bytes);
-    } else {
-      for (int r = 0; r < f0.rows; ++r) std::memcpy(dst + static_cast<size_t>(r) * row_bytes, frames[i].ptr(r), row_bytes);
-    }
+Status ViewArchive::SpillTo(const std::string& dir) {
+  if (fd_ >= 0) return InvalidArgument("view archive: already spills to a file");
+  int fd = -1;
+#ifdef O_TMPFILE
+  fd = ::open(dir.c_str(), O_TMPFILE | O_RDWR | O_CLOEXEC, S_IRUSR | S_IWUSR);
+#endif
+  if (fd < 0) {  // no O_TMPFILE here (or on this file system): a named file, unlinked at once
+    std::string path = dir + "/.d3d-views-XXXXXX";
+    fd = ::mkstemp(path.data());
+    if (fd >= 0) ::unlink(path.c_str());
   }
-  blob->resize(kHeaderBytes + ZSTD_compressBound(raw_.size()));
-  PutU32(blob, 0, static_cast<uint32_t>(frames.size()));
-  PutU32(blob, 4, static_cast<uint32_t>(f0.rows));
-  PutU32(blob, 8, static_cast<uint32_t>(f0.cols));
-  PutU32(blob, 12, static_cast<uint32_t>(f0.type()));
-  const size_t n = ZSTD_compressCCtx(static_cast<ZSTD_CCtx*>(ctx_), blob->data() + kHeaderBytes, blob->size() - kHeaderBytes,
-                                     raw_.data(), raw_.size(), level_);
-  if (ZSTD_isError(n)) {
-    blob->clear();
-    return Status(StatusCode::kInternal, std::string("pack: zstd: ") + ZSTD_getErrorName(n));
-  }
-  blob->resize(kHeaderBytes + n);
+  if (fd < 0) return IoError("view archive: cannot make a spill file in '" + dir + "': " + std::strerror(errno));
+  fd_ = fd;
+  file_end_ = 0;
   return Status::Ok();
 }
 
-Status UnpackFrames(std::string_view blob, std::vector<cv::Mat>* frames) {
-  if (blob.size() < kHeaderBytes) return Corrupt("unpack: the blob is cut off before its header ends");
-  const uint32_t count = GetU32(blob, 0), rows = GetU32(blob, 4), cols = GetU32(blob, 8), type = GetU32(blob, 12);
-  if (count < 1 || count > 255 || rows < 1 || cols < 1 || rows > (1u << 15) || cols > (1u << 15) ||
-      (type != CV_8UC1 && type != CV_16UC1))
-    return Corrupt("unpack: bad header");
-  const size_t elem = type == CV_8UC1 ? 1 : 2;
-  const size_t frame_bytes = size_t{rows} * cols * elem;
-  const std::string_view data = blob.substr(kHeaderBytes);
-  const unsigned long long content = ZSTD_getFrameContentSize(data.data(), data.size());
-  if (content != frame_bytes * count) return Corrupt("unpack: the compressed size does not match the header");
-  frames->resize(count);
-  // Frames of one contiguous buffer would alias; each frame is decompressed into its own buffer
-  // through a streaming context, in frame-sized pieces.
-  ZSTD_DCtx* dctx = ZSTD_createDCtx();
-  if (dctx == nullptr) return Status(StatusCode::kInternal, "unpack: ZSTD_createDCtx failed");
-  ZSTD_inBuffer in{data.data(), data.size(), 0};
-  Status status = Status::Ok();
-  for (uint32_t i = 0; i < count && status.ok(); ++i) {
-    cv::Mat& f = (*frames)[i];
-    f.create(static_cast<int>(rows), static_cast<int>(cols), static_cast<int>(type));  // continuous
-    ZSTD_outBuffer out{f.data, frame_bytes, 0};
-    while (out.pos < out.size) {
-      const size_t r = ZSTD_decompressStream(dctx, &out, &in);
-      if (ZSTD_isError(r)) {
-        status = Corrupt(std::string("unpack: zstd: ") + ZSTD_getErrorName(r));
-        break;
-      }
-      if (out.pos < out.size && in.pos == in.size) {
-        status = Corrupt("unpack: the compressed data ends early");
-        break;
-      }
-    }
-  }
-  ZSTD_freeDCtx(dctx);
-  if (!status.ok()) frames->clear();
-  return status;
-}
-
-void ViewArchive::Add(uint64_t burst_seq, std::string_view blob) {
+Status ViewArchive::Add(uint64_t burst_seq, std::string_view blob) {
   if (!entries_.empty() && burst_seq <= entries_.back().burst_seq) sorted_ = false;
-  entries_.push_back({burst_seq, std::string(blob)});
   bytes_ += static_cast<int64_t>(blob.size());
+  if (fd_ >= 0) {
+    size_t done = 0;
+    while (done < blob.size()) {
+      const ssize_t n = ::pwrite(fd_, blob.data() + done, blob.size() - done, static_cast<off_t>(file_end_ + static_cast<int64_t>(done)));
+      if (n < 0 && errno == EINTR) continue;
+      if (n <= 0) break;
+      done += static_cast<size_t>(n);
+    }
+    if (done == blob.size()) {
+      entries_.push_back({burst_seq, file_end_, blob.size(), {}});
+      file_end_ += static_cast<int64_t>(blob.size());
+      spilled_bytes_ += static_cast<int64_t>(blob.size());
+      return Status::Ok();
+    }
+    const std::string why = done > 0 ? "a short write" : std::strerror(errno);
+    entries_.push_back({burst_seq, -1, blob.size(), std::string(blob)});
+    return IoError("view archive: burst " + std::to_string(burst_seq) + " kept in memory: the spill file's write failed (" + why + ")");
+  }
+  entries_.push_back({burst_seq, -1, blob.size(), std::string(blob)});
+  return Status::Ok();
 }
 
 Status ViewArchive::Get(uint64_t burst_seq, std::vector<cv::Mat>* frames) const {
@@ -117,14 +68,29 @@ Status ViewArchive::Get(uint64_t burst_seq, std::vector<cv::Mat>* frames) const 
       if (it->burst_seq == burst_seq) e = &*it;
   }
   if (e == nullptr) return NotFound("view archive: burst " + std::to_string(burst_seq) + " was not kept");
-  return UnpackFrames(e->blob, frames);
+  if (e->offset < 0) return UnpackFrames(e->blob, frames);
+  read_.resize(e->size);
+  size_t done = 0;
+  while (done < e->size) {
+    const ssize_t n = ::pread(fd_, read_.data() + done, e->size - done, static_cast<off_t>(e->offset + static_cast<int64_t>(done)));
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0)
+      return IoError("view archive: burst " + std::to_string(burst_seq) + ": the spill file cannot be read back (" +
+                     (n == 0 ? std::string("it ends early") : std::string(std::strerror(errno))) + ")");
+    done += static_cast<size_t>(n);
+  }
+  return UnpackFrames(read_, frames);
 }
 
 bool ViewArchive::Remove(uint64_t burst_seq) {
   // Undone views are the newest: search from the back.
   for (auto it = entries_.rbegin(); it != entries_.rend(); ++it) {
     if (it->burst_seq != burst_seq) continue;
-    bytes_ -= static_cast<int64_t>(it->blob.size());
+    bytes_ -= static_cast<int64_t>(it->size);
+    if (it->offset >= 0) {
+      spilled_bytes_ -= static_cast<int64_t>(it->size);
+      if (it->offset + static_cast<int64_t>(it->size) == file_end_) file_end_ = it->offset;  // the newest: its space is reused
+    }
     entries_.erase(std::next(it).base());
     return true;
   }
@@ -135,6 +101,8 @@ void ViewArchive::Clear() {
   entries_.clear();
   sorted_ = true;
   bytes_ = 0;
+  spilled_bytes_ = 0;
+  if (fd_ >= 0 && ::ftruncate(fd_, 0) == 0) file_end_ = 0;  // else the next blobs go after the old ones
 }
 
 }  // namespace d3d

@@ -12,8 +12,13 @@
 // for a 640 × 480 probe at bin 2, 307 kB), compressed losslessly with zstd level 1 (~1 ms per
 // burst); reconstructing them again gives the same view bit for bit.
 //
-// Threads: FramePacker is one thread's (it holds a zstd context); ViewArchive is one thread's at a
-// time (the fuse thread adds, then the thread that finishes the scan reads). Unpack is free.
+// Where: in memory by default, ~150 kB a view, so memory grows with the scan's length (4-5 MB/s
+// live at 28-30 bursts/s); a host gives the archive a directory to spill to (SpillTo) and keeps
+// only an index in memory. A spilled blob is written once (appended, ~1 ms per MB into the page
+// cache) and read back once, at the end of the scan.
+//
+// Threads: a ViewArchive is one thread's at a time (the fuse thread adds, then the thread that
+// finishes the scan reads; Get uses a buffer of the archive's). Packing: common/pack/frame_pack.h.
 #pragma once
 
 #include <cstdint>
@@ -23,54 +28,62 @@
 #include <vector>
 
 #include "common/core/status.h"
+#include "common/pack/frame_pack.h"
 
 namespace d3d {
 
-class FramePacker {
- public:
-  // zstd compression level (1 = fastest; ZSTD's range). Throws std::invalid_argument outside [1, 19].
-  explicit FramePacker(int level = 1);
-  ~FramePacker();
-  FramePacker(const FramePacker&) = delete;
-  FramePacker& operator=(const FramePacker&) = delete;
-  // frames: 1..255 images of one size, all CV_8UC1 or all CV_16UC1 (continuous or not). *blob is
-  // replaced (its capacity reused): a 16-byte header (count, rows, cols, type) and one zstd frame of
-  // the pixels. INVALID_ARGUMENT for no frames, mixed sizes or types, another type; INTERNAL when
-  // zstd fails.
-  [[nodiscard]] Status Pack(const std::vector<cv::Mat>& frames, std::string* blob);
-
- private:
-  void* ctx_;  // ZSTD_CCtx
-  int level_;
-  std::string raw_;  // the pixels, contiguous (reused)
-};
-
-// The frames of a Pack()ed blob into *frames (resized; an entry of the right size and type keeps its
-// buffer). CORRUPT for a blob that is cut off, has a bad header or does not decompress to its size.
-[[nodiscard]] Status UnpackFrames(std::string_view blob, std::vector<cv::Mat>* frames);
-
 class ViewArchive {
  public:
+  ViewArchive() = default;
+  ~ViewArchive();  // closes the spill file (its space is freed then)
+  ViewArchive(const ViewArchive&) = delete;
+  ViewArchive& operator=(const ViewArchive&) = delete;
+
+  // From now on keeps the blobs in an unnamed temporary file in directory `dir` instead of memory:
+  // memory then holds ~56 bytes per view (its index entry) instead of its ~150-200 kB, so a live
+  // scan's memory does not grow with its length through the kept frames. The file is made with
+  // O_TMPFILE (or created and unlinked at once where the file system lacks it): it has no name and
+  // its space is freed when the archive is destroyed, even when the process is killed. Entries
+  // already added stay in memory. IO_ERROR when no such file can be made in `dir` (the archive then
+  // keeps using memory); INVALID_ARGUMENT when it spills already.
+  [[nodiscard]] Status SpillTo(const std::string& dir);
+  bool spilling() const { return fd_ >= 0; }
   // Keeps a copy of `blob` under `burst_seq` (the probe's burst number). Bursts are added in the
   // order they were processed; a burst_seq not above the last one added (a probe that restarted its
-  // numbering) replaces nothing: Get finds the latest entry for it.
-  void Add(uint64_t burst_seq, std::string_view blob);
-  // The frames kept for burst_seq. NOT_FOUND when it was never added; CORRUPT as UnpackFrames.
+  // numbering) replaces nothing: Get finds the latest entry for it. Spilling, the blob is appended to
+  // the file; when that write fails (e.g. the disk is full) the blob is kept in memory instead, so
+  // nothing is lost, and the write's IO_ERROR is returned. OK otherwise.
+  [[nodiscard]] Status Add(uint64_t burst_seq, std::string_view blob);
+  // The frames kept for burst_seq. NOT_FOUND when it was never added; IO_ERROR when the spill file
+  // cannot be read back; CORRUPT as UnpackFrames.
   [[nodiscard]] Status Get(uint64_t burst_seq, std::vector<cv::Mat>* frames) const;
   // Drops the latest entry for burst_seq (a view taken back by an undo); false when there is none.
+  // A spilled entry's space in the file is reused when it was the last one written (as an undo's
+  // views are), else not until Clear.
   bool Remove(uint64_t burst_seq);
-  void Clear();
+  void Clear();  // spilling, the file is emptied (and stays the archive's)
   size_t size() const { return entries_.size(); }
-  int64_t bytes() const { return bytes_; }  // compressed bytes held
+  int64_t bytes() const { return bytes_; }  // compressed bytes kept (in memory and in the file)
+  // Bytes of memory the entries hold: the blobs kept in memory and the index.
+  int64_t memory_bytes() const {
+    return bytes_ - spilled_bytes_ + static_cast<int64_t>(entries_.capacity() * sizeof(Entry));
+  }
+  int64_t spilled_bytes() const { return spilled_bytes_; }  // of bytes(), in the file
 
  private:
   struct Entry {
     uint64_t burst_seq;
-    std::string blob;
+    int64_t offset;    // in the spill file; -1: the blob is in `blob`
+    uint64_t size;     // blob bytes
+    std::string blob;  // in memory (not spilled)
   };
   std::vector<Entry> entries_;
   bool sorted_ = true;  // entries_ in increasing burst_seq (binary search), else a linear search from the back
   int64_t bytes_ = 0;
+  int64_t spilled_bytes_ = 0;
+  int fd_ = -1;              // the spill file, -1 = none
+  int64_t file_end_ = 0;     // where the next blob goes
+  mutable std::string read_;  // Get's buffer for a spilled blob (the archive is one thread's at a time)
 };
 
 }  // namespace d3d

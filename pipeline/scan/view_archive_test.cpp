@@ -1,94 +1,48 @@
 #include "pipeline/scan/view_archive.h"
 
+#include "common/pack/frame_pack_testing.h"
+
 #include <gtest/gtest.h>
 
 #include <opencv2/core.hpp>
+#include <sys/resource.h>
+
+#include <csignal>
+#include <filesystem>
 #include <random>
 
 namespace d3d {
 namespace {
 
-std::vector<cv::Mat> RandomFrames(int n, int rows, int cols, int type, uint32_t seed) {
-  cv::RNG rng(seed);
-  std::vector<cv::Mat> frames(static_cast<size_t>(n));
-  for (cv::Mat& f : frames) {
-    f.create(rows, cols, type);
-    rng.fill(f, cv::RNG::UNIFORM, 0, type == CV_8UC1 ? 256 : 65536);
-  }
-  return frames;
-}
+using pack_testing::RandomFrames;
+using pack_testing::Same;
 
-bool Same(const std::vector<cv::Mat>& a, const std::vector<cv::Mat>& b) {
-  if (a.size() != b.size()) return false;
-  for (size_t i = 0; i < a.size(); ++i)
-    if (a[i].size() != b[i].size() || a[i].type() != b[i].type() || cv::norm(a[i], b[i], cv::NORM_INF) != 0) return false;
-  return true;
-}
+// The same answers from memory and from a spill file.
+class ViewArchiveWhere : public ::testing::TestWithParam<bool> {};
 
-TEST(ViewArchive, PackedFramesComeBackBitForBit) {
-  FramePacker packer;
-  std::string blob;
-  for (const int type : {CV_8UC1, CV_16UC1}) {
-    const std::vector<cv::Mat> frames = RandomFrames(4, 48, 64, type, 7);
-    ASSERT_TRUE(packer.Pack(frames, &blob).ok());
-    std::vector<cv::Mat> back;
-    ASSERT_TRUE(UnpackFrames(blob, &back).ok());
-    EXPECT_TRUE(Same(frames, back)) << "type " << type;
-  }
-  // A view into a larger image (not continuous) packs its own pixels only.
-  const std::vector<cv::Mat> big = RandomFrames(2, 60, 80, CV_8UC1, 3);
-  const std::vector<cv::Mat> rois = {big[0](cv::Rect(5, 7, 40, 30)), big[1](cv::Rect(5, 7, 40, 30))};
-  ASSERT_FALSE(rois[0].isContinuous());
-  ASSERT_TRUE(packer.Pack(rois, &blob).ok());
-  std::vector<cv::Mat> back;
-  ASSERT_TRUE(UnpackFrames(blob, &back).ok());
-  EXPECT_TRUE(Same(rois, back));
-}
-
-TEST(ViewArchive, RefusesBadFramesAndDamagedBlobs) {
-  FramePacker packer;
-  std::string blob;
-  EXPECT_EQ(packer.Pack({}, &blob).code(), StatusCode::kInvalidArgument);
-  EXPECT_EQ(packer.Pack({cv::Mat(4, 4, CV_32F, 0.0f)}, &blob).code(), StatusCode::kInvalidArgument);
-  EXPECT_EQ(packer.Pack({cv::Mat(4, 4, CV_8U, 0.0), cv::Mat(4, 5, CV_8U, 0.0)}, &blob).code(), StatusCode::kInvalidArgument);
-  EXPECT_THROW(FramePacker(0), std::invalid_argument);
-
-  const std::vector<cv::Mat> frames = RandomFrames(4, 32, 32, CV_8UC1, 11);
-  ASSERT_TRUE(packer.Pack(frames, &blob).ok());
-  std::vector<cv::Mat> back;
-  // Every cut is refused, and so is every flipped header byte that changes what the header says.
-  for (size_t n = 0; n < blob.size(); n += 97) EXPECT_EQ(UnpackFrames(std::string_view(blob).substr(0, n), &back).code(), StatusCode::kCorrupt) << n;
-  for (size_t i = 0; i < 16; ++i) {
-    std::string bad = blob;
-    bad[i] = static_cast<char>(bad[i] ^ 0x40);
-    EXPECT_EQ(UnpackFrames(bad, &back).code(), StatusCode::kCorrupt) << "header byte " << i;
-    EXPECT_TRUE(back.empty());
-  }
-  // Damage inside the compressed pixels: refused or (zstd keeps no checksum here) different
-  // pixels, never a crash; the seeded positions below are all refused or decoded in full.
-  std::mt19937 rng(5);
-  for (int t = 0; t < 50; ++t) {
-    std::string bad = blob;
-    const size_t at = 16 + rng() % (bad.size() - 16);
-    bad[at] = static_cast<char>(bad[at] ^ (1 << (rng() % 8)));
-    const Status s = UnpackFrames(bad, &back);
-    if (s.ok()) EXPECT_EQ(back.size(), frames.size());
-    else EXPECT_EQ(s.code(), StatusCode::kCorrupt);
-  }
-}
-
-TEST(ViewArchive, FindsEachBurstAndSaysWhichIsMissing) {
+TEST_P(ViewArchiveWhere, FindsEachBurstAndSaysWhichIsMissing) {
   FramePacker packer;
   ViewArchive archive;
+  if (GetParam()) {
+    ASSERT_TRUE(archive.SpillTo(::testing::TempDir()).ok());
+  }
+  EXPECT_EQ(archive.spilling(), GetParam());
   std::string blob;
   std::vector<std::vector<cv::Mat>> kept;
   for (uint64_t seq : {3u, 4u, 9u, 12u}) {
     kept.push_back(RandomFrames(4, 16, 24, CV_8UC1, static_cast<uint32_t>(seq)));
     ASSERT_TRUE(packer.Pack(kept.back(), &blob).ok());
-    archive.Add(seq, blob);
+    ASSERT_TRUE(archive.Add(seq, blob).ok());
   }
   EXPECT_EQ(archive.size(), 4u);
   EXPECT_GT(archive.bytes(), 0);
+  // Spilled, memory holds the index only.
+  EXPECT_EQ(archive.spilled_bytes(), GetParam() ? archive.bytes() : 0);
+  if (GetParam()) {
+    EXPECT_LT(archive.memory_bytes(), 4 * 100);
+  } else {
+    EXPECT_GE(archive.memory_bytes(), archive.bytes());
+  }
   std::vector<cv::Mat> back;
   EXPECT_TRUE(archive.Get(9, &back).ok());
   EXPECT_TRUE(Same(kept[2], back));
@@ -98,7 +52,7 @@ TEST(ViewArchive, FindsEachBurstAndSaysWhichIsMissing) {
   // A probe that restarted its numbering: the latest entry of a number is found.
   const std::vector<cv::Mat> again = RandomFrames(4, 16, 24, CV_8UC1, 99);
   ASSERT_TRUE(packer.Pack(again, &blob).ok());
-  archive.Add(4, blob);
+  ASSERT_TRUE(archive.Add(4, blob).ok());
   ASSERT_TRUE(archive.Get(4, &back).ok());
   EXPECT_TRUE(Same(again, back));
   ASSERT_TRUE(archive.Get(12, &back).ok());
@@ -120,7 +74,72 @@ TEST(ViewArchive, FindsEachBurstAndSaysWhichIsMissing) {
   EXPECT_EQ(archive.size(), 0u);
   EXPECT_EQ(archive.bytes(), 0);
   EXPECT_EQ(archive.Get(9, &back).code(), StatusCode::kNotFound);
+  // After Clear the archive fills again (from the start of its file when spilling).
+  ASSERT_TRUE(archive.Add(20, blob).ok());
+  ASSERT_TRUE(archive.Get(20, &back).ok());
+  EXPECT_TRUE(Same(again, back));
+  EXPECT_EQ(archive.spilled_bytes(), GetParam() ? archive.bytes() : 0);
 }
+
+INSTANTIATE_TEST_SUITE_P(MemoryAndFile, ViewArchiveWhere, ::testing::Values(false, true),
+                         [](const ::testing::TestParamInfo<bool>& i) { return i.param ? "Spilled" : "InMemory"; });
+
+TEST(ViewArchive, SpillFileHasNoNameAndNoDirectoryIsRefused) {
+  ViewArchive archive;
+  const Status bad = archive.SpillTo("/nonexistent-d3d-dir");
+  EXPECT_EQ(bad.code(), StatusCode::kIoError) << bad.ToString();
+  EXPECT_NE(bad.message().find("/nonexistent-d3d-dir"), std::string::npos);
+  EXPECT_FALSE(archive.spilling());
+  // A fresh directory: spilling leaves no file in it.
+  const std::string dir = ::testing::TempDir() + "/d3d_view_archive_spill";
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  ASSERT_TRUE(archive.SpillTo(dir).ok());
+  EXPECT_EQ(archive.SpillTo(dir).code(), StatusCode::kInvalidArgument);
+  FramePacker packer;
+  std::string blob;
+  ASSERT_TRUE(packer.Pack(RandomFrames(4, 16, 24, CV_8UC1, 1), &blob).ok());
+  ASSERT_TRUE(archive.Add(1, blob).ok());
+  EXPECT_TRUE(std::filesystem::is_empty(dir));
+  std::filesystem::remove_all(dir);
+}
+
+// A spill write that fails (here: the process's file-size limit, as a full disk would) keeps the
+// blob in memory and says so; the views before and after it all come back.
+TEST(ViewArchive, AFailedSpillWriteKeepsTheViewInMemory) {
+  FramePacker packer;
+  ViewArchive archive;
+  ASSERT_TRUE(archive.SpillTo(::testing::TempDir()).ok());
+  std::vector<std::vector<cv::Mat>> kept;
+  std::vector<std::string> blobs;
+  for (uint32_t i = 0; i < 3; ++i) {
+    kept.push_back(RandomFrames(4, 16, 24, CV_8UC1, 40 + i));
+    blobs.emplace_back();
+    ASSERT_TRUE(packer.Pack(kept.back(), &blobs.back()).ok());
+  }
+  ASSERT_TRUE(archive.Add(1, blobs[0]).ok());
+  struct rlimit old_limit;
+  ASSERT_EQ(getrlimit(RLIMIT_FSIZE, &old_limit), 0);
+  const auto old_handler = std::signal(SIGXFSZ, SIG_IGN);  // else the write beyond the limit kills us
+  struct rlimit small = old_limit;
+  small.rlim_cur = static_cast<rlim_t>(blobs[0].size());  // the file may not grow beyond its first blob
+  ASSERT_EQ(setrlimit(RLIMIT_FSIZE, &small), 0);
+  const Status failed = archive.Add(2, blobs[1]);
+  ASSERT_EQ(setrlimit(RLIMIT_FSIZE, &old_limit), 0);
+  std::signal(SIGXFSZ, old_handler);
+  EXPECT_EQ(failed.code(), StatusCode::kIoError) << failed.ToString();
+  EXPECT_NE(failed.message().find("kept in memory"), std::string::npos) << failed.message();
+  ASSERT_TRUE(archive.Add(3, blobs[2]).ok());
+  EXPECT_EQ(archive.size(), 3u);
+  EXPECT_EQ(archive.spilled_bytes(), static_cast<int64_t>(blobs[0].size() + blobs[2].size()));
+  EXPECT_GE(archive.memory_bytes(), static_cast<int64_t>(blobs[1].size()));
+  std::vector<cv::Mat> back;
+  for (uint64_t seq = 1; seq <= 3; ++seq) {
+    ASSERT_TRUE(archive.Get(seq, &back).ok()) << seq;
+    EXPECT_TRUE(Same(kept[seq - 1], back)) << seq;
+  }
+}
+
 
 }  // namespace
 }  // namespace d3d

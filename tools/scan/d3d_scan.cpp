@@ -84,6 +84,10 @@ int main(int argc, char** argv) {
   cli.add_flag("--refuse,!--no-refuse", refuse,
                "keep the fused bursts' frames (zstd, ~0.15 MB each at --bin 2) and fuse them again at the pose graph's poses at "
                "the end (default; the mesh then does not depend on how the tracker drifted, live or lossless)");
+  std::string spill_views;
+  cli.add_option("--spill-views", spill_views,
+                 "--refuse: keep the fused bursts' frames in an unnamed temporary file in this folder (it leaves nothing behind) "
+                 "so that memory stays flat however long the scan; 'memory' keeps them in memory (default: the --out folder)");
   bool just_in_time = ScanAppOptions{}.live_just_in_time;
   cli.add_flag("--just-in-time,!--no-just-in-time", just_in_time,
                "live: start reconstructing a burst just in time for the register stage, on a newer burst, instead of as soon as "
@@ -220,6 +224,11 @@ int main(int argc, char** argv) {
     if (live_views && sim_rate > 0) ao.scan.tracker.view_period_ns = std::llround(step * 1e9 / sim_rate);
     ao.scan.refuse_min_correction_mm = refuse ? 0.01 : -1;
     ao.keep_views = refuse;
+    if (refuse && spill_views != "memory") {
+      ao.views_spill_dir = spill_views.empty() ? out_dir : spill_views;
+      std::error_code ec;
+      fs::create_directories(ao.views_spill_dir, ec);  // the --out folder is made early for it
+    }
     ao.live_voxel_mm = live_voxel_mm;
     ao.live_just_in_time = just_in_time;
     ao.undo_seconds = undo_seconds;
@@ -228,6 +237,8 @@ int main(int argc, char** argv) {
     ao.scan = ScanOptionsForBin(ao.scan, bin);
     ao.view_stride_px = std::max(2, ao.view_stride_px / bin);
     ScanApp app(calib, ao, source);
+    if (!app.views_spill_error().empty())
+      std::fprintf(stderr, "d3d-scan: the kept frames stay in memory: %s\n", app.views_spill_error().c_str());
 
     std::unique_ptr<Viewer> viewer;
     if (!no_preview) {
