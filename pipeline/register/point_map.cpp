@@ -107,7 +107,16 @@ SurfacePoints PointMap::Gather(const Eigen::Vector3f& lo, const Eigen::Vector3f&
   const int64_t y0 = static_cast<int64_t>(std::floor(lo.y() * binv)), y1 = static_cast<int64_t>(std::floor(hi.y() * binv));
   const int64_t z0 = static_cast<int64_t>(std::floor(lo.z() * binv)), z1 = static_cast<int64_t>(std::floor(hi.z() * binv));
   if ((x1 - x0 + 1) * (y1 - y0 + 1) * (z1 - z0 + 1) > static_cast<int64_t>(blocks_.size())) {
+    // A box of more blocks than the map has: the map's blocks, each sample tested. Blocks more than
+    // one block outside the box's range hold none of its samples (one block of slack covers the
+    // float rounding of a sample's block against the box's), so their samples are not read:
+    // the same samples in the same order, without reading the whole map (a view's box took this
+    // path while the map was small and, for the model anchoring's boxes, which reach along the
+    // rays by whole fringe orders, often after: there it read every sample of the map).
     for (const auto& [k, v] : blocks_) {
+      int64_t bx, by, bz;
+      VoxelOfKey(k, &bx, &by, &bz);
+      if (bx < x0 - 1 || bx > x1 + 1 || by < y0 - 1 || by > y1 + 1 || bz < z0 - 1 || bz > z1 + 1) continue;
       for (uint32_t i : v) {
         const Eigen::Vector3f& p = points_[i];
         if ((p.array() >= lo.array()).all() && (p.array() <= hi.array()).all()) {

@@ -48,6 +48,60 @@ void ExpectSameMap(const PointMap& a, const PointMap& b) {
   EXPECT_EQ(a.Overlap(probe, Pose(0.05, 0.3)), b.Overlap(probe, Pose(0.05, 0.3)));
 }
 
+// Gather returns every sample of the blocks the box touches, or (a box of more blocks than the map
+// has) exactly the samples inside the box; it never misses one inside. Checked against a scan of
+// all samples, for boxes from one block to the whole map, at and off the block grid.
+TEST(PointMap, GatherFindsEverySampleInTheBox) {
+  PointMapOptions o;
+  o.voxel_mm = 0.1;
+  o.block_mm = 1.0;
+  PointMap map(o);
+  std::mt19937 rng(3);
+  for (int i = 0; i < 40; ++i)  // patches spread over ~60 × 20 mm: many blocks
+    map.Insert(Patch(&rng, Eigen::Vector3f(1.5f * i - 30, 8.0f * std::sin(0.3f * i), 0.5f * (i % 5)), 600), Rigid3d::Identity());
+  const auto inside = [&](const Eigen::Vector3f& lo, const Eigen::Vector3f& hi) {
+    SurfacePoints s;
+    for (size_t i = 0; i < map.size(); ++i)
+      if ((map.points()[i].array() >= lo.array()).all() && (map.points()[i].array() <= hi.array()).all()) {
+        s.points.push_back(map.points()[i]);
+        s.normals.push_back(map.normals()[i]);
+      }
+    return s;
+  };
+  // Small boxes (≤ 5³ blocks, far fewer than the map's ~500-1300) take the block path; large ones
+  // (≥ 30 × 20 × 8 blocks) the path that tests each sample.
+  std::uniform_real_distribution<float> at(-35, 35), small_size(0.3f, 4.0f), unit(0, 1);
+  for (int q = 0; q < 200; ++q) {
+    const bool large = q % 2 == 1;
+    const Eigen::Vector3f lo(at(rng), 0.4f * at(rng), large ? -6 + 4 * unit(rng) : 0.1f * at(rng));
+    const Eigen::Vector3f extent = large ? Eigen::Vector3f(30 + 40 * unit(rng), 20 + 20 * unit(rng), 8 + 4 * unit(rng))
+                                         : Eigen::Vector3f(small_size(rng), small_size(rng), small_size(rng));
+    const Eigen::Vector3f hi = lo + extent;
+    const SurfacePoints got = map.Gather(lo, hi), want = inside(lo, hi);
+    const auto g = Sorted(got), w = Sorted(want);
+    EXPECT_TRUE(std::includes(g.begin(), g.end(), w.begin(), w.end())) << "box " << q;  // everything inside is found
+    if (large) {
+      EXPECT_EQ(g, w) << "box " << q;  // exactly the samples inside
+    } else {
+      for (const auto& p : got.points)  // the samples of the touched blocks: none beyond them
+        EXPECT_TRUE((p.array() >= lo.array() - 1.0f).all() && (p.array() <= hi.array() + 1.0f).all()) << "box " << q;
+    }
+  }
+  EXPECT_EQ(map.Gather(Eigen::Vector3f::Constant(-1e3f), Eigen::Vector3f::Constant(1e3f)).size(), map.size());
+}
+
+TEST(SurfacePoints, VoxelOfKeyInvertsVoxelKey) {
+  for (const int64_t x : {-(int64_t{1} << 20), int64_t{-7}, int64_t{0}, int64_t{5}, (int64_t{1} << 20) - 1})
+    for (const int64_t y : {int64_t{-3}, int64_t{0}, (int64_t{1} << 20) - 1})
+      for (const int64_t z : {-(int64_t{1} << 20), int64_t{0}, int64_t{11}}) {
+        int64_t a, b, c;
+        VoxelOfKey(VoxelKey(x, y, z), &a, &b, &c);
+        EXPECT_EQ(a, x);
+        EXPECT_EQ(b, y);
+        EXPECT_EQ(c, z);
+      }
+}
+
 TEST(PointMapJournal, RollingBackInsertsGivesTheMapThatNeverHadThem) {
   PointMapOptions o;
   o.undo_inserts = 4;

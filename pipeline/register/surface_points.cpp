@@ -138,4 +138,11 @@ uint64_t VoxelKey(int64_t x, int64_t y, int64_t z) {
          ((static_cast<uint64_t>(z + (1 << 20)) & m) << 42);
 }
 
+void VoxelOfKey(uint64_t key, int64_t* x, int64_t* y, int64_t* z) {
+  const uint64_t m = (1u << 21) - 1;
+  *x = static_cast<int64_t>(key & m) - (1 << 20);
+  *y = static_cast<int64_t>((key >> 21) & m) - (1 << 20);
+  *z = static_cast<int64_t>((key >> 42) & m) - (1 << 20);
+}
+
 }  // namespace d3d

@@ -52,6 +52,8 @@ bool PcaPlaneNormal(const std::vector<Eigen::Vector3f>& points, const int* indic
 // Hash key of the integer voxel (x, y, z): 21 bits per axis (cells −2²⁰ … 2²⁰ − 1, i.e. ±1 M
 // voxels) packed into 64 bits. Used by the tracking model's voxel hash and by voxel downsampling.
 uint64_t VoxelKey(int64_t x, int64_t y, int64_t z);
+// The voxel (x, y, z) of a VoxelKey (within its ±2²⁰ range): VoxelKey's inverse.
+void VoxelOfKey(uint64_t key, int64_t* x, int64_t* y, int64_t* z);
 // The key of the voxel of edge 1 / inv_voxel_mm (cells aligned to the origin) holding p (mm); the
 // products p·inv are formed in the precision of Scalar (float or double).
 template <typename Scalar>
