@@ -11,6 +11,8 @@
 #include <cstring>
 #include <nlohmann/json.hpp>
 
+#include "common/core/fd_io.h"
+
 namespace d3d {
 namespace {
 
@@ -52,14 +54,7 @@ class FileSource final : public ByteSource {
   bool Read(uint64_t offset, size_t n, std::string* out) const override {
     if (offset > size_ || n > size_ - offset) return false;
     out->resize(n);
-    size_t done = 0;
-    while (done < n) {
-      const ssize_t r = ::pread(fd_, out->data() + done, n - done, static_cast<off_t>(offset + done));
-      if (r < 0 && errno == EINTR) continue;
-      if (r <= 0) return false;
-      done += static_cast<size_t>(r);
-    }
-    return true;
+    return PreadFull(fd_, out->data(), n, offset) == n;
   }
 
  private:

@@ -8,6 +8,8 @@
 #include <cerrno>
 #include <cstring>
 
+#include "common/core/fd_io.h"
+
 namespace d3d::fw {
 
 void FlashGeometry::Check() const {
@@ -56,13 +58,8 @@ Status Flash::RawRead(uint64_t addr, std::span<uint8_t> out) const {
     std::memcpy(out.data(), mem_.data() + addr, out.size());
     return Status::Ok();
   }
-  size_t done = 0;
-  while (done < out.size()) {
-    const ssize_t n = ::pread(fd_, out.data() + done, out.size() - done, static_cast<off_t>(addr + done));
-    if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) return IoError("flash: read failed at " + std::to_string(addr + done));
-    done += static_cast<size_t>(n);
-  }
+  const size_t done = PreadFull(fd_, out.data(), out.size(), addr);
+  if (done < out.size()) return IoError("flash: read failed at " + std::to_string(addr + done));
   return Status::Ok();
 }
 
@@ -71,13 +68,8 @@ Status Flash::RawWrite(uint64_t addr, std::span<const uint8_t> data) {
     std::memcpy(mem_.data() + addr, data.data(), data.size());
     return Status::Ok();
   }
-  size_t done = 0;
-  while (done < data.size()) {
-    const ssize_t n = ::pwrite(fd_, data.data() + done, data.size() - done, static_cast<off_t>(addr + done));
-    if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) return IoError("flash: write failed at " + std::to_string(addr + done));
-    done += static_cast<size_t>(n);
-  }
+  const size_t done = PwriteFull(fd_, data.data(), data.size(), addr);
+  if (done < data.size()) return IoError("flash: write failed at " + std::to_string(addr + done));
   return Status::Ok();
 }
 

@@ -132,17 +132,22 @@ bool PcaPlaneNormal(const std::vector<Eigen::Vector3f>& points, const int* indic
   return true;
 }
 
+namespace {
+constexpr int kKeyAxisBits = 21;                             // per axis in a VoxelKey
+constexpr uint64_t kKeyAxisMask = (uint64_t{1} << kKeyAxisBits) - 1;
+constexpr int64_t kKeyAxisBias = int64_t{1} << (kKeyAxisBits - 1);  // cell −2²⁰ is stored as 0
+}  // namespace
+
 uint64_t VoxelKey(int64_t x, int64_t y, int64_t z) {
-  const uint64_t m = (1u << 21) - 1;
-  return (static_cast<uint64_t>(x + (1 << 20)) & m) | ((static_cast<uint64_t>(y + (1 << 20)) & m) << 21) |
-         ((static_cast<uint64_t>(z + (1 << 20)) & m) << 42);
+  return (static_cast<uint64_t>(x + kKeyAxisBias) & kKeyAxisMask) |
+         ((static_cast<uint64_t>(y + kKeyAxisBias) & kKeyAxisMask) << kKeyAxisBits) |
+         ((static_cast<uint64_t>(z + kKeyAxisBias) & kKeyAxisMask) << (2 * kKeyAxisBits));
 }
 
 void VoxelOfKey(uint64_t key, int64_t* x, int64_t* y, int64_t* z) {
-  const uint64_t m = (1u << 21) - 1;
-  *x = static_cast<int64_t>(key & m) - (1 << 20);
-  *y = static_cast<int64_t>((key >> 21) & m) - (1 << 20);
-  *z = static_cast<int64_t>((key >> 42) & m) - (1 << 20);
+  *x = static_cast<int64_t>(key & kKeyAxisMask) - kKeyAxisBias;
+  *y = static_cast<int64_t>((key >> kKeyAxisBits) & kKeyAxisMask) - kKeyAxisBias;
+  *z = static_cast<int64_t>((key >> (2 * kKeyAxisBits)) & kKeyAxisMask) - kKeyAxisBias;
 }
 
 }  // namespace d3d

@@ -9,6 +9,8 @@
 #include <cstdlib>
 #include <cstring>
 
+#include "common/core/fd_io.h"
+
 namespace d3d {
 
 ViewArchive::~ViewArchive() {
@@ -36,20 +38,14 @@ Status ViewArchive::Add(uint64_t burst_seq, std::string_view blob) {
   if (!entries_.empty() && burst_seq <= entries_.back().burst_seq) sorted_ = false;
   bytes_ += static_cast<int64_t>(blob.size());
   if (fd_ >= 0) {
-    size_t done = 0;
-    while (done < blob.size()) {
-      const ssize_t n = ::pwrite(fd_, blob.data() + done, blob.size() - done, static_cast<off_t>(file_end_ + static_cast<int64_t>(done)));
-      if (n < 0 && errno == EINTR) continue;
-      if (n <= 0) break;
-      done += static_cast<size_t>(n);
-    }
+    const size_t done = PwriteFull(fd_, blob.data(), blob.size(), static_cast<uint64_t>(file_end_));
     if (done == blob.size()) {
       entries_.push_back({burst_seq, file_end_, blob.size(), {}});
       file_end_ += static_cast<int64_t>(blob.size());
       spilled_bytes_ += static_cast<int64_t>(blob.size());
       return Status::Ok();
     }
-    const std::string why = done > 0 ? "a short write" : std::strerror(errno);
+    const std::string why = done > 0 || errno == 0 ? "a short write" : std::strerror(errno);
     entries_.push_back({burst_seq, -1, blob.size(), std::string(blob)});
     return IoError("view archive: burst " + std::to_string(burst_seq) + " kept in memory: the spill file's write failed (" + why + ")");
   }
@@ -70,15 +66,9 @@ Status ViewArchive::Get(uint64_t burst_seq, std::vector<cv::Mat>* frames) const 
   if (e == nullptr) return NotFound("view archive: burst " + std::to_string(burst_seq) + " was not kept");
   if (e->offset < 0) return UnpackFrames(e->blob, frames);
   read_.resize(e->size);
-  size_t done = 0;
-  while (done < e->size) {
-    const ssize_t n = ::pread(fd_, read_.data() + done, e->size - done, static_cast<off_t>(e->offset + static_cast<int64_t>(done)));
-    if (n < 0 && errno == EINTR) continue;
-    if (n <= 0)
-      return IoError("view archive: burst " + std::to_string(burst_seq) + ": the spill file cannot be read back (" +
-                     (n == 0 ? std::string("it ends early") : std::string(std::strerror(errno))) + ")");
-    done += static_cast<size_t>(n);
-  }
+  if (PreadFull(fd_, read_.data(), e->size, static_cast<uint64_t>(e->offset)) < e->size)
+    return IoError("view archive: burst " + std::to_string(burst_seq) + ": the spill file cannot be read back (" +
+                   (errno == 0 ? std::string("it ends early") : std::string(std::strerror(errno))) + ")");
   return UnpackFrames(read_, frames);
 }
 
