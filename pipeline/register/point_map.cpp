@@ -102,6 +102,12 @@ int64_t PointMap::journal_bytes() const {
 
 SurfacePoints PointMap::Gather(const Eigen::Vector3f& lo, const Eigen::Vector3f& hi) const {
   SurfacePoints out;
+  Gather(lo, hi, &out);
+  return out;
+}
+
+void PointMap::Gather(const Eigen::Vector3f& lo, const Eigen::Vector3f& hi, SurfacePoints* out) const {
+  out->clear();
   const double binv = 1.0 / o_.block_mm;
   const int64_t x0 = static_cast<int64_t>(std::floor(lo.x() * binv)), x1 = static_cast<int64_t>(std::floor(hi.x() * binv));
   const int64_t y0 = static_cast<int64_t>(std::floor(lo.y() * binv)), y1 = static_cast<int64_t>(std::floor(hi.y() * binv));
@@ -120,12 +126,12 @@ SurfacePoints PointMap::Gather(const Eigen::Vector3f& lo, const Eigen::Vector3f&
       for (uint32_t i : v) {
         const Eigen::Vector3f& p = points_[i];
         if ((p.array() >= lo.array()).all() && (p.array() <= hi.array()).all()) {
-          out.points.push_back(p);
-          out.normals.push_back(normals_[i]);
+          out->points.push_back(p);
+          out->normals.push_back(normals_[i]);
         }
       }
     }
-    return out;
+    return;
   }
   for (int64_t x = x0; x <= x1; ++x)
     for (int64_t y = y0; y <= y1; ++y)
@@ -133,11 +139,10 @@ SurfacePoints PointMap::Gather(const Eigen::Vector3f& lo, const Eigen::Vector3f&
         const auto it = blocks_.find(VoxelKey(x, y, z));
         if (it == blocks_.end()) continue;
         for (uint32_t i : it->second) {
-          out.points.push_back(points_[i]);
-          out.normals.push_back(normals_[i]);
+          out->points.push_back(points_[i]);
+          out->normals.push_back(normals_[i]);
         }
       }
-  return out;
 }
 
 int PointMap::Render(const Rigid3d& world_from_cam, const PinholeIntrinsics& k, int splat, cv::Mat* P, cv::Mat* N) const {

@@ -71,6 +71,7 @@ TEST(PointMap, GatherFindsEverySampleInTheBox) {
   // Small boxes (≤ 5³ blocks, far fewer than the map's ~500-1300) take the block path; large ones
   // (≥ 30 × 20 × 8 blocks) the path that tests each sample.
   std::uniform_real_distribution<float> at(-35, 35), small_size(0.3f, 4.0f), unit(0, 1);
+  SurfacePoints reused;  // one buffer for every box, as the tracker passes it: the last box's samples must go
   for (int q = 0; q < 200; ++q) {
     const bool large = q % 2 == 1;
     const Eigen::Vector3f lo(at(rng), 0.4f * at(rng), large ? -6 + 4 * unit(rng) : 0.1f * at(rng));
@@ -78,6 +79,9 @@ TEST(PointMap, GatherFindsEverySampleInTheBox) {
                                          : Eigen::Vector3f(small_size(rng), small_size(rng), small_size(rng));
     const Eigen::Vector3f hi = lo + extent;
     const SurfacePoints got = map.Gather(lo, hi), want = inside(lo, hi);
+    map.Gather(lo, hi, &reused);
+    EXPECT_EQ(reused.points, got.points) << "box " << q;
+    EXPECT_EQ(reused.normals, got.normals) << "box " << q;
     const auto g = Sorted(got), w = Sorted(want);
     EXPECT_TRUE(std::includes(g.begin(), g.end(), w.begin(), w.end())) << "box " << q;  // everything inside is found
     if (large) {

@@ -47,29 +47,33 @@ double SurfacePoints::RadiusMm() const {
 }
 
 SurfacePoints SampleOrganised(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, int stride) {
+  SurfacePoints out;
+  SampleOrganised(points, normals, quality, stride, &out);
+  return out;
+}
+
+void SampleOrganised(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, int stride, SurfacePoints* out) {
   D3D_CHECK_MSG(points.type() == CV_32FC3, "points must be CV_32FC3");
   D3D_CHECK_MSG(normals.type() == CV_32FC3 && normals.size() == points.size(), "normals must be CV_32FC3 like points");
   D3D_CHECK_MSG(quality.empty() || (quality.type() == CV_32F && quality.size() == points.size()), "quality must be CV_32F like points");
   D3D_CHECK_MSG(stride >= 1, "stride must be >= 1");
-  SurfacePoints out;
-  // Row order: every 2·stride-th row first, then those between, so that Subsample(2) keeps every other row.
-  std::vector<int> rows;
-  for (int r = 0; r < points.rows; r += 2 * stride) rows.push_back(r);
-  for (int r = stride; r < points.rows; r += 2 * stride) rows.push_back(r);
-  for (int r : rows) {
-    const cv::Vec3f* P = points.ptr<cv::Vec3f>(r);
-    const cv::Vec3f* N = normals.ptr<cv::Vec3f>(r);
-    const float* Q = quality.empty() ? nullptr : quality.ptr<float>(r);
-    for (int c = (r / stride) % 2 ? stride / 2 : 0; c < points.cols; c += stride) {
-      const cv::Vec3f& p = P[c];
-      const cv::Vec3f& n = N[c];
-      if (!std::isfinite(p[0]) || !std::isfinite(p[2]) || !std::isfinite(n[0]) || !std::isfinite(n[2])) continue;
-      out.points.emplace_back(p[0], p[1], p[2]);
-      out.normals.emplace_back(n[0], n[1], n[2]);
-      if (Q) out.weights.push_back(std::clamp(std::isfinite(Q[c]) ? Q[c] : 0.0f, 0.0f, 1.0f));
+  out->clear();
+  // Row order: every 2·stride-th row first (0, 2·stride, …), then those between (stride, 3·stride, …),
+  // so that Subsample(2) keeps every other row.
+  for (int first = 0; first <= stride; first += stride)
+    for (int r = first; r < points.rows; r += 2 * stride) {
+      const cv::Vec3f* P = points.ptr<cv::Vec3f>(r);
+      const cv::Vec3f* N = normals.ptr<cv::Vec3f>(r);
+      const float* Q = quality.empty() ? nullptr : quality.ptr<float>(r);
+      for (int c = (r / stride) % 2 ? stride / 2 : 0; c < points.cols; c += stride) {
+        const cv::Vec3f& p = P[c];
+        const cv::Vec3f& n = N[c];
+        if (!std::isfinite(p[0]) || !std::isfinite(p[2]) || !std::isfinite(n[0]) || !std::isfinite(n[2])) continue;
+        out->points.emplace_back(p[0], p[1], p[2]);
+        out->normals.emplace_back(n[0], n[1], n[2]);
+        if (Q) out->weights.push_back(std::clamp(std::isfinite(Q[c]) ? Q[c] : 0.0f, 0.0f, 1.0f));
+      }
     }
-  }
-  return out;
 }
 
 cv::Mat GridNormals(const cv::Mat& P, double max_gap_mm) {

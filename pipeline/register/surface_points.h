@@ -33,6 +33,9 @@ struct SurfacePoints {
 // (copied into weights, clamped to [0, 1]). Rows are visited in an interleaved order (stride·2
 // apart, then the ones between) so that SurfacePoints::Subsample(k) stays spread over the image.
 SurfacePoints SampleOrganised(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, int stride);
+// The same into *out (cleared first; its capacity kept, so a caller that reuses it allocates only
+// while views grow past their high-water mark).
+void SampleOrganised(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, int stride, SurfacePoints* out);
 
 // Normals of an organised cloud from central differences on the grid, n = ∂P/∂col × ∂P/∂row
 // (normalised), NaN where a neighbour is missing or farther than max_gap_mm. H×W CV_32FC3.

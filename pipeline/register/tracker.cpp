@@ -206,11 +206,11 @@ IcpResult Tracker::RunIcp(const SurfacePoints& source, const Rigid3d& initial, c
     hi = hi.cwiseMax(w);
   }
   const Eigen::Vector3f m = Eigen::Vector3f::Constant(static_cast<float>(o_.gather_margin_mm));
-  SurfacePoints near = map_.Gather(lo - m, hi + m);
-  if (o_.association == Association::kKdTree) return RegisterIcp(source, KdTreeTarget(std::move(near)), initial, icp);
+  map_.Gather(lo - m, hi + m, &gathered_);
+  if (o_.association == Association::kKdTree) return RegisterIcp(source, KdTreeTarget(gathered_), initial, icp);
   std::vector<double> gates;
   for (const IcpLevel& level : icp.levels) gates.push_back(level.max_distance_mm);
-  grid_.Build(near, gates, o_.grid_decimate_min_gate_mm);
+  grid_.Build(gathered_, gates, o_.grid_decimate_min_gate_mm);
   return RegisterIcp(source, grid_, initial, icp);
 }
 
@@ -285,7 +285,8 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   view_log_.back().map_inserts_before = map_.inserts();
   view_log_.back().capture_ns = capture_ns;
   TrackResult out;
-  SurfacePoints samples = SampleOrganised(points, normals, quality, o_.sample_stride);
+  SurfacePoints& samples = view_samples_;
+  SampleOrganised(points, normals, quality, o_.sample_stride, &samples);
   bool augmented = false;
   if (samples.size() < static_cast<size_t>(o_.min_view_samples) && augment && !map_.empty() &&
       state_ == TrackingState::kTracking && index_ - last_accepted_ <= 2) {
@@ -293,7 +294,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     // tracking from the view just before, the motion prediction is close enough for the augmenter
     // to try the model there.
     if (augment(Predict(), map_)) {
-      samples = SampleOrganised(points, normals, quality, o_.sample_stride);
+      SampleOrganised(points, normals, quality, o_.sample_stride, &samples);
       augmented = true;
     }
   }
@@ -382,10 +383,11 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   if (augment && !map_.empty() && !augmented && augment(pose, map_)) {
     // The view gained points: register it again from its pose with all of them, when they are
     // enough to change the fit (a view whose own points were only the smooth palate, say).
-    SurfacePoints more = SampleOrganised(points, normals, quality, o_.sample_stride);
+    SurfacePoints& more = more_samples_;
+    SampleOrganised(points, normals, quality, o_.sample_stride, &more);
     const bool enough = static_cast<double>(more.size()) >= (1.0 + o_.reregister_min_gain) * static_cast<double>(samples.size());
     if (!enough) {
-      samples = std::move(more);  // fused and inserted at the pose found without them
+      std::swap(samples, more);  // fused and inserted at the pose found without them
     } else {
       IcpOptions fine = o_.icp;
       fine.levels.erase(fine.levels.begin(), fine.levels.begin() + o_.reregister_first_level);
@@ -393,7 +395,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
       if (again.ok && ConsistentMotion(again.target_from_source, nullptr)) {
         pose = again.target_from_source;
         out.icp = again;
-        samples = std::move(more);
+        std::swap(samples, more);
       }
     }
   }
@@ -419,7 +421,10 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   log.in_model = out.in_model;
   log.relocalised = out.state == TrackingState::kRelocalised;
   log.pose = pose;
-  if (out.in_model) map_.Insert(SampleOrganised(points, normals, cv::Mat(), o_.map_stride), pose);
+  if (out.in_model) {
+    SampleOrganised(points, normals, cv::Mat(), o_.map_stride, &map_samples_);
+    map_.Insert(map_samples_, pose);
+  }
   MaybeKeyframe(samples, points, normals, texture, pose, &out);
   const int kf = static_cast<int>(keyframes_.size()) - 1;
   anchor_.back() = kf;

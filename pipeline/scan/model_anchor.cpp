@@ -146,9 +146,9 @@ int64_t ModelAnchorer::Anchor(const PointMap& model, const Rigid3d& world_from_c
   }
   if (groups.empty() || !(lo.x() <= hi.x())) return finish(0);
   const Eigen::Vector3f margin = Eigen::Vector3f::Constant(static_cast<float>(options_.model_margin_mm));
-  const SurfacePoints near = model.Gather(lo - margin, hi + margin);
-  if (near.size() < 10 || near.normals.size() != near.points.size()) return finish(0);
-  near_.Build(near, {options_.gate_mm});
+  model.Gather(lo - margin, hi + margin, &near_samples_);
+  if (near_samples_.size() < 10 || near_samples_.normals.size() != near_samples_.points.size()) return finish(0);
+  near_.Build(near_samples_, {options_.gate_mm});
   const GridTarget& target = near_;
   const float gate = static_cast<float>(options_.gate_mm), inlier = static_cast<float>(options_.inlier_mm);
   const float min_cos = static_cast<float>(std::cos(options_.max_incidence_deg * M_PI / 180.0));

@@ -94,7 +94,8 @@ class ModelAnchorer {
   cv::Mat phase_min_, phase_max_;
   std::vector<int32_t> keys_;     // per pixel: its group key, −1 for none (per call)
   std::vector<int8_t> verdict_;   // per lattice pixel: −1 unchecked, 0 refused, 1 confirmed (per call)
-  GridTarget near_;               // the model near the view, for the nearest-sample look-ups (per call, buffers reused)
+  SurfacePoints near_samples_;    // the model's samples near the view (per call, buffers reused)
+  GridTarget near_;               // grids over them, for the nearest-sample look-ups (per call, buffers reused)
 };
 
 }  // namespace d3d
