@@ -88,6 +88,11 @@ void PoseGraph::Truncate(int n) {
                edges_.end());
 }
 
+bool PoseGraph::HasEdge(int a, int b) const {
+  return std::any_of(edges_.begin(), edges_.end(),
+                     [a, b](const PoseGraphEdge& e) { return (e.from == a && e.to == b) || (e.from == b && e.to == a); });
+}
+
 void PoseGraph::AddEdge(const PoseGraphEdge& e) {
   D3D_CHECK_MSG(e.from >= 0 && e.to >= 0 && e.from < num_nodes() && e.to < num_nodes() && e.from != e.to,
                 "PoseGraph::AddEdge: bad nodes " << e.from << " → " << e.to);

@@ -65,6 +65,7 @@ class PoseGraph {
   void Truncate(int num_nodes);
   int num_nodes() const { return static_cast<int>(poses_.size()); }
   const std::vector<PoseGraphEdge>& edges() const { return edges_; }
+  bool HasEdge(int a, int b) const;  // an edge joins nodes a and b (either direction)
   const Rigid3d& pose(int node) const { return poses_[static_cast<size_t>(node)]; }
   void set_pose(int node, const Rigid3d& p) { poses_[static_cast<size_t>(node)] = p; }
   // Optimises all but node 0. INVALID_ARGUMENT for an empty graph.

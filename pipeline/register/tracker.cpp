@@ -74,6 +74,8 @@ void TrackerOptions::Check() const {
   D3D_CHECK_MSG(keyframe_overlap > 0 && keyframe_overlap <= 1, "TrackerOptions: keyframe_overlap in (0, 1]");
   D3D_CHECK_MSG(keyframe_max_rotation_deg >= 0 && keyframe_max_views >= 0,
                 "TrackerOptions: keyframe_max_rotation_deg and keyframe_max_views >= 0 (0 = off)");
+  D3D_CHECK_MSG(keyframe_reuse_radius_mm >= 0 && keyframe_reuse_candidates >= 1,
+                "TrackerOptions: keyframe_reuse_radius_mm >= 0 (0 = off) and keyframe_reuse_candidates >= 1");
   D3D_CHECK_MSG(relocalise_candidates >= 1 && loop_min_separation >= 1 && max_loop_candidates >= 0 && near_loop_candidates >= 0,
                 "TrackerOptions: counts");
   D3D_CHECK_MSG(edge_information_scale > 0, "TrackerOptions: edge_information_scale > 0");
@@ -426,9 +428,10 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     map_.Insert(map_samples_, pose);
   }
   MaybeKeyframe(samples, points, normals, texture, pose, &out);
-  const int kf = static_cast<int>(keyframes_.size()) - 1;
-  anchor_.back() = kf;
-  kf_from_cam_.back() = graph_.pose(keyframes_[static_cast<size_t>(kf)].node).inverse() * pose;
+  view_log_.back().current_kf = current_kf_;
+  view_log_.back().current_since = current_since_;
+  anchor_.back() = current_kf_;
+  kf_from_cam_.back() = graph_.pose(keyframes_[static_cast<size_t>(current_kf_)].node).inverse() * pose;
   out.ms = Ms(t0);
   return out;
 }
@@ -556,20 +559,27 @@ bool Tracker::Relocalise(const SurfacePoints& samples, const cv::Mat& points, co
 void Tracker::MaybeKeyframe(const SurfacePoints& /*samples*/, const cv::Mat& points, const cv::Mat& normals,
                             const cv::Mat& texture, const Rigid3d& pose, TrackResult* out) {
   SurfacePoints kfs = SampleOrganised(points, normals, cv::Mat(), o_.keyframe_stride);
-  if (!keyframes_.empty()) {
-    const Keyframe& last = keyframes_.back();
-    const Rigid3d last_from_cam = graph_.pose(last.node).inverse() * pose;
+  if (current_kf_ >= 0) {
+    const Keyframe& current = keyframes_[static_cast<size_t>(current_kf_)];
+    const Rigid3d current_from_cam = graph_.pose(current.node).inverse() * pose;
     const bool turned = o_.keyframe_max_rotation_deg > 0 &&
-                        RotationAngleRad(graph_.pose(last.node), pose) * 180.0 / M_PI > o_.keyframe_max_rotation_deg;
-    const bool aged = o_.keyframe_max_views > 0 && index_ - last.view >= o_.keyframe_max_views;
-    if (!turned && !aged && last_keyframe_occupancy_->Overlap(kfs, last_from_cam) >= o_.keyframe_overlap) return;
+                        RotationAngleRad(graph_.pose(current.node), pose) * 180.0 / M_PI > o_.keyframe_max_rotation_deg;
+    const bool aged = o_.keyframe_max_views > 0 && index_ - current_since_ >= o_.keyframe_max_views;
+    if (!turned && !aged && current_occupancy_->Overlap(kfs, current_from_cam) >= o_.keyframe_overlap) return;
+    if (o_.keyframe_reuse_radius_mm > 0 && ReuseKeyframe(kfs, pose)) {
+      out->keyframe_reused = true;
+      return;
+    }
   }
   Keyframe kf;
   kf.view = index_;
   kf.node = graph_.AddNode(pose);
   kf.centre_in_cam = kfs.Centroid();
+  kf.parent = current_kf_;
   kf.samples = std::move(kfs);
-  last_keyframe_occupancy_ = OccupancyMap(kf.samples, kOverlapVoxelMm);
+  kf.samples.points.shrink_to_fit();  // kept for the scan: not the lattice's growth capacity
+  kf.samples.normals.shrink_to_fit();
+  current_occupancy_ = OccupancyMap(kf.samples, kOverlapVoxelMm);
   if (o_.relocalise) {
     switch (o_.keyframe_feature_timing) {
       case TrackerOptions::FeatureTiming::kInTrack: kf.features = ExtractViewFeatures(points, texture, o_.features); break;
@@ -590,8 +600,58 @@ void Tracker::MaybeKeyframe(const SurfacePoints& /*samples*/, const cv::Mat& poi
   keyframes_.push_back(std::move(kf));
   out->new_keyframe = true;
   const int k = static_cast<int>(keyframes_.size()) - 1;
-  if (o_.defer_keyframe_edges) deferred_edges_.push_back(k);
+  current_kf_ = k;
+  current_since_ = index_;
+  if (o_.defer_keyframe_edges) deferred_edges_.push_back({-1, k});
   else out->loops_added = AddKeyframeEdges(k);
+}
+
+bool Tracker::ReuseKeyframe(const SurfacePoints& kfs, const Rigid3d& pose) {
+  if (kfs.empty()) return false;
+  const Eigen::Vector3d centre = pose * kfs.Centroid();
+  const double max_turn_rad = o_.keyframe_max_rotation_deg > 0 ? 0.5 * o_.keyframe_max_rotation_deg * M_PI / 180.0 : M_PI;
+  std::vector<std::pair<double, int>> near;
+  for (int j = 0; j < static_cast<int>(keyframes_.size()); ++j) {
+    if (j == current_kf_) continue;
+    const Keyframe& kf = keyframes_[static_cast<size_t>(j)];
+    const Rigid3d& world_from_kf = graph_.pose(kf.node);
+    const double d = (world_from_kf * kf.centre_in_cam - centre).norm();
+    if (d <= o_.keyframe_reuse_radius_mm && RotationAngleRad(world_from_kf, pose) <= max_turn_rad) near.emplace_back(d, j);
+  }
+  const size_t n = std::min(near.size(), static_cast<size_t>(o_.keyframe_reuse_candidates));
+  std::partial_sort(near.begin(), near.begin() + static_cast<std::ptrdiff_t>(n), near.end());
+  for (size_t i = 0; i < n; ++i) {
+    const int j = near[i].second;
+    const Keyframe& kf = keyframes_[static_cast<size_t>(j)];
+    std::unique_ptr<PointMap> occupancy = OccupancyMap(kf.samples, kOverlapVoxelMm);
+    if (occupancy->Overlap(kfs, graph_.pose(kf.node).inverse() * pose) < o_.keyframe_overlap) continue;
+    // The view overlaps both the keyframe it leaves and the one it returns to: those two are a loop
+    // closed (e.g. a probe back at a tooth it circled before), the edge DetectLoops would have
+    // measured had the view become a keyframe.
+    const int left = current_kf_;
+    current_kf_ = j;
+    current_since_ = index_;
+    current_occupancy_ = std::move(occupancy);
+    ++keyframes_reused_;
+    if (left >= 0) {
+      const DeferredEdge d{std::min(left, j), std::max(left, j)};
+      if (o_.defer_keyframe_edges) deferred_edges_.push_back(d);
+      else AddReuseEdge(d.from, d.to);
+    }
+    return true;
+  }
+  return false;
+}
+
+void Tracker::AddReuseEdge(int from, int to) {
+  // Checked here rather than when the reuse happened: deferred, the keyframes' own edges (odometry,
+  // DetectLoops) are added just before, in Track()'s order, and one pair may be reused many times.
+  if (graph_.HasEdge(keyframes_[static_cast<size_t>(from)].node, keyframes_[static_cast<size_t>(to)].node)) return;
+  PoseGraphEdge e;
+  if (!KeyframeEdge(from, to, &e)) return;
+  e.loop = true;
+  if (to - from < o_.loop_min_separation) ScaleInformation(o_.near_loop_information_factor, &e);
+  graph_.AddEdge(e);
 }
 
 int64_t Keyframe::bytes() const {
@@ -610,11 +670,11 @@ int64_t Tracker::keyframe_bytes() const {
 }
 
 int Tracker::AddKeyframeEdges(int k) {
-  if (k > 0) {
+  if (const int parent = keyframes_[static_cast<size_t>(k)].parent; parent >= 0) {
     PoseGraphEdge e;
-    if (!o_.keyframe_icp_edges || !KeyframeEdge(k - 1, k, &e)) {
+    if (!o_.keyframe_icp_edges || !KeyframeEdge(parent, k, &e)) {
       e = PoseGraphEdge{};
-      e.from = keyframes_[static_cast<size_t>(k - 1)].node;
+      e.from = keyframes_[static_cast<size_t>(parent)].node;
       e.to = keyframes_[static_cast<size_t>(k)].node;
       e.from_from_to = graph_.pose(e.from).inverse() * graph_.pose(e.to);
       e.sigma_translation_mm = o_.odometry_sigma_mm;
@@ -670,6 +730,7 @@ int Tracker::DetectLoops(int k) {
   const Eigen::Vector3d ca = wa * a.centre_in_cam;
   std::vector<std::pair<double, int>> far, near;
   for (int j = 0; j + 2 <= k; ++j) {
+    if (j == a.parent) continue;  // joined by the odometry edge (a reused keyframe: older than k − 1)
     const Keyframe& b = keyframes_[static_cast<size_t>(j)];
     const double d = (graph_.pose(b.node) * b.centre_in_cam - ca).norm();
     if (d >= o_.loop_radius_mm) continue;
@@ -705,7 +766,10 @@ int Tracker::loop_edges() const {
 Status Tracker::Optimize(const PoseGraphOptions& options, PoseGraphSummary* summary) {
   // Deferred edges first, in keyframe order: the graph's poses have not moved since the keyframes
   // were made (nothing but Optimize moves them), so these are the edges Track() would have added.
-  for (const int k : deferred_edges_) AddKeyframeEdges(k);
+  for (const DeferredEdge& d : deferred_edges_) {
+    if (d.from < 0) AddKeyframeEdges(d.to);
+    else AddReuseEdge(d.from, d.to);
+  }
   deferred_edges_.clear();
   return graph_.Optimize(options, summary);
 }
@@ -755,9 +819,20 @@ Tracker::UndoResult Tracker::UndoFrom(int64_t first_view) {
   keyframes_.resize(keep);
   D3D_CHECK_MSG(keep == 0 || keyframes_.back().node == static_cast<int>(keep) - 1, "Tracker::UndoFrom: keyframe nodes out of order");
   graph_.Truncate(static_cast<int>(keep));
-  deferred_edges_.erase(std::remove_if(deferred_edges_.begin(), deferred_edges_.end(), [keep](int k) { return k >= static_cast<int>(keep); }),
+  deferred_edges_.erase(std::remove_if(deferred_edges_.begin(), deferred_edges_.end(),
+                                       [keep](const DeferredEdge& d) { return std::max(d.from, d.to) >= static_cast<int>(keep); }),
                         deferred_edges_.end());
-  last_keyframe_occupancy_ = keep > 0 ? OccupancyMap(keyframes_.back().samples, kOverlapVoxelMm) : nullptr;
+  // The current keyframe as the last kept accepted view left it.
+  current_kf_ = -1;
+  current_since_ = -1;
+  for (size_t v = f; v-- > 0;)
+    if (anchor_[v] >= 0) {
+      current_kf_ = view_log_[v].current_kf;
+      current_since_ = view_log_[v].current_since;
+      break;
+    }
+  D3D_CHECK_MSG(current_kf_ < static_cast<int>(keep), "Tracker::UndoFrom: a kept view's keyframe went");
+  current_occupancy_ = current_kf_ >= 0 ? OccupancyMap(keyframes_[static_cast<size_t>(current_kf_)].samples, kOverlapVoxelMm) : nullptr;
   // The motion state, residual history and map gate as the kept views left them (replayed in order).
   recent_rmse_mm_.clear();
   recent_rmse_next_ = 0;

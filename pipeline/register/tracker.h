@@ -17,11 +17,12 @@
 //     (features.h) are matched to keyframes, chosen by a local border search: keyframes nearest
 //     the last accepted view first (where the probe left the model), up to relocalise_candidates;
 //     RANSAC → ICP against the model; the first that passes is accepted (state kRelocalised).
-//  5. Keyframes: a view whose overlap index with the last keyframe (fraction of its samples in
+//  5. Keyframes: a view whose overlap index with the current keyframe (fraction of its samples in
 //     the keyframe's occupied voxels) falls below keyframe_overlap (or, optionally, that turned or
-//     waited too long since it) becomes a keyframe: samples,
-//     features and pose kept; an odometry edge joins it to the previous keyframe, measured by ICP
-//     between the two keyframes' samples (keyframe_icp_edges) with ICP's information matrix.
+//     waited too long since it) becomes a keyframe, unless an older keyframe near it already covers
+//     it (that one becomes current again: keyframe_reuse_radius_mm): samples, features and pose
+//     kept; an odometry edge joins it to the keyframe that was current, measured by ICP between
+//     the two keyframes' samples (keyframe_icp_edges) with ICP's information matrix.
 //  6. Loop closure: a new keyframe is registered by ICP to other keyframes (up to
 //     max_loop_candidates at least loop_min_separation keyframes back, and near_loop_candidates
 //     more recent ones) whose samples overlap its own (overlap index ≥ loop_min_overlap at the
@@ -136,6 +137,20 @@ struct TrackerOptions {
   // the transitions' error no longer depends on where one keyframe happened to fall.
   double keyframe_max_rotation_deg = 8.0;
   int keyframe_max_views = 45;
+  // Keyframe reuse: when a view would become a keyframe (any rule above), an older keyframe that
+  // already covers it becomes the current one instead (ORB-SLAM's keyframe culling, done before
+  // the keyframe is made rather than after): one whose centre lies within keyframe_reuse_radius_mm
+  // of the view's, turned at most half keyframe_max_rotation_deg from it (so that it lasts a few
+  // views), and whose overlap index with the view is at least keyframe_overlap; of the
+  // keyframe_reuse_candidates such nearest, the first that passes. Later views anchor to it and are
+  // tested against it, and the next new keyframe's odometry edge starts from it. Why: a keyframe
+  // holds ~0.4-0.7 MB (samples, packed feature inputs), and a probe circling one tooth made one
+  // every ~0.4 s for as long as it circled (RSS +1.7 MB/s). The price: fewer keyframes and loop
+  // edges where the probe lingers, so the pose graph averages fewer measurements there (test
+  // AProbeCirclingOneSpotReusesItsKeyframes: worst optimised view 9 → 19 µm on a 160 × 120 view,
+  // tracked 15 µm either way). 0 = never reuse (every trigger makes a keyframe); d3d-scan: 2 mm.
+  double keyframe_reuse_radius_mm = 0;
+  int keyframe_reuse_candidates = 3;
   int keyframe_stride = 4;        // px lattice of a keyframe's samples
   // Keyframe and relocalisation features. SIFT on half-size images (image_scale 0.5): measured on
   // 45 view pairs 3, 6 and 12 bursts apart along each arch's path (640 × 480 views), it aligns as
@@ -267,6 +282,10 @@ struct Keyframe {
   // Bytes the keyframe holds: samples, features and packed feature inputs.
   int64_t bytes() const;
   Eigen::Vector3d centre_in_cam = Eigen::Vector3d::Zero();
+  // The keyframe the views were anchored to when this one was made (its odometry edge starts
+  // there): the previous keyframe, or an older one reused since (keyframe_reuse_radius_mm); −1 for
+  // the first.
+  int parent = -1;
 
   // Moves are declared noexcept: cv::Mat's move constructor is not (OpenCV 4.6), so without this
   // std::vector<Keyframe> copied every keyframe each time it grew. Measured on a 60-s dwell over one
@@ -289,6 +308,7 @@ struct TrackResult {
   std::string reason;                 // why refused, or how relocalised
   IcpResult icp;
   bool new_keyframe = false;
+  bool keyframe_reused = false;       // an older keyframe became the current one (keyframe_reuse_radius_mm)
   bool in_model = false;              // the view's samples entered the tracking model (map_max_rmse_ratio)
   int loops_added = 0;
   double ms = 0;
@@ -321,6 +341,8 @@ class Tracker {
   // (empty) here.
   const std::vector<Keyframe>& keyframes() const { return keyframes_; }
   int64_t keyframe_bytes() const;  // the keyframes' Keyframe::bytes(), summed
+  int keyframes_reused() const { return keyframes_reused_; }  // times an older keyframe became current again
+  int current_keyframe() const { return current_kf_; }         // the keyframe views anchor to now (−1: none yet)
   const PoseGraph& graph() const { return graph_; }
   int64_t views() const { return static_cast<int64_t>(anchor_.size()); }
   const PointMap& model() const { return map_; }
@@ -361,8 +383,15 @@ class Tracker {
   bool Relocalise(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& texture, TrackResult* out);
   void MaybeKeyframe(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& normals,
                      const cv::Mat& texture, const Rigid3d& pose, TrackResult* out);
+  // Keyframe reuse (TrackerOptions::keyframe_reuse_radius_mm): makes an older keyframe covering the
+  // view (samples kfs, camera frame, at `pose`) the current one; false when none does.
+  // On success, the keyframe left and the one reused get a loop edge (AddReuseEdge) unless joined.
+  bool ReuseKeyframe(const SurfacePoints& kfs, const Rigid3d& pose);
+  // A loop edge measured by ICP between keyframes from < to (KeyframeEdge; near_loop_information_factor
+  // when fewer than loop_min_separation apart); none when an edge joins them already or the ICP fails.
+  void AddReuseEdge(int from, int to);
   int DetectLoops(int new_kf);
-  // The pose-graph edges of keyframe k (to k−1, and loop closures): returns the loops added.
+  // The pose-graph edges of keyframe k (to its parent, and loop closures): returns the loops added.
   int AddKeyframeEdges(int k);
   // ICP of keyframe `to`'s samples onto keyframe `from`'s from their current relative pose: an
   // edge with ICP's information (false when the ICP fails).
@@ -377,7 +406,12 @@ class Tracker {
   TrackerOptions o_;
   std::unique_ptr<FeatureWorker> feature_worker_;  // null unless keyframe_feature_timing is kWorker
   FramePacker packer_;                              // kOnDemand: packs a new keyframe's feature inputs (Track()'s thread)
-  std::vector<int> deferred_edges_;                 // keyframes whose edges wait for Optimize (defer_keyframe_edges)
+  // Edges that wait for Optimize (defer_keyframe_edges), in the order Track() would have added them:
+  // from < 0, keyframe `to`'s edges (AddKeyframeEdges); else a reuse edge (AddReuseEdge).
+  struct DeferredEdge {
+    int from = -1, to = -1;
+  };
+  std::vector<DeferredEdge> deferred_edges_;
   PointMap map_;
   // RunIcp's model samples near the view and its association grids (kGrid), refilled for every ICP
   // with their buffers reused: Track()'s thread only.
@@ -388,10 +422,14 @@ class Tracker {
   mutable GridTarget grid_;
   PoseGraph graph_;
   std::vector<Keyframe> keyframes_;
-  // The newest keyframe's samples as an occupancy map (its camera frame), built when the keyframe is
-  // made: every later view's keyframe test measures its overlap with it. Touched only by Track()'s
-  // thread; null until the first keyframe.
-  std::unique_ptr<PointMap> last_keyframe_occupancy_;
+  // The current keyframe (views anchor to it: the newest, or an older one reused since), the view
+  // that made it current, and its samples as an occupancy map (its camera frame), built when it
+  // became current: every later view's keyframe test measures its overlap with it. Touched only by
+  // Track()'s thread; −1 / null until the first keyframe.
+  int current_kf_ = -1;
+  int64_t current_since_ = -1;
+  std::unique_ptr<PointMap> current_occupancy_;
+  int keyframes_reused_ = 0;
   TrackingState state_ = TrackingState::kInitialising;
   int64_t index_ = -1;                // current view index
   int64_t last_accepted_ = -1;
@@ -429,9 +467,12 @@ class Tracker {
   std::vector<Rigid3d> kf_from_cam_;
   // Per view, what UndoFrom needs to replay the state the kept views left: the model's Insert count
   // at its start, and for an accepted view its pose, capture time, residual pushed to
-  // recent_rmse_mm_ (< 0: none), whether it entered the model and whether it was a re-entry.
+  // recent_rmse_mm_ (< 0: none), whether it entered the model, whether it was a re-entry, and the
+  // current keyframe after it (current_kf_, current_since_).
   struct ViewLog {
     int64_t map_inserts_before = 0;
+    int current_kf = -1;
+    int64_t current_since = -1;
     int64_t capture_ns = 0;
     double rmse_pushed_mm = -1;
     bool in_model = false;

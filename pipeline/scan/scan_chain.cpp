@@ -399,6 +399,7 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   j["unrecovered"] = tracker.state() == TrackingState::kLost ? 1 : 0;
   j["final_state"] = TrackingStateName(tracker.state());
   j["keyframes"] = tracker.keyframes().size();
+  j["keyframes_reused"] = tracker.keyframes_reused();  // times an older keyframe became current again
   j["loop_edges"] = tracker.loop_edges();
   j["pose_graph_max_correction_mm"] = max_correction_mm;
   j["pose_graph_disagreeing_edges"] = pg.disagreeing_edges.size();
