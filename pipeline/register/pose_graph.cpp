@@ -81,9 +81,10 @@ int PoseGraph::AddNode(const Rigid3d& p) {
   return static_cast<int>(poses_.size()) - 1;
 }
 
-void PoseGraph::Truncate(int n) {
+void PoseGraph::Truncate(int n, size_t max_edges) {
   D3D_CHECK_MSG(n >= 0 && n <= num_nodes(), "PoseGraph::Truncate: " << n << " nodes of " << num_nodes());
   poses_.resize(static_cast<size_t>(n));
+  if (edges_.size() > max_edges) edges_.resize(max_edges);
   edges_.erase(std::remove_if(edges_.begin(), edges_.end(), [n](const PoseGraphEdge& e) { return e.from >= n || e.to >= n; }),
                edges_.end());
 }

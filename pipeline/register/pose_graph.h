@@ -11,6 +11,7 @@
 // arch. Units: mm, rad.
 #pragma once
 
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -60,9 +61,9 @@ class PoseGraph {
  public:
   int AddNode(const Rigid3d& world_from_node);
   void AddEdge(const PoseGraphEdge& edge);  // throws std::invalid_argument for unknown nodes
-  // Keeps nodes 0 … num_nodes − 1 and the edges between them (in their order); the others go.
-  // Throws std::invalid_argument for num_nodes < 0 or above num_nodes().
-  void Truncate(int num_nodes);
+  // Keeps nodes 0 … num_nodes − 1 and, of the first max_edges edges, those between them (in their
+  // order); the others go. Throws std::invalid_argument for num_nodes < 0 or above num_nodes().
+  void Truncate(int num_nodes, size_t max_edges = SIZE_MAX);
   int num_nodes() const { return static_cast<int>(poses_.size()); }
   const std::vector<PoseGraphEdge>& edges() const { return edges_; }
   bool HasEdge(int a, int b) const;  // an edge joins nodes a and b (either direction)

@@ -206,5 +206,30 @@ TEST(PoseGraph, AChangeOfWorldFrameChangesNothingRelative) {
   }
 }
 
+TEST(PoseGraph, TruncateKeepsTheEarlyEdgesBetweenKeptNodes) {
+  PoseGraph g;
+  for (int i = 0; i < 4; ++i) g.AddNode(Rigid3d::Identity());
+  const std::vector<std::pair<int, int>> pairs = {{0, 1}, {1, 2}, {0, 2}, {2, 3}, {0, 1}, {1, 3}};
+  for (const auto& [a, b] : pairs) {
+    PoseGraphEdge e;
+    e.from = a;
+    e.to = b;
+    g.AddEdge(e);
+  }
+  EXPECT_TRUE(g.HasEdge(3, 1));
+  EXPECT_FALSE(g.HasEdge(0, 3));
+  auto kept = [&g] {
+    std::vector<std::pair<int, int>> out;
+    for (const PoseGraphEdge& e : g.edges()) out.emplace_back(e.from, e.to);
+    return out;
+  };
+  g.Truncate(4, 5);  // the first five edges, all nodes
+  EXPECT_EQ(kept(), (std::vector<std::pair<int, int>>{{0, 1}, {1, 2}, {0, 2}, {2, 3}, {0, 1}}));
+  g.Truncate(3);  // node 3 and its edge go
+  EXPECT_EQ(g.num_nodes(), 3);
+  EXPECT_EQ(kept(), (std::vector<std::pair<int, int>>{{0, 1}, {1, 2}, {0, 2}, {0, 1}}));
+  EXPECT_THROW(g.Truncate(4), std::invalid_argument);
+}
+
 }  // namespace
 }  // namespace d3d

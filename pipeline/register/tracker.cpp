@@ -285,6 +285,8 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   kf_from_cam_.push_back(Rigid3d::Identity());
   view_log_.emplace_back();
   view_log_.back().map_inserts_before = map_.inserts();
+  view_log_.back().edges_before = graph_.edges().size();
+  view_log_.back().deferred_edges_before = deferred_edges_.size();
   view_log_.back().capture_ns = capture_ns;
   TrackResult out;
   SurfacePoints& samples = view_samples_;
@@ -818,10 +820,12 @@ Tracker::UndoResult Tracker::UndoFrom(int64_t first_view) {
   r.keyframes_undone = static_cast<int>(keyframes_.size() - keep);
   keyframes_.resize(keep);
   D3D_CHECK_MSG(keep == 0 || keyframes_.back().node == static_cast<int>(keep) - 1, "Tracker::UndoFrom: keyframe nodes out of order");
-  graph_.Truncate(static_cast<int>(keep));
-  deferred_edges_.erase(std::remove_if(deferred_edges_.begin(), deferred_edges_.end(),
-                                       [keep](const DeferredEdge& d) { return std::max(d.from, d.to) >= static_cast<int>(keep); }),
-                        deferred_edges_.end());
+  // Edges (and deferred ones) are appended in Track()'s order until Optimize: those added from view
+  // first_view on go, including reuse edges between two kept keyframes.
+  if (f < view_log_.size()) {
+    graph_.Truncate(static_cast<int>(keep), view_log_[f].edges_before);
+    deferred_edges_.resize(std::min(deferred_edges_.size(), view_log_[f].deferred_edges_before));
+  }
   // The current keyframe as the last kept accepted view left it.
   current_kf_ = -1;
   current_since_ = -1;

@@ -603,11 +603,12 @@ TEST_F(TrackerScan, AProbeCirclingOneSpotReusesItsKeyframes) {
   u.map.undo_inserts = 2 * kRound;
   Tracker all(small_cam_, u);
   std::vector<int> current;
-  std::vector<size_t> made;
+  std::vector<size_t> made, edges;
   for (size_t i = 0; i < path.size(); ++i) {
     ASSERT_TRUE(FeedSmall(&all, path[i], static_cast<uint32_t>(i + 1)).accepted) << "view " << i;
     current.push_back(all.current_keyframe());
     made.push_back(all.keyframes().size());
+    edges.push_back(all.graph().edges().size());
   }
   int keep = -1;  // views kept: 0 … keep − 1
   for (size_t i = 2 * kRound; i + 2 < path.size() && keep < 0; ++i)
@@ -616,6 +617,7 @@ TEST_F(TrackerScan, AProbeCirclingOneSpotReusesItsKeyframes) {
   ASSERT_TRUE(all.UndoFrom(keep).ok);
   EXPECT_EQ(all.keyframes().size(), made[static_cast<size_t>(keep - 1)]);
   EXPECT_EQ(all.current_keyframe(), current[static_cast<size_t>(keep - 1)]);
+  EXPECT_EQ(all.graph().edges().size(), edges[static_cast<size_t>(keep - 1)]);
   EXPECT_THROW(
       [] {
         TrackerOptions bad;
