@@ -286,19 +286,9 @@ struct Keyframe {
   // there): the previous keyframe, or an older one reused since (keyframe_reuse_radius_mm); −1 for
   // the first.
   int parent = -1;
-
-  // Moves are declared noexcept: cv::Mat's move constructor is not (OpenCV 4.6), so without this
-  // std::vector<Keyframe> copied every keyframe each time it grew. Measured on a 60-s dwell over one
-  // tooth: at 64 and 128 keyframes the tracker thread copied ~90 MB within one view, a latency spike
-  // whose freed pages the heap kept (RSS +31 and +80 MB in steps). cv::Mat's move only takes the
-  // other's pointers and cannot throw.
-  Keyframe() = default;
-  Keyframe(const Keyframe&) = default;
-  Keyframe(Keyframe&&) noexcept = default;
-  Keyframe& operator=(const Keyframe&) = default;
-  Keyframe& operator=(Keyframe&&) noexcept = default;
-  ~Keyframe() = default;
 };
+// Its members move without throwing (ViewFeatures declares so for its cv::Mats), so
+// std::vector<Keyframe> moves keyframes when it grows rather than copying them (see ViewFeatures).
 static_assert(std::is_nothrow_move_constructible_v<Keyframe>, "std::vector<Keyframe> must move keyframes when it grows, not copy them");
 
 struct TrackResult {
