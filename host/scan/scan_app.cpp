@@ -217,6 +217,17 @@ bool ScanApp::RegisterStage(ScanItem& item) {
   item.view_index = static_cast<int64_t>(registrar_->views().size());
   item.track = registrar_->Register(item.view, item.burst.burst_seq, item.burst.capture_ns);
   if (!item.track.accepted) refused_.fetch_add(1, std::memory_order_relaxed);
+  if (++reg_memory_views_ >= kMemoryEvery) {
+    reg_memory_views_ = 0;
+    constexpr double kMiB = 1.0 / (1024.0 * 1024.0);
+    const Tracker& tracker = registrar_->tracker();
+    mem_views_.store(registrar_->views().size(), std::memory_order_relaxed);
+    mem_model_samples_.store(tracker.model().size(), std::memory_order_relaxed);
+    mem_model_mib_.store(static_cast<double>(tracker.model().memory_bytes()) * kMiB, std::memory_order_relaxed);
+    mem_undo_journal_mib_.store(static_cast<double>(tracker.model().journal_bytes()) * kMiB, std::memory_order_relaxed);
+    mem_keyframes_.store(tracker.keyframes().size(), std::memory_order_relaxed);
+    mem_keyframes_mib_.store(static_cast<double>(tracker.keyframe_bytes()) * kMiB, std::memory_order_relaxed);
+  }
   return true;  // refused views still go on: the preview shows them (red)
 }
 
@@ -253,6 +264,12 @@ bool ScanApp::FuseStage(ScanItem& item) {
     if (item.fused && item.packed_ok) {
       if (const Status s = archive_.Add(item.burst.burst_seq, item.packed); !s.ok() && spill_failures_++ == 0) spill_failure_ = s.ToString();
       fused_views_.push_back({item.view_index, item.burst.burst_seq, item.track.world_from_cam});
+    }
+    if (item.fused && ++fuse_memory_views_ >= kMemoryEvery) {
+      fuse_memory_views_ = 0;
+      constexpr double kMiB = 1.0 / (1024.0 * 1024.0);
+      mem_tsdf_mib_.store(static_cast<double>(fuser_->volume().MemoryBytes()) * kMiB, std::memory_order_relaxed);
+      mem_views_kept_mib_.store(static_cast<double>(archive_.memory_bytes()) * kMiB, std::memory_order_relaxed);
     }
   }
   return true;
@@ -408,6 +425,19 @@ PreviewStatus ScanApp::CurrentStatus() const {
     st.cue_override = PreviewCue::kWaiting;
   }
   return st;
+}
+
+ScanMemory ScanApp::Memory() const {
+  ScanMemory m;
+  m.views = mem_views_.load(std::memory_order_relaxed);
+  m.model_samples = mem_model_samples_.load(std::memory_order_relaxed);
+  m.model_mib = mem_model_mib_.load(std::memory_order_relaxed);
+  m.undo_journal_mib = mem_undo_journal_mib_.load(std::memory_order_relaxed);
+  m.keyframes = mem_keyframes_.load(std::memory_order_relaxed);
+  m.keyframes_mib = mem_keyframes_mib_.load(std::memory_order_relaxed);
+  m.tsdf_mib = mem_tsdf_mib_.load(std::memory_order_relaxed);
+  m.views_kept_memory_mib = mem_views_kept_mib_.load(std::memory_order_relaxed);
+  return m;
 }
 
 nlohmann::json ScanApp::HostReport() const {

@@ -24,6 +24,7 @@
 //   FramePacker: reconstruct thread.
 //   Preview grid (the decimated model) and the TripleBuffer's back copy: preview thread.
 //   The TripleBuffer's front copy: the render thread (LatestSnapshot()).
+//   Memory figures (Memory()): atomics the register and fuse stages store, any thread loads.
 //   After Join(): everything belongs to the thread that calls Finish().
 // Control flags (pause, reset epoch, undo requests) and counters are atomics. Reset bumps an epoch
 // that travels with the items, so each stage resets its own state when the first item of the new
@@ -114,6 +115,19 @@ struct ScanItem {
   bool packed_ok = false;
 };
 
+// What the scan's growing parts hold, published by the stages that own them (ScanApp::Memory):
+// to be read beside the process's RSS, which says how much but not what.
+struct ScanMemory {
+  uint64_t views = 0;                // views registered (register stage)
+  uint64_t model_samples = 0;        // the tracking model's samples (register stage)
+  double model_mib = 0;              // the tracking model without its undo journal (PointMap::memory_bytes)
+  double undo_journal_mib = 0;       // the model's undo journal (PointMap::journal_bytes)
+  uint64_t keyframes = 0;
+  double keyframes_mib = 0;          // Tracker::keyframe_bytes
+  double tsdf_mib = 0;               // the live volume (fuse stage; TsdfVolume::MemoryBytes)
+  double views_kept_memory_mib = 0;  // the kept frames in memory (ViewArchive::memory_bytes)
+};
+
 class ScanApp {
  public:
   // `source` is borrowed and must outlive Join(). Throws std::invalid_argument for bad options or
@@ -159,6 +173,10 @@ class ScanApp {
   const PreviewSnapshot* LatestSnapshot() { return preview_.Latest(); }
   // Any thread.
   PreviewStatus CurrentStatus() const;
+  // Any thread: the figures as the stages last published them (the register stage every
+  // kMemoryEvery views, the fuse stage every kMemoryEvery fused views: ~0.5 s at 30 bursts/s).
+  ScanMemory Memory() const;
+  static constexpr uint64_t kMemoryEvery = 15;
 
   // After Join(): pose graph, mesh, evaluation (FinishScan) with the host's figures added to the
   // report. `provider` may be empty: the kept views are then fused again (keep_views), if any.
@@ -205,6 +223,7 @@ class ScanApp {
   uint64_t reg_epoch_ = 0;
   uint64_t reg_undo_requests_ = 0, reg_undo_gen_ = 0;
   std::unique_ptr<ScanRegistrar> registrar_;
+  uint64_t reg_memory_views_ = 0;  // views since the register stage last published its memory figures
   // fuse thread (+ SaveNow under model_mu_)
   std::mutex model_mu_;
   std::condition_variable model_cv_;  // the fuse stage moved fuse_undo_requests_ (SaveNow waits for it)
@@ -222,6 +241,11 @@ class ScanApp {
   };
   std::vector<FusedView> fused_views_;  // keep_views: the archive's views, in order
   bool volume_has_undone_ = false;      // the live volume holds views an undo took back
+  uint64_t fuse_memory_views_ = 0;      // fused views since the fuse stage last published its memory figures
+  // Memory(): written by the register stage (views … keyframes_mib) and the fuse stage (tsdf,
+  // views kept), read by any thread.
+  std::atomic<uint64_t> mem_views_{0}, mem_model_samples_{0}, mem_keyframes_{0};
+  std::atomic<double> mem_model_mib_{0}, mem_undo_journal_mib_{0}, mem_keyframes_mib_{0}, mem_tsdf_mib_{0}, mem_views_kept_mib_{0};
   // preview thread
   uint64_t preview_epoch_ = 0, preview_undo_gen_ = 0;
   uint64_t preview_generation_ = 0;  // bumps when the model loses points (reset, undo): snapshots copy it anew

@@ -160,6 +160,19 @@ TEST(ScanAppUndo, UndoneViewsLeaveThePreviewTheSavedModelAndTheReport) {
   EXPECT_EQ(j["views_kept"], result.poses.size());  // the undone views' frames were dropped
   EXPECT_GE(result.poses.size(), 17u) << j["events"].dump();
   EXPECT_LT(j["trueness_rms_um"].get<double>(), 20.0);
+  // The memory figures the stages published (the register stage at its 15th view; the fuse stage
+  // at its 15th fused view): the model at that time, with its undo journal, keyframes, live volume.
+  const ScanMemory m = app.Memory();
+  EXPECT_EQ(m.views % ScanApp::kMemoryEvery, 0u);
+  EXPECT_GE(m.views, ScanApp::kMemoryEvery);
+  EXPECT_GT(m.model_samples, 1000u);
+  EXPECT_LE(m.model_samples, j["model_samples"].get<uint64_t>() * 2);
+  EXPECT_GE(m.model_mib * 1024 * 1024, static_cast<double>(m.model_samples) * 28);  // two Vector3f and a weight each, at least
+  EXPECT_GT(m.undo_journal_mib, 0.0);
+  EXPECT_GE(m.keyframes, 1u);
+  EXPECT_GT(m.keyframes_mib, 0.0);
+  EXPECT_GT(m.tsdf_mib, 0.1);
+  EXPECT_GT(m.views_kept_memory_mib, 0.0);  // the options keep the frames in memory
   std::filesystem::remove_all(dir);
 }
 

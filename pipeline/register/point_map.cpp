@@ -100,6 +100,19 @@ int64_t PointMap::journal_bytes() const {
   return bytes;
 }
 
+int64_t PointMap::memory_bytes() const {
+  const auto chunk = [](size_t bytes) { return static_cast<int64_t>((bytes + 8 + 15) / 16 * 16); };  // + malloc's header
+  int64_t bytes = static_cast<int64_t>((points_.capacity() + normals_.capacity()) * sizeof(Eigen::Vector3f) +
+                                       weights_.capacity() * sizeof(float));
+  // A node: the next pointer and the value (std::hash<uint64_t> is not cached).
+  bytes += static_cast<int64_t>(voxel_.bucket_count() * sizeof(void*)) +
+           static_cast<int64_t>(voxel_.size()) * chunk(sizeof(void*) + sizeof(std::pair<const uint64_t, uint32_t>));
+  bytes += static_cast<int64_t>(blocks_.bucket_count() * sizeof(void*)) +
+           static_cast<int64_t>(blocks_.size()) * chunk(sizeof(void*) + sizeof(std::pair<const uint64_t, std::vector<uint32_t>>));
+  for (const auto& [key, list] : blocks_) bytes += chunk(list.capacity() * sizeof(uint32_t));
+  return bytes;
+}
+
 SurfacePoints PointMap::Gather(const Eigen::Vector3f& lo, const Eigen::Vector3f& hi) const {
   SurfacePoints out;
   Gather(lo, hi, &out);

@@ -71,6 +71,10 @@ class PointMap {
   bool RollBackTo(int64_t insert);
   // Bytes the journal holds (capacity of its buffers).
   int64_t journal_bytes() const;
+  // Bytes the map holds without its journal, estimated: the samples' arrays (capacity), the two
+  // hash tables (buckets and nodes, libstdc++'s layout, nodes rounded up to malloc's 16-byte
+  // chunks) and the blocks' index lists (capacity). O(blocks): cheap enough once a second.
+  int64_t memory_bytes() const;
 
  private:
   struct Update {  // an Insert changed sample `index` from these values

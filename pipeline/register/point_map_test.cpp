@@ -143,6 +143,23 @@ TEST(PointMapJournal, RollingBackInsertsGivesTheMapThatNeverHadThem) {
   EXPECT_TRUE(plain.RollBackTo(plain.inserts()));
 }
 
+// memory_bytes counts at least the samples' arrays and one hash node per sample, grows with new
+// surface and stays put when the same surface is inserted again (a probe dwelling over a tooth).
+TEST(PointMap, MemoryGrowsWithNewSurfaceOnly) {
+  PointMap map;
+  EXPECT_LT(map.memory_bytes(), 4096);
+  std::mt19937 rng(5);
+  const SurfacePoints s = Patch(&rng, Eigen::Vector3f::Zero(), 20000);
+  map.Insert(s, Pose(0, 0));
+  const int64_t one = map.memory_bytes();
+  EXPECT_GE(one, static_cast<int64_t>(map.size() * (2 * sizeof(Eigen::Vector3f) + sizeof(float) + 16)));
+  EXPECT_LT(one, static_cast<int64_t>(map.size() * 200));
+  for (int i = 0; i < 5; ++i) map.Insert(s, Pose(0, 0));  // the same surface again: no new sample
+  EXPECT_EQ(map.memory_bytes(), one);
+  map.Insert(s, Pose(0, 5.0));  // new surface beside it
+  EXPECT_GT(map.memory_bytes(), one + static_cast<int64_t>(0.5 * one));
+}
+
 TEST(PointMapJournal, TheJournalKeepsOnlyTheNewestInserts) {
   PointMapOptions o;
   o.undo_inserts = 2;

@@ -266,6 +266,7 @@ int main(int argc, char** argv) {
     double next_frame = t0, next_line = t0 + 1, fps = 0, fps_t0 = t0, last_fps_t = t0;
     int64_t frames = 0, fps_frames = 0;
     std::vector<double> rss_timeline;  // MiB, once a second: memory must stay flat after warm-up
+    std::vector<ScanMemory> memory_timeline;  // what the scan's growing parts hold, at the same seconds
     std::mutex message_mu;  // the saver thread sets the message line, the render loop reads it
     std::string message;
     double message_until = 0;
@@ -343,6 +344,7 @@ int main(int argc, char** argv) {
       if (now >= next_line) {
         next_line += 1;
         rss_timeline.push_back(RssMiB());
+        memory_timeline.push_back(app.Memory());
         if (quiet) continue;
         const PreviewStatus st = app.CurrentStatus();
         std::fprintf(stderr, "\rd3d-scan: %5.0f s  received %llu  processed %llu  fused %llu  dropped %llu  %.1f bursts/s  latency p95 %.0f ms  %s   ",
@@ -400,6 +402,23 @@ int main(int argc, char** argv) {
     result.report["preview"] = viewer ? (viewer->headless() ? "offscreen" : "window") : "none";
     result.report["step"] = step;
     result.report["rss_mb_per_s"] = rss_timeline;
+    {
+      nlohmann::json mem;  // one array per figure, aligned with rss_mb_per_s
+      const auto column = [&](const char* name, auto field) {
+        nlohmann::json a = nlohmann::json::array();
+        for (const ScanMemory& m : memory_timeline) a.push_back(field(m));
+        mem[name] = std::move(a);
+      };
+      column("views", [](const ScanMemory& m) { return m.views; });
+      column("model_samples", [](const ScanMemory& m) { return m.model_samples; });
+      column("model_mib", [](const ScanMemory& m) { return m.model_mib; });
+      column("undo_journal_mib", [](const ScanMemory& m) { return m.undo_journal_mib; });
+      column("keyframes", [](const ScanMemory& m) { return m.keyframes; });
+      column("keyframes_mib", [](const ScanMemory& m) { return m.keyframes_mib; });
+      column("tsdf_mib", [](const ScanMemory& m) { return m.tsdf_mib; });
+      column("views_kept_memory_mib", [](const ScanMemory& m) { return m.views_kept_memory_mib; });
+      result.report["memory_per_s"] = std::move(mem);
+    }
     result.report["threads"] = threads;
     result.report["bin"] = bin;
     if (rec) result.report["recording_problems"] = rec->diagnostics().problems;
