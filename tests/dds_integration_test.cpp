@@ -3,10 +3,6 @@
 // with byte-for-byte checks; a late-joining host gets ProbeInfo and the calibration; damaged
 // recordings give clear errors and every intact chunk back. Each test uses its own DDS domain.
 #include <gtest/gtest.h>
-#include <fcntl.h>
-#include <signal.h>
-#include <spawn.h>
-#include <sys/wait.h>
 #include <zlib.h>
 
 #include <chrono>
@@ -22,8 +18,7 @@
 #include "host/receiver/receiver.h"
 #include "protocol/codec.h"
 #include "protocol/protocol.h"
-
-extern char** environ;
+#include "tests/process_util.h"
 
 namespace d3d {
 namespace {
@@ -31,43 +26,10 @@ namespace {
 namespace fs = std::filesystem;
 const std::string kBin = D3D_BIN_DIR;
 
-struct Proc {
-  pid_t pid = -1;
-  std::string log;
-};
-
-Proc Spawn(const std::vector<std::string>& args, const std::string& log) {
-  posix_spawn_file_actions_t fa;
-  posix_spawn_file_actions_init(&fa);
-  posix_spawn_file_actions_addopen(&fa, 1, log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-  posix_spawn_file_actions_adddup2(&fa, 1, 2);
-  std::vector<char*> argv;
-  for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
-  argv.push_back(nullptr);
-  Proc p;
-  p.log = log;
-  EXPECT_EQ(posix_spawn(&p.pid, argv[0], &fa, nullptr, argv.data(), environ), 0) << args[0];
-  posix_spawn_file_actions_destroy(&fa);
-  return p;
-}
-
-std::string ReadFile(const std::string& path) {
-  std::ifstream f(path, std::ios::binary);
-  return std::string((std::istreambuf_iterator<char>(f)), {});
-}
-
-// Waits for the process (killing it after timeout_s); returns its exit code (-1 killed).
-int Wait(const Proc& p, double timeout_s) {
-  int status = 0;
-  for (int i = 0; i < static_cast<int>(timeout_s * 20); ++i) {
-    if (waitpid(p.pid, &status, WNOHANG) == p.pid) return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-    std::this_thread::sleep_for(std::chrono::milliseconds(50));
-  }
-  kill(p.pid, SIGKILL);
-  waitpid(p.pid, &status, 0);
-  ADD_FAILURE() << "timed out; log:\n" << ReadFile(p.log);
-  return -1;
-}
+using test::Proc;
+using test::ReadFile;
+using test::Spawn;
+using test::Wait;
 
 fs::path TestDir(const std::string& name) {
   const fs::path d = fs::temp_directory_path() / ("d3d_dds_it_" + name + "_" + std::to_string(getpid()));
