@@ -31,6 +31,13 @@ void GridTarget::Build(const SurfacePoints& target, const std::vector<double>& g
   for (double g : gates) D3D_CHECK_MSG(g > 0 && std::isfinite(g), "GridTarget: gates must be > 0");
   std::sort(gates.begin(), gates.end());
   gates.erase(std::unique(gates.begin(), gates.end()), gates.end());
+  // A gate within kShareGateRatio of the next one up is served by that one's grid, unless that grid
+  // is decimated (GridFor takes the first grid whose gate is at least the query's).
+  const auto decimated = [&](double g) { return decimate_min_gate_mm > 0 && g >= decimate_min_gate_mm; };
+  size_t kept = 0;
+  for (size_t i = 0; i < gates.size(); ++i)
+    if (i + 1 == gates.size() || gates[i + 1] > kShareGateRatio * gates[i] || decimated(gates[i + 1])) gates[kept++] = gates[i];
+  gates.resize(kept);
 
   size_ = target.points.size();
   lo_ = Eigen::Vector3f::Constant(std::numeric_limits<float>::max());
@@ -47,7 +54,7 @@ void GridTarget::Build(const SurfacePoints& target, const std::vector<double>& g
   if (grids_.size() < gates.size()) grids_.resize(gates.size());
   for (size_t i = 0; i < gates.size(); ++i) {
     grids_[i].gate = static_cast<float>(gates[i]);
-    BuildGrid(&grids_[i], target, decimate_min_gate_mm > 0 && gates[i] >= decimate_min_gate_mm);
+    BuildGrid(&grids_[i], target, decimated(gates[i]));
   }
   used_grids_ = gates.size();
 }

@@ -78,6 +78,33 @@ TEST(GridTarget, FindsWhatTheKdTreeFinds) {
   EXPECT_GT(refused, 1000);
 }
 
+// The tracker's gates 0.15 / 0.3 / 1.0 mm (decimated from 0.5 mm): 0.15 mm shares the 0.3 mm grid
+// (within kShareGateRatio), 1.0 mm keeps its own (decimated: it cannot serve finer gates), and a
+// 0.15 mm query on the shared grid still finds what the k-d tree finds. Gates farther apart, or
+// one below a decimated gate, get grids of their own.
+TEST(GridTarget, AGateWithinTwiceTheNextSharesItsGrid) {
+  const SurfacePoints s = Surface();
+  const KdTreeTarget tree(s);
+  GridTarget grid;
+  grid.Build(s, {0.15, 0.3, 1.0}, 0.5);
+  EXPECT_EQ(grid.grids(), 2u);
+  EXPECT_EQ(grid.samples(0.15f), grid.samples(0.3f));
+  EXPECT_LT(grid.samples(1.0f), grid.samples(0.3f));  // the decimated one
+  int matched = 0;
+  for (const Eigen::Vector3f& q : Queries(s, 0.3f, 3000, 11)) {
+    bool found = false;
+    ASSERT_TRUE(SameAsKdTree(tree, grid, q, 0.15f, &found));
+    matched += found;
+  }
+  EXPECT_GT(matched, 1000);
+  grid.Build(s, {0.15, 0.31}, 0);
+  EXPECT_EQ(grid.grids(), 2u);
+  grid.Build(s, {0.3, 0.6}, 0.5);  // 0.6 is decimated
+  EXPECT_EQ(grid.grids(), 2u);
+  grid.Build(s, {0.3, 0.6}, 0);
+  EXPECT_EQ(grid.grids(), 1u);
+}
+
 // Decimated above 0.5 mm: the 1.0 mm grid keeps one sample per 0.25 mm voxel, and finds the
 // nearest of those: never nearer than the exact nearest sample, never farther than it plus a voxel
 // diagonal, always a sample of the target with its own normal. The 0.15 mm grid stays exact.
