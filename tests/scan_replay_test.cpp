@@ -124,7 +124,7 @@ TEST(ScanReplay, LosslessReplayThroughTheHostGivesTheReportAndAPicture) {
   for (const auto& [name, s] : j["stages"].items()) EXPECT_EQ(s["order_violations"], 0) << name;
   // The memory timeline: one entry of each figure per RSS sample.
   ASSERT_TRUE(j.contains("memory_per_s") && j.contains("rss_mb_per_s"));
-  for (const char* k : {"views", "model_samples", "model_mib", "undo_journal_mib", "keyframes", "keyframes_mib", "tsdf_mib", "views_kept_memory_mib"})
+  for (const char* k : {"views", "model_samples", "model_mib", "undo_journal_mib", "keyframes", "keyframes_mib", "tsdf_mib", "views_kept_memory_mib", "preview_points", "heap_in_use_mib"})
     EXPECT_EQ(j["memory_per_s"][k].size(), j["rss_mb_per_s"].size()) << k;
   for (const char* f : {"scan.ply", "scan.stl", "poses.txt", "report.json"}) EXPECT_TRUE(fs::exists(dir / "a" / f)) << f;
   // The kept frames went to an unnamed file in the --out folder: memory held their index only, and

@@ -323,6 +323,7 @@ bool ScanApp::PreviewStage(ScanItem& item) {
       }
     }
   }
+  mem_preview_points_.store(model_points_.size(), std::memory_order_relaxed);
   PreviewSnapshot& s = preview_.Back();
   if (s.generation != preview_generation_ || s.points.size() > model_points_.size()) {
     s.points.clear();
@@ -437,6 +438,7 @@ ScanMemory ScanApp::Memory() const {
   m.keyframes_mib = mem_keyframes_mib_.load(std::memory_order_relaxed);
   m.tsdf_mib = mem_tsdf_mib_.load(std::memory_order_relaxed);
   m.views_kept_memory_mib = mem_views_kept_mib_.load(std::memory_order_relaxed);
+  m.preview_points = mem_preview_points_.load(std::memory_order_relaxed);
   return m;
 }
 

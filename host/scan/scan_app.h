@@ -126,6 +126,7 @@ struct ScanMemory {
   double keyframes_mib = 0;          // Tracker::keyframe_bytes
   double tsdf_mib = 0;               // the live volume (fuse stage; TsdfVolume::MemoryBytes)
   double views_kept_memory_mib = 0;  // the kept frames in memory (ViewArchive::memory_bytes)
+  uint64_t preview_points = 0;       // the preview's decimated model (preview stage; ScanAppOptions::preview_max_points)
 };
 
 class ScanApp {
@@ -242,9 +243,9 @@ class ScanApp {
   std::vector<FusedView> fused_views_;  // keep_views: the archive's views, in order
   bool volume_has_undone_ = false;      // the live volume holds views an undo took back
   uint64_t fuse_memory_views_ = 0;      // fused views since the fuse stage last published its memory figures
-  // Memory(): written by the register stage (views … keyframes_mib) and the fuse stage (tsdf,
-  // views kept), read by any thread.
-  std::atomic<uint64_t> mem_views_{0}, mem_model_samples_{0}, mem_keyframes_{0};
+  // Memory(): written by the register stage (views … keyframes_mib), the fuse stage (tsdf, views
+  // kept) and the preview stage (preview points), read by any thread.
+  std::atomic<uint64_t> mem_views_{0}, mem_model_samples_{0}, mem_keyframes_{0}, mem_preview_points_{0};
   std::atomic<double> mem_model_mib_{0}, mem_undo_journal_mib_{0}, mem_keyframes_mib_{0}, mem_tsdf_mib_{0}, mem_views_kept_mib_{0};
   // preview thread
   uint64_t preview_epoch_ = 0, preview_undo_gen_ = 0;

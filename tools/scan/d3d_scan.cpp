@@ -20,6 +20,7 @@
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <thread>
+#include <malloc.h>
 #include <unistd.h>
 
 #include "common/mesh/mesh_io.h"
@@ -43,6 +44,12 @@ double RssMiB() {
   long pages = 0, resident = 0;
   f >> pages >> resident;
   return static_cast<double>(resident) * static_cast<double>(sysconf(_SC_PAGESIZE)) / (1024.0 * 1024.0);
+}
+// Bytes malloc has handed out and not had back (all arenas: in use in the heaps, plus mmapped
+// chunks), MiB. Beside the RSS it tells a growing program from an allocator keeping freed pages.
+double HeapInUseMiB() {
+  const struct mallinfo2 mi = mallinfo2();
+  return static_cast<double>(mi.uordblks + mi.hblkhd) / (1024.0 * 1024.0);
 }
 double SteadyS() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
 }  // namespace
@@ -267,6 +274,7 @@ int main(int argc, char** argv) {
     int64_t frames = 0, fps_frames = 0;
     std::vector<double> rss_timeline;  // MiB, once a second: memory must stay flat after warm-up
     std::vector<ScanMemory> memory_timeline;  // what the scan's growing parts hold, at the same seconds
+    std::vector<double> heap_timeline;        // MiB malloc has handed out, at the same seconds
     std::mutex message_mu;  // the saver thread sets the message line, the render loop reads it
     std::string message;
     double message_until = 0;
@@ -345,6 +353,7 @@ int main(int argc, char** argv) {
         next_line += 1;
         rss_timeline.push_back(RssMiB());
         memory_timeline.push_back(app.Memory());
+        heap_timeline.push_back(HeapInUseMiB());
         if (quiet) continue;
         const PreviewStatus st = app.CurrentStatus();
         std::fprintf(stderr, "\rd3d-scan: %5.0f s  received %llu  processed %llu  fused %llu  dropped %llu  %.1f bursts/s  latency p95 %.0f ms  %s   ",
@@ -417,6 +426,8 @@ int main(int argc, char** argv) {
       column("keyframes_mib", [](const ScanMemory& m) { return m.keyframes_mib; });
       column("tsdf_mib", [](const ScanMemory& m) { return m.tsdf_mib; });
       column("views_kept_memory_mib", [](const ScanMemory& m) { return m.views_kept_memory_mib; });
+      column("preview_points", [](const ScanMemory& m) { return m.preview_points; });
+      mem["heap_in_use_mib"] = heap_timeline;
       result.report["memory_per_s"] = std::move(mem);
     }
     result.report["threads"] = threads;
