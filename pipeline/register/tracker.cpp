@@ -430,7 +430,6 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     map_.Insert(map_samples_, pose);
   }
   MaybeKeyframe(samples, points, normals, texture, pose, &out);
-  view_log_.back().current_kf = current_kf_;
   view_log_.back().current_since = current_since_;
   anchor_.back() = current_kf_;
   kf_from_cam_.back() = graph_.pose(keyframes_[static_cast<size_t>(current_kf_)].node).inverse() * pose;
@@ -826,12 +825,12 @@ Tracker::UndoResult Tracker::UndoFrom(int64_t first_view) {
     graph_.Truncate(static_cast<int>(keep), view_log_[f].edges_before);
     deferred_edges_.resize(std::min(deferred_edges_.size(), view_log_[f].deferred_edges_before));
   }
-  // The current keyframe as the last kept accepted view left it.
+  // The current keyframe as the last kept accepted view left it (the one it anchored to).
   current_kf_ = -1;
   current_since_ = -1;
   for (size_t v = f; v-- > 0;)
     if (anchor_[v] >= 0) {
-      current_kf_ = view_log_[v].current_kf;
+      current_kf_ = anchor_[v];
       current_since_ = view_log_[v].current_since;
       break;
     }

@@ -458,12 +458,12 @@ class Tracker {
   // Per view, what UndoFrom needs to replay the state the kept views left: the model's Insert count
   // at its start, and for an accepted view its pose, capture time, residual pushed to
   // recent_rmse_mm_ (< 0: none), whether it entered the model, whether it was a re-entry, and the
-  // current keyframe after it (current_kf_, current_since_), and the pose graph's edges and the
-  // deferred ones at its start (a keyframe reuse adds an edge between two older keyframes).
+  // view that made its keyframe current (current_since_; the keyframe itself is anchor_'s), and the
+  // pose graph's edges and the deferred ones at its start (a keyframe reuse adds an edge between two
+  // older keyframes).
   struct ViewLog {
     int64_t map_inserts_before = 0;
     size_t edges_before = 0, deferred_edges_before = 0;
-    int current_kf = -1;
     int64_t current_since = -1;
     int64_t capture_ns = 0;
     double rmse_pushed_mm = -1;
