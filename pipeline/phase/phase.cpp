@@ -10,6 +10,9 @@
 #include <string>
 #include <utility>
 
+#include <tbb/enumerable_thread_specific.h>
+
+#include "common/core/parallel_rows.h"
 #include "pipeline/phase/phase_model.h"
 
 #include <Eigen/Dense>
@@ -152,6 +155,7 @@ void PhaseOptions::Check() const {
   D3D_CHECK_MSG(std::isfinite(drift_exclusion) && drift_exclusion > 0.0, "drift_exclusion must be > 0, got " << drift_exclusion);
   D3D_CHECK_MSG(table_bins >= 64 && table_bins <= 65536, "table_bins must be in [64, 65536], got " << table_bins);
   D3D_CHECK_MSG(table_rows >= 2 && table_rows <= 4096, "table_rows must be in [2, 4096], got " << table_rows);
+  D3D_CHECK_MSG(threads >= 1, "threads must be >= 1, got " << threads);
 }
 
 std::vector<int> MarkerOrders(const FringePatternSpec& spec, double projector_extent_px) {
@@ -171,9 +175,13 @@ struct PhaseEstimator::Impl {
   double gamma = 1.0;
   bool marker = false;  // detect the marker
   std::shared_ptr<const PhaseModel> model;
-  // Scratch (reused between calls).
-  std::vector<std::vector<float>> frame_rows;
-  std::vector<float> acc_c, acc_s, acc_sum, acc_max;
+  // Scratch (reused between calls). Pass 1's row buffers, one set per thread that runs its blocks
+  // (ForRowBlocks): the frames' rows as float, the cos / sin sums and the running maximum.
+  struct RowScratch {
+    std::vector<std::vector<float>> frame_rows;
+    std::vector<float> acc_c, acc_s, acc_max;
+  };
+  tbb::enumerable_thread_specific<RowScratch> row_scratch;
   cv::Mat residual, phi_sub, mod_sub, dc_sub, marker_raw, guard, near, invalid;
   std::vector<double> num, den, cnt;
   cv::Mat kappa_tiles;
@@ -500,53 +508,56 @@ Status PhaseEstimator::Compute(const std::vector<cv::Mat>& frames, PhaseMaps* ou
 
   // Pass 1: linear sums per pixel (vectorised row loops): raw N-step φ', B', mean, saturation,
   // residual e, and the N−1-frame fit.
-  I.frame_rows.resize(N);
-  for (auto& r : I.frame_rows) r.resize(W);
-  I.acc_c.resize(W);
-  I.acc_s.resize(W);
-  I.acc_sum.resize(W);
-  I.acc_max.resize(W);
-  std::vector<float> ones(N, 1.0f / N);
-  for (int y = 0; y < H; ++y) {
-    for (int n = 0; n < N; ++n) {
-      if (wide)
-        ToFloat(frames[n].ptr<uint16_t>(y), I.frame_rows[n].data(), W);
-      else
-        ToFloat(frames[n].ptr<uint8_t>(y), I.frame_rows[n].data(), W);
-    }
-    float* C = I.acc_c.data();
-    float* S = I.acc_s.data();
-    float* mean = out->offset.ptr<float>(y);
-    float* mx = I.acc_max.data();
-    Accumulate(m.cos_w().data(), I.frame_rows, W, C);
-    Accumulate(m.sin_w().data(), I.frame_rows, W, S);
-    Accumulate(ones.data(), I.frame_rows, W, mean);
-    std::copy(I.frame_rows[0].begin(), I.frame_rows[0].end(), mx);
-    for (int n = 1; n < N; ++n) {
-      const float* f = I.frame_rows[n].data();
-      for (int x = 0; x < W; ++x) mx[x] = f[x] > mx[x] ? f[x] : mx[x];
-    }
-    float* phi = out->phi.ptr<float>(y);
-    float* mod = out->modulation.ptr<float>(y);
-    uint8_t* sat = out->saturated.ptr<uint8_t>(y);
-    for (int x = 0; x < W; ++x) {
-      phi[x] = FastAtan2Pos(S[x], C[x]);
-      mod[x] = std::sqrt(C[x] * C[x] + S[x] * S[x]);
-    }
-    for (int x = 0; x < W; ++x) sat[x] = static_cast<uint8_t>(-static_cast<int>(mx[x] >= sat_dn));
-    if (!I.residual.empty()) Accumulate(m.res_w().data(), I.frame_rows, W, I.residual.ptr<float>(y));
-    if (marker) {
-      Accumulate(m.sub_cos_w().data(), I.frame_rows, W, C);
-      Accumulate(m.sub_sin_w().data(), I.frame_rows, W, S);
-      Accumulate(m.sub_dc_w().data(), I.frame_rows, W, I.dc_sub.ptr<float>(y));
-      float* p3 = I.phi_sub.ptr<float>(y);
-      float* m3 = I.mod_sub.ptr<float>(y);
+  const std::vector<float> ones(N, 1.0f / N);
+  const int threads = I.options.threads;
+  ForRowBlocks(H, threads, [&](int y0, int y1) {
+    Impl::RowScratch& rs = I.row_scratch.local();  // this thread's; sized once
+    rs.frame_rows.resize(N);
+    for (auto& r : rs.frame_rows) r.resize(W);
+    rs.acc_c.resize(W);
+    rs.acc_s.resize(W);
+    rs.acc_max.resize(W);
+    for (int y = y0; y < y1; ++y) {
+      for (int n = 0; n < N; ++n) {
+        if (wide)
+          ToFloat(frames[n].ptr<uint16_t>(y), rs.frame_rows[n].data(), W);
+        else
+          ToFloat(frames[n].ptr<uint8_t>(y), rs.frame_rows[n].data(), W);
+      }
+      float* C = rs.acc_c.data();
+      float* S = rs.acc_s.data();
+      float* mean = out->offset.ptr<float>(y);
+      float* mx = rs.acc_max.data();
+      Accumulate(m.cos_w().data(), rs.frame_rows, W, C);
+      Accumulate(m.sin_w().data(), rs.frame_rows, W, S);
+      Accumulate(ones.data(), rs.frame_rows, W, mean);
+      std::copy(rs.frame_rows[0].begin(), rs.frame_rows[0].end(), mx);
+      for (int n = 1; n < N; ++n) {
+        const float* f = rs.frame_rows[n].data();
+        for (int x = 0; x < W; ++x) mx[x] = f[x] > mx[x] ? f[x] : mx[x];
+      }
+      float* phi = out->phi.ptr<float>(y);
+      float* mod = out->modulation.ptr<float>(y);
+      uint8_t* sat = out->saturated.ptr<uint8_t>(y);
       for (int x = 0; x < W; ++x) {
-        p3[x] = FastAtan2Pos(S[x], C[x]);
-        m3[x] = std::sqrt(C[x] * C[x] + S[x] * S[x]);
+        phi[x] = FastAtan2Pos(S[x], C[x]);
+        mod[x] = std::sqrt(C[x] * C[x] + S[x] * S[x]);
+      }
+      for (int x = 0; x < W; ++x) sat[x] = static_cast<uint8_t>(-static_cast<int>(mx[x] >= sat_dn));
+      if (!I.residual.empty()) Accumulate(m.res_w().data(), rs.frame_rows, W, I.residual.ptr<float>(y));
+      if (marker) {
+        Accumulate(m.sub_cos_w().data(), rs.frame_rows, W, C);
+        Accumulate(m.sub_sin_w().data(), rs.frame_rows, W, S);
+        Accumulate(m.sub_dc_w().data(), rs.frame_rows, W, I.dc_sub.ptr<float>(y));
+        float* p3 = I.phi_sub.ptr<float>(y);
+        float* m3 = I.mod_sub.ptr<float>(y);
+        for (int x = 0; x < W; ++x) {
+          p3[x] = FastAtan2Pos(S[x], C[x]);
+          m3[x] = std::sqrt(C[x] * C[x] + S[x] * S[x]);
+        }
       }
     }
-  }
+  });
 
   // Pass 2: harmonic attenuation κ.
   if (need_kappa) {
@@ -576,33 +587,35 @@ Status PhaseEstimator::Compute(const std::vector<cv::Mat>& frames, PhaseMaps* ou
   // Pass 3: compensated N-step phase and modulation; with drift, also the N−1-frame phase and the
   // residual (what the marker detector sees) lose their motion terms.
   if (alg != PhaseAlgorithm::kStandard) {
-    for (int y = 0; y < H; ++y) {
-      float* phi = out->phi.ptr<float>(y);
-      float* mod = out->modulation.ptr<float>(y);
-      const float* kap = alg == PhaseAlgorithm::kAdaptiveHarmonic ? out->kappa.ptr<float>(y) : nullptr;
-      for (int x = 0; x < W; ++x) {
-        const BinPos b = PhaseBin(phi[x], bins_per_rad, bins);
-        const FullEntry e = ReadFullRow(kap ? m.full_row(KappaRow(kap[x], rows_per_kappa, rows)) : lut_full, b);
-        phi[x] = WrapPos(phi[x] + e.corr);
-        mod[x] *= e.ginv;
-      }
-      if (!drift) continue;
-      const float* d0 = I.drift_maps[0].ptr<float>(y);
-      const float* d1 = I.drift_maps[1].ptr<float>(y);
-      const float* d2 = I.drift_maps[2].ptr<float>(y);
-      float* res = I.residual.ptr<float>(y);
-      float* p3 = marker ? I.phi_sub.ptr<float>(y) : nullptr;
-      for (int x = 0; x < W; ++x) {
-        const size_t row0 = static_cast<size_t>(DriftRow(kap[x])) * bins;
-        const size_t i = row0 + PhaseBin(phi[x], bins_per_rad, bins).i;
-        res[x] -= mod[x] * (d0[x] * I.drift_g[0][i] + d1[x] * I.drift_g[1][i] + d2[x] * I.drift_g[2][i]);
-        phi[x] = WrapPos(phi[x] - (d0[x] * I.drift_h[0][i] + d1[x] * I.drift_h[1][i] + d2[x] * I.drift_h[2][i]));
-        if (p3) {
-          const size_t j = row0 + PhaseBin(p3[x], bins_per_rad, bins).i;
-          p3[x] = WrapPos(p3[x] - (d0[x] * I.drift_hs[0][j] + d1[x] * I.drift_hs[1][j] + d2[x] * I.drift_hs[2][j]));
+    ForRowBlocks(H, threads, [&](int y0, int y1) {
+      for (int y = y0; y < y1; ++y) {
+        float* phi = out->phi.ptr<float>(y);
+        float* mod = out->modulation.ptr<float>(y);
+        const float* kap = alg == PhaseAlgorithm::kAdaptiveHarmonic ? out->kappa.ptr<float>(y) : nullptr;
+        for (int x = 0; x < W; ++x) {
+          const BinPos b = PhaseBin(phi[x], bins_per_rad, bins);
+          const FullEntry e = ReadFullRow(kap ? m.full_row(KappaRow(kap[x], rows_per_kappa, rows)) : lut_full, b);
+          phi[x] = WrapPos(phi[x] + e.corr);
+          mod[x] *= e.ginv;
+        }
+        if (!drift) continue;
+        const float* d0 = I.drift_maps[0].ptr<float>(y);
+        const float* d1 = I.drift_maps[1].ptr<float>(y);
+        const float* d2 = I.drift_maps[2].ptr<float>(y);
+        float* res = I.residual.ptr<float>(y);
+        float* p3 = marker ? I.phi_sub.ptr<float>(y) : nullptr;
+        for (int x = 0; x < W; ++x) {
+          const size_t row0 = static_cast<size_t>(DriftRow(kap[x])) * bins;
+          const size_t i = row0 + PhaseBin(phi[x], bins_per_rad, bins).i;
+          res[x] -= mod[x] * (d0[x] * I.drift_g[0][i] + d1[x] * I.drift_g[1][i] + d2[x] * I.drift_g[2][i]);
+          phi[x] = WrapPos(phi[x] - (d0[x] * I.drift_h[0][i] + d1[x] * I.drift_h[1][i] + d2[x] * I.drift_h[2][i]));
+          if (p3) {
+            const size_t j = row0 + PhaseBin(p3[x], bins_per_rad, bins).i;
+            p3[x] = WrapPos(p3[x] - (d0[x] * I.drift_hs[0][j] + d1[x] * I.drift_hs[1][j] + d2[x] * I.drift_hs[2][j]));
+          }
         }
       }
-    }
+    });
   }
 
   // Pass 4: marker detection against the adaptive model (whatever the phase algorithm).
@@ -610,30 +623,32 @@ Status PhaseEstimator::Compute(const std::vector<cv::Mat>& frames, PhaseMaps* ou
     out->marker_score.create(H, W, CV_32F);
     I.marker_raw.create(H, W, CV_8U);
     const float thr = static_cast<float>(I.options.marker_threshold);
-    for (int y = 0; y < H; ++y) {
-      const float* p3 = I.phi_sub.ptr<float>(y);
-      const float* m3 = I.mod_sub.ptr<float>(y);
-      const float* e = I.residual.ptr<float>(y);
-      const float* kap = need_kappa ? out->kappa.ptr<float>(y) : nullptr;
-      const uint8_t* sat = out->saturated.ptr<uint8_t>(y);
-      float* score = out->marker_score.ptr<float>(y);
-      uint8_t* raw = I.marker_raw.ptr<uint8_t>(y);
-      const float kappa_const = static_cast<float>(I.options.kappa_prior);
-      for (int x = 0; x < W; ++x) {
-        const SubEntry s = ReadSubRow(m.sub_row(KappaRow(kap ? kap[x] : kappa_const, rows_per_kappa, rows)),
-                                      PhaseBin(p3[x], bins_per_rad, bins));
-        const float B = m3[x] * s.ginv;
-        float alpha = 0.0f;
-        bool suspect = false;
-        if (!sat[x] && B >= min_mod) {
-          const float r = (e[x] - B * s.e) / B;
-          alpha = r * s.d / (s.d * s.d + kMarkerEps);
-          suspect = std::abs(r) > kSuspect;
+    ForRowBlocks(H, threads, [&](int y0, int y1) {
+      for (int y = y0; y < y1; ++y) {
+        const float* p3 = I.phi_sub.ptr<float>(y);
+        const float* m3 = I.mod_sub.ptr<float>(y);
+        const float* e = I.residual.ptr<float>(y);
+        const float* kap = need_kappa ? out->kappa.ptr<float>(y) : nullptr;
+        const uint8_t* sat = out->saturated.ptr<uint8_t>(y);
+        float* score = out->marker_score.ptr<float>(y);
+        uint8_t* raw = I.marker_raw.ptr<uint8_t>(y);
+        const float kappa_const = static_cast<float>(I.options.kappa_prior);
+        for (int x = 0; x < W; ++x) {
+          const SubEntry s = ReadSubRow(m.sub_row(KappaRow(kap ? kap[x] : kappa_const, rows_per_kappa, rows)),
+                                        PhaseBin(p3[x], bins_per_rad, bins));
+          const float B = m3[x] * s.ginv;
+          float alpha = 0.0f;
+          bool suspect = false;
+          if (!sat[x] && B >= min_mod) {
+            const float r = (e[x] - B * s.e) / B;
+            alpha = r * s.d / (s.d * s.d + kMarkerEps);
+            suspect = std::abs(r) > kSuspect;
+          }
+          score[x] = alpha;
+          raw[x] = suspect ? 255 : 0;
         }
-        score[x] = alpha;
-        raw[x] = suspect ? 255 : 0;
       }
-    }
+    });
     // α averaged over a box (noise of low-modulation pixels, the blurred jump in a stripe's middle),
     // thresholded, then a closing and an opening.
     const int box = I.options.marker_box_px, close = I.options.marker_close_px;
@@ -658,29 +673,31 @@ Status PhaseEstimator::Compute(const std::vector<cv::Mat>& frames, PhaseMaps* ou
     cv::bitwise_or(I.guard, I.marker_raw, I.guard);
 
     // Inside the guarded stripes: phase, modulation and offset from the N−1 unmarked frames.
-    for (int y = 0; y < H; ++y) {
-      const uint8_t* gd = I.guard.ptr<uint8_t>(y);
-      const float* p3 = I.phi_sub.ptr<float>(y);
-      const float* m3 = I.mod_sub.ptr<float>(y);
-      const float* dc = I.dc_sub.ptr<float>(y);
-      const float* kap = need_kappa ? out->kappa.ptr<float>(y) : nullptr;
-      float* phi = out->phi.ptr<float>(y);
-      float* mod = out->modulation.ptr<float>(y);
-      float* off = out->offset.ptr<float>(y);
-      for (int x = 0; x < W; ++x) {
-        if (!gd[x]) continue;
-        const BinPos b = PhaseBin(p3[x], bins_per_rad, bins);
-        SubEntry s{0.0f, 1.0f, 0.0f, 0.0f, 0.0f};
-        if (alg == PhaseAlgorithm::kLutGamma) {
-          s = ReadSubRow(lut_sub, b);
-        } else if (alg == PhaseAlgorithm::kAdaptiveHarmonic) {
-          s = ReadSubRow(m.sub_row(KappaRow(kap ? kap[x] : static_cast<float>(I.options.kappa_prior), rows_per_kappa, rows)), b);
+    ForRowBlocks(H, threads, [&](int y0, int y1) {
+      for (int y = y0; y < y1; ++y) {
+        const uint8_t* gd = I.guard.ptr<uint8_t>(y);
+        const float* p3 = I.phi_sub.ptr<float>(y);
+        const float* m3 = I.mod_sub.ptr<float>(y);
+        const float* dc = I.dc_sub.ptr<float>(y);
+        const float* kap = need_kappa ? out->kappa.ptr<float>(y) : nullptr;
+        float* phi = out->phi.ptr<float>(y);
+        float* mod = out->modulation.ptr<float>(y);
+        float* off = out->offset.ptr<float>(y);
+        for (int x = 0; x < W; ++x) {
+          if (!gd[x]) continue;
+          const BinPos b = PhaseBin(p3[x], bins_per_rad, bins);
+          SubEntry s{0.0f, 1.0f, 0.0f, 0.0f, 0.0f};
+          if (alg == PhaseAlgorithm::kLutGamma) {
+            s = ReadSubRow(lut_sub, b);
+          } else if (alg == PhaseAlgorithm::kAdaptiveHarmonic) {
+            s = ReadSubRow(m.sub_row(KappaRow(kap ? kap[x] : static_cast<float>(I.options.kappa_prior), rows_per_kappa, rows)), b);
+          }
+          phi[x] = WrapPos(p3[x] + s.corr);
+          mod[x] = m3[x] * s.ginv;
+          off[x] = dc[x] - mod[x] * s.off;
         }
-        phi[x] = WrapPos(p3[x] + s.corr);
-        mod[x] = m3[x] * s.ginv;
-        off[x] = dc[x] - mod[x] * s.off;
       }
-    }
+    });
   } else {
     out->marker_score.release();
   }

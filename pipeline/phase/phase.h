@@ -131,6 +131,9 @@ struct PhaseOptions {
   double drift_exclusion = 0.5;     // residuals above this many B are left out of the drift fit
   int table_bins = 1024;            // phase bins of the compensation tables
   int table_rows = 121;             // κ rows of the tables over [0, 1.5] (nearest row is used)
+  // > 1: the per-pixel passes (sums, compensation, marker score) run on blocks of rows as oneTBB
+  // tasks (common/core/parallel_rows.h); the same bits as 1. The tile fits (κ, drift) stay serial.
+  int threads = 1;
   void Check() const;               // throws std::invalid_argument
 };
 

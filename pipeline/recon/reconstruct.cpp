@@ -28,7 +28,9 @@ int ScaleArea(int v, double s) { return std::max(v > 0 ? 1 : 0, static_cast<int>
 
 ReconstructOptions Effective(const ProbeCalibration& calibration, const ReconstructOptions& options) {
   options.Check();
-  return options.scale_to_fringe_period ? ScaleToFringePeriod(options, FringePeriodCamPx(calibration)) : options;
+  ReconstructOptions o = options.scale_to_fringe_period ? ScaleToFringePeriod(options, FringePeriodCamPx(calibration)) : options;
+  o.phase.threads = o.threads;
+  return o;
 }
 
 }  // namespace
@@ -72,6 +74,7 @@ void ReconstructOptions::Check() const {
   edge_fill.Check();
   triangulate.Check();
   D3D_CHECK_MSG(normal_max_gap_mm > 0, "normal_max_gap_mm must be positive");
+  D3D_CHECK_MSG(threads >= 1, "threads must be >= 1, got " << threads);
 }
 
 namespace {
@@ -190,8 +193,8 @@ Status Reconstructor::Reconstruct(const std::vector<cv::Mat>& frames, Reconstruc
   out->pixels_edge_filled = fill.pixels_filled;
   out->ms_unwrap = MsSince(t);
   t = std::chrono::steady_clock::now();
-  D3D_RETURN_IF_ERROR(triangulator_.Triangulate(out->unwrap.Phi, &out->points_in_cam));
-  OrganisedNormals(out->points_in_cam, options_.normal_max_gap_mm, &out->normals);
+  D3D_RETURN_IF_ERROR(triangulator_.Triangulate(out->unwrap.Phi, &out->points_in_cam, options_.threads));
+  OrganisedNormals(out->points_in_cam, options_.normal_max_gap_mm, &out->normals, options_.threads);
   out->ms_triangulate = MsSince(t);
   out->texture = out->phase.texture;
   out->points = 0;

@@ -36,6 +36,10 @@ struct ReconstructOptions {
   // Reconstructor scales them by the calibration's own period in camera pixels (ScaleToFringePeriod),
   // so the same options serve a 640 × 480 and a 1280 × 1024 probe.
   bool scale_to_fringe_period = true;
+  // > 1: the per-pixel passes (phase sums and compensation, marker score, triangulation, normals)
+  // run on blocks of rows as oneTBB tasks (common/core/parallel_rows.h): the same bits as 1, less
+  // wall time when a core is free (d3d-scan: its --threads). Overrides phase.threads.
+  int threads = 1;
   void Check() const;               // throws std::invalid_argument
 };
 

@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
+#include <tbb/global_control.h>
 
 #include "firmware/sim/render/test_scenes.h"
 #include "firmware/sim/render/virtual_probe.h"
@@ -50,6 +52,64 @@ TEST(Reconstruct, TiltedPlaneEndToEnd) {
   EXPECT_LT(e.rms_um, 10.0);
   EXPECT_LT(e.p95_um, 25.0);
   EXPECT_EQ(NonFinitePointsWithFiniteParts(v.points_in_cam), 0);
+}
+
+// Every byte of two maps equal (NaNs included: the same code computes both).
+bool SameBits(const cv::Mat& a, const cv::Mat& b) {
+  if (a.size() != b.size() || a.type() != b.type()) return false;
+  const size_t row_bytes = static_cast<size_t>(a.cols) * a.elemSize();
+  for (int r = 0; r < a.rows; ++r)
+    if (std::memcmp(a.ptr(r), b.ptr(r), row_bytes) != 0) return false;
+  return true;
+}
+
+TEST(Reconstruct, RowBlocksOnTwoThreadsGiveTheSameBits) {
+  // ReconstructOptions::threads = 2 splits the per-pixel passes into blocks of rows run as oneTBB
+  // tasks: every map must equal the one-thread run's, bit for bit. A moving, tilted plane with the
+  // in-burst motion compensation on, so that every pass (sums, κ, drift, compensation, marker
+  // score and guard, triangulation, normals) runs; twice, so that the second call reuses the
+  // per-thread scratch.
+  const TriangleMesh plane = PlaneMesh({0.25, -0.1, -1}, {0, 0, 50});
+  RenderOptions matte;
+  matte.specular = false;
+  VirtualProbe probe(plane, MakeDefaultProbeDesign(), matte);
+  const auto moving = [](int64_t t_ns) {
+    Rigid3d pose = Rigid3d::Identity();
+    pose.translation() = Eigen::Vector3d(30.0, -10.0, 5.0) * (static_cast<double>(t_ns) * 1e-9);  // mm/s
+    return pose;
+  };
+  ReconstructOptions one;
+  one.phase.motion_compensation = true;
+  ReconstructOptions two = one;
+  two.threads = 2;
+  tbb::global_control cap(tbb::global_control::max_allowed_parallelism, 2);
+  Reconstructor r1(probe.calibration(), one), r2(probe.calibration(), two);
+  EXPECT_EQ(r2.options().phase.threads, 2);
+  for (uint64_t seq : {0u, 1u}) {
+    const Burst b = probe.RenderBurst(moving, static_cast<int64_t>(seq) * 33'000'000, seq, 7, false);
+    ReconstructedView v1, v2;
+    ASSERT_TRUE(r1.Reconstruct(Frames(b), &v1).ok());
+    ASSERT_TRUE(r2.Reconstruct(Frames(b), &v2).ok());
+    ASSERT_GT(v1.points, 100000);
+    EXPECT_GT(v1.phase.num_marker, 0);
+    EXPECT_FALSE(v1.phase.phase_drift.empty());
+    EXPECT_EQ(v1.points, v2.points);
+    EXPECT_TRUE(SameBits(v1.phase.phi, v2.phase.phi));
+    EXPECT_TRUE(SameBits(v1.phase.modulation, v2.phase.modulation));
+    EXPECT_TRUE(SameBits(v1.phase.offset, v2.phase.offset));
+    EXPECT_TRUE(SameBits(v1.phase.marker, v2.phase.marker));
+    EXPECT_TRUE(SameBits(v1.phase.marker_score, v2.phase.marker_score));
+    EXPECT_TRUE(SameBits(v1.quality, v2.quality));
+    EXPECT_TRUE(SameBits(v1.unwrap.Phi, v2.unwrap.Phi));
+    EXPECT_TRUE(SameBits(v1.points_in_cam, v2.points_in_cam));
+    EXPECT_TRUE(SameBits(v1.normals, v2.normals));
+  }
+  EXPECT_THROW(Reconstructor(probe.calibration(), [] {
+                 ReconstructOptions o;
+                 o.threads = 0;
+                 return o;
+               }()),
+               std::invalid_argument);
 }
 
 TEST(Reconstruct, BinFrameAveragesBlocksAndKeepsClipping) {

@@ -187,6 +187,7 @@ int64_t ModelAnchorer::Anchor(const PointMap& model, const Rigid3d& world_from_c
   // that is in the same group (the parts the check separates are far larger than a block), else
   // its own. 4× fewer model look-ups.
   verdict_.assign(keys_.size(), -1);
+  changed_.clear();
   int64_t anchored = 0;
   for (const Group& g : groups) {
     const size_t ns = g.samples.size();
@@ -231,11 +232,12 @@ int64_t ModelAnchorer::Anchor(const PointMap& model, const Rigid3d& world_from_c
       u.Phi.ptr<float>()[i] = static_cast<float>(ph[i] + kTwoPi * k);
       u.order.ptr<int32_t>()[i] = k;
       view->points_in_cam.ptr<cv::Vec3f>()[i] = cv::Vec3f(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
+      changed_.push_back(i);
       ++anchored;
     }
   }
   if (anchored > 0) {
-    OrganisedNormals(view->points_in_cam, normal_max_gap_mm_, &view->normals);
+    UpdateOrganisedNormals(view->points_in_cam, normal_max_gap_mm_, changed_, &view->normals);
     view->points += anchored;
     u.stats.pixels_valid += anchored;
   }

@@ -25,7 +25,8 @@
 // then get Φ and k where the model confirms the pixel's own point the same way and not also its
 // point one order nearer or farther (a part beyond a hidden order jump inside the group lies a
 // fringe order away from anything the model holds; two model surfaces along a ray leave the order
-// open), checked on a 2 × 2 pixel lattice; the view's normals are computed again.
+// open), checked on a 2 × 2 pixel lattice; the view's normals are computed again
+// where they read an anchored point (UpdateOrganisedNormals).
 // This is the model-based phase unwrapping that real-time scanners use once a model exists (cf. the
 // temporal/geometric order prediction of An et al. 2016, here with the fused model as the geometry).
 //
@@ -94,6 +95,7 @@ class ModelAnchorer {
   cv::Mat phase_min_, phase_max_;
   std::vector<int32_t> keys_;     // per pixel: its group key, −1 for none (per call)
   std::vector<int8_t> verdict_;   // per lattice pixel: −1 unchecked, 0 refused, 1 confirmed (per call)
+  std::vector<int> changed_;      // the pixels anchored (per call): their normals are computed again
   SurfacePoints near_samples_;    // the model's samples near the view (per call, buffers reused)
   GridTarget near_;               // grids over them, for the nearest-sample look-ups (per call, buffers reused)
 };

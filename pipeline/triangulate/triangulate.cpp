@@ -4,6 +4,9 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <utility>
+
+#include "common/core/parallel_rows.h"
 
 namespace d3d {
 namespace {
@@ -186,7 +189,7 @@ Eigen::Vector3d PhaseTriangulator::PointForPhase(int col, int row, double Phi) c
   return rays_[index] * z;
 }
 
-Status PhaseTriangulator::Triangulate(const cv::Mat& Phi, cv::Mat* points_in_cam) const {
+Status PhaseTriangulator::Triangulate(const cv::Mat& Phi, cv::Mat* points_in_cam, int threads) const {
   const auto& cam = calibration_.camera;
   if (Phi.type() != CV_32F) return InvalidArgument("triangulate: absolute phase must be CV_32F");
   if (Phi.cols != cam.width || Phi.rows != cam.height) {
@@ -195,48 +198,76 @@ Status PhaseTriangulator::Triangulate(const cv::Mat& Phi, cv::Mat* points_in_cam
                            std::to_string(cam.height));
   }
   points_in_cam->create(cam.height, cam.width, CV_32FC3);
-  for (int r = 0; r < cam.height; ++r) {
-    const float* phi = Phi.ptr<float>(r);
-    auto* out = points_in_cam->ptr<cv::Vec3f>(r);
-    for (int c = 0; c < cam.width; ++c) {
-      if (!std::isfinite(phi[c])) {
-        out[c] = cv::Vec3f(kNaNf, kNaNf, kNaNf);
-        continue;
+  ForRowBlocks(cam.height, threads, [&](int r0, int r1) {
+    for (int r = r0; r < r1; ++r) {
+      const float* phi = Phi.ptr<float>(r);
+      auto* out = points_in_cam->ptr<cv::Vec3f>(r);
+      for (int c = 0; c < cam.width; ++c) {
+        if (!std::isfinite(phi[c])) {
+          out[c] = cv::Vec3f(kNaNf, kNaNf, kNaNf);
+          continue;
+        }
+        const size_t index = static_cast<size_t>(r) * static_cast<size_t>(cam.width) + static_cast<size_t>(c);
+        const double z = fast_ok_[index] ? FastDepth(index, phi[c]) : DepthForPhase(c, r, phi[c]);
+        if (!std::isfinite(z)) {
+          out[c] = cv::Vec3f(kNaNf, kNaNf, kNaNf);
+          continue;
+        }
+        const Eigen::Vector3d p = rays_[index] * z;
+        out[c] = cv::Vec3f(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
       }
-      const size_t index = static_cast<size_t>(r) * static_cast<size_t>(cam.width) + static_cast<size_t>(c);
-      const double z = fast_ok_[index] ? FastDepth(index, phi[c]) : DepthForPhase(c, r, phi[c]);
-      if (!std::isfinite(z)) {
-        out[c] = cv::Vec3f(kNaNf, kNaNf, kNaNf);
-        continue;
-      }
-      const Eigen::Vector3d p = rays_[static_cast<size_t>(r) * static_cast<size_t>(cam.width) + static_cast<size_t>(c)] * z;
-      out[c] = cv::Vec3f(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
     }
-  }
+  });
   return Status::Ok();
 }
 
-void OrganisedNormals(const cv::Mat& points, double max_gap_mm, cv::Mat* normals) {
-  normals->create(points.size(), CV_32FC3);
-  normals->setTo(cv::Scalar::all(kNaNf));
-  auto at = [&](int r, int c) {
-    const cv::Vec3f& v = points.at<cv::Vec3f>(r, c);
+namespace {
+// OrganisedNormals' normal at interior pixel (r, c), NaN where it has none.
+inline cv::Vec3f NormalAt(const cv::Mat& points, int r, int c, double max_gap_mm) {
+  const cv::Vec3f nan3(kNaNf, kNaNf, kNaNf);
+  auto at = [&](int rr, int cc) {
+    const cv::Vec3f& v = points.at<cv::Vec3f>(rr, cc);
     return Eigen::Vector3d(v[0], v[1], v[2]);
   };
-  for (int r = 1; r + 1 < points.rows; ++r)
-    for (int c = 1; c + 1 < points.cols; ++c) {
-      const Eigen::Vector3d p = at(r, c), L = at(r, c - 1), R = at(r, c + 1), U = at(r - 1, c), D = at(r + 1, c);
-      if (!p.allFinite() || !L.allFinite() || !R.allFinite() || !U.allFinite() || !D.allFinite()) continue;
-      if ((R - p).norm() > max_gap_mm || (p - L).norm() > max_gap_mm || (D - p).norm() > max_gap_mm ||
-          (p - U).norm() > max_gap_mm) {
-        continue;
-      }
-      Eigen::Vector3d n = (R - L).cross(D - U);
-      if (n.squaredNorm() == 0) continue;
-      n.normalize();
-      if (n.dot(p) > 0) n = -n;  // face the camera at the origin
-      normals->at<cv::Vec3f>(r, c) = cv::Vec3f(static_cast<float>(n.x()), static_cast<float>(n.y()), static_cast<float>(n.z()));
+  const Eigen::Vector3d p = at(r, c), L = at(r, c - 1), R = at(r, c + 1), U = at(r - 1, c), D = at(r + 1, c);
+  if (!p.allFinite() || !L.allFinite() || !R.allFinite() || !U.allFinite() || !D.allFinite()) return nan3;
+  if ((R - p).norm() > max_gap_mm || (p - L).norm() > max_gap_mm || (D - p).norm() > max_gap_mm ||
+      (p - U).norm() > max_gap_mm) {
+    return nan3;
+  }
+  Eigen::Vector3d n = (R - L).cross(D - U);
+  if (n.squaredNorm() == 0) return nan3;
+  n.normalize();
+  if (n.dot(p) > 0) n = -n;  // face the camera at the origin
+  return cv::Vec3f(static_cast<float>(n.x()), static_cast<float>(n.y()), static_cast<float>(n.z()));
+}
+}  // namespace
+
+void OrganisedNormals(const cv::Mat& points, double max_gap_mm, cv::Mat* normals, int threads) {
+  normals->create(points.size(), CV_32FC3);
+  const cv::Vec3f nan3(kNaNf, kNaNf, kNaNf);
+  ForRowBlocks(points.rows, threads, [&](int r0, int r1) {
+    for (int r = r0; r < r1; ++r) {
+      auto* out = normals->ptr<cv::Vec3f>(r);
+      std::fill(out, out + points.cols, nan3);
+      if (r == 0 || r + 1 >= points.rows) continue;
+      for (int c = 1; c + 1 < points.cols; ++c) out[c] = NormalAt(points, r, c, max_gap_mm);
     }
+  });
+}
+
+void UpdateOrganisedNormals(const cv::Mat& points, double max_gap_mm, const std::vector<int>& changed, cv::Mat* normals) {
+  D3D_CHECK_MSG(normals->size() == points.size() && normals->type() == CV_32FC3 && points.type() == CV_32FC3,
+                "UpdateOrganisedNormals: normals must be CV_32FC3 of the points' size");
+  const int rows = points.rows, cols = points.cols;
+  for (const int i : changed) {
+    const int r = i / cols, c = i % cols;
+    for (const auto& [dr, dc] : {std::pair{0, 0}, std::pair{0, -1}, std::pair{0, 1}, std::pair{-1, 0}, std::pair{1, 0}}) {
+      const int rr = r + dr, cc = c + dc;
+      if (rr < 1 || rr + 1 >= rows || cc < 1 || cc + 1 >= cols) continue;  // the border has none
+      normals->at<cv::Vec3f>(rr, cc) = NormalAt(points, rr, cc, max_gap_mm);
+    }
+  }
 }
 
 }  // namespace d3d

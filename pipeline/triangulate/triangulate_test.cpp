@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
+#include <random>
 
 #include "firmware/sim/render/test_scenes.h"
 #include "firmware/sim/render/virtual_probe.h"
@@ -144,6 +146,51 @@ TEST(Triangulate, OrganisedNormalsOfAPlane) {
   EXPECT_NEAR(m[0] * n.x() + m[1] * n.y() + m[2] * n.z(), 1.0, 1e-5);
   EXPECT_TRUE(std::isnan(normals.at<cv::Vec3f>(10, 11)[0]));  // next to a hole
   EXPECT_TRUE(std::isnan(normals.at<cv::Vec3f>(0, 0)[0]));    // border
+}
+
+// Every byte of two maps equal (NaNs included).
+bool SameBits(const cv::Mat& a, const cv::Mat& b) {
+  if (a.size() != b.size() || a.type() != b.type()) return false;
+  for (int r = 0; r < a.rows; ++r)
+    if (std::memcmp(a.ptr(r), b.ptr(r), static_cast<size_t>(a.cols) * a.elemSize()) != 0) return false;
+  return true;
+}
+
+TEST(Triangulate, NormalsOnRowBlocksAndUpdatedAtChangedPixelsEqualTheFullPass) {
+  // A wavy surface with holes and a depth step (no normal across it), 240 × 320 as a binned view.
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  cv::Mat points(240, 320, CV_32FC3);
+  const float nan = std::nanf("");
+  for (int r = 0; r < points.rows; ++r)
+    for (int c = 0; c < points.cols; ++c) {
+      const float z = 50.0f + 0.3f * std::sin(c * 0.05f) * std::cos(r * 0.07f) + (c > 200 ? 1.0f : 0.0f);
+      points.at<cv::Vec3f>(r, c) = u(rng) < 0.05f ? cv::Vec3f(nan, nan, nan) : cv::Vec3f((c - 160) * 0.02f, (r - 120) * 0.02f, z);
+    }
+  cv::Mat one, two;
+  OrganisedNormals(points, 0.15, &one);
+  OrganisedNormals(points, 0.15, &two, 2);
+  EXPECT_TRUE(SameBits(one, two));
+  // Rewrite ~2 % of the pixels (holes filled, points moved, points removed, borders included),
+  // as model anchoring does, and update only around them.
+  std::vector<int> changed;
+  for (int i = 0; i < points.rows * points.cols; ++i) {
+    if (u(rng) >= 0.02f) continue;
+    cv::Vec3f& p = points.at<cv::Vec3f>(i / points.cols, i % points.cols);
+    const int r = i / points.cols, c = i % points.cols;
+    p = u(rng) < 0.2f ? cv::Vec3f(nan, nan, nan) : cv::Vec3f((c - 160) * 0.02f, (r - 120) * 0.02f, 50.0f + 0.05f * u(rng));
+    changed.push_back(i);
+  }
+  changed.push_back(0);                                    // a corner
+  changed.push_back(points.rows * points.cols - 1);        // the other one
+  ASSERT_GT(changed.size(), 1000u);
+  cv::Mat updated = one.clone(), full;
+  UpdateOrganisedNormals(points, 0.15, changed, &updated);
+  OrganisedNormals(points, 0.15, &full);
+  EXPECT_FALSE(SameBits(one, full));  // the change did move normals
+  EXPECT_TRUE(SameBits(updated, full));
+  cv::Mat wrong(10, 10, CV_32FC3);
+  EXPECT_THROW(UpdateOrganisedNormals(points, 0.15, changed, &wrong), std::invalid_argument);
 }
 
 }  // namespace

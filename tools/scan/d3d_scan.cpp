@@ -9,6 +9,7 @@
 #include <tbb/global_control.h>
 
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <csignal>
@@ -63,7 +64,7 @@ int main(int argc, char** argv) {
   int undo_views = 150;
   std::vector<uint64_t> undo_after;
   double duration_s = 0, probe_timeout_s = 1.0, idle_exit_s = 0, wait_probe_s = 120, preview_fps = 20, replay_rate = 0, step = 0;
-  int domain = 0, threads = 2, width = 960, height = 720, bin = 2;
+  int domain = 0, threads = 2, width = 960, height = 720, bin = 2, icp_threads = 2;
   uint32_t sim_seed = 1;
   double sim_rate = 30;
   cli.add_option("--replay", replay, "replay a recording (d3d-record) through the same graph instead of listening on DDS");
@@ -116,7 +117,8 @@ int main(int argc, char** argv) {
   cli.add_option("--probe-timeout", probe_timeout_s, "seconds without a burst before 'probe lost'")->capture_default_str();
   cli.add_option("--idle-exit", idle_exit_s, "live: finish after this many seconds without a burst (0 = wait for the probe to return)")->capture_default_str();
   cli.add_option("--wait-probe", wait_probe_s, "live: seconds to wait for the probe's ProbeInfo")->capture_default_str();
-  cli.add_option("--threads", threads, "OpenCV / oneTBB worker threads")->capture_default_str();
+  cli.add_option("--threads", threads, "OpenCV / oneTBB threads (the reconstruction's row blocks too)")->capture_default_str();
+  cli.add_option("--icp-threads", icp_threads, "threads of the tracker's ICP (association and normal equations; at most --threads)")->capture_default_str();
   cli.add_option("--preview-fps", preview_fps, "preview frame-rate cap")->capture_default_str();
   cli.add_option("--size", width, "preview width (px; height = 3/4)")->capture_default_str();
   cli.add_flag("--json", json, "print report.json as one line on stdout");
@@ -222,10 +224,20 @@ int main(int argc, char** argv) {
     // replay: the same bytes).
     ao.scan.tracker.keyframe_reuse_radius_mm = 2.0;
     ao.scan.tracker.association = assoc;
-    // The ICP runs on the register thread alone: the graph's stages keep both cores busy, and its
-    // oneTBB workers only contended with them (600-burst typodont recording at 30 Hz, live, 2x2
-    // binned: register 144 -> 78 ms per burst, 6.8 -> 10.8-12.1 bursts/s processed).
-    ao.scan.tracker.icp.threads = 1;
+    // The tracker's ICP (association and normal equations) on the register thread and a oneTBB
+    // worker (--icp-threads, at most --threads; its sums in a fixed order, so a lossless run still
+    // repeats bit for bit). Once the graph left a share of the 2 cores idle (~67 % used live), the
+    // worker shortened the register stage where it sets the latency. Live 450-burst typodont
+    // recording at 30 Hz, runs interleaved, 1 thread (12 runs) -> 2 (11 runs): register wall 21.8 ->
+    // 18.3 ms per burst, latency p50 40.2 -> 34.2 ms, p95 median 80.4 -> 53.3 ms, trueness 11.0-13.3
+    // -> 11.0-13.2 um; lossless 12.15 -> 12.14 um. It used to be 1: when the stages alone kept both
+    // cores busy, the workers only contended with them (600-burst recording, before the stages got
+    // cheaper: register 144 -> 78 ms per burst with 1 thread, 6.8 -> 10.8-12.1 bursts/s).
+    ao.scan.tracker.icp.threads = std::clamp(icp_threads, 1, threads);
+    // The reconstruction's per-pixel passes on blocks of rows (ReconstructOptions::threads): the
+    // same bits, shorter when a core is free (d3d-bench-recon, 640 x 480 on an idle machine: 47.6 ->
+    // 41.3 ms; phase 11.1 -> 9.0, triangulation and normals 11.4 -> 6.8; the unwrapping stays serial).
+    ao.scan.recon.threads = threads;
     // At most ~1.6k / 4k / 8k ICP samples per level, whatever the view's size: the register stage is
     // the graph's slowest, and a view full of surface cost it 3x a small one (typodont, 90 bursts at
     // 30 Hz: register 89 -> 76 ms per burst, trueness 7.37 -> 7.37 um, ATE 0.026 -> 0.029 mm).
