@@ -10,9 +10,9 @@
 // and reads nothing another block writes: every pixel is computed by the same code in the same
 // order whichever thread runs its block, so threads = 1 and threads = 2 give the same bits.
 //
-// Threads: the caller's thread waits for its blocks; a oneTBB worker runs a block only while the
-// caller waits in this call. An application thread that calls this gets its own implicit oneTBB
-// arena, so a stage waiting for its blocks runs only its own, not another stage's tasks.
+// Threads: the caller's thread runs blocks and waits for the others; a oneTBB worker runs a block
+// only while the caller is in this call. While it waits, the caller may also pick up other oneTBB
+// tasks (oneTBB's work stealing; see its "Work Isolation"): the results do not depend on it.
 #pragma once
 
 #include <tbb/blocked_range.h>
