@@ -213,10 +213,12 @@ double PointMap::Overlap(const SurfacePoints& s, const Rigid3d& world_from_sourc
     const Eigen::Vector3f p = R * q + t;
     const int64_t x = static_cast<int64_t>(std::floor(p.x() * inv)), y = static_cast<int64_t>(std::floor(p.y() * inv)),
                   z = static_cast<int64_t>(std::floor(p.z() * inv));
-    bool any = false;
+    // The sample's own voxel first: most samples of an overlapping view hit there, one lookup
+    // instead of the 14 the plain −1…1 order took to reach it (the same answer either way).
+    bool any = voxel_.count(VoxelKey(x, y, z)) > 0;
     for (int dx = -1; dx <= 1 && !any; ++dx)
       for (int dy = -1; dy <= 1 && !any; ++dy)
-        for (int dz = -1; dz <= 1 && !any; ++dz) any = voxel_.count(VoxelKey(x + dx, y + dy, z + dz)) > 0;
+        for (int dz = -1; dz <= 1 && !any; ++dz) any = (dx | dy | dz) != 0 && voxel_.count(VoxelKey(x + dx, y + dy, z + dz)) > 0;
     hit += any;
   }
   return static_cast<double>(hit) / static_cast<double>(s.size());

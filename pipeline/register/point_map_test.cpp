@@ -94,6 +94,50 @@ TEST(PointMap, GatherFindsEverySampleInTheBox) {
   EXPECT_EQ(map.Gather(Eigen::Vector3f::Constant(-1e3f), Eigen::Vector3f::Constant(1e3f)).size(), map.size());
 }
 
+// Overlap = the share of samples with an occupied voxel among their own and its 26 neighbours:
+// checked against that definition computed from the map's samples, for probes that overlap the map
+// fully, partly (shifted by 0.5 to 1.5 voxels: hits through neighbours only) and not at all.
+TEST(PointMap, OverlapCountsSamplesNextToAnOccupiedVoxel) {
+  PointMapOptions o;
+  o.voxel_mm = 0.1;
+  PointMap map(o);
+  std::mt19937 rng(5);
+  const SurfacePoints inserted = Patch(&rng, Eigen::Vector3f(0, 0, 0), 3000);
+  map.Insert(inserted, Rigid3d::Identity());
+  const float inv = static_cast<float>(1.0 / o.voxel_mm);  // as the map computes a voxel
+  const auto voxel_of = [&](const Eigen::Vector3f& p) {
+    return Eigen::Vector3i(static_cast<int>(std::floor(p.x() * inv)), static_cast<int>(std::floor(p.y() * inv)),
+                           static_cast<int>(std::floor(p.z() * inv)));
+  };
+  std::vector<Eigen::Vector3i> occupied;  // the voxels the inserted samples fell in
+  for (const Eigen::Vector3f& p : inserted.points) occupied.push_back(voxel_of(p));
+  const auto reference = [&](const SurfacePoints& probe, const Rigid3d& T) {
+    const Eigen::Matrix3f R = T.linear().cast<float>();
+    const Eigen::Vector3f t = T.translation().cast<float>();
+    int hit = 0;
+    for (const Eigen::Vector3f& q : probe.points) {
+      const Eigen::Vector3f p = R * q + t;
+      const Eigen::Vector3i v = voxel_of(p);
+      hit += std::any_of(occupied.begin(), occupied.end(), [&](const Eigen::Vector3i& o) { return (o - v).cwiseAbs().maxCoeff() <= 1; });
+    }
+    return static_cast<double>(hit) / static_cast<double>(probe.size());
+  };
+  const SurfacePoints probe = Patch(&rng, Eigen::Vector3f(0, 0, 0), 2000);
+  const std::vector<std::pair<Rigid3d, const char*>> cases = {
+      {Rigid3d::Identity(), "same place"},
+      {Rigid3d(Eigen::Translation3d(0, 0, 0.15)), "1.5 voxels up: neighbours only"},
+      {Rigid3d(Eigen::Translation3d(0, 0, 0.25)), "2.5 voxels up: hardly any"},
+      {Pose(0.05, 1.2), "turned and shifted: partly"},
+      {Rigid3d(Eigen::Translation3d(10, 0, 0)), "far away"}};
+  for (const auto& [T, what] : cases) {
+    const double want = reference(probe, T);
+    EXPECT_DOUBLE_EQ(map.Overlap(probe, T), want) << what;
+  }
+  EXPECT_GT(map.Overlap(probe, cases[1].first), 0.5);  // hits through the neighbours count
+  EXPECT_LT(map.Overlap(probe, cases[3].first), 0.9);
+  EXPECT_EQ(map.Overlap(probe, cases[4].first), 0.0);
+}
+
 TEST(SurfacePoints, VoxelOfKeyInvertsVoxelKey) {
   for (const int64_t x : {-(int64_t{1} << 20), int64_t{-7}, int64_t{0}, int64_t{5}, (int64_t{1} << 20) - 1})
     for (const int64_t y : {int64_t{-3}, int64_t{0}, (int64_t{1} << 20) - 1})
