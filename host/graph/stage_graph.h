@@ -118,9 +118,15 @@ class StageGraph {
   using SourceFn = std::function<SourceResult(Item& item, ItemMeta* meta)>;
   // Stage thread: processes the item; false rejects it.
   using StageFn = std::function<bool(Item& item, const ItemMeta& meta)>;
+  // Stage thread, optional: runs after each item has left the stage (passed on, rejected or
+  // dropped), before the stage takes its next one: work whose result the next stages do not need
+  // (d3d-scan: the tracker's model insert, after the register stage has handed the burst to the
+  // preview). Its time counts in the stage's busy, CPU and just-in-time figures.
+  using AfterFn = std::function<void()>;
   struct Stage {
     std::string name;
     StageFn fn;
+    AfterFn after = {};
   };
 
   StageGraph(const StageGraphOptions& options, const std::function<std::unique_ptr<Item>()>& factory, SourceFn source,
@@ -263,33 +269,42 @@ class StageGraph {
       const auto t0 = std::chrono::steady_clock::now();
       const uint64_t cpu0 = ThreadCpuNs();
       const bool ok = stages_[i].fn(*n->item, n->meta);
-      const auto ns = static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - t0).count());
+      uint64_t ns = static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - t0).count());
+      uint64_t cpu = ThreadCpuNs() - cpu0;
       c.processed.fetch_add(1, std::memory_order_relaxed);
+      if (!ok) {
+        c.rejected.fetch_add(1, std::memory_order_relaxed);
+        GiveBack(n);
+      } else {
+        if (i == latency_stage_) {
+          const double ms = static_cast<double>(GraphNowNs() - n->meta.origin_ns) * 1e-6;
+          KeepLatency(ms, &latency_ms_, &latency_next_);
+          last_latency_ms_.store(ms, std::memory_order_relaxed);
+        }
+        if (last) {
+          const int64_t now = GraphNowNs();
+          KeepLatency(static_cast<double>(now - n->meta.origin_ns) * 1e-6, &done_latency_ms_, &done_latency_next_);
+          if (completed_.fetch_add(1, std::memory_order_relaxed) == 0) first_done_ns_.store(now, std::memory_order_relaxed);
+          last_done_ns_.store(now, std::memory_order_relaxed);
+          GiveBack(n);
+        } else if (Node* dropped = edges_[i + 1]->Push(n); dropped != nullptr) {
+          GiveBack(dropped);
+        }
+      }
+      n = nullptr;  // no longer this stage's
+      if (stages_[i].after) {  // its time counts; a blocking Push's wait before it does not
+        const auto a0 = std::chrono::steady_clock::now();
+        const uint64_t acpu0 = ThreadCpuNs();
+        stages_[i].after();
+        ns += static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - a0).count());
+        cpu += ThreadCpuNs() - acpu0;
+      }
       c.busy_ns.fetch_add(ns, std::memory_order_relaxed);
-      c.cpu_ns.fetch_add(ThreadCpuNs() - cpu0, std::memory_order_relaxed);
+      c.cpu_ns.fetch_add(cpu, std::memory_order_relaxed);
       if (ns > c.max_ns.load(std::memory_order_relaxed)) c.max_ns.store(ns, std::memory_order_relaxed);
       if (timed) {
         own.Add(static_cast<int64_t>(ns));
         if (i == 1) second_median_ns_.store(own.Median(), std::memory_order_relaxed);
-      }
-      if (!ok) {
-        c.rejected.fetch_add(1, std::memory_order_relaxed);
-        GiveBack(n);
-        continue;
-      }
-      if (i == latency_stage_) {
-        const double ms = static_cast<double>(GraphNowNs() - n->meta.origin_ns) * 1e-6;
-        KeepLatency(ms, &latency_ms_, &latency_next_);
-        last_latency_ms_.store(ms, std::memory_order_relaxed);
-      }
-      if (last) {
-        const int64_t now = GraphNowNs();
-        KeepLatency(static_cast<double>(now - n->meta.origin_ns) * 1e-6, &done_latency_ms_, &done_latency_next_);
-        if (completed_.fetch_add(1, std::memory_order_relaxed) == 0) first_done_ns_.store(now, std::memory_order_relaxed);
-        last_done_ns_.store(now, std::memory_order_relaxed);
-        GiveBack(n);
-      } else if (Node* dropped = edges_[i + 1]->Push(n); dropped != nullptr) {
-        GiveBack(dropped);
       }
     }
     if (!last) edges_[i + 1]->Close();

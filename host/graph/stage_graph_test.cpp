@@ -4,7 +4,10 @@
 
 #include <gtest/gtest.h>
 
+#include <condition_variable>
 #include <cstdio>
+#include <mutex>
+#include <string>
 #include <random>
 #include <thread>
 
@@ -191,6 +194,64 @@ std::unique_ptr<StageGraph<TestItem>> RunCounting(const StageGraphOptions& o, ui
   g->Start();
   g->Join();
   return g;
+}
+
+// A stage's after-hook runs once per item, rejected ones included, on the stage's thread, after
+// the item has gone on and before the stage takes its next item: the next stage starts on item k
+// while stage 0's hook for k still runs (the hook waits for that, with a timeout), in both
+// policies. The hook's time counts in the stage's busy and CPU time.
+TEST(StageGraph, AfterHookRunsOnceTheItemHasGoneOn) {
+  for (EdgePolicy p : {EdgePolicy::kLossless, EdgePolicy::kLive}) {
+    SCOPED_TRACE(EdgePolicyName(p));
+    StageGraphOptions o;
+    o.policy = p;
+    std::mutex mu;
+    std::condition_variable cv;
+    int64_t started_1 = -1;  // the latest value stage 1 started on (under mu)
+    std::vector<std::string> events;  // stage 0's thread only; read after Join
+    uint64_t current = 0, hooks_seeing_next_stage = 0;
+    const std::vector<StageGraph<TestItem>::Stage> stages = {
+        {"a",
+         [&](TestItem& it, const ItemMeta&) {
+           current = it.value;
+           events.push_back("fn " + std::to_string(it.value));
+           return it.value % 5 != 4;  // every 5th rejected: its hook runs too
+         },
+         [&] {
+           events.push_back("after " + std::to_string(current));
+           if (current % 5 == 4) return;  // rejected: stage 1 never sees it
+           const auto busy_until = std::chrono::steady_clock::now() + std::chrono::milliseconds(2);
+           while (std::chrono::steady_clock::now() < busy_until) {
+           }
+           std::unique_lock<std::mutex> lock(mu);
+           if (cv.wait_for(lock, std::chrono::seconds(5), [&] { return started_1 >= static_cast<int64_t>(current); }))
+             ++hooks_seeing_next_stage;
+         }},
+        {"b", [&](TestItem& it, const ItemMeta&) {
+           {
+             std::lock_guard<std::mutex> lock(mu);
+             started_1 = static_cast<int64_t>(it.value);
+           }
+           cv.notify_all();
+           return true;
+         }}};
+    const uint64_t n = 20;
+    const auto graph = RunCounting(o, n, stages);
+    const StageGraph<TestItem>& g = *graph;
+    const uint64_t ran = g.stage(0).processed.load();
+    ASSERT_EQ(events.size(), 2 * ran);
+    for (size_t e = 0; e + 1 < events.size(); e += 2) {  // fn k, after k, fn k', after k', ...
+      ASSERT_EQ(events[e].rfind("fn ", 0), 0u) << e;
+      EXPECT_EQ(events[e + 1], "after " + events[e].substr(3)) << e;
+    }
+    EXPECT_EQ(hooks_seeing_next_stage, ran - g.stage(0).rejected.load());  // every accepted item had gone on
+    EXPECT_GT(hooks_seeing_next_stage, 0u);
+    EXPECT_GE(static_cast<double>(g.stage(0).busy_ns.load()), 2e6 * static_cast<double>(hooks_seeing_next_stage));
+    EXPECT_GE(static_cast<double>(g.stage(0).cpu_ns.load()), 1.5e6 * static_cast<double>(hooks_seeing_next_stage));
+    if (p == EdgePolicy::kLossless) {
+      EXPECT_EQ(ran, n);
+    }
+  }
 }
 
 TEST(StageGraph, LatencyEndsAtTheNamedStageAndTheLastStageIsKeptToo) {

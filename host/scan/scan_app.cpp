@@ -57,6 +57,8 @@ ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& opti
   // Undo needs the tracker's journal and the kept frames (the fused model is made again without
   // the undone views).
   o_.scan.tracker.map.undo_inserts = o_.keep_views ? o_.undo_max_views : 0;
+  // The tracker's model insert runs after the register stage has handed the burst on (RegisterAfter).
+  o_.scan.tracker.defer_model_insert = true;
   registrar_ = std::make_unique<ScanRegistrar>(calibration_, o_.scan.tracker, o_.scan.anchor, o_.scan.recon.normal_max_gap_mm);
   fuser_ = std::make_unique<ScanFuser>(calibration_.camera, o_.LiveTsdf(), o_.scan.free_space);
   if (o_.keep_views && !o_.views_spill_dir.empty()) {
@@ -82,7 +84,8 @@ ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& opti
       },
       [this](ScanItem& it, ItemMeta* meta) { return Ingest(it, meta); },
       std::vector<Graph::Stage>{{"reconstruct", [this](ScanItem& it, const ItemMeta&) { return ReconstructStage(it); }},
-                                {"register", [this](ScanItem& it, const ItemMeta&) { return RegisterStage(it); }},
+                                {"register", [this](ScanItem& it, const ItemMeta&) { return RegisterStage(it); },
+                                 [this] { RegisterAfter(); }},
                                 {"preview", [this](ScanItem& it, const ItemMeta&) { return PreviewStage(it); }},
                                 {"fuse", [this](ScanItem& it, const ItemMeta&) { return FuseStage(it); }}});
   // Live warm-up (set-up, before Start): one reconstruction of a blank burst into every pool item, so
@@ -217,6 +220,14 @@ bool ScanApp::RegisterStage(ScanItem& item) {
   item.view_index = static_cast<int64_t>(registrar_->views().size());
   item.track = registrar_->Register(item.view, item.burst.burst_seq, item.burst.capture_ns);
   if (!item.track.accepted) refused_.fetch_add(1, std::memory_order_relaxed);
+  reg_view_pending_ = true;
+  return true;  // refused views still go on: the preview shows them (red)
+}
+
+void ScanApp::RegisterAfter() {
+  if (!reg_view_pending_) return;  // a control item
+  reg_view_pending_ = false;
+  registrar_->Commit();  // the view's model insert, now that the preview has the burst
   if (++reg_memory_views_ >= kMemoryEvery) {
     reg_memory_views_ = 0;
     constexpr double kMiB = 1.0 / (1024.0 * 1024.0);
@@ -228,7 +239,6 @@ bool ScanApp::RegisterStage(ScanItem& item) {
     mem_keyframes_.store(tracker.keyframes().size(), std::memory_order_relaxed);
     mem_keyframes_mib_.store(static_cast<double>(tracker.keyframe_bytes()) * kMiB, std::memory_order_relaxed);
   }
-  return true;  // refused views still go on: the preview shows them (red)
 }
 
 bool ScanApp::FuseStage(ScanItem& item) {

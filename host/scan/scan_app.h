@@ -193,6 +193,9 @@ class ScanApp {
   Graph::SourceResult Ingest(ScanItem& item, ItemMeta* meta);
   bool ReconstructStage(ScanItem& item);
   bool RegisterStage(ScanItem& item);
+  // The register stage's after-hook (StageGraph::Stage::after): the tracker's model insert of the
+  // view just handed to the preview (TrackerOptions::defer_model_insert), then the memory figures.
+  void RegisterAfter();
   bool FuseStage(ScanItem& item);
   bool PreviewStage(ScanItem& item);
 
@@ -225,6 +228,7 @@ class ScanApp {
   uint64_t reg_undo_requests_ = 0, reg_undo_gen_ = 0;
   std::unique_ptr<ScanRegistrar> registrar_;
   uint64_t reg_memory_views_ = 0;  // views since the register stage last published its memory figures
+  bool reg_view_pending_ = false;  // register thread: RegisterStage registered a view, RegisterAfter commits it
   // fuse thread (+ SaveNow under model_mu_)
   std::mutex model_mu_;
   std::condition_variable model_cv_;  // the fuse stage moved fuse_undo_requests_ (SaveNow waits for it)

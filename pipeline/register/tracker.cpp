@@ -278,6 +278,7 @@ bool Tracker::ConsistentMotionFrom(const Rigid3d& from, double views, const Rigi
 
 TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, const cv::Mat& texture,
                            const ViewAugmenter& augment, int64_t capture_ns) {
+  CommitView();
   const auto t0 = std::chrono::steady_clock::now();
   ++index_;
   capture_ns_ = capture_ns;
@@ -427,14 +428,24 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   log.pose = pose;
   if (out.in_model) {
     SampleOrganised(points, normals, cv::Mat(), o_.map_stride, &map_samples_);
-    map_.Insert(map_samples_, pose);
+    insert_pending_ = true;
+    pending_pose_ = pose;
+    if (!o_.defer_model_insert) CommitView();
   }
-  MaybeKeyframe(samples, points, normals, texture, pose, &out);
+  MaybeKeyframe(samples, points, normals, texture, pose, &out);  // does not read the model
   view_log_.back().current_since = current_since_;
   anchor_.back() = current_kf_;
   kf_from_cam_.back() = graph_.pose(keyframes_[static_cast<size_t>(current_kf_)].node).inverse() * pose;
   out.ms = Ms(t0);
   return out;
+}
+
+double Tracker::CommitView() {
+  if (!insert_pending_) return 0;
+  const auto t0 = std::chrono::steady_clock::now();
+  insert_pending_ = false;
+  map_.Insert(map_samples_, pending_pose_);
+  return Ms(t0);
 }
 
 Rigid3d Tracker::Predict() const {
@@ -798,6 +809,7 @@ int64_t Tracker::first_undoable_view() const {
 }
 
 Tracker::UndoResult Tracker::UndoFrom(int64_t first_view) {
+  CommitView();
   UndoResult r;
   if (first_view > views() || first_view < first_undoable_view()) {
     r.reason = "view " + std::to_string(first_view) + " is outside what can be undone (views " + std::to_string(first_undoable_view()) +

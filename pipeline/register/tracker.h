@@ -99,6 +99,12 @@ struct TrackerOptions {
   Association association = Association::kGrid;
   int sample_stride = 2;          // px lattice of the ICP source samples
   int map_stride = 3;             // px lattice of the samples added to the model
+  // true: Track() leaves the accepted view's model insert pending, and the caller runs it with
+  // CommitView() once it has passed the view on (d3d-scan: after the register stage has handed the
+  // burst to the preview, so the preview does not wait for it); the next Track() or UndoFrom()
+  // runs a pending one first. Nothing between the insert and Track's end reads the model, so the
+  // results are the same bits either way.
+  bool defer_model_insert = false;
   double target_scale = 0.5;      // projective: model image size / camera size
   int target_splat = 1;           // projective: splat half-size (px of the model image)
   int target_window = 1;          // projective: search half-window (px)
@@ -335,7 +341,11 @@ class Tracker {
   int current_keyframe() const { return current_kf_; }         // the keyframe views anchor to now (−1: none yet)
   const PoseGraph& graph() const { return graph_; }
   int64_t views() const { return static_cast<int64_t>(anchor_.size()); }
-  const PointMap& model() const { return map_; }
+  const PointMap& model() const { return map_; }  // without a pending insert (see CommitView)
+  // Runs the model insert Track() left pending (TrackerOptions::defer_model_insert); nothing when
+  // none is. Returns its time (ms).
+  double CommitView();
+  bool insert_pending() const { return insert_pending_; }
 
   // Optimises the pose graph (loop closures) and returns the summary.
   [[nodiscard]] Status Optimize(const PoseGraphOptions& options, PoseGraphSummary* summary);
@@ -403,6 +413,8 @@ class Tracker {
   };
   std::vector<DeferredEdge> deferred_edges_;
   PointMap map_;
+  bool insert_pending_ = false;   // map_samples_ go into map_ at pending_pose_ (CommitView)
+  Rigid3d pending_pose_ = Rigid3d::Identity();
   // RunIcp's model samples near the view and its association grids (kGrid), refilled for every ICP
   // with their buffers reused: Track()'s thread only.
   mutable SurfacePoints gathered_;

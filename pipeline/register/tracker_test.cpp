@@ -355,6 +355,55 @@ TEST_F(TrackerScan, KeyframeWorkOffTrackGivesTheSameScan) {
   }
 }
 
+TEST_F(TrackerScan, ADeferredModelInsertGivesTheSameScan) {
+  // defer_model_insert: Track leaves the accepted view's insert pending; CommitView runs it (the
+  // host, once the view has gone to the preview), else the next Track or UndoFrom does. The same
+  // views, with an undo and a view lost off the model among them, give the same poses, model and
+  // undo as inserting at once, whether each view is committed or left to the next Track.
+  TrackerOptions o;
+  o.map.undo_inserts = 10;
+  o.min_view_samples /= 4;
+  TrackerOptions od = o;
+  od.defer_model_insert = true;
+  Tracker now(small_cam_, o), committed(small_cam_, od), left(small_cam_, od);
+  std::vector<Rigid3d> path;
+  for (double x = -3; x <= 3.01; x += 0.5) path.push_back(Truth(x, 0.1 * x));
+  path.push_back(Truth(25, 0));  // off the model: refused, nothing pending
+  path.push_back(Truth(3.2, 0.3));
+  const size_t undo_after = 8;
+  for (size_t i = 0; i < path.size(); ++i) {
+    const auto v = RenderHeightField(hf_, small_cam_, path[i], 0.004, static_cast<uint32_t>(i + 1));
+    const TrackResult a = now.Track(v.points, v.normals, v.quality, v.texture);
+    const size_t before = committed.model().size();
+    const TrackResult b = committed.Track(v.points, v.normals, v.quality, v.texture);
+    EXPECT_EQ(committed.insert_pending(), b.accepted && b.in_model) << "view " << i;
+    EXPECT_EQ(committed.model().size(), before) << "view " << i << ": the insert waits for CommitView";
+    committed.CommitView();
+    EXPECT_FALSE(committed.insert_pending());
+    const TrackResult c = left.Track(v.points, v.normals, v.quality, v.texture);
+    for (const TrackResult* r : {&b, &c}) {
+      EXPECT_EQ(a.accepted, r->accepted) << "view " << i;
+      EXPECT_EQ(a.state, r->state) << "view " << i;
+      EXPECT_EQ(a.new_keyframe, r->new_keyframe) << "view " << i;
+      EXPECT_TRUE(a.world_from_cam.matrix() == r->world_from_cam.matrix()) << "view " << i;
+    }
+    EXPECT_EQ(now.model().points(), committed.model().points()) << "view " << i;
+    if (i == undo_after) {
+      ASSERT_TRUE(left.insert_pending());
+      const Tracker::UndoResult ua = now.UndoFrom(now.views() - 3), uc = left.UndoFrom(left.views() - 3);
+      ASSERT_TRUE(ua.ok && uc.ok) << ua.reason << " / " << uc.reason;
+      (void)committed.UndoFrom(committed.views() - 3);
+      EXPECT_EQ(now.model().points(), left.model().points()) << "the pending insert ran before the undo";
+    }
+  }
+  left.CommitView();
+  EXPECT_EQ(now.model().points(), left.model().points());
+  EXPECT_EQ(now.model().normals(), left.model().normals());
+  EXPECT_EQ(now.model().inserts(), left.model().inserts());
+  EXPECT_EQ(now.keyframes().size(), left.keyframes().size());
+  EXPECT_GT(now.model().size(), 0u);
+}
+
 TEST_F(TrackerScan, UnevenlySpacedViewsAreTrackedByCaptureTime) {
   // A live host takes the newest burst whenever it is free: here the probe moves 1 mm per 33 ms
   // and the views come 1 or 4 bursts apart. By capture time (view_period_ns) the motion prediction

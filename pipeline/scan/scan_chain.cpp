@@ -125,7 +125,7 @@ TrackResult ScanRegistrar::Register(ReconstructedView& view, uint64_t burst_seq,
   }
   TrackResult r = tracker_.Track(copy ? track_points_ : view.points_in_cam, copy ? track_normals_ : view.normals, view.quality,
                                  view.texture, augment, reference_ns);
-  ms_ += MsSince(t0);
+  ms_ += MsSince(t0);  // with TrackerOptions::defer_model_insert, Commit() adds the insert's
   if (r.accepted) ++accepted_;
   else ++rejected_;
   if (r.state == TrackingState::kLost && prev_state_ != TrackingState::kLost) ++lost_events_;
@@ -136,6 +136,8 @@ TrackResult ScanRegistrar::Register(ReconstructedView& view, uint64_t burst_seq,
   views_.push_back({burst_seq, reference_ns, r.accepted, r.state});
   return r;
 }
+
+void ScanRegistrar::Commit() { ms_ += tracker_.CommitView(); }
 
 void ScanRegistrar::CopyWithoutEdgeFill(const ReconstructedView& view) {
   // copyTo into a buffer of the same size and type keeps its data, so the headers the tracker
@@ -183,6 +185,7 @@ ScanRegistrar::UndoResult ScanRegistrar::UndoLastSeconds(double seconds) {
     const int64_t from_ns = end_ns - static_cast<int64_t>(std::llround(std::max(0.0, seconds) * 1e9));
     while (first > 0 && views_[static_cast<size_t>(first - 1)].reference_ns >= from_ns) --first;
   }
+  tracker_.CommitView();  // a pending insert counts in what the journal reaches
   const int64_t reachable = tracker_.first_undoable_view();
   if (first < reachable) {
     first = reachable;

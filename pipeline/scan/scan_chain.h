@@ -142,6 +142,10 @@ class ScanRegistrar {
   // there for the fusion's coverage. Typodont seed 2 with them registered: ATE 0.048 → 0.067 mm,
   // trueness 7.9 → 12.1 µm RMS.
   TrackResult Register(ReconstructedView& view, uint64_t burst_seq, int64_t reference_ns);
+  // With TrackerOptions::defer_model_insert: the last Register's model insert, which Register left
+  // pending (Tracker::CommitView); call it once the view has been passed on. The next Register or
+  // UndoLastSeconds runs a pending one first.
+  void Commit();
   // Model anchoring of a view reconstructed again (FinishScan's refusion), against the whole model
   // (the tracker's, built at the tracked poses: give the view's tracked pose); returns the pixels
   // anchored (0 without model anchoring).
