@@ -179,14 +179,17 @@ TEST(StageGraph, StopDrainsLosslessAndEndsLive) {
   }
 }
 
-// n items (values 0 … n−1) through `stages` with options `o`; returns the graph after Join().
+// n items (values 0 … n−1), one per source_period, through `stages` with options `o`; returns the
+// graph after Join().
 std::unique_ptr<StageGraph<TestItem>> RunCounting(const StageGraphOptions& o, uint64_t n,
-                                                  const std::vector<StageGraph<TestItem>::Stage>& stages) {
+                                                  const std::vector<StageGraph<TestItem>::Stage>& stages,
+                                                  std::chrono::microseconds source_period = {}) {
   uint64_t next = 0;
   auto g = std::make_unique<StageGraph<TestItem>>(
       o, [] { return std::make_unique<TestItem>(); },
-      [&next, n](TestItem& it, ItemMeta*) {
+      [&next, n, source_period](TestItem& it, ItemMeta*) {
         if (next == n) return StageGraph<TestItem>::SourceResult::kEnd;
+        if (source_period.count() > 0) std::this_thread::sleep_for(source_period);
         it.value = next++;
         return StageGraph<TestItem>::SourceResult::kItem;
       },
@@ -235,8 +238,10 @@ TEST(StageGraph, AfterHookRunsOnceTheItemHasGoneOn) {
            cv.notify_all();
            return true;
          }}};
-    const uint64_t n = 20;
-    const auto graph = RunCounting(o, n, stages);
+    // A burst every 3 ms (longer than stage 0's ~2 ms per item), so that live drops few and both
+    // accepted and rejected items reach stage 0; the last one (21) is accepted.
+    const uint64_t n = 22;
+    const auto graph = RunCounting(o, n, stages, std::chrono::milliseconds(3));
     const StageGraph<TestItem>& g = *graph;
     const uint64_t ran = g.stage(0).processed.load();
     ASSERT_EQ(events.size(), 2 * ran);
@@ -246,6 +251,7 @@ TEST(StageGraph, AfterHookRunsOnceTheItemHasGoneOn) {
     }
     EXPECT_EQ(hooks_seeing_next_stage, ran - g.stage(0).rejected.load());  // every accepted item had gone on
     EXPECT_GT(hooks_seeing_next_stage, 0u);
+    EXPECT_GT(g.stage(0).rejected.load(), 0u);
     EXPECT_GE(static_cast<double>(g.stage(0).busy_ns.load()), 2e6 * static_cast<double>(hooks_seeing_next_stage));
     EXPECT_GE(static_cast<double>(g.stage(0).cpu_ns.load()), 1.5e6 * static_cast<double>(hooks_seeing_next_stage));
     if (p == EdgePolicy::kLossless) {
