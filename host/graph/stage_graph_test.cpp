@@ -7,8 +7,8 @@
 #include <condition_variable>
 #include <cstdio>
 #include <mutex>
-#include <string>
 #include <random>
+#include <string>
 #include <thread>
 
 namespace d3d {

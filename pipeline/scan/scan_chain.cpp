@@ -185,7 +185,7 @@ ScanRegistrar::UndoResult ScanRegistrar::UndoLastSeconds(double seconds) {
     const int64_t from_ns = end_ns - static_cast<int64_t>(std::llround(std::max(0.0, seconds) * 1e9));
     while (first > 0 && views_[static_cast<size_t>(first - 1)].reference_ns >= from_ns) --first;
   }
-  tracker_.CommitView();  // a pending insert counts in what the journal reaches
+  Commit();  // a pending insert counts in what the journal reaches
   const int64_t reachable = tracker_.first_undoable_view();
   if (first < reachable) {
     first = reachable;
