@@ -100,7 +100,7 @@ double PhaseTriangulator::FastDepth(size_t index, double Phi) const {
   const double target = spec.phase_origin_px + Phi * spec.fringe_period_px / (2.0 * M_PI);
   double delta = m.d[0];  // δ at the middle of the volume: a good start
   double z = kNaN;
-  for (int it = 0; it < 4; ++it) {
+  for (int it = 0; it < 3; ++it) {  // three: see the header
     const double mm = (target - delta - centre) / f_px;  // normalised pinhole target
     const double denom = mm * m.e - m.a;
     if (std::abs(denom) < 1e-12) return kNaN;

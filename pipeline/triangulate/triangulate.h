@@ -16,7 +16,9 @@
 // Fast path (Triangulate): per pixel, the pinhole coefficients (a, e) and a degree-5 least-squares
 // fit, in depth, of the distortion's correction δ(z) = c(z) − c_pinhole(z) over the measurement
 // volume (+margin) are precomputed; z then solves c_pinhole(z) = c* − δ(z) by fixed-point
-// iteration of the closed form (δ changes ~100× more slowly with z than c: four iterations).
+// iteration of the closed form (δ changes ~300× more slowly with z than c: three iterations;
+// measured over the 34 million pixels of a 450-burst typodont replay, the third is within 3e-7 mm
+// of a fourth, 30× below the fit's own 1e-5 mm, the second within 9e-5 mm).
 // Pixels whose fit misses the exact δ by more than 1e-4 px (≈ 1e-5 mm) anywhere on 21 check depths
 // use the exact solver.
 //
