@@ -104,9 +104,9 @@ int64_t PointMap::memory_bytes() const {
   const auto chunk = [](size_t bytes) { return static_cast<int64_t>((bytes + 8 + 15) / 16 * 16); };  // + malloc's header
   int64_t bytes = static_cast<int64_t>((points_.capacity() + normals_.capacity()) * sizeof(Eigen::Vector3f) +
                                        weights_.capacity() * sizeof(float));
-  // A node: the next pointer and the value (std::hash<uint64_t> is not cached).
-  bytes += static_cast<int64_t>(voxel_.bucket_count() * sizeof(void*)) +
-           static_cast<int64_t>(voxel_.size()) * chunk(sizeof(void*) + sizeof(std::pair<const uint64_t, uint32_t>));
+  // The voxel table: one slot (key, index) and one control byte per slot of its capacity.
+  bytes += static_cast<int64_t>(voxel_.capacity() * (sizeof(std::pair<const uint64_t, uint32_t>) + 1));
+  // A node of the block table: the next pointer and the value (std::hash<uint64_t> is not cached).
   bytes += static_cast<int64_t>(blocks_.bucket_count() * sizeof(void*)) +
            static_cast<int64_t>(blocks_.size()) * chunk(sizeof(void*) + sizeof(std::pair<const uint64_t, std::vector<uint32_t>>));
   for (const auto& [key, list] : blocks_) bytes += chunk(list.capacity() * sizeof(uint32_t));

@@ -187,7 +187,7 @@ TEST(PointMapJournal, RollingBackInsertsGivesTheMapThatNeverHadThem) {
   EXPECT_TRUE(plain.RollBackTo(plain.inserts()));
 }
 
-// memory_bytes counts at least the samples' arrays and one hash node per sample, grows with new
+// memory_bytes counts at least the samples' arrays and one hash slot per sample, grows with new
 // surface and stays put when the same surface is inserted again (a probe dwelling over a tooth).
 TEST(PointMap, MemoryGrowsWithNewSurfaceOnly) {
   PointMap map;
