@@ -39,12 +39,18 @@ void ScanAppOptions::Check() const {
     throw std::invalid_argument("ScanAppOptions: preview cell > 0 and strides >= 1");
   if (!(undo_seconds > 0) || undo_max_views < 0) throw std::invalid_argument("ScanAppOptions: undo_seconds > 0 and undo_max_views >= 0");
   if (!(live_voxel_mm >= 0)) throw std::invalid_argument("ScanAppOptions: live_voxel_mm >= 0 (0 = the scan's voxel)");
+  if (live_occlusion_stride < 1 || live_pixel_stride < 1)
+    throw std::invalid_argument("ScanAppOptions: live_occlusion_stride and live_pixel_stride >= 1");
   LiveTsdf().Check();  // e.g. a live voxel above the truncation
 }
 
 TsdfOptions ScanAppOptions::LiveTsdf() const {
   TsdfOptions t = scan.tsdf;
-  if (keep_views && live_voxel_mm > 0) t.voxel_mm = live_voxel_mm;
+  if (keep_views && live_voxel_mm > 0) {
+    t.voxel_mm = live_voxel_mm;
+    t.occlusion_stride = live_occlusion_stride;
+    t.pixel_stride = live_pixel_stride;
+  }
   return t;
 }
 
@@ -180,7 +186,13 @@ bool ScanApp::ReconstructStage(ScanItem& item) {
     return false;
   }
   ms_recon_ += item.view.ms_total;
-  item.packed_ok = o_.keep_views && packer_.Pack(recon_.frames_used(), &item.packed).ok();
+  if (o_.keep_views) {
+    // Copied here, packed by the fuse stage (FuseStage): copyTo into a buffer of the same size and
+    // type reuses it, so the item pool allocates nothing after warm-up.
+    const std::vector<cv::Mat>& used = recon_.frames_used();
+    item.kept_frames.resize(used.size());
+    for (size_t i = 0; i < used.size(); ++i) used[i].copyTo(item.kept_frames[i]);
+  }
   return true;
 }
 
@@ -271,6 +283,7 @@ bool ScanApp::FuseStage(ScanItem& item) {
   if (item.track.accepted) {
     item.fused = fuser_->Fuse(item.view, item.track.world_from_cam).ok();
     if (item.fused) fused_.fetch_add(1, std::memory_order_relaxed);
+    item.packed_ok = item.fused && o_.keep_views && packer_.Pack(item.kept_frames, &item.packed).ok();
     if (item.fused && item.packed_ok) {
       if (const Status s = archive_.Add(item.burst.burst_seq, item.packed); !s.ok() && spill_failures_++ == 0) spill_failure_ = s.ToString();
       fused_views_.push_back({item.view_index, item.burst.burst_seq, item.track.world_from_cam});
