@@ -64,7 +64,7 @@ int main(int argc, char** argv) {
   int undo_views = 150;
   std::vector<uint64_t> undo_after;
   double duration_s = 0, probe_timeout_s = 1.0, idle_exit_s = 0, wait_probe_s = 120, preview_fps = 20, replay_rate = 0, step = 0;
-  int domain = 0, threads = 2, width = 960, height = 720, bin = 2, icp_threads = 2;
+  int domain = 0, threads = 0, width = 960, height = 720, bin = 2, icp_threads = 0;
   uint32_t sim_seed = 1;
   double sim_rate = 30;
   cli.add_option("--replay", replay, "replay a recording (d3d-record) through the same graph instead of listening on DDS");
@@ -117,8 +117,11 @@ int main(int argc, char** argv) {
   cli.add_option("--probe-timeout", probe_timeout_s, "seconds without a burst before 'probe lost'")->capture_default_str();
   cli.add_option("--idle-exit", idle_exit_s, "live: finish after this many seconds without a burst (0 = wait for the probe to return)")->capture_default_str();
   cli.add_option("--wait-probe", wait_probe_s, "live: seconds to wait for the probe's ProbeInfo")->capture_default_str();
-  cli.add_option("--threads", threads, "OpenCV / oneTBB threads (the reconstruction's row blocks too)")->capture_default_str();
-  cli.add_option("--icp-threads", icp_threads, "threads of the tracker's ICP (association and normal equations; at most --threads)")->capture_default_str();
+  cli.add_option("--threads", threads,
+                 "OpenCV / oneTBB threads (the reconstruction's row blocks, the ICP, the fusion's loops); 0 = 1 live (the stage "
+                 "threads alone own the cores), 2 lossless")->capture_default_str();
+  cli.add_option("--icp-threads", icp_threads, "threads of the tracker's ICP (association and normal equations; at most --threads; 0 = --threads)")
+      ->capture_default_str();
   cli.add_option("--preview-fps", preview_fps, "preview frame-rate cap")->capture_default_str();
   cli.add_option("--size", width, "preview width (px; height = 3/4)")->capture_default_str();
   cli.add_flag("--json", json, "print report.json as one line on stdout");
@@ -146,7 +149,20 @@ int main(int argc, char** argv) {
   // A live run's views (--replay-views) come as unevenly as they did live: the live tracker's gates.
   const bool live_views = policy == EdgePolicy::kLive || !replay_views.empty();
   if (step <= 0) step = live_views ? 6 : 1;
-  if (threads < 1) threads = 1;
+  // Live, the graph's stage threads (reconstruct, register, preview, fuse) and the render thread
+  // already keep the 2 cores busy when the machine is slow, and oneTBB's worker then only contends
+  // with them: its chunks wait for a core while the stage that lent them waits for the chunks, and
+  // every hand-off costs wake-ups. Live 450-burst typodont recording (tools/bench/live_latency.sh):
+  //   at 1.1 cores' worth of CPU (--cpu-quota 1.1, as the machine's slow hours), 6 interleaved rounds:
+  //     2 threads: 24.4-29.3 bursts/s, latency p50 24-80 ms, p95 83-114 (median 86.6);
+  //     1 thread:  28.3-29.6 bursts/s, p50 24-44 ms, p95 80-102 (median 85.2);
+  //   at 1.0 core, 2 pairs: p95 116.7 / 92.2 ms at 24.8 / 28.4 bursts/s against 102.1 / 97.0 at 28.0;
+  //   CPU over the busiest 12 s: 106-109 % of a core against 99-103 % (2 pairs, full speed);
+  //   at full speed 1 thread costs ~3 ms: p50 21.5-21.8 against 18.5-18.6 ms, p95 27.0 against 24.9-25.2.
+  // So live takes 1 (the worst cases matter, not the best). Lossless runs (replay, tests) keep 2:
+  // nothing waits there but the run's length.
+  if (threads <= 0) threads = policy == EdgePolicy::kLive ? 1 : 2;
+  if (icp_threads <= 0) icp_threads = threads;
   Association assoc = Association::kGrid;
   if (bin < 1 || !ParseAssociation(association, &assoc)) {
     std::fprintf(stderr, "d3d-scan: --bin must be >= 1 and --association grid, kdtree or projective\n");
@@ -232,7 +248,9 @@ int main(int argc, char** argv) {
     // 18.3 ms per burst, latency p50 40.2 -> 34.2 ms, p95 median 80.4 -> 53.3 ms, trueness 11.0-13.3
     // -> 11.0-13.2 um; lossless 12.15 -> 12.14 um. It used to be 1: when the stages alone kept both
     // cores busy, the workers only contended with them (600-burst recording, before the stages got
-    // cheaper: register 144 -> 78 ms per burst with 1 thread, 6.8 -> 10.8-12.1 bursts/s).
+    // cheaper: register 144 -> 78 ms per burst with 1 thread, 6.8 -> 10.8-12.1 bursts/s). Since
+    // the machine's slow hours made the stages alone fill what the cores deliver, live takes 1 again
+    // (see --threads above); lossless keeps 2.
     ao.scan.tracker.icp.threads = std::clamp(icp_threads, 1, threads);
     // The reconstruction's per-pixel passes on blocks of rows (ReconstructOptions::threads): the
     // same bits, shorter when a core is free (d3d-bench-recon, 640 x 480 on an idle machine: 47.6 ->
