@@ -151,11 +151,46 @@ size_t GridTarget::samples(float max_distance_mm) const {
 }
 
 bool GridTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* point, Eigen::Vector3f* normal) const {
+  Hit hit;
+  if (!Search<false>(q, max_d, 0.0f, &hit) || !(hit.best < max_d * max_d)) return false;
+  const Grid& g = *GridFor(max_d);
+  *point = g.points[static_cast<size_t>(hit.found)];
+  *normal = g.normals[static_cast<size_t>(hit.found)];
+  return std::isfinite((*normal)[0]);
+}
+
+bool GridTarget::FindCertified(const Eigen::Vector3f& q, float max_d, float margin_mm, CertifiedNearest* out) const {
+  *out = CertifiedNearest{};
+  if (!Finite(q) || !(max_d > 0) || !(margin_mm >= 0)) return false;  // not certified: the caller searches each time
+  Hit hit;
+  hit.reach = max_d + margin_mm;  // an empty target holds nothing anywhere
+  Search<true>(q, max_d, margin_mm, &hit);
+  out->certified = true;
+  if (hit.found >= 0 && hit.best < hit.reach * hit.reach) {
+    const Grid& g = *GridFor(max_d);
+    out->found = true;
+    out->point = g.points[static_cast<size_t>(hit.found)];
+    out->normal = g.normals[static_cast<size_t>(hit.found)];
+    out->distance_mm = std::sqrt(hit.best);
+    out->clearance_mm = std::sqrt(std::min(hit.second, hit.bound));
+  } else {
+    out->clearance_mm = hit.reach;  // nothing within reach (a query beyond the grid: nothing near it at all)
+  }
+  return true;
+}
+
+template <bool kCertify>
+bool GridTarget::Search(const Eigen::Vector3f& q, float max_d, float margin, Hit* hit) const {
+  hit->found = -1;
   const Grid* g = GridFor(max_d);
   if (g == nullptr || !(max_d > 0) || !Finite(q)) return false;
   const float c = g->cell, f = g->sub_cell;
   const int sub = g->sub, sub3 = sub * sub * sub;
   const int ring = std::max(1, static_cast<int>(std::ceil(max_d / c)));
+  // Certified: every sample within `reach` of the query is looked at (the ring covers at least
+  // ring·c around it), and the skip bound is the nearest so far plus the margin, so that every
+  // sample skipped lies farther than the final bound.
+  hit->reach = kCertify ? std::min(max_d + margin, static_cast<float>(ring) * c) : max_d;
   const Eigen::Vector3f rel = q - g->origin;
   // The cells within the ring, clamped to the grid (in float first, so far queries do not overflow int).
   const auto range = [ring](float v, int n, int* a, int* b) {
@@ -168,7 +203,11 @@ bool GridTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* po
   int x0, x1, y0, y1, z0, z1;
   if (!range(rel.x() / c, g->nx, &x0, &x1) || !range(rel.y() / c, g->ny, &y0, &y1) || !range(rel.z() / c, g->nz, &z0, &z1))
     return false;
-  float best = max_d * max_d;  // strict: a sample is taken when its distance² is below this
+  // Find: `best` starts at the gate² and is also the skip bound (a sample is taken when its
+  // distance² is below it). Certified: best starts unbounded, `bound` is the skip bound.
+  float best = kCertify ? std::numeric_limits<float>::infinity() : max_d * max_d;
+  float second = std::numeric_limits<float>::infinity();
+  float bound = hit->reach * hit->reach;
   int64_t found = -1;
   const auto scan_slot = [&](size_t slot) {
     const uint32_t e = g->start[slot + 1];
@@ -181,8 +220,15 @@ bool GridTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* po
       d2 += dy * dy;
       d2 += dz * dz;
       if (d2 < best) {
+        if constexpr (kCertify) {
+          second = best;
+          const float r = std::sqrt(d2) + margin;
+          bound = std::min(bound, r * r);
+        }
         best = d2;
         found = k;
+      } else if constexpr (kCertify) {
+        if (d2 < second) second = d2;
       }
     }
   };
@@ -201,7 +247,7 @@ bool GridTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* po
       scan_slot(own);
     }
   }
-  const auto beyond = [&best](float gap2) { return gap2 > best; };
+  const auto beyond = [&](float gap2) { return gap2 > (kCertify ? bound : best); };
   for (int z = z0; z <= z1; ++z) {
     const float oz = static_cast<float>(z) * c;
     const float gz = AxisGap2(rel.z(), oz, c);
@@ -235,10 +281,11 @@ bool GridTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* po
       }
     }
   }
-  if (found < 0) return false;
-  *point = g->points[static_cast<size_t>(found)];
-  *normal = g->normals[static_cast<size_t>(found)];
-  return std::isfinite((*normal)[0]);
+  hit->found = found;
+  hit->best = best;
+  hit->second = second;
+  hit->bound = bound;
+  return found >= 0;
 }
 
 }  // namespace d3d

@@ -71,6 +71,13 @@ class GridTarget final : public IcpTarget {
   // Nearest sample strictly within max_distance_mm of `query`: see the file comment.
   bool Find(const Eigen::Vector3f& query, float max_distance_mm, Eigen::Vector3f* point,
             Eigen::Vector3f* normal) const override;
+  // As Find, with the clearance RegisterIcp needs to reuse the answer while the query moves
+  // (IcpTarget::FindCertified): every sample within reach = min(max_distance_mm + margin_mm, the
+  // searched ring) is looked at, and cells are skipped beyond the nearest so far plus margin_mm
+  // (Find skips beyond the nearest: a few more cells are read). The nearest sample (ties: the one
+  // Find takes) is Find's answer when it lies within max_distance_mm.
+  bool FindCertified(const Eigen::Vector3f& query, float max_distance_mm, float margin_mm,
+                     CertifiedNearest* out) const override;
   size_t size() const { return size_; }
   size_t grids() const { return used_grids_; }  // grids the last Build made (gates shared: kShareGateRatio)
   // Samples held by the grid that serves max_distance_mm (fewer than size() when decimated).
@@ -92,6 +99,15 @@ class GridTarget final : public IcpTarget {
                                             // Find's time)
   };
   void BuildGrid(Grid* g, const SurfacePoints& target, bool decimate);
+  // One search (Find's, or FindCertified's with kCertify): the nearest sample's index in the grid
+  // (found, −1 for none), its distance² (best), the next nearest distance² seen (second), the skip
+  // bound² at the end (bound) and the reach (mm). Returns found >= 0.
+  struct Hit {
+    int64_t found = -1;
+    float best = 0, second = 0, bound = 0, reach = 0;
+  };
+  template <bool kCertify>
+  bool Search(const Eigen::Vector3f& query, float max_distance_mm, float margin_mm, Hit* hit) const;
   const Grid* GridFor(float max_distance_mm) const;
 
   Eigen::Vector3f lo_ = Eigen::Vector3f::Zero(), hi_ = Eigen::Vector3f::Zero();  // finite samples' bounds

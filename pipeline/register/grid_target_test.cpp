@@ -188,6 +188,74 @@ TEST(GridTarget, RebuildsAndRefusesBadInput) {
   EXPECT_THROW(grid.Build(a, {0.0}), std::invalid_argument);
 }
 
+// FindCertified: the nearest sample (Find's answer within the gate), a clearance that no other
+// sample breaks (checked against every sample), and, for the query moved, the answers
+// CertifiedNearest promises without a search are Find's.
+TEST(GridTarget, ACertifiedAnswerIsFindsAndHoldsWhereItSaysItDoes) {
+  const SurfacePoints s = Surface();
+  GridTarget grid;
+  grid.Build(s, {1.0, 0.3, 0.15});
+  std::mt19937 rng(21);
+  std::uniform_real_distribution<float> dir(-1.0f, 1.0f), len(0.0f, 0.04f);
+  int reusable_found = 0, reusable_none = 0, checked = 0;  // checked: queries with a margin
+  for (const float gate : {1.0f, 0.3f, 0.15f})
+    for (const float margin : {0.0f, 0.1f * gate}) {
+      for (const Eigen::Vector3f& q : Queries(s, 0.3f, 600, 17)) {
+        CertifiedNearest c;
+        ASSERT_TRUE(grid.FindCertified(q, gate, margin, &c));
+        ASSERT_TRUE(c.certified);
+        Eigen::Vector3f p, n;
+        const bool find = grid.Find(q, gate, &p, &n);
+        const bool within = c.found && (q - c.point).squaredNorm() < gate * gate;
+        if (within && std::isfinite(c.normal.x())) {
+          ASSERT_TRUE(find) << q.transpose();
+          EXPECT_EQ(p, c.point);
+          EXPECT_EQ(n, c.normal);
+        } else {
+          EXPECT_FALSE(find) << q.transpose() << " gate " << gate;
+        }
+        if (c.found) {
+          EXPECT_NEAR(c.distance_mm, (q - c.point).norm(), 1e-6f);
+          EXPECT_GE(c.clearance_mm, c.distance_mm);
+        }
+        if (!c.found) {
+          EXPECT_GE(c.clearance_mm, gate);  // nothing within at least the gate
+        }
+        for (size_t i = 0; i < s.size(); ++i) {
+          if (c.found && s.points[i] == c.point) continue;
+          const float d = (q - s.points[i]).norm();
+          ASSERT_GE(d, c.clearance_mm - 1e-5f) << "sample " << i << " inside the clearance of " << q.transpose();
+          if (c.found) {
+            ASSERT_GE(d, c.distance_mm - 1e-6f);
+          }
+        }
+        // The query moved: where CertifiedNearest says the answer holds, it is Find's.
+        Eigen::Vector3f delta(dir(rng), dir(rng), dir(rng));
+        delta = delta.normalized() * len(rng) * (margin > 0 ? 0.5f * margin / 0.04f : 1.0f);
+        const Eigen::Vector3f q2 = q + delta;
+        const bool find2 = grid.Find(q2, gate, &p, &n);
+        if (c.found && (q2 - c.point).norm() + delta.norm() < c.clearance_mm) {
+          ++reusable_found;
+          const bool hit = (q2 - c.point).squaredNorm() < gate * gate && std::isfinite(c.normal.x());
+          ASSERT_EQ(find2, hit) << q2.transpose();
+          if (hit) {
+            EXPECT_EQ(p, c.point);
+          }
+        } else if (!c.found && gate + delta.norm() < c.clearance_mm) {
+          ++reusable_none;
+          EXPECT_FALSE(find2) << q2.transpose();
+        }
+        checked += margin > 0;
+      }
+    }
+  // With a margin, many answers stay reusable for moves within half of it (and this test is not vacuous).
+  EXPECT_GT(reusable_found, checked / 4);
+  EXPECT_GT(reusable_none, 0);
+  CertifiedNearest c;
+  EXPECT_FALSE(grid.FindCertified(Eigen::Vector3f(std::numeric_limits<float>::quiet_NaN(), 0, 0), 0.3f, 0.03f, &c));
+  EXPECT_FALSE(c.certified);
+}
+
 // ICP with either association ends at the same pose.
 TEST(GridTarget, IcpGivesTheKdTreesPose) {
   const HeightField hf(11);

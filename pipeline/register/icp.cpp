@@ -88,6 +88,8 @@ void IcpOptions::Check() const {
   D3D_CHECK_MSG(min_overlap >= 0 && min_overlap <= 1, "min_overlap must be in [0, 1]");
   D3D_CHECK_MSG(max_rmse_mm > 0 && min_correspondences >= 6 && min_eigen_ratio >= 0, "acceptance thresholds invalid");
   D3D_CHECK_MSG(threads >= 1, "threads must be >= 1");
+  D3D_CHECK_MSG(association_reuse_margin >= 0 && std::isfinite(association_reuse_margin),
+                "association_reuse_margin must be >= 0");
 }
 
 namespace {
@@ -99,6 +101,57 @@ struct Match {
   float w0;           // source confidence
   float r;            // point-to-plane residual
 };
+
+// A sample's certified association (IcpTarget::FindCertified) and the query it was made for.
+struct ReusableMatch {
+  bool valid = false;
+  Eigen::Vector3f query = Eigen::Vector3f::Zero();
+  CertifiedNearest nearest;
+};
+// Slack (mm) in the reuse tests: float rounding of the distances (~1e-7 mm here) never turns a
+// sample that is not provably the nearest into a reused answer.
+constexpr float kReuseSlackMm = 1e-5f;
+
+// Squared distance in nanoflann's L2_Simple_Adaptor order, as GridTarget::Find compares them.
+inline float Distance2(const Eigen::Vector3f& q, const Eigen::Vector3f& p) {
+  float d2 = 0.0f;
+  const float dx = q.x() - p.x(), dy = q.y() - p.y(), dz = q.z() - p.z();
+  d2 += dx * dx;
+  d2 += dy * dy;
+  d2 += dz * dz;
+  return d2;
+}
+
+// Find(query, gate) through a reusable answer: reused when the moved query provably has the same
+// answer (CertifiedNearest's tests), else searched and certified again. *searched: whether the
+// target was searched.
+bool FindReusing(const IcpTarget& target, const Eigen::Vector3f& query, float gate, float margin, ReusableMatch* r,
+                 Eigen::Vector3f* point, Eigen::Vector3f* normal, bool* searched) {
+  *searched = false;
+  if (r->valid) {
+    const CertifiedNearest& c = r->nearest;
+    const float moved = (query - r->query).norm();
+    if (c.found) {
+      if ((query - c.point).norm() + moved + kReuseSlackMm < c.clearance_mm) {
+        if (!(Distance2(query, c.point) < gate * gate)) return false;
+        *point = c.point;
+        *normal = c.normal;
+        return std::isfinite((*normal)[0]);
+      }
+    } else if (gate + moved + kReuseSlackMm < c.clearance_mm) {
+      return false;
+    }
+  }
+  *searched = true;
+  r->valid = target.FindCertified(query, gate, margin, &r->nearest);
+  if (!r->valid) return target.Find(query, gate, point, normal);
+  r->query = query;
+  const CertifiedNearest& c = r->nearest;
+  if (!c.found || !(Distance2(query, c.point) < gate * gate)) return false;
+  *point = c.point;
+  *normal = c.normal;
+  return std::isfinite((*normal)[0]);
+}
 
 double Median(std::vector<float>* v) {
   if (v->empty()) return 0;
@@ -219,7 +272,8 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
   const double radius = std::max(source.RadiusMm(), 1e-3);
   Rigid3d T = initial;
   std::vector<Match> matches;
-  std::vector<uint8_t> found;
+  std::vector<uint8_t> found, searched;
+  std::vector<ReusableMatch> reusable;
   std::vector<Match> scratch;
   std::vector<float> absr;
   Eigen::Matrix<double, 6, 6> H_plane_last = Eigen::Matrix<double, 6, 6>::Zero();
@@ -240,6 +294,12 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
     for (size_t i = 0; i < source.points.size(); i += stride) idx.push_back(i);
     scratch.resize(idx.size());
     found.assign(idx.size(), 0);
+    // Per sample: its reusable association (a level's gate differs from the last one's: none yet)
+    // and whether the iteration searched (summed after each association pass).
+    const bool reuse = o.association_reuse_margin > 0;
+    const float margin = static_cast<float>(o.association_reuse_margin * L.max_distance_mm);
+    reusable.assign(reuse ? idx.size() : 0, ReusableMatch{});
+    searched.assign(idx.size(), 1);
     double prev_err = -1;
     for (int it = 0; it < L.max_iterations; ++it) {
       ++res.iterations;
@@ -251,7 +311,14 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
           found[k] = 0;
           const Eigen::Vector3f p = R * source.points[i] + t;
           Match m;
-          if (!target.Find(p, gate, &m.q, &m.n)) continue;
+          if (reuse) {
+            bool did = true;
+            const bool hit = FindReusing(target, p, gate, margin, &reusable[k], &m.q, &m.n, &did);
+            searched[k] = did ? 1 : 0;
+            if (!hit) continue;
+          } else if (!target.Find(p, gate, &m.q, &m.n)) {
+            continue;
+          }
           if (has_n && (R * source.normals[i]).dot(m.n) < cos_max) continue;
           m.p = p;
           m.w0 = has_w ? source.weights[i] : 1.0f;
@@ -270,6 +337,10 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
       matches.clear();
       for (size_t k = 0; k < idx.size(); ++k)
         if (found[k]) matches.push_back(scratch[k]);
+      for (size_t k = 0; k < idx.size(); ++k) {
+        res.searches += searched[k];
+        res.searches_reused += 1 - searched[k];
+      }
       const int nm = static_cast<int>(matches.size());
       samples_last = static_cast<int>(idx.size());
       associated_last = nm;

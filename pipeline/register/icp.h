@@ -30,6 +30,21 @@
 
 namespace d3d {
 
+// A nearest-sample answer with a clearance, so that it can be reused while the query moves a
+// little (RegisterIcp between iterations, where the pose changes by micrometres): the nearest
+// target sample within the search's reach (≥ the gate), and how far around the query no other
+// sample lies. For the query moved by Δ (|Δ| = distance between the two queries):
+//   found, |q' − point| + |Δ| < clearance_mm → `point` is still q''s unique nearest sample (any
+//     other lies ≥ clearance − |Δ| from q'), so Find(q', r) is `point` when |q' − point| < r, else none;
+//   not found, r + |Δ| < clearance_mm → nothing lies within r of q': Find(q', r) finds none.
+struct CertifiedNearest {
+  bool certified = false;     // false: no answer to reuse (the caller searches every time)
+  bool found = false;         // a sample lies within the search's reach
+  Eigen::Vector3f point = Eigen::Vector3f::Zero(), normal = Eigen::Vector3f::Zero();  // the nearest (target frame)
+  float distance_mm = 0;      // |query − point|
+  float clearance_mm = 0;     // found: no other sample is nearer the query than this; else none within it
+};
+
 // Associates a query point (target frame, mm) with a target sample: returns true and writes the
 // sample's point and unit normal (target frame) when one lies within max_distance_mm.
 // Implementations must be safe to call concurrently (const, no shared scratch).
@@ -38,6 +53,17 @@ class IcpTarget {
   virtual ~IcpTarget() = default;
   virtual bool Find(const Eigen::Vector3f& query, float max_distance_mm, Eigen::Vector3f* point,
                     Eigen::Vector3f* normal) const = 0;
+  // The nearest sample with a clearance (CertifiedNearest) for a search with gate max_distance_mm,
+  // certifying up to margin_mm beyond the nearest. Returns out->certified; targets that cannot
+  // certify leave it false (the default).
+  virtual bool FindCertified(const Eigen::Vector3f& query, float max_distance_mm, float margin_mm,
+                             CertifiedNearest* out) const {
+    (void)query;
+    (void)max_distance_mm;
+    (void)margin_mm;
+    *out = CertifiedNearest{};
+    return false;
+  }
 };
 
 // Nearest neighbour in a k-d tree (nanoflann). Holds its own copy of the samples.
@@ -118,6 +144,13 @@ struct IcpOptions {
   // chunks of 4096 matches added in a fixed order (parallel_deterministic_reduce), so a result
   // repeats bit for bit whatever the schedule and differs from one thread's by rounding only.
   int threads = 1;
+  // > 0: a sample's association is reused in the level's next iterations while it provably stays
+  // the same (IcpTarget::FindCertified: the nearest target sample and a clearance around the
+  // query; the moved query is checked against both), certifying this fraction of the level's gate
+  // beyond the nearest sample. The matches, and so the result, are the same as searching every
+  // time (up to 1e-5 mm of slack in the test); targets that cannot certify search every time.
+  // 0 = search every time.
+  double association_reuse_margin = 0.1;
   void Check() const;                      // throws std::invalid_argument
 };
 
@@ -129,6 +162,8 @@ struct IcpResult {
   double overlap = 0;                      // associated / final-level samples
   int correspondences = 0;
   int iterations = 0;                      // over all levels
+  int64_t searches = 0;                    // nearest-sample searches, over all levels and iterations
+  int64_t searches_reused = 0;             // associations reused instead (association_reuse_margin)
   double eigen_ratio = 0;                  // see IcpOptions::min_eigen_ratio
   // Gauss–Newton information of the final level, [ω (rad), t (mm)], scaled by 1/σ²: the inverse
   // covariance of the left-perturbation of target_from_source (pose graph edges use it).

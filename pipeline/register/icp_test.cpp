@@ -4,6 +4,7 @@
 
 #include <random>
 
+#include "pipeline/register/grid_target.h"
 #include "pipeline/register/test_surfaces.h"
 
 namespace d3d {
@@ -135,6 +136,46 @@ TEST(Icp, TwoThreadsAgreeWithOneAndRepeatExactly) {
     EXPECT_TRUE(again.target_from_source.matrix() == two.target_from_source.matrix()) << "run " << run;
     EXPECT_TRUE(again.information == two.information) << "run " << run;
   }
+}
+
+// Reusing certified associations between iterations (association_reuse_margin) changes no match:
+// the same pose, bit for bit, on one thread and two, with most searches saved.
+TEST(Icp, ReusedAssociationsGiveTheSamePoseBitForBit) {
+  const HeightField hf(13);
+  const auto cam = TestCamera();
+  const Rigid3d wa = LookDown(0, 0, 30), wb = LookDown(1.2, -0.4, 30.3, 0.02, 0.03, -0.04);
+  const auto va = RenderHeightField(hf, cam, wa, 0.005, 3), vb = RenderHeightField(hf, cam, wb, 0.005, 4);
+  const SurfacePoints target = SampleOrganised(va.points, va.normals, va.quality, 1);
+  const SurfacePoints source = SampleOrganised(vb.points, vb.normals, vb.quality, 2);
+  Rigid3d init = wa.inverse() * wb;
+  init.translation() += Eigen::Vector3d(0.25, -0.1, 0.08);
+  IcpOptions o;
+  std::vector<double> gates;
+  for (const IcpLevel& l : o.levels) gates.push_back(l.max_distance_mm);
+  GridTarget grid;
+  grid.Build(target, gates, 1.0);  // the coarse level decimated, as the tracker's
+  for (const int threads : {1, 2}) {
+    o.threads = threads;
+    o.association_reuse_margin = 0;
+    const IcpResult every = RegisterIcp(source, grid, init, o);
+    o.association_reuse_margin = 0.1;
+    const IcpResult reused = RegisterIcp(source, grid, init, o);
+    ASSERT_TRUE(every.ok) << every.reason;
+    ASSERT_TRUE(reused.ok) << reused.reason;
+    EXPECT_EQ(every.target_from_source.matrix(), reused.target_from_source.matrix());
+    EXPECT_EQ(every.iterations, reused.iterations);
+    EXPECT_EQ(every.correspondences, reused.correspondences);
+    EXPECT_EQ(every.rmse_mm, reused.rmse_mm);
+    EXPECT_EQ(every.information, reused.information);
+    EXPECT_EQ(every.searches_reused, 0);
+    EXPECT_EQ(reused.searches + reused.searches_reused, every.searches);
+    EXPECT_GT(reused.searches_reused, every.searches / 3) << "searches " << reused.searches;
+    EXPECT_LT(TranslationDistanceMm(reused.target_from_source, wa.inverse() * wb), 0.005);
+  }
+  // A target that cannot certify (the k-d tree) searches every time.
+  const IcpResult tree = RegisterIcp(source, KdTreeTarget(target), init, o);
+  EXPECT_EQ(tree.searches_reused, 0);
+  EXPECT_GT(tree.searches, 0);
 }
 
 TEST(Icp, CombinedMetricAtEveryLevelConverges) {
