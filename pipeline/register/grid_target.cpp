@@ -151,8 +151,8 @@ size_t GridTarget::samples(float max_distance_mm) const {
 }
 
 bool GridTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* point, Eigen::Vector3f* normal) const {
-  Hit hit;
-  if (!Search<false>(q, max_d, 0.0f, &hit) || !(hit.best < max_d * max_d)) return false;
+  Hit hit;  // a sample found lies within the gate: Find's search starts at best = gate²
+  if (!Search<false>(q, max_d, 0.0f, &hit)) return false;
   const Grid& g = *GridFor(max_d);
   *point = g.points[static_cast<size_t>(hit.found)];
   *normal = g.normals[static_cast<size_t>(hit.found)];
@@ -212,13 +212,7 @@ bool GridTarget::Search(const Eigen::Vector3f& q, float max_d, float margin, Hit
   const auto scan_slot = [&](size_t slot) {
     const uint32_t e = g->start[slot + 1];
     for (uint32_t k = g->start[slot]; k < e; ++k) {
-      const Eigen::Vector3f& p = g->points[k];
-      // nanoflann's L2_Simple_Adaptor order: ((0 + d0²) + d1²) + d2² in float.
-      float d2 = 0.0f;
-      const float dx = q.x() - p.x(), dy = q.y() - p.y(), dz = q.z() - p.z();
-      d2 += dx * dx;
-      d2 += dy * dy;
-      d2 += dz * dz;
+      const float d2 = L2SimpleDistance2(q, g->points[k]);
       if (d2 < best) {
         if constexpr (kCertify) {
           second = best;

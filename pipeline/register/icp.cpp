@@ -112,42 +112,26 @@ struct ReusableMatch {
 // sample that is not provably the nearest into a reused answer.
 constexpr float kReuseSlackMm = 1e-5f;
 
-// Squared distance in nanoflann's L2_Simple_Adaptor order, as GridTarget::Find compares them.
-inline float Distance2(const Eigen::Vector3f& q, const Eigen::Vector3f& p) {
-  float d2 = 0.0f;
-  const float dx = q.x() - p.x(), dy = q.y() - p.y(), dz = q.z() - p.z();
-  d2 += dx * dx;
-  d2 += dy * dy;
-  d2 += dz * dz;
-  return d2;
-}
-
 // Find(query, gate) through a reusable answer: reused when the moved query provably has the same
 // answer (CertifiedNearest's tests), else searched and certified again. *searched: whether the
 // target was searched.
 bool FindReusing(const IcpTarget& target, const Eigen::Vector3f& query, float gate, float margin, ReusableMatch* r,
                  Eigen::Vector3f* point, Eigen::Vector3f* normal, bool* searched) {
-  *searched = false;
+  bool holds = false;
   if (r->valid) {
     const CertifiedNearest& c = r->nearest;
     const float moved = (query - r->query).norm();
-    if (c.found) {
-      if ((query - c.point).norm() + moved + kReuseSlackMm < c.clearance_mm) {
-        if (!(Distance2(query, c.point) < gate * gate)) return false;
-        *point = c.point;
-        *normal = c.normal;
-        return std::isfinite((*normal)[0]);
-      }
-    } else if (gate + moved + kReuseSlackMm < c.clearance_mm) {
-      return false;
-    }
+    holds = c.found ? (query - c.point).norm() + moved + kReuseSlackMm < c.clearance_mm
+                    : gate + moved + kReuseSlackMm < c.clearance_mm;
   }
-  *searched = true;
-  r->valid = target.FindCertified(query, gate, margin, &r->nearest);
-  if (!r->valid) return target.Find(query, gate, point, normal);
-  r->query = query;
+  *searched = !holds;
+  if (!holds) {
+    r->valid = target.FindCertified(query, gate, margin, &r->nearest);
+    if (!r->valid) return target.Find(query, gate, point, normal);
+    r->query = query;
+  }
   const CertifiedNearest& c = r->nearest;
-  if (!c.found || !(Distance2(query, c.point) < gate * gate)) return false;
+  if (!c.found || !(L2SimpleDistance2(query, c.point) < gate * gate)) return false;
   *point = c.point;
   *normal = c.normal;
   return std::isfinite((*normal)[0]);
@@ -335,9 +319,8 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
         associate(0, idx.size());
       }
       matches.clear();
-      for (size_t k = 0; k < idx.size(); ++k)
-        if (found[k]) matches.push_back(scratch[k]);
       for (size_t k = 0; k < idx.size(); ++k) {
+        if (found[k]) matches.push_back(scratch[k]);
         res.searches += searched[k];
         res.searches_reused += 1 - searched[k];
       }

@@ -30,6 +30,17 @@
 
 namespace d3d {
 
+// Squared distance summed in nanoflann's L2_Simple_Adaptor order, ((0 + dx²) + dy²) + dz² in float:
+// the k-d tree's, so that GridTarget and RegisterIcp's reused associations compare distances as it does.
+inline float L2SimpleDistance2(const Eigen::Vector3f& q, const Eigen::Vector3f& p) {
+  float d2 = 0.0f;
+  const float dx = q.x() - p.x(), dy = q.y() - p.y(), dz = q.z() - p.z();
+  d2 += dx * dx;
+  d2 += dy * dy;
+  d2 += dz * dz;
+  return d2;
+}
+
 // A nearest-sample answer with a clearance, so that it can be reused while the query moves a
 // little (RegisterIcp between iterations, where the pose changes by micrometres): the nearest
 // target sample within the search's reach (≥ the gate), and how far around the query no other
