@@ -79,6 +79,7 @@ void TrackerOptions::Check() const {
   D3D_CHECK_MSG(relocalise_candidates >= 1 && loop_min_separation >= 1 && max_loop_candidates >= 0 && near_loop_candidates >= 0,
                 "TrackerOptions: counts");
   D3D_CHECK_MSG(edge_information_scale > 0, "TrackerOptions: edge_information_scale > 0");
+  D3D_CHECK_MSG(tracked_edge_information_factor >= 0, "TrackerOptions: tracked_edge_information_factor >= 0 (0 = none)");
   D3D_CHECK_MSG(near_loop_information_factor > 0 && near_loop_information_factor <= 1,
                 "TrackerOptions: near_loop_information_factor in (0, 1]");
   D3D_CHECK_MSG(reregister_min_gain >= 0, "TrackerOptions: reregister_min_gain >= 0");
@@ -693,7 +694,15 @@ int Tracker::AddKeyframeEdges(int k) {
       e.sigma_rotation_rad = o_.odometry_sigma_rad;
     }
     e.loop = false;
+    const bool measured = !e.information.isZero(0);
     graph_.AddEdge(e);
+    if (measured && o_.tracked_edge_information_factor > 0) {
+      // The tracked relative pose: the graph's poses are still the tracked ones (nothing but
+      // Optimize moves them, and deferred edges are added before it does).
+      e.from_from_to = graph_.pose(e.from).inverse() * graph_.pose(e.to);
+      e.information *= o_.tracked_edge_information_factor;
+      graph_.AddEdge(e);
+    }
   }
   return o_.detect_loops ? DetectLoops(k) : 0;
 }

@@ -232,8 +232,29 @@ struct TrackerOptions {
   // Odometry edges measured by ICP between the keyframes' own samples (k-d tree), independent of
   // the model the tracker registered against, with ICP's information matrix (times
   // edge_information_scale) as the edge's information; loop edges use that information too.
-  // false: the odometry edge is the tracked relative pose with the σs below.
+  // false: the odometry edge is the tracked relative pose with the σs below (also the edge of a
+  // keyframe whose ICP to its parent failed).
   bool keyframe_icp_edges = true;
+  // With keyframe_icp_edges and a factor > 0, each keyframe whose ICP odometry edge was measured
+  // also gets a second odometry edge from its parent: the relative pose the tracker gave the two
+  // (frame-to-model ICP against the whole model near them, not just the parent's samples), with the
+  // ICP edge's information times this factor. Off by default: it halves the spread of a single pass
+  // but costs the loop-closing scans (measured below); `d3d-fuse` / `d3d-scan
+  // --tracked-edge-factor`. Why: a single pass along the arch has links that only the odometry edge
+  // spans (no near loop: the keyframes around it overlap too little), and one keyframe ICP's error
+  // there bends everything after it. The tracked relative pose has errors about as large (450-burst
+  // typodont recording: per component 25 / 24 / 2.7 µm and 0.44 / 0.48 / 0.44 mrad, against the ICP
+  // edge's 14 / 26 / 2.9 µm and 0.48 / 0.30 / 0.44 mrad) and correlated with them by 0.3–0.65, so
+  // the two average. 20 lossless `d3d-scan` replays of that recording, each without its first 0–26
+  // bursts or with 5 % of them dropped (trueness RMS, factor 0 / 0.5 / 1): SD 1.28 / 0.74 / 0.65
+  // µm, range 10.2–15.6 / 10.5–12.8 / 10.7–12.9 µm, ATE mean 0.075 / 0.070 / 0.069 mm (a 20th run,
+  // 20.2 / 21.1 / 21.8 µm, lost its keyframe ICP in a fast turn, and the σ edge that then stands for
+  // it bends the chain there). But the whole full arch (`d3d-fuse --sim typodont --bin 2 --every 2`,
+  // 133–143 keyframes), factor 0 / 1: seed 1 9.00 / 12.80 µm, seed 2 12.43 / 9.85, seed 3 9.64 /
+  // 11.45: the tracked poses carry the tracker's drift, which the loops across the arch must undo.
+  // Tracked edges only where a keyframe got no loop edge did worse on the single pass (11.8–13.1 µm
+  // over the first 7 of those replays).
+  double tracked_edge_information_factor = 0.0;
   double edge_information_scale = 1e-3;
   double odometry_sigma_mm = 0.005, odometry_sigma_rad = 1e-4;  // pose graph edge σ (without ICP information)
   double loop_sigma_mm = 0.005, loop_sigma_rad = 1e-4;

@@ -553,6 +553,73 @@ TEST_F(TrackerScan, NearLoopsCarryTheirFactorOfTheInformation) {
       std::invalid_argument);
 }
 
+// Each keyframe whose ICP odometry edge was measured gets a second odometry edge right after it:
+// the relative pose the tracker gave the two, with that ICP edge's information times
+// tracked_edge_information_factor. Nothing else in the graph changes.
+TEST_F(TrackerScan, KeyframesGetTheTrackedRelativePoseAsASecondOdometryEdge) {
+  TrackerOptions o;
+  o.min_view_samples /= 4;
+  o.keyframe_overlap = 0.85;  // a keyframe every ~1.5 mm
+  o.loop_min_separation = 3;
+  TrackerOptions o0 = o, o_half = o;
+  EXPECT_EQ(o0.tracked_edge_information_factor, 0.0) << "off by default";
+  o.tracked_edge_information_factor = 1;
+  o_half.tracked_edge_information_factor = 0.5;
+  Tracker one(small_cam_, o), none(small_cam_, o0), half(small_cam_, o_half);
+  std::vector<Rigid3d> path;
+  for (double x = -4; x <= 4.01; x += 0.5) path.push_back(Truth(x, 0));
+  for (double x = 4; x >= -4.01; x -= 0.5) path.push_back(Truth(x, 1.5));
+  for (size_t i = 0; i < path.size(); ++i) {
+    const auto v = RenderHeightField(hf_, small_cam_, path[i], 0.004, static_cast<uint32_t>(i + 1));
+    for (Tracker* t : {&one, &none, &half}) ASSERT_TRUE(t->Track(v.points, v.normals, v.quality, v.texture).accepted) << "view " << i;
+  }
+  const auto check = [&](const Tracker& t, double factor) {
+    const auto& with = t.graph().edges();
+    const auto& without = none.graph().edges();
+    ASSERT_EQ(t.keyframes().size(), none.keyframes().size());
+    size_t j = 0;
+    int tracked = 0;
+    for (size_t i = 0; i < with.size(); ++i, ++j) {
+      ASSERT_LT(j, without.size()) << "edge " << i;
+      ASSERT_EQ(with[i].from, without[j].from);
+      ASSERT_EQ(with[i].to, without[j].to);
+      ASSERT_EQ(with[i].loop, without[j].loop);
+      EXPECT_TRUE(with[i].from_from_to.matrix() == without[j].from_from_to.matrix()) << "edge " << i;
+      EXPECT_TRUE(with[i].information == without[j].information) << "edge " << i;
+      if (with[i].loop || with[i].information.isZero(0)) continue;
+      // A measured odometry edge: the tracked one follows.
+      ASSERT_LT(i + 1, with.size());
+      const PoseGraphEdge& e = with[++i];
+      EXPECT_EQ(e.from, with[i - 1].from);
+      EXPECT_EQ(e.to, with[i - 1].to);
+      EXPECT_FALSE(e.loop);
+      // The graph's poses are still the tracked ones (before Optimize).
+      const Rigid3d tracked_from_to = t.graph().pose(e.from).inverse() * t.graph().pose(e.to);
+      EXPECT_LT((e.from_from_to.matrix() - tracked_from_to.matrix()).norm(), 1e-12) << "edge " << i;
+      EXPECT_LE((e.information - factor * with[i - 1].information).norm(), 1e-12 * with[i - 1].information.norm()) << "edge " << i;
+      // Not the ICP's measurement: the tracker registered against the model, not the parent alone.
+      EXPECT_FALSE(e.from_from_to.matrix() == with[i - 1].from_from_to.matrix()) << "edge " << i;
+      ++tracked;
+    }
+    EXPECT_EQ(j, without.size());
+    // An odometry edge on σs (its keyframe ICP failed) gets no companion: the walk above would
+    // have matched it to the next edge. Most keyframes have a measured one.
+    int measured = 0;
+    for (const PoseGraphEdge& e : without) measured += !e.loop && !e.information.isZero(0);
+    EXPECT_EQ(tracked, measured);
+    EXPECT_GT(2 * tracked, static_cast<int>(t.keyframes().size()));
+  };
+  check(one, 1.0);
+  check(half, 0.5);
+  EXPECT_THROW(
+      [] {
+        TrackerOptions bad;
+        bad.tracked_edge_information_factor = -0.1;
+        bad.Check();
+      }(),
+      std::invalid_argument);
+}
+
 // A probe that turns in place or lingers over one spot keeps a high overlap with its last
 // keyframe, so the overlap rule alone makes no new keyframe however far the tracked poses wander
 // from it; keyframe_max_rotation_deg and keyframe_max_views make one anyway.

@@ -88,6 +88,7 @@ int main(int argc, char** argv) {
   float secondary_fade_weight = TsdfOptions{}.secondary_fade_weight;
   double keyframe_max_rotation_deg = TrackerOptions{}.keyframe_max_rotation_deg;
   int keyframe_max_views = TrackerOptions{}.keyframe_max_views;
+  double tracked_edge_factor = TrackerOptions{}.tracked_edge_information_factor;
   bool no_model_anchor = false, coverage_ceiling = false, no_free_space = false;
   app.add_option("--sim", sim_model, "scan with the virtual probe: 'typodont' or a mesh file (PLY/STL/OBJ, mm)");
   app.add_option("--bursts", bursts_dir, "a d3d-sim output folder (calibration.json, bursts/NNNNNN/, scene.ply)");
@@ -127,6 +128,11 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--keyframe-max-views", keyframe_max_views,
                  "tracking: a view this many views after the last keyframe is one too (0 = off)")
+      ->capture_default_str();
+  app.add_option("--tracked-edge-factor", tracked_edge_factor,
+                 "pose graph: each keyframe also gets the tracked relative pose to its parent as an edge, with the keyframe ICP "
+                 "edge's information times this (0 = none; TrackerOptions::tracked_edge_information_factor)")
+      ->check(CLI::Range(0.0, 10.0))
       ->capture_default_str();
   app.add_option("--edge-fill-fade", secondary_fade_weight,
                  "fusion: edge-filled points shape the surface only until the other points' fused weight reaches this (0 = they count "
@@ -216,6 +222,7 @@ int main(int argc, char** argv) {
     so.tsdf.secondary_fade_weight = secondary_fade_weight;
     so.tracker.keyframe_max_rotation_deg = keyframe_max_rotation_deg;
     so.tracker.keyframe_max_views = keyframe_max_views;
+    so.tracker.tracked_edge_information_factor = tracked_edge_factor;
     so.tsdf.max_cell_sdf_span = max_cell_sdf_span;
     so.tsdf.occlusion_margin_mm = occlusion_margin_mm;
     if (no_refuse) so.refuse_min_correction_mm = -1;

@@ -112,6 +112,12 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   cli.add_option("--association", association, "the tracker's ICP data association: grid (nearest model sample, on a decimated model at the coarse level) | kdtree (exact nearest at every level, by nanoflann) | projective")->capture_default_str();
   cli.add_option("--step", step, "expected bursts between processed views for the tracker's gates (default: 1 lossless, 6 live)");
+  double tracked_edge_factor = TrackerOptions{}.tracked_edge_information_factor;
+  cli.add_option("--tracked-edge-factor", tracked_edge_factor,
+                 "pose graph: each keyframe also gets the tracked relative pose to its parent as an edge, with the keyframe ICP "
+                 "edge's information times this (0 = none; TrackerOptions::tracked_edge_information_factor)")
+      ->check(CLI::Range(0.0, 10.0))
+      ->capture_default_str();
   cli.add_option("--domain", domain, "DDS domain id")->capture_default_str();
   cli.add_option("--serial", serial, "listen to this probe only (default: any)");
   cli.add_option("--probe-timeout", probe_timeout_s, "seconds without a burst before 'probe lost'")->capture_default_str();
@@ -240,6 +246,7 @@ int main(int argc, char** argv) {
     // replay: the same bytes).
     ao.scan.tracker.keyframe_reuse_radius_mm = 2.0;
     ao.scan.tracker.association = assoc;
+    ao.scan.tracker.tracked_edge_information_factor = tracked_edge_factor;
     // The tracker's ICP (association and normal equations) on the register thread and a oneTBB
     // worker (--icp-threads, at most --threads; its sums in a fixed order, so a lossless run still
     // repeats bit for bit). Once the graph left a share of the 2 cores idle (~67 % used live), the
