@@ -685,7 +685,8 @@ int64_t Tracker::keyframe_bytes() const {
 int Tracker::AddKeyframeEdges(int k) {
   if (const int parent = keyframes_[static_cast<size_t>(k)].parent; parent >= 0) {
     PoseGraphEdge e;
-    if (!o_.keyframe_icp_edges || !KeyframeEdge(parent, k, &e)) {
+    const bool measured = o_.keyframe_icp_edges && KeyframeEdge(parent, k, &e);
+    if (!measured) {
       e = PoseGraphEdge{};
       e.from = keyframes_[static_cast<size_t>(parent)].node;
       e.to = keyframes_[static_cast<size_t>(k)].node;
@@ -694,13 +695,12 @@ int Tracker::AddKeyframeEdges(int k) {
       e.sigma_rotation_rad = o_.odometry_sigma_rad;
     }
     e.loop = false;
-    const bool measured = !e.information.isZero(0);
     graph_.AddEdge(e);
     if (measured && o_.tracked_edge_information_factor > 0) {
       // The tracked relative pose: the graph's poses are still the tracked ones (nothing but
       // Optimize moves them, and deferred edges are added before it does).
       e.from_from_to = graph_.pose(e.from).inverse() * graph_.pose(e.to);
-      e.information *= o_.tracked_edge_information_factor;
+      ScaleInformation(o_.tracked_edge_information_factor, &e);
       graph_.AddEdge(e);
     }
   }
