@@ -31,6 +31,26 @@
 // the first stage: a later stage holding back would keep the stage before it waiting (it waits for
 // its output to be taken before it takes its next input).
 //
+// Catch-up start (StageGraphOptions::live_catch_up_max_s, live only): a live scan's first items
+// are not dropped. Until the graph has caught up with the backlog that queued while the host set
+// up, and for at most live_catch_up_max_s after the first item, the source waits until stage 0 has
+// taken its previous item instead of replacing it: the back-pressure goes into the source's own
+// queue (d3d-scan: the DDS receiver's, which must hold the backlog), and with the demand-driven
+// stages the whole chain runs losslessly, in order. Caught up: live_caught_up_items items in a row
+// that the source had to wait at least live_caught_up_wait_ms for (nothing queued) while stage 0
+// had already taken the previous one, or whose origin was at most live_caught_up_age_ms old when
+// handed over; in a row, so that the later stages have worked off theirs too.
+// A graph that does not gain on the backlog fast enough (the items' age when handed over fell less
+// than live_catch_up_min_gain_ms per item over the last live_catch_up_window items) would keep
+// every burst late for long: the source then keeps one item of every live_catch_up_thin + 1 (the
+// others dropped, counted at edge 0) until it has caught up. Latest wins would jump over the whole
+// backlog at once, and the live tracker lost its view after such a ~10-burst jump at the scan's
+// start (d3d-scan at 1.0 core). After the catch-up, latest wins as before.
+// Without it a live scan began ~10 bursts after the probe's first (d3d-scan, 450-burst typodont
+// recording at 30 Hz: the host needs ~0.3 s to set up once the probe's calibration arrives), a
+// different start from the lossless replay of the same recording; with every burst, the live
+// tracker's result equals the lossless one within 0.04 um of trueness (11.59 against 11.63).
+//
 // Per item the graph keeps an ItemMeta: `seq` (ingest order, 0, 1, …), `origin_ns` (the time the
 // item's latency is measured from, set by the source: capture or receive time, Unix epoch ns) and
 // whether a stage rejected it. A stage function returns false to reject an item: it is not passed
@@ -79,9 +99,21 @@ struct StageGraphOptions {
   int latency_stage = -1;            // the stage whose end is an item's latency (-1: the last)
   bool live_just_in_time = false;    // live, demand-driven: the first stage starts just in time (file comment)
   double just_in_time_margin_ms = 3;  // ... finishing this much before the second stage is expected free
+  double live_catch_up_max_s = 0;     // live: catch-up start for at most this long after the first item (file comment; 0 = off)
+  double live_caught_up_wait_ms = 5;  // ... caught up once the source waited this long for an item, stage 0 free
+  double live_caught_up_age_ms = 50;  // ... or an item's origin is at most this old when the source hands it over
+  int live_caught_up_items = 3;       // ... for this many items in a row
+  int live_catch_up_window = 6;       // ... not gaining: over this many items (0 = never; ≤ 64) ...
+  double live_catch_up_min_gain_ms = 8;  // ... the items' age fell less than this per item
+  int live_catch_up_thin = 2;         // ... then it keeps 1 of every thin + 1 items (dropping the others) until caught up (0 = latest wins)
   void Check() const {
     if (lossless_capacity < 1 || latency_samples < 1) throw std::invalid_argument("StageGraphOptions: capacities must be >= 1");
     if (!(just_in_time_margin_ms >= 0)) throw std::invalid_argument("StageGraphOptions: just_in_time_margin_ms must be >= 0");
+    if (!(live_catch_up_max_s >= 0) || !(live_caught_up_wait_ms > 0) || !(live_caught_up_age_ms >= 0) || live_caught_up_items < 1 ||
+        live_catch_up_window < 0 || live_catch_up_window > 64 || live_catch_up_thin < 0 ||
+        !(live_catch_up_min_gain_ms >= 0))
+      throw std::invalid_argument(
+          "StageGraphOptions: live_catch_up_max_s >= 0, live_caught_up_wait_ms > 0, live_caught_up_age_ms >= 0, live_caught_up_items >= 1, live_catch_up_window in [0, 64], live_catch_up_thin >= 0, live_catch_up_min_gain_ms >= 0");
     if (latency_stage < -1) throw std::invalid_argument("StageGraphOptions: latency_stage must be -1 (the last) or a stage index");
   }
 };
@@ -135,6 +167,7 @@ class StageGraph {
     o_.Check();
     if (stages_.empty()) throw std::invalid_argument("StageGraph: no stage");
     just_in_time_ = o_.policy == EdgePolicy::kLive && o_.live_demand_driven && o_.live_just_in_time && stages_.size() >= 2;
+    catching_up_.store(o_.policy == EdgePolicy::kLive && o_.live_catch_up_max_s > 0, std::memory_order_relaxed);
     if (o_.latency_stage >= static_cast<int>(stages_.size())) throw std::invalid_argument("StageGraph: latency_stage beyond the stages");
     latency_stage_ = o_.latency_stage < 0 ? stages_.size() - 1 : static_cast<size_t>(o_.latency_stage);
     const size_t per_edge = o_.policy == EdgePolicy::kLive ? 1 : o_.lossless_capacity;
@@ -182,11 +215,14 @@ class StageGraph {
   uint64_t ingested() const { return ingested_.load(std::memory_order_relaxed); }
   uint64_t completed() const { return completed_.load(std::memory_order_relaxed); }  // left the last stage
   uint64_t dropped() const {
-    uint64_t d = 0;
+    uint64_t d = source_dropped_.load(std::memory_order_relaxed);
     for (const auto& e : edges_) d += e->dropped();
     return d;
   }
-  uint64_t dropped_at(size_t edge) const { return edges_[edge]->dropped(); }  // edge i feeds stage i
+  // Edge i feeds stage i; edge 0's count includes the items the source dropped while catching up thinned.
+  uint64_t dropped_at(size_t edge) const {
+    return edges_[edge]->dropped() + (edge == 0 ? source_dropped_.load(std::memory_order_relaxed) : 0);
+  }
   const StageCounters& stage(size_t i) const { return counters_[i]; }
   const std::string& stage_name(size_t i) const { return stages_[i].name; }
   size_t num_stages() const { return stages_.size(); }
@@ -194,6 +230,10 @@ class StageGraph {
   int64_t first_done_ns() const { return first_done_ns_.load(std::memory_order_relaxed); }
   int64_t last_done_ns() const { return last_done_ns_.load(std::memory_order_relaxed); }
   int64_t start_ns() const { return t_start_ns_; }
+  // Catch-up start (file comment): items the source held back for, and whether it is still on.
+  uint64_t catch_up_items() const { return catch_up_items_.load(std::memory_order_relaxed); }
+  bool catching_up() const { return catching_up_.load(std::memory_order_relaxed); }
+  bool catch_up_thinned() const { return thinned_.load(std::memory_order_relaxed); }  // it fell behind and thinned out
 
   // After Join(): latency percentile over the kept samples (ms): to the latency stage's end, and
   // to the last stage's end (the same unless latency_stage names an earlier stage).
@@ -207,6 +247,7 @@ class StageGraph {
     ItemMeta meta;
   };
 
+  static constexpr size_t kMaxCatchUpWindow = 64;  // StageGraphOptions::live_catch_up_window
   Node* TakeFree() {  // source thread
     std::unique_lock<std::mutex> lock(pool_mu_);
     pool_cv_.wait(lock, [this] { return !free_.empty() || stop_.load(std::memory_order_acquire); });
@@ -233,14 +274,60 @@ class StageGraph {
     NameThisThread("source");
     uint64_t seq = 0;
     Node* n = nullptr;
+    // Catch-up start (file comment): every item, then (falling behind) one of every
+    // live_catch_up_thin + 1, then latest wins.
+    enum class CatchUp { kOff, kEvery, kThinned };
+    CatchUp catch_up = catching_up_.load(std::memory_order_relaxed) ? CatchUp::kEvery : CatchUp::kOff;
+    int64_t first_ns = 0;
+    int caught_up_run = 0;  // consecutive items that found the graph caught up
+    uint64_t kept = 0, thinned = 0;  // items handed over / seen while thinned
+    std::array<int64_t, kMaxCatchUpWindow> ages{};  // ring: the ages of the latest catch-up items (ns)
     while (!stop_.load(std::memory_order_acquire)) {
       if (n == nullptr && (n = TakeFree()) == nullptr) break;
       n->meta = ItemMeta{seq, GraphNowNs()};
+      const int64_t asked_ns = catch_up != CatchUp::kOff ? SteadyNowNs() : 0;
       const SourceResult r = source_(*n->item, &n->meta);
       if (r == SourceResult::kEnd) break;
       if (r == SourceResult::kSkip) continue;
       ++seq;
       ingested_.fetch_add(1, std::memory_order_relaxed);
+      if (catch_up == CatchUp::kThinned && thinned++ % static_cast<uint64_t>(o_.live_catch_up_thin + 1) != 0) {
+        source_dropped_.fetch_add(1, std::memory_order_relaxed);  // counted with edge 0's drops; n is reused
+        continue;
+      }
+      if (catch_up != CatchUp::kOff) {
+        // Wait for stage 0 to take the previous item rather than replace it.
+        const int64_t got_ns = SteadyNowNs();
+        edges_[0]->AwaitTaken();
+        // Caught up: the source waited for this item and stage 0 had taken the previous one; or
+        // the item is fresh once handed over.
+        const bool waited = got_ns - asked_ns >= static_cast<int64_t>(o_.live_caught_up_wait_ms * 1e6) &&
+                            SteadyNowNs() - got_ns < static_cast<int64_t>(o_.live_caught_up_wait_ms * 1e6);
+        catch_up_items_.fetch_add(1, std::memory_order_relaxed);
+        const int64_t now = GraphNowNs();
+        if (first_ns == 0) first_ns = now;
+        const int64_t age = now - n->meta.origin_ns;
+        caught_up_run = waited || age <= static_cast<int64_t>(o_.live_caught_up_age_ms * 1e6) ? caught_up_run + 1 : 0;
+        // Not gaining: an item handed over less than live_catch_up_min_gain_ms per item younger than
+        // the one live_catch_up_window items before it (the first two, slow while the stages warm
+        // up, are not compared).
+        const size_t w = static_cast<size_t>(o_.live_catch_up_window);
+        bool behind = false;
+        if (catch_up == CatchUp::kEvery && w > 0) {
+          if (kept >= 2 + w) behind = age > ages[kept % w] - static_cast<int64_t>(static_cast<double>(w) * o_.live_catch_up_min_gain_ms * 1e6);
+          ages[kept % w] = age;
+        }
+        ++kept;
+        if (caught_up_run >= o_.live_caught_up_items || now - first_ns >= static_cast<int64_t>(o_.live_catch_up_max_s * 1e9)) {
+          catch_up = CatchUp::kOff;
+          catching_up_.store(false, std::memory_order_relaxed);
+        } else if (behind) {
+          catch_up = o_.live_catch_up_thin > 0 ? CatchUp::kThinned : CatchUp::kOff;
+          catching_up_.store(catch_up != CatchUp::kOff, std::memory_order_relaxed);
+          thinned_.store(catch_up == CatchUp::kThinned, std::memory_order_relaxed);
+          thinned = 1;  // the next item is the first of the live_catch_up_thin dropped
+        }
+      }
       Node* dropped = edges_[0]->Push(n);
       n = dropped;  // live: the older item dropped from the slot is reused at once
     }
@@ -360,6 +447,10 @@ class StageGraph {
   std::vector<std::thread> threads_;
   std::atomic<bool> stop_{false}, finished_{false};
   std::atomic<uint64_t> ingested_{0}, completed_{0};
+  std::atomic<uint64_t> catch_up_items_{0};  // the source thread writes
+  std::atomic<bool> catching_up_{false};     // set up in the constructor; then the source thread writes
+  std::atomic<bool> thinned_{false};         // the source thread writes
+  std::atomic<uint64_t> source_dropped_{0};  // the source thread writes (thinned catch-up)
   std::atomic<double> last_latency_ms_{0};
   std::atomic<int64_t> first_done_ns_{0}, last_done_ns_{0};
   int64_t t_start_ns_ = 0;

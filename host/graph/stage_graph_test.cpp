@@ -357,6 +357,111 @@ TEST(StageGraph, JustInTimeStartTakesNewerItems) {
   EXPECT_EQ(lossless.processed1, 30u);
 }
 
+// A real-time source with a backlog: item k is captured at start − backlog·period + k·period and
+// handed over no earlier than that (those of the backlog at once); two stages of the given times.
+struct CatchUpRun {
+  std::vector<uint64_t> sunk;  // values leaving the last stage, in order
+  uint64_t catch_up_items = 0, dropped = 0, ingested = 0;
+  bool still_catching_up = true, thinned = false;
+};
+CatchUpRun RunCatchUp(double catch_up_max_s, uint64_t backlog, uint64_t n, int period_ms, int stage0_ms, int stage1_ms,
+                      int window = 6) {
+  StageGraphOptions o;
+  o.policy = EdgePolicy::kLive;
+  o.live_catch_up_max_s = catch_up_max_s;
+  o.live_catch_up_window = window;
+  o.live_catch_up_min_gain_ms = 2;  // the fast graph gains ~6 ms per item
+  o.live_caught_up_age_ms = 0;   // by the wait alone: the source sleeps for every item after the backlog
+  o.live_caught_up_wait_ms = 1;
+  CatchUpRun r;
+  r.sunk.reserve(n);
+  std::vector<StageGraph<TestItem>::Stage> stages = {
+      {"s0", [stage0_ms](TestItem&, const ItemMeta&) {
+         std::this_thread::sleep_for(std::chrono::milliseconds(stage0_ms));
+         return true;
+       }},
+      {"s1", [stage1_ms, &r](TestItem& it, const ItemMeta&) {
+         std::this_thread::sleep_for(std::chrono::milliseconds(stage1_ms));
+         r.sunk.push_back(it.value);  // the last stage's thread; read after Join
+         return true;
+       }}};
+  const int64_t period_ns = int64_t{period_ms} * 1'000'000;
+  const int64_t t0 = GraphNowNs() - static_cast<int64_t>(backlog) * period_ns;
+  uint64_t next = 0;
+  StageGraph<TestItem> g(
+      o, [] { return std::make_unique<TestItem>(); },
+      [&](TestItem& it, ItemMeta* meta) {
+        if (next == n) return StageGraph<TestItem>::SourceResult::kEnd;
+        const int64_t capture = t0 + static_cast<int64_t>(next) * period_ns;
+        if (const int64_t wait = capture - GraphNowNs(); wait > 0) std::this_thread::sleep_for(std::chrono::nanoseconds(wait));
+        meta->origin_ns = capture;
+        it.value = next++;
+        return StageGraph<TestItem>::SourceResult::kItem;
+      },
+      stages);
+  g.Start();
+  g.Join();
+  r.catch_up_items = g.catch_up_items();
+  r.dropped = g.dropped();
+  r.ingested = g.ingested();
+  r.still_catching_up = g.catching_up();
+  r.thinned = g.catch_up_thinned();
+  EXPECT_EQ(g.stage(0).order_violations.load() + g.stage(1).order_violations.load(), 0u);
+  EXPECT_EQ(g.completed() + r.dropped, r.ingested);  // every item processed or counted as dropped
+  return r;
+}
+
+TEST(StageGraph, CatchUpStartProcessesTheBacklogThenLatestWins) {
+  // 20 items queued before the start, then one per 10 ms; the stages take 2 and 4 ms: the graph
+  // works off the backlog in order and goes live once the source has to wait for an item (~the 35th).
+  const CatchUpRun on = RunCatchUp(2.0, 20, 100, 10, 2, 4);
+  ASSERT_GE(on.sunk.size(), 20u);
+  for (uint64_t k = 0; k < 20; ++k) EXPECT_EQ(on.sunk[k], k) << "backlog item " << k;
+  EXPECT_GE(on.catch_up_items, 20u);
+  EXPECT_LT(on.catch_up_items, 100u);  // caught up before the end: then latest wins
+  EXPECT_FALSE(on.still_catching_up);
+  // Off: the backlog arrives at once and the newest wins; most of it is dropped.
+  const CatchUpRun off = RunCatchUp(0.0, 20, 100, 10, 2, 4);
+  EXPECT_EQ(off.catch_up_items, 0u);
+  uint64_t backlog_sunk = 0;
+  for (uint64_t v : off.sunk) backlog_sunk += v < 20;
+  EXPECT_LT(backlog_sunk, 10u);
+  EXPECT_GE(off.dropped, 10u);
+}
+
+TEST(StageGraph, CatchUpStartThinsOutOnASlowGraph) {
+  // The graph (8 ms per item) cannot keep up with one item per 5 ms. With the trend check off it
+  // keeps every item until its 0.25 s limit (~30 items) and then jumps to the newest. With it, it
+  // thins out once an item is no younger than the one 6 before (the 9th): one of every 3 items
+  // (one per 15 ms) until it has caught up, never a jump of more than 3.
+  const CatchUpRun limit = RunCatchUp(0.25, 10, 120, 5, 2, 8, /*window=*/0);
+  const CatchUpRun trend = RunCatchUp(2.0, 10, 120, 5, 2, 8, /*window=*/6);
+  for (const CatchUpRun* r : {&limit, &trend}) {
+    EXPECT_FALSE(r->still_catching_up);
+    ASSERT_GE(r->sunk.size(), 9u);
+    for (uint64_t k = 0; k < 9; ++k) EXPECT_EQ(r->sunk[k], k);
+    EXPECT_GT(r->dropped, 0u);
+  }
+  EXPECT_FALSE(limit.thinned);
+  EXPECT_GE(limit.catch_up_items, 20u);
+  EXPECT_LT(limit.catch_up_items, 60u);
+  EXPECT_TRUE(trend.thinned);
+  ASSERT_GE(trend.sunk.size(), trend.catch_up_items);
+  EXPECT_GT(trend.catch_up_items, 9u);  // thinned items too
+  EXPECT_LT(trend.catch_up_items, 60u);  // caught up, then latest wins
+  for (uint64_t k = 9; k < trend.catch_up_items; ++k) {
+    EXPECT_GT(trend.sunk[k], trend.sunk[k - 1]);
+    EXPECT_LE(trend.sunk[k] - trend.sunk[k - 1], 3u) << "catch-up item " << k;
+  }
+  EXPECT_THROW(
+      {
+        StageGraphOptions o;
+        o.live_catch_up_max_s = -1;
+        o.Check();
+      },
+      std::invalid_argument);
+}
+
 TEST(StageGraph, CpuTimeCountsWorkNotWaiting) {
   // Stage "sleep" waits 5 ms per item, stage "spin" works until its thread has used 5 ms of CPU.
   // Both show ≥ 5 ms of wall time per item; only the spinning one shows the CPU time.

@@ -35,6 +35,7 @@ PreviewCue CueOf(TrackingState s) {
 void ScanAppOptions::Check() const {
   scan.Check();
   if (lossless_capacity < 1) throw std::invalid_argument("ScanAppOptions: lossless_capacity must be >= 1");
+  if (!(live_catch_up_max_s >= 0)) throw std::invalid_argument("ScanAppOptions: live_catch_up_max_s must be >= 0");
   if (!(preview_cell_mm > 0) || preview_stride_px < 1 || view_stride_px < 1)
     throw std::invalid_argument("ScanAppOptions: preview cell > 0 and strides >= 1");
   if (!(undo_seconds > 0) || undo_max_views < 0) throw std::invalid_argument("ScanAppOptions: undo_seconds > 0 and undo_max_views >= 0");
@@ -79,6 +80,7 @@ ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& opti
   go.lossless_capacity = o_.lossless_capacity;
   go.latency_stage = 2;  // the preview: what the dentist sees (the fuse stage after it only feeds the saved model)
   go.live_just_in_time = o_.live_just_in_time;
+  go.live_catch_up_max_s = o_.live_catch_up_max_s;
   const int w = calibration.camera.width, h = calibration.camera.height;  // the probe's frames
   graph_ = std::make_unique<Graph>(
       go,
@@ -519,6 +521,8 @@ nlohmann::json ScanApp::HostReport() const {
   j["probe_returns"] = source_->probe_returns();
   j["live_voxel_mm"] = o_.LiveTsdf().voxel_mm;  // the live volume's (SaveNow); the final model's is voxel_mm
   j["warm_up_ms"] = ms_warm_up_;
+  j["bursts_caught_up"] = graph_->catch_up_items();  // live: processed in order at the start (ScanAppOptions::live_catch_up_max_s)
+  j["catch_up_thinned"] = graph_->catch_up_thinned();  // ... the graph fell behind and kept 1 burst of 3 meanwhile
   j["warm_up_items"] = o_.policy == EdgePolicy::kLive ? graph_->pool_size() : 0;
   rusage u{};
   getrusage(RUSAGE_SELF, &u);

@@ -63,6 +63,11 @@ struct ScanAppOptions {
   // Live: the reconstruct stage starts each burst just in time for the register stage
   // (StageGraphOptions::live_just_in_time), on a newer burst instead of one that then waits.
   bool live_just_in_time = true;
+  // Live: the bursts that queued while the host set up (the probe streams from the moment its
+  // calibration arrives) are processed in order until the graph has caught up, for at most this
+  // long (StageGraphOptions::live_catch_up_max_s; 0 = start on the newest burst, dropping them).
+  // The source must hold them: d3d-scan's DDS receiver keeps up to 1 s of bursts live.
+  double live_catch_up_max_s = 1.0;
   double preview_cell_mm = 0.2;      // one preview point per cell of this size
   size_t preview_max_points = 150000;  // the preview stops adding points beyond this (llvmpipe: ~100k at 20 fps)
   int preview_stride_px = 3;         // pixels sampled per view for the preview model

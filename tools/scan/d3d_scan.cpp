@@ -76,7 +76,13 @@ int main(int argc, char** argv) {
   cli.add_option("--replay-views", replay_views,
                  "--replay: only the bursts whose capture times this TUM file lists (e.g. a live run's poses.txt: its views again, "
                  "losslessly, with the live tracker's gates: --step 6 by default and motion by capture time)");
-  cli.add_option("--rx-queue", rx_queue, "live: bursts the DDS receiver may hold for the graph (default: 8 live, 300 lossless)");
+  cli.add_option("--rx-queue", rx_queue, "live: bursts the DDS receiver may hold for the graph (default: 32 live, 8 with --catch-up 0, 300 lossless)");
+  double catch_up_s = ScanAppOptions{}.live_catch_up_max_s;
+  cli.add_option("--catch-up", catch_up_s,
+                 "live: process the bursts that arrived while the host set up, in order, until the graph has caught up, for at most "
+                 "this many seconds (0 = start on the newest burst and drop them)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 10.0));
   cli.add_option("--out", out_dir, "output folder")->capture_default_str();
   cli.add_flag("--headless", headless, "render the preview offscreen (EGL, no display needed)");
   cli.add_flag("--no-preview", no_preview, "no preview at all");
@@ -179,6 +185,22 @@ int main(int argc, char** argv) {
   setenv("LP_NUM_THREADS", "1", 0);
 
   try {
+    // The preview first: the window is there (showing "waiting for probe") while the host waits for
+    // the probe, and its set-up is not part of the ~0.4 s in which the probe's first bursts queue.
+    std::unique_ptr<Viewer> viewer;
+    if (!no_preview) {
+      ViewerOptions vo;
+      vo.headless = headless;
+      vo.width = width;
+      vo.height = height;
+      Status s = Viewer::Create(vo, &viewer);
+      if (!s.ok() && !headless) {
+        std::fprintf(stderr, "d3d-scan: %s; rendering offscreen instead\n", s.ToString().c_str());
+        vo.headless = true;
+        s = Viewer::Create(vo, &viewer);
+      }
+      if (!s.ok()) std::fprintf(stderr, "d3d-scan: no preview: %s\n", s.ToString().c_str());
+    }
     // Source.
     std::unique_ptr<RecordingBurstSource> rec;
     proto::DdsParticipant participant;
@@ -211,7 +233,8 @@ int main(int argc, char** argv) {
       }
       ReceiverOptions ro;
       ro.serial = serial;
-      ro.queue_capacity = rx_queue > 0 ? rx_queue : (policy == EdgePolicy::kLive ? 8 : 300);
+      // Live: room for the bursts that arrive while the host sets up (~0.4 s), for the catch-up start.
+      ro.queue_capacity = rx_queue > 0 ? rx_queue : (policy == EdgePolicy::kLive ? (catch_up_s > 0 ? 32 : 8) : 300);
       ro.log = [](const std::string& m) { std::fprintf(stderr, "d3d-scan: %s\n", m.c_str()); };
       rx = std::make_unique<BurstReceiver>(ro);
       if (const Status s = rx->Start(&participant); !s.ok()) {
@@ -221,13 +244,29 @@ int main(int argc, char** argv) {
       DdsSourceOptions dso;
       dso.probe_timeout_s = probe_timeout_s;
       dso.idle_exit_s = idle_exit_s;
-      if (policy == EdgePolicy::kLive) dso.max_age_s = 0.25;  // start on fresh bursts, not on those queued during set-up
+      // Live: no burst older than this is ingested (without the catch-up start: start on fresh bursts,
+      // not on those queued during set-up).
+      if (policy == EdgePolicy::kLive) dso.max_age_s = 0.25 + catch_up_s;
       dds = std::make_unique<DdsBurstSource>(rx.get(), dso);
       std::fprintf(stderr, "d3d-scan: waiting for a probe on DDS domain %d...\n", domain);
       proto::InfoMsg info;
-      if (const Status s = dds->WaitForCalibration(wait_probe_s, &g_stop, &calib, &info); !s.ok()) {
-        std::fprintf(stderr, "d3d-scan: %s\n", s.ToString().c_str());
-        return 3;
+      const double wait_end = SteadyS() + wait_probe_s;
+      for (;;) {  // the preview's frames in between: it stays responsive (close = quit)
+        const Status s = dds->WaitForCalibration(0.05, &g_stop, &calib, &info);
+        if (s.ok()) break;
+        if (g_stop.load() || SteadyS() >= wait_end) {
+          std::fprintf(stderr, "d3d-scan: %s\n",
+                       g_stop.load() ? "stopped before a probe appeared"
+                                     : ("no ProbeInfo (calibration) from a probe within " + std::to_string(wait_probe_s) + " s").c_str());
+          return 3;
+        }
+        if (viewer) {
+          PreviewStatus st;
+          st.override_cue = true;
+          st.cue_override = PreviewCue::kWaiting;
+          st.message = "waiting for a probe on DDS domain " + std::to_string(domain);
+          if (!viewer->Render(nullptr, st, 0)) g_stop.store(true);  // window closed
+        }
       }
       std::fprintf(stderr, "d3d-scan: probe %s (%s, %ux%u)\n", info.serial.c_str(), info.sensor_model.c_str(), info.width, info.height);
       source = dds.get();
@@ -280,6 +319,7 @@ int main(int argc, char** argv) {
     }
     ao.live_voxel_mm = live_voxel_mm;
     ao.live_just_in_time = just_in_time;
+    ao.live_catch_up_max_s = catch_up_s;
     ao.undo_seconds = undo_seconds;
     ao.undo_max_views = undo_views;
     ao.undo_after_bursts = undo_after;
@@ -289,20 +329,6 @@ int main(int argc, char** argv) {
     if (!app.views_spill_error().empty())
       std::fprintf(stderr, "d3d-scan: the kept frames stay in memory: %s\n", app.views_spill_error().c_str());
 
-    std::unique_ptr<Viewer> viewer;
-    if (!no_preview) {
-      ViewerOptions vo;
-      vo.headless = headless;
-      vo.width = width;
-      vo.height = height;
-      Status s = Viewer::Create(vo, &viewer);
-      if (!s.ok() && !headless) {
-        std::fprintf(stderr, "d3d-scan: %s; rendering offscreen instead\n", s.ToString().c_str());
-        vo.headless = true;
-        s = Viewer::Create(vo, &viewer);
-      }
-      if (!s.ok()) std::fprintf(stderr, "d3d-scan: no preview: %s\n", s.ToString().c_str());
-    }
     std::fprintf(stderr, "d3d-scan: %s graph, %s preview; out %s\n", EdgePolicyName(policy),
                  viewer ? (viewer->headless() ? "offscreen" : "window") : "no", out_dir.c_str());
     app.Start();
