@@ -278,9 +278,9 @@ class StageGraph {
     // live_catch_up_thin + 1, then latest wins.
     enum class CatchUp { kOff, kEvery, kThinned };
     CatchUp catch_up = catching_up_.load(std::memory_order_relaxed) ? CatchUp::kEvery : CatchUp::kOff;
-    int64_t first_ns = 0;
+    int64_t first_ns = 0;   // steady clock: the first catch-up item handed over
     int caught_up_run = 0;  // consecutive items that found the graph caught up
-    uint64_t kept = 0, thinned = 0;  // items handed over / seen while thinned
+    uint64_t kept = 0, thinned = 0;  // items handed over (catch_up_items_) / seen while thinned
     std::array<int64_t, kMaxCatchUpWindow> ages{};  // ring: the ages of the latest catch-up items (ns)
     while (!stop_.load(std::memory_order_acquire)) {
       if (n == nullptr && (n = TakeFree()) == nullptr) break;
@@ -299,14 +299,13 @@ class StageGraph {
         // Wait for stage 0 to take the previous item rather than replace it.
         const int64_t got_ns = SteadyNowNs();
         edges_[0]->AwaitTaken();
+        const int64_t taken_ns = SteadyNowNs();
         // Caught up: the source waited for this item and stage 0 had taken the previous one; or
         // the item is fresh once handed over.
         const bool waited = got_ns - asked_ns >= static_cast<int64_t>(o_.live_caught_up_wait_ms * 1e6) &&
-                            SteadyNowNs() - got_ns < static_cast<int64_t>(o_.live_caught_up_wait_ms * 1e6);
-        catch_up_items_.fetch_add(1, std::memory_order_relaxed);
-        const int64_t now = GraphNowNs();
-        if (first_ns == 0) first_ns = now;
-        const int64_t age = now - n->meta.origin_ns;
+                            taken_ns - got_ns < static_cast<int64_t>(o_.live_caught_up_wait_ms * 1e6);
+        if (first_ns == 0) first_ns = taken_ns;
+        const int64_t age = GraphNowNs() - n->meta.origin_ns;  // origin: Unix epoch
         caught_up_run = waited || age <= static_cast<int64_t>(o_.live_caught_up_age_ms * 1e6) ? caught_up_run + 1 : 0;
         // Not gaining: an item handed over less than live_catch_up_min_gain_ms per item younger than
         // the one live_catch_up_window items before it (the first two, slow while the stages warm
@@ -317,8 +316,8 @@ class StageGraph {
           if (kept >= 2 + w) behind = age > ages[kept % w] - static_cast<int64_t>(static_cast<double>(w) * o_.live_catch_up_min_gain_ms * 1e6);
           ages[kept % w] = age;
         }
-        ++kept;
-        if (caught_up_run >= o_.live_caught_up_items || now - first_ns >= static_cast<int64_t>(o_.live_catch_up_max_s * 1e9)) {
+        catch_up_items_.store(++kept, std::memory_order_relaxed);
+        if (caught_up_run >= o_.live_caught_up_items || taken_ns - first_ns >= static_cast<int64_t>(o_.live_catch_up_max_s * 1e9)) {
           catch_up = CatchUp::kOff;
           catching_up_.store(false, std::memory_order_relaxed);
         } else if (behind) {

@@ -127,11 +127,13 @@ void DdsSourceOptions::Check() const {
 
 DdsBurstSource::DdsBurstSource(BurstReceiver* receiver, const DdsSourceOptions& options) : rx_(receiver), o_(options) { o_.Check(); }
 
-Status DdsBurstSource::WaitForCalibration(double timeout_s, const std::atomic<bool>* stop, ProbeCalibration* calibration, proto::InfoMsg* info) {
+Status DdsBurstSource::WaitForCalibration(double timeout_s, const std::atomic<bool>* stop, ProbeCalibration* calibration, proto::InfoMsg* info,
+                                          const std::function<void()>& while_waiting) {
   const int64_t end = SteadyNs() + static_cast<int64_t>(timeout_s * 1e9);
   while (SteadyNs() < end) {
     if (rx_->LatestInfo(info, calibration)) return Status::Ok();
     if (stop != nullptr && stop->load()) return Unavailable("stopped before a probe appeared");
+    if (while_waiting) while_waiting();
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
   return Unavailable("no ProbeInfo (calibration) from a probe within " + std::to_string(timeout_s) + " s");

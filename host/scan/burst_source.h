@@ -9,6 +9,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <opencv2/core.hpp>
 #include <string>
@@ -105,10 +106,11 @@ class DdsBurstSource final : public BurstSource {
  public:
   // `receiver` is started and borrowed (outlives the source).
   DdsBurstSource(BurstReceiver* receiver, const DdsSourceOptions& options);
-  // Waits (up to timeout_s, or until *stop) for the probe's ProbeInfo and its calibration.
+  // Waits (up to timeout_s, or until *stop) for the probe's ProbeInfo and its calibration, calling
+  // `while_waiting` (if set) between its looks, every 20 ms (e.g. a preview frame).
   // UNAVAILABLE without one (or when stopped first).
   [[nodiscard]] Status WaitForCalibration(double timeout_s, const std::atomic<bool>* stop, ProbeCalibration* calibration,
-                                          proto::InfoMsg* info);
+                                          proto::InfoMsg* info, const std::function<void()>& while_waiting = {});
   Result Next(IngestedBurst* out) override;
 
  private:

@@ -251,7 +251,8 @@ struct TrackerOptions {
   // 20.2 / 21.1 / 21.8 µm, lost its keyframe ICP in a fast turn, and the σ edge that then stands for
   // it bends the chain there). But the whole full arch (`d3d-fuse --sim typodont --bin 2 --every 2`,
   // 133–143 keyframes), factor 0 / 1: seed 1 9.00 / 12.80 µm, seed 2 12.43 / 9.85, seed 3 9.64 /
-  // 11.45: the tracked poses carry the tracker's drift, which the loops across the arch must undo.
+  // 11.45, seed 4 (lost for good at burst 214: 172 of 746 views) 23.2 / 49.2: the tracked poses
+  // carry the tracker's drift, which the loops across the arch must undo.
   // Tracked edges only where a keyframe got no loop edge did worse on the single pass (11.8–13.1 µm
   // over the first 7 of those replays).
   double tracked_edge_information_factor = 0.0;

@@ -250,23 +250,17 @@ int main(int argc, char** argv) {
       dds = std::make_unique<DdsBurstSource>(rx.get(), dso);
       std::fprintf(stderr, "d3d-scan: waiting for a probe on DDS domain %d...\n", domain);
       proto::InfoMsg info;
-      const double wait_end = SteadyS() + wait_probe_s;
-      for (;;) {  // the preview's frames in between: it stays responsive (close = quit)
-        const Status s = dds->WaitForCalibration(0.05, &g_stop, &calib, &info);
-        if (s.ok()) break;
-        if (g_stop.load() || SteadyS() >= wait_end) {
-          std::fprintf(stderr, "d3d-scan: %s\n",
-                       g_stop.load() ? "stopped before a probe appeared"
-                                     : ("no ProbeInfo (calibration) from a probe within " + std::to_string(wait_probe_s) + " s").c_str());
-          return 3;
-        }
-        if (viewer) {
-          PreviewStatus st;
-          st.override_cue = true;
-          st.cue_override = PreviewCue::kWaiting;
-          st.message = "waiting for a probe on DDS domain " + std::to_string(domain);
-          if (!viewer->Render(nullptr, st, 0)) g_stop.store(true);  // window closed
-        }
+      const auto waiting_frame = [&] {  // the preview stays responsive while it waits (close = quit)
+        if (!viewer) return;
+        PreviewStatus st;
+        st.override_cue = true;
+        st.cue_override = PreviewCue::kWaiting;
+        st.message = "waiting for a probe on DDS domain " + std::to_string(domain);
+        if (!viewer->Render(nullptr, st, 0)) g_stop.store(true);  // window closed
+      };
+      if (const Status s = dds->WaitForCalibration(wait_probe_s, &g_stop, &calib, &info, waiting_frame); !s.ok()) {
+        std::fprintf(stderr, "d3d-scan: %s\n", s.ToString().c_str());
+        return 3;
       }
       std::fprintf(stderr, "d3d-scan: probe %s (%s, %ux%u)\n", info.serial.c_str(), info.sensor_model.c_str(), info.width, info.height);
       source = dds.get();
