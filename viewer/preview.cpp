@@ -10,6 +10,7 @@ const char* PreviewCueText(PreviewCue c) {
     case PreviewCue::kRelocalised: return "RELOCALISED";
     case PreviewCue::kProbeLost: return "PROBE LOST";
     case PreviewCue::kPaused: return "PAUSED";
+    case PreviewCue::kNewSegment: return "NEW SEGMENT";
   }
   return "?";
 }

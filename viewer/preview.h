@@ -14,8 +14,11 @@
 namespace d3d {
 
 // The colour cue of the preview (tracking states of pipeline/register plus the host's own).
-enum class PreviewCue : uint8_t { kWaiting, kTracking, kLost, kRelocalised, kProbeLost, kPaused };
-const char* PreviewCueText(PreviewCue c);  // "WAITING FOR PROBE", "TRACKING", "LOST", "RELOCALISED", "PROBE LOST", "PAUSED"
+// kNewSegment: the scan goes on in a segment of its own (the model could not be found there), to be
+// joined to the model once they overlap (TrackerOptions::segment_after_views).
+enum class PreviewCue : uint8_t { kWaiting, kTracking, kLost, kRelocalised, kProbeLost, kPaused, kNewSegment };
+// "WAITING FOR PROBE", "TRACKING", "LOST", "RELOCALISED", "PROBE LOST", "PAUSED", "NEW SEGMENT"
+const char* PreviewCueText(PreviewCue c);
 
 struct PreviewSnapshot {
   uint64_t generation = 0;               // bumps on a model reset or an undo: points are copied anew

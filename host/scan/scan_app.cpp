@@ -283,12 +283,15 @@ bool ScanApp::FuseStage(ScanItem& item) {
     return true;
   }
   if (item.track.accepted) {
-    item.fused = fuser_->Fuse(item.view, item.track.world_from_cam).ok();
+    // A view of a scan segment apart (not joined to the main model yet) is not fused live: it is
+    // kept, and FinishScan fuses it once joined, or on its own.
+    item.fused = item.track.in_main && fuser_->Fuse(item.view, item.track.world_from_cam).ok();
     if (item.fused) fused_.fetch_add(1, std::memory_order_relaxed);
-    item.packed_ok = item.fused && o_.keep_views && packer_.Pack(item.kept_frames, &item.packed).ok();
-    if (item.fused && item.packed_ok) {
+    const bool keep = item.fused || !item.track.in_main;
+    item.packed_ok = keep && o_.keep_views && packer_.Pack(item.kept_frames, &item.packed).ok();
+    if (keep && item.packed_ok) {
       if (const Status s = archive_.Add(item.burst.burst_seq, item.packed); !s.ok() && spill_failures_++ == 0) spill_failure_ = s.ToString();
-      fused_views_.push_back({item.view_index, item.burst.burst_seq, item.track.world_from_cam});
+      if (item.fused) fused_views_.push_back({item.view_index, item.burst.burst_seq, item.track.world_from_cam});
     }
     if (item.fused && ++fuse_memory_views_ >= kMemoryEvery) {
       fuse_memory_views_ = 0;
@@ -332,7 +335,7 @@ bool ScanApp::PreviewStage(ScanItem& item) {
   const Eigen::Vector3f t = model_from_cam.topRightCorner<3, 1>();
   const cv::Mat& pts = item.view.points_in_cam;
   const cv::Mat& nrm = item.view.normals;
-  if (!item.control && item.track.accepted) {
+  if (!item.control && item.track.accepted && item.track.in_main) {
     ++bursts_in_model_;
     preview_views_.emplace_back(item.view_index, model_points_.size());
     for (int y = 0; y < pts.rows; y += o_.preview_stride_px) {
@@ -359,21 +362,23 @@ bool ScanApp::PreviewStage(ScanItem& item) {
   s.points.insert(s.points.end(), model_points_.begin() + static_cast<std::ptrdiff_t>(s.points.size()), model_points_.end());
   s.normals.insert(s.normals.end(), model_normals_.begin() + static_cast<std::ptrdiff_t>(s.normals.size()), model_normals_.end());
   s.view_points.clear();
-  for (int y = o_.view_stride_px / 2; !item.control && y < pts.rows; y += o_.view_stride_px) {
+  // A view of a scan segment not joined yet has no pose in the model's frame: no view, no probe.
+  const bool apart = !item.control && item.track.accepted && !item.track.in_main;
+  for (int y = o_.view_stride_px / 2; !item.control && !apart && y < pts.rows; y += o_.view_stride_px) {
     const auto* p = pts.ptr<cv::Vec3f>(y);
     for (int x = o_.view_stride_px / 2; x < pts.cols; x += o_.view_stride_px)
       if (std::isfinite(p[x][2])) s.view_points.push_back(r * Eigen::Vector3f(p[x][0], p[x][1], p[x][2]) + t);
   }
   s.view_accepted = item.track.accepted;
   // A control item (undo) has no view: no probe pose until the next burst.
-  s.have_pose = !item.control && (item.track.state != TrackingState::kInitialising || item.track.accepted);
+  s.have_pose = !item.control && !apart && (item.track.state != TrackingState::kInitialising || item.track.accepted);
   s.model_from_cam = model_from_cam;
   const PinholeBrownConrady& cam = calibration_.camera;
   s.tan_half_x = static_cast<float>(0.5 * cam.width / cam.fx);
   s.tan_half_y = static_cast<float>(0.5 * cam.height / cam.fy);
   s.near_mm = static_cast<float>(calibration_.depth_min_mm);
   s.far_mm = static_cast<float>(calibration_.depth_max_mm);
-  s.cue = CueOf(item.track.state);
+  s.cue = apart ? PreviewCue::kNewSegment : CueOf(item.track.state);
   s.bursts_in_model = bursts_in_model_;
   if (!item.control) last_burst_seq_ = item.burst.burst_seq;
   s.last_burst_seq = last_burst_seq_;

@@ -9,6 +9,7 @@
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
 
+#include "calib/model/camera_model.h"
 #include "common/core/status.h"
 
 namespace d3d {
@@ -25,6 +26,17 @@ bool KdTreeTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* 
   *p = target_.points[static_cast<size_t>(i)];
   *n = target_.normals[static_cast<size_t>(i)];
   return std::isfinite((*n)[0]);
+}
+
+PinholeIntrinsics PinholeIntrinsics::Of(const PinholeBrownConrady& camera) {
+  PinholeIntrinsics k;
+  k.fx = camera.fx;
+  k.fy = camera.fy;
+  k.cx = camera.cx;
+  k.cy = camera.cy;
+  k.width = camera.width;
+  k.height = camera.height;
+  return k;
 }
 
 PinholeIntrinsics PinholeIntrinsics::Scaled(double s) const {

@@ -92,10 +92,13 @@ class KdTreeTarget final : public IcpTarget {
 
 // Simple pinhole for projective association (no distortion: the target image is rendered with
 // the same projection, so the look-up is consistent).
+struct PinholeBrownConrady;  // calib/model/camera_model.h
+
 struct PinholeIntrinsics {
   double fx = 0, fy = 0, cx = 0, cy = 0;
   int width = 0, height = 0;
   PinholeIntrinsics Scaled(double s) const;  // for an image s times the size
+  static PinholeIntrinsics Of(const PinholeBrownConrady& camera);  // its pinhole part (distortion dropped)
 };
 
 // Projective data association (Blais & Levine 1995; KinectFusion, Newcombe et al. 2011): the query

@@ -139,9 +139,22 @@ Status PoseGraph::Optimize(const PoseGraphOptions& o, PoseGraphSummary* s) {
     manifold_used = true;
   }
   if (!manifold_used) delete qm;
-  if (problem.HasParameterBlock(t[0].data())) {
-    problem.SetParameterBlockConstant(t[0].data());
-    problem.SetParameterBlockConstant(q[0].coeffs().data());
+  // The first node of each connected part is held: node 0, and the first keyframe of a scan
+  // segment not joined to it (Tracker: segments), whose frame nothing else fixes.
+  std::vector<int> part(poses_.size());
+  for (size_t i = 0; i < part.size(); ++i) part[i] = static_cast<int>(i);
+  auto root = [&](int i) {
+    while (part[static_cast<size_t>(i)] != i) i = part[static_cast<size_t>(i)] = part[static_cast<size_t>(part[static_cast<size_t>(i)])];
+    return i;
+  };
+  for (const PoseGraphEdge& e : edges_) {
+    const int a = root(e.from), b = root(e.to);
+    part[static_cast<size_t>(std::max(a, b))] = std::min(a, b);  // the smaller node stays the root
+  }
+  for (size_t i = 0; i < poses_.size(); ++i) {
+    if (root(static_cast<int>(i)) != static_cast<int>(i) || !problem.HasParameterBlock(t[i].data())) continue;
+    problem.SetParameterBlockConstant(t[i].data());
+    problem.SetParameterBlockConstant(q[i].coeffs().data());
   }
   ceres::Solver::Options so;
   so.max_num_iterations = o.max_iterations;

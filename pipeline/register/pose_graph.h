@@ -6,8 +6,8 @@
 // (or whitened by the edge's full information matrix, e.g. from the ICP that measured it), where
 // the quaternion product is taken with w ≥ 0: q and −q are the same rotation, but only that sign
 // gives r_θ = θ, and a full information couples the sign of r_θ with r_t. Each node's pose
-// world_from_node is (t, unit quaternion on Ceres' EigenQuaternionManifold), the first node is held
-// fixed, and loop-closure edges have a Huber loss so that one false closure cannot bend the whole
+// world_from_node is (t, unit quaternion on Ceres' EigenQuaternionManifold), the first node (of
+// each connected part) is held fixed, and loop-closure edges have a Huber loss so that one false closure cannot bend the whole
 // arch. Units: mm, rad.
 #pragma once
 
@@ -69,7 +69,8 @@ class PoseGraph {
   bool HasEdge(int a, int b) const;  // an edge joins nodes a and b (either direction)
   const Rigid3d& pose(int node) const { return poses_[static_cast<size_t>(node)]; }
   void set_pose(int node, const Rigid3d& p) { poses_[static_cast<size_t>(node)] = p; }
-  // Optimises all but node 0. INVALID_ARGUMENT for an empty graph.
+  // Optimises all but the first node of each connected part (node 0 in a connected graph).
+  // INVALID_ARGUMENT for an empty graph.
   [[nodiscard]] Status Optimize(const PoseGraphOptions& options, PoseGraphSummary* summary);
   // Normalised residual norm of an edge at the current poses.
   double EdgeResidual(int edge) const;

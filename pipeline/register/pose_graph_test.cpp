@@ -206,6 +206,39 @@ TEST(PoseGraph, AChangeOfWorldFrameChangesNothingRelative) {
   }
 }
 
+// Two chains with no edge between them (a scan segment not joined yet): each keeps its first node
+// where it was, and the rest of each chain follows its own edges.
+TEST(PoseGraph, EachConnectedPartKeepsItsFirstNode) {
+  PoseGraph g;
+  Rigid3d step = Rigid3d::Identity();
+  step.translation() = Eigen::Vector3d(1, 0, 0);
+  Rigid3d far = Rigid3d::Identity();
+  far.translation() = Eigen::Vector3d(2000, 5, 0);
+  for (int part = 0; part < 2; ++part) {
+    const Rigid3d origin = part == 0 ? Rigid3d::Identity() : far;
+    for (int i = 0; i < 4; ++i) {
+      Rigid3d p = origin;
+      p.translation() += Eigen::Vector3d(i * 1.01, 0.02 * i, 0);  // a little off the edges
+      g.AddNode(p);
+      if (i > 0) {
+        PoseGraphEdge e;
+        e.from = part * 4 + i - 1;
+        e.to = part * 4 + i;
+        e.from_from_to = step;
+        g.AddEdge(e);
+      }
+    }
+  }
+  PoseGraphSummary summary;
+  ASSERT_TRUE(g.Optimize({}, &summary).ok());
+  EXPECT_TRUE(g.pose(0).isApprox(Rigid3d::Identity()));
+  EXPECT_LT((g.pose(4).translation() - far.translation()).norm(), 1e-9);  // held, not pulled anywhere
+  for (int i = 1; i < 4; ++i) {
+    EXPECT_LT((g.pose(i).translation() - Eigen::Vector3d(i, 0, 0)).norm(), 1e-6);
+    EXPECT_LT((g.pose(4 + i).translation() - (far.translation() + Eigen::Vector3d(i, 0, 0))).norm(), 1e-6);
+  }
+}
+
 TEST(PoseGraph, TruncateKeepsTheEarlyEdgesBetweenKeptNodes) {
   PoseGraph g;
   for (int i = 0; i < 4; ++i) g.AddNode(Rigid3d::Identity());

@@ -86,6 +86,12 @@ void TrackerOptions::Check() const {
   D3D_CHECK_MSG(reregister_first_level >= 0 && reregister_first_level < static_cast<int>(icp.levels.size()),
                 "TrackerOptions: reregister_first_level must index icp.levels");
   D3D_CHECK_MSG(reentry_direct_max_views >= 0, "TrackerOptions: reentry_direct_max_views >= 0");
+  D3D_CHECK_MSG(reentry_min_eigen_ratio >= 0 && reentry_min_eigen_ratio < 1, "TrackerOptions: reentry_min_eigen_ratio in [0, 1)");
+  D3D_CHECK_MSG(reentry_ambiguity_mm >= 0, "TrackerOptions: reentry_ambiguity_mm >= 0 (0 = off)");
+  reentry_check.Check();
+  D3D_CHECK_MSG(segment_after_views >= 0 && max_segments >= 1 && segment_join_every >= 1,
+                "TrackerOptions: segment_after_views >= 0 (0 = off), max_segments >= 1, segment_join_every >= 1");
+  segment_join.Check();
   D3D_CHECK_MSG(map_max_rmse_ratio == 0 || map_max_rmse_ratio >= 1, "TrackerOptions: map_max_rmse_ratio 0 (off) or >= 1");
   D3D_CHECK_MSG(map_gate_min_overlap >= 0 && map_gate_min_overlap <= 1 && map_gate_max_run >= 0,
                 "TrackerOptions: map_gate_min_overlap in [0, 1], map_gate_max_run >= 0");
@@ -176,22 +182,22 @@ void Tracker::CollectKeyframeFeatures() {
 }
 
 Tracker::Tracker(const PinholeBrownConrady& camera, const TrackerOptions& options)
-    : camera_(camera), o_(options), map_(options.map) {
+    : camera_(camera), o_(options), reentry_check_(camera, options.reentry_check), map_(options.map) {
   camera_.Check();
   o_.Check();
-  PinholeIntrinsics k;
-  k.fx = camera.fx;
-  k.fy = camera.fy;
-  k.cx = camera.cx;
-  k.cy = camera.cy;
-  k.width = camera.width;
-  k.height = camera.height;
-  pinhole_ = k.Scaled(o_.target_scale);
+  pinhole_ = PinholeIntrinsics::Of(camera).Scaled(o_.target_scale);
   if (o_.keyframe_feature_timing == TrackerOptions::FeatureTiming::kWorker && o_.relocalise)
     feature_worker_ = std::make_unique<FeatureWorker>(o_.features);
 }
 
 Tracker::~Tracker() = default;
+
+namespace {
+// Segment s's frame is the main one moved by s · kSegmentSpacingMm along x: a scan spans ~100 mm
+// around the first view, so the segments never meet (the model's voxel keys reach ±80 m).
+constexpr double kSegmentSpacingMm = 2000.0;
+int SegmentOfPoint(const Eigen::Vector3f& p) { return static_cast<int>(std::lround(p.x() / kSegmentSpacingMm)); }
+}  // namespace
 
 IcpResult Tracker::RunIcp(const SurfacePoints& source, const Rigid3d& initial, const IcpOptions& icp) const {
   if (o_.association == Association::kProjective) {
@@ -210,11 +216,26 @@ IcpResult Tracker::RunIcp(const SurfacePoints& source, const Rigid3d& initial, c
   }
   const Eigen::Vector3f m = Eigen::Vector3f::Constant(static_cast<float>(o_.gather_margin_mm));
   map_.Gather(lo - m, hi + m, &gathered_);
-  if (o_.association == Association::kKdTree) return RegisterIcp(source, KdTreeTarget(gathered_), initial, icp);
-  std::vector<double> gates;
-  for (const IcpLevel& level : icp.levels) gates.push_back(level.max_distance_mm);
-  grid_.Build(gathered_, gates, o_.grid_decimate_min_gate_mm);
-  return RegisterIcp(source, grid_, initial, icp);
+  // ICP linearises about the target's origin, in float: a segment's frame, kSegmentSpacingMm · s
+  // from the main one, is moved back near the origin for it (its normal equations lost their
+  // precision there: views 0.3 mm off after two steps), and the pose moved back after.
+  const double shift_x = -kSegmentSpacingMm * std::round(initial.translation().x() / kSegmentSpacingMm);
+  Rigid3d local = initial;
+  if (shift_x != 0) {
+    for (Eigen::Vector3f& p : gathered_.points) p.x() += static_cast<float>(shift_x);
+    local.translation().x() += shift_x;
+  }
+  IcpResult r;
+  if (o_.association == Association::kKdTree) {
+    r = RegisterIcp(source, KdTreeTarget(gathered_), local, icp);
+  } else {
+    std::vector<double> gates;
+    for (const IcpLevel& level : icp.levels) gates.push_back(level.max_distance_mm);
+    grid_.Build(gathered_, gates, o_.grid_decimate_min_gate_mm);
+    r = RegisterIcp(source, grid_, local, icp);
+  }
+  if (shift_x != 0) r.target_from_source.translation().x() -= shift_x;
+  return r;
 }
 
 namespace {
@@ -281,6 +302,15 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
                            const ViewAugmenter& augment, int64_t capture_ns) {
   CommitView();
   const auto t0 = std::chrono::steady_clock::now();
+  bool joined_now = false;
+  std::string join_attempt;
+  if (active_segment_ > 0 && !segments_[static_cast<size_t>(active_segment_)].joined) {
+    Segment& seg = segments_[static_cast<size_t>(active_segment_)];
+    if (keyframes_.size() >= seg.keyframes_at_attempt + static_cast<size_t>(o_.segment_join_every)) {
+      seg.keyframes_at_attempt = keyframes_.size();
+      joined_now = TryJoinSegment(active_segment_, &join_attempt);
+    }
+  }
   ++index_;
   capture_ns_ = capture_ns;
   anchor_.push_back(-1);
@@ -346,7 +376,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   }
   // A view re-entering the model after a loss waits for the next view's confirmation (see
   // TrackerOptions::confirm_reentry); one refused while tracking is recovered at once.
-  bool needs_confirmation = o_.confirm_reentry && state_ == TrackingState::kLost;
+  bool needs_confirmation = o_.confirm_reentry && AfterGap();
   auto reentered = [&](const std::string& why) {
     if (needs_confirmation) {
       candidate_.pending = true;
@@ -380,12 +410,20 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     if (Relocalise(samples, points, texture, &out)) accepted = reentered(why);
     else out.reason = why + "; relocalisation failed: " + out.reason;
   }
+  if (!accepted && state_ != TrackingState::kInitialising && o_.segment_after_views > 0 &&
+      ++lost_with_points_ > o_.segment_after_views && static_cast<int>(segments_.size()) < o_.max_segments) {
+    StartSegment(&pose, &out);  // the view cannot be placed: it starts a segment of its own
+    accepted = true;
+  }
   if (!accepted) {
     state_ = state_ == TrackingState::kInitialising ? state_ : TrackingState::kLost;
     out.state = state_;
+    out.segment_joined = joined_now;
+    out.join_attempt = join_attempt;
     out.ms = Ms(t0);
     return out;
   }
+  lost_with_points_ = 0;
   if (augment && !map_.empty() && !augmented && augment(pose, map_)) {
     // The view gained points: register it again from its pose with all of them, when they are
     // enough to change the fit (a view whose own points were only the smooth palate, say).
@@ -437,6 +475,10 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   view_log_.back().current_since = current_since_;
   anchor_.back() = current_kf_;
   kf_from_cam_.back() = graph_.pose(keyframes_[static_cast<size_t>(current_kf_)].node).inverse() * pose;
+  out.segment = active_segment_;
+  out.in_main = SegmentInMain(active_segment_);
+  out.segment_joined = joined_now;
+  out.join_attempt = join_attempt;
   out.ms = Ms(t0);
   return out;
 }
@@ -482,8 +524,205 @@ bool Tracker::ConfirmReentry(const SurfacePoints& samples, TrackResult* out) {
     return false;
   }
   if (!ConsistentMotionFrom(candidate_.world_from_cam, ViewsSinceCandidate(), r.target_from_source, &out->reason)) return false;
+  if (!WellConstrainedReentry(r, &out->reason)) return false;
+  out->reentry = CheckReentry(samples, r.target_from_source);
+  if (!out->reentry.ok) {
+    out->reason = out->reentry.reason;
+    return false;
+  }
   out->icp = r;
   out->world_from_cam = r.target_from_source;
+  return true;
+}
+
+bool Tracker::AfterGap() const { return state_ == TrackingState::kLost || ViewsElapsed() > o_.reentry_direct_max_views; }
+
+bool Tracker::WellConstrainedReentry(const IcpResult& r, std::string* why) const {
+  if (!AfterGap() || r.eigen_ratio >= o_.reentry_min_eigen_ratio) return true;
+  *why = "degenerate re-entry (eigen ratio " + std::to_string(r.eigen_ratio) + " < " + std::to_string(o_.reentry_min_eigen_ratio) + ")";
+  return false;
+}
+
+ReentryEvidence Tracker::CheckReentry(const SurfacePoints& samples, const Rigid3d& world_from_cam) {
+  // The keyframes whose surface centre is nearest the view's at the candidate pose (their current
+  // graph poses).
+  const Eigen::Vector3d centre = world_from_cam * samples.Centroid();
+  std::vector<std::pair<double, int>> order;
+  for (int k = 0; k < static_cast<int>(keyframes_.size()); ++k) {
+    const Keyframe& kf = keyframes_[static_cast<size_t>(k)];
+    const double d = (graph_.pose(kf.node) * kf.centre_in_cam - centre).norm();
+    if (d <= o_.reentry_check.max_centre_distance_mm) order.emplace_back(d, k);
+  }
+  const size_t n = std::min(order.size(), static_cast<size_t>(o_.reentry_check.keyframes));
+  std::partial_sort(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(n), order.end());
+  reentry_kfs_.clear();
+  for (size_t i = 0; i < n; ++i) {
+    const Keyframe& kf = keyframes_[static_cast<size_t>(order[i].second)];
+    const Rigid3d world_from_kf = graph_.pose(kf.node);
+    reentry_kfs_.push_back({&kf.samples, world_from_kf, world_from_kf * kf.centre_in_cam});
+  }
+  return reentry_check_.Test(samples, world_from_cam, reentry_kfs_);
+}
+
+
+bool Tracker::SegmentInMain(int segment) const {
+  return segment == 0 || (segment > 0 && segment < static_cast<int>(segments_.size()) && segments_[static_cast<size_t>(segment)].joined);
+}
+
+bool Tracker::KeyframeInActiveSegment(int k) const {
+  const int seg = keyframes_[static_cast<size_t>(k)].segment;
+  return seg == active_segment_ || (SegmentInMain(seg) && SegmentInMain(active_segment_));
+}
+
+Rigid3d Tracker::MainFromSegmentFrame(int segment) const {
+  Rigid3d t = Rigid3d::Identity();
+  if (!SegmentInMain(segment)) t.translation().x() = -kSegmentSpacingMm * segment;
+  return t;
+}
+
+int Tracker::segments_joined() const {
+  int n = 0;
+  for (const Segment& seg : segments_) n += seg.joined;
+  return n;
+}
+
+int Tracker::ViewSegment(int64_t view) const {
+  if (view < 0 || view >= views() || anchor_[static_cast<size_t>(view)] < 0) return -1;
+  return keyframes_[static_cast<size_t>(anchor_[static_cast<size_t>(view)])].segment;
+}
+
+SurfacePoints Tracker::MainSamples() const {
+  SurfacePoints main;
+  for (size_t i = 0; i < map_.size(); ++i) {
+    if (!SegmentInMain(SegmentOfPoint(map_.points()[i]))) continue;
+    main.points.push_back(map_.points()[i]);
+    main.normals.push_back(map_.normals()[i]);
+  }
+  return main;
+}
+
+void Tracker::StartSegment(Rigid3d* pose, TrackResult* out) {
+  const int s = static_cast<int>(segments_.size());
+  // The main model rests while the new segment grows: its join features are made once, now.
+  const auto t0 = std::chrono::steady_clock::now();
+  join_target_ = MakeSegmentJoinTarget(MainSamples(), o_.segment_join);
+  const double ms_target = Ms(t0);
+  segments_.push_back(Segment{index_, false, keyframes_.size()});
+  active_segment_ = s;
+  Rigid3d offset = Rigid3d::Identity();
+  offset.translation().x() = kSegmentSpacingMm * s;
+  *pose = offset * last_pose_;
+  out->state = TrackingState::kTracking;
+  out->new_segment = true;
+  char what[160];
+  std::snprintf(what, sizeof what, "; new segment %d after %d views that could not be placed (join features of the model: %.0f ms)", s,
+                lost_with_points_, ms_target);
+  out->reason += what;
+  // The new segment starts its own chain: no keyframe to anchor to, no motion to predict from, no
+  // candidate re-entry; undo does not reach back before it.
+  current_kf_ = -1;
+  current_since_ = -1;
+  current_occupancy_.reset();
+  candidate_ = ReentryCandidate{};
+  prev_accepted_ = -1;
+  lost_with_points_ = 0;
+  undo_barrier_view_ = index_ + 1;
+}
+
+bool Tracker::TryJoinSegment(int s, std::string* why) {
+  const auto t0 = std::chrono::steady_clock::now();
+  const bool joined = JoinSegmentNow(s, why);
+  char ms[32];
+  std::snprintf(ms, sizeof ms, " (%.0f ms)", Ms(t0));
+  *why += ms;
+  return joined;
+}
+
+bool Tracker::JoinSegmentNow(int s, std::string* why) {
+  // The segment's model samples (they lie around its offset) and its newest keyframe.
+  SurfacePoints seg;
+  for (size_t i = 0; i < map_.size(); ++i) {
+    if (SegmentOfPoint(map_.points()[i]) != s) continue;
+    seg.points.push_back(map_.points()[i]);
+    seg.normals.push_back(map_.normals()[i]);
+  }
+  int newest = -1;
+  for (int k = static_cast<int>(keyframes_.size()) - 1; k >= 0 && newest < 0; --k)
+    if (keyframes_[static_cast<size_t>(k)].segment == s) newest = k;
+  if (seg.empty() || newest < 0) {
+    *why = "the segment is empty";
+    return false;
+  }
+  const SegmentJoinResult r = JoinSegment(seg, join_target_, o_.segment_join);
+  if (!r.ok) {
+    *why = r.reason;
+    return false;
+  }
+  const Rigid3d& T = r.main_from_segment;
+  // Verified like a re-entry: the newest keyframe at its joined pose does not contradict what the
+  // main keyframes near it saw.
+  const Keyframe& kn = keyframes_[static_cast<size_t>(newest)];
+  const ReentryEvidence evidence = CheckReentry(kn.samples, T * graph_.pose(kn.node));
+  if (!evidence.ok) {
+    *why = "join: " + evidence.reason;
+    return false;
+  }
+  // Merge: the segment's keyframes, model samples and motion state into the main frame.
+  for (Keyframe& kf : keyframes_)
+    if (kf.segment == s) graph_.set_pose(kf.node, T * graph_.pose(kf.node));
+  for (int64_t v = 0; v < views(); ++v)
+    if (ViewSegment(v) == s) view_log_[static_cast<size_t>(v)].pose = T * view_log_[static_cast<size_t>(v)].pose;
+  PointMap merged(o_.map);
+  SurfacePoints all;
+  const Eigen::Matrix3f R = T.linear().cast<float>();
+  const Eigen::Vector3f t = T.translation().cast<float>();
+  for (size_t i = 0; i < map_.size(); ++i) {
+    const Eigen::Vector3f& p = map_.points()[i];
+    const Eigen::Vector3f& n = map_.normals()[i];
+    const bool moves = SegmentOfPoint(p) == s;
+    all.points.push_back(moves ? Eigen::Vector3f(R * p + t) : p);
+    all.normals.push_back(moves ? Eigen::Vector3f(R * n) : n);
+  }
+  merged.Insert(all, Rigid3d::Identity());
+  map_ = std::move(merged);
+  if (active_segment_ == s) {
+    last_pose_ = T * last_pose_;
+    prev_pose_ = T * prev_pose_;
+    candidate_ = ReentryCandidate{};
+  }
+  segments_[static_cast<size_t>(s)].joined = true;
+  // A loop edge between the newest keyframe and the nearest main keyframes that overlap it.
+  const Eigen::Vector3d c = graph_.pose(kn.node) * kn.centre_in_cam;
+  std::vector<std::pair<double, int>> near;
+  for (int j = 0; j < static_cast<int>(keyframes_.size()); ++j) {
+    const Keyframe& kf = keyframes_[static_cast<size_t>(j)];
+    if (kf.segment == s || !SegmentInMain(kf.segment)) continue;
+    near.emplace_back((graph_.pose(kf.node) * kf.centre_in_cam - c).norm(), j);
+  }
+  std::sort(near.begin(), near.end());
+  int edges = 0;
+  for (size_t i = 0; i < near.size() && i < 6 && edges < 2; ++i) {
+    PoseGraphEdge e;
+    const int j = near[i].second;
+    if (!KeyframeEdge(std::min(j, newest), std::max(j, newest), &e)) continue;
+    e.loop = true;
+    graph_.AddEdge(e);
+    ++edges;
+  }
+  if (edges == 0 && !near.empty()) {  // the join's own pose, on the loop σs
+    PoseGraphEdge e;
+    e.from = keyframes_[static_cast<size_t>(near.front().second)].node;
+    e.to = kn.node;
+    e.from_from_to = graph_.pose(e.from).inverse() * graph_.pose(e.to);
+    e.sigma_translation_mm = o_.loop_sigma_mm;
+    e.sigma_rotation_rad = o_.loop_sigma_rad;
+    e.loop = true;
+    graph_.AddEdge(e);
+  }
+  // The rebuilt model has no undo journal: undo starts again from here.
+  for (ViewLog& log : view_log_) log.map_inserts_before = 0;
+  undo_barrier_view_ = index_ + 1;
+  *why = "joined: " + std::to_string(r.icp.correspondences) + " samples, rmse " + std::to_string(r.icp.rmse_mm * 1000) + " um";
   return true;
 }
 
@@ -492,6 +731,7 @@ bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out, 
   const Eigen::Vector3d here = last_pose_ * samples.Centroid();
   std::vector<std::pair<double, int>> order;
   for (int k = 0; k < static_cast<int>(keyframes_.size()); ++k) {
+    if (!KeyframeInActiveSegment(k)) continue;
     const Keyframe& kf = keyframes_[static_cast<size_t>(k)];
     order.emplace_back((graph_.pose(kf.node) * kf.centre_in_cam - here).norm(), k);
   }
@@ -503,6 +743,11 @@ bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out, 
   // The search is local: its result must also be a consistent motion from the last accepted pose
   // (over the views elapsed); a far return is left to the feature relocalisation.
   std::string last_reason;
+  // After a gap every start is tried: a second fit that passes too, elsewhere, makes the return
+  // ambiguous (TrackerOptions::reentry_ambiguity_mm).
+  const bool all_starts = AfterGap() && o_.reentry_ambiguity_mm > 0;
+  const Eigen::Vector3d centre_in_cam = samples.Centroid();
+  int found = -1;
   for (size_t i = 0; i < starts.size(); ++i) {
     const IcpResult r = RunIcp(samples, starts[i], icp);
     if (!r.ok) {
@@ -510,12 +755,32 @@ bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out, 
       continue;
     }
     if (!ConsistentMotion(r.target_from_source, &last_reason)) continue;
+    if (!WellConstrainedReentry(r, &last_reason)) continue;
+    const ReentryEvidence evidence = CheckReentry(samples, r.target_from_source);
+    if (!evidence.ok) {
+      last_reason = evidence.reason;
+      continue;
+    }
+    if (found >= 0) {
+      const double apart_mm = (r.target_from_source * centre_in_cam - out->world_from_cam * centre_in_cam).norm();
+      const double apart_deg = RotationAngleRad(r.target_from_source, out->world_from_cam) * 180 / M_PI;
+      if (apart_mm > o_.reentry_ambiguity_mm || apart_deg > 2.0) {
+        char why[160];
+        std::snprintf(why, sizeof why, "ambiguous re-entry: two fits %.2f mm, %.1f deg apart", apart_mm, apart_deg);
+        out->reason = why;
+        return false;
+      }
+      continue;
+    }
+    found = static_cast<int>(i);
+    out->reentry = evidence;
     out->icp = r;
     out->world_from_cam = r.target_from_source;
     *from_prediction = i == 0;
     out->reason = i == 0 ? "icp from the predicted pose" : i == 1 ? "icp from the last pose" : "icp from keyframe " + std::to_string(order[i - 2].second);
-    return true;
+    if (!all_starts) return true;
   }
+  if (found >= 0) return true;
   out->reason = last_reason;
   return false;
 }
@@ -527,6 +792,7 @@ bool Tracker::Relocalise(const SurfacePoints& samples, const cv::Mat& points, co
   const Eigen::Vector3d here = last_pose_ * samples.Centroid();
   std::vector<std::pair<double, int>> order;
   for (int k = 0; k < static_cast<int>(keyframes_.size()); ++k) {
+    if (!KeyframeInActiveSegment(k)) continue;
     const Keyframe& kf = keyframes_[static_cast<size_t>(k)];
     const Eigen::Vector3d c = graph_.pose(kf.node) * kf.centre_in_cam;
     order.emplace_back((c - here).norm(), k);
@@ -559,6 +825,15 @@ bool Tracker::Relocalise(const SurfacePoints& samples, const cv::Mat& points, co
       last_reason = "icp after features: " + r.reason;
       continue;
     }
+    if (!WellConstrainedReentry(r, &last_reason)) {
+      last_reason = "after features: " + last_reason;
+      continue;
+    }
+    out->reentry = CheckReentry(samples, r.target_from_source);
+    if (!out->reentry.ok) {
+      last_reason = "after features: " + out->reentry.reason;
+      continue;
+    }
     out->icp = r;
     out->world_from_cam = r.target_from_source;
     out->reason = "keyframe " + std::to_string(order[static_cast<size_t>(i)].second) + ", " + std::to_string(a.inliers) +
@@ -589,6 +864,7 @@ void Tracker::MaybeKeyframe(const SurfacePoints& /*samples*/, const cv::Mat& poi
   kf.node = graph_.AddNode(pose);
   kf.centre_in_cam = kfs.Centroid();
   kf.parent = current_kf_;
+  kf.segment = active_segment_;
   kf.samples = std::move(kfs);
   kf.samples.points.shrink_to_fit();  // kept for the scan: not the lattice's growth capacity
   kf.samples.normals.shrink_to_fit();
@@ -784,6 +1060,18 @@ int Tracker::loop_edges() const {
   return n;
 }
 
+int Tracker::JoinApartSegments() {
+  CommitView();
+  int joined = 0;
+  for (int seg = 1; seg < static_cast<int>(segments_.size()); ++seg) {
+    if (segments_[static_cast<size_t>(seg)].joined) continue;
+    join_target_ = MakeSegmentJoinTarget(MainSamples(), o_.segment_join);  // the main model as it is now
+    std::string why;
+    joined += TryJoinSegment(seg, &why);
+  }
+  return joined;
+}
+
 Status Tracker::Optimize(const PoseGraphOptions& options, PoseGraphSummary* summary) {
   // Deferred edges first, in keyframe order: the graph's poses have not moved since the keyframes
   // were made (nothing but Optimize moves them), so these are the edges Track() would have added.
@@ -814,7 +1102,7 @@ int64_t Tracker::first_undoable_view() const {
   const int64_t oldest = map_.oldest_undoable_insert();
   const auto it = std::lower_bound(view_log_.begin(), view_log_.end(), oldest,
                                    [](const ViewLog& v, int64_t n) { return v.map_inserts_before < n; });
-  return static_cast<int64_t>(it - view_log_.begin());
+  return std::max(undo_barrier_view_, static_cast<int64_t>(it - view_log_.begin()));
 }
 
 Tracker::UndoResult Tracker::UndoFrom(int64_t first_view) {

@@ -17,6 +17,10 @@
 //     (features.h) are matched to keyframes, chosen by a local border search: keyframes nearest
 //     the last accepted view first (where the probe left the model), up to relocalise_candidates;
 //     RANSAC → ICP against the model; the first that passes is accepted (state kRelocalised).
+//     A return after a gap must also be well constrained, unambiguous and consistent with what the
+//     keyframes near it saw (reentry_check.h); see reentry_min_eigen_ratio.
+//  4b. Segments: views that still cannot be placed start a segment of their own frame, joined to
+//     the main model once they overlap it (segment_join.h); see segment_after_views.
 //  5. Keyframes: a view whose overlap index with the current keyframe (fraction of its samples in
 //     the keyframe's occupied voxels) falls below keyframe_overlap (or, optionally, that turned or
 //     waited too long since it) becomes a keyframe, unless an older keyframe near it already covers
@@ -48,6 +52,8 @@
 #include "pipeline/register/icp.h"
 #include "pipeline/register/point_map.h"
 #include "pipeline/register/pose_graph.h"
+#include "pipeline/register/reentry_check.h"
+#include "pipeline/register/segment_join.h"
 
 namespace d3d {
 
@@ -211,6 +217,41 @@ struct TrackerOptions {
   // later, where the probe had moved past the model's border, failed to confirm it (overlap 0.20),
   // and the scan never re-entered (130 of 450 bursts processed). 0 = always confirm.
   double reentry_direct_max_views = 2.0;
+  // A re-entry after a gap (state lost, or more than reentry_direct_max_views views since the last
+  // accepted one: views with too few points, a lifted probe) must be well constrained: ICP's
+  // eigenvalue ratio (IcpResult::eigen_ratio) at least this. Such a return after a gap also waits
+  // for the next view's confirmation (confirm_reentry), as after a loss. Why: a view of a smooth
+  // stretch slides along it; typodont full arch, seed 5 burst 184 (after 4 views with too few
+  // points) re-entered 2.3 mm and 12.7° off at eigen ratio 0.007, seed 6 bursts 154 / 156 11.7 and
+  // 15.1 mm off at 0.005 / 0.002, and the rest of each scan was built on them (107 / 121 µm RMS).
+  // Tracked views there: 5th percentile 0.011–0.013, median 0.07–0.09. 0 = no such limit.
+  double reentry_min_eigen_ratio = 0.02;
+  // After a gap the local search tries all its starts; when two fits pass every check yet put the
+  // view's surface centre more than this apart (mm) or turned by more than 2 degrees from each
+  // other, the return is ambiguous and refused. 0 = the first fit that passes is taken.
+  double reentry_ambiguity_mm = 0.5;
+  // Every re-entry pose (local search, features, a candidate's confirmation) must also be
+  // consistent with what the keyframes near it saw (reentry_check.h): a pose that fails is passed
+  // over like a failed ICP, and the search goes on with the next start.
+  ReentryCheckOptions reentry_check;
+  // Segments. A scan that cannot place its views on the model does not stop and does not guess:
+  // after segment_after_views views in a row refused while lost (each with enough points: the
+  // probe is over teeth, somewhere the model cannot be found), the next such view starts a new
+  // segment in a frame of its own (the main frame moved by segment s · 2 m along x, so that the
+  // segments never meet in the model, the keyframe searches or the pose graph), and the track goes
+  // on there. Local search and feature relocalisation look in the current segment only. Every
+  // segment_join_every new keyframes of a segment not joined yet, it is registered onto the main
+  // model (segment_join.h: FPFH + RANSAC + ICP) and the join verified like a re-entry
+  // (reentry_min_eigen_ratio, reentry_check against the main keyframes near it); once it holds,
+  // the segment's keyframes, model and motion state move into the main frame, a loop edge joins it
+  // to the main keyframes, and its views are the main model's from then on (TrackResult::in_main).
+  // JoinApartSegments() tries every segment still apart once more. 0 = never start a segment: the tracker
+  // stays lost until a view re-enters the model. Undo (UndoFrom) does not reach back past a segment's
+  // start or join.
+  int segment_after_views = 8;
+  int max_segments = 16;
+  int segment_join_every = 1;
+  SegmentJoinOptions segment_join;
   double loop_radius_mm = 10.0;   // keyframe centres closer than this are loop candidates
   int loop_min_separation = 10;   // keyframes
   double loop_min_overlap = 0.3;
@@ -306,6 +347,7 @@ struct Keyframe {
   // at 320 × 240 (most pixels of a view hold no point): the keyframes are what a long scan's memory
   // keeps growing with. A keyframe's points are never empty.
   std::string packed_feature_points, packed_feature_texture;
+  int segment = 0;                    // the scan segment it was made in (TrackerOptions::segment_after_views)
   bool features_pending() const { return !packed_feature_points.empty(); }
   // Bytes the keyframe holds: samples, features and packed feature inputs.
   int64_t bytes() const;
@@ -328,6 +370,14 @@ struct TrackResult {
   bool new_keyframe = false;
   bool keyframe_reused = false;       // an older keyframe became the current one (keyframe_reuse_radius_mm)
   bool in_model = false;              // the view's samples entered the tracking model (map_max_rmse_ratio)
+  ReentryEvidence reentry;            // the re-entry check of the pose found after a loss (keyframes 0: none ran)
+  int segment = 0;                    // the segment of the view (accepted views)
+  bool new_segment = false;           // the view started that segment
+  bool segment_joined = false;        // the segment was joined to the main model before this view
+  std::string join_attempt;           // what a join attempt before this view found (empty: none was made)
+  // The pose is in the main frame (the first segment, or one joined to it): fuse the view into the
+  // main model only then.
+  bool in_main = true;
   int loops_added = 0;
   double ms = 0;
 };
@@ -393,6 +443,18 @@ class Tracker {
   // Pose of view i after Optimize (its tracked pose before): false if the view was refused.
   bool ViewPose(int64_t view, Rigid3d* world_from_cam) const;
   int loop_edges() const;
+  // Segments (TrackerOptions::segment_after_views): how many, whether segment s lies in the main
+  // frame (the first, or joined to it), and the segment of view i (−1: refused).
+  int segments() const { return static_cast<int>(segments_.size()); }
+  int segments_joined() const;
+  bool SegmentInMain(int segment) const;
+  int ViewSegment(int64_t view) const;
+  // Segment s's frame moved back to the main frame's origin (a translation: not a registration, the
+  // two stay unrelated); identity for the main one.
+  Rigid3d MainFromSegmentFrame(int segment) const;
+  // A last join attempt for every segment not joined yet (at the end of a scan, before Optimize):
+  // returns how many joined.
+  int JoinApartSegments();
 
  private:
   IcpResult RunIcp(const SurfacePoints& source, const Rigid3d& initial, const IcpOptions& icp) const;
@@ -401,6 +463,21 @@ class Tracker {
   // widened to local_search_gate_mm and the residual limit relocalise_max_rmse_mm.
   IcpOptions LocalSearchIcp() const;
   // *from_prediction: the fit started from the motion prediction.
+  // A return to the model after a gap or a loss (see TrackerOptions::reentry_min_eigen_ratio).
+  bool AfterGap() const;
+  // False (and *why) when ICP result r is a re-entry after a gap that is not well constrained.
+  bool WellConstrainedReentry(const IcpResult& r, std::string* why) const;
+  // The re-entry check (TrackerOptions::reentry_check) of `samples` at world_from_cam against the
+  // keyframes nearest to it.
+  ReentryEvidence CheckReentry(const SurfacePoints& samples, const Rigid3d& world_from_cam);
+  // Starts a new segment with this view (accepted at *pose, in the segment's frame).
+  void StartSegment(Rigid3d* pose, TrackResult* out);
+  // Tries to join segment s to the main model; true when it did (then merged, see TrackerOptions).
+  // *why: what it found, and its time.
+  bool TryJoinSegment(int s, std::string* why);
+  bool JoinSegmentNow(int s, std::string* why);  // the same, untimed
+  // The main model's samples (world), for the join target.
+  SurfacePoints MainSamples() const;
   bool RelocaliseLocally(const SurfacePoints& samples, TrackResult* out, bool* from_prediction);
   bool Relocalise(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& texture, TrackResult* out);
   void MaybeKeyframe(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& normals,
@@ -427,6 +504,8 @@ class Tracker {
   PinholeIntrinsics pinhole_;
   TrackerOptions o_;
   std::unique_ptr<FeatureWorker> feature_worker_;  // null unless keyframe_feature_timing is kWorker
+  ReentryCheck reentry_check_;                      // Track()'s thread
+  std::vector<ReentryKeyframe> reentry_kfs_;        // CheckReentry's keyframes, reused
   FramePacker packer_;                              // kOnDemand: packs a new keyframe's feature inputs (Track()'s thread)
   // Edges that wait for Optimize (defer_keyframe_edges), in the order Track() would have added them:
   // from < 0, keyframe `to`'s edges (AddKeyframeEdges); else a reuse edge (AddReuseEdge).
@@ -506,6 +585,19 @@ class Tracker {
     Rigid3d pose = Rigid3d::Identity();
   };
   std::vector<ViewLog> view_log_;
+  // Segments: [0] the first; a segment's first view and keyframe, whether it was joined to the main
+  // model, and the keyframe count at its last join attempt. Track()'s thread only.
+  struct Segment {
+    int64_t first_view = 0;
+    bool joined = false;
+    size_t keyframes_at_attempt = 0;
+  };
+  std::vector<Segment> segments_ = {Segment{}};
+  int active_segment_ = 0;
+  int lost_with_points_ = 0;       // views in a row refused while lost (with enough points)
+  int64_t undo_barrier_view_ = 0;  // UndoFrom does not reach before this view (a segment's start or join)
+  SegmentJoinTarget join_target_;  // the main model's join features, made when a segment starts (the main model rests meanwhile)
+  bool KeyframeInActiveSegment(int k) const;
 };
 
 }  // namespace d3d

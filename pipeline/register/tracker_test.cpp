@@ -497,6 +497,93 @@ TEST_F(TrackerScan, ALostTrackReentersOnlyAtTheRelocalisationResidual) {
   EXPECT_EQ(back.state, TrackingState::kRelocalised);
 }
 
+// Segments: a probe put down over ground the model has not seen (a lift-out) starts a segment of
+// its own after segment_after_views views that cannot be placed; once its model overlaps the main
+// one, it is joined, and every view ends where it belongs.
+TEST_F(TrackerScan, ALostScanStartsASegmentThatJoinsWhenItOverlaps) {
+  TrackerOptions o;
+  o.features.max_features = 800;
+  o.segment_after_views = 3;
+  o.segment_join.min_correspondences = 300;  // the test's views are 9.6 × 7.2 mm
+  Tracker tracker(cam_, o);
+  std::vector<std::pair<int64_t, Rigid3d>> truth;  // accepted views
+  uint32_t seed = 1;
+  auto feed = [&](double x) {
+    const Rigid3d pose = Truth(x, 0);
+    const int64_t view = tracker.views();
+    const TrackResult r = Feed(&tracker, pose, seed++);
+    if (r.accepted) truth.emplace_back(view, pose);
+    return r;
+  };
+  for (double x = -20; x <= -12.99; x += 1.0) ASSERT_TRUE(feed(x).accepted);
+  // Put down 17 mm further on: no view there overlaps the model.
+  int refused = 0, started = 0;
+  for (double x = 5; x >= -0.01; x -= 1.0) {
+    const TrackResult r = feed(x);
+    refused += !r.accepted;
+    if (r.new_segment) {
+      ++started;
+      EXPECT_TRUE(r.accepted);
+      EXPECT_EQ(r.segment, 1);
+      EXPECT_FALSE(r.in_main);
+    }
+  }
+  EXPECT_EQ(refused, o.segment_after_views);
+  EXPECT_EQ(started, 1);
+  ASSERT_EQ(tracker.segments(), 2);
+  EXPECT_EQ(tracker.segments_joined(), 0);
+  // Back over the main model's ground: the segment joins, and its views are the main model's.
+  bool joined = false;
+  for (double x = -1; x >= -18.01; x -= 1.0) {
+    const TrackResult r = feed(x);
+    ASSERT_TRUE(r.accepted) << "x = " << x << ": " << r.reason;
+    joined = joined || r.segment_joined;
+    if (joined) {
+      EXPECT_TRUE(r.in_main);
+    }
+  }
+  EXPECT_TRUE(joined);
+  EXPECT_EQ(tracker.segments_joined(), 1);
+  PoseGraphSummary summary;
+  ASSERT_TRUE(tracker.Optimize({}, &summary).ok());
+  const Rigid3d first_inv = truth.front().second.inverse();
+  for (const auto& [view, pose] : truth) {
+    Rigid3d p;
+    ASSERT_TRUE(tracker.ViewPose(view, &p));
+    EXPECT_TRUE(tracker.SegmentInMain(tracker.ViewSegment(view)));
+    const Rigid3d want = first_inv * pose;
+    EXPECT_LT(TranslationDistanceMm(p, want), 0.05) << "view " << view;
+    EXPECT_LT(RotationAngleRad(p, want) * 180 / M_PI, 0.1) << "view " << view;
+  }
+}
+
+TEST_F(TrackerScan, ASegmentThatNeverOverlapsStaysApart) {
+  TrackerOptions o;
+  o.features.max_features = 800;
+  o.segment_after_views = 2;
+  Tracker tracker(cam_, o);
+  uint32_t seed = 1;
+  for (double x = -20; x <= -15.99; x += 1.0) ASSERT_TRUE(Feed(&tracker, Truth(x, 0), seed++).accepted);
+  const int64_t first_apart = tracker.views();
+  for (double x = 10; x <= 16.01; x += 1.0) Feed(&tracker, Truth(x, 0), seed++);
+  ASSERT_EQ(tracker.segments(), 2);
+  EXPECT_EQ(tracker.JoinApartSegments(), 0);
+  EXPECT_FALSE(tracker.SegmentInMain(1));
+  int apart = 0;
+  for (int64_t v = first_apart; v < tracker.views(); ++v) {
+    Rigid3d p;
+    if (!tracker.ViewPose(v, &p)) continue;
+    EXPECT_EQ(tracker.ViewSegment(v), 1);
+    EXPECT_GT(p.translation().x(), 1000.0);  // in the segment's own frame, far from the main model
+    ++apart;
+  }
+  EXPECT_EQ(apart, 5);  // 7 views, the first 2 refused
+  // Undo cannot reach back into the segment's start.
+  EXPECT_GE(tracker.first_undoable_view(), first_apart + 3);
+  PoseGraphSummary summary;
+  EXPECT_TRUE(tracker.Optimize({}, &summary).ok());
+}
+
 // Keyframe odometry measured by ICP between the keyframes' own samples, not taken from the
 // drifting tracked poses: a chain of views with an injected drift (every step turns 0.05° and
 // advances 11 µm too far, as a biased frame-to-model registration would) is straightened by the

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <map>
 #include <chrono>
 #include <condition_variable>
 #include <cmath>
@@ -130,8 +131,12 @@ TrackResult ScanRegistrar::Register(ReconstructedView& view, uint64_t burst_seq,
   else ++rejected_;
   if (r.state == TrackingState::kLost && prev_state_ != TrackingState::kLost) ++lost_events_;
   if (r.state == TrackingState::kRelocalised) ++relocalised_;
-  if (r.state != TrackingState::kTracking || !r.accepted)
-    events_.push_back({{"view", index}, {"burst", burst_seq}, {"state", TrackingStateName(r.state)}, {"fused", r.accepted}, {"reason", r.reason}});
+  if (r.state != TrackingState::kTracking || !r.accepted || r.new_segment)
+    events_.push_back({{"view", index}, {"burst", burst_seq}, {"state", TrackingStateName(r.state)}, {"fused", r.accepted && r.in_main},
+                       {"reason", r.reason}});
+  if (!r.join_attempt.empty())  // joined, or why not
+    events_.push_back({{"view", index}, {"burst", burst_seq}, {"state", TrackingStateName(r.state)}, {"fused", r.accepted && r.in_main},
+                       {"reason", "segment join: " + r.join_attempt}});
   prev_state_ = r.state;
   views_.push_back({burst_seq, reference_ns, r.accepted, r.state});
   return r;
@@ -218,6 +223,13 @@ ScanRegistrar::UndoResult ScanRegistrar::UndoLastSeconds(double seconds) {
   return r;
 }
 
+int ScanRegistrar::ViewGroup(int64_t index) const {
+  if (index < 0 || index >= static_cast<int64_t>(views_.size()) || !views_[static_cast<size_t>(index)].accepted) return -1;
+  if (!given_poses_.empty()) return 0;
+  const int s = tracker_.ViewSegment(index);
+  return s < 0 ? -1 : tracker_.SegmentInMain(s) ? 0 : s;
+}
+
 bool ScanRegistrar::ViewPose(int64_t index, Rigid3d* world_from_cam) const {
   if (index < 0 || index >= static_cast<int64_t>(views_.size())) return false;
   if (!given_poses_.empty()) {
@@ -258,6 +270,70 @@ void ScanFuser::AdoptVolume(ScanFuser&& other) {
   free_space_rejected_ = other.free_space_rejected_;  // the count of the volume's own views
 }
 
+namespace {
+// Fuses views `todo` (indices into the registrar's views) again into *into at poses[k]: each view
+// got again from the provider and model-anchored at its tracked pose.
+Status FuseViewsAgain(const ScanViewProvider& provider, ScanRegistrar* registrar, const std::vector<Rigid3d>& tracked,
+                      const std::vector<int64_t>& todo, const std::vector<Rigid3d>& poses, ScanFuser* into) {
+  const std::vector<ScanViewRecord>& views = registrar->views();
+  // Two threads: a helper gets each view again (provider) and anchors it while this thread fuses
+  // the one before, in the same order as one thread would (the same volume bit for bit); two
+  // view buffers between them. The helper alone calls the provider and the anchorer (the
+  // registrar's model is only read meanwhile); this thread alone touches *into.
+  struct Slot {
+    ReconstructedView view;
+    int64_t k = -1;
+    Status status;
+  };
+  std::array<Slot, 2> slots;
+  std::mutex mu;
+  std::condition_variable cv;
+  size_t produced = 0, consumed = 0;
+  bool abort = false;
+  std::thread helper([&] {
+    for (const int64_t k : todo) {
+      {
+        std::unique_lock<std::mutex> lock(mu);
+        cv.wait(lock, [&] { return produced - consumed < slots.size() || abort; });
+        if (abort) return;
+      }
+      Slot& slot = slots[produced % slots.size()];
+      slot.k = k;
+      slot.status = provider(k, views[static_cast<size_t>(k)], &slot.view);
+      // The model-anchored parts again, against the whole model and at the pose the model's
+      // samples were inserted with (the tracked one): the order K does not depend on the pose.
+      if (slot.status.ok()) registrar->AnchorAtPose(tracked[static_cast<size_t>(k)], &slot.view);
+      const bool stop = !slot.status.ok() && slot.status.code() != StatusCode::kNotFound;
+      {
+        std::lock_guard<std::mutex> lock(mu);
+        ++produced;
+      }
+      cv.notify_all();
+      if (stop) return;
+    }
+  });
+  Status failed = Status::Ok();
+  for (size_t i = 0; i < todo.size() && failed.ok(); ++i) {
+    {
+      std::unique_lock<std::mutex> lock(mu);
+      cv.wait(lock, [&] { return consumed < produced; });
+    }
+    Slot& slot = slots[consumed % slots.size()];
+    if (slot.status.code() != StatusCode::kNotFound) {
+      failed = slot.status.ok() ? into->Fuse(slot.view, poses[static_cast<size_t>(slot.k)]) : slot.status;
+    }
+    {
+      std::lock_guard<std::mutex> lock(mu);
+      ++consumed;
+      abort = !failed.ok();
+    }
+    cv.notify_all();
+  }
+  helper.join();
+  return failed;
+}
+}  // namespace
+
 Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegistrar* registrar, ScanFuser* fuser,
                   const ScanViewProvider& provider, const ScanTruth& truth, ScanResult* out) {
   *out = ScanResult{};
@@ -268,6 +344,20 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   // Pose graph (loop closures): the correction it finds is reported; a large one means a step.
   PoseGraphSummary pg;
   double max_correction_mm = 0;
+  // Segments still apart get a last join attempt first (Tracker::JoinApartSegments). The model is
+  // then the largest group of views in one frame: the main segment with those joined to it, or a
+  // segment apart with more views (the scan lost the model early and went on there; it needs its
+  // views again: a provider). The other groups are saved on their own, never fused at a guess.
+  int joined_at_end = 0;
+  if (tracker.segments() > 1) joined_at_end = tracker.JoinApartSegments();
+  std::map<int, int64_t> group_views;
+  for (int64_t k = 0; k < n_views; ++k)
+    if (const int g = registrar->ViewGroup(k); g >= 0) ++group_views[g];
+  int model_group = 0;
+  for (const auto& [g, count] : group_views)
+    if (provider && count > group_views[model_group]) model_group = g;
+  const Rigid3d model_from_group = tracker.MainFromSegmentFrame(model_group);
+  auto in_main = [&](int64_t k) { return registrar->ViewGroup(k) == model_group; };
   std::vector<Rigid3d> tracked(views.size(), Rigid3d::Identity());
   for (int64_t k = 0; k < n_views; ++k) registrar->ViewPose(k, &tracked[static_cast<size_t>(k)]);
   const bool loops = options.tracker.detect_loops && tracker.graph().num_nodes() > 1;
@@ -275,7 +365,8 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
     D3D_RETURN_IF_ERROR(tracker.Optimize({}, &pg));
     for (int64_t k = 0; k < n_views; ++k) {
       Rigid3d p;
-      if (registrar->ViewPose(k, &p)) max_correction_mm = std::max(max_correction_mm, TranslationDistanceMm(p, tracked[static_cast<size_t>(k)]));
+      if (in_main(k) && registrar->ViewPose(k, &p))
+        max_correction_mm = std::max(max_correction_mm, TranslationDistanceMm(p, tracked[static_cast<size_t>(k)]));
     }
   }
   // Refusion at the optimised poses, when the views can be had again.
@@ -291,69 +382,23 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
     return Status(StatusCode::kInvalidArgument, "the live volume's voxel (" + std::to_string(fuser->volume().options().voxel_mm) +
                                                     " mm) is not the scan's (" + std::to_string(options.tsdf.voxel_mm) +
                                                     " mm) and there is no view provider to fuse the views again");
-  const bool must_refuse = undone || other_voxel;
+  // A segment's views are fused live only once it is joined (TrackResult::in_main): a joined one
+  // makes the live volume incomplete.
+  const bool joined = tracker.segments_joined() > 0;
+  if (joined && !provider)
+    return Status(StatusCode::kInvalidArgument, "segments were joined but there is no view provider to fuse their views");
+  const bool must_refuse = undone || other_voxel || joined || model_group != 0;
   if (provider && (must_refuse || (loops && options.refuse_min_correction_mm >= 0 && max_correction_mm > options.refuse_min_correction_mm))) {
     const auto t0 = Clock::now();
     refused = std::make_unique<ScanFuser>(fuser->camera(), options.tsdf, fuser->free_space_options());
     std::vector<Rigid3d> poses(views.size(), Rigid3d::Identity());
     std::vector<int64_t> todo;
     for (int64_t k = 0; k < n_views; ++k)
-      if (registrar->ViewPose(k, &poses[static_cast<size_t>(k)])) todo.push_back(k);
-    // Two threads: a helper gets each view again (provider) and anchors it while this thread fuses
-    // the one before, in the same order as one thread would (the same volume bit for bit); two
-    // view buffers between them. The helper alone calls the provider and the anchorer (the
-    // registrar's model is only read meanwhile); this thread alone touches `refused`.
-    struct Slot {
-      ReconstructedView view;
-      int64_t k = -1;
-      Status status;
-    };
-    std::array<Slot, 2> slots;
-    std::mutex mu;
-    std::condition_variable cv;
-    size_t produced = 0, consumed = 0;
-    bool abort = false;
-    std::thread helper([&] {
-      for (const int64_t k : todo) {
-        {
-          std::unique_lock<std::mutex> lock(mu);
-          cv.wait(lock, [&] { return produced - consumed < slots.size() || abort; });
-          if (abort) return;
-        }
-        Slot& slot = slots[produced % slots.size()];
-        slot.k = k;
-        slot.status = provider(k, views[static_cast<size_t>(k)], &slot.view);
-        // The model-anchored parts again, against the whole model and at the pose the model's
-        // samples were inserted with (the tracked one): the order K does not depend on the pose.
-        if (slot.status.ok()) registrar->AnchorAtPose(tracked[static_cast<size_t>(k)], &slot.view);
-        const bool stop = !slot.status.ok() && slot.status.code() != StatusCode::kNotFound;
-        {
-          std::lock_guard<std::mutex> lock(mu);
-          ++produced;
-        }
-        cv.notify_all();
-        if (stop) return;
+      if (in_main(k) && registrar->ViewPose(k, &poses[static_cast<size_t>(k)])) {
+        poses[static_cast<size_t>(k)] = model_from_group * poses[static_cast<size_t>(k)];
+        todo.push_back(k);
       }
-    });
-    Status failed = Status::Ok();
-    for (size_t i = 0; i < todo.size() && failed.ok(); ++i) {
-      {
-        std::unique_lock<std::mutex> lock(mu);
-        cv.wait(lock, [&] { return consumed < produced; });
-      }
-      Slot& slot = slots[consumed % slots.size()];
-      if (slot.status.code() != StatusCode::kNotFound) {
-        failed = slot.status.ok() ? refused->Fuse(slot.view, poses[static_cast<size_t>(slot.k)]) : slot.status;
-      }
-      {
-        std::lock_guard<std::mutex> lock(mu);
-        ++consumed;
-        abort = !failed.ok();
-      }
-      cv.notify_all();
-    }
-    helper.join();
-    D3D_RETURN_IF_ERROR(failed);
+    D3D_RETURN_IF_ERROR(FuseViewsAgain(provider, registrar, tracked, todo, poses, refused.get()));
     ms_refuse = MsSince(t0);
   }
   // Both volumes are held only until the refusion is complete; on an error above, the live model
@@ -366,7 +411,9 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
     refused.reset();
   }
   std::vector<Rigid3d> final_poses(views.size(), Rigid3d::Identity());
-  for (int64_t k = 0; k < n_views; ++k) registrar->ViewPose(k, &final_poses[static_cast<size_t>(k)]);
+  for (int64_t k = 0; k < n_views; ++k)
+    if (registrar->ViewPose(k, &final_poses[static_cast<size_t>(k)]) && in_main(k))
+      final_poses[static_cast<size_t>(k)] = model_from_group * final_poses[static_cast<size_t>(k)];
   const TsdfVolume& model = fuser->volume();
   const auto tm0 = Clock::now();
   out->mesh = model.ExtractMesh();
@@ -377,17 +424,44 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   bool have_truth_poses = static_cast<bool>(truth.true_pose);
   for (int64_t k = 0; k < n_views; ++k) {
     const ScanViewRecord& v = views[static_cast<size_t>(k)];
-    if (!v.accepted) continue;
+    if (!v.accepted || !in_main(k)) continue;
     out->pose_t_ns.push_back(v.reference_ns);
     out->poses.push_back(final_poses[static_cast<size_t>(k)]);
+    out->pose_views.push_back(k);
     if (have_truth_poses) {
       Rigid3d t;
       if (truth.true_pose(v, &t)) acc_truth.push_back(t);
       else have_truth_poses = false;
     }
   }
+  // The other groups (segments that never joined, or the main one when a segment apart became the
+  // model): each fused on its own in its own frame, when the views can be had again.
+  int64_t views_apart = 0;
+  for (const auto& [s, count] : group_views) {
+    if (s == model_group) continue;
+    std::vector<int64_t> todo;
+    for (int64_t k = 0; k < n_views; ++k)
+      if (registrar->ViewGroup(k) == s) todo.push_back(k);
+    views_apart += static_cast<int64_t>(todo.size());
+    if (!provider || todo.empty()) continue;
+    ScanFuser apart(fuser->camera(), options.tsdf, fuser->free_space_options());
+    D3D_RETURN_IF_ERROR(FuseViewsAgain(provider, registrar, tracked, todo, final_poses, &apart));
+    ScanSegmentMesh m;
+    m.segment = s;
+    m.views = static_cast<int64_t>(todo.size());
+    m.mesh = apart.volume().ExtractMesh();
+    m.mesh.ComputeVertexNormals();
+    out->apart.push_back(std::move(m));
+  }
   const double n = static_cast<double>(std::max<int64_t>(times.bursts, 1));
   j["bursts"] = n_views;
+  j["segments_started"] = tracker.segments() - 1;  // segments after the first (TrackerOptions::segment_after_views)
+  j["segments_joined"] = tracker.segments_joined();
+  j["segments_joined_at_end"] = joined_at_end;
+  j["segments_apart"] = static_cast<int64_t>(group_views.size()) - (group_views.empty() ? 0 : 1);  // saved as segment_N.ply
+  j["views_apart"] = views_apart;
+  j["model_segment"] = model_group;  // 0: the first segment (with those joined to it) is the model
+  j["views_in_model"] = static_cast<int64_t>(out->poses.size());
   j["fused"] = fuser->fused();
   j["rejected"] = registrar->rejected();
   j["views_undone"] = registrar->views_undone();
@@ -443,17 +517,26 @@ void EvaluateScanAgainstScene(const TriangleMesh& mesh, const TriangleMesh& scen
   if (have_truth_poses) {
     // ATE in the frame of the surface best fit (the trajectory-only alignment is ill-posed for
     // short, nearly straight paths); the trajectory-aligned figure is kept too.
-    double s2 = 0, sr = 0, smax = 0;
+    // A wrong fusion: a fused view whose pose is off by more than kWrongFusionMm or kWrongFusionDeg
+    // (camera centre, after the best fit): a view placed on the wrong tooth, never noise.
+    constexpr double kWrongFusionMm = 0.2, kWrongFusionDeg = 1.0;
+    double s2 = 0, sr = 0, smax = 0, rmax = 0;
+    int64_t wrong = 0;
     for (size_t k = 0; k < poses.size(); ++k) {
       const Rigid3d e = t.reference_from_scan * poses[k];
       const double d = TranslationDistanceMm(e, true_poses[k]);
+      const double r = RotationAngleRad(e, true_poses[k]) * 180 / M_PI;
       s2 += d * d;
       smax = std::max(smax, d);
-      sr += RotationAngleRad(e, true_poses[k]) * 180 / M_PI;
+      rmax = std::max(rmax, r);
+      sr += r;
+      if (d > kWrongFusionMm || r > kWrongFusionDeg) ++wrong;
     }
     j["ate_mm"] = std::sqrt(s2 / static_cast<double>(poses.size()));
     j["ate_deg"] = sr / static_cast<double>(poses.size());
     j["ate_max_mm"] = smax;
+    j["ate_max_deg"] = rmax;
+    j["wrong_fusions"] = wrong;  // fused views off by > 0.2 mm or > 1 deg
     j["ate_trajectory_aligned_mm"] = ate_traj.rmse_mm;
     j["ate_trajectory_aligned_deg"] = ate_traj.mean_deg;
     // Where the trajectory jumped (views in poses.txt order, 0-based): see RelativePoseError.
@@ -505,6 +588,9 @@ Status WriteScanOutputs(const std::string& dir, const ScanResult& result) {
   D3D_RETURN_IF_ERROR(SavePlyBinary((fs::path(dir) / "scan.ply").string(), result.mesh));
   D3D_RETURN_IF_ERROR(SaveStlBinary((fs::path(dir) / "scan.stl").string(), result.mesh));
   D3D_RETURN_IF_ERROR(WriteTumPoses((fs::path(dir) / "poses.txt").string(), result.pose_t_ns, result.poses));
+  for (const ScanSegmentMesh& m : result.apart)
+    if (!m.mesh.faces.empty())
+      D3D_RETURN_IF_ERROR(SavePlyBinary((fs::path(dir) / ("segment_" + std::to_string(m.segment) + ".ply")).string(), m.mesh));
   if (!result.heatmap.empty() && !cv::imwrite((fs::path(dir) / "heatmap.png").string(), result.heatmap))
     return IoError("cannot write heatmap.png in '" + dir + "'");
   std::ofstream f(fs::path(dir) / "report.json");

@@ -156,6 +156,10 @@ class ScanRegistrar {
   // The current pose of view `index` (0-based, in call order): the given one (RegisterAtPose) or
   // the tracker's (after Optimize, the optimised one); false for a refused or undone view.
   bool ViewPose(int64_t index, Rigid3d* world_from_cam) const;
+  // The group of frames view `index` was placed in: 0 for the main one (always with RegisterAtPose;
+  // with Register, the first segment and those joined to it: Tracker::SegmentInMain), else its
+  // scan segment's number; −1 for a refused or undone view.
+  int ViewGroup(int64_t index) const;
   // "Undo last seconds" (Register's views only, before FinishScan): the accepted views captured
   // within `seconds` of the newest accepted one (reference_ns; without capture times, the newest
   // accepted view only), back to the oldest the tracker can still undo
@@ -252,12 +256,22 @@ struct ScanTimes {
   double ms_recon = 0, ms_register = 0, ms_fuse = 0;
 };
 
+// A scan segment that never joined the main model (TrackerOptions::segment_after_views), fused on
+// its own in its own frame.
+struct ScanSegmentMesh {
+  int segment = 0;
+  int64_t views = 0;
+  TriangleMesh mesh;
+};
+
 struct ScanResult {
   TriangleMesh mesh;                 // model frame, mm, with vertex normals
   std::vector<int64_t> pose_t_ns;    // accepted views: capture time ...
   std::vector<Rigid3d> poses;        // ... and model_from_cam after the pose graph
+  std::vector<int64_t> pose_views;   // ... and the view (registrar's index) of each
   nlohmann::json report;             // report.json
   cv::Mat heatmap;                   // deviation heat map (empty without evaluation)
+  std::vector<ScanSegmentMesh> apart;  // segments that never joined (written as segment_N.ply)
 };
 
 // After the stages stopped: see the file comment. When the registrar undid views

@@ -89,10 +89,11 @@ int main(int argc, char** argv) {
   double keyframe_max_rotation_deg = TrackerOptions{}.keyframe_max_rotation_deg;
   int keyframe_max_views = TrackerOptions{}.keyframe_max_views;
   double tracked_edge_factor = TrackerOptions{}.tracked_edge_information_factor;
+  double reentry_max_violation = ReentryCheckOptions{}.max_violation_fraction;
   bool no_model_anchor = false, coverage_ceiling = false, no_free_space = false;
   app.add_option("--sim", sim_model, "scan with the virtual probe: 'typodont' or a mesh file (PLY/STL/OBJ, mm)");
   app.add_option("--bursts", bursts_dir, "a d3d-sim output folder (calibration.json, bursts/NNNNNN/, scene.ply)");
-  app.add_option("--trajectory", trajectory, "--sim: full-arch | quadrant | tooth | a TUM file")->capture_default_str();
+  app.add_option("--trajectory", trajectory, "--sim: a scan style (full-arch | buccal-first | lingual-first | second-pass | fast | lifts | quadrants | tooth), quadrant or a TUM file")->capture_default_str();
   app.add_option("--seed", seed, "--sim: seed of hand motion and sensor noise")->capture_default_str();
   app.add_option("--out", out_dir, "output folder")->required();
   app.add_option("--every", every, "use every N-th burst (a lower burst rate, for quick runs)")->capture_default_str();
@@ -133,6 +134,11 @@ int main(int argc, char** argv) {
                  "pose graph: each keyframe also gets the tracked relative pose to its parent as an edge, with the keyframe ICP "
                  "edge's information times this (0 = none; TrackerOptions::tracked_edge_information_factor)")
       ->check(CLI::Range(0.0, 10.0))
+      ->capture_default_str();
+  app.add_option("--reentry-max-violation", reentry_max_violation,
+                 "tracking: a re-entry pose is refused when more than this share of the points it compares with the keyframes\n"
+                 "near it lie in space one side saw through (1 = no check; ReentryCheckOptions::max_violation_fraction)")
+      ->check(CLI::Range(0.0, 1.0))
       ->capture_default_str();
   app.add_option("--edge-fill-fade", secondary_fade_weight,
                  "fusion: edge-filled points shape the surface only until the other points' fused weight reaches this (0 = they count "
@@ -223,6 +229,7 @@ int main(int argc, char** argv) {
     so.tracker.keyframe_max_rotation_deg = keyframe_max_rotation_deg;
     so.tracker.keyframe_max_views = keyframe_max_views;
     so.tracker.tracked_edge_information_factor = tracked_edge_factor;
+    so.tracker.reentry_check.max_violation_fraction = reentry_max_violation;
     so.tsdf.max_cell_sdf_span = max_cell_sdf_span;
     so.tsdf.occlusion_margin_mm = occlusion_margin_mm;
     if (no_refuse) so.refuse_min_correction_mm = -1;
@@ -261,7 +268,8 @@ int main(int argc, char** argv) {
     if (!trace_path.empty()) {
       trace.open(trace_path);
       trace << "# burst accepted state rmse_um overlap eigen_ratio correspondences keyframe loops err_mm err_deg"
-               " view_rms_um view_order_error_pct tooth_valid_pct in_model\n";
+               " view_rms_um view_order_error_pct tooth_valid_pct in_model reentry_keyframes reentry_agreeing"
+               " reentry_seen_through\n";
       trace_truth = session != nullptr && !scene.faces.empty();
     }
     Rigid3d first_truth_from_est = Rigid3d::Identity();
@@ -297,7 +305,7 @@ int main(int argc, char** argv) {
       } else {
         r = registrar.Register(view, static_cast<uint64_t>(indices[k]), b.reference_ns);
       }
-      if (r.accepted)
+      if (r.accepted && r.in_main)  // a segment apart is fused at the end, on its own or joined
         if (const Status s = fuser.Fuse(view, r.world_from_cam); !s.ok()) return Fail(s);
       if (!quiet && (r.state != TrackingState::kTracking || !r.accepted))
         std::fprintf(stderr, "\nburst %lld: %s%s%s\n", static_cast<long long>(indices[k]), TrackingStateName(r.state),
@@ -309,7 +317,8 @@ int main(int argc, char** argv) {
           first_truth_from_est = truth_pose * r.world_from_cam.inverse();
           have_first = true;
         }
-        if (r.accepted) {
+        // Accepted views, and the pose a refused re-entry was checked at.
+        if (have_first && (r.accepted || r.reentry.keyframes > 0)) {
           const Rigid3d e = first_truth_from_est * r.world_from_cam;
           err_mm = TranslationDistanceMm(e, truth_pose);
           err_deg = RotationAngleRad(e, truth_pose) * 180 / M_PI;
@@ -320,11 +329,12 @@ int main(int argc, char** argv) {
         if (trace_truth && b.reference_truth.has_maps())
           ve = EvaluateCloud(view.points_in_cam, view.unwrap.Phi, bin > 1 ? BinnedTruth(b.reference_truth, bin) : b.reference_truth,
                              scene, calib.pattern);
-        char line[512];
-        std::snprintf(line, sizeof line, "%lld %d %s %.2f %.3f %.5f %d %d %d %.4f %.4f %.2f %.4f %.1f %d\n",
+        char line[640];
+        std::snprintf(line, sizeof line, "%lld %d %s %.2f %.3f %.5f %d %d %d %.4f %.4f %.2f %.4f %.1f %d %d %lld %lld\n",
                       static_cast<long long>(indices[k]), r.accepted ? 1 : 0, TrackingStateName(r.state), r.icp.rmse_mm * 1000,
                       r.icp.overlap, r.icp.eigen_ratio, r.icp.correspondences, r.new_keyframe ? 1 : 0, r.loops_added, err_mm,
-                      err_deg, ve.rms_um, ve.order_error_pct, ve.tooth_valid_pct, r.in_model ? 1 : 0);
+                      err_deg, ve.rms_um, ve.order_error_pct, ve.tooth_valid_pct, r.in_model ? 1 : 0, r.reentry.keyframes,
+                      static_cast<long long>(r.reentry.agreeing), static_cast<long long>(r.reentry.seen_through));
         trace << line;
       }
       ms_render += ms(t1 - t0).count();
@@ -371,8 +381,7 @@ int main(int argc, char** argv) {
     if (const Status s = WriteScanOutputs(out_dir, result); !s.ok()) return Fail(s);
     if (have_true_poses) {
       std::vector<Rigid3d> acc_truth;
-      for (const ScanViewRecord& v : registrar.views())
-        if (v.accepted) acc_truth.push_back(true_poses.at(v.burst_seq));
+      for (const int64_t k : result.pose_views) acc_truth.push_back(true_poses.at(registrar.views()[static_cast<size_t>(k)].burst_seq));
       if (const Status s = WriteTumPoses((fs::path(out_dir) / "truth_poses.txt").string(), result.pose_t_ns, acc_truth); !s.ok())
         return Fail(s);
     }

@@ -90,7 +90,7 @@ int main(int argc, char** argv) {
   cli.add_option("--duration", duration_s, "stop after this many seconds (0 = until the end of the replay / the window closes / SIGINT)")->capture_default_str();
   cli.add_option("--policy", policy_text, "edge policy: live (latest wins, drops counted) | lossless (default: live on DDS, lossless with --replay)");
   cli.add_option("--reference", reference, "evaluate against this scene: typodont or a mesh file (mm)");
-  cli.add_option("--sim-trajectory", sim_trajectory, "the virtual probe's scan path (full-arch|quadrant|tooth|FILE.tum): true poses for the best fit and the ATE");
+  cli.add_option("--sim-trajectory", sim_trajectory, "the virtual probe's scan path (a style: full-arch, lifts, quadrants, ...; quadrant or FILE.tum): true poses for the best fit and the ATE");
   cli.add_option("--sim-seed", sim_seed, "--sim-trajectory: its seed")->capture_default_str();
   cli.add_option("--sim-rate", sim_rate,
                  "the probe's burst rate (Hz): the true poses' timing with --sim-trajectory; live, the tracker's view period is --step / rate")

@@ -1,6 +1,7 @@
 #include "firmware/sim/session/sim_session.h"
 
 #include <cmath>
+#include <filesystem>
 
 #include "common/mesh/mesh_io.h"
 
@@ -8,7 +9,7 @@ namespace d3d {
 
 void SimSessionOptions::Check() const {
   D3D_CHECK_MSG(!model.empty(), "model must be 'typodont' or a mesh file");
-  D3D_CHECK_MSG(!trajectory.empty(), "trajectory must be full-arch, quadrant, tooth or a TUM file");
+  D3D_CHECK_MSG(!trajectory.empty(), "trajectory must be a scan style (scan_styles.h), quadrant or a TUM file");
   D3D_CHECK_MSG(burst_rate_hz > 0 && burst_rate_hz <= 1000, "burst rate must be in (0, 1000] Hz, got " << burst_rate_hz);
   render.Check();
   typodont.Check();
@@ -25,15 +26,19 @@ Status SimSession::Create(const SimSessionOptions& options, std::unique_ptr<SimS
     if (s->scene_.face_labels.empty() && !s->scene_.face_colors.empty()) LabelFacesFromColors(&s->scene_);
   }
   const std::string& t = options.trajectory;
-  if (t == "full-arch" || t == "quadrant" || t == "tooth") {
-    const ScanKind kind = t == "full-arch" ? ScanKind::kFullArch : (t == "quadrant" ? ScanKind::kQuadrant : ScanKind::kTooth);
+  if (t == "quadrant" || IsScanStyle(t)) {
     ScanPathOptions path = options.scan_path;
     path.seed = options.seed;
-    ScanPathResult result = MakeScanTrajectory(s->scene_, kind, path);
+    ScanPathResult result = t == "quadrant" ? MakeScanTrajectory(s->scene_, ScanKind::kQuadrant, path) : MakeStyledScan(s->scene_, t, path);
     if (!result.ok()) return {result.status.code(), "scan path for '" + options.model + "': " + result.status.message()};
     s->trajectory_ = std::move(result.trajectory);
     s->segments_ = std::move(result.segments);
   } else {
+    if (!std::filesystem::exists(t)) {
+      std::string styles;
+      for (const std::string& n : ScanStyleNames()) styles += (styles.empty() ? "" : ", ") + n;
+      return NotFound("scan path '" + t + "': neither a scan style (" + styles + "), quadrant, nor a TUM file");
+    }
     D3D_RETURN_IF_ERROR(Trajectory::LoadTum(t, &s->trajectory_));
   }
   ProbeDesign design = MakeDefaultProbeDesign(options.camera_width, options.camera_height);

@@ -10,13 +10,14 @@
 #include "common/core/status.h"
 #include "firmware/sim/render/virtual_probe.h"
 #include "firmware/sim/trajectory/scan_path.h"
+#include "firmware/sim/trajectory/scan_styles.h"
 #include "firmware/sim/typodont/typodont.h"
 
 namespace d3d {
 
 struct SimSessionOptions {
   std::string model = "typodont";        // "typodont" or a mesh file (PLY/STL/OBJ, millimetres)
-  std::string trajectory = "full-arch";  // full-arch | quadrant | tooth | a TUM file (trajectory.h)
+  std::string trajectory = "full-arch";  // a scan style (scan_styles.h: full-arch, lifts, ...), quadrant, or a TUM file
   uint32_t seed = 1;                     // hand motion (scan path) and sensor noise
   double burst_rate_hz = 30.0;           // bursts per second of trajectory time
   int camera_width = 640;                // 640 × 480 or 1280 × 1024 (probe_design.h)

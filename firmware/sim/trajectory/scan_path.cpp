@@ -870,6 +870,7 @@ const char* ScanPhaseName(ScanPhase phase) {
     case ScanPhase::kLingual: return "lingual";
     case ScanPhase::kTransition: return "transition";
     case ScanPhase::kDwell: return "dwell";
+    case ScanPhase::kLift: return "lift";
   }
   return "unknown";
 }
@@ -891,7 +892,7 @@ void ScanPathOptions::Check() const {
   D3D_CHECK_MSG(in(distal_tilt_deg, 0, 80), "distal_tilt_deg out of [0, 80]: " << distal_tilt_deg);
   D3D_CHECK_MSG(in(transition_lift_mm, 0, 20), "transition_lift_mm out of [0, 20]: " << transition_lift_mm);
   D3D_CHECK_MSG(in(corner_smoothing_mm, 0, 50), "corner_smoothing_mm out of [0, 50]: " << corner_smoothing_mm);
-  D3D_CHECK_MSG(in(speed_mm_s, 5, 20), "speed_mm_s out of [5, 20]: " << speed_mm_s);
+  D3D_CHECK_MSG(in(speed_mm_s, 5, 30), "speed_mm_s out of [5, 30]: " << speed_mm_s);
   D3D_CHECK_MSG(in(speed_variation, 0, 0.5), "speed_variation out of [0, 0.5]: " << speed_variation);
   D3D_CHECK_MSG(in(min_camera_speed_mm_s, 0.1, 100) && in(max_camera_speed_mm_s, min_camera_speed_mm_s, 100),
                 "need 0.1 <= min_camera_speed_mm_s <= max_camera_speed_mm_s <= 100, got "

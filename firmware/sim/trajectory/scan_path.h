@@ -101,6 +101,7 @@ enum class ScanPhase {
   kLingual,     // inside the arch, axis tilted toward the cheeks
   kTransition,  // lift and roll between passes (around a distal end or the midline)
   kDwell,       // circling one tooth (ScanKind::kTooth)
+  kLift,        // out of the mouth: backed off beyond the measurement volume (scan_styles.h)
 };
 const char* ScanPhaseName(ScanPhase phase);
 
@@ -138,7 +139,7 @@ struct ScanPathOptions {
   double corner_smoothing_mm = 4.0;
 
   // --- Speeds ---
-  // Nominal speed (mm/s) of the aimed surface point along the arch during passes; allowed 5–20.
+  // Nominal speed (mm/s) of the aimed surface point along the arch during passes; allowed 5–30.
   double speed_mm_s = 10.0;
   // Slow natural variation of that speed: ±speed_variation (fraction, 0–0.5), seeded.
   double speed_variation = 0.2;

@@ -1,0 +1,87 @@
+#include "pipeline/register/segment_join.h"
+
+#include "common/core/status.h"
+
+namespace d3d {
+
+FpfhOptions DentalFpfh() {
+  FpfhOptions o;
+  o.voxel_mm = 1.0;
+  o.normal_radius_mm = 2.0;
+  o.feature_radius_mm = 5.0;
+  o.ransac = RansacOptions{.inlier_threshold_mm = 1.5, .max_iterations = 50000, .confidence = 0.999, .min_inliers = 12,
+                           .min_inlier_ratio = 0.02, .min_sample_spread_mm = 4, .min_inlier_spread_mm = 1.0,
+                           .max_edge_ratio_error = 0.1, .seed = 1};
+  o.ambiguity_mm = 2.0;
+  o.ambiguity_deg = 5.0;
+  return o;
+}
+
+IcpOptions SegmentJoinIcp() {
+  IcpOptions o;
+  o.levels = {{2, 15, 1.0, 0.7}, {1, 10, 0.3, 0.9}, {1, 8, 0.15, 1.0}};
+  o.max_rmse_mm = 0.04;
+  o.min_overlap = 0.02;
+  return o;
+}
+
+void SegmentJoinOptions::Check() const {
+  D3D_CHECK_MSG(sample_voxel_mm > 0, "SegmentJoinOptions: sample_voxel_mm must be > 0");
+  D3D_CHECK_MSG(min_correspondences >= 1, "SegmentJoinOptions: min_correspondences must be >= 1");
+  D3D_CHECK_MSG(min_eigen_ratio >= 0 && min_eigen_ratio < 1, "SegmentJoinOptions: min_eigen_ratio in [0, 1)");
+  fpfh.Check();
+  icp.Check();
+}
+
+SegmentJoinTarget MakeSegmentJoinTarget(const SurfacePoints& main, const SegmentJoinOptions& options) {
+  options.Check();
+  SegmentJoinTarget t;
+  t.samples = VoxelDownsample(main, options.sample_voxel_mm);
+  // VoxelDownsample leaves NaN normals where a voxel's normals cancel: drop those samples.
+  SurfacePoints clean;
+  for (size_t i = 0; i < t.samples.size(); ++i)
+    if (t.samples.normals[i].allFinite()) {
+      clean.points.push_back(t.samples.points[i]);
+      clean.normals.push_back(t.samples.normals[i]);
+    }
+  t.samples = std::move(clean);
+  if (!t.samples.empty()) t.features = ComputeFpfh(t.samples, options.fpfh);
+  return t;
+}
+
+SegmentJoinResult JoinSegment(const SurfacePoints& segment, const SegmentJoinTarget& target, const SegmentJoinOptions& options) {
+  SegmentJoinResult r;
+  if (target.empty()) {
+    r.reason = "the main model is empty";
+    return r;
+  }
+  const SegmentJoinTarget source = MakeSegmentJoinTarget(segment, options);
+  if (source.empty()) {
+    r.reason = "the segment is empty";
+    return r;
+  }
+  r.fpfh = AlignByFpfh(source.features, target.features, options.fpfh);
+  if (!r.fpfh.ok) {
+    r.reason = r.fpfh.reason;
+    return r;
+  }
+  r.icp = RegisterIcp(source.samples, KdTreeTarget(target.samples), r.fpfh.target_from_source, options.icp);
+  if (!r.icp.ok) {
+    r.reason = "icp after fpfh: " + r.icp.reason;
+    return r;
+  }
+  if (r.icp.correspondences < options.min_correspondences) {
+    r.reason = "too little overlap (" + std::to_string(r.icp.correspondences) + " of " + std::to_string(source.samples.size()) +
+               " samples on the main model, need " + std::to_string(options.min_correspondences) + ")";
+    return r;
+  }
+  if (r.icp.eigen_ratio < options.min_eigen_ratio) {
+    r.reason = "degenerate overlap (eigen ratio " + std::to_string(r.icp.eigen_ratio) + ")";
+    return r;
+  }
+  r.ok = true;
+  r.main_from_segment = r.icp.target_from_source;
+  return r;
+}
+
+}  // namespace d3d

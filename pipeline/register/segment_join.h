@@ -1,0 +1,62 @@
+// Joining two scan segments: the model of a segment that started in its own frame (the tracker
+// could not place it on the scan: a lift, a loss over new ground) registered onto the main model
+// once they overlap. Global registration, then verification:
+//  1. FPFH on voxel keypoints of both models (fpfh.h: Rusu et al. 2009) → RANSAC rigid fit, whose
+//     own checks refuse a consensus that a second, disjoint one nearly matches (the neighbouring,
+//     similar tooth) and a degenerate geometry;
+//  2. ICP of the segment's samples onto the main model's (k-d tree association, gates 1.0 → 0.15
+//     mm) from that pose: residual at most icp.max_rmse_mm, at least min_correspondences samples of
+//     the segment on the main model (a segment grows over new ground, so a fraction would say
+//     little), and well constrained (eigen ratio at least min_eigen_ratio).
+// The caller adds its own checks (the tracker: its keyframes' visibility, reentry_check.h).
+// Units: mm. Transforms target_from_source: main_from_segment.
+#pragma once
+
+#include <string>
+
+#include "common/core/rigid.h"
+#include "pipeline/register/fpfh.h"
+#include "pipeline/register/icp.h"
+#include "pipeline/register/surface_points.h"
+
+namespace d3d {
+
+// FPFH at the scale of teeth: 1 mm keypoints, 2 mm normals, 5 mm features; RANSAC inliers within
+// 1.5 mm, samples spread ≥ 4 mm; a rival consensus 2 mm or 5° away at 0.6 × the inliers refuses.
+FpfhOptions DentalFpfh();
+// Levels 1.0 → 0.3 → 0.15 mm, residual ≤ 0.04 mm, overlap floor 0.02 (min_correspondences decides).
+IcpOptions SegmentJoinIcp();
+
+struct SegmentJoinOptions {
+  // Samples are first thinned to one per voxel of this edge (mm) for the ICP.
+  double sample_voxel_mm = 0.3;
+  FpfhOptions fpfh = DentalFpfh();
+  IcpOptions icp = SegmentJoinIcp();
+  int min_correspondences = 1500;  // of the segment's thinned samples (~135 mm² at 0.3 mm: a molar's crown)
+  // The whole segment is ICP's source: a long strip of a segment is less well conditioned by its
+  // length alone than one view (IcpOptions::min_eigen_ratio scales rotation by the source radius).
+  double min_eigen_ratio = 0.005;
+  void Check() const;  // throws std::invalid_argument
+};
+
+struct SegmentJoinResult {
+  bool ok = false;
+  std::string reason;  // why not
+  Rigid3d main_from_segment = Rigid3d::Identity();
+  FpfhAlignResult fpfh;
+  IcpResult icp;
+};
+
+// The main model's FPFH keypoints, kept by a caller that joins several times against one model.
+struct SegmentJoinTarget {
+  SurfacePoints samples;  // thinned (sample_voxel_mm), world
+  FpfhFeatures features;
+  bool empty() const { return samples.empty(); }
+};
+// main: the main model's samples (world, normals required).
+SegmentJoinTarget MakeSegmentJoinTarget(const SurfacePoints& main, const SegmentJoinOptions& options);
+
+// Registers `segment` (its samples in its own frame, normals required) onto the target.
+SegmentJoinResult JoinSegment(const SurfacePoints& segment, const SegmentJoinTarget& target, const SegmentJoinOptions& options);
+
+}  // namespace d3d

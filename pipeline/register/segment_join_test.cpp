@@ -1,0 +1,70 @@
+#include "pipeline/register/segment_join.h"
+
+#include <gtest/gtest.h>
+
+#include "pipeline/register/test_surfaces.h"
+
+namespace d3d {
+namespace {
+
+using namespace d3d::testing;
+
+// The world samples of views looking down at x = from … to (1 mm apart) over the height field.
+SurfacePoints Strip(const HeightField& hf, double from, double to, uint32_t seed) {
+  const PinholeBrownConrady cam = TestCamera();
+  SurfacePoints all;
+  for (double x = from; x <= to + 1e-9; x += 1.0) {
+    const Rigid3d pose = LookDown(x, 0, 30);
+    const SyntheticView v = RenderHeightField(hf, cam, pose, 0.004, seed++);
+    const SurfacePoints s = SampleOrganised(v.points, v.normals, cv::Mat(), 2).Transformed(pose);
+    all.points.insert(all.points.end(), s.points.begin(), s.points.end());
+    all.normals.insert(all.normals.end(), s.normals.begin(), s.normals.end());
+  }
+  return all;
+}
+
+Rigid3d SegmentFrame() {  // segment_from_world: a segment started somewhere else
+  Rigid3d g = Rigid3d::Identity();
+  g.linear() = Eigen::AngleAxisd(0.4, Eigen::Vector3d(0.2, -0.5, 1).normalized()).toRotationMatrix();
+  g.translation() = Eigen::Vector3d(2000, 13, -7);
+  return g;
+}
+
+SegmentJoinOptions SmallViews() {
+  SegmentJoinOptions o;
+  o.min_correspondences = 300;  // 9.6 × 7.2 mm views
+  return o;
+}
+
+TEST(JoinSegment, FindsWhereAnOverlappingSegmentBelongs) {
+  const HeightField hf(11);
+  const SegmentJoinTarget target = MakeSegmentJoinTarget(Strip(hf, -10, 0, 1), SmallViews());
+  ASSERT_FALSE(target.empty());
+  const Rigid3d g = SegmentFrame();
+  const SurfacePoints segment = Strip(hf, -4, 6, 100).Transformed(g);  // overlaps x in [-8.8, 4.8]
+  const SegmentJoinResult r = JoinSegment(segment, target, SmallViews());
+  ASSERT_TRUE(r.ok) << r.reason;
+  const Rigid3d error = r.main_from_segment * g;  // identity when exact
+  const Eigen::Vector3d c(-2, 0, 0);              // the overlap's middle
+  EXPECT_LT((error * c - c).norm(), 0.02);
+  EXPECT_LT(Eigen::AngleAxisd(error.linear()).angle() * 180 / M_PI, 0.05);
+  EXPECT_GE(r.icp.correspondences, 300);
+}
+
+TEST(JoinSegment, RefusesASegmentWithoutOverlapOrOnAPlane) {
+  const HeightField hf(11);
+  const SegmentJoinTarget target = MakeSegmentJoinTarget(Strip(hf, -10, 0, 1), SmallViews());
+  const SegmentJoinResult apart = JoinSegment(Strip(hf, 15, 25, 100).Transformed(SegmentFrame()), target, SmallViews());
+  EXPECT_FALSE(apart.ok);
+  EXPECT_FALSE(apart.reason.empty());
+  HeightField plane(11);
+  plane.flat = 1;
+  const SegmentJoinTarget flat = MakeSegmentJoinTarget(Strip(plane, -10, 0, 1), SmallViews());
+  const SegmentJoinResult on_plane = JoinSegment(Strip(plane, -4, 6, 100).Transformed(SegmentFrame()), flat, SmallViews());
+  EXPECT_FALSE(on_plane.ok);
+  EXPECT_FALSE(JoinSegment(SurfacePoints{}, target, SmallViews()).ok);
+  EXPECT_FALSE(JoinSegment(Strip(hf, -4, 6, 100), SegmentJoinTarget{}, SmallViews()).ok);
+}
+
+}  // namespace
+}  // namespace d3d
