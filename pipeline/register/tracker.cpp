@@ -603,15 +603,15 @@ SurfacePoints Tracker::MainSamples() const {
 
 void Tracker::StartSegment(Rigid3d* pose, TrackResult* out) {
   const int s = static_cast<int>(segments_.size());
+  // The last pose in the main frame's coordinates (the track may be in another segment apart).
+  const Rigid3d last_at_origin = MainFromSegmentFrame(active_segment_) * last_pose_;
   // The main model rests while the new segment grows: its join features are made once, now.
   const auto t0 = std::chrono::steady_clock::now();
   join_target_ = MakeSegmentJoinTarget(MainSamples(), o_.segment_join);
   const double ms_target = Ms(t0);
   segments_.push_back(Segment{index_, false, keyframes_.size()});
   active_segment_ = s;
-  Rigid3d offset = Rigid3d::Identity();
-  offset.translation().x() = kSegmentSpacingMm * s;
-  *pose = offset * last_pose_;
+  *pose = MainFromSegmentFrame(s).inverse() * last_at_origin;
   out->state = TrackingState::kTracking;
   out->new_segment = true;
   char what[160];

@@ -563,7 +563,7 @@ TEST_F(TrackerScan, ASegmentThatNeverOverlapsStaysApart) {
   o.segment_after_views = 2;
   Tracker tracker(cam_, o);
   uint32_t seed = 1;
-  for (double x = -20; x <= -15.99; x += 1.0) ASSERT_TRUE(Feed(&tracker, Truth(x, 0), seed++).accepted);
+  for (double x = -24; x <= -19.99; x += 1.0) ASSERT_TRUE(Feed(&tracker, Truth(x, 0), seed++).accepted);
   const int64_t first_apart = tracker.views();
   for (double x = 10; x <= 16.01; x += 1.0) Feed(&tracker, Truth(x, 0), seed++);
   ASSERT_EQ(tracker.segments(), 2);
@@ -580,6 +580,20 @@ TEST_F(TrackerScan, ASegmentThatNeverOverlapsStaysApart) {
   EXPECT_EQ(apart, 5);  // 7 views, the first 2 refused
   // Undo cannot reach back into the segment's start.
   EXPECT_GE(tracker.first_undoable_view(), first_apart + 3);
+  // Lost again, over ground neither has seen: a second segment, in a frame of its own too (2 m
+  // per segment from the main one, whichever segment the track left).
+  const int64_t first_second = tracker.views();
+  for (double x = -6; x <= -3.99; x += 1.0) Feed(&tracker, Truth(x, 0), seed++);
+  ASSERT_EQ(tracker.segments(), 3);
+  int second = 0;
+  for (int64_t v = first_second; v < tracker.views(); ++v) {
+    Rigid3d p;
+    if (!tracker.ViewPose(v, &p)) continue;
+    EXPECT_EQ(tracker.ViewSegment(v), 2);
+    EXPECT_NEAR(p.translation().x(), 4000.0, 100.0);
+    ++second;
+  }
+  EXPECT_GE(second, 1);
   PoseGraphSummary summary;
   EXPECT_TRUE(tracker.Optimize({}, &summary).ok());
 }
