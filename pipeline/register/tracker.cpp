@@ -524,12 +524,7 @@ bool Tracker::ConfirmReentry(const SurfacePoints& samples, TrackResult* out) {
     return false;
   }
   if (!ConsistentMotionFrom(candidate_.world_from_cam, ViewsSinceCandidate(), r.target_from_source, &out->reason)) return false;
-  if (!WellConstrainedReentry(r, &out->reason)) return false;
-  out->reentry = CheckReentry(samples, r.target_from_source);
-  if (!out->reentry.ok) {
-    out->reason = out->reentry.reason;
-    return false;
-  }
+  if (!VerifyReentry(samples, r, &out->reentry, &out->reason)) return false;
   out->icp = r;
   out->world_from_cam = r.target_from_source;
   return true;
@@ -537,9 +532,14 @@ bool Tracker::ConfirmReentry(const SurfacePoints& samples, TrackResult* out) {
 
 bool Tracker::AfterGap() const { return state_ == TrackingState::kLost || ViewsElapsed() > o_.reentry_direct_max_views; }
 
-bool Tracker::WellConstrainedReentry(const IcpResult& r, std::string* why) const {
-  if (!AfterGap() || r.eigen_ratio >= o_.reentry_min_eigen_ratio) return true;
-  *why = "degenerate re-entry (eigen ratio " + std::to_string(r.eigen_ratio) + " < " + std::to_string(o_.reentry_min_eigen_ratio) + ")";
+bool Tracker::VerifyReentry(const SurfacePoints& samples, const IcpResult& r, ReentryEvidence* evidence, std::string* why) {
+  if (AfterGap() && r.eigen_ratio < o_.reentry_min_eigen_ratio) {
+    *why = "degenerate re-entry (eigen ratio " + std::to_string(r.eigen_ratio) + " < " + std::to_string(o_.reentry_min_eigen_ratio) + ")";
+    return false;
+  }
+  *evidence = CheckReentry(samples, r.target_from_source);
+  if (evidence->ok) return true;
+  *why = evidence->reason;
   return false;
 }
 
@@ -755,12 +755,8 @@ bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out, 
       continue;
     }
     if (!ConsistentMotion(r.target_from_source, &last_reason)) continue;
-    if (!WellConstrainedReentry(r, &last_reason)) continue;
-    const ReentryEvidence evidence = CheckReentry(samples, r.target_from_source);
-    if (!evidence.ok) {
-      last_reason = evidence.reason;
-      continue;
-    }
+    ReentryEvidence evidence;
+    if (!VerifyReentry(samples, r, &evidence, &last_reason)) continue;
     if (found >= 0) {
       const double apart_mm = (r.target_from_source * centre_in_cam - out->world_from_cam * centre_in_cam).norm();
       const double apart_deg = RotationAngleRad(r.target_from_source, out->world_from_cam) * 180 / M_PI;
@@ -825,13 +821,8 @@ bool Tracker::Relocalise(const SurfacePoints& samples, const cv::Mat& points, co
       last_reason = "icp after features: " + r.reason;
       continue;
     }
-    if (!WellConstrainedReentry(r, &last_reason)) {
+    if (!VerifyReentry(samples, r, &out->reentry, &last_reason)) {
       last_reason = "after features: " + last_reason;
-      continue;
-    }
-    out->reentry = CheckReentry(samples, r.target_from_source);
-    if (!out->reentry.ok) {
-      last_reason = "after features: " + out->reentry.reason;
       continue;
     }
     out->icp = r;

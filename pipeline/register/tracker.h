@@ -465,8 +465,10 @@ class Tracker {
   // *from_prediction: the fit started from the motion prediction.
   // A return to the model after a gap or a loss (see TrackerOptions::reentry_min_eigen_ratio).
   bool AfterGap() const;
-  // False (and *why) when ICP result r is a re-entry after a gap that is not well constrained.
-  bool WellConstrainedReentry(const IcpResult& r, std::string* why) const;
+  // The checks of a re-entry pose (ICP result r of `samples`) beyond ICP's own: after a gap, well
+  // constrained (reentry_min_eigen_ratio); and the re-entry check, whose evidence goes to
+  // *evidence. False with *why when one fails (*evidence untouched when the first did).
+  bool VerifyReentry(const SurfacePoints& samples, const IcpResult& r, ReentryEvidence* evidence, std::string* why);
   // The re-entry check (TrackerOptions::reentry_check) of `samples` at world_from_cam against the
   // keyframes nearest to it.
   ReentryEvidence CheckReentry(const SurfacePoints& samples, const Rigid3d& world_from_cam);
