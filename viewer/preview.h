@@ -24,7 +24,12 @@ struct PreviewSnapshot {
   uint64_t generation = 0;               // bumps on a model reset or an undo: points are copied anew
   std::vector<Eigen::Vector3f> points;   // model, decimated (one per preview cell), append-only within a generation
   std::vector<Eigen::Vector3f> normals;  // unit, per point
-  std::vector<Eigen::Vector3f> view_points;  // the latest view (decimated), model frame
+  // The scan segment being built apart from the model (TrackerOptions::segment_after_views; cue
+  // kNewSegment), decimated, drawn in the segment colour where the model was lost: placed, not
+  // registered (TrackResult::display_from_cam). Append-only within a segment_generation.
+  uint64_t segment_generation = 0;
+  std::vector<Eigen::Vector3f> segment_points, segment_normals;
+  std::vector<Eigen::Vector3f> view_points;  // the latest view (decimated), model frame (apart: beside it)
   bool view_accepted = false;            // the latest view was fused (else refused: drawn red)
   bool have_pose = false;
   Eigen::Matrix4f model_from_cam = Eigen::Matrix4f::Identity();  // the latest view's probe pose

@@ -82,7 +82,7 @@ struct Viewer::Impl {
   double last_x = 0, last_y = 0;
   std::vector<ViewerAction> actions;
   // Render buffers (reused).
-  std::vector<uint8_t> colours;
+  std::vector<uint8_t> colours, segment_colours;
   cv::Mat hud;  // BGRA
   PanelRefresh hud_refresh;
   GLuint hud_tex = 0;
@@ -183,18 +183,19 @@ struct Viewer::Impl {
   }
 
   void Fit(const PreviewSnapshot& s) {
-    if (s.points.empty()) {
+    if (s.points.empty() && s.segment_points.empty()) {
       if (s.have_pose) {
         target = (s.model_from_cam * Eigen::Vector4f(0, 0, 0.5f * (s.near_mm + s.far_mm), 1)).head<3>();
         distance_mm = 60;
       }
       return;
     }
-    Eigen::Vector3f lo = s.points.front(), hi = s.points.front();
-    for (const auto& p : s.points) {
-      lo = lo.cwiseMin(p);
-      hi = hi.cwiseMax(p);
-    }
+    Eigen::Vector3f lo = s.points.empty() ? s.segment_points.front() : s.points.front(), hi = lo;
+    for (const auto* cloud : {&s.points, &s.segment_points})
+      for (const auto& p : *cloud) {
+        lo = lo.cwiseMin(p);
+        hi = hi.cwiseMax(p);
+      }
     target = 0.5f * (lo + hi);
     const float radius = std::max(0.5f * (hi - lo).norm(), 5.0f);
     distance_mm = radius / std::tan(0.5f * 40.0f * static_cast<float>(M_PI) / 180.0f) * 1.05f;
@@ -291,6 +292,18 @@ struct Viewer::Impl {
         glVertexPointer(3, GL_FLOAT, sizeof(Eigen::Vector3f), s->points.data());
         glColorPointer(3, GL_UNSIGNED_BYTE, 0, colours.data());
         glDrawArrays(GL_POINTS, 0, static_cast<GLsizei>(s->points.size()));
+      }
+      // The segment apart from the model, in the NEW SEGMENT colour, shaded alike.
+      if (!s->segment_points.empty()) {
+        const cv::Scalar c = CueColourBgr(PreviewCue::kNewSegment);
+        segment_colours.resize(s->segment_points.size() * 3);
+        for (size_t i = 0; i < s->segment_points.size(); ++i) {
+          const float shade = 0.35f + 0.65f * std::abs(s->segment_normals[i].dot(dir));
+          for (int k = 0; k < 3; ++k) segment_colours[3 * i + static_cast<size_t>(k)] = static_cast<uint8_t>(c[2 - k] * shade);
+        }
+        glVertexPointer(3, GL_FLOAT, sizeof(Eigen::Vector3f), s->segment_points.data());
+        glColorPointer(3, GL_UNSIGNED_BYTE, 0, segment_colours.data());
+        glDrawArrays(GL_POINTS, 0, static_cast<GLsizei>(s->segment_points.size()));
       }
       glDisableClientState(GL_COLOR_ARRAY);
       // The current view, highlighted.

@@ -1,6 +1,7 @@
 // The live preview window (GLFW + OpenGL) or its offscreen twin (EGL, Mesa's surfaceless
 // platform: no display needed), drawing a PreviewSnapshot: the fused model as shaded points, the
-// current view highlighted (orange when fused, red when refused), the probe frustum in the
+// current view highlighted (orange when fused, red when refused), a scan segment apart from the
+// model in the NEW SEGMENT blue beside it, the probe frustum in the
 // tracking colour, and a status panel (state, bursts, bursts/s, latency, coverage, fps, keys):
 // a strip at the top (and the keys line at the bottom of a window), its counters redrawn at most
 // 4 times a second, a change of state or message at once (PanelRefresh, preview.h).

@@ -28,13 +28,18 @@ PreviewSnapshot Hemisphere() {
   return s;
 }
 
-TEST(Viewer, OffscreenPictureShowsTheModelAndThePanel) {
+// A 320 × 240 offscreen viewer (status not ok: this machine has no EGL/OpenGL).
+Status OffscreenViewer(std::unique_ptr<Viewer>* v) {
   ViewerOptions o;
   o.headless = true;
   o.width = 320;
   o.height = 240;
+  return Viewer::Create(o, v);
+}
+
+TEST(Viewer, OffscreenPictureShowsTheModelAndThePanel) {
   std::unique_ptr<Viewer> v;
-  const Status s = Viewer::Create(o, &v);
+  const Status s = OffscreenViewer(&v);
   if (!s.ok()) GTEST_SKIP() << "no offscreen OpenGL here: " << s.ToString();
   const PreviewSnapshot snap = Hemisphere();
   PreviewStatus st;
@@ -58,6 +63,23 @@ TEST(Viewer, OffscreenPictureShowsTheModelAndThePanel) {
   const cv::Vec3b box = full.at<cv::Vec3b>(20, 200);
   EXPECT_GT(box[1], 150);
   EXPECT_LT(box[2], 100);
+}
+
+TEST(Viewer, ASegmentApartIsDrawnInTheNewSegmentColour) {
+  std::unique_ptr<Viewer> v;
+  const Status s = OffscreenViewer(&v);
+  if (!s.ok()) GTEST_SKIP() << "no offscreen OpenGL here: " << s.ToString();
+  PreviewSnapshot snap = Hemisphere();
+  snap.segment_points.swap(snap.points);  // the same hemisphere, as a segment apart
+  snap.segment_normals.swap(snap.normals);
+  snap.view_points.clear();
+  snap.cue = PreviewCue::kNewSegment;
+  cv::Mat picture;
+  ASSERT_TRUE(v->Render(&snap, PreviewStatus{}, 20, &picture));
+  // Blue, not the model's ivory: B high, R low in the middle of the picture.
+  const cv::Scalar mean = cv::mean(picture(cv::Rect(110, 80, 100, 100)));
+  EXPECT_GT(mean[0], 60) << "the segment is not drawn";
+  EXPECT_LT(mean[2], 0.5 * mean[0]) << "the segment is not blue";
 }
 
 }  // namespace

@@ -15,11 +15,6 @@
 namespace d3d {
 namespace {
 
-uint64_t CellKey(const Eigen::Vector3f& p, float inv_cell) {
-  const auto q = [&](float v) { return static_cast<uint64_t>(static_cast<int64_t>(std::floor(v * inv_cell)) + (int64_t{1} << 20)) & 0x1FFFFF; };
-  return (q(p.x()) << 42) | (q(p.y()) << 21) | q(p.z());
-}
-
 PreviewCue CueOf(TrackingState s) {
   switch (s) {
     case TrackingState::kTracking: return PreviewCue::kTracking;
@@ -59,7 +54,8 @@ ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& opti
     : calibration_(options.scan.bin > 1 ? BinnedCalibration(calibration, options.scan.bin) : calibration),
       o_(options),
       source_(source),
-      recon_(calibration, options.scan.recon, options.scan.bin) {
+      recon_(calibration, options.scan.recon, options.scan.bin),
+      preview_model_(PreviewModelOptions{options.preview_cell_mm, options.preview_max_points, options.preview_stride_px}) {
   o_.Check();
   // Undo needs the tracker's journal and the kept frames (the fused model is made again without
   // the undone views).
@@ -71,9 +67,6 @@ ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& opti
   if (o_.keep_views && !o_.views_spill_dir.empty()) {
     if (const Status s = archive_.SpillTo(o_.views_spill_dir); !s.ok()) spill_error_ = s.ToString();
   }
-  cells_.reserve(o_.preview_max_points);
-  model_points_.reserve(o_.preview_max_points);
-  model_normals_.reserve(o_.preview_max_points);
   recent_latency_ms_.reserve(64);
   StageGraphOptions go;
   go.policy = o_.policy;
@@ -305,73 +298,32 @@ bool ScanApp::FuseStage(ScanItem& item) {
 
 bool ScanApp::PreviewStage(ScanItem& item) {
   if (item.epoch != preview_epoch_) {
-    cells_.clear();
-    model_points_.clear();
-    model_normals_.clear();
-    preview_views_.clear();
-    bursts_in_model_ = 0;
+    preview_model_.Reset();
     preview_epoch_ = item.epoch;
-    ++preview_generation_;
   }
-  const float inv_cell = static_cast<float>(1.0 / o_.preview_cell_mm);
   if (item.undo_gen > preview_undo_gen_) {
-    // The undone views' points: the model's tail from the first of them.
-    const int64_t cut = UndoCut(preview_undo_gen_, item.undo_gen);
-    size_t keep = preview_views_.size();
-    while (keep > 0 && preview_views_[keep - 1].first >= cut) --keep;
-    if (keep < preview_views_.size()) {
-      const size_t points = preview_views_[keep].second;
-      for (size_t i = points; i < model_points_.size(); ++i) cells_.erase(CellKey(model_points_[i], inv_cell));
-      model_points_.resize(points);
-      model_normals_.resize(points);
-      bursts_in_model_ -= preview_views_.size() - keep;
-      preview_views_.resize(keep);
-      ++preview_generation_;
-    }
+    preview_model_.Undo(UndoCut(preview_undo_gen_, item.undo_gen));
     preview_undo_gen_ = item.undo_gen;
   }
-  const Eigen::Matrix4f model_from_cam = item.track.world_from_cam.matrix().cast<float>();
+  if (!item.control) preview_model_.AddView(item.view_index, item.track, item.view.points_in_cam, item.view.normals);
+  mem_preview_points_.store(preview_model_.model_points(), std::memory_order_relaxed);
+  // A view of a segment not joined yet is drawn beside the model (display_from_cam), in its colour.
+  const bool apart = !item.control && item.track.accepted && !item.track.in_main;
+  const Eigen::Matrix4f model_from_cam = (apart ? item.track.display_from_cam : item.track.world_from_cam).matrix().cast<float>();
   const Eigen::Matrix3f r = model_from_cam.topLeftCorner<3, 3>();
   const Eigen::Vector3f t = model_from_cam.topRightCorner<3, 1>();
   const cv::Mat& pts = item.view.points_in_cam;
-  const cv::Mat& nrm = item.view.normals;
-  if (!item.control && item.track.accepted && item.track.in_main) {
-    ++bursts_in_model_;
-    preview_views_.emplace_back(item.view_index, model_points_.size());
-    for (int y = 0; y < pts.rows; y += o_.preview_stride_px) {
-      const auto* p = pts.ptr<cv::Vec3f>(y);
-      const auto* n = nrm.ptr<cv::Vec3f>(y);
-      for (int x = 0; x < pts.cols && model_points_.size() < o_.preview_max_points; x += o_.preview_stride_px) {
-        if (!std::isfinite(p[x][2]) || !std::isfinite(n[x][2])) continue;
-        const Eigen::Vector3f pw = r * Eigen::Vector3f(p[x][0], p[x][1], p[x][2]) + t;
-        if (cells_.try_emplace(CellKey(pw, inv_cell), static_cast<uint32_t>(model_points_.size())).second) {
-          model_points_.push_back(pw);
-          model_normals_.push_back(r * Eigen::Vector3f(n[x][0], n[x][1], n[x][2]));
-        }
-      }
-    }
-  }
-  mem_preview_points_.store(model_points_.size(), std::memory_order_relaxed);
   PreviewSnapshot& s = preview_.Back();
-  if (s.generation != preview_generation_ || s.points.size() > model_points_.size()) {
-    s.points.clear();
-    s.normals.clear();
-    s.generation = preview_generation_;
-  }
-  // The model is append-only within a generation: copy the new tail only.
-  s.points.insert(s.points.end(), model_points_.begin() + static_cast<std::ptrdiff_t>(s.points.size()), model_points_.end());
-  s.normals.insert(s.normals.end(), model_normals_.begin() + static_cast<std::ptrdiff_t>(s.normals.size()), model_normals_.end());
+  preview_model_.CopyTo(&s);
   s.view_points.clear();
-  // A view of a scan segment not joined yet has no pose in the model's frame: no view, no probe.
-  const bool apart = !item.control && item.track.accepted && !item.track.in_main;
-  for (int y = o_.view_stride_px / 2; !item.control && !apart && y < pts.rows; y += o_.view_stride_px) {
+  for (int y = o_.view_stride_px / 2; !item.control && y < pts.rows; y += o_.view_stride_px) {
     const auto* p = pts.ptr<cv::Vec3f>(y);
     for (int x = o_.view_stride_px / 2; x < pts.cols; x += o_.view_stride_px)
       if (std::isfinite(p[x][2])) s.view_points.push_back(r * Eigen::Vector3f(p[x][0], p[x][1], p[x][2]) + t);
   }
   s.view_accepted = item.track.accepted;
   // A control item (undo) has no view: no probe pose until the next burst.
-  s.have_pose = !item.control && !apart && (item.track.state != TrackingState::kInitialising || item.track.accepted);
+  s.have_pose = !item.control && (item.track.state != TrackingState::kInitialising || item.track.accepted);
   s.model_from_cam = model_from_cam;
   const PinholeBrownConrady& cam = calibration_.camera;
   s.tan_half_x = static_cast<float>(0.5 * cam.width / cam.fx);
@@ -379,10 +331,10 @@ bool ScanApp::PreviewStage(ScanItem& item) {
   s.near_mm = static_cast<float>(calibration_.depth_min_mm);
   s.far_mm = static_cast<float>(calibration_.depth_max_mm);
   s.cue = apart ? PreviewCue::kNewSegment : CueOf(item.track.state);
-  s.bursts_in_model = bursts_in_model_;
+  s.bursts_in_model = preview_model_.views_in_model();
   if (!item.control) last_burst_seq_ = item.burst.burst_seq;
   s.last_burst_seq = last_burst_seq_;
-  s.model_area_mm2 = static_cast<double>(model_points_.size()) * o_.preview_cell_mm * o_.preview_cell_mm;
+  s.model_area_mm2 = preview_model_.model_area_mm2();
   preview_.Publish();
   // Status line: percentiles of the latest 64 latencies (the graph's, of the bursts before this one).
   const double lat = graph_->last_latency_ms();

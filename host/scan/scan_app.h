@@ -50,6 +50,7 @@
 
 #include "host/graph/stage_graph.h"
 #include "host/scan/burst_source.h"
+#include "host/scan/preview_model.h"
 #include "pipeline/scan/scan_chain.h"
 #include "pipeline/scan/view_archive.h"
 #include "viewer/preview.h"
@@ -272,11 +273,7 @@ class ScanApp {
   std::atomic<double> mem_model_mib_{0}, mem_undo_journal_mib_{0}, mem_keyframes_mib_{0}, mem_tsdf_mib_{0}, mem_views_kept_mib_{0};
   // preview thread
   uint64_t preview_epoch_ = 0, preview_undo_gen_ = 0;
-  uint64_t preview_generation_ = 0;  // bumps when the model loses points (reset, undo): snapshots copy it anew
-  std::unordered_map<uint64_t, uint32_t> cells_;
-  std::vector<Eigen::Vector3f> model_points_, model_normals_;
-  std::vector<std::pair<int64_t, size_t>> preview_views_;  // accepted views: (view index, model points before it)
-  uint64_t bursts_in_model_ = 0;
+  PreviewModel preview_model_;
   uint64_t last_burst_seq_ = 0;
   TripleBuffer<PreviewSnapshot> preview_;
   // Rolling window of latencies for the status line: preview thread; its percentiles are atomics.

@@ -33,18 +33,22 @@ void SegmentJoinOptions::Check() const {
   icp.Check();
 }
 
+SurfacePoints MakeSegmentJoinSamples(const SurfacePoints& points, const SegmentJoinOptions& options) {
+  const SurfacePoints thinned = VoxelDownsample(points, options.sample_voxel_mm);
+  // VoxelDownsample leaves NaN normals where a voxel's normals cancel: drop those samples.
+  SurfacePoints clean;
+  for (size_t i = 0; i < thinned.size(); ++i)
+    if (thinned.normals[i].allFinite()) {
+      clean.points.push_back(thinned.points[i]);
+      clean.normals.push_back(thinned.normals[i]);
+    }
+  return clean;
+}
+
 SegmentJoinTarget MakeSegmentJoinTarget(const SurfacePoints& main, const SegmentJoinOptions& options) {
   options.Check();
   SegmentJoinTarget t;
-  t.samples = VoxelDownsample(main, options.sample_voxel_mm);
-  // VoxelDownsample leaves NaN normals where a voxel's normals cancel: drop those samples.
-  SurfacePoints clean;
-  for (size_t i = 0; i < t.samples.size(); ++i)
-    if (t.samples.normals[i].allFinite()) {
-      clean.points.push_back(t.samples.points[i]);
-      clean.normals.push_back(t.samples.normals[i]);
-    }
-  t.samples = std::move(clean);
+  t.samples = MakeSegmentJoinSamples(main, options);
   if (!t.samples.empty()) t.features = ComputeFpfh(t.samples, options.fpfh);
   return t;
 }
@@ -65,13 +69,29 @@ SegmentJoinResult JoinSegment(const SurfacePoints& segment, const SegmentJoinTar
     r.reason = r.fpfh.reason;
     return r;
   }
-  r.icp = RegisterIcp(source.samples, KdTreeTarget(target.samples), r.fpfh.target_from_source, options.icp);
+  SegmentJoinResult refined = RefineSegmentJoin(source.samples, target, r.fpfh.target_from_source, options, true);
+  refined.fpfh = r.fpfh;
+  if (!refined.ok) refined.reason = "after fpfh: " + refined.reason;
+  return refined;
+}
+
+SegmentJoinResult RefineSegmentJoin(const SurfacePoints& segment, const SegmentJoinTarget& target, const Rigid3d& main_from_segment,
+                                    const SegmentJoinOptions& options, bool thinned) {
+  SegmentJoinResult r;
+  if (target.empty() || segment.empty()) {
+    r.reason = target.empty() ? "the main model is empty" : "the segment is empty";
+    return r;
+  }
+  SurfacePoints own;
+  if (!thinned) own = MakeSegmentJoinSamples(segment, options);
+  const SurfacePoints& source = thinned ? segment : own;
+  r.icp = RegisterIcp(source, KdTreeTarget(target.samples), main_from_segment, options.icp);
   if (!r.icp.ok) {
-    r.reason = "icp after fpfh: " + r.icp.reason;
+    r.reason = "icp: " + r.icp.reason;
     return r;
   }
   if (r.icp.correspondences < options.min_correspondences) {
-    r.reason = "too little overlap (" + std::to_string(r.icp.correspondences) + " of " + std::to_string(source.samples.size()) +
+    r.reason = "too little overlap (" + std::to_string(r.icp.correspondences) + " of " + std::to_string(source.size()) +
                " samples on the main model, need " + std::to_string(options.min_correspondences) + ")";
     return r;
   }

@@ -59,4 +59,13 @@ SegmentJoinTarget MakeSegmentJoinTarget(const SurfacePoints& main, const Segment
 // Registers `segment` (its samples in its own frame, normals required) onto the target.
 SegmentJoinResult JoinSegment(const SurfacePoints& segment, const SegmentJoinTarget& target, const SegmentJoinOptions& options);
 
+// Step 2 alone, from a pose found elsewhere (the tracker's keyframe features): ICP of the segment
+// onto the target from main_from_segment and the same checks. thinned: `segment` is already
+// MakeSegmentJoinSamples' output (else it is thinned here).
+SegmentJoinResult RefineSegmentJoin(const SurfacePoints& segment, const SegmentJoinTarget& target, const Rigid3d& main_from_segment,
+                                    const SegmentJoinOptions& options, bool thinned = false);
+
+// Samples thinned to one per sample_voxel_mm voxel, those without a normal dropped.
+SurfacePoints MakeSegmentJoinSamples(const SurfacePoints& points, const SegmentJoinOptions& options);
+
 }  // namespace d3d

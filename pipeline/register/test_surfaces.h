@@ -76,6 +76,25 @@ struct HeightField {
     if (flat > 0) return 0;
     return 0.4 * std::sin(0.3 * x) * std::cos(0.4 * y) + Sum(bumps, bump_cells[static_cast<size_t>(Cell(x, y))], x, y);
   }
+  // Height and its gradient (∂h/∂x, ∂h/∂y) in one pass over the bumps (the ray caster's Newton step).
+  double HeightAndGradient(double x, double y, double* gx, double* gy) const {
+    *gx = *gy = 0;
+    if (flat > 0) return 0;
+    const double sx = std::sin(0.3 * x), cx = std::cos(0.3 * x), sy = std::sin(0.4 * y), cy = std::cos(0.4 * y);
+    double z = 0.4 * sx * cy;
+    *gx = 0.12 * cx * cy;
+    *gy = -0.16 * sx * sy;
+    for (int i : bump_cells[static_cast<size_t>(Cell(x, y))]) {
+      const Bump& b = bumps[static_cast<size_t>(i)];
+      const double d2 = (x - b.x) * (x - b.x) + (y - b.y) * (y - b.y);
+      if (d2 >= 16 * b.s * b.s) continue;
+      const double e = b.a * std::exp(-d2 / (2 * b.s * b.s));
+      z += e;
+      *gx -= e * (x - b.x) / (b.s * b.s);
+      *gy -= e * (y - b.y) / (b.s * b.s);
+    }
+    return z;
+  }
   double Albedo(double x, double y) const {
     const double a = 0.5 + 0.1 * std::sin(2.1 * x + 1.3 * y) + 0.5 * Sum(blobs, blob_cells[static_cast<size_t>(Cell(x, y))], x, y);
     return std::clamp(a, 0.02, 1.0);
@@ -111,17 +130,23 @@ inline SyntheticView RenderHeightField(const HeightField& hf, const PinholeBrown
     for (int c = 0; c < cam.width; ++c) {
       const Eigen::Vector3d d = world_from_cam.linear() * Eigen::Vector3d((c - cam.cx) / cam.fx, (r - cam.cy) / cam.fy, 1).normalized();
       if (d.z() > -0.2) continue;
+      // Root of g(t) = C.z + t·d.z − h(C + t·d) on the ray parameter: Newton steps, a damped
+      // fixed-point step where the ray grazes the surface (g' near 0).
       double t = (0 - C.z()) / d.z();
-      for (int k = 0; k < 30; ++k) {  // damped fixed point on the ray parameter
+      for (int k = 0; k < 30; ++k) {
         const Eigen::Vector3d p = C + t * d;
-        const double tn = (hf.Height(p.x(), p.y()) - C.z()) / d.z();
-        if (std::abs(tn - t) < 1e-9) break;
-        t += 0.6 * (tn - t);
+        double gx, gy;
+        const double h = hf.HeightAndGradient(p.x(), p.y(), &gx, &gy);
+        const double g = C.z() + t * d.z() - h, dg = d.z() - gx * d.x() - gy * d.y();
+        const double step = dg < -0.1 ? -g / dg : 0.6 * ((h - C.z()) / d.z() - t);
+        t += step;
+        if (std::abs(step) < 1e-9) break;
       }
       const Eigen::Vector3d p = C + t * d;
-      if (std::abs(p.z() - hf.Height(p.x(), p.y())) > 1e-6 || std::abs(p.x()) > half_extent || std::abs(p.y()) > half_extent)
-        continue;
-      const Eigen::Vector3d n_w = hf.Normal(p.x(), p.y());
+      double gx, gy;
+      const double h = hf.HeightAndGradient(p.x(), p.y(), &gx, &gy);
+      if (std::abs(p.z() - h) > 1e-6 || std::abs(p.x()) > half_extent || std::abs(p.y()) > half_extent) continue;
+      const Eigen::Vector3d n_w = Eigen::Vector3d(-gx, -gy, 1).normalized();
       if (n_w.dot(-d) < 0.2) continue;
       const Eigen::Vector3d pc = cam_from_world * (p + noise_mm * N(rng) * d);
       const Eigen::Vector3d nc = cam_from_world.linear() * n_w;

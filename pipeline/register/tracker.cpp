@@ -89,8 +89,9 @@ void TrackerOptions::Check() const {
   D3D_CHECK_MSG(reentry_min_eigen_ratio >= 0 && reentry_min_eigen_ratio < 1, "TrackerOptions: reentry_min_eigen_ratio in [0, 1)");
   D3D_CHECK_MSG(reentry_ambiguity_mm >= 0, "TrackerOptions: reentry_ambiguity_mm >= 0 (0 = off)");
   reentry_check.Check();
-  D3D_CHECK_MSG(segment_after_views >= 0 && max_segments >= 1 && segment_join_every >= 1,
-                "TrackerOptions: segment_after_views >= 0 (0 = off), max_segments >= 1, segment_join_every >= 1");
+  D3D_CHECK_MSG(segment_after_views >= 0 && max_segments >= 1 && segment_join_every >= 1 && segment_join_feature_keyframes >= 0,
+                "TrackerOptions: segment_after_views >= 0 (0 = off), max_segments >= 1, segment_join_every >= 1, "
+                "segment_join_feature_keyframes >= 0");
   segment_join.Check();
   D3D_CHECK_MSG(map_max_rmse_ratio == 0 || map_max_rmse_ratio >= 1, "TrackerOptions: map_max_rmse_ratio 0 (off) or >= 1");
   D3D_CHECK_MSG(map_gate_min_overlap >= 0 && map_gate_min_overlap <= 1 && map_gate_max_run >= 0,
@@ -304,11 +305,15 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   const auto t0 = std::chrono::steady_clock::now();
   bool joined_now = false;
   std::string join_attempt;
+  Rigid3d main_from_display = Rigid3d::Identity();
   if (active_segment_ > 0 && !segments_[static_cast<size_t>(active_segment_)].joined) {
     Segment& seg = segments_[static_cast<size_t>(active_segment_)];
     if (keyframes_.size() >= seg.keyframes_at_attempt + static_cast<size_t>(o_.segment_join_every)) {
       seg.keyframes_at_attempt = keyframes_.size();
-      joined_now = TryJoinSegment(active_segment_, &join_attempt);
+      const Rigid3d display_from_segment = MainFromSegmentFrame(active_segment_);
+      Rigid3d main_from_segment;
+      joined_now = TryJoinSegment(active_segment_, &join_attempt, &main_from_segment);
+      if (joined_now) main_from_display = main_from_segment * display_from_segment.inverse();
     }
   }
   ++index_;
@@ -320,6 +325,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   view_log_.back().edges_before = graph_.edges().size();
   view_log_.back().deferred_edges_before = deferred_edges_.size();
   view_log_.back().capture_ns = capture_ns;
+  view_log_.back().lost_with_points_before = lost_with_points_;
   TrackResult out;
   SurfacePoints& samples = view_samples_;
   SampleOrganised(points, normals, quality, o_.sample_stride, &samples);
@@ -419,6 +425,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     state_ = state_ == TrackingState::kInitialising ? state_ : TrackingState::kLost;
     out.state = state_;
     out.segment_joined = joined_now;
+    out.main_from_display = main_from_display;
     out.join_attempt = join_attempt;
     out.ms = Ms(t0);
     return out;
@@ -478,6 +485,8 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   out.segment = active_segment_;
   out.in_main = SegmentInMain(active_segment_);
   out.segment_joined = joined_now;
+  out.main_from_display = main_from_display;
+  out.display_from_cam = MainFromSegmentFrame(active_segment_) * out.world_from_cam;
   out.join_attempt = join_attempt;
   out.ms = Ms(t0);
   return out;
@@ -629,16 +638,18 @@ void Tracker::StartSegment(Rigid3d* pose, TrackResult* out) {
   undo_barrier_view_ = index_ + 1;
 }
 
-bool Tracker::TryJoinSegment(int s, std::string* why) {
+bool Tracker::TryJoinSegment(int s, std::string* why, Rigid3d* main_from_segment) {
   const auto t0 = std::chrono::steady_clock::now();
-  const bool joined = JoinSegmentNow(s, why);
+  Rigid3d t;
+  const bool joined = JoinSegmentNow(s, why, &t);
+  if (joined && main_from_segment != nullptr) *main_from_segment = t;
   char ms[32];
   std::snprintf(ms, sizeof ms, " (%.0f ms)", Ms(t0));
   *why += ms;
   return joined;
 }
 
-bool Tracker::JoinSegmentNow(int s, std::string* why) {
+bool Tracker::JoinSegmentNow(int s, std::string* why, Rigid3d* main_from_segment) {
   // The segment's model samples (they lie around its offset) and its newest keyframe.
   SurfacePoints seg;
   for (size_t i = 0; i < map_.size(); ++i) {
@@ -653,12 +664,24 @@ bool Tracker::JoinSegmentNow(int s, std::string* why) {
     *why = "the segment is empty";
     return false;
   }
-  const SegmentJoinResult r = JoinSegment(seg, join_target_, o_.segment_join);
+  SegmentJoinResult r = JoinSegment(seg, join_target_, o_.segment_join);
+  std::string how = "fpfh";
   if (!r.ok) {
     *why = r.reason;
-    return false;
+    if (o_.relocalise && o_.segment_join_feature_keyframes > 0) {
+      std::string features_why;
+      SegmentJoinResult f = JoinSegmentByFeatures(s, newest, MakeSegmentJoinSamples(seg, o_.segment_join), &features_why);
+      if (f.ok) {
+        r = std::move(f);
+        how = "features (" + features_why + ")";
+      } else {
+        *why += "; features: " + features_why;
+      }
+    }
   }
+  if (!r.ok) return false;
   const Rigid3d& T = r.main_from_segment;
+  *main_from_segment = T;
   // Verified like a re-entry: the newest keyframe at its joined pose does not contradict what the
   // main keyframes near it saw.
   const Keyframe& kn = keyframes_[static_cast<size_t>(newest)];
@@ -722,8 +745,54 @@ bool Tracker::JoinSegmentNow(int s, std::string* why) {
   // The rebuilt model has no undo journal: undo starts again from here.
   for (ViewLog& log : view_log_) log.map_inserts_before = 0;
   undo_barrier_view_ = index_ + 1;
-  *why = "joined: " + std::to_string(r.icp.correspondences) + " samples, rmse " + std::to_string(r.icp.rmse_mm * 1000) + " um";
+  *why = "joined by " + how + ": " + std::to_string(r.icp.correspondences) + " samples, rmse " + std::to_string(r.icp.rmse_mm * 1000) + " um";
   return true;
+}
+
+void Tracker::EnsureKeyframeFeatures(Keyframe* kf) {
+  if (!kf->features_pending()) return;  // kOnDemand: the first relocalisation or join that needs them
+  std::vector<cv::Mat> points, texture;
+  // Packed by this tracker: unpacking fails only on damaged memory, and then no features are
+  // better than wrong ones (the keyframe is simply not matched).
+  if (UnpackFrames(kf->packed_feature_points, &points).ok() &&
+      (kf->packed_feature_texture.empty() || UnpackFrames(kf->packed_feature_texture, &texture).ok()))
+    kf->features = ExtractViewFeatures(points[0], texture.empty() ? cv::Mat() : texture[0], o_.features);
+  std::string().swap(kf->packed_feature_points);
+  std::string().swap(kf->packed_feature_texture);
+}
+
+SegmentJoinResult Tracker::JoinSegmentByFeatures(int s, int newest, const SurfacePoints& seg, std::string* why) {
+  SegmentJoinResult none;
+  std::vector<int> main;
+  for (int k = 0; k < static_cast<int>(keyframes_.size()); ++k)
+    if (keyframes_[static_cast<size_t>(k)].segment != s && SegmentInMain(keyframes_[static_cast<size_t>(k)].segment)) main.push_back(k);
+  if (main.empty()) {
+    *why = "no main keyframe";
+    return none;
+  }
+  CollectKeyframeFeatures();
+  Keyframe& kn = keyframes_[static_cast<size_t>(newest)];
+  EnsureKeyframeFeatures(&kn);
+  Segment& g = segments_[static_cast<size_t>(s)];
+  const size_t tries = std::min(main.size(), static_cast<size_t>(o_.segment_join_feature_keyframes));
+  *why = "no feature match";
+  for (size_t i = 0; i < tries; ++i) {
+    const int j = main[(g.feature_cursor + i) % main.size()];
+    Keyframe& kf = keyframes_[static_cast<size_t>(j)];
+    EnsureKeyframeFeatures(&kf);
+    const FeatureAlignResult a = AlignByFeatures(kn.features, kf.features, o_.features);
+    if (!a.ok) continue;
+    const Rigid3d guess = graph_.pose(kf.node) * a.target_from_source * graph_.pose(kn.node).inverse();
+    SegmentJoinResult r = RefineSegmentJoin(seg, join_target_, guess, o_.segment_join, true);
+    if (r.ok) {
+      g.feature_cursor += i + 1;
+      *why = "keyframe " + std::to_string(j) + ", " + std::to_string(a.inliers) + " feature inliers";
+      return r;
+    }
+    *why = "keyframe " + std::to_string(j) + ": " + r.reason;
+  }
+  g.feature_cursor += tries;
+  return none;
 }
 
 bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out, bool* from_prediction) {
@@ -800,16 +869,7 @@ bool Tracker::Relocalise(const SurfacePoints& samples, const cv::Mat& points, co
   std::string last_reason = "no keyframe";
   for (int i = 0; i < std::min<int>(o_.relocalise_candidates, static_cast<int>(order.size())); ++i) {
     Keyframe& kf = keyframes_[static_cast<size_t>(order[static_cast<size_t>(i)].second)];
-    if (kf.features_pending()) {  // kOnDemand: the first relocalisation that needs them
-      std::vector<cv::Mat> points, texture;
-      // Packed by this tracker: unpacking fails only on damaged memory, and then no features are
-      // better than wrong ones (the keyframe is simply not matched).
-      if (UnpackFrames(kf.packed_feature_points, &points).ok() &&
-          (kf.packed_feature_texture.empty() || UnpackFrames(kf.packed_feature_texture, &texture).ok()))
-        kf.features = ExtractViewFeatures(points[0], texture.empty() ? cv::Mat() : texture[0], o_.features);
-      std::string().swap(kf.packed_feature_points);
-      std::string().swap(kf.packed_feature_texture);
-    }
+    EnsureKeyframeFeatures(&kf);
     const FeatureAlignResult a = AlignByFeatures(f, kf.features, o_.features);
     if (!a.ok) {
       last_reason = a.reason;
@@ -1151,6 +1211,8 @@ Tracker::UndoResult Tracker::UndoFrom(int64_t first_view) {
     AdvanceMotion(static_cast<int64_t>(v), log.pose, log.capture_ns, log.relocalised);
   }
   candidate_ = ReentryCandidate{};
+  // The views refused in a row before first_view count toward a new segment; the undone ones do not.
+  lost_with_points_ = f < view_log_.size() ? view_log_[f].lost_with_points_before : lost_with_points_;
   state_ = last_accepted_ < 0 ? TrackingState::kInitialising : TrackingState::kLost;
   if (last_accepted_ < 0) D3D_CHECK_MSG(map_.empty(), "Tracker::UndoFrom: no view left but the model is not empty");
   r.ok = true;

@@ -241,7 +241,9 @@ struct TrackerOptions {
   // segments never meet in the model, the keyframe searches or the pose graph), and the track goes
   // on there. Local search and feature relocalisation look in the current segment only. Every
   // segment_join_every new keyframes of a segment not joined yet, it is registered onto the main
-  // model (segment_join.h: FPFH + RANSAC + ICP) and the join verified like a re-entry
+  // model (segment_join.h: FPFH + RANSAC + ICP; when FPFH finds nothing and relocalise is on, the
+  // keyframe features of the segment's newest keyframe against segment_join_feature_keyframes main
+  // keyframes per attempt, in turn, each match refined by the same ICP) and the join verified like a re-entry
   // (reentry_min_eigen_ratio, reentry_check against the main keyframes near it); once it holds,
   // the segment's keyframes, model and motion state move into the main frame, a loop edge joins it
   // to the main keyframes, and its views are the main model's from then on (TrackResult::in_main).
@@ -251,6 +253,7 @@ struct TrackerOptions {
   int segment_after_views = 8;
   int max_segments = 16;
   int segment_join_every = 1;
+  int segment_join_feature_keyframes = 8;  // 0: FPFH only
   SegmentJoinOptions segment_join;
   double loop_radius_mm = 10.0;   // keyframe centres closer than this are loop candidates
   int loop_min_separation = 10;   // keyframes
@@ -374,6 +377,12 @@ struct TrackResult {
   int segment = 0;                    // the segment of the view (accepted views)
   bool new_segment = false;           // the view started that segment
   bool segment_joined = false;        // the segment was joined to the main model before this view
+  // Where a preview may draw a view of a segment apart (accepted, !in_main): world_from_cam with the
+  // segment's frame moved back to the main frame's origin (MainFromSegmentFrame), beside where the
+  // model was lost; not registered to it. In the main frame: world_from_cam.
+  Rigid3d display_from_cam = Rigid3d::Identity();
+  // segment_joined: carries what was drawn at that segment's display_from_cam poses into the main frame.
+  Rigid3d main_from_display = Rigid3d::Identity();
   std::string join_attempt;           // what a join attempt before this view found (empty: none was made)
   // The pose is in the main frame (the first segment, or one joined to it): fuse the view into the
   // main model only then.
@@ -476,8 +485,13 @@ class Tracker {
   void StartSegment(Rigid3d* pose, TrackResult* out);
   // Tries to join segment s to the main model; true when it did (then merged, see TrackerOptions).
   // *why: what it found, and its time.
-  bool TryJoinSegment(int s, std::string* why);
-  bool JoinSegmentNow(int s, std::string* why);  // the same, untimed
+  // *main_from_segment (optional): the join's transform, when it joined.
+  bool TryJoinSegment(int s, std::string* why, Rigid3d* main_from_segment = nullptr);
+  bool JoinSegmentNow(int s, std::string* why, Rigid3d* main_from_segment);  // the same, untimed
+  // The join's second way: keyframe features of the segment's newest keyframe (`newest`) against
+  // main keyframes in turn, refined by RefineSegmentJoin on `seg` (thinned samples).
+  SegmentJoinResult JoinSegmentByFeatures(int s, int newest, const SurfacePoints& seg, std::string* why);
+  void EnsureKeyframeFeatures(Keyframe* kf);  // kOnDemand: extracts them at first use
   // The main model's samples (world), for the join target.
   SurfacePoints MainSamples() const;
   bool RelocaliseLocally(const SurfacePoints& samples, TrackResult* out, bool* from_prediction);
@@ -581,6 +595,7 @@ class Tracker {
     size_t edges_before = 0, deferred_edges_before = 0;
     int64_t current_since = -1;
     int64_t capture_ns = 0;
+    int lost_with_points_before = 0;  // lost_with_points_ when the view came (UndoFrom restores it)
     double rmse_pushed_mm = -1;
     bool in_model = false;
     bool relocalised = false;
@@ -593,6 +608,7 @@ class Tracker {
     int64_t first_view = 0;
     bool joined = false;
     size_t keyframes_at_attempt = 0;
+    size_t feature_cursor = 0;  // the next main keyframe the join's feature matching tries
   };
   std::vector<Segment> segments_ = {Segment{}};
   int active_segment_ = 0;

@@ -29,6 +29,7 @@ class TrackerScan : public ::testing::Test {
   HeightField hf_;
   PinholeBrownConrady cam_;
   PinholeBrownConrady small_cam_ = TestCamera(160, 120, 500);
+  void LostScanStartsASegmentThatJoins(const TrackerOptions& o, const std::string& joined_by);
 };
 
 TEST_F(TrackerScan, TracksAStripRefusesABadViewAndRelocalises) {
@@ -499,12 +500,9 @@ TEST_F(TrackerScan, ALostTrackReentersOnlyAtTheRelocalisationResidual) {
 
 // Segments: a probe put down over ground the model has not seen (a lift-out) starts a segment of
 // its own after segment_after_views views that cannot be placed; once its model overlaps the main
-// one, it is joined, and every view ends where it belongs.
-TEST_F(TrackerScan, ALostScanStartsASegmentThatJoinsWhenItOverlaps) {
-  TrackerOptions o;
-  o.features.max_features = 800;
-  o.segment_after_views = 3;
-  o.segment_join.min_correspondences = 300;  // the test's views are 9.6 × 7.2 mm
+// one, it is joined (`joined_by`: the join's account starts "joined by <joined_by>"), and every
+// view ends where it belongs.
+void TrackerScan::LostScanStartsASegmentThatJoins(const TrackerOptions& o, const std::string& joined_by) {
   Tracker tracker(cam_, o);
   std::vector<std::pair<int64_t, Rigid3d>> truth;  // accepted views
   uint32_t seed = 1;
@@ -537,6 +535,9 @@ TEST_F(TrackerScan, ALostScanStartsASegmentThatJoinsWhenItOverlaps) {
   for (double x = -1; x >= -18.01; x -= 1.0) {
     const TrackResult r = feed(x);
     ASSERT_TRUE(r.accepted) << "x = " << x << ": " << r.reason;
+    if (r.segment_joined) {
+      EXPECT_EQ(r.join_attempt.rfind("joined by " + joined_by, 0), 0u) << r.join_attempt;
+    }
     joined = joined || r.segment_joined;
     if (joined) {
       EXPECT_TRUE(r.in_main);
@@ -555,6 +556,45 @@ TEST_F(TrackerScan, ALostScanStartsASegmentThatJoinsWhenItOverlaps) {
     EXPECT_LT(TranslationDistanceMm(p, want), 0.05) << "view " << view;
     EXPECT_LT(RotationAngleRad(p, want) * 180 / M_PI, 0.1) << "view " << view;
   }
+}
+
+TrackerOptions SegmentTestOptions() {
+  TrackerOptions o;
+  o.features.max_features = 800;
+  o.segment_after_views = 3;
+  o.segment_join.min_correspondences = 300;  // the test's views are 9.6 × 7.2 mm
+  return o;
+}
+
+TEST_F(TrackerScan, ALostScanStartsASegmentThatJoinsWhenItOverlaps) {
+  TrackerOptions o = SegmentTestOptions();
+  o.segment_join_feature_keyframes = 0;  // FPFH alone
+  LostScanStartsASegmentThatJoins(o, "fpfh");
+}
+
+TEST_F(TrackerScan, ASegmentFpfhCannotPlaceJoinsByKeyframeFeatures) {
+  TrackerOptions o = SegmentTestOptions();
+  o.segment_join.fpfh.min_overlap = 1.0;  // FPFH's verification never passes: the features must join
+  LostScanStartsASegmentThatJoins(o, "features");
+}
+
+TEST_F(TrackerScan, UndoneRefusedViewsDoNotCountTowardASegment) {
+  TrackerOptions o;
+  o.features.max_features = 800;
+  o.segment_after_views = 2;
+  o.map.undo_inserts = 16;
+  Tracker tracker(cam_, o);
+  uint32_t seed = 1;
+  for (double x = -24; x <= -19.99; x += 1.0) ASSERT_TRUE(Feed(&tracker, Truth(x, 0), seed++).accepted);
+  const int64_t first_off = tracker.views();
+  for (double x = 10; x <= 11.01; x += 1.0) EXPECT_FALSE(Feed(&tracker, Truth(x, 0), seed++).accepted);
+  ASSERT_TRUE(tracker.UndoFrom(first_off).ok);
+  // As if the two had never come: two more refused views, and only the third starts a segment.
+  for (double x = 12; x <= 13.01; x += 1.0) EXPECT_FALSE(Feed(&tracker, Truth(x, 0), seed++).accepted);
+  EXPECT_EQ(tracker.segments(), 1);
+  const TrackResult third = Feed(&tracker, Truth(14, 0), seed++);
+  EXPECT_TRUE(third.new_segment);
+  EXPECT_EQ(tracker.segments(), 2);
 }
 
 TEST_F(TrackerScan, ASegmentThatNeverOverlapsStaysApart) {

@@ -845,19 +845,26 @@ ArchFrame AnalyzeArch(const TriangleMesh& mesh) {
   return arch;
 }
 
-double AxisDepthToArchMm(const ArchFrame& arch, const Rigid3d& world_from_probe) {
+int ArchPointNearestAxis(const ArchFrame& arch, const Rigid3d& world_from_probe) {
   const Rigid3d probe_from_world = world_from_probe.inverse();
-  double best_r2 = kInf, depth = std::numeric_limits<double>::quiet_NaN();
-  for (const auto& q : arch.curve) {
-    const Eigen::Vector3d p = probe_from_world * q.position;
+  double best_r2 = kInf;
+  int best = -1;
+  for (size_t i = 0; i < arch.curve.size(); ++i) {
+    const Eigen::Vector3d p = probe_from_world * arch.curve[i].position;
     if (p.z() <= 0) continue;
     const double r2 = p.x() * p.x() + p.y() * p.y();
     if (r2 < best_r2) {
       best_r2 = r2;
-      depth = p.z();
+      best = static_cast<int>(i);
     }
   }
-  return depth;
+  return best;
+}
+
+double AxisDepthToArchMm(const ArchFrame& arch, const Rigid3d& world_from_probe) {
+  const int i = ArchPointNearestAxis(arch, world_from_probe);
+  if (i < 0) return std::numeric_limits<double>::quiet_NaN();
+  return (world_from_probe.inverse() * arch.curve[static_cast<size_t>(i)].position).z();
 }
 
 // ---------------------------------------------------------------------------------------------

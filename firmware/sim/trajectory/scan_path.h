@@ -84,6 +84,8 @@ ArchFrame AnalyzeArch(const TriangleMesh& mesh);
 // points in front of the camera: the "distance along the optical axis to the arch" used as the
 // depth-of-field criterion. NaN when the whole curve is behind the camera.
 double AxisDepthToArchMm(const ArchFrame& arch, const Rigid3d& world_from_probe);
+// The index of that curve point in arch.curve; −1 when the whole curve is behind the camera.
+int ArchPointNearestAxis(const ArchFrame& arch, const Rigid3d& world_from_probe);
 
 // ---------------------------------------------------------------------------------------------
 // Scan paths
