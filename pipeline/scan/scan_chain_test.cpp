@@ -373,6 +373,56 @@ TEST(ScanChain, ACoarseLiveVolumeIsAlwaysFusedAgainAtTheScansVoxel) {
   EXPECT_LT(result.report["trueness_rms_um"].get<double>(), 20.0);
 }
 
+// A scan that loses the model early and goes on in a segment that never joins (a height field
+// strip, pipeline/register/test_surfaces.h): FinishScan makes the larger group of views the model
+// (moved back to the main frame's place) and saves the first views apart; nothing is fused at a
+// guess.
+TEST(ScanChain, TheLargestGroupOfViewsIsTheModelAndTheOtherIsSavedApart) {
+  using namespace d3d::testing;
+  const HeightField hf(31);
+  const PinholeBrownConrady cam = TestCamera();
+  ScanOptions o;
+  o.tracker.features.max_features = 800;
+  o.tracker.segment_after_views = 2;
+  ScanRegistrar reg(cam, o.tracker);
+  ScanFuser fuser(cam, o.tsdf, o.free_space);
+  std::vector<ReconstructedView> views;
+  ScanTimes times;
+  auto feed = [&](double x) {
+    const SyntheticView v = RenderHeightField(hf, cam, LookDown(x, 0, 30), 0.004, static_cast<uint32_t>(views.size() + 1));
+    ReconstructedView rv;
+    rv.points_in_cam = v.points;
+    rv.normals = v.normals;
+    rv.quality = v.quality;
+    rv.texture = v.texture;
+    views.push_back(rv);
+    const TrackResult r = reg.Register(rv, views.size(), static_cast<int64_t>(views.size()) * 33'000'000);
+    if (r.accepted && r.in_main) {
+      ASSERT_TRUE(fuser.Fuse(rv, r.world_from_cam).ok());
+    }
+    ++times.bursts;
+  };
+  for (double x = -24; x <= -20.99; x += 1.0) feed(x);  // the main model: 4 views
+  for (double x = 10; x <= 20.01; x += 1.0) feed(x);    // 17 mm on: 2 refused, then a segment of 9
+  ASSERT_EQ(reg.tracker().segments(), 2);
+  const ScanViewProvider provider = [&](int64_t k, const ScanViewRecord&, ReconstructedView* out) {
+    *out = views[static_cast<size_t>(k)];
+    return Status::Ok();
+  };
+  ScanResult result;
+  ASSERT_TRUE(FinishScan(o, times, &reg, &fuser, provider, {}, &result).ok());
+  EXPECT_EQ(result.report["model_segment"].get<int>(), 1);
+  EXPECT_EQ(result.report["views_in_model"].get<int>(), 9);
+  EXPECT_EQ(result.report["views_apart"].get<int>(), 4);
+  ASSERT_EQ(result.apart.size(), 1u);
+  EXPECT_EQ(result.apart[0].segment, 0);
+  EXPECT_EQ(result.apart[0].views, 4);
+  EXPECT_FALSE(result.apart[0].mesh.faces.empty());
+  EXPECT_FALSE(result.mesh.faces.empty());
+  for (const Rigid3d& p : result.poses) EXPECT_LT(std::abs(p.translation().x()), 100.0);  // not 2 m off
+  for (const Eigen::Vector3d& v : result.mesh.vertices) ASSERT_LT(std::abs(v.x()), 100.0);
+}
+
 TEST(ScanChain, EmptyModelIsAnError) {
   SimSessionOptions so;
   std::unique_ptr<SimSession> session;
