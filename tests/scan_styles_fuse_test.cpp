@@ -10,6 +10,7 @@
 #include <fstream>
 
 #include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
 
 #include "firmware/sim/session/sim_session.h"
 
@@ -66,6 +67,30 @@ TEST(ScanStylesFuse, ALiftOutIsNeverFusedAtAWrongPose) {
   const int placed = j["fused"].get<int>() + j["views_apart"].get<int>();
   EXPECT_GE(placed, bursts - 45 - 20) << j.dump(2);
   EXPECT_LT(j["trueness_rms_um"].get<double>(), 25.0);
+}
+
+// The glare style's scene: the same burst of the same path saturates more of the camera (the wet
+// teeth's glints), and the rest of the picture is the same scene.
+TEST(ScanStylesScene, GlareSaturatesMorePixels) {
+  auto saturated = [](const std::string& style, int64_t* lit) {
+    SimSessionOptions o;
+    o.trajectory = style;
+    std::unique_ptr<SimSession> session;
+    EXPECT_TRUE(SimSession::Create(o, &session).ok());
+    if (!session) return int64_t{0};
+    const Burst b = session->RenderBurst(300, false);
+    int64_t n = 0;
+    *lit = 0;
+    for (const BurstFrame& f : b.frames) {
+      n += cv::countNonZero(f.image >= 255);  // 8-bit sensor (probe_design.h: SensorModel::bits)
+      *lit += cv::countNonZero(f.image >= 40);
+    }
+    return n;
+  };
+  int64_t lit_dry = 0, lit_wet = 0;
+  const int64_t dry = saturated("full-arch", &lit_dry), wet = saturated("glare", &lit_wet);
+  EXPECT_GT(wet, dry + dry / 2 + 50) << "dry " << dry << ", wet " << wet;
+  EXPECT_NEAR(static_cast<double>(lit_wet), static_cast<double>(lit_dry), 0.1 * static_cast<double>(lit_dry));
 }
 
 }  // namespace

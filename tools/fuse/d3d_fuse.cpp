@@ -93,7 +93,7 @@ int main(int argc, char** argv) {
   bool no_model_anchor = false, coverage_ceiling = false, no_free_space = false;
   app.add_option("--sim", sim_model, "scan with the virtual probe: 'typodont' or a mesh file (PLY/STL/OBJ, mm)");
   app.add_option("--bursts", bursts_dir, "a d3d-sim output folder (calibration.json, bursts/NNNNNN/, scene.ply)");
-  app.add_option("--trajectory", trajectory, "--sim: a scan style (full-arch | buccal-first | lingual-first | second-pass | fast | lifts | quadrants | tooth), quadrant or a TUM file")->capture_default_str();
+  app.add_option("--trajectory", trajectory, "--sim: a scan style (full-arch | buccal-first | lingual-first | second-pass | fast | lifts | quadrants | tooth | glare), quadrant or a TUM file")->capture_default_str();
   app.add_option("--seed", seed, "--sim: seed of hand motion and sensor noise")->capture_default_str();
   app.add_option("--out", out_dir, "output folder")->required();
   app.add_option("--every", every, "use every N-th burst (a lower burst rate, for quick runs)")->capture_default_str();

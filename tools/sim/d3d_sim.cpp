@@ -108,7 +108,7 @@ int main(int argc, char** argv) {
   int64_t frames = 30, first = 0;
   bool no_noise = false, no_gamma = false, quiet = false, json = false;
   app.add_option("--model", opt.model, "'typodont' (built-in, default) or a mesh file: PLY/STL/OBJ in mm");
-  app.add_option("--trajectory", opt.trajectory, "a scan style: full-arch (default) | buccal-first | lingual-first | second-pass | fast | lifts | quadrants | tooth; quadrant; or a TUM file");
+  app.add_option("--trajectory", opt.trajectory, "a scan style: full-arch (default) | buccal-first | lingual-first | second-pass | fast | lifts | quadrants | tooth | glare; quadrant; or a TUM file");
   app.add_option("--frames", frames, "number of bursts to render (default 30; 0 = the whole trajectory)");
   app.add_option("--index", first, "index of the first burst (default 0)");
   app.add_option("--seed", opt.seed, "seed of hand motion and sensor noise (default 1)");

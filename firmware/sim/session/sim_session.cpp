@@ -42,6 +42,10 @@ Status SimSession::Create(const SimSessionOptions& options, std::unique_ptr<SimS
     D3D_RETURN_IF_ERROR(Trajectory::LoadTum(t, &s->trajectory_));
   }
   ProbeDesign design = MakeDefaultProbeDesign(options.camera_width, options.camera_height);
+  if (IsScanStyle(t)) {  // the style's scene: wet teeth for "glare"
+    design.enamel.specular_r0 *= ScanStyleWetness(t);
+    design.gingiva.specular_r0 *= ScanStyleWetness(t);
+  }
   design.calibration.pattern.texture_frame = options.texture_frame;
   s->probe_ = std::make_unique<VirtualProbe>(s->scene_, design, options.render);
   *out = std::move(s);

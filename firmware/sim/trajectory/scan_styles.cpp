@@ -89,9 +89,12 @@ ScanPathResult Quadrants(const ArchFrame& arch, const ScanPathOptions& base) {
 
 const std::vector<std::string>& ScanStyleNames() {
   static const std::vector<std::string> names = {"full-arch", "buccal-first", "lingual-first", "second-pass",
-                                                 "fast",      "lifts",        "quadrants",     "tooth"};
+                                                 "fast",      "lifts",        "quadrants",     "tooth",
+                                                 "glare"};
   return names;
 }
+
+double ScanStyleWetness(const std::string& style) { return style == "glare" ? 3.0 : 1.0; }
 
 bool IsScanStyle(const std::string& name) {
   const auto& n = ScanStyleNames();

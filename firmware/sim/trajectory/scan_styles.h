@@ -14,6 +14,8 @@
 //                   (its distal end to the midline): the second starts on ground not yet scanned and
 //                   joins the first over the incisors
 //   tooth           a dwell circling one molar (ScanKind::kTooth)
+//   glare           the full arch over wet teeth: pooled saliva, the specular reflectance of enamel
+//                   and gingiva ×3 (ScanStyleWetness), so more glints saturate the camera
 //
 // Units: mm, ns, s where a name says so.
 #pragma once
@@ -30,6 +32,9 @@ namespace d3d {
 // The style names above, in that order.
 const std::vector<std::string>& ScanStyleNames();
 bool IsScanStyle(const std::string& name);
+// The factor on the materials' specular reflectance R0 (probe_design.h: Material) that the style's
+// scene takes: 3 for "glare", 1 otherwise. A stress condition, not a measured saliva film.
+double ScanStyleWetness(const std::string& style);
 
 // Plans scan-path style `style` over `mesh` with `base` (its seed seeds the style's own choices too:
 // lift times, durations and where the probe is put back). The result's segments include the lifts

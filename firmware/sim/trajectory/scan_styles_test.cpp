@@ -48,6 +48,12 @@ TEST(ScanStyles, StylesDifferAsNamed) {
   EXPECT_GT(ComputeScanPathStats(fast.trajectory, arch).mean_speed_mm_s,
             1.5 * ComputeScanPathStats(base.trajectory, arch).mean_speed_mm_s);
   EXPECT_LT(fast.trajectory.DurationNs(), base.trajectory.DurationNs() * 2 / 3);
+  // Glare is the full arch's path over wet teeth: the same keys, a scene with 3× the specular R0.
+  const ScanPathResult glare = MakeStyledScan(Arch(), "glare", o);
+  ASSERT_EQ(glare.trajectory.keys().size(), base.trajectory.keys().size());
+  EXPECT_EQ(glare.trajectory.EndNs(), base.trajectory.EndNs());
+  EXPECT_EQ(ScanStyleWetness("glare"), 3.0);
+  EXPECT_EQ(ScanStyleWetness("full-arch"), 1.0);
 }
 
 TEST(ScanStyles, LiftsLeaveTheMeasurementVolumeAndComeBackEarlierAlongThePath) {
