@@ -13,6 +13,8 @@
 # to hour (a run's figures move by more than the builds compared differ): compare builds in
 # interleaved runs (--bin A, --bin B, A, B, ...).
 set -euo pipefail
+# The whole script is read before it runs (the braces): a run of hours survives an edit or a pull of it.
+{
 
 usage() {
   cat <<'EOF'
@@ -126,3 +128,5 @@ for i in range(1, runs + 1):
     met += r["bursts_per_s"] >= 28 and r["latency_ms_p95"] <= 100 and r["preview_fps"] >= 15
 print("\n%d of %d runs met >= 28 bursts/s, latency p95 <= 100 ms and preview >= 15 fps" % (met, done))
 PY
+exit
+}

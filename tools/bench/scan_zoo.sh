@@ -7,6 +7,8 @@
 # whose report.json is there is not run again (the zoo is long: start it in the background, stop
 # it, start it again).
 set -euo pipefail
+# The whole script is read before it runs (the braces): a run of hours survives an edit or a pull of it.
+{
 
 usage() {
   cat <<'EOF'
@@ -126,3 +128,5 @@ wrong = sum(r[2].get("wrong_fusions", 0) for r in rows)
 print(f"runs: {len(rows)}, wrong fusions in all: {wrong}, runs failing what must hold: {len(fails)}")
 for f in fails: print("  " + f)
 PY
+exit
+}
