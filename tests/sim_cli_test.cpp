@@ -44,5 +44,16 @@ TEST(SimCli, PreviewWithoutTruthHoldsTheFramesOnly) {
   EXPECT_FALSE(fs::exists(base / "none" / "bursts" / "000200" / "truth_ref"));
 }
 
+// A negative count or index is refused before anything is rendered (it rendered the whole path).
+TEST(SimCli, ANegativeFrameCountIsRefused) {
+  const fs::path dir = fs::temp_directory_path() / "d3d_sim_cli_negative";
+  fs::remove_all(dir);
+  for (const std::string bad : {"--frames -1", "--index -5"}) {
+    const std::string cmd = kBin + "/d3d-sim " + bad + " --quiet --out " + dir.string() + " > " + dir.string() + ".log 2>&1";
+    EXPECT_NE(std::system(cmd.c_str()), 0) << bad;
+    EXPECT_FALSE(fs::exists(dir / "bursts")) << bad;
+  }
+}
+
 }  // namespace
 }  // namespace d3d

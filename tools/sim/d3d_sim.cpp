@@ -109,8 +109,9 @@ int main(int argc, char** argv) {
   bool no_noise = false, no_gamma = false, quiet = false, json = false;
   app.add_option("--model", opt.model, "'typodont' (built-in, default) or a mesh file: PLY/STL/OBJ in mm");
   app.add_option("--trajectory", opt.trajectory, "a scan style: full-arch (default) | buccal-first | lingual-first | second-pass | fast | lifts | quadrants | tooth | glare; quadrant; or a TUM file");
-  app.add_option("--frames", frames, "number of bursts to render (default 30; 0 = the whole trajectory)");
-  app.add_option("--index", first, "index of the first burst (default 0)");
+  app.add_option("--frames", frames, "number of bursts to render (default 30; 0 = the whole trajectory)")
+      ->check(CLI::Range(int64_t{0}, int64_t{100'000'000}));
+  app.add_option("--index", first, "index of the first burst (default 0)")->check(CLI::Range(int64_t{0}, int64_t{100'000'000}));
   app.add_option("--seed", opt.seed, "seed of hand motion and sensor noise (default 1)");
   app.add_option("--rate", opt.burst_rate_hz, "bursts per second (default 30)");
   app.add_option("--camera", camera, "camera size: 640x480 (default) or 1280x1024");
