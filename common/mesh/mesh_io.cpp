@@ -679,6 +679,12 @@ Status ParseStlBinary(std::string_view bytes, TriangleMesh* mesh) {
     return ParseError(Cat("stl: binary header claims ", n, " triangles (", need, " bytes) but the data has ",
                           bytes.size(), " bytes (truncated)"));
   }
+  // Whole triangles beyond the count: the count is wrong, and reading it would drop them silently.
+  // Fewer surplus bytes than a triangle are tolerated (writers that pad the file).
+  if (const uint64_t extra = (bytes.size() - need) / kStlTriangleBytes; extra > 0) {
+    return ParseError(Cat("stl: binary header claims ", n, " triangles but the data holds ", n + extra,
+                          " (", bytes.size() - need, " bytes beyond them): the triangle count is wrong"));
+  }
   if (n == 0) return ParseError("stl: no faces (binary header says 0 triangles)");
   VertexWelder welder(mesh);
   mesh->faces.reserve(static_cast<size_t>(n));

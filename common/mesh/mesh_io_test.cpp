@@ -506,6 +506,11 @@ TEST(MeshIoRefuse, TruncatedBinary) {
   ExpectRefused(stl.substr(0, stl.size() - 1), MeshFormat::kStl, StatusCode::kParseError,
                 "claims 3 triangles (234 bytes) but the data has 233 bytes (truncated)");
   ExpectRefused(stl.substr(0, 40), MeshFormat::kStl, StatusCode::kParseError, "shorter than the 84-byte header");
+  // A count below the data (100 triangles fewer: their data was silently ignored).
+  std::string low = BinaryStl("binary", 103);
+  const uint32_t three = 3;
+  std::memcpy(&low[80], &three, sizeof(three));
+  ExpectRefused(low, MeshFormat::kStl, StatusCode::kParseError, "claims 3 triangles but the data holds 103");
   ExpectRefused("solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1", MeshFormat::kAuto,
                 StatusCode::kParseError, "expected a number, got end of data");
 }
