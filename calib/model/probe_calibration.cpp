@@ -20,22 +20,63 @@ json CameraToJson(const PinholeBrownConrady& c) {
               {"distortion", {c.k1, c.k2, c.p1, c.p2, c.k3}}};
 }
 
-PinholeBrownConrady CameraFromJson(const json& j) {
+// A field of the calibration document, read with its path in every error: "camera.K[0][2] is
+// missing", "pattern.steps must be a whole number" (never the JSON library's own text).
+struct FieldError : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+struct Field {
+  const json& j;
+  std::string path;
+  Field At(const std::string& key) const {
+    const std::string p = path.empty() ? key : path + "." + key;
+    if (!j.is_object() || !j.contains(key)) throw FieldError(p + " is missing");
+    return {j.at(key), p};
+  }
+  Field At(size_t i) const {
+    const std::string p = path + "[" + std::to_string(i) + "]";
+    if (!j.is_array() || i >= j.size()) throw FieldError(p + " is missing");
+    return {j.at(i), p};
+  }
+  bool Has(const std::string& key) const { return j.is_object() && j.contains(key); }
+  size_t Size() const {
+    if (!j.is_array()) throw FieldError(path + " must be a list");
+    return j.size();
+  }
+  double Number() const {
+    if (!j.is_number()) throw FieldError(path + " must be a number");
+    return j.get<double>();
+  }
+  int Integer() const {
+    if (!j.is_number_integer()) throw FieldError(path + " must be a whole number");
+    return j.get<int>();
+  }
+  bool Flag() const {
+    if (!j.is_boolean()) throw FieldError(path + " must be true or false");
+    return j.get<bool>();
+  }
+  std::string Text() const {
+    if (!j.is_string()) throw FieldError(path + " must be a string");
+    return j.get<std::string>();
+  }
+};
+
+PinholeBrownConrady CameraFromJson(const Field& j) {
   PinholeBrownConrady c;
-  c.width = j.at("width").get<int>();
-  c.height = j.at("height").get<int>();
-  const auto& K = j.at("K");
-  c.fx = K.at(0).at(0).get<double>();
-  c.cx = K.at(0).at(2).get<double>();
-  c.fy = K.at(1).at(1).get<double>();
-  c.cy = K.at(1).at(2).get<double>();
-  const auto& d = j.at("distortion");
-  if (d.size() != 5) throw std::runtime_error("distortion must have 5 values (k1,k2,p1,p2,k3)");
-  c.k1 = d.at(0).get<double>();
-  c.k2 = d.at(1).get<double>();
-  c.p1 = d.at(2).get<double>();
-  c.p2 = d.at(3).get<double>();
-  c.k3 = d.at(4).get<double>();
+  c.width = j.At("width").Integer();
+  c.height = j.At("height").Integer();
+  const Field K = j.At("K");
+  c.fx = K.At(0).At(0).Number();
+  c.cx = K.At(0).At(2).Number();
+  c.fy = K.At(1).At(1).Number();
+  c.cy = K.At(1).At(2).Number();
+  const Field d = j.At("distortion");
+  if (d.Size() != 5) throw FieldError(d.path + " must have 5 values (k1, k2, p1, p2, k3)");
+  c.k1 = d.At(0).Number();
+  c.k2 = d.At(1).Number();
+  c.p1 = d.At(2).Number();
+  c.p2 = d.At(3).Number();
+  c.k3 = d.At(4).Number();
   return c;
 }
 
@@ -53,21 +94,21 @@ json PatternToJson(const FringePatternSpec& p) {
               {"texture_frame", p.texture_frame}};
 }
 
-FringePatternSpec PatternFromJson(const json& j) {
+FringePatternSpec PatternFromJson(const Field& j) {
   FringePatternSpec p;
-  p.name = j.at("name").get<std::string>();
-  const std::string axis = j.at("axis").get<std::string>();
-  if (axis.size() != 1) throw std::runtime_error("pattern axis must be \"x\" or \"y\"");
+  p.name = j.At("name").Text();
+  const std::string axis = j.At("axis").Text();
+  if (axis != "x" && axis != "y") throw FieldError(j.path + ".axis must be \"x\" or \"y\"");
   p.axis = axis[0];
-  p.steps = j.at("steps").get<int>();
-  p.fringe_period_px = j.at("fringe_period_px").get<double>();
-  p.phase_origin_px = j.value("phase_origin_px", 0.0);
-  const auto& m = j.at("marker");
-  p.marker_frame = m.at("frame").get<int>();
-  p.marker_first_order = m.at("first_order").get<int>();
-  p.marker_spacing_orders = m.at("spacing_orders").get<int>();
-  p.marker_width_periods = m.at("width_periods").get<double>();
-  p.texture_frame = j.value("texture_frame", false);
+  p.steps = j.At("steps").Integer();
+  p.fringe_period_px = j.At("fringe_period_px").Number();
+  p.phase_origin_px = j.Has("phase_origin_px") ? j.At("phase_origin_px").Number() : 0.0;
+  const Field m = j.At("marker");
+  p.marker_frame = m.At("frame").Integer();
+  p.marker_first_order = m.At("first_order").Integer();
+  p.marker_spacing_orders = m.At("spacing_orders").Integer();
+  p.marker_width_periods = m.At("width_periods").Number();
+  p.texture_frame = j.Has("texture_frame") && j.At("texture_frame").Flag();
   return p;
 }
 
@@ -144,31 +185,40 @@ std::string ProbeCalibration::ToJson() const {
 Status ProbeCalibration::FromJson(const std::string& text, ProbeCalibration* out) {
   ProbeCalibration c;
   try {
-    const json j = json::parse(text);
-    if (j.value("format", "") != "d3dscan.calibration") return ParseError("calibration: not a d3dscan.calibration document");
-    const int version = j.at("version").get<int>();
+    const json doc = json::parse(text);
+    const Field j{doc, ""};
+    if (!j.Has("format") || !j.At("format").j.is_string() || j.At("format").Text() != "d3dscan.calibration")
+      return ParseError("calibration: not a d3dscan.calibration document (format)");
+    const int version = j.At("version").Integer();
     if (version > kFormatVersion) {
       return Unsupported("calibration: format version " + std::to_string(version) + " is newer than " +
                          std::to_string(kFormatVersion));
     }
-    c.source = j.value("source", "");
-    c.camera = CameraFromJson(j.at("camera"));
-    c.projector = CameraFromJson(j.at("projector"));
-    const auto& e = j.at("cam_from_proj");
+    // Lengths are read as millimetres: a document in other units is refused, not misread.
+    if (j.Has("units") && j.At("units").Has("length") && j.At("units").At("length").Text() != "mm")
+      return ParseError("calibration: units.length is '" + j.At("units").At("length").Text() + "'; only mm is read");
+    c.source = j.Has("source") ? j.At("source").Text() : "";
+    c.camera = CameraFromJson(j.At("camera"));
+    c.projector = CameraFromJson(j.At("projector"));
+    const Field e = j.At("cam_from_proj");
     Eigen::Matrix3d R;
-    for (int r = 0; r < 3; ++r)
-      for (int k = 0; k < 3; ++k) R(r, k) = e.at("R").at(r).at(k).get<double>();
+    for (size_t r = 0; r < 3; ++r)
+      for (size_t k = 0; k < 3; ++k) R(static_cast<int>(r), static_cast<int>(k)) = e.At("R").At(r).At(k).Number();
     c.cam_from_proj = Rigid3d::Identity();
     c.cam_from_proj.linear() = R;
-    c.cam_from_proj.translation() = Eigen::Vector3d(e.at("t_mm").at(0).get<double>(), e.at("t_mm").at(1).get<double>(),
-                                                    e.at("t_mm").at(2).get<double>());
-    c.projector_gamma = j.value("projector_gamma", 1.0);
-    c.depth_min_mm = j.at("measurement_volume").at("depth_min_mm").get<double>();
-    c.depth_max_mm = j.at("measurement_volume").at("depth_max_mm").get<double>();
-    c.pattern = PatternFromJson(j.at("pattern"));
+    c.cam_from_proj.translation() = Eigen::Vector3d(e.At("t_mm").At(0).Number(), e.At("t_mm").At(1).Number(), e.At("t_mm").At(2).Number());
+    // Required: a missing gamma read as 1 (linear) gave wrong phases and no point, silently.
+    c.projector_gamma = j.At("projector_gamma").Number();
+    c.depth_min_mm = j.At("measurement_volume").At("depth_min_mm").Number();
+    c.depth_max_mm = j.At("measurement_volume").At("depth_max_mm").Number();
+    c.pattern = PatternFromJson(j.At("pattern"));
     c.Check();
-  } catch (const json::exception& e) {
+  } catch (const FieldError& e) {
     return ParseError(std::string("calibration: ") + e.what());
+  } catch (const json::parse_error& e) {
+    return ParseError("calibration: not valid JSON (at byte " + std::to_string(e.byte) + ")");
+  } catch (const json::exception&) {
+    return ParseError("calibration: not valid JSON");
   } catch (const std::exception& e) {
     return InvalidArgument(std::string("calibration: ") + e.what());
   }

@@ -54,6 +54,37 @@ TEST(ProbeCalibration, RefusesMalformedAndNewerFiles) {
   EXPECT_EQ(ProbeCalibration::Load("/nonexistent/calibration.json", &out).code(), StatusCode::kNotFound);
 }
 
+// Issue 55: a field missing or of the wrong kind is named by its path, never by the JSON library's
+// own text; a missing projector gamma is an error (read as 1 it gave no point, silently); lengths in
+// another unit than mm are refused, not misread.
+TEST(ProbeCalibration, NamesTheFieldThatIsMissingOrWrong) {
+  ProbeCalibration out;
+  const auto refused = [&](const nlohmann::json& j, const std::string& says) {
+    const Status s = ProbeCalibration::FromJson(j.dump(), &out);
+    EXPECT_EQ(s.code(), StatusCode::kParseError) << s.ToString();
+    EXPECT_NE(s.message().find(says), std::string::npos) << s.ToString();
+    EXPECT_EQ(s.message().find("json.exception"), std::string::npos) << s.ToString();
+  };
+  const nlohmann::json good = nlohmann::json::parse(TestCalibration().ToJson());
+  nlohmann::json j = good;
+  j.erase("projector_gamma");
+  refused(j, "projector_gamma is missing");
+  j = good;
+  j["projector"].erase("K");
+  refused(j, "projector.K is missing");
+  j = good;
+  j["camera"]["K"][0][2] = "319.5";
+  refused(j, "camera.K[0][2] must be a number");
+  j = good;
+  j["units"]["length"] = "m";
+  refused(j, "units.length is 'm'");
+  j = good;
+  j["pattern"]["marker"].erase("frame");
+  refused(j, "pattern.marker.frame is missing");
+  const Status bad_json = ProbeCalibration::FromJson("{\"format\": ", &out);
+  EXPECT_NE(bad_json.message().find("not valid JSON (at byte"), std::string::npos) << bad_json.ToString();
+}
+
 TEST(FringePattern, PhaseShiftFramesRecoverTheAbsolutePhase) {
   FringePatternSpec p;
   p.marker_frame = -1;
