@@ -278,13 +278,16 @@ struct Viewer::Impl {
     if (s != nullptr) {
       // Model points, shaded by a headlight: |n · view direction|.
       const Eigen::Vector3f dir = model_from_eye.block<3, 1>(0, 2);
-      colours.resize(s->points.size() * 3);
-      for (size_t i = 0; i < s->points.size(); ++i) {
-        const float shade = 0.25f + 0.75f * std::abs(s->normals[i].dot(dir));
-        colours[3 * i + 0] = static_cast<uint8_t>(235 * shade);
-        colours[3 * i + 1] = static_cast<uint8_t>(228 * shade);
-        colours[3 * i + 2] = static_cast<uint8_t>(205 * shade);
-      }
+      // RGB shaded by floor + (1 − floor) · |n · dir|.
+      const auto shade = [&](const std::vector<Eigen::Vector3f>& normals, const float rgb[3], float floor, std::vector<uint8_t>* out) {
+        out->resize(normals.size() * 3);
+        for (size_t i = 0; i < normals.size(); ++i) {
+          const float f = floor + (1 - floor) * std::abs(normals[i].dot(dir));
+          for (size_t k = 0; k < 3; ++k) (*out)[3 * i + k] = static_cast<uint8_t>(rgb[k] * f);
+        }
+      };
+      const float ivory[3] = {235, 228, 205};
+      shade(s->normals, ivory, 0.25f, &colours);
       glPointSize(o.point_size_px);
       glEnableClientState(GL_VERTEX_ARRAY);
       glEnableClientState(GL_COLOR_ARRAY);
@@ -296,11 +299,8 @@ struct Viewer::Impl {
       // The segment apart from the model, in the NEW SEGMENT colour, shaded alike.
       if (!s->segment_points.empty()) {
         const cv::Scalar c = CueColourBgr(PreviewCue::kNewSegment);
-        segment_colours.resize(s->segment_points.size() * 3);
-        for (size_t i = 0; i < s->segment_points.size(); ++i) {
-          const float shade = 0.35f + 0.65f * std::abs(s->segment_normals[i].dot(dir));
-          for (int k = 0; k < 3; ++k) segment_colours[3 * i + static_cast<size_t>(k)] = static_cast<uint8_t>(c[2 - k] * shade);
-        }
+        const float blue[3] = {static_cast<float>(c[2]), static_cast<float>(c[1]), static_cast<float>(c[0])};
+        shade(s->segment_normals, blue, 0.35f, &segment_colours);
         glVertexPointer(3, GL_FLOAT, sizeof(Eigen::Vector3f), s->segment_points.data());
         glColorPointer(3, GL_UNSIGNED_BYTE, 0, segment_colours.data());
         glDrawArrays(GL_POINTS, 0, static_cast<GLsizei>(s->segment_points.size()));

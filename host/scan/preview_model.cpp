@@ -11,6 +11,15 @@ uint64_t CellKey(const Eigen::Vector3f& p, float inv_cell) {
   return (q(p.x()) << 42) | (q(p.y()) << 21) | q(p.z());
 }
 
+// Adds p (normal n) to a decimated cloud: one point per cell, none beyond max_points.
+void AddDecimated(const Eigen::Vector3f& p, const Eigen::Vector3f& n, float inv_cell, size_t max_points,
+                  std::unordered_map<uint64_t, uint32_t>* cells, std::vector<Eigen::Vector3f>* points,
+                  std::vector<Eigen::Vector3f>* normals) {
+  if (points->size() >= max_points || !cells->try_emplace(CellKey(p, inv_cell), static_cast<uint32_t>(points->size())).second) return;
+  points->push_back(p);
+  normals->push_back(n);
+}
+
 // Appends the tail of `from` that `to` lacks; starts `to` anew when its generation is stale.
 void CopyTail(const std::vector<Eigen::Vector3f>& from, const std::vector<Eigen::Vector3f>& from_normals, uint64_t generation,
               std::vector<Eigen::Vector3f>* to, std::vector<Eigen::Vector3f>* to_normals, uint64_t* to_generation) {
@@ -77,10 +86,8 @@ void PreviewModel::Sample(const cv::Mat& points, const cv::Mat& normals, const R
     const auto* n = normals.ptr<cv::Vec3f>(y);
     for (int x = 0; x < points.cols && out_points->size() < max_points; x += o_.stride_px) {
       if (!std::isfinite(p[x][2]) || !std::isfinite(n[x][2])) continue;
-      const Eigen::Vector3f pw = r * Eigen::Vector3f(p[x][0], p[x][1], p[x][2]) + t;
-      if (!cells->try_emplace(CellKey(pw, inv_cell_), static_cast<uint32_t>(out_points->size())).second) continue;
-      out_points->push_back(pw);
-      out_normals->push_back(r * Eigen::Vector3f(n[x][0], n[x][1], n[x][2]));
+      AddDecimated(r * Eigen::Vector3f(p[x][0], p[x][1], p[x][2]) + t, r * Eigen::Vector3f(n[x][0], n[x][1], n[x][2]), inv_cell_,
+                   max_points, cells, out_points, out_normals);
     }
   }
 }
@@ -89,12 +96,8 @@ void PreviewModel::AddView(int64_t view_index, const TrackResult& track, const c
   if (track.segment_joined) {
     const Eigen::Matrix3f r = track.main_from_display.linear().cast<float>();
     const Eigen::Vector3f t = track.main_from_display.translation().cast<float>();
-    for (size_t i = 0; i < segment_points_.size() && model_points_.size() < o_.max_points; ++i) {
-      const Eigen::Vector3f p = r * segment_points_[i] + t;
-      if (!cells_.try_emplace(CellKey(p, inv_cell_), static_cast<uint32_t>(model_points_.size())).second) continue;
-      model_points_.push_back(p);
-      model_normals_.push_back(r * segment_normals_[i]);
-    }
+    for (size_t i = 0; i < segment_points_.size() && model_points_.size() < o_.max_points; ++i)
+      AddDecimated(r * segment_points_[i] + t, r * segment_normals_[i], inv_cell_, o_.max_points, &cells_, &model_points_, &model_normals_);
     ClearSegment();
   }
   if (!track.accepted) return;

@@ -3,6 +3,23 @@
 #include "common/core/status.h"
 
 namespace d3d {
+namespace {
+
+// Samples thinned to one per sample_voxel_mm voxel, those without a normal dropped.
+SurfacePoints MakeSegmentJoinSamples(const SurfacePoints& points, const SegmentJoinOptions& options) {
+  const SurfacePoints thinned = VoxelDownsample(points, options.sample_voxel_mm);
+  // VoxelDownsample leaves NaN normals where a voxel's normals cancel: drop those samples.
+  SurfacePoints clean;
+  for (size_t i = 0; i < thinned.size(); ++i)
+    if (thinned.normals[i].allFinite()) {
+      clean.points.push_back(thinned.points[i]);
+      clean.normals.push_back(thinned.normals[i]);
+    }
+  return clean;
+}
+
+}  // namespace
+
 
 FpfhOptions DentalFpfh() {
   FpfhOptions o;
@@ -33,18 +50,6 @@ void SegmentJoinOptions::Check() const {
   icp.Check();
 }
 
-SurfacePoints MakeSegmentJoinSamples(const SurfacePoints& points, const SegmentJoinOptions& options) {
-  const SurfacePoints thinned = VoxelDownsample(points, options.sample_voxel_mm);
-  // VoxelDownsample leaves NaN normals where a voxel's normals cancel: drop those samples.
-  SurfacePoints clean;
-  for (size_t i = 0; i < thinned.size(); ++i)
-    if (thinned.normals[i].allFinite()) {
-      clean.points.push_back(thinned.points[i]);
-      clean.normals.push_back(thinned.normals[i]);
-    }
-  return clean;
-}
-
 SegmentJoinTarget MakeSegmentJoinTarget(const SurfacePoints& main, const SegmentJoinOptions& options) {
   options.Check();
   SegmentJoinTarget t;
@@ -54,37 +59,39 @@ SegmentJoinTarget MakeSegmentJoinTarget(const SurfacePoints& main, const Segment
 }
 
 SegmentJoinResult JoinSegment(const SurfacePoints& segment, const SegmentJoinTarget& target, const SegmentJoinOptions& options) {
-  SegmentJoinResult r;
-  if (target.empty()) {
+  if (target.empty()) {  // before the segment's features are made
+    SegmentJoinResult r;
     r.reason = "the main model is empty";
     return r;
   }
-  const SegmentJoinTarget source = MakeSegmentJoinTarget(segment, options);
-  if (source.empty()) {
-    r.reason = "the segment is empty";
-    return r;
-  }
-  r.fpfh = AlignByFpfh(source.features, target.features, options.fpfh);
-  if (!r.fpfh.ok) {
-    r.reason = r.fpfh.reason;
-    return r;
-  }
-  SegmentJoinResult refined = RefineSegmentJoin(source.samples, target, r.fpfh.target_from_source, options, true);
-  refined.fpfh = r.fpfh;
-  if (!refined.ok) refined.reason = "after fpfh: " + refined.reason;
-  return refined;
+  return JoinSegment(MakeSegmentJoinTarget(segment, options), target, options);
 }
 
-SegmentJoinResult RefineSegmentJoin(const SurfacePoints& segment, const SegmentJoinTarget& target, const Rigid3d& main_from_segment,
-                                    const SegmentJoinOptions& options, bool thinned) {
+SegmentJoinResult JoinSegment(const SegmentJoinTarget& segment, const SegmentJoinTarget& target, const SegmentJoinOptions& options) {
   SegmentJoinResult r;
   if (target.empty() || segment.empty()) {
     r.reason = target.empty() ? "the main model is empty" : "the segment is empty";
     return r;
   }
-  SurfacePoints own;
-  if (!thinned) own = MakeSegmentJoinSamples(segment, options);
-  const SurfacePoints& source = thinned ? segment : own;
+  r.fpfh = AlignByFpfh(segment.features, target.features, options.fpfh);
+  if (!r.fpfh.ok) {
+    r.reason = r.fpfh.reason;
+    return r;
+  }
+  SegmentJoinResult refined = RefineSegmentJoin(segment, target, r.fpfh.target_from_source, options);
+  refined.fpfh = r.fpfh;
+  if (!refined.ok) refined.reason = "after fpfh: " + refined.reason;
+  return refined;
+}
+
+SegmentJoinResult RefineSegmentJoin(const SegmentJoinTarget& segment, const SegmentJoinTarget& target, const Rigid3d& main_from_segment,
+                                    const SegmentJoinOptions& options) {
+  SegmentJoinResult r;
+  if (target.empty() || segment.empty()) {
+    r.reason = target.empty() ? "the main model is empty" : "the segment is empty";
+    return r;
+  }
+  const SurfacePoints& source = segment.samples;
   r.icp = RegisterIcp(source, KdTreeTarget(target.samples), main_from_segment, options.icp);
   if (!r.icp.ok) {
     r.reason = "icp: " + r.icp.reason;

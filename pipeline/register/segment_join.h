@@ -53,19 +53,18 @@ struct SegmentJoinTarget {
   FpfhFeatures features;
   bool empty() const { return samples.empty(); }
 };
-// main: the main model's samples (world, normals required).
+// main: the main model's samples (world, normals required). The same preparation (thinned
+// samples and their FPFH features) serves a segment that is joined more than one way.
 SegmentJoinTarget MakeSegmentJoinTarget(const SurfacePoints& main, const SegmentJoinOptions& options);
 
 // Registers `segment` (its samples in its own frame, normals required) onto the target.
 SegmentJoinResult JoinSegment(const SurfacePoints& segment, const SegmentJoinTarget& target, const SegmentJoinOptions& options);
+// The same for a segment already prepared by MakeSegmentJoinTarget.
+SegmentJoinResult JoinSegment(const SegmentJoinTarget& segment, const SegmentJoinTarget& target, const SegmentJoinOptions& options);
 
-// Step 2 alone, from a pose found elsewhere (the tracker's keyframe features): ICP of the segment
-// onto the target from main_from_segment and the same checks. thinned: `segment` is already
-// MakeSegmentJoinSamples' output (else it is thinned here).
-SegmentJoinResult RefineSegmentJoin(const SurfacePoints& segment, const SegmentJoinTarget& target, const Rigid3d& main_from_segment,
-                                    const SegmentJoinOptions& options, bool thinned = false);
-
-// Samples thinned to one per sample_voxel_mm voxel, those without a normal dropped.
-SurfacePoints MakeSegmentJoinSamples(const SurfacePoints& points, const SegmentJoinOptions& options);
+// Step 2 alone, from a pose found elsewhere (the tracker's keyframe features): ICP of the prepared
+// segment's samples onto the target from main_from_segment, and the same checks.
+SegmentJoinResult RefineSegmentJoin(const SegmentJoinTarget& segment, const SegmentJoinTarget& target, const Rigid3d& main_from_segment,
+                                    const SegmentJoinOptions& options);
 
 }  // namespace d3d

@@ -99,11 +99,6 @@ struct HeightField {
     const double a = 0.5 + 0.1 * std::sin(2.1 * x + 1.3 * y) + 0.5 * Sum(blobs, blob_cells[static_cast<size_t>(Cell(x, y))], x, y);
     return std::clamp(a, 0.02, 1.0);
   }
-  Eigen::Vector3d Normal(double x, double y) const {
-    const double e = 1e-4;
-    const double dx = (Height(x + e, y) - Height(x - e, y)) / (2 * e), dy = (Height(x, y + e) - Height(x, y - e)) / (2 * e);
-    return Eigen::Vector3d(-dx, -dy, 1).normalized();
-  }
 };
 
 struct SyntheticView {

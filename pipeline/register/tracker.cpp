@@ -664,13 +664,15 @@ bool Tracker::JoinSegmentNow(int s, std::string* why, Rigid3d* main_from_segment
     *why = "the segment is empty";
     return false;
   }
-  SegmentJoinResult r = JoinSegment(seg, join_target_, o_.segment_join);
+  // Thinned and described once for both ways of joining.
+  const SegmentJoinTarget source = MakeSegmentJoinTarget(seg, o_.segment_join);
+  SegmentJoinResult r = JoinSegment(source, join_target_, o_.segment_join);
   std::string how = "fpfh";
   if (!r.ok) {
     *why = r.reason;
     if (o_.relocalise && o_.segment_join_feature_keyframes > 0) {
       std::string features_why;
-      SegmentJoinResult f = JoinSegmentByFeatures(s, newest, MakeSegmentJoinSamples(seg, o_.segment_join), &features_why);
+      SegmentJoinResult f = JoinSegmentByFeatures(s, newest, source, &features_why);
       if (f.ok) {
         r = std::move(f);
         how = "features (" + features_why + ")";
@@ -761,7 +763,7 @@ void Tracker::EnsureKeyframeFeatures(Keyframe* kf) {
   std::string().swap(kf->packed_feature_texture);
 }
 
-SegmentJoinResult Tracker::JoinSegmentByFeatures(int s, int newest, const SurfacePoints& seg, std::string* why) {
+SegmentJoinResult Tracker::JoinSegmentByFeatures(int s, int newest, const SegmentJoinTarget& seg, std::string* why) {
   SegmentJoinResult none;
   std::vector<int> main;
   for (int k = 0; k < static_cast<int>(keyframes_.size()); ++k)
@@ -783,7 +785,7 @@ SegmentJoinResult Tracker::JoinSegmentByFeatures(int s, int newest, const Surfac
     const FeatureAlignResult a = AlignByFeatures(kn.features, kf.features, o_.features);
     if (!a.ok) continue;
     const Rigid3d guess = graph_.pose(kf.node) * a.target_from_source * graph_.pose(kn.node).inverse();
-    SegmentJoinResult r = RefineSegmentJoin(seg, join_target_, guess, o_.segment_join, true);
+    SegmentJoinResult r = RefineSegmentJoin(seg, join_target_, guess, o_.segment_join);
     if (r.ok) {
       g.feature_cursor += i + 1;
       *why = "keyframe " + std::to_string(j) + ", " + std::to_string(a.inliers) + " feature inliers";

@@ -489,8 +489,8 @@ class Tracker {
   bool TryJoinSegment(int s, std::string* why, Rigid3d* main_from_segment = nullptr);
   bool JoinSegmentNow(int s, std::string* why, Rigid3d* main_from_segment);  // the same, untimed
   // The join's second way: keyframe features of the segment's newest keyframe (`newest`) against
-  // main keyframes in turn, refined by RefineSegmentJoin on `seg` (thinned samples).
-  SegmentJoinResult JoinSegmentByFeatures(int s, int newest, const SurfacePoints& seg, std::string* why);
+  // main keyframes in turn, refined by RefineSegmentJoin on `seg` (prepared by MakeSegmentJoinTarget).
+  SegmentJoinResult JoinSegmentByFeatures(int s, int newest, const SegmentJoinTarget& seg, std::string* why);
   void EnsureKeyframeFeatures(Keyframe* kf);  // kOnDemand: extracts them at first use
   // The main model's samples (world), for the join target.
   SurfacePoints MainSamples() const;
