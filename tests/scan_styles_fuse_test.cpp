@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <ostream>
 
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
@@ -22,9 +23,10 @@ namespace {
 const std::string kBin = D3D_BIN_DIR;
 constexpr double kRateHz = 30;
 
-// The burst index `seconds_before` before the first lift of `style` (seed), from the style's own
-// plan (the same the virtual probe of d3d-fuse follows).
-int64_t BurstBeforeFirstLift(const std::string& style, uint32_t seed, double seconds_before) {
+// Where a style's short case starts (burst index at kRateHz): `seconds_before` the start of the
+// first segment of `phase` (the last one with `last`) in the style's own plan (the same the
+// virtual probe of d3d-fuse follows); 0 for kDwell (the dwell is the whole path).
+int64_t BurstBefore(const std::string& style, uint32_t seed, ScanPhase phase, bool last, double seconds_before) {
   SimSessionOptions o;
   o.trajectory = style;
   o.seed = seed;
@@ -32,18 +34,26 @@ int64_t BurstBeforeFirstLift(const std::string& style, uint32_t seed, double sec
   const Status s = SimSession::Create(o, &session);
   EXPECT_TRUE(s.ok()) << s.ToString();
   if (!s.ok()) return -1;
-  for (const ScanSegment& seg : session->segments())
-    if (seg.phase == ScanPhase::kLift)
-      return std::max<int64_t>(0, static_cast<int64_t>((static_cast<double>(seg.start_ns - session->trajectory().StartNs()) * 1e-9 -
-                                                        seconds_before) * kRateHz));
-  return -1;
+  if (phase == ScanPhase::kDwell) return 0;
+  int64_t at = -1;
+  for (const ScanSegment& seg : session->segments()) {
+    if (seg.phase != phase) continue;
+    at = seg.start_ns;
+    if (!last) break;
+  }
+  if (at < 0) return -1;
+  const double t_s = static_cast<double>(at - session->trajectory().StartNs()) * 1e-9 - seconds_before;
+  return std::max<int64_t>(0, static_cast<int64_t>(t_s * kRateHz));
 }
 
+// d3d-fuse over `bursts` bursts from `first` (every second one used, 2×2 binned: the live profile's
+// rate and size), without the refusion (the poses, which wrong_fusions judges, are the same).
 nlohmann::json RunFuse(const std::string& style, uint32_t seed, int64_t first, int bursts, const fs::path& dir) {
   fs::remove_all(dir);
   const std::string cmd = kBin + "/d3d-fuse --sim typodont --trajectory " + style + " --seed " + std::to_string(seed) +
-                          " --bin 2 --every 2 --first " + std::to_string(first) + " --max-bursts " + std::to_string(bursts) +
-                          " --quiet --json --out " + dir.string() + " > " + dir.string() + ".json 2> " + dir.string() + ".log";
+                          " --bin 2 --every 2 --no-refuse --first " + std::to_string(first) + " --max-bursts " +
+                          std::to_string(bursts / 2) + " --quiet --json --out " + dir.string() + " > " + dir.string() +
+                          ".json 2> " + dir.string() + ".log";
   const int rc = std::system(cmd.c_str());
   EXPECT_EQ(rc, 0) << cmd << " (see " << dir.string() << ".log)";
   std::ifstream f(dir / "report.json");
@@ -52,22 +62,57 @@ nlohmann::json RunFuse(const std::string& style, uint32_t seed, int64_t first, i
   return j;
 }
 
-TEST(ScanStylesFuse, ALiftOutIsNeverFusedAtAWrongPose) {
-  // 3 s of scan before the first lift (the model to come back to), the lift, and what follows:
-  // 150 views at 15 Hz.
-  const int64_t first = BurstBeforeFirstLift("lifts", 1, 3.0);
-  ASSERT_GE(first, 0);
-  const fs::path dir = fs::temp_directory_path() / "d3d_scan_styles_lifts";
-  const nlohmann::json j = RunFuse("lifts", 1, first, 150, dir);
+// One short case per scan-path style (scan_styles.h), over the stretch that style makes hard.
+struct StyleCase {
+  std::string style;
+  ScanPhase phase;        // the case starts `before_s` before the first (or last) segment of this phase
+  bool last = false;
+  double before_s = 2.5;
+  bool lift = false;      // the stretch holds a lift-out
+};
+
+std::ostream& operator<<(std::ostream& os, const StyleCase& c) { return os << c.style; }
+
+class ScanStylesFuse : public ::testing::TestWithParam<StyleCase> {};
+
+// 150 bursts (5 s at 30 Hz, 75 views used) of each style: no view fused at a wrong pose; after a
+// lift-out the views are placed again, on the model (a re-entry) or in a segment of their own
+// (kept and reported, not fused at a guess).
+TEST_P(ScanStylesFuse, NoViewIsFusedAtAWrongPose) {
+  const StyleCase& c = GetParam();
+  constexpr uint32_t kSeed = 1;
+  constexpr int kBursts = 150;
+  const int64_t first = BurstBefore(c.style, kSeed, c.phase, c.last, c.before_s);
+  ASSERT_GE(first, 0) << c.style << " has no " << ScanPhaseName(c.phase) << " segment";
+  const fs::path dir = fs::temp_directory_path() / ("d3d_scan_styles_" + c.style);
+  const nlohmann::json j = RunFuse(c.style, kSeed, first, kBursts, dir);
   ASSERT_TRUE(j.contains("wrong_fusions")) << "no evaluation in " << (dir / "report.json");
   EXPECT_EQ(j["wrong_fusions"].get<int>(), 0) << j.dump(2);
-  const int bursts = j["bursts"].get<int>();
-  // The lift itself: 1–3 s without points (15–45 views); the views after it are placed again, on
-  // the model (fused) or in a segment apart (kept and reported, not fused at a guess).
+  const int views = j["bursts"].get<int>();
+  EXPECT_EQ(views, kBursts / 2);
   const int placed = j["fused"].get<int>() + j["views_apart"].get<int>();
-  EXPECT_GE(placed, bursts - 45 - 20) << j.dump(2);
-  EXPECT_LT(j["trueness_rms_um"].get<double>(), 25.0);
+  // A lift: 1–3 s without points (15–45 views at 15 Hz); otherwise nearly every view is placed.
+  EXPECT_GE(placed, c.lift ? views - 45 - 10 : views - 5) << j.dump(2);
+  EXPECT_LT(j["trueness_rms_um"].get<double>(), 30.0) << j.dump(2);
 }
+
+INSTANTIATE_TEST_SUITE_P(EveryStyle, ScanStylesFuse,
+                         ::testing::Values(StyleCase{"full-arch", ScanPhase::kTransition},
+                                           StyleCase{"buccal-first", ScanPhase::kTransition},
+                                           StyleCase{"lingual-first", ScanPhase::kTransition},
+                                           StyleCase{"second-pass", ScanPhase::kTransition, true},
+                                           StyleCase{"fast", ScanPhase::kTransition},
+                                           StyleCase{"lifts", ScanPhase::kLift, false, 2.0, true},
+                                           StyleCase{"quadrants", ScanPhase::kLift, false, 2.0, true},
+                                           StyleCase{"incisors-first", ScanPhase::kLift, false, 2.0, true},
+                                           StyleCase{"tooth", ScanPhase::kDwell},
+                                           StyleCase{"glare", ScanPhase::kTransition}),
+                         [](const ::testing::TestParamInfo<StyleCase>& info) {
+                           std::string name = info.param.style;
+                           for (char& ch : name)
+                             if (ch == '-') ch = '_';
+                           return name;
+                         });
 
 // The glare style's scene: the same burst of the same path saturates more of the camera (the wet
 // teeth's glints), and the rest of the picture is the same scene.

@@ -522,6 +522,7 @@ void EvaluateScanAgainstScene(const TriangleMesh& mesh, const TriangleMesh& scen
     constexpr double kWrongFusionMm = 0.2, kWrongFusionDeg = 1.0;
     double s2 = 0, sr = 0, smax = 0, rmax = 0;
     int64_t wrong = 0;
+    nlohmann::json wrong_views = nlohmann::json::array();  // the first 50: where to look
     for (size_t k = 0; k < poses.size(); ++k) {
       const Rigid3d e = t.reference_from_scan * poses[k];
       const double d = TranslationDistanceMm(e, true_poses[k]);
@@ -530,13 +531,17 @@ void EvaluateScanAgainstScene(const TriangleMesh& mesh, const TriangleMesh& scen
       smax = std::max(smax, d);
       rmax = std::max(rmax, r);
       sr += r;
-      if (d > kWrongFusionMm || r > kWrongFusionDeg) ++wrong;
+      if (d > kWrongFusionMm || r > kWrongFusionDeg) {
+        ++wrong;
+        if (wrong_views.size() < 50) wrong_views.push_back({{"pose", k}, {"mm", d}, {"deg", r}});
+      }
     }
     j["ate_mm"] = std::sqrt(s2 / static_cast<double>(poses.size()));
     j["ate_deg"] = sr / static_cast<double>(poses.size());
     j["ate_max_mm"] = smax;
     j["ate_max_deg"] = rmax;
     j["wrong_fusions"] = wrong;  // fused views off by > 0.2 mm or > 1 deg
+    j["wrong_fusion_views"] = wrong_views;  // pose: line of poses.txt (0-based, after the header)
     j["ate_trajectory_aligned_mm"] = ate_traj.rmse_mm;
     j["ate_trajectory_aligned_deg"] = ate_traj.mean_deg;
     // Where the trajectory jumped (views in poses.txt order, 0-based): see RelativePoseError.

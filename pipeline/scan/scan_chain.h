@@ -283,7 +283,8 @@ struct ScanResult {
 // pose_graph_max_correction_mm, ms_per_burst (+ per stage), ms_mesh, tsdf_* , mesh_*, events and,
 // with a reference: trueness_rms_um, trueness_mean_um, trueness_mean_abs_um, trueness_p95_um,
 // coverage_pct, best_fit_rmse_um, and ate_mm / ate_deg and rpe_mm / rpe_deg / rpe_max_mm /
-// rpe_max_pose (relative pose error between consecutive views; NaN-free: only when true poses are known).
+// rpe_max_pose (relative pose error between consecutive views; NaN-free: only when true poses are known),
+// wrong_fusions (views off by > 0.2 mm or > 1°) and wrong_fusion_views (the first 50: pose index, mm, deg).
 // INTERNAL when the model is empty (no view accepted).
 [[nodiscard]] Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegistrar* registrar, ScanFuser* fuser,
                                 const ScanViewProvider& provider, const ScanTruth& truth, ScanResult* out);

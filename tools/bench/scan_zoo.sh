@@ -31,7 +31,7 @@ EOF
 }
 
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
-styles="full-arch,buccal-first,lingual-first,second-pass,fast,lifts,quadrants,tooth,glare"
+styles="full-arch,buccal-first,lingual-first,second-pass,fast,lifts,quadrants,incisors-first,tooth,glare"
 seeds="1,2,3" full_seeds="1,2,3,4,5,6,7,8,9,10" arches="" jobs=2 bin="$root/build/bin" out="scan_zoo_out" table_only=0
 extra=(--bin 2 --every 2)
 while [ $# -gt 0 ]; do

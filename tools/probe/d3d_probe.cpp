@@ -15,6 +15,7 @@
 
 #include "firmware/probe/probe_app.h"
 #include "firmware/probe/probe_update.h"
+#include "firmware/sim/trajectory/scan_styles.h"
 #include "tools/dds/tool_dds.h"
 
 using namespace d3d;
@@ -39,7 +40,7 @@ int main(int argc, char** argv) {
   int64_t frames = 0;
   cli.add_option("--sim", sim, "virtual probe scene: typodont or a mesh file (PLY/STL/OBJ, mm); implies --camera sim");
   cli.add_option("--camera", camera, "capture backend: auto (first real camera), libcamera, sim (default: sim with --sim, else auto)");
-  cli.add_option("--trajectory", capture.trajectory, "sim scan path: a style (full-arch|buccal-first|lingual-first|second-pass|fast|lifts|quadrants|tooth|glare), quadrant or FILE.tum")->capture_default_str();
+  cli.add_option("--trajectory", capture.trajectory, "sim scan path: a style (" + ScanStyleList("|") + "), quadrant or FILE.tum")->capture_default_str();
   cli.add_option("--rate", app_options.rate_hz, "bursts per second")->capture_default_str();
   cli.add_option("--frames", frames, "publish this many bursts, wait for readers' acks, exit (0 = until SIGINT)")->capture_default_str();
   cli.add_option("--seed", capture.seed, "sim: scan path and sensor noise seed")->capture_default_str();

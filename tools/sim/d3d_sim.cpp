@@ -108,7 +108,7 @@ int main(int argc, char** argv) {
   int64_t frames = 30, first = 0;
   bool no_noise = false, no_gamma = false, quiet = false, json = false;
   app.add_option("--model", opt.model, "'typodont' (built-in, default) or a mesh file: PLY/STL/OBJ in mm");
-  app.add_option("--trajectory", opt.trajectory, "a scan style: full-arch (default) | buccal-first | lingual-first | second-pass | fast | lifts | quadrants | tooth | glare; quadrant; or a TUM file");
+  app.add_option("--trajectory", opt.trajectory, "a scan style: " + ScanStyleList() + " (default full-arch); quadrant; or a TUM file");
   app.add_option("--frames", frames, "number of bursts to render (default 30; 0 = the whole trajectory)")
       ->check(CLI::Range(int64_t{0}, int64_t{100'000'000}));
   app.add_option("--index", first, "index of the first burst (default 0)")->check(CLI::Range(int64_t{0}, int64_t{100'000'000}));

@@ -35,9 +35,7 @@ Status SimSession::Create(const SimSessionOptions& options, std::unique_ptr<SimS
     s->segments_ = std::move(result.segments);
   } else {
     if (!std::filesystem::exists(t)) {
-      std::string styles;
-      for (const std::string& n : ScanStyleNames()) styles += (styles.empty() ? "" : ", ") + n;
-      return NotFound("scan path '" + t + "': neither a scan style (" + styles + "), quadrant, nor a TUM file");
+      return NotFound("scan path '" + t + "': neither a scan style (" + ScanStyleList(", ") + "), quadrant, nor a TUM file");
     }
     D3D_RETURN_IF_ERROR(Trajectory::LoadTum(t, &s->trajectory_));
   }

@@ -64,8 +64,26 @@ ScanPathResult WithLifts(ScanPathResult base, uint32_t seed) {
   return out;
 }
 
-// Two quadrants joined by a 2 s lift (style "quadrants").
-ScanPathResult Quadrants(const ArchFrame& arch, const ScanPathOptions& base) {
+// `r` played backwards over the same time span (its segments too): a path that ended at the
+// midline starts there.
+ScanPathResult Reversed(const ScanPathResult& r) {
+  const int64_t t0 = r.trajectory.StartNs(), t1 = r.trajectory.EndNs();
+  std::vector<TimedPose> keys(r.trajectory.keys().rbegin(), r.trajectory.keys().rend());
+  for (TimedPose& k : keys) k.t_ns = t0 + t1 - k.t_ns;
+  ScanPathResult out;
+  out.status = r.status;
+  out.arch = r.arch;
+  out.trajectory = Trajectory(std::move(keys));
+  for (auto s = r.segments.rbegin(); s != r.segments.rend(); ++s) out.segments.push_back({s->phase, t0 + t1 - s->end_ns, t0 + t1 - s->start_ns});
+  return out;
+}
+
+// One quadrant, a lift of lift_ns, then the other quadrant (another hand motion). Each quadrant
+// runs from its distal end to the midline (style "quadrants": the second starts on ground not yet
+// scanned and joins the first over the incisors) or, `outward`, played backwards from the midline
+// to its distal end (style "incisors-first": the second starts on the incisors the first began
+// on, a re-entry onto the model's oldest part).
+ScanPathResult TwoQuadrants(const ArchFrame& arch, const ScanPathOptions& base, bool outward, int64_t lift_ns) {
   ScanPathOptions o = base;
   o.side = 0;
   ScanPathResult first = MakeScanTrajectory(arch, ScanKind::kQuadrant, o);
@@ -74,14 +92,17 @@ ScanPathResult Quadrants(const ArchFrame& arch, const ScanPathOptions& base) {
   o.seed = base.seed + 7919;  // the other hand motion
   ScanPathResult second = MakeScanTrajectory(arch, ScanKind::kQuadrant, o);
   if (!second.ok()) return second;
-  constexpr int64_t kLift = 2 * kNsPerS;
+  if (outward) {
+    first = Reversed(first);
+    second = Reversed(second);
+  }
   const int64_t a_end = first.trajectory.EndNs(), b_start = second.trajectory.StartNs();
   ScanPathResult out;
   out.arch = arch;
-  out.trajectory = JoinWithLift(first.trajectory, a_end, second.trajectory, b_start, kLift, kLiftMm);
+  out.trajectory = JoinWithLift(first.trajectory, a_end, second.trajectory, b_start, lift_ns, kLiftMm);
   out.segments = first.segments;
-  out.segments.push_back({ScanPhase::kLift, a_end, a_end + kLift});
-  AppendSegments(second.segments, b_start, second.trajectory.EndNs(), a_end + kLift - b_start, &out.segments);
+  out.segments.push_back({ScanPhase::kLift, a_end, a_end + lift_ns});
+  AppendSegments(second.segments, b_start, second.trajectory.EndNs(), a_end + lift_ns - b_start, &out.segments);
   return out;
 }
 
@@ -89,12 +110,18 @@ ScanPathResult Quadrants(const ArchFrame& arch, const ScanPathOptions& base) {
 
 const std::vector<std::string>& ScanStyleNames() {
   static const std::vector<std::string> names = {"full-arch", "buccal-first", "lingual-first", "second-pass",
-                                                 "fast",      "lifts",        "quadrants",     "tooth",
-                                                 "glare"};
+                                                 "fast",      "lifts",        "quadrants",     "incisors-first",
+                                                 "tooth",     "glare"};
   return names;
 }
 
 double ScanStyleWetness(const std::string& style) { return style == "glare" ? 3.0 : 1.0; }
+
+std::string ScanStyleList(const std::string& separator) {
+  std::string out;
+  for (const std::string& n : ScanStyleNames()) out += (out.empty() ? "" : separator) + n;
+  return out;
+}
 
 bool IsScanStyle(const std::string& name) {
   const auto& n = ScanStyleNames();
@@ -147,7 +174,8 @@ ScanPathResult MakeStyledScan(const TriangleMesh& mesh, const std::string& style
   }
   ScanPathOptions o = base;
   if (style == "tooth") return MakeScanTrajectory(arch, ScanKind::kTooth, o);
-  if (style == "quadrants") return Quadrants(arch, o);
+  if (style == "quadrants") return TwoQuadrants(arch, o, false, 2 * kNsPerS);
+  if (style == "incisors-first") return TwoQuadrants(arch, o, true, 1'500'000'000);
   if (style == "buccal-first") o.passes = {ScanPhase::kBuccal, ScanPhase::kOcclusal, ScanPhase::kLingual};
   if (style == "lingual-first") o.passes = {ScanPhase::kLingual, ScanPhase::kOcclusal, ScanPhase::kBuccal};
   if (style == "second-pass") o.passes.push_back(ScanPhase::kOcclusal);

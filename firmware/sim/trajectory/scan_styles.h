@@ -13,6 +13,9 @@
 //   quadrants       one quadrant (distal end to the midline), a 2 s lift, then the other quadrant
 //                   (its distal end to the midline): the second starts on ground not yet scanned and
 //                   joins the first over the incisors
+//   incisors-first  each quadrant from the central incisors out to its distal end (a quadrant path
+//                   played backwards), a 1.5 s lift between them: the second starts where the first
+//                   began, over the model's oldest part
 //   tooth           a dwell circling one molar (ScanKind::kTooth)
 //   glare           the full arch over wet teeth: pooled saliva, the specular reflectance of enamel
 //                   and gingiva ×3 (ScanStyleWetness), so more glints saturate the camera
@@ -32,6 +35,8 @@ namespace d3d {
 // The style names above, in that order.
 const std::vector<std::string>& ScanStyleNames();
 bool IsScanStyle(const std::string& name);
+// The names joined by `separator` ("full-arch | buccal-first | ..."), for help texts.
+std::string ScanStyleList(const std::string& separator = " | ");
 // The factor on the materials' specular reflectance R0 (probe_design.h: Material) that the style's
 // scene takes: 3 for "glare", 1 otherwise. A stress condition, not a measured saliva film.
 double ScanStyleWetness(const std::string& style);

@@ -100,6 +100,36 @@ TEST(ScanStyles, QuadrantsJoinTwoHalvesByOneLift) {
   EXPECT_GT((second - start).norm(), 30.0);
 }
 
+TEST(ScanStyles, IncisorsFirstStartsBothQuadrantsAtTheMidline) {
+  ScanPathOptions o;
+  const ScanPathResult r = MakeStyledScan(Arch(), "incisors-first", o);
+  ASSERT_TRUE(r.ok());
+  EXPECT_EQ(CountPhase(r, ScanPhase::kLift), 1);
+  const ArchFrame& arch = r.arch;
+  const Trajectory& t = r.trajectory;
+  int64_t lift_start = 0, resume = 0;
+  for (const ScanSegment& s : r.segments)
+    if (s.phase == ScanPhase::kLift) lift_start = s.start_ns, resume = s.end_ns;
+  // Where the camera looks along the arch (arc mm) at the start, before the lift and after it.
+  auto arc = [&](int64_t t_ns) {
+    const int i = ArchPointNearestAxis(arch, t.WorldFromProbe(t_ns));
+    EXPECT_GE(i, 0);
+    return i < 0 ? -1.0 : arch.curve[static_cast<size_t>(i)].arc_mm;
+  };
+  const double mid = arch.midline_arc_mm;
+  EXPECT_LT(std::abs(arc(t.StartNs()) - mid), 8.0);
+  EXPECT_LT(std::abs(arc(resume) - mid), 8.0);
+  // The first quadrant ends at a distal end, the second at the other one.
+  const double end_a = arc(lift_start), end_b = arc(t.EndNs());
+  EXPECT_GT(std::abs(end_a - mid), 0.35 * arch.length_mm);
+  EXPECT_GT(std::abs(end_b - mid), 0.35 * arch.length_mm);
+  EXPECT_LT((end_a - mid) * (end_b - mid), 0.0);
+  // Segments ordered and within the path.
+  for (size_t k = 1; k < r.segments.size(); ++k) EXPECT_LE(r.segments[k - 1].end_ns, r.segments[k].start_ns + 1);
+  EXPECT_GE(r.segments.front().start_ns, t.StartNs());
+  EXPECT_LE(r.segments.back().end_ns, t.EndNs());
+}
+
 TEST(JoinWithLift, ContinuousAtBothEndsAndBacksOffInBetween) {
   ScanPathOptions o;
   const ScanPathResult base = MakeStyledScan(Arch(), "full-arch", o);
