@@ -106,6 +106,22 @@ void IcpOptions::Check() const {
 
 namespace {
 
+// The information of a pose update x = [ω, t] (rotation about the target origin) in the variables
+// degeneracy is judged in: y = [ω · radius, t_c] with t_c = t + ω × c, the motion of the source
+// centroid c, so that all six are in mm; x = to_x · y. Its eigen decomposition, ascending.
+struct NormalisedInformation {
+  Eigen::Matrix<double, 6, 6> to_x;
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> eigen;
+  NormalisedInformation(const Eigen::Matrix<double, 6, 6>& information, const Eigen::Vector3d& c, double radius) {
+    Eigen::Matrix<double, 6, 6> A = Eigen::Matrix<double, 6, 6>::Identity();
+    A.block<3, 3>(3, 0) << 0, -c.z(), c.y(), c.z(), 0, -c.x(), -c.y(), c.x(), 0;  // t = t_c + [c]× ω
+    Eigen::Matrix<double, 6, 6> D = Eigen::Matrix<double, 6, 6>::Identity();
+    D.topLeftCorner<3, 3>() *= 1.0 / radius;
+    to_x = A * D;
+    eigen.compute(to_x.transpose() * information * to_x);
+  }
+};
+
 struct Match {
   Eigen::Vector3f p;  // moved source point (target frame)
   Eigen::Vector3f q;  // target point
@@ -404,16 +420,9 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
   // judged after scaling rotations by the source radius and moving to the source centroid.
   res.information = H_plane_last;
   {
-    const Eigen::Vector3d c = T * source.Centroid();
-    // Change of variables to ω and t_c = t + ω × c (the translation of the centroid).
-    Eigen::Matrix<double, 6, 6> A = Eigen::Matrix<double, 6, 6>::Identity();
-    A.block<3, 3>(3, 0) << 0, -c.z(), c.y(), c.z(), 0, -c.x(), -c.y(), c.x(), 0;  // t = t_c + [c]× ω
-    Eigen::Matrix<double, 6, 6> D = Eigen::Matrix<double, 6, 6>::Identity();
-    D.topLeftCorner<3, 3>() *= 1.0 / radius;
-    const Eigen::Matrix<double, 6, 6> Hn = D * A.transpose() * H_plane_last * A * D;
-    Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> es(Hn);
-    const double lmax = es.eigenvalues()(5);
-    res.eigen_ratio = lmax > 0 ? es.eigenvalues()(0) / lmax : 0;
+    const NormalisedInformation n(H_plane_last, T * source.Centroid(), radius);
+    const double lmax = n.eigen.eigenvalues()(5);
+    res.eigen_ratio = lmax > 0 ? n.eigen.eigenvalues()(0) / lmax : 0;
   }
   (void)sigma_last;
   if (res.overlap < o.min_overlap) {
@@ -430,6 +439,34 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
   }
   res.ok = true;
   return res;
+}
+
+Rigid3d KeepWellConstrained(const IcpResult& result, const SurfacePoints& source, const Rigid3d& initial, double min_eigen_ratio) {
+  D3D_CHECK_MSG(min_eigen_ratio > 0 && min_eigen_ratio < 1, "KeepWellConstrained: min_eigen_ratio must be in (0, 1)");
+  if (source.empty()) return initial;
+  const Rigid3d& T = result.target_from_source;
+  // The motion from `initial` as a left update [ω, t]: T = (exp(ω), t) ∘ initial.
+  const Eigen::Matrix3d R_delta = T.linear() * initial.linear().transpose();
+  const Eigen::AngleAxisd aa(R_delta);
+  const Eigen::Vector3d omega = aa.angle() * aa.axis();
+  const Eigen::Vector3d t = T.translation() - R_delta * initial.translation();
+  const NormalisedInformation n(result.information, T * source.Centroid(), std::max(source.RadiusMm(), 1e-3));
+  const double lmax = n.eigen.eigenvalues()(5);
+  if (!(lmax > 0)) return initial;
+  Eigen::Matrix<double, 6, 1> x;
+  x << omega, t;
+  const Eigen::Matrix<double, 6, 1> y = n.to_x.inverse() * x;
+  Eigen::Matrix<double, 6, 1> kept = Eigen::Matrix<double, 6, 1>::Zero();
+  for (int i = 0; i < 6; ++i)
+    if (n.eigen.eigenvalues()(i) >= min_eigen_ratio * lmax) kept += n.eigen.eigenvectors().col(i) * n.eigen.eigenvectors().col(i).dot(y);
+  const Eigen::Matrix<double, 6, 1> xk = n.to_x * kept;
+
+  const Eigen::Vector3d w = xk.head<3>();
+  Rigid3d out = Rigid3d::Identity();
+  const Eigen::Matrix3d R_kept = w.norm() > 0 ? Eigen::AngleAxisd(w.norm(), w.normalized()).toRotationMatrix() : Eigen::Matrix3d::Identity();
+  out.linear() = R_kept * initial.linear();
+  out.translation() = R_kept * initial.translation() + xk.tail<3>();
+  return out;
 }
 
 }  // namespace d3d

@@ -190,4 +190,14 @@ struct IcpResult {
 IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, const Rigid3d& initial,
                       const IcpOptions& options = {});
 
+// The ICP pose with its motion from `initial` kept only along the well-constrained directions:
+// along the directions whose eigenvalue of the final level's information (rotations scaled by the
+// source radius, translations at the source centroid, as for IcpOptions::min_eigen_ratio) is below
+// min_eigen_ratio × the largest, the pose stays at `initial` (where ICP slid freely). Source: the
+// solution remapping of Zhang, Kaess & Singh, "On degeneracy of optimization-based state
+// estimation problems", ICRA 2016. `result` must come from RegisterIcp(source, ·, initial, ·) and
+// carry its information (any ok or not-ok result that reached the last level); throws
+// std::invalid_argument for min_eigen_ratio outside (0, 1).
+Rigid3d KeepWellConstrained(const IcpResult& result, const SurfacePoints& source, const Rigid3d& initial, double min_eigen_ratio);
+
 }  // namespace d3d

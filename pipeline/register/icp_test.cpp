@@ -227,6 +227,40 @@ TEST(Icp, PlaneIsDegenerate) {
   EXPECT_NE(r.reason.find("degenerate"), std::string::npos) << r.reason;
 }
 
+TEST(Icp, OnAPlaneOnlyTheConstrainedMotionIsKept) {
+  // A plane seen twice: ICP fixes the height and the tilt, the slide in the plane and the turn
+  // about its normal are free. From a start 0.1 mm too high and 0.3 mm off in the plane, the kept
+  // pose has the height fixed and the in-plane offset of the start, whatever ICP slid to.
+  // (The plane is z = 0 in the target camera's frame turned by LookDown: its normal is the z axis.)
+  HeightField hf(13);
+  hf.flat = 1;
+  const Pair p = MakePair(hf, 1.0, 0.002);
+  KdTreeTarget kd(p.target);
+  Rigid3d off = Rigid3d::Identity();
+  off.translation() = Eigen::Vector3d(0.3, -0.2, 0.1);
+  off.linear() = Eigen::AngleAxisd(0.3 * M_PI / 180, Eigen::Vector3d::UnitX()).toRotationMatrix();
+  const Rigid3d init = off * p.target_from_source;
+  const IcpResult r = RegisterIcp(p.source, kd, init, IcpOptions{});
+  ASSERT_FALSE(r.ok);
+  const Rigid3d kept = KeepWellConstrained(r, p.source, init, IcpOptions{}.min_eigen_ratio);
+  const Rigid3d e = kept * p.target_from_source.inverse();  // the kept pose's error, target frame
+  // Where the view's centre went: back onto the plane, and slid in it as the start had it.
+  const Eigen::Vector3d c = p.target_from_source * p.source.Centroid();
+  const Eigen::Vector3d moved = e * c - c, started = off * c - c;
+  EXPECT_NEAR(moved.z(), 0.0, 0.01);
+  EXPECT_NEAR(moved.x(), started.x(), 0.02);
+  EXPECT_NEAR(moved.y(), started.y(), 0.02);
+  // The tilt fixed: the plane's normal back where it was.
+  EXPECT_LT(std::acos(std::min(1.0, (e.linear() * Eigen::Vector3d::UnitZ()).z())) * 180 / M_PI, 0.02);
+  // A well-constrained fit is kept whole.
+  const auto [q, qinit] = StandardPair();
+  KdTreeTarget kq(q.target);
+  const IcpResult good = RegisterIcp(q.source, kq, qinit, IcpOptions{});
+  ASSERT_TRUE(good.ok) << good.reason;
+  EXPECT_LT(TranslationDistanceMm(KeepWellConstrained(good, q.source, qinit, IcpOptions{}.min_eigen_ratio), good.target_from_source), 1e-6);
+  EXPECT_THROW(KeepWellConstrained(good, q.source, qinit, 0.0), std::invalid_argument);
+}
+
 TEST(Icp, SphereIsSymmetric) {
   // Samples of a sphere cap: rotations about its centre slide freely.
   SurfacePoints s;

@@ -70,10 +70,13 @@ void TrackerOptions::Check() const {
   D3D_CHECK_MSG(grid_decimate_min_gate_mm >= 0, "TrackerOptions: grid_decimate_min_gate_mm >= 0 (0 = off)");
   D3D_CHECK_MSG(sample_stride >= 1 && map_stride >= 1 && keyframe_stride >= 1, "TrackerOptions: strides >= 1");
   D3D_CHECK_MSG(target_scale > 0 && target_scale <= 2 && target_splat >= 0 && target_window >= 0, "TrackerOptions: target");
-  D3D_CHECK_MSG(max_step_mm > 0 && max_step_deg > 0 && view_period_ns >= 0, "TrackerOptions: max_step, view_period_ns");
+  motion.Check();
   D3D_CHECK_MSG(keyframe_overlap > 0 && keyframe_overlap <= 1, "TrackerOptions: keyframe_overlap in (0, 1]");
   D3D_CHECK_MSG(keyframe_max_rotation_deg >= 0 && keyframe_max_views >= 0,
                 "TrackerOptions: keyframe_max_rotation_deg and keyframe_max_views >= 0 (0 = off)");
+  D3D_CHECK_MSG(max_coast_views >= 0, "TrackerOptions: max_coast_views >= 0 (0 = off)");
+  D3D_CHECK_MSG(coast_min_eigen_ratio > 0 && coast_min_eigen_ratio < 1, "TrackerOptions: coast_min_eigen_ratio must be in (0, 1)");
+  D3D_CHECK_MSG(keyframe_jump_mm >= 0 && keyframe_jump_deg >= 0, "TrackerOptions: keyframe_jump_mm and keyframe_jump_deg >= 0 (0 = off)");
   D3D_CHECK_MSG(keyframe_reuse_radius_mm >= 0 && keyframe_reuse_candidates >= 1,
                 "TrackerOptions: keyframe_reuse_radius_mm >= 0 (0 = off) and keyframe_reuse_candidates >= 1");
   D3D_CHECK_MSG(relocalise_candidates >= 1 && loop_min_separation >= 1 && max_loop_candidates >= 0 && near_loop_candidates >= 0,
@@ -183,7 +186,7 @@ void Tracker::CollectKeyframeFeatures() {
 }
 
 Tracker::Tracker(const PinholeBrownConrady& camera, const TrackerOptions& options)
-    : camera_(camera), o_(options), reentry_check_(camera, options.reentry_check), map_(options.map) {
+    : camera_(camera), o_(options), reentry_check_(camera, options.reentry_check), map_(options.map), motion_(options.motion) {
   camera_.Check();
   o_.Check();
   pinhole_ = PinholeIntrinsics::Of(camera).Scaled(o_.target_scale);
@@ -270,34 +273,15 @@ void ScaleInformation(double factor, PoseGraphEdge* e) {
 }
 }  // namespace
 
-bool Tracker::Timed() const {
-  return o_.view_period_ns > 0 && capture_ns_ > 0 && last_accepted_ns_ > 0 && capture_ns_ > last_accepted_ns_;
-}
 
-double Tracker::ViewsElapsed() const {
-  if (Timed()) return static_cast<double>(capture_ns_ - last_accepted_ns_) / static_cast<double>(o_.view_period_ns);
-  return static_cast<double>(index_ - last_accepted_);
-}
 
-bool Tracker::ConsistentMotion(const Rigid3d& pose, std::string* why) const {
-  return ConsistentMotionFrom(last_pose_, ViewsElapsed(), pose, why);
-}
 
 double Tracker::ViewsSinceCandidate() const {
-  if (o_.view_period_ns > 0 && capture_ns_ > 0 && candidate_.capture_ns > 0 && capture_ns_ > candidate_.capture_ns)
-    return static_cast<double>(capture_ns_ - candidate_.capture_ns) / static_cast<double>(o_.view_period_ns);
+  if (o_.motion.view_period_ns > 0 && capture_ns_ > 0 && candidate_.capture_ns > 0 && capture_ns_ > candidate_.capture_ns)
+    return static_cast<double>(capture_ns_ - candidate_.capture_ns) / static_cast<double>(o_.motion.view_period_ns);
   return static_cast<double>(index_ - candidate_.view);
 }
 
-bool Tracker::ConsistentMotionFrom(const Rigid3d& from, double views, const Rigid3d& pose, std::string* why) const {
-  const double step_mm = TranslationDistanceMm(pose, from);
-  const double step_deg = RotationAngleRad(pose, from) * 180 / M_PI;
-  if (step_mm > o_.max_step_mm * views || step_deg > o_.max_step_deg * views) {
-    if (why) *why = "inconsistent motion (" + std::to_string(step_mm) + " mm, " + std::to_string(step_deg) + " deg)";
-    return false;
-  }
-  return true;
-}
 
 TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, const cv::Mat& texture,
                            const ViewAugmenter& augment, int64_t capture_ns) {
@@ -318,6 +302,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   }
   ++index_;
   capture_ns_ = capture_ns;
+  motion_.BeginView(index_, capture_ns);
   anchor_.push_back(-1);
   kf_from_cam_.push_back(Rigid3d::Identity());
   view_log_.emplace_back();
@@ -331,11 +316,11 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   SampleOrganised(points, normals, quality, o_.sample_stride, &samples);
   bool augmented = false;
   if (samples.size() < static_cast<size_t>(o_.min_view_samples) && augment && !map_.empty() &&
-      state_ == TrackingState::kTracking && index_ - last_accepted_ <= 2) {
+      state_ == TrackingState::kTracking && index_ - motion_.last_view() <= 2) {
     // Too little of the view was anchored by its own burst (teeth without a readable marker): while
     // tracking from the view just before, the motion prediction is close enough for the augmenter
     // to try the model there.
-    if (augment(Predict(), map_)) {
+    if (augment(motion_.Predict(), map_)) {
       SampleOrganised(points, normals, quality, o_.sample_stride, &samples);
       augmented = true;
     }
@@ -349,17 +334,21 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     return out;
   }
   bool accepted = false;
-  Rigid3d pose = last_pose_;
+  Rigid3d pose = motion_.last_pose();
   if (map_.empty()) {
     accepted = true;
     pose = Rigid3d::Identity();
     out.state = TrackingState::kTracking;
   } else if (state_ != TrackingState::kLost) {
-    const Rigid3d pred = Predict();
+    const Rigid3d pred = motion_.Predict();
     out.icp = RunIcp(samples, pred, o_.icp);
     if (!out.icp.ok) {
       out.reason = "icp: " + out.icp.reason;
-    } else if (ConsistentMotion(out.icp.target_from_source, &out.reason)) {
+      if (Coast(samples, points, normals, pred, &out)) {
+        out.ms = Ms(t0);
+        return out;
+      }
+    } else if (motion_.Consistent(out.icp.target_from_source, &out.reason)) {
       accepted = true;
       pose = out.icp.target_from_source;
       out.state = TrackingState::kTracking;
@@ -405,7 +394,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     bool from_prediction = false;
     if (RelocaliseLocally(samples, &out, &from_prediction)) {
       // One bad view in a track that never left: no confirmation (reentry_direct_max_views).
-      if (from_prediction && ViewsElapsed() <= o_.reentry_direct_max_views) needs_confirmation = false;
+      if (from_prediction && motion_.ViewsElapsed() <= o_.reentry_direct_max_views) needs_confirmation = false;
       accepted = reentered(why);
     } else {
       out.reason = why + "; local search failed: " + out.reason;
@@ -431,6 +420,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     return out;
   }
   lost_with_points_ = 0;
+  coast_run_ = 0;
   if (augment && !map_.empty() && !augmented && augment(pose, map_)) {
     // The view gained points: register it again from its pose with all of them, when they are
     // enough to change the fit (a view whose own points were only the smooth palate, say).
@@ -443,7 +433,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
       IcpOptions fine = o_.icp;
       fine.levels.erase(fine.levels.begin(), fine.levels.begin() + o_.reregister_first_level);
       IcpResult again = RunIcp(more, pose, fine);
-      if (again.ok && ConsistentMotion(again.target_from_source, nullptr)) {
+      if (again.ok && motion_.Consistent(again.target_from_source, nullptr)) {
         pose = again.target_from_source;
         out.icp = again;
         std::swap(samples, more);
@@ -452,8 +442,13 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   }
   out.accepted = true;
   out.world_from_cam = pose;
+  if (out.state == TrackingState::kTracking && state_ == TrackingState::kTracking && motion_.HasVelocity()) {
+    const Rigid3d pred = motion_.Predict();
+    out.prediction_offset_mm = TranslationDistanceMm(pose, pred);
+    out.prediction_offset_deg = RotationAngleRad(pose, pred) * 180 / M_PI;
+  }
   state_ = out.state;
-  AdvanceMotion(index_, pose, capture_ns_, out.state == TrackingState::kRelocalised);
+  motion_.Advance(pose, out.state == TrackingState::kRelocalised);
   // Into the tracking model unless its residual stands out from the recent views' (see
   // map_max_rmse_ratio); the first view (no ICP) always enters.
   out.in_model = true;
@@ -492,6 +487,35 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   return out;
 }
 
+bool Tracker::Coast(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& normals, const Rigid3d& prediction,
+                    TrackResult* out) {
+  const IcpResult& r = out->icp;
+  const IcpOptions& icp = o_.icp;
+  if (o_.max_coast_views <= 0 || coast_run_ >= o_.max_coast_views || state_ == TrackingState::kInitialising ||
+      motion_.ViewsElapsed() > o_.reentry_direct_max_views)
+    return false;
+  // Refused for its degeneracy alone: it fits the model where it overlaps it.
+  if (r.correspondences < icp.min_correspondences || r.overlap < icp.min_overlap || r.rmse_mm > icp.max_rmse_mm ||
+      r.eigen_ratio >= icp.min_eigen_ratio)
+    return false;
+  const Rigid3d pose = KeepWellConstrained(r, samples, prediction, o_.coast_min_eigen_ratio);
+  if (!motion_.Consistent(pose, nullptr)) return false;
+  ++coast_run_;
+  motion_.Advance(pose, false);
+  ViewLog& log = view_log_.back();
+  log.coasted = true;
+  log.pose = pose;
+  // Into the tracking model (not the fused one): the next view overlaps the stretch it slides along.
+  SampleOrganised(points, normals, cv::Mat(), o_.map_stride, &map_samples_);
+  insert_pending_ = true;
+  pending_pose_ = pose;
+  if (!o_.defer_model_insert) CommitView();
+  out->state = state_;
+  out->reason += "; coasting: tracked along its constrained directions, not fused (" + std::to_string(coast_run_) + " of " +
+                 std::to_string(o_.max_coast_views) + " in a row)";
+  return true;
+}
+
 double Tracker::CommitView() {
   if (!insert_pending_) return 0;
   const auto t0 = std::chrono::steady_clock::now();
@@ -500,16 +524,6 @@ double Tracker::CommitView() {
   return Ms(t0);
 }
 
-Rigid3d Tracker::Predict() const {
-  // Constant velocity, per elapsed view (views skipped for lack of points included) or, with
-  // view_period_ns, per elapsed time.
-  if (prev_accepted_ < 0 || last_accepted_ <= prev_accepted_) return last_pose_;
-  const Rigid3d step = prev_pose_.inverse() * last_pose_;
-  double k = static_cast<double>(index_ - last_accepted_) / static_cast<double>(last_accepted_ - prev_accepted_);
-  if (Timed() && prev_accepted_ns_ > 0 && last_accepted_ns_ > prev_accepted_ns_)
-    k = static_cast<double>(capture_ns_ - last_accepted_ns_) / static_cast<double>(last_accepted_ns_ - prev_accepted_ns_);
-  return k <= 8 ? Rigid3d(last_pose_ * InterpolateRigid(Rigid3d::Identity(), step, k)) : last_pose_;
-}
 
 IcpOptions Tracker::LocalSearchIcp() const {
   IcpOptions icp = o_.icp;
@@ -532,14 +546,14 @@ bool Tracker::ConfirmReentry(const SurfacePoints& samples, TrackResult* out) {
     out->reason = "icp: " + r.reason;
     return false;
   }
-  if (!ConsistentMotionFrom(candidate_.world_from_cam, ViewsSinceCandidate(), r.target_from_source, &out->reason)) return false;
+  if (!motion_.ConsistentFrom(candidate_.world_from_cam, ViewsSinceCandidate(), r.target_from_source, &out->reason)) return false;
   if (!VerifyReentry(samples, r, &out->reentry, &out->reason)) return false;
   out->icp = r;
   out->world_from_cam = r.target_from_source;
   return true;
 }
 
-bool Tracker::AfterGap() const { return state_ == TrackingState::kLost || ViewsElapsed() > o_.reentry_direct_max_views; }
+bool Tracker::AfterGap() const { return state_ == TrackingState::kLost || motion_.ViewsElapsed() > o_.reentry_direct_max_views; }
 
 bool Tracker::VerifyReentry(const SurfacePoints& samples, const IcpResult& r, ReentryEvidence* evidence, std::string* why) {
   if (AfterGap() && r.eigen_ratio < o_.reentry_min_eigen_ratio) {
@@ -613,7 +627,7 @@ SurfacePoints Tracker::MainSamples() const {
 void Tracker::StartSegment(Rigid3d* pose, TrackResult* out) {
   const int s = static_cast<int>(segments_.size());
   // The last pose in the main frame's coordinates (the track may be in another segment apart).
-  const Rigid3d last_at_origin = MainFromSegmentFrame(active_segment_) * last_pose_;
+  const Rigid3d last_at_origin = MainFromSegmentFrame(active_segment_) * motion_.last_pose();
   // The main model rests while the new segment grows: its join features are made once, now.
   const auto t0 = std::chrono::steady_clock::now();
   join_target_ = MakeSegmentJoinTarget(MainSamples(), o_.segment_join);
@@ -633,7 +647,7 @@ void Tracker::StartSegment(Rigid3d* pose, TrackResult* out) {
   current_since_ = -1;
   current_occupancy_.reset();
   candidate_ = ReentryCandidate{};
-  prev_accepted_ = -1;
+  motion_.ForgetVelocity();
   lost_with_points_ = 0;
   undo_barrier_view_ = index_ + 1;
 }
@@ -711,8 +725,7 @@ bool Tracker::JoinSegmentNow(int s, std::string* why, Rigid3d* main_from_segment
   merged.Insert(all, Rigid3d::Identity());
   map_ = std::move(merged);
   if (active_segment_ == s) {
-    last_pose_ = T * last_pose_;
-    prev_pose_ = T * prev_pose_;
+    motion_.MoveFrame(T);
     candidate_ = ReentryCandidate{};
   }
   segments_[static_cast<size_t>(s)].joined = true;
@@ -799,7 +812,7 @@ SegmentJoinResult Tracker::JoinSegmentByFeatures(int s, int newest, const Segmen
 
 bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out, bool* from_prediction) {
   *from_prediction = false;
-  const Eigen::Vector3d here = last_pose_ * samples.Centroid();
+  const Eigen::Vector3d here = motion_.last_pose() * samples.Centroid();
   std::vector<std::pair<double, int>> order;
   for (int k = 0; k < static_cast<int>(keyframes_.size()); ++k) {
     if (!KeyframeInActiveSegment(k)) continue;
@@ -807,7 +820,7 @@ bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out, 
     order.emplace_back((graph_.pose(kf.node) * kf.centre_in_cam - here).norm(), k);
   }
   std::sort(order.begin(), order.end());
-  std::vector<Rigid3d> starts = {Predict(), last_pose_};
+  std::vector<Rigid3d> starts = {motion_.Predict(), motion_.last_pose()};
   for (int i = 0; i < std::min<int>(o_.local_candidates, static_cast<int>(order.size())); ++i)
     starts.push_back(graph_.pose(keyframes_[static_cast<size_t>(order[static_cast<size_t>(i)].second)].node));
   const IcpOptions icp = LocalSearchIcp();
@@ -825,7 +838,7 @@ bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out, 
       last_reason = r.reason;
       continue;
     }
-    if (!ConsistentMotion(r.target_from_source, &last_reason)) continue;
+    if (!motion_.Consistent(r.target_from_source, &last_reason)) continue;
     ReentryEvidence evidence;
     if (!VerifyReentry(samples, r, &evidence, &last_reason)) continue;
     if (found >= 0) {
@@ -856,7 +869,7 @@ bool Tracker::Relocalise(const SurfacePoints& samples, const cv::Mat& points, co
   const ViewFeatures f = ExtractViewFeatures(points, texture, o_.features);
   CollectKeyframeFeatures();
   // Local border search: keyframes nearest the last accepted view first.
-  const Eigen::Vector3d here = last_pose_ * samples.Centroid();
+  const Eigen::Vector3d here = motion_.last_pose() * samples.Centroid();
   std::vector<std::pair<double, int>> order;
   for (int k = 0; k < static_cast<int>(keyframes_.size()); ++k) {
     if (!KeyframeInActiveSegment(k)) continue;
@@ -900,7 +913,9 @@ bool Tracker::Relocalise(const SurfacePoints& samples, const cv::Mat& points, co
 void Tracker::MaybeKeyframe(const SurfacePoints& /*samples*/, const cv::Mat& points, const cv::Mat& normals,
                             const cv::Mat& texture, const Rigid3d& pose, TrackResult* out) {
   SurfacePoints kfs = SampleOrganised(points, normals, cv::Mat(), o_.keyframe_stride);
-  if (current_kf_ >= 0) {
+  const bool jumped = (o_.keyframe_jump_mm > 0 && out->prediction_offset_mm > o_.keyframe_jump_mm) ||
+                      (o_.keyframe_jump_deg > 0 && out->prediction_offset_deg > o_.keyframe_jump_deg);
+  if (current_kf_ >= 0 && !jumped) {
     const Keyframe& current = keyframes_[static_cast<size_t>(current_kf_)];
     const Rigid3d current_from_cam = graph_.pose(current.node).inverse() * pose;
     const bool turned = o_.keyframe_max_rotation_deg > 0 &&
@@ -1136,14 +1151,6 @@ Status Tracker::Optimize(const PoseGraphOptions& options, PoseGraphSummary* summ
   return graph_.Optimize(options, summary);
 }
 
-void Tracker::AdvanceMotion(int64_t view, const Rigid3d& pose, int64_t capture_ns, bool relocalised) {
-  prev_pose_ = last_pose_;
-  prev_accepted_ = relocalised ? -1 : last_accepted_;  // no velocity across a gap
-  prev_accepted_ns_ = last_accepted_ns_;
-  last_pose_ = pose;
-  last_accepted_ = view;
-  last_accepted_ns_ = capture_ns;
-}
 
 void Tracker::PushRecentRmse(double rmse_mm) {
   if (recent_rmse_mm_.size() < kRecentResiduals) recent_rmse_mm_.push_back(rmse_mm);
@@ -1202,21 +1209,26 @@ Tracker::UndoResult Tracker::UndoFrom(int64_t first_view) {
   recent_rmse_mm_.clear();
   recent_rmse_next_ = 0;
   gated_run_ = 0;
-  last_accepted_ = prev_accepted_ = -1;
-  last_pose_ = prev_pose_ = Rigid3d::Identity();
-  last_accepted_ns_ = prev_accepted_ns_ = 0;
+  motion_.Reset();
+  coast_run_ = 0;
   for (size_t v = 0; v < f; ++v) {
-    if (anchor_[v] < 0) continue;
     const ViewLog& log = view_log_[v];
+    if (log.coasted) {
+      motion_.AdvanceAt(static_cast<int64_t>(v), log.pose, log.capture_ns, false);
+      ++coast_run_;
+      continue;
+    }
+    if (anchor_[v] < 0) continue;
+    coast_run_ = 0;
     if (log.rmse_pushed_mm >= 0) PushRecentRmse(log.rmse_pushed_mm);
     gated_run_ = log.in_model ? 0 : gated_run_ + 1;
-    AdvanceMotion(static_cast<int64_t>(v), log.pose, log.capture_ns, log.relocalised);
+    motion_.AdvanceAt(static_cast<int64_t>(v), log.pose, log.capture_ns, log.relocalised);
   }
   candidate_ = ReentryCandidate{};
   // The views refused in a row before first_view count toward a new segment; the undone ones do not.
   lost_with_points_ = f < view_log_.size() ? view_log_[f].lost_with_points_before : lost_with_points_;
-  state_ = last_accepted_ < 0 ? TrackingState::kInitialising : TrackingState::kLost;
-  if (last_accepted_ < 0) D3D_CHECK_MSG(map_.empty(), "Tracker::UndoFrom: no view left but the model is not empty");
+  state_ = motion_.last_view() < 0 ? TrackingState::kInitialising : TrackingState::kLost;
+  if (motion_.last_view() < 0) D3D_CHECK_MSG(map_.empty(), "Tracker::UndoFrom: no view left but the model is not empty");
   r.ok = true;
   return r;
 }

@@ -2,13 +2,14 @@
 // keyframes and a loop-closing pose graph. One Tracker per scan, driven by one thread.
 //
 // Per view (an organised cloud in the camera frame):
-//  1. Prediction: constant velocity from the last two accepted poses (over skipped views too).
+//  1. Prediction: constant velocity from the last two accepted poses, over skipped views too
+//     (motion_model.h).
 //  2. Frame-to-model ICP (icp.h) against the PointMap of every accepted view, by projective
 //     association in the model rendered from the prediction, or the exact nearest model sample
 //     near it, found on uniform grids (grid_target.h) or by a k-d tree (options.association).
 //     A view with too few points (probe lifted, out of range) is skipped without a state change.
 //  3. Checks: ICP ok (overlap, residual, degeneracy) and consistent motion (the step from the last
-//     accepted pose, per elapsed burst, below max_step_mm / max_step_deg). A view failing them is
+//     accepted pose, per elapsed burst, below motion.max_step_mm / max_step_deg). A view failing them is
 //     refused (not fused, not added to the model) and the state becomes kLost.
 //  4. Relocalisation (when ICP fails, and for every view while lost): first a local search, ICP
 //     from the predicted pose, the last accepted pose and the keyframes nearest to it (the probe usually comes
@@ -39,6 +40,7 @@
 #pragma once
 
 #include <functional>
+#include <limits>
 #include <memory>
 #include <opencv2/core.hpp>
 #include <string>
@@ -50,6 +52,7 @@
 #include "pipeline/register/features.h"
 #include "pipeline/register/grid_target.h"
 #include "pipeline/register/icp.h"
+#include "pipeline/register/motion_model.h"
 #include "pipeline/register/point_map.h"
 #include "pipeline/register/pose_graph.h"
 #include "pipeline/register/reentry_check.h"
@@ -125,14 +128,7 @@ struct TrackerOptions {
   // burst (−5.0 ms on average), trueness change median −0.01 µm, within ±0.3 µm in 11 runs and
   // +1.2 µm in one; lossless replay 11.54 → 11.74 µm RMS.
   double grid_decimate_min_gate_mm = 0.5;
-  double max_step_mm = 2.5;       // per view: larger motion is "inconsistent motion"
-  double max_step_deg = 10.0;
-  // The time of one view (ns) when views are not evenly spaced (a live host processes the newest
-  // burst whenever it is free, so the gaps between its views vary): with it and Track()'s capture
-  // times, the motion prediction is constant velocity per unit time and the max_step limits scale
-  // with the time elapsed (in views of this length) rather than with the views counted. 0: views
-  // are evenly spaced (d3d-fuse, lossless replay); capture times are then not used.
-  int64_t view_period_ns = 0;
+  MotionModelOptions motion;  // prediction and the motion check (motion_model.h)
   double keyframe_overlap = 0.7;
   // A view also becomes a keyframe when the camera turned by more than keyframe_max_rotation_deg
   // since the last keyframe, or keyframe_max_views views passed since it (0 = off, overlap only).
@@ -149,6 +145,13 @@ struct TrackerOptions {
   // the transitions' error no longer depends on where one keyframe happened to fall.
   double keyframe_max_rotation_deg = 8.0;
   int keyframe_max_views = 45;
+  // A view whose pose jumped from the motion prediction (TrackResult::prediction_offset_mm / _deg)
+  // by more than these becomes a keyframe of its own (never an older one reused): a jump is where
+  // ICP moved from one layer of a drifted model to another, and a view anchored to the keyframe
+  // before it would carry the jump into its final pose; as a keyframe, its pose comes from the
+  // pose graph's edges, measured from the keyframes' own points (docs/decisions/0003). 0 = off.
+  double keyframe_jump_mm = 0.7;
+  double keyframe_jump_deg = 1.2;
   // Keyframe reuse: when a view would become a keyframe (any rule above), an older keyframe that
   // already covers it becomes the current one instead (ORB-SLAM's keyframe culling, done before
   // the keyframe is made rather than after): one whose centre lies within keyframe_reuse_radius_mm
@@ -196,8 +199,8 @@ struct TrackerOptions {
   // After a loss, a view that the local search or the features place on the model is a re-entry
   // candidate, not yet accepted: it is refused (state stays kLost), and the next view with points
   // must confirm it: ICP from the candidate's pose (the local search's gate, the re-entry residual)
-  // ending within max_step_mm / max_step_deg per view elapsed since the candidate (by time with
-  // view_period_ns: a live host may take a while over the candidate). That view is accepted
+  // ending within motion.max_step_mm / max_step_deg per view elapsed since the candidate (by time with
+  // motion.view_period_ns: a live host may take a while over the candidate). That view is accepted
   // (kRelocalised) and the track resumes from it; otherwise the candidate is dropped and that view
   // is searched in its turn. One view can fit a similar part of the model (a neighbouring tooth)
   // well enough; two in a row rarely agree on it. A live typodont scan lost the model for 91
@@ -209,7 +212,7 @@ struct TrackerOptions {
   // one or two views). false: a re-entry is accepted at once.
   bool confirm_reentry = true;
   // ... except a re-entry that ICP from the motion prediction finds at most this many views
-  // (by time with view_period_ns) after the last accepted view: the track resumes at once
+  // (by time with motion.view_period_ns) after the last accepted view: the track resumes at once
   // (kRelocalised), as after a view refused while tracking. That is one bad view (a degenerate
   // stretch) in a track that never left, not a return from elsewhere. Live typodont replay: a
   // view refused as degenerate at burst 217 left the next one (burst 219, found from the
@@ -217,6 +220,17 @@ struct TrackerOptions {
   // later, where the probe had moved past the model's border, failed to confirm it (overlap 0.20),
   // and the scan never re-entered (130 of 450 bursts processed). 0 = always confirm.
   double reentry_direct_max_views = 2.0;
+  // Coasting: a view whose ICP from the motion prediction fits (overlap, residual) but is
+  // degenerate (a smooth stretch: it slides along some direction) is not fused and does not enter
+  // the model, but while tracking (at most reentry_direct_max_views views after the last placed
+  // view) it keeps the track: its pose, the prediction moved only along the fit's well-constrained
+  // directions (KeepWellConstrained, icp.h), feeds the motion model, so the next view is tracked
+  // from it rather than searched for after a loss. At most this many views in a row; 0 = off.
+  int max_coast_views = 3;
+  // The directions a coasted view takes from its fit: eigenvalue ratio at least this (the weak
+  // directions just above IcpOptions::min_eigen_ratio slide almost as freely: a smooth patch gives
+  // three weak directions, 0.001–0.005, and three strong ones, > 0.1).
+  double coast_min_eigen_ratio = 0.02;
   // A re-entry after a gap (state lost, or more than reentry_direct_max_views views since the last
   // accepted one: views with too few points, a lifted probe) must be well constrained: ICP's
   // eigenvalue ratio (IcpResult::eigen_ratio) at least this. Such a return after a gap also waits
@@ -388,6 +402,10 @@ struct TrackResult {
   // main model only then.
   bool in_main = true;
   int loops_added = 0;
+  // Accepted views: how far (camera centre, mm) the pose lies from the motion model's prediction;
+  // NaN when there was none (the first views, a re-entry, a new segment).
+  double prediction_offset_mm = std::numeric_limits<double>::quiet_NaN();
+  double prediction_offset_deg = std::numeric_limits<double>::quiet_NaN();
   double ms = 0;
 };
 
@@ -409,7 +427,7 @@ class Tracker {
 
   // points, normals: H×W CV_32FC3 camera frame (mm, NaN = none); quality H×W CV_32F or empty;
   // texture H×W CV_8U or empty (then relocalisation uses range features only).
-  // capture_ns: the view's capture time (ns, any epoch), used with TrackerOptions::view_period_ns.
+  // capture_ns: the view's capture time (ns, any epoch), used with TrackerOptions::motion.view_period_ns.
   TrackResult Track(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, const cv::Mat& texture,
                     const ViewAugmenter& augment = {}, int64_t capture_ns = 0);
 
@@ -467,7 +485,6 @@ class Tracker {
 
  private:
   IcpResult RunIcp(const SurfacePoints& source, const Rigid3d& initial, const IcpOptions& icp) const;
-  Rigid3d Predict() const;
   // ICP of the local search and of a re-entry's confirmation: o_.icp with the first level's gate
   // widened to local_search_gate_mm and the residual limit relocalise_max_rmse_mm.
   IcpOptions LocalSearchIcp() const;
@@ -551,25 +568,18 @@ class Tracker {
   int keyframes_reused_ = 0;
   TrackingState state_ = TrackingState::kInitialising;
   int64_t index_ = -1;                // current view index
-  int64_t last_accepted_ = -1;
+  MotionModel motion_;                // the last placed poses: prediction, motion check
   static constexpr size_t kRecentResiduals = 16;  // the "last 16" of map_max_rmse_ratio
   std::vector<double> recent_rmse_mm_;  // ICP residuals of the last kRecentResiduals accepted views (ring)
   size_t recent_rmse_next_ = 0;
   void PushRecentRmse(double rmse_mm);
-  // The motion state after accepting `view` (Track, and UndoFrom's replay of the kept views): the
-  // last accepted becomes the previous one (none after a re-entry: no velocity across a gap).
-  void AdvanceMotion(int64_t view, const Rigid3d& pose, int64_t capture_ns, bool relocalised);
   int gated_run_ = 0;  // views in a row kept out of the model
-  Rigid3d last_pose_ = Rigid3d::Identity(), prev_pose_ = Rigid3d::Identity();
-  int64_t prev_accepted_ = -1;
-  int64_t capture_ns_ = 0, last_accepted_ns_ = 0, prev_accepted_ns_ = 0;  // Track()'s capture times
-  bool Timed() const;           // view_period_ns and the capture times are in use
-  double ViewsElapsed() const;  // since the last accepted view: views counted, or time / view_period_ns
-  // Whether `pose` is within max_step_mm / max_step_deg per view elapsed of the last accepted pose;
-  // if not, *why (when given) says by how much.
-  bool ConsistentMotion(const Rigid3d& pose, std::string* why) const;
-  // The same test of `pose` against `from`, `views` views later.
-  bool ConsistentMotionFrom(const Rigid3d& from, double views, const Rigid3d& pose, std::string* why) const;
+  int coast_run_ = 0;  // views in a row coasted (TrackerOptions::max_coast_views)
+  // Coasts the view (see TrackerOptions::max_coast_views) when `icp` (from `prediction`) allows it:
+  // true and *out filled (refused, the state kept), false when it does not apply.
+  bool Coast(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& normals, const Rigid3d& prediction,
+             TrackResult* out);
+  int64_t capture_ns_ = 0;  // Track()'s capture time of the current view
   // confirm_reentry: the pending re-entry candidate (view index, capture time, pose, how found).
   struct ReentryCandidate {
     bool pending = false;
@@ -578,7 +588,7 @@ class Tracker {
     std::string how;
   };
   ReentryCandidate candidate_;
-  double ViewsSinceCandidate() const;  // views elapsed since candidate_.view (time with view_period_ns)
+  double ViewsSinceCandidate() const;  // views elapsed since candidate_.view (time with motion.view_period_ns)
   // ICP of this view from the candidate's pose; true (and *out filled) when it confirms it.
   bool ConfirmReentry(const SurfacePoints& samples, TrackResult* out);
   // Per view: anchor keyframe (−1 = refused) and keyframe_from_cam.
@@ -599,6 +609,7 @@ class Tracker {
     double rmse_pushed_mm = -1;
     bool in_model = false;
     bool relocalised = false;
+    bool coasted = false;  // refused but carried the motion model (TrackerOptions::max_coast_views)
     Rigid3d pose = Rigid3d::Identity();
   };
   std::vector<ViewLog> view_log_;

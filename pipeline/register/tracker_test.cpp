@@ -416,7 +416,7 @@ TEST_F(TrackerScan, UnevenlySpacedViewsAreTrackedByCaptureTime) {
   o.min_view_samples /= 4;
   const int64_t burst_ns = 33'333'333;
   TrackerOptions timed = o;
-  timed.view_period_ns = burst_ns;
+  timed.motion.view_period_ns = burst_ns;
   Tracker by_views(cam, o), by_time(cam, timed);
   const std::vector<int> bursts = {0, 1, 2, 6, 7, 11, 12, 13};
   auto truth = [](int burst) { return LookDown(-6.0 + burst, 0, 30, 0.05, 0.04, 0.1 + 0.01 * burst); };  // constant velocity
@@ -1020,6 +1020,75 @@ TEST_F(TrackerScan, AnAugmentedViewIsRegisteredAgainWithItsNewPoints) {
     EXPECT_LT(TranslationDistanceMm(a, want), 0.02) << "view " << i;
     EXPECT_LT(RotationAngleRad(a, want) * 180 / M_PI, 0.04) << "view " << i;
     EXPECT_EQ(d.matrix(), p.matrix()) << "view " << i;  // an augmenter that adds nothing changes nothing
+  }
+}
+
+// A smooth stretch (here 13.6 mm of the surface without relief, only the gentle wave): the views
+// over its middle slide along it (ICP degenerate). They are coasted: not fused, but tracked along what they do
+// constrain, the rest from the motion model, so the track is never lost and the relief beyond is
+// tracked on. Without coasting the track is lost in the stretch.
+TEST_F(TrackerScan, ASmoothStretchIsCoastedThroughNotLost) {
+  std::erase_if(hf_.bumps, [](const HeightField::Bump& b) { return std::abs(b.x) < 6.8; });
+  hf_.Bin(hf_.bumps, &hf_.bump_cells);
+  for (const int coast : {3, 0}) {
+    SCOPED_TRACE(coast);
+    TrackerOptions o;
+    o.max_coast_views = coast;
+    Tracker tracker(cam_, o);
+    uint32_t seed = 1;
+    // A steady hand (the motion model predicts it): level flight at a constant tilt.
+    auto truth = [](double x) { return LookDown(x, 0.2, 30, 0.03, -0.02, 0.01); };
+    const Rigid3d first_inv = truth(-10).inverse();
+    int coasted = 0, lost = 0;
+    double worst_after_mm = 0;
+    for (double x = -10; x <= 12.01; x += 0.8) {
+      const TrackResult r = Feed(&tracker, truth(x), seed++);
+      lost += r.state == TrackingState::kLost;
+      if (r.reason.find("coasting") != std::string::npos) {
+        ++coasted;
+        EXPECT_FALSE(r.accepted) << "x = " << x;  // a coasted view is never fused
+        continue;
+      }
+      if (x >= 5) {  // the relief again
+        ASSERT_TRUE(r.accepted) << "x = " << x << ": " << r.reason;
+        worst_after_mm = std::max(worst_after_mm, TranslationDistanceMm(r.world_from_cam, first_inv * truth(x)));
+      }
+      if (coast == 0 && lost > 0) break;
+    }
+    if (coast == 0) {
+      EXPECT_GT(lost, 0);
+      continue;
+    }
+    EXPECT_EQ(lost, 0);
+    EXPECT_GE(coasted, 1);
+    EXPECT_LE(coasted, 3);
+    EXPECT_LT(worst_after_mm, 0.05);
+  }
+}
+
+// A view whose pose jumps from the motion prediction (here the probe really jerked 1.2 mm) is
+// made a keyframe of its own, however much it overlaps the current one: its pose then rests on the
+// pose graph's edges rather than on a tracked step from the keyframe before. Off (0), it is not.
+TEST_F(TrackerScan, AViewThatJumpsFromThePredictionBecomesAKeyframe) {
+  for (const double jump_mm : {0.7, 0.0}) {
+    SCOPED_TRACE(jump_mm);
+    TrackerOptions o;
+    o.keyframe_jump_mm = jump_mm;
+    o.keyframe_jump_deg = 0;
+    Tracker tracker(cam_, o);
+    uint32_t seed = 1;
+    double x = -4;
+    for (int i = 0; i < 6; ++i, x += 0.3) {
+      const TrackResult r = Feed(&tracker, Truth(x, 0), seed++);
+      ASSERT_TRUE(r.accepted) << r.reason;
+      if (i >= 2) {
+        EXPECT_LT(r.prediction_offset_mm, 0.1) << i;
+      }
+    }
+    const TrackResult r = Feed(&tracker, Truth(x + 1.2, 0), seed++);  // 1.5 mm where 0.3 were predicted
+    ASSERT_TRUE(r.accepted) << r.reason;
+    EXPECT_NEAR(r.prediction_offset_mm, 1.2, 0.1);
+    EXPECT_EQ(r.new_keyframe, jump_mm > 0);
   }
 }
 

@@ -39,8 +39,8 @@ void ScanOptions::Check() const {
 TrackerOptions TrackerOptionsForStep(TrackerOptions options, double every) {
   if (!(every >= 1)) throw std::invalid_argument("TrackerOptionsForStep: every must be >= 1");
   if (!options.icp.levels.empty()) options.icp.levels[0].max_distance_mm = std::min(3.0, 0.8 * std::sqrt(every));
-  options.max_step_mm *= every;
-  options.max_step_deg *= every;
+  options.motion.max_step_mm *= every;
+  options.motion.max_step_deg *= every;
   return options;
 }
 

@@ -74,7 +74,7 @@ struct ScanOptions {
 
 // Tracker options for bursts `every` apart (d3d-fuse --every; a live host that drops bursts sees
 // larger steps): the first ICP level's association gate min(3, 0.8·√every) mm, and the motion
-// check's max_step_mm / max_step_deg (per view) times `every`.
+// check's motion.max_step_mm / max_step_deg (per view) times `every`.
 TrackerOptions TrackerOptionsForStep(TrackerOptions options, double every);
 
 // `options` for views binned bin × bin (ScanOptions::bin): the tracker's pixel lattices (ICP

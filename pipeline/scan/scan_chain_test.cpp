@@ -441,13 +441,13 @@ TEST(ScanChain, EmptyModelIsAnError) {
 TEST(ScanChain, TrackerOptionsForStepScaleTheGates) {
   const TrackerOptions base;
   const TrackerOptions six = TrackerOptionsForStep(base, 6);
-  EXPECT_DOUBLE_EQ(six.max_step_mm, 6 * base.max_step_mm);
-  EXPECT_DOUBLE_EQ(six.max_step_deg, 6 * base.max_step_deg);
+  EXPECT_DOUBLE_EQ(six.motion.max_step_mm, 6 * base.motion.max_step_mm);
+  EXPECT_DOUBLE_EQ(six.motion.max_step_deg, 6 * base.motion.max_step_deg);
   EXPECT_NEAR(six.icp.levels[0].max_distance_mm, 0.8 * std::sqrt(6.0), 1e-12);
   EXPECT_DOUBLE_EQ(TrackerOptionsForStep(base, 100).icp.levels[0].max_distance_mm, 3.0);
   const TrackerOptions one = TrackerOptionsForStep(base, 1);
-  EXPECT_DOUBLE_EQ(one.max_step_mm, base.max_step_mm);
-  EXPECT_DOUBLE_EQ(one.max_step_deg, base.max_step_deg);
+  EXPECT_DOUBLE_EQ(one.motion.max_step_mm, base.motion.max_step_mm);
+  EXPECT_DOUBLE_EQ(one.motion.max_step_deg, base.motion.max_step_deg);
 }
 
 }  // namespace

@@ -93,7 +93,7 @@ int main(int argc, char** argv) {
   bool no_model_anchor = false, coverage_ceiling = false, no_free_space = false;
   app.add_option("--sim", sim_model, "scan with the virtual probe: 'typodont' or a mesh file (PLY/STL/OBJ, mm)");
   app.add_option("--bursts", bursts_dir, "a d3d-sim output folder (calibration.json, bursts/NNNNNN/, scene.ply)");
-  app.add_option("--trajectory", trajectory, "--sim: a scan style (full-arch | buccal-first | lingual-first | second-pass | fast | lifts | quadrants | tooth | glare), quadrant or a TUM file")->capture_default_str();
+  app.add_option("--trajectory", trajectory, "--sim: a scan style (" + ScanStyleList() + "), quadrant or a TUM file")->capture_default_str();
   app.add_option("--seed", seed, "--sim: seed of hand motion and sensor noise")->capture_default_str();
   app.add_option("--out", out_dir, "output folder")->required();
   app.add_option("--every", every, "use every N-th burst (a lower burst rate, for quick runs)")->capture_default_str();
@@ -269,7 +269,7 @@ int main(int argc, char** argv) {
       trace.open(trace_path);
       trace << "# burst accepted state rmse_um overlap eigen_ratio correspondences keyframe loops err_mm err_deg"
                " view_rms_um view_order_error_pct tooth_valid_pct in_model reentry_keyframes reentry_agreeing"
-               " reentry_seen_through\n";
+               " reentry_seen_through prediction_offset_mm prediction_offset_deg\n";
       trace_truth = session != nullptr && !scene.faces.empty();
     }
     Rigid3d first_truth_from_est = Rigid3d::Identity();
@@ -330,11 +330,12 @@ int main(int argc, char** argv) {
           ve = EvaluateCloud(view.points_in_cam, view.unwrap.Phi, bin > 1 ? BinnedTruth(b.reference_truth, bin) : b.reference_truth,
                              scene, calib.pattern);
         char line[640];
-        std::snprintf(line, sizeof line, "%lld %d %s %.2f %.3f %.5f %d %d %d %.4f %.4f %.2f %.4f %.1f %d %d %lld %lld\n",
+        std::snprintf(line, sizeof line, "%lld %d %s %.2f %.3f %.5f %d %d %d %.4f %.4f %.2f %.4f %.1f %d %d %lld %lld %.4f %.4f\n",
                       static_cast<long long>(indices[k]), r.accepted ? 1 : 0, TrackingStateName(r.state), r.icp.rmse_mm * 1000,
                       r.icp.overlap, r.icp.eigen_ratio, r.icp.correspondences, r.new_keyframe ? 1 : 0, r.loops_added, err_mm,
                       err_deg, ve.rms_um, ve.order_error_pct, ve.tooth_valid_pct, r.in_model ? 1 : 0, r.reentry.keyframes,
-                      static_cast<long long>(r.reentry.agreeing), static_cast<long long>(r.reentry.seen_through));
+                      static_cast<long long>(r.reentry.agreeing), static_cast<long long>(r.reentry.seen_through),
+                      r.prediction_offset_mm, r.prediction_offset_deg);
         trace << line;
       }
       ms_render += ms(t1 - t0).count();

@@ -303,7 +303,7 @@ int main(int argc, char** argv) {
       if (level < static_cast<int>(ao.scan.tracker.icp.levels.size())) ao.scan.tracker.icp.levels[static_cast<size_t>(level)].max_samples = cap;
     // Live, the gaps between processed views vary with the load: motion prediction and limits by
     // capture time, in views of `step` bursts.
-    if (live_views && sim_rate > 0) ao.scan.tracker.view_period_ns = std::llround(step * 1e9 / sim_rate);
+    if (live_views && sim_rate > 0) ao.scan.tracker.motion.view_period_ns = std::llround(step * 1e9 / sim_rate);
     ao.scan.refuse_min_correction_mm = refuse ? 0.01 : -1;
     ao.keep_views = refuse;
     if (refuse && spill_views != "memory") {
