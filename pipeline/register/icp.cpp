@@ -88,6 +88,7 @@ bool ProjectiveTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector
 
 void IcpOptions::Check() const {
   D3D_CHECK_MSG(!levels.empty(), "IcpOptions: at least one level");
+  D3D_CHECK_MSG(remap_min_eigen_ratio >= 0 && remap_min_eigen_ratio < 1, "IcpOptions: remap_min_eigen_ratio must be in [0, 1)");
   for (const auto& l : levels) {
     D3D_CHECK_MSG(l.stride >= 1 && l.max_iterations >= 1 && l.max_distance_mm > 0 && l.max_samples >= 0,
                   "IcpOptions: level needs stride >= 1, max_iterations >= 1, max_distance_mm > 0, max_samples >= 0");
@@ -399,7 +400,18 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
       rmse_last = std::sqrt(r2sum / std::max(inl, 1));
       // Solve with the Hessian about the source centroid for conditioning (ω, t in the target frame).
       H.diagonal().array() += 1e-9 * H.trace() + 1e-12;
-      const Eigen::Matrix<double, 6, 1> x = -H.ldlt().solve(g);
+      Eigen::Matrix<double, 6, 1> x = -H.ldlt().solve(g);
+      if (o.remap_min_eigen_ratio > 0) {
+        // Solution remapping: no step along the directions the surface leaves free.
+        const NormalisedInformation n(Hp, T * source.Centroid(), radius);
+        const double lmax = n.eigen.eigenvalues()(5);
+        const Eigen::Matrix<double, 6, 1> y = n.to_x.inverse() * x;
+        Eigen::Matrix<double, 6, 1> kept = Eigen::Matrix<double, 6, 1>::Zero();
+        for (int i = 0; i < 6; ++i)
+          if (n.eigen.eigenvalues()(i) >= o.remap_min_eigen_ratio * lmax)
+            kept += n.eigen.eigenvectors().col(i) * n.eigen.eigenvectors().col(i).dot(y);
+        x = n.to_x * kept;
+      }
       if (!x.allFinite()) {
         res.reason = "singular normal equations";
         return res;
@@ -439,34 +451,6 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
   }
   res.ok = true;
   return res;
-}
-
-Rigid3d KeepWellConstrained(const IcpResult& result, const SurfacePoints& source, const Rigid3d& initial, double min_eigen_ratio) {
-  D3D_CHECK_MSG(min_eigen_ratio > 0 && min_eigen_ratio < 1, "KeepWellConstrained: min_eigen_ratio must be in (0, 1)");
-  if (source.empty()) return initial;
-  const Rigid3d& T = result.target_from_source;
-  // The motion from `initial` as a left update [ω, t]: T = (exp(ω), t) ∘ initial.
-  const Eigen::Matrix3d R_delta = T.linear() * initial.linear().transpose();
-  const Eigen::AngleAxisd aa(R_delta);
-  const Eigen::Vector3d omega = aa.angle() * aa.axis();
-  const Eigen::Vector3d t = T.translation() - R_delta * initial.translation();
-  const NormalisedInformation n(result.information, T * source.Centroid(), std::max(source.RadiusMm(), 1e-3));
-  const double lmax = n.eigen.eigenvalues()(5);
-  if (!(lmax > 0)) return initial;
-  Eigen::Matrix<double, 6, 1> x;
-  x << omega, t;
-  const Eigen::Matrix<double, 6, 1> y = n.to_x.inverse() * x;
-  Eigen::Matrix<double, 6, 1> kept = Eigen::Matrix<double, 6, 1>::Zero();
-  for (int i = 0; i < 6; ++i)
-    if (n.eigen.eigenvalues()(i) >= min_eigen_ratio * lmax) kept += n.eigen.eigenvectors().col(i) * n.eigen.eigenvectors().col(i).dot(y);
-  const Eigen::Matrix<double, 6, 1> xk = n.to_x * kept;
-
-  const Eigen::Vector3d w = xk.head<3>();
-  Rigid3d out = Rigid3d::Identity();
-  const Eigen::Matrix3d R_kept = w.norm() > 0 ? Eigen::AngleAxisd(w.norm(), w.normalized()).toRotationMatrix() : Eigen::Matrix3d::Identity();
-  out.linear() = R_kept * initial.linear();
-  out.translation() = R_kept * initial.translation() + xk.tail<3>();
-  return out;
 }
 
 }  // namespace d3d

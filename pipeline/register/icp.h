@@ -154,6 +154,12 @@ struct IcpOptions {
   // source radius so that all six are in mm²). Below: a direction slides freely (plane, sphere,
   // cylinder, extrusion): not ok.
   double min_eigen_ratio = 2e-3;
+  // > 0: solution remapping (Zhang, Kaess & Singh, "On degeneracy of optimization-based state
+  // estimation problems", ICRA 2016): each Gauss–Newton step is taken only along the directions
+  // whose eigenvalue (as for min_eigen_ratio) is at least this × the largest; along the others the
+  // pose stays where it started. For a view known to be degenerate, started from a prediction.
+  // The acceptance is unchanged (a degenerate fit still comes back not ok). 0 = off.
+  double remap_min_eigen_ratio = 0;
   // > 1: association and the normal equations in parallel (TBB). The sums are formed over fixed
   // chunks of 4096 matches added in a fixed order (parallel_deterministic_reduce), so a result
   // repeats bit for bit whatever the schedule and differs from one thread's by rounding only.
@@ -189,15 +195,5 @@ struct IcpResult {
 // Throws std::invalid_argument for invalid options; expected failures are returned.
 IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, const Rigid3d& initial,
                       const IcpOptions& options = {});
-
-// The ICP pose with its motion from `initial` kept only along the well-constrained directions:
-// along the directions whose eigenvalue of the final level's information (rotations scaled by the
-// source radius, translations at the source centroid, as for IcpOptions::min_eigen_ratio) is below
-// min_eigen_ratio × the largest, the pose stays at `initial` (where ICP slid freely). Source: the
-// solution remapping of Zhang, Kaess & Singh, "On degeneracy of optimization-based state
-// estimation problems", ICRA 2016. `result` must come from RegisterIcp(source, ·, initial, ·) and
-// carry its information (any ok or not-ok result that reached the last level); throws
-// std::invalid_argument for min_eigen_ratio outside (0, 1).
-Rigid3d KeepWellConstrained(const IcpResult& result, const SurfacePoints& source, const Rigid3d& initial, double min_eigen_ratio);
 
 }  // namespace d3d

@@ -227,11 +227,12 @@ TEST(Icp, PlaneIsDegenerate) {
   EXPECT_NE(r.reason.find("degenerate"), std::string::npos) << r.reason;
 }
 
-TEST(Icp, OnAPlaneOnlyTheConstrainedMotionIsKept) {
+TEST(Icp, RemappedOnAPlaneOnlyTheConstrainedMotionIsTaken) {
   // A plane seen twice: ICP fixes the height and the tilt, the slide in the plane and the turn
-  // about its normal are free. From a start 0.1 mm too high and 0.3 mm off in the plane, the kept
-  // pose has the height fixed and the in-plane offset of the start, whatever ICP slid to.
-  // (The plane is z = 0 in the target camera's frame turned by LookDown: its normal is the z axis.)
+  // about its normal are free. From a start 0.1 mm too high and 0.3 mm off in the plane, plain ICP
+  // slides anywhere; with solution remapping the height and tilt are fixed and the view's centre
+  // stays where the start put it in the plane. (The plane is z = 0 in the target camera's frame
+  // turned by LookDown: its normal is the z axis.)
   HeightField hf(13);
   hf.flat = 1;
   const Pair p = MakePair(hf, 1.0, 0.002);
@@ -240,25 +241,34 @@ TEST(Icp, OnAPlaneOnlyTheConstrainedMotionIsKept) {
   off.translation() = Eigen::Vector3d(0.3, -0.2, 0.1);
   off.linear() = Eigen::AngleAxisd(0.3 * M_PI / 180, Eigen::Vector3d::UnitX()).toRotationMatrix();
   const Rigid3d init = off * p.target_from_source;
-  const IcpResult r = RegisterIcp(p.source, kd, init, IcpOptions{});
-  ASSERT_FALSE(r.ok);
-  const Rigid3d kept = KeepWellConstrained(r, p.source, init, IcpOptions{}.min_eigen_ratio);
-  const Rigid3d e = kept * p.target_from_source.inverse();  // the kept pose's error, target frame
-  // Where the view's centre went: back onto the plane, and slid in it as the start had it.
   const Eigen::Vector3d c = p.target_from_source * p.source.Centroid();
-  const Eigen::Vector3d moved = e * c - c, started = off * c - c;
-  EXPECT_NEAR(moved.z(), 0.0, 0.01);
-  EXPECT_NEAR(moved.x(), started.x(), 0.02);
-  EXPECT_NEAR(moved.y(), started.y(), 0.02);
-  // The tilt fixed: the plane's normal back where it was.
-  EXPECT_LT(std::acos(std::min(1.0, (e.linear() * Eigen::Vector3d::UnitZ()).z())) * 180 / M_PI, 0.02);
-  // A well-constrained fit is kept whole.
+  const Eigen::Vector3d started = off * c - c;
+  IcpOptions remap;
+  remap.remap_min_eigen_ratio = 0.02;
+  for (const bool remapped : {true, false}) {
+    SCOPED_TRACE(remapped);
+    const IcpResult r = RegisterIcp(p.source, kd, init, remapped ? remap : IcpOptions{});
+    EXPECT_FALSE(r.ok);  // still degenerate
+    EXPECT_NE(r.reason.find("degenerate"), std::string::npos) << r.reason;
+    const Rigid3d e = r.target_from_source * p.target_from_source.inverse();  // its error, target frame
+    const Eigen::Vector3d moved = e * c - c;  // where the view's centre went
+    EXPECT_NEAR(moved.z(), 0.0, 0.01);        // back onto the plane either way
+    EXPECT_LT(std::acos(std::min(1.0, (e.linear() * Eigen::Vector3d::UnitZ()).z())) * 180 / M_PI, 0.02);  // tilt fixed
+    const double slid_mm = (moved - started).head<2>().norm();  // in the plane, from the start
+    if (remapped) {
+      EXPECT_LT(slid_mm, 0.02);
+    } else {
+      EXPECT_GT(slid_mm, 0.1);  // plain ICP slides
+    }
+  }
+  // A well-constrained fit is the same with remapping.
   const auto [q, qinit] = StandardPair();
   KdTreeTarget kq(q.target);
-  const IcpResult good = RegisterIcp(q.source, kq, qinit, IcpOptions{});
-  ASSERT_TRUE(good.ok) << good.reason;
-  EXPECT_LT(TranslationDistanceMm(KeepWellConstrained(good, q.source, qinit, IcpOptions{}.min_eigen_ratio), good.target_from_source), 1e-6);
-  EXPECT_THROW(KeepWellConstrained(good, q.source, qinit, 0.0), std::invalid_argument);
+  const IcpResult plain = RegisterIcp(q.source, kq, qinit, IcpOptions{}), mapped = RegisterIcp(q.source, kq, qinit, remap);
+  ASSERT_TRUE(plain.ok && mapped.ok) << plain.reason << " / " << mapped.reason;
+  EXPECT_LT(TranslationDistanceMm(plain.target_from_source, mapped.target_from_source), 1e-3);
+  remap.remap_min_eigen_ratio = 1;
+  EXPECT_THROW(remap.Check(), std::invalid_argument);
 }
 
 TEST(Icp, SphereIsSymmetric) {

@@ -489,17 +489,23 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
 
 bool Tracker::Coast(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& normals, const Rigid3d& prediction,
                     TrackResult* out) {
-  const IcpResult& r = out->icp;
   const IcpOptions& icp = o_.icp;
   if (o_.max_coast_views <= 0 || coast_run_ >= o_.max_coast_views || state_ == TrackingState::kInitialising ||
       motion_.ViewsElapsed() > o_.reentry_direct_max_views)
     return false;
   // Refused for its degeneracy alone: it fits the model where it overlaps it.
-  if (r.correspondences < icp.min_correspondences || r.overlap < icp.min_overlap || r.rmse_mm > icp.max_rmse_mm ||
-      r.eigen_ratio >= icp.min_eigen_ratio)
-    return false;
-  const Rigid3d pose = KeepWellConstrained(r, samples, prediction, o_.coast_min_eigen_ratio);
+  auto fits = [&](const IcpResult& r) {
+    return r.correspondences >= icp.min_correspondences && r.overlap >= icp.min_overlap && r.rmse_mm <= icp.max_rmse_mm;
+  };
+  if (!fits(out->icp) || out->icp.eigen_ratio >= icp.min_eigen_ratio) return false;
+  // ICP again from the prediction, stepping only along the well-constrained directions.
+  IcpOptions remapped = icp;
+  remapped.remap_min_eigen_ratio = o_.coast_min_eigen_ratio;
+  const IcpResult r = RunIcp(samples, prediction, remapped);
+  if (!fits(r)) return false;
+  const Rigid3d pose = r.target_from_source;
   if (!motion_.Consistent(pose, nullptr)) return false;
+  out->icp = r;
   ++coast_run_;
   motion_.Advance(pose, false);
   ViewLog& log = view_log_.back();

@@ -10,7 +10,8 @@
 //     A view with too few points (probe lifted, out of range) is skipped without a state change.
 //  3. Checks: ICP ok (overlap, residual, degeneracy) and consistent motion (the step from the last
 //     accepted pose, per elapsed burst, below motion.max_step_mm / max_step_deg). A view failing them is
-//     refused (not fused, not added to the model) and the state becomes kLost.
+//     refused (not fused, not added to the model) and the state becomes kLost; optionally one that
+//     fits but is degenerate is coasted instead (max_coast_views, off): not fused, the track kept.
 //  4. Relocalisation (when ICP fails, and for every view while lost): first a local search, ICP
 //     from the predicted pose, the last accepted pose and the keyframes nearest to it (the probe usually comes
 //     back where it left), whose result must pass the motion check of step 3 over the views elapsed
@@ -24,7 +25,8 @@
 //     the main model once they overlap it (segment_join.h); see segment_after_views.
 //  5. Keyframes: a view whose overlap index with the current keyframe (fraction of its samples in
 //     the keyframe's occupied voxels) falls below keyframe_overlap (or, optionally, that turned or
-//     waited too long since it) becomes a keyframe, unless an older keyframe near it already covers
+//     waited too long since it, or whose pose jumped from the prediction) becomes a keyframe,
+//     unless an older keyframe near it already covers
 //     it (that one becomes current again: keyframe_reuse_radius_mm): samples, features and pose
 //     kept; an odometry edge joins it to the keyframe that was current, measured by ICP between
 //     the two keyframes' samples (keyframe_icp_edges) with ICP's information matrix.
@@ -221,12 +223,16 @@ struct TrackerOptions {
   // and the scan never re-entered (130 of 450 bursts processed). 0 = always confirm.
   double reentry_direct_max_views = 2.0;
   // Coasting: a view whose ICP from the motion prediction fits (overlap, residual) but is
-  // degenerate (a smooth stretch: it slides along some direction) is not fused and does not enter
-  // the model, but while tracking (at most reentry_direct_max_views views after the last placed
-  // view) it keeps the track: its pose, the prediction moved only along the fit's well-constrained
-  // directions (KeepWellConstrained, icp.h), feeds the motion model, so the next view is tracked
-  // from it rather than searched for after a loss. At most this many views in a row; 0 = off.
-  int max_coast_views = 3;
+  // degenerate (a smooth stretch: it slides along some direction) is not fused, but while tracking
+  // (at most reentry_direct_max_views views after the last placed view) it keeps the track: ICP
+  // runs again from the prediction stepping only along the well-constrained directions
+  // (IcpOptions::remap_min_eigen_ratio = coast_min_eigen_ratio), and that pose feeds the motion
+  // model and the tracking model (not the fused one), so the next view is tracked from it rather
+  // than searched for after a loss. At most this many views in a row; 0 = off, the default: on the
+  // zoo's typodont seed 4 the one view coasted (burst 214, after views that lost most of their
+  // points) was placed ~2 mm off and the track went on from there (600 wrong fusions where,
+  // without it, a segment starts and joins; docs/decisions/0003).
+  int max_coast_views = 0;
   // The directions a coasted view takes from its fit: eigenvalue ratio at least this (the weak
   // directions just above IcpOptions::min_eigen_ratio slide almost as freely: a smooth patch gives
   // three weak directions, 0.001–0.005, and three strong ones, > 0.1).
