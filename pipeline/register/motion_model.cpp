@@ -18,11 +18,13 @@ void MotionModel::BeginView(int64_t view, int64_t capture_ns) {
   capture_ns_ = capture_ns;
 }
 
-bool MotionModel::Timed() const { return o_.view_period_ns > 0 && capture_ns_ > 0 && last_ns_ > 0 && capture_ns_ > last_ns_; }
+bool MotionModel::TimedSince(int64_t capture_ns) const {
+  return o_.view_period_ns > 0 && capture_ns_ > 0 && capture_ns > 0 && capture_ns_ > capture_ns;
+}
 
-double MotionModel::ViewsElapsed() const {
-  if (Timed()) return static_cast<double>(capture_ns_ - last_ns_) / static_cast<double>(o_.view_period_ns);
-  return static_cast<double>(view_ - last_view_);
+double MotionModel::ViewsSince(int64_t view, int64_t capture_ns) const {
+  if (TimedSince(capture_ns)) return static_cast<double>(capture_ns_ - capture_ns) / static_cast<double>(o_.view_period_ns);
+  return static_cast<double>(view_ - view);
 }
 
 Rigid3d MotionModel::Predict() const {

@@ -36,7 +36,10 @@ class MotionModel {
   // Whether Predict() extrapolates a step (two placed views since the last restart).
   bool HasVelocity() const { return prev_view_ >= 0 && last_view_ > prev_view_; }
   // Views (or view periods) since the last placed view.
-  double ViewsElapsed() const;
+  double ViewsElapsed() const { return ViewsSince(last_view_, last_ns_); }
+  // Views (or view periods, when both capture times are known) since view `view` captured at
+  // capture_ns (a re-entry candidate, say).
+  double ViewsSince(int64_t view, int64_t capture_ns) const;
   // `pose` is a motion from `from` within max_step_mm / max_step_deg × views; else false and
   // *why (if not null) says by how much.
   bool ConsistentFrom(const Rigid3d& from, double views, const Rigid3d& pose, std::string* why) const;
@@ -59,9 +62,10 @@ class MotionModel {
   int64_t view() const { return view_; }
   int64_t capture_ns() const { return capture_ns_; }
   // view_period_ns and the capture times are in use for the current view.
-  bool Timed() const;
+  bool Timed() const { return TimedSince(last_ns_); }
 
  private:
+  bool TimedSince(int64_t capture_ns) const;  // by time from capture_ns to the current view
   MotionModelOptions o_;
   int64_t view_ = -1, capture_ns_ = 0;  // the view being placed
   Rigid3d last_pose_ = Rigid3d::Identity(), prev_pose_ = Rigid3d::Identity();

@@ -58,6 +58,8 @@ TEST(MotionModel, ByCaptureTimeWithAViewPeriod) {
   // The next view processed came 3 periods later (a busy host): 3 steps, 3 views elapsed.
   m.BeginView(2, 1'132'000'000);
   EXPECT_NEAR(m.ViewsElapsed(), 3.0, 1e-9);
+  EXPECT_NEAR(m.ViewsSince(0, 1'000'000'000), 4.0, 1e-9);  // since an earlier view, by time too
+  EXPECT_DOUBLE_EQ(m.ViewsSince(0, 0), 2.0);                // its capture time unknown: views counted
   EXPECT_LT(TranslationDistanceMm(m.Predict(), At(4, 0)), 1e-9);
 }
 

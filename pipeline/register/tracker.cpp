@@ -273,16 +273,6 @@ void ScaleInformation(double factor, PoseGraphEdge* e) {
 }
 }  // namespace
 
-
-
-
-double Tracker::ViewsSinceCandidate() const {
-  if (o_.motion.view_period_ns > 0 && capture_ns_ > 0 && candidate_.capture_ns > 0 && capture_ns_ > candidate_.capture_ns)
-    return static_cast<double>(capture_ns_ - candidate_.capture_ns) / static_cast<double>(o_.motion.view_period_ns);
-  return static_cast<double>(index_ - candidate_.view);
-}
-
-
 TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, const cv::Mat& texture,
                            const ViewAugmenter& augment, int64_t capture_ns) {
   CommitView();
@@ -301,7 +291,6 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     }
   }
   ++index_;
-  capture_ns_ = capture_ns;
   motion_.BeginView(index_, capture_ns);
   anchor_.push_back(-1);
   kf_from_cam_.push_back(Rigid3d::Identity());
@@ -376,7 +365,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     if (needs_confirmation) {
       candidate_.pending = true;
       candidate_.view = index_;
-      candidate_.capture_ns = capture_ns_;
+      candidate_.capture_ns = motion_.capture_ns();
       candidate_.world_from_cam = out.world_from_cam;
       candidate_.how = out.reason;
       out.reason = why + "; re-entry candidate (" + out.reason + "), to be confirmed by the next view";
@@ -468,10 +457,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   log.relocalised = out.state == TrackingState::kRelocalised;
   log.pose = pose;
   if (out.in_model) {
-    SampleOrganised(points, normals, cv::Mat(), o_.map_stride, &map_samples_);
-    insert_pending_ = true;
-    pending_pose_ = pose;
-    if (!o_.defer_model_insert) CommitView();
+    InsertIntoModel(points, normals, pose);
   }
   MaybeKeyframe(samples, points, normals, texture, pose, &out);  // does not read the model
   view_log_.back().current_since = current_since_;
@@ -512,14 +498,18 @@ bool Tracker::Coast(const SurfacePoints& samples, const cv::Mat& points, const c
   log.coasted = true;
   log.pose = pose;
   // Into the tracking model (not the fused one): the next view overlaps the stretch it slides along.
-  SampleOrganised(points, normals, cv::Mat(), o_.map_stride, &map_samples_);
-  insert_pending_ = true;
-  pending_pose_ = pose;
-  if (!o_.defer_model_insert) CommitView();
+  InsertIntoModel(points, normals, pose);
   out->state = state_;
   out->reason += "; coasting: tracked along its constrained directions, not fused (" + std::to_string(coast_run_) + " of " +
                  std::to_string(o_.max_coast_views) + " in a row)";
   return true;
+}
+
+void Tracker::InsertIntoModel(const cv::Mat& points, const cv::Mat& normals, const Rigid3d& pose) {
+  SampleOrganised(points, normals, cv::Mat(), o_.map_stride, &map_samples_);
+  insert_pending_ = true;
+  pending_pose_ = pose;
+  if (!o_.defer_model_insert) CommitView();
 }
 
 double Tracker::CommitView() {
@@ -529,7 +519,6 @@ double Tracker::CommitView() {
   map_.Insert(map_samples_, pending_pose_);
   return Ms(t0);
 }
-
 
 IcpOptions Tracker::LocalSearchIcp() const {
   IcpOptions icp = o_.icp;
@@ -552,7 +541,8 @@ bool Tracker::ConfirmReentry(const SurfacePoints& samples, TrackResult* out) {
     out->reason = "icp: " + r.reason;
     return false;
   }
-  if (!motion_.ConsistentFrom(candidate_.world_from_cam, ViewsSinceCandidate(), r.target_from_source, &out->reason)) return false;
+  const double views = motion_.ViewsSince(candidate_.view, candidate_.capture_ns);
+  if (!motion_.ConsistentFrom(candidate_.world_from_cam, views, r.target_from_source, &out->reason)) return false;
   if (!VerifyReentry(samples, r, &out->reentry, &out->reason)) return false;
   out->icp = r;
   out->world_from_cam = r.target_from_source;

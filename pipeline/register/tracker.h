@@ -229,9 +229,8 @@ struct TrackerOptions {
   // (IcpOptions::remap_min_eigen_ratio = coast_min_eigen_ratio), and that pose feeds the motion
   // model and the tracking model (not the fused one), so the next view is tracked from it rather
   // than searched for after a loss. At most this many views in a row; 0 = off, the default: on the
-  // zoo's typodont seed 4 the one view coasted (burst 214, after views that lost most of their
-  // points) was placed ~2 mm off and the track went on from there (600 wrong fusions where,
-  // without it, a segment starts and joins; docs/decisions/0003).
+  // zoo it placed a view after a stretch of nearly empty views 2 mm off, and the track went on
+  // from there (docs/decisions/0003).
   int max_coast_views = 0;
   // The directions a coasted view takes from its fit: eigenvalue ratio at least this (the weak
   // directions just above IcpOptions::min_eigen_ratio slide almost as freely: a smooth patch gives
@@ -585,7 +584,9 @@ class Tracker {
   // true and *out filled (refused, the state kept), false when it does not apply.
   bool Coast(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& normals, const Rigid3d& prediction,
              TrackResult* out);
-  int64_t capture_ns_ = 0;  // Track()'s capture time of the current view
+  // The view's samples (map_stride) into the tracking model at `pose`: now, or left pending for
+  // CommitView (defer_model_insert).
+  void InsertIntoModel(const cv::Mat& points, const cv::Mat& normals, const Rigid3d& pose);
   // confirm_reentry: the pending re-entry candidate (view index, capture time, pose, how found).
   struct ReentryCandidate {
     bool pending = false;
@@ -594,7 +595,6 @@ class Tracker {
     std::string how;
   };
   ReentryCandidate candidate_;
-  double ViewsSinceCandidate() const;  // views elapsed since candidate_.view (time with motion.view_period_ns)
   // ICP of this view from the candidate's pose; true (and *out filled) when it confirms it.
   bool ConfirmReentry(const SurfacePoints& samples, TrackResult* out);
   // Per view: anchor keyframe (−1 = refused) and keyframe_from_cam.
