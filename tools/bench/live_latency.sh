@@ -59,15 +59,9 @@ done
 mkdir -p "$out"
 rec=${rec:-$out/typodont_full_arch_450.d3drec}
 
-if [ ! -f "$rec" ]; then
-  echo "live_latency: recording the virtual probe's 450-burst full-arch scan to $rec (pre-rendering takes ~1 min)"
-  "$bin/d3d-record" --out "$rec.part" --frames 450 --domain "$domain" > "$out/record.log" 2>&1 &
-  recorder=$!
-  "$bin/d3d-probe" --sim typodont --trajectory full-arch --seed 1 --rate 30 --frames 450 --sim-cycle 450 \
-    --domain "$domain" > "$out/probe.log" 2>&1
-  wait "$recorder" || { echo "live_latency: d3d-record failed (see $out/record.log)" >&2; exit 1; }
-  mv "$rec.part" "$rec"
-fi
+source "$root/tools/lib/setup.sh"
+source "$root/tools/lib/bench.sh"
+d3d_record_full_arch "$bin" "$rec" "$out" "$domain" || exit 1
 
 # The CPU cgroup (removed on exit).
 cg=""

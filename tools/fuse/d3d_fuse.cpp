@@ -18,9 +18,11 @@
 #include "common/burst/burst_io.h"
 #include "common/core/progress.h"
 #include "common/mesh/mesh_io.h"
+#include "common/pack/frame_pack.h"
 #include "firmware/sim/session/sim_session.h"
 #include "pipeline/recon/evaluate.h"
 #include "pipeline/scan/scan_chain.h"
+#include "pipeline/scan/view_archive.h"
 
 namespace fs = std::filesystem;
 using namespace d3d;
@@ -259,6 +261,14 @@ int main(int argc, char** argv) {
       if (b.frames.empty()) return Rigid3d::Identity();
       return InterpolateRigid(b.frames.front().truth.world_from_probe, b.frames.back().truth.world_from_probe, 0.5);
     };
+    // The accepted views' frames as reconstructed (binned), kept for the end of the scan (refusion,
+    // segments apart) instead of rendering or reading their bursts again: zstd, in an unnamed
+    // temporary file in the output folder (memory when that cannot be made).
+    ViewArchive kept;
+    FramePacker packer;
+    std::string packed;
+    if (const Status s = kept.SpillTo(out_dir); !s.ok() && !quiet)
+      std::fprintf(stderr, "d3d-fuse: keeping the views' frames in memory: %s\n", s.ToString().c_str());
     ProgressBar bar("d3d-fuse", static_cast<int64_t>(indices.size()), !quiet);
     ScanTimes times;
     double ms_render = 0;
@@ -307,6 +317,11 @@ int main(int argc, char** argv) {
       }
       if (r.accepted && r.in_main)  // a segment apart is fused at the end, on its own or joined
         if (const Status s = fuser.Fuse(view, r.world_from_cam); !s.ok()) return Fail(s);
+      if (r.accepted) {
+        if (const Status s = packer.Pack(recon.frames_used(), &packed); !s.ok()) return Fail(s);
+        // A failed spill write keeps the blob in memory: nothing is lost.
+        (void)kept.Add(static_cast<uint64_t>(indices[k]), packed);
+      }
       if (!quiet && (r.state != TrackingState::kTracking || !r.accepted))
         std::fprintf(stderr, "\nburst %lld: %s%s%s\n", static_cast<long long>(indices[k]), TrackingStateName(r.state),
                      r.reason.empty() ? "" : ": ", r.reason.c_str());
@@ -346,13 +361,15 @@ int main(int argc, char** argv) {
     times.bursts = static_cast<int64_t>(indices.size());
     times.ms_register = registrar.ms_register();
     times.ms_fuse = fuser.ms_fuse();
-    // Pose graph, refusion at the optimised poses (the bursts rendered / read again rather than
-    // kept in memory), mesh, evaluation and report.
+    // Pose graph, refusion at the optimised poses (the kept frames reconstructed again: the same
+    // views bit for bit), mesh, evaluation and report.
     ProgressBar bar2("d3d-fuse: pose graph, refusion, mesh, evaluation", 1, !quiet);
+    std::optional<ScanReconstructor> again;  // of the binned calibration: the kept frames are binned
+    std::vector<cv::Mat> kept_frames;
     const ScanViewProvider provider = [&](int64_t, const ScanViewRecord& record, ReconstructedView* out) -> Status {
-      Burst b;
-      D3D_RETURN_IF_ERROR(load_burst(static_cast<int64_t>(record.burst_seq), &b));
-      return recon.Reconstruct(frames_of(b), out);
+      D3D_RETURN_IF_ERROR(kept.Get(record.burst_seq, &kept_frames));
+      if (!again) again.emplace(view_calib, so.recon, 1);
+      return again->Reconstruct(kept_frames, out);
     };
     ScanTruth truth;
     if (!no_eval && !scene.faces.empty()) truth.reference = &scene;
