@@ -34,21 +34,11 @@ void ScanAppOptions::Check() const {
   if (!(preview_cell_mm > 0) || preview_stride_px < 1 || view_stride_px < 1)
     throw std::invalid_argument("ScanAppOptions: preview cell > 0 and strides >= 1");
   if (!(undo_seconds > 0) || undo_max_views < 0) throw std::invalid_argument("ScanAppOptions: undo_seconds > 0 and undo_max_views >= 0");
-  if (!(live_voxel_mm >= 0)) throw std::invalid_argument("ScanAppOptions: live_voxel_mm >= 0 (0 = the scan's voxel)");
-  if (live_occlusion_stride < 1 || live_pixel_stride < 1)
-    throw std::invalid_argument("ScanAppOptions: live_occlusion_stride and live_pixel_stride >= 1");
+  live.Check();
   LiveTsdf().Check();  // e.g. a live voxel above the truncation
 }
 
-TsdfOptions ScanAppOptions::LiveTsdf() const {
-  TsdfOptions t = scan.tsdf;
-  if (keep_views && live_voxel_mm > 0) {
-    t.voxel_mm = live_voxel_mm;
-    t.occlusion_stride = live_occlusion_stride;
-    t.pixel_stride = live_pixel_stride;
-  }
-  return t;
-}
+TsdfOptions ScanAppOptions::LiveTsdf() const { return keep_views ? live.Of(scan.tsdf) : scan.tsdf; }
 
 ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& options, BurstSource* source)
     : calibration_(options.scan.bin > 1 ? BinnedCalibration(calibration, options.scan.bin) : calibration),

@@ -19,7 +19,7 @@
 //     with TrackerOptions::FeatureTiming::kWorker, the tracker's keyframe-feature worker thread
 //     touches only the copies of a keyframe's points and texture it is handed and its own job and
 //     result lists (tracker.cpp).
-//   ScanFuser (the live TSDF, at ScanAppOptions::live_voxel_mm) and the ViewArchive: fuse thread,
+//   ScanFuser (the live TSDF, at ScanAppOptions::live) and the ViewArchive: fuse thread,
 //     then Finish(), under model_mu_, which SaveNow() (a saver thread) also takes.
 //   FramePacker: fuse thread.
 //   Preview grid (the decimated model) and the TripleBuffer's back copy: preview thread.
@@ -84,27 +84,11 @@ struct ScanAppOptions {
   // frames stay in memory and the report says why (views_spill_error); a write that fails later keeps
   // that view's frames in memory (views_spill_failures).
   std::string views_spill_dir;
-  // Voxel edge (mm) of the live TSDF the fuse stage fuses every burst into, when keep_views is on
-  // (else the scan's: the live volume is then the result); 0 = scan.tsdf.voxel_mm. The live volume
-  // is what SaveNow saves mid-scan; Finish always fuses the kept views again at scan.tsdf.voxel_mm
-  // (FinishScan), so the final model does not depend on it. At 0.1 mm the band holds 1/8 of the
-  // voxels of 0.05 mm: the fuse stage's CPU per burst fell 17.9 → 7.9 ms (lossless replay of 200
-  // typodont bursts at bin 2; the rest is the per-pixel occlusion and free-space tests), and
-  // lossless throughput rose 22.9 → 26.9 bursts/s. A 0.1 mm model of the same views was as true
-  // (9.4 vs 10.9 µm RMS) with 0.8 pp less coverage (thin edges).
-  double live_voxel_mm = 0.1;
-  // The coarse live volume's (live_voxel_mm > 0, keep_views) per-pixel work: the occlusion test on
-  // every live_occlusion_stride-th pixel (TsdfOptions::occlusion_stride; the scan's is 2) and the
-  // leaves allocated from every live_pixel_stride-th pixel (TsdfOptions::pixel_stride; a binned
-  // pixel is ~0.06 mm on the teeth, the band ±0.3 mm around it). Measured on a 0.1 mm volume of the
-  // virtual probe's 1492-burst full arch at bin 2 (d3d-fuse): fuse 5.68 → 3.86 ms per burst,
-  // trueness 7.58 → 7.60 µm RMS, coverage 94.25 → 94.24 %; on d3d-scan's lossless 450-burst replay
-  // the fuse stage's own CPU 6.9 → 5.7 ms per burst. The final model is not affected (Finish fuses
-  // again with scan.tsdf).
-  int live_occlusion_stride = 4;
-  int live_pixel_stride = 2;
-  // The live volume's options: scan.tsdf, at live_voxel_mm with the live strides when keep_views
-  // is on and live_voxel_mm > 0.
+  // The live TSDF the fuse stage fuses every burst into, when keep_views is on (else the scan's:
+  // the live volume is then the result). It is what SaveNow saves mid-scan; Finish always fuses the
+  // kept views again at scan.tsdf.voxel_mm (FinishScan), so the final model does not depend on it.
+  LiveVolumeOptions live;
+  // The live volume's options: live.Of(scan.tsdf) when keep_views is on, else scan.tsdf.
   TsdfOptions LiveTsdf() const;
   // Undo: each request takes back the views captured in the last undo_seconds (of the views still
   // in the model); the tracker's undo journal reaches back undo_max_views views
@@ -179,7 +163,7 @@ class ScanApp {
   std::string LastUndoMessage() const;
   uint64_t undos_done() const { return undos_done_.load(); }
   // Any thread but the stages': extracts the current model (the live volume, at
-  // options().live_voxel_mm; waits for the fuse stage's current burst) and writes DIR/scan.ply and
+  // options().live; waits for the fuse stage's current burst) and writes DIR/scan.ply and
   // DIR/scan.stl. An undo asked for before the call is in the
   // saved model: it first waits (at most 10 s) until an item carrying that request has reached
   // the fuse stage, which has then taken those views' frames out (UNAVAILABLE if that does not

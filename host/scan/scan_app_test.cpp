@@ -80,14 +80,14 @@ bool WaitFor(F done) {
   return true;
 }
 
-// The coarse live volume (kept views, live_voxel_mm > 0) takes the live strides; when it is the
+// The coarse live volume (kept views, live.voxel_mm > 0) takes the live strides; when it is the
 // result (no kept views) or at the scan's voxel it is fused as the scan's volume.
 TEST(ScanAppOptions, OnlyTheCoarseLiveVolumeTakesTheLiveStrides) {
   ScanAppOptions o;
   o.keep_views = true;
-  o.live_voxel_mm = 0.1;
-  o.live_occlusion_stride = 5;
-  o.live_pixel_stride = 3;
+  o.live.voxel_mm = 0.1;
+  o.live.occlusion_stride = 5;
+  o.live.pixel_stride = 3;
   const TsdfOptions live = o.LiveTsdf();
   EXPECT_DOUBLE_EQ(live.voxel_mm, 0.1);
   EXPECT_EQ(live.occlusion_stride, 5);
@@ -96,17 +96,17 @@ TEST(ScanAppOptions, OnlyTheCoarseLiveVolumeTakesTheLiveStrides) {
   for (const bool keep : {false, true}) {
     ScanAppOptions result = o;
     result.keep_views = keep;
-    result.live_voxel_mm = keep ? 0.0 : 0.1;
+    result.live.voxel_mm = keep ? 0.0 : 0.1;
     const TsdfOptions t = result.LiveTsdf();
     EXPECT_DOUBLE_EQ(t.voxel_mm, o.scan.tsdf.voxel_mm);
     EXPECT_EQ(t.occlusion_stride, o.scan.tsdf.occlusion_stride);
     EXPECT_EQ(t.pixel_stride, o.scan.tsdf.pixel_stride);
   }
   ScanAppOptions bad = o;
-  bad.live_occlusion_stride = 0;
+  bad.live.occlusion_stride = 0;
   EXPECT_THROW(bad.Check(), std::invalid_argument);
   bad = o;
-  bad.live_pixel_stride = 0;
+  bad.live.pixel_stride = 0;
   EXPECT_THROW(bad.Check(), std::invalid_argument);
 }
 
@@ -185,7 +185,7 @@ TEST(ScanAppUndo, UndoneViewsLeaveThePreviewTheSavedModelAndTheReport) {
   EXPECT_EQ(j["views_undone"], 3);
   EXPECT_TRUE(j["refused_at_optimised_poses"].get<bool>());
   // The saves above wrote the coarse live volume; the final model is at the scan's voxel.
-  EXPECT_DOUBLE_EQ(j["live_voxel_mm"].get<double>(), ScanAppOptions{}.live_voxel_mm);
+  EXPECT_DOUBLE_EQ(j["live_voxel_mm"].get<double>(), LiveVolumeOptions{}.voxel_mm);
   EXPECT_DOUBLE_EQ(j["voxel_mm"].get<double>(), ScanAppOptions{}.scan.tsdf.voxel_mm);
   EXPECT_EQ(j["views_kept"], result.poses.size());  // the undone views' frames were dropped
   EXPECT_GE(result.poses.size(), 17u) << j["events"].dump();

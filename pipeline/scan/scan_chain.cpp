@@ -44,6 +44,31 @@ TrackerOptions TrackerOptionsForStep(TrackerOptions options, double every) {
   return options;
 }
 
+TsdfOptions LiveVolumeOptions::Of(const TsdfOptions& scan) const {
+  TsdfOptions t = scan;
+  if (voxel_mm > 0) {
+    t.voxel_mm = voxel_mm;
+    t.occlusion_stride = occlusion_stride;
+    t.pixel_stride = pixel_stride;
+  }
+  return t;
+}
+
+void LiveVolumeOptions::Check() const {
+  if (!(voxel_mm >= 0)) throw std::invalid_argument("LiveVolumeOptions: voxel_mm >= 0 (0 = the scan's voxel)");
+  if (occlusion_stride < 1 || pixel_stride < 1) throw std::invalid_argument("LiveVolumeOptions: occlusion_stride and pixel_stride >= 1");
+}
+
+ScanOptions LiveScanProfile(ScanOptions options) {
+  TrackerOptions& t = options.tracker;
+  t.keyframe_feature_timing = TrackerOptions::FeatureTiming::kOnDemand;
+  t.defer_keyframe_edges = true;
+  t.keyframe_reuse_radius_mm = 2.0;
+  for (auto [level, cap] : {std::pair{0, 1600}, std::pair{1, 4000}, std::pair{2, 8000}})
+    if (level < static_cast<int>(t.icp.levels.size())) t.icp.levels[static_cast<size_t>(level)].max_samples = cap;
+  return options;
+}
+
 ScanOptions ScanOptionsForBin(ScanOptions options, int bin) {
   if (bin < 1) throw std::invalid_argument("ScanOptionsForBin: bin must be >= 1");
   options.bin = bin;

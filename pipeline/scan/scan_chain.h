@@ -53,6 +53,27 @@ namespace d3d {
 // Cost: ~8 ms more per burst in reconstruction.
 ReconstructOptions HandHeldReconstructOptions();
 
+// The live volume a scan fuses every view into as it goes when its views are kept and fused again
+// at the end at the scan's voxel (FinishScan's refusion): the final model does not depend on it (a
+// host saves it mid-scan), so it is coarser and its per-pixel work thinner. At 0.1 mm the band holds
+// 1/8 of the voxels of 0.05 mm: the fuse stage's CPU per burst fell 17.9 -> 7.9 ms (lossless replay
+// of 200 typodont bursts at bin 2; the rest is the per-pixel occlusion and free-space tests), and
+// lossless throughput rose 22.9 -> 26.9 bursts/s; a 0.1 mm model of the same views was as true (9.4
+// vs 10.9 um RMS) with 0.8 pp less coverage (thin edges). The strides: the occlusion test on every
+// occlusion_stride-th pixel (TsdfOptions::occlusion_stride; the scan's is 2), the leaves allocated
+// from every pixel_stride-th pixel (TsdfOptions::pixel_stride; a binned pixel is ~0.06 mm on the
+// teeth, the band +-0.3 mm around it); on a 0.1 mm volume of the virtual probe's 1492-burst full
+// arch at bin 2: fuse 5.68 -> 3.86 ms per burst, trueness 7.58 -> 7.60 um RMS, coverage 94.25 ->
+// 94.24 %.
+struct LiveVolumeOptions {
+  double voxel_mm = 0.1;  // 0 = the scan's voxel (the live volume is then fused as the scan's)
+  int occlusion_stride = 4;
+  int pixel_stride = 2;
+  // `scan` at voxel_mm with these strides; `scan` itself when voxel_mm is 0.
+  TsdfOptions Of(const TsdfOptions& scan) const;
+  void Check() const;  // throws std::invalid_argument (negative voxel, strides < 1)
+};
+
 struct ScanOptions {
   // Camera pixels averaged over bin × bin blocks before reconstruction (BinFrame, pipeline/recon):
   // views, tracking and fusion then work on (H/bin) × (W/bin) maps with BinnedCalibration, about
@@ -71,6 +92,20 @@ struct ScanOptions {
   EvaluateOptions eval;
   void Check() const;  // throws std::invalid_argument
 };
+
+// The live host's scan profile, one definition for d3d-scan and d3d-fuse (whose default it is), on
+// top of `options`:
+// - keyframe work off the register stage's critical path: a keyframe's SIFT features only when a
+//   relocalisation needs them (TrackerOptions::FeatureTiming::kOnDemand), the pose graph's edges
+//   (keyframe and loop-closure ICPs) at the end of the scan (defer_keyframe_edges); the same poses;
+// - keyframe_reuse_radius_mm 2: a probe that stays over one tooth returns to keyframes it made
+//   rather than making new ones (60 s circling one molar made 151 keyframes, 105 MiB, without; a
+//   full-arch sweep reuses none);
+// - at most 1.6k / 4k / 8k ICP samples on the tracker's levels 0 / 1 / 2, whatever the view's size:
+//   a view full of surface cost the register stage 3x a small one (typodont, 90 bursts at 30 Hz:
+//   register 89 -> 76 ms per burst, trueness 7.37 -> 7.37 um, ATE 0.026 -> 0.029 mm).
+// Apply it before ScanOptionsForBin (the caps are per view, whatever its pixel size).
+ScanOptions LiveScanProfile(ScanOptions options);
 
 // Tracker options for bursts `every` apart (d3d-fuse --every; a live host that drops bursts sees
 // larger steps): the first ICP level's association gate min(3, 0.8·√every) mm, and the motion
@@ -277,7 +312,7 @@ struct ScanResult {
 // After the stages stopped: see the file comment. When the registrar undid views
 // (ScanRegistrar::UndoLastSeconds) the fuser's volume still holds them, so the kept views are always
 // fused again (INVALID_ARGUMENT without a provider); so are they when the fuser's volume has another
-// voxel than options.tsdf (a host's coarse live volume, ScanAppOptions::live_voxel_mm): the refusion
+// voxel than options.tsdf (a coarse live volume, LiveVolumeOptions): the refusion
 // is always at options.tsdf. The report holds bursts, fused, rejected, views_undone,
 // tracking_lost, relocalised, unrecovered, final_state, keyframes, loop_edges,
 // pose_graph_max_correction_mm, ms_per_burst (+ per stage), ms_mesh, tsdf_* , mesh_*, events and,

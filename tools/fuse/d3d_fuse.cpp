@@ -6,14 +6,18 @@
 
 #include <CLI/CLI.hpp>
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <map>
 #include <optional>
+#include <thread>
 #include <nlohmann/json.hpp>
+#include <tbb/concurrent_queue.h>
 
 #include "common/burst/burst_io.h"
 #include "common/core/progress.h"
@@ -68,6 +72,59 @@ Status WritePoseGraph(const std::string& path, const ScanRegistrar& registrar, c
   return std::fclose(f) == 0 && ok ? Status::Ok() : IoError("cannot write '" + path + "'");
 }
 
+// Bursts loaded (rendered by the virtual probe, or read) in order on a thread of its own, at most
+// two ahead of the one the chain takes: the renderer works while the chain processes the burst
+// before. The same bursts in the same order, so the same outputs. Threads: `load` runs on the
+// prefetch thread only (the virtual probe is that thread's while the prefetcher lives); Next is
+// the caller's.
+class BurstPrefetcher {
+ public:
+  using Loader = std::function<Status(int64_t index, Burst* out)>;
+  BurstPrefetcher(std::vector<int64_t> indices, Loader load) {
+    queue_.set_capacity(2);
+    thread_ = std::thread([this, indices = std::move(indices), load = std::move(load)] {
+      for (const int64_t index : indices) {
+        if (stop_.load()) break;
+        Loaded item;
+        const auto t0 = std::chrono::steady_clock::now();
+        try {
+          item.status = load(index, &item.burst);
+        } catch (const std::exception& e) {
+          item.status = Status(StatusCode::kInternal, std::string("loading burst ") + std::to_string(index) + ": " + e.what());
+        }
+        item.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+        const bool failed = !item.status.ok();
+        while (!stop_.load() && !queue_.try_push(std::move(item))) std::this_thread::sleep_for(std::chrono::microseconds(200));
+        if (failed) break;
+      }
+    });
+  }
+  ~BurstPrefetcher() {  // an early return: the thread stops after its current burst
+    stop_.store(true);
+    thread_.join();
+  }
+  // The next burst in order, its loader's status and how long it took on the prefetch thread (ms).
+  // Call it at most once per index, and not after a failed one (the thread pushes one item per
+  // index up to the first failure, so a pop always has an item coming).
+  Status Next(Burst* out, double* ms) {
+    Loaded item;
+    queue_.pop(item);
+    *out = std::move(item.burst);
+    *ms = item.ms;
+    return item.status;
+  }
+
+ private:
+  struct Loaded {
+    Status status;
+    Burst burst;
+    double ms = 0;
+  };
+  tbb::concurrent_bounded_queue<Loaded> queue_;
+  std::atomic<bool> stop_{false};
+  std::thread thread_;
+};
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -78,7 +135,7 @@ int main(int argc, char** argv) {
   std::string sim_model, bursts_dir, trajectory = "full-arch", out_dir, association = "grid", trace_path, graph_path;
   uint32_t seed = 1;
   int every = 1;
-  int bin = 1;
+  int bin = 2;  // d3d-scan's
   int64_t max_bursts = -1, first = 0;
   double voxel_mm = 0.05, truncation_mm = 0.2;
   float min_mesh_weight = TsdfOptions{}.min_mesh_weight;
@@ -93,13 +150,20 @@ int main(int argc, char** argv) {
   double tracked_edge_factor = TrackerOptions{}.tracked_edge_information_factor;
   double reentry_max_violation = ReentryCheckOptions{}.max_violation_fraction;
   bool no_model_anchor = false, coverage_ceiling = false, no_free_space = false;
+  std::string profile = "live";
+  app.add_option("--profile", profile,
+                 "scan profile: live (d3d-scan's: LiveScanProfile, pipeline/scan/scan_chain.h: keyframe work off the\n"
+                 "critical path, keyframe reuse, ICP sample caps per level) | full (every ICP sample, keyframe features and\n"
+                 "edges as they come)")
+      ->check(CLI::IsMember({"live", "full"}))
+      ->capture_default_str();
   app.add_option("--sim", sim_model, "scan with the virtual probe: 'typodont' or a mesh file (PLY/STL/OBJ, mm)");
   app.add_option("--bursts", bursts_dir, "a d3d-sim output folder (calibration.json, bursts/NNNNNN/, scene.ply)");
   app.add_option("--trajectory", trajectory, "--sim: a scan style (" + ScanStyleList() + "), quadrant or a TUM file")->capture_default_str();
   app.add_option("--seed", seed, "--sim: seed of hand motion and sensor noise")->capture_default_str();
   app.add_option("--out", out_dir, "output folder")->required();
   app.add_option("--every", every, "use every N-th burst (a lower burst rate, for quick runs)")->capture_default_str();
-  app.add_option("--bin", bin, "average the camera's pixels over NxN blocks before reconstruction (d3d-scan's live profile uses 2)")
+  app.add_option("--bin", bin, "average the camera's pixels over NxN blocks before reconstruction (2, as d3d-scan; 1 = full resolution)")
       ->capture_default_str();
   app.add_option("--first", first, "first burst index")->capture_default_str();
   app.add_option("--max-bursts", max_bursts, "stop after this many bursts used (default: all)");
@@ -153,6 +217,13 @@ int main(int argc, char** argv) {
                "--sim: also report coverage_seen_pct, the share of the reference tooth surface that the bursts saw\n"
                "(lit, in the measurement volume, within the fusion's incidence limit): what coverage_pct can reach");
   app.add_flag("--quiet", quiet, "no progress bar");
+  double live_voxel_mm = LiveVolumeOptions{}.voxel_mm;
+  app.add_option("--live-voxel", live_voxel_mm,
+                 "voxel (mm) of the live volume each view is fused into as the scan goes, as d3d-scan's; the model is the\n"
+                 "kept views fused again at --voxel at the end (0 = live at --voxel; with --no-refuse the live volume is the\n"
+                 "model, at --voxel)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   app.add_flag("--no-refuse", no_refuse,
                "keep the model fused at the tracked poses (default: when the pose graph moves a view by more than\n"
                "10 um, the accepted bursts are reconstructed again and fused at the optimised poses)");
@@ -216,6 +287,7 @@ int main(int argc, char** argv) {
     }
     // The chain of pipeline/scan, all on this thread.
     ScanOptions so;
+    if (profile == "live") so = LiveScanProfile(so);
     so.tracker.association = assoc;
     so.tracker.detect_loops = !no_loops;
     so.anchor.enabled = !no_model_anchor;
@@ -240,7 +312,10 @@ int main(int argc, char** argv) {
     ScanReconstructor recon(calib, so.recon, so.bin);
     const ProbeCalibration& view_calib = recon.calibration();  // of the (binned) views
     ScanRegistrar registrar(view_calib, so.tracker, so.anchor, so.recon.normal_max_gap_mm);
-    ScanFuser fuser(view_calib.camera, so.tsdf, so.free_space);
+    LiveVolumeOptions live;
+    live.voxel_mm = no_refuse ? 0.0 : live_voxel_mm;
+    live.Check();
+    ScanFuser fuser(view_calib.camera, live.Of(so.tsdf), so.free_space);
     // Burst `index` of the source, rendered or read (again, for the refusion pass).
     bool trace_truth = false;  // per-burst truth maps, for the trace's reconstruction figures
     auto load_burst = [&](int64_t index, Burst* b) -> Status {
@@ -288,11 +363,16 @@ int main(int argc, char** argv) {
     if (coverage_ceiling && session && !scene.faces.empty())
       seen.emplace(scene, calib.depth_min_mm, calib.depth_max_mm, so.tsdf.max_incidence_deg);
     using ms = std::chrono::duration<double, std::milli>;
+    // The coverage ceiling renders truth maps with the probe on this thread: no prefetching then.
+    std::optional<BurstPrefetcher> prefetch;
+    if (!seen) prefetch.emplace(indices, load_burst);
     for (size_t k = 0; k < indices.size(); ++k) {
       const auto t0 = std::chrono::steady_clock::now();
       Burst b;
-      if (const Status s = load_burst(indices[k], &b); !s.ok()) return Fail(s);
+      double ms_load = 0;
+      if (const Status s = prefetch ? prefetch->Next(&b, &ms_load) : load_burst(indices[k], &b); !s.ok()) return Fail(s);
       const auto t1 = std::chrono::steady_clock::now();
+      if (!prefetch) ms_load = ms(t1 - t0).count();
       if (const Status s = recon.Reconstruct(frames_of(b), &view); !s.ok()) return Fail(s);
       const auto t2 = std::chrono::steady_clock::now();
       const Rigid3d truth_pose = true_pose_of(b);
@@ -353,7 +433,7 @@ int main(int argc, char** argv) {
                       r.prediction_offset_mm, r.prediction_offset_deg);
         trace << line;
       }
-      ms_render += ms(t1 - t0).count();
+      ms_render += ms_load;
       times.ms_recon += ms(t2 - t1).count();
       bar.Update(static_cast<int64_t>(k + 1));
     }
@@ -391,6 +471,7 @@ int main(int argc, char** argv) {
     j["trajectory"] = trajectory;
     j["seed"] = seed;
     j["every"] = every;
+    j["profile"] = profile;
     j["bin"] = bin;
     j["truth_poses"] = truth_poses;
     j["ms_render_per_burst"] = ms_render / static_cast<double>(std::max<size_t>(indices.size(), 1));

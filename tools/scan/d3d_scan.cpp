@@ -107,7 +107,7 @@ int main(int argc, char** argv) {
                "live: start reconstructing a burst just in time for the register stage, on a newer burst, instead of as soon as "
                "the register stage took the last one")
       ->capture_default_str();
-  double live_voxel_mm = ScanAppOptions{}.live_voxel_mm;
+  double live_voxel_mm = LiveVolumeOptions{}.voxel_mm;
   cli.add_option("--live-voxel", live_voxel_mm,
                  "--refuse: voxel (mm) of the live volume the fuse stage fuses each burst into, which a save mid-scan ('s') "
                  "writes; the final model is fused again at 0.05 mm (0 = live at 0.05 mm too, ~2x the fuse stage's CPU)")
@@ -268,16 +268,7 @@ int main(int argc, char** argv) {
     ScanAppOptions ao;
     ao.policy = policy;
     ao.scan.tracker = TrackerOptionsForStep(ao.scan.tracker, step);
-    // Keyframe work off the register stage's critical path: SIFT only when a relocalisation needs a
-    // keyframe's features (on a worker thread it still took 11 % of the CPU live), the pose-graph
-    // edges (keyframe and loop-closure ICPs) at the end of the scan. Same results.
-    ao.scan.tracker.keyframe_feature_timing = TrackerOptions::FeatureTiming::kOnDemand;
-    ao.scan.tracker.defer_keyframe_edges = true;
-    // A probe that stays over one tooth returns to keyframes it made rather than making new ones
-    // forever (TrackerOptions::keyframe_reuse_radius_mm): 60 s circling one molar made 151
-    // keyframes (105 MiB) without. A full-arch sweep reuses none (lossless 450-burst typodont
-    // replay: the same bytes).
-    ao.scan.tracker.keyframe_reuse_radius_mm = 2.0;
+    ao.scan = LiveScanProfile(ao.scan);  // keyframe work off the critical path, keyframe reuse, ICP sample caps
     ao.scan.tracker.association = assoc;
     ao.scan.tracker.tracked_edge_information_factor = tracked_edge_factor;
     // The tracker's ICP (association and normal equations) on the register thread and a oneTBB
@@ -296,11 +287,6 @@ int main(int argc, char** argv) {
     // same bits, shorter when a core is free (d3d-bench-recon, 640 x 480 on an idle machine: 47.6 ->
     // 41.3 ms; phase 11.1 -> 9.0, triangulation and normals 11.4 -> 6.8; the unwrapping stays serial).
     ao.scan.recon.threads = threads;
-    // At most ~1.6k / 4k / 8k ICP samples per level, whatever the view's size: the register stage is
-    // the graph's slowest, and a view full of surface cost it 3x a small one (typodont, 90 bursts at
-    // 30 Hz: register 89 -> 76 ms per burst, trueness 7.37 -> 7.37 um, ATE 0.026 -> 0.029 mm).
-    for (auto [level, cap] : {std::pair{0, 1600}, std::pair{1, 4000}, std::pair{2, 8000}})
-      if (level < static_cast<int>(ao.scan.tracker.icp.levels.size())) ao.scan.tracker.icp.levels[static_cast<size_t>(level)].max_samples = cap;
     // Live, the gaps between processed views vary with the load: motion prediction and limits by
     // capture time, in views of `step` bursts.
     if (live_views && sim_rate > 0) ao.scan.tracker.motion.view_period_ns = std::llround(step * 1e9 / sim_rate);
@@ -311,7 +297,7 @@ int main(int argc, char** argv) {
       std::error_code ec;
       fs::create_directories(ao.views_spill_dir, ec);  // the --out folder is made early for it
     }
-    ao.live_voxel_mm = live_voxel_mm;
+    ao.live.voxel_mm = live_voxel_mm;
     ao.live_just_in_time = just_in_time;
     ao.live_catch_up_max_s = catch_up_s;
     ao.undo_seconds = undo_seconds;
