@@ -116,6 +116,7 @@ TEST(ScanReplay, LosslessReplayThroughTheHostGivesTheReportAndAPicture) {
   EXPECT_EQ(j["bursts_malformed"], 1);
   EXPECT_EQ(j["bursts_processed"], kCount);
   EXPECT_EQ(j["bursts_dropped"], 0);
+  EXPECT_EQ(j["slow_down_cues"], 0) << "every burst kept: no reason to tell the dentist to slow down";
   EXPECT_EQ(j["bursts"], kCount);
   EXPECT_GE(j["fused"].get<int>(), kCount - 2);
   EXPECT_LT(j["trueness_rms_um"].get<double>(), 20.0);

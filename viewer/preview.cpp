@@ -11,6 +11,7 @@ const char* PreviewCueText(PreviewCue c) {
     case PreviewCue::kProbeLost: return "PROBE LOST";
     case PreviewCue::kPaused: return "PAUSED";
     case PreviewCue::kNewSegment: return "NEW SEGMENT";
+    case PreviewCue::kSlowDown: return "SLOW DOWN";
   }
   return "?";
 }

@@ -16,8 +16,9 @@ namespace d3d {
 // The colour cue of the preview (tracking states of pipeline/register plus the host's own).
 // kNewSegment: the scan goes on in a segment of its own (the model could not be found there), to be
 // joined to the model once they overlap (TrackerOptions::segment_after_views).
-enum class PreviewCue : uint8_t { kWaiting, kTracking, kLost, kRelocalised, kProbeLost, kPaused, kNewSegment };
-// "WAITING FOR PROBE", "TRACKING", "LOST", "RELOCALISED", "PROBE LOST", "PAUSED", "NEW SEGMENT"
+enum class PreviewCue : uint8_t { kWaiting, kTracking, kLost, kRelocalised, kProbeLost, kPaused, kNewSegment, kSlowDown };
+// "WAITING FOR PROBE", "TRACKING", "LOST", "RELOCALISED", "PROBE LOST", "PAUSED", "NEW SEGMENT",
+// "SLOW DOWN" (tracking, but the host keeps too few bursts for the probe's speed: host/scan/pace_monitor.h)
 const char* PreviewCueText(PreviewCue c);
 
 struct PreviewSnapshot {

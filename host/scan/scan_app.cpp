@@ -289,6 +289,7 @@ bool ScanApp::FuseStage(ScanItem& item) {
 bool ScanApp::PreviewStage(ScanItem& item) {
   if (item.epoch != preview_epoch_) {
     preview_model_.Reset();
+    pace_.Reset();
     preview_epoch_ = item.epoch;
   }
   if (item.undo_gen > preview_undo_gen_) {
@@ -320,7 +321,12 @@ bool ScanApp::PreviewStage(ScanItem& item) {
   s.tan_half_y = static_cast<float>(0.5 * cam.height / cam.fy);
   s.near_mm = static_cast<float>(calibration_.depth_min_mm);
   s.far_mm = static_cast<float>(calibration_.depth_max_mm);
-  s.cue = apart ? PreviewCue::kNewSegment : CueOf(item.track.state);
+  // While tracking, the host keeping too few bursts for how fast the probe moves says so (pace_monitor.h).
+  const bool tracked = !item.control && item.track.accepted && item.track.state == TrackingState::kTracking && !apart;
+  const bool slow_down = !item.control && pace_.Add(item.burst.burst_seq, item.burst.capture_ns, tracked ? &item.track.world_from_cam : nullptr);
+  if (!item.control) pace_advices_.store(pace_.advices(), std::memory_order_relaxed);
+  s.cue = apart ? PreviewCue::kNewSegment
+                : (slow_down && item.track.state == TrackingState::kTracking ? PreviewCue::kSlowDown : CueOf(item.track.state));
   s.bursts_in_model = preview_model_.views_in_model();
   if (!item.control) last_burst_seq_ = item.burst.burst_seq;
   s.last_burst_seq = last_burst_seq_;
@@ -431,6 +437,7 @@ nlohmann::json ScanApp::HostReport() const {
   j["undos_applied"] = undos_done_.load() - undos_refused_.load();
   j["undos_refused"] = undos_refused_.load();
   j["views_undone_live"] = views_undone_.load();
+  j["slow_down_cues"] = pace_advices_.load();  // times the preview told the dentist to slow down
   // Every burst that reached the host and was neither processed nor malformed, failed or paused was
   // dropped for lack of time (where: "drops"; the receiver's figure counts samples of every topic).
   const uint64_t accounted = processed + source_->malformed() + failed_.load() + paused_bursts_.load();

@@ -50,6 +50,7 @@
 
 #include "host/graph/stage_graph.h"
 #include "host/scan/burst_source.h"
+#include "host/scan/pace_monitor.h"
 #include "host/scan/preview_model.h"
 #include "pipeline/scan/scan_chain.h"
 #include "pipeline/scan/view_archive.h"
@@ -258,12 +259,14 @@ class ScanApp {
   // preview thread
   uint64_t preview_epoch_ = 0, preview_undo_gen_ = 0;
   PreviewModel preview_model_;
+  PaceMonitor pace_;  // the "slow down" cue (pace_monitor.h)
   uint64_t last_burst_seq_ = 0;
   TripleBuffer<PreviewSnapshot> preview_;
   // Rolling window of latencies for the status line: preview thread; its percentiles are atomics.
   std::vector<double> recent_latency_ms_;
   size_t recent_next_ = 0;
   std::atomic<double> recent_p50_{0}, recent_p95_{0};
+  std::atomic<int64_t> pace_advices_{0};  // pace_.advices(), for the report (any thread)
 
   std::unique_ptr<Graph> graph_;
 };
