@@ -93,6 +93,12 @@ TEST(ScanAppOptions, OnlyTheCoarseLiveVolumeTakesTheLiveStrides) {
   EXPECT_EQ(live.occlusion_stride, 5);
   EXPECT_EQ(live.pixel_stride, 3);
   EXPECT_EQ(live.occlusion_margin_mm, o.scan.tsdf.occlusion_margin_mm);
+  // Its band is at least 2 of its voxels: the scan's 0.2 mm at 0.1 mm voxels, 0.4 mm at 0.2 mm.
+  EXPECT_DOUBLE_EQ(live.truncation_mm, o.scan.tsdf.truncation_mm);
+  ScanAppOptions coarse = o;
+  coarse.live.voxel_mm = 0.2;
+  EXPECT_DOUBLE_EQ(coarse.LiveTsdf().truncation_mm, 0.4);
+  EXPECT_NO_THROW(coarse.Check());
   for (const bool keep : {false, true}) {
     ScanAppOptions result = o;
     result.keep_views = keep;

@@ -48,6 +48,7 @@ TsdfOptions LiveVolumeOptions::Of(const TsdfOptions& scan) const {
   TsdfOptions t = scan;
   if (voxel_mm > 0) {
     t.voxel_mm = voxel_mm;
+    t.truncation_mm = std::max(scan.truncation_mm, 2.0 * voxel_mm);
     t.occlusion_stride = occlusion_stride;
     t.pixel_stride = pixel_stride;
   }

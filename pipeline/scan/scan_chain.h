@@ -55,18 +55,21 @@ ReconstructOptions HandHeldReconstructOptions();
 
 // The live volume a scan fuses every view into as it goes when its views are kept and fused again
 // at the end at the scan's voxel (FinishScan's refusion): the final model does not depend on it (a
-// host saves it mid-scan), so it is coarser and its per-pixel work thinner. At 0.1 mm the band holds
-// 1/8 of the voxels of 0.05 mm: the fuse stage's CPU per burst fell 17.9 -> 7.9 ms (lossless replay
-// of 200 typodont bursts at bin 2; the rest is the per-pixel occlusion and free-space tests), and
-// lossless throughput rose 22.9 -> 26.9 bursts/s; a 0.1 mm model of the same views was as true (9.4
-// vs 10.9 um RMS) with 0.8 pp less coverage (thin edges). The strides: the occlusion test on every
+// host saves it mid-scan), so it is coarser and its per-pixel work thinner; its band (truncation) is
+// at least 2 voxels. At 0.1 mm the band held 1/8 of the voxels of 0.05 mm: the fuse stage's CPU per
+// burst fell 17.9 -> 7.9 ms (lossless replay of 200 typodont bursts at bin 2), lossless throughput
+// rose 22.9 -> 26.9 bursts/s, a 0.1 mm model of the same views as true (9.4 vs 10.9 um RMS) with
+// 0.8 pp less coverage. At 0.2 mm (issue 51; 450-burst replay, two interleaved pairs) the fuse
+// stage's CPU is 8.06 / 7.34 -> 4.07 / 4.23 ms (the rest is the per-pixel passes, the occlusion and
+// free-space tests and the packing of the kept frames); a save 13 s into that replay: 14.4 -> 15.7
+// um RMS, coverage 44.4 -> 42.1 % of the typodont. The strides: the occlusion test on every
 // occlusion_stride-th pixel (TsdfOptions::occlusion_stride; the scan's is 2), the leaves allocated
 // from every pixel_stride-th pixel (TsdfOptions::pixel_stride; a binned pixel is ~0.06 mm on the
 // teeth, the band +-0.3 mm around it); on a 0.1 mm volume of the virtual probe's 1492-burst full
 // arch at bin 2: fuse 5.68 -> 3.86 ms per burst, trueness 7.58 -> 7.60 um RMS, coverage 94.25 ->
 // 94.24 %.
 struct LiveVolumeOptions {
-  double voxel_mm = 0.1;  // 0 = the scan's voxel (the live volume is then fused as the scan's)
+  double voxel_mm = 0.2;  // 0 = the scan's voxel (the live volume is then fused as the scan's)
   int occlusion_stride = 4;
   int pixel_stride = 2;
   // `scan` at voxel_mm with these strides; `scan` itself when voxel_mm is 0.
