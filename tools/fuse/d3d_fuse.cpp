@@ -222,7 +222,7 @@ int main(int argc, char** argv) {
                  "voxel (mm) of the live volume each view is fused into as the scan goes, as d3d-scan's; the model is the\n"
                  "kept views fused again at --voxel at the end (0 = live at --voxel; with --no-refuse the live volume is the\n"
                  "model, at --voxel)")
-      ->check(CLI::NonNegativeNumber)
+      ->check(CLI::Range(0.0, 1.0))
       ->capture_default_str();
   app.add_flag("--no-refuse", no_refuse,
                "keep the model fused at the tracked poses (default: when the pose graph moves a view by more than\n"

@@ -112,6 +112,7 @@ int main(int argc, char** argv) {
                  "--refuse: voxel (mm) of the live volume the fuse stage fuses each burst into, which a save mid-scan ('s') "
                  "writes (its band at least 2 voxels); the final model is fused again at 0.05 mm (0 = live at 0.05 mm too, "
                  "~4x the fuse stage's CPU)")
+      ->check(CLI::Range(0.0, 1.0))
       ->capture_default_str();
   cli.add_option("--bin", bin,
                  "average the camera's pixels over NxN blocks before reconstruction (1 = full resolution; 2: views of a quarter "
