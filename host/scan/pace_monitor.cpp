@@ -30,7 +30,8 @@ bool PaceMonitor::Add(uint64_t burst_seq, int64_t capture_ns, const Rigid3d* wor
   const size_t n = window_.size();
   const uint64_t sent = window_.back().burst_seq - window_.front().burst_seq + 1;
   kept_share_ = static_cast<double>(n) / static_cast<double>(sent);
-  std::vector<double> steps;
+  std::vector<double>& steps = steps_;
+  steps.clear();
   for (size_t i = 1; i < n; ++i)
     if (window_[i - 1].tracked && window_[i].tracked) steps.push_back(TranslationDistanceMm(window_[i - 1].pose, window_[i].pose));
   step_mm_ = 0.0;

@@ -18,6 +18,7 @@
 
 #include <cstdint>
 #include <deque>
+#include <vector>
 
 #include "common/core/rigid.h"
 
@@ -41,7 +42,6 @@ class PaceMonitor {
   // when it was tracked (accepted while tracking; else nullptr: the view only counts as kept).
   // Returns whether the dentist should slow down now.
   bool Add(uint64_t burst_seq, int64_t capture_ns, const Rigid3d* world_from_cam);
-  bool advising() const { return advising_; }
   int64_t advices() const { return advices_; }  // times the advice came on
   double kept_share() const { return kept_share_; }  // over the window, at the last Add
   double step_mm() const { return step_mm_; }        // median step over the window, at the last Add (0: too few)
@@ -56,6 +56,7 @@ class PaceMonitor {
   };
   PaceOptions o_;
   std::deque<View> window_;
+  std::vector<double> steps_;  // Add's buffer (reused)
   bool advising_ = false;
   int64_t advised_since_ns_ = 0;
   int64_t advices_ = 0;

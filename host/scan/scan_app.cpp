@@ -354,13 +354,13 @@ Status ScanApp::SaveNow(const std::string& dir) {
       return Unavailable("save: the last undo has not reached the model yet (graph stalled?)");
     if (volume_has_undone_) {
       // The kept views again, at their tracked poses, into a volume that then replaces the live one.
-      ScanReconstructor again(calibration_, o_.scan.recon, 1);  // the kept frames are binned already
+      const ScanViewProvider again = KeptViewProvider(archive_, calibration_, o_.scan.recon);
       ScanFuser rebuilt(calibration_.camera, o_.LiveTsdf(), o_.scan.free_space);
-      std::vector<cv::Mat> frames;
       ReconstructedView view;
       for (const FusedView& v : fused_views_) {
-        D3D_RETURN_IF_ERROR(archive_.Get(v.burst_seq, &frames));
-        D3D_RETURN_IF_ERROR(again.Reconstruct(frames, &view));
+        ScanViewRecord record;
+        record.burst_seq = v.burst_seq;
+        D3D_RETURN_IF_ERROR(again(v.view_index, record, &view));
         D3D_RETURN_IF_ERROR(rebuilt.Fuse(view, v.world_from_cam));
       }
       fuser_->AdoptVolume(std::move(rebuilt));
@@ -493,15 +493,8 @@ Status ScanApp::Finish(const ScanTruth& truth, const ScanViewProvider& provider,
   // Without a provider, the kept views: their frames again through a reconstructor of the binned
   // calibration (the frames are binned already), so each view comes back as it was fused.
   ScanViewProvider kept;
-  std::unique_ptr<ScanReconstructor> re_recon;
-  std::vector<cv::Mat> frames;
-  if (!provider && o_.keep_views && (archive_.size() > 0 || registrar_->views_undone() > 0)) {
-    re_recon = std::make_unique<ScanReconstructor>(calibration_, o_.scan.recon, 1);
-    kept = [&](int64_t, const ScanViewRecord& v, ReconstructedView* view) -> Status {
-      D3D_RETURN_IF_ERROR(archive_.Get(v.burst_seq, &frames));
-      return re_recon->Reconstruct(frames, view);
-    };
-  }
+  if (!provider && o_.keep_views && (archive_.size() > 0 || registrar_->views_undone() > 0))
+    kept = KeptViewProvider(archive_, calibration_, o_.scan.recon);
   Status s;
   {
     // A refusion replaces the fuser's volume: SaveNow (saver thread) waits meanwhile.

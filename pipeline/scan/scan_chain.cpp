@@ -296,6 +296,20 @@ void ScanFuser::AdoptVolume(ScanFuser&& other) {
   free_space_rejected_ = other.free_space_rejected_;  // the count of the volume's own views
 }
 
+ScanViewProvider KeptViewProvider(const ViewArchive& archive, const ProbeCalibration& view_calibration,
+                                  const ReconstructOptions& options) {
+  struct State {
+    std::unique_ptr<ScanReconstructor> recon;
+    std::vector<cv::Mat> frames;
+  };
+  auto state = std::make_shared<State>();
+  return [&archive, view_calibration, options, state](int64_t, const ScanViewRecord& record, ReconstructedView* out) -> Status {
+    D3D_RETURN_IF_ERROR(archive.Get(record.burst_seq, &state->frames));
+    if (!state->recon) state->recon = std::make_unique<ScanReconstructor>(view_calibration, options, 1);
+    return state->recon->Reconstruct(state->frames, out);
+  };
+}
+
 namespace {
 // Fuses views `todo` (indices into the registrar's views) again into *into at poses[k]: each view
 // got again from the provider and model-anchored at its tracked pose.

@@ -38,6 +38,7 @@
 #include "pipeline/recon/reconstruct.h"
 #include "pipeline/register/tracker.h"
 #include "pipeline/scan/model_anchor.h"
+#include "pipeline/scan/view_archive.h"
 
 namespace d3d {
 
@@ -288,6 +289,16 @@ struct ScanTruth {
 // status aborts FinishScan, NOT_FOUND skips the view. Called by FinishScan's helper thread, one view
 // at a time in view order (so it must not touch what the calling thread uses meanwhile).
 using ScanViewProvider = std::function<Status(int64_t view_index, const ScanViewRecord& record, ReconstructedView* out)>;
+
+// The provider of a scan's kept views (ViewArchive, pipeline/scan/view_archive.h): the frames kept
+// for record.burst_seq, reconstructed again by a ScanReconstructor of `view_calibration` at bin 1
+// (the calibration of the views, binned when they were: the kept frames are binned already), so
+// each view comes back bit for bit as it was first reconstructed. The reconstructor is made at the
+// first call. `archive` must outlive the provider and not change while it is used; the provider is
+// one thread's at a time (it holds the reconstructor and a frame buffer). NOT_FOUND, IO_ERROR and
+// CORRUPT as ViewArchive::Get.
+ScanViewProvider KeptViewProvider(const ViewArchive& archive, const ProbeCalibration& view_calibration,
+                                  const ReconstructOptions& options);
 
 struct ScanTimes {
   int64_t bursts = 0;  // bursts the chain ran on (the denominators of ms_per_burst)

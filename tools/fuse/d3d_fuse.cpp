@@ -444,13 +444,7 @@ int main(int argc, char** argv) {
     // Pose graph, refusion at the optimised poses (the kept frames reconstructed again: the same
     // views bit for bit), mesh, evaluation and report.
     ProgressBar bar2("d3d-fuse: pose graph, refusion, mesh, evaluation", 1, !quiet);
-    std::optional<ScanReconstructor> again;  // of the binned calibration: the kept frames are binned
-    std::vector<cv::Mat> kept_frames;
-    const ScanViewProvider provider = [&](int64_t, const ScanViewRecord& record, ReconstructedView* out) -> Status {
-      D3D_RETURN_IF_ERROR(kept.Get(record.burst_seq, &kept_frames));
-      if (!again) again.emplace(view_calib, so.recon, 1);
-      return again->Reconstruct(kept_frames, out);
-    };
+    const ScanViewProvider provider = KeptViewProvider(kept, view_calib, so.recon);
     ScanTruth truth;
     if (!no_eval && !scene.faces.empty()) truth.reference = &scene;
     const bool have_true_poses =
