@@ -12,10 +12,7 @@ void ProbeOptics::Check() const {
 }
 
 double ProbeOptics::BlurSigmaPx(double f_px, double pupil_mm, double focus_mm, double wavelength_nm, double z_mm) {
-  const double defocus_diameter_px = f_px * pupil_mm * std::abs(z_mm - focus_mm) / (z_mm * focus_mm);
-  const double sigma_defocus = defocus_diameter_px / 4.0;
-  const double sigma_airy = 0.42 * wavelength_nm * 1e-6 * f_px / pupil_mm;
-  return std::sqrt(sigma_defocus * sigma_defocus + sigma_airy * sigma_airy);
+  return DeviceBlur(f_px, pupil_mm, focus_mm, wavelength_nm).SigmaPx(z_mm);
 }
 
 void SensorModel::Check() const {

@@ -21,6 +21,8 @@
 //     focus and ≈ 1.05 px at ±8 mm.
 #pragma once
 
+#include <cmath>
+
 #include "calib/model/probe_calibration.h"
 #include "common/mesh/mesh.h"
 
@@ -44,6 +46,25 @@ struct ProbeOptics {
   // (thin lens, z_f ≫ f) as a uniform disk (σ = c/4), combined in quadrature with the Airy core
   // (σ ≈ 0.42 λ f_px / D).
   static double BlurSigmaPx(double f_px, double pupil_mm, double focus_mm, double wavelength_nm, double z_mm);
+};
+
+// BlurSigmaPx of one device with the factors that do not depend on z computed once: the same
+// operations in the same order (the same bits, BlurSigmaPx is this), for per-pixel use.
+class DeviceBlur {
+ public:
+  DeviceBlur(double f_px, double pupil_mm, double focus_mm, double wavelength_nm)
+      : f_pupil_(f_px * pupil_mm), focus_mm_(focus_mm), airy_squared_([&] {
+          const double sigma_airy = 0.42 * wavelength_nm * 1e-6 * f_px / pupil_mm;
+          return sigma_airy * sigma_airy;
+        }()) {}
+  double SigmaPx(double z_mm) const {
+    const double defocus_diameter_px = f_pupil_ * std::abs(z_mm - focus_mm_) / (z_mm * focus_mm_);
+    const double sigma_defocus = defocus_diameter_px / 4.0;
+    return std::sqrt(sigma_defocus * sigma_defocus + airy_squared_);
+  }
+
+ private:
+  double f_pupil_, focus_mm_, airy_squared_;
 };
 
 // Image sensor (ground truth). Signal in units of the full well, then electrons, then DN.

@@ -12,6 +12,8 @@
 // Immutable after construction: Sample() may be called from any thread.
 #pragma once
 
+#include <algorithm>
+#include <cmath>
 #include <vector>
 
 #include "firmware/sim/patterns/patterns.h"
@@ -41,5 +43,27 @@ class ProjectorRadiance {
   int length_;  // samples per level (DMD + padding on both sides)
   std::vector<float> levels_;  // kLevels × length_
 };
+
+// Inline: called per lit pixel and frame (ShadePass).
+inline float ProjectorRadiance::SampleLevel(int level, float index) const {
+  const float* row = levels_.data() + static_cast<size_t>(level) * static_cast<size_t>(length_);
+  if (!(index >= 0.0f) || index >= static_cast<float>(length_ - 1)) return 0.0f;  // far outside: dark
+  const int i = static_cast<int>(index);
+  const float f = index - static_cast<float>(i);
+  return row[i] + f * (row[i + 1] - row[i]);
+}
+
+inline float ProjectorRadiance::Sample(float coord_px, float sigma_px) const {
+  // Sample j sits at coordinate (j + ½)/s − ½ for s samples per pixel.
+  const float index = (coord_px + 0.5f) * kSamplesPerPixel - 0.5f + static_cast<float>(pad_);
+  const float s = std::max(sigma_px, kSigmaMin);
+  float level = 2.0f * std::log2(s / kSigmaMin);
+  level = std::min(level, static_cast<float>(kLevels - 1));
+  const int l0 = static_cast<int>(level);
+  const int l1 = std::min(l0 + 1, kLevels - 1);
+  const float w = level - static_cast<float>(l0);
+  const float a = SampleLevel(l0, index);
+  return w > 0.0f ? a + w * (SampleLevel(l1, index) - a) : a;
+}
 
 }  // namespace d3d

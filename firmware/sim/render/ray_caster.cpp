@@ -37,6 +37,14 @@ RayCaster::RayCaster(const TriangleMesh& mesh, std::vector<SceneSphere> spheres)
   mesh_.Check();
   D3D_CHECK_MSG(!mesh_.faces.empty() || !spheres_.empty(), "the scene is empty (no triangles, no spheres)");
   for (const auto& s : spheres_) D3D_CHECK_MSG(s.radius_mm > 0, "sphere radius must be positive");
+  face_normals_.resize(mesh_.faces.size());
+  for (size_t i = 0; i < mesh_.faces.size(); ++i) {
+    const Eigen::Vector3i& f = mesh_.faces[i];
+    const Eigen::Vector3d& a = mesh_.vertices[static_cast<size_t>(f[0])];
+    const Eigen::Vector3d e1 = mesh_.vertices[static_cast<size_t>(f[1])] - a;
+    const Eigen::Vector3d e2 = mesh_.vertices[static_cast<size_t>(f[2])] - a;
+    face_normals_[i] = e1.cross(e2).normalized();
+  }
   device_ = rtcNewDevice("verbose=0");
   if (!device_) throw std::runtime_error("Embree: rtcNewDevice failed (error " + std::to_string(rtcGetDeviceError(nullptr)) + ")");
   scene_ = rtcNewScene(device_);
@@ -94,8 +102,7 @@ bool RayCaster::RefineTriangle(int face, const Eigen::Vector3d& o, const Eigen::
   const double t = e2.dot(q) * inv;
   hit->t = t;
   hit->point = o + t * d;
-  const Eigen::Vector3d n = e1.cross(e2).normalized();
-  hit->geometric_normal = FacingOrigin(n, d);
+  hit->geometric_normal = FacingOrigin(face_normals_[static_cast<size_t>(face)], d);
   if (!mesh_.vertex_normals.empty()) {
     // Barycentrics may stray slightly outside [0,1] where Embree's float hit was on an edge.
     const double c1 = std::clamp(b1, 0.0, 1.0), c2 = std::clamp(b2, 0.0, 1.0 - c1);
@@ -206,15 +213,29 @@ void RayCaster::Intersect16(const Eigen::Vector3d& origin, const Eigen::Vector3d
 
 void RayCaster::OccludedToPoint16(const Eigen::Vector3d* origins, const bool* active, int count,
                                   const Eigen::Vector3d& target, double t_min, bool* occluded) const {
+  Eigen::Vector3d unit[kPacket];
+  double distance[kPacket];
+  for (int i = 0; i < count; ++i) {
+    if (!active[i]) continue;
+    unit[i] = target - origins[i];
+    distance[i] = unit[i].norm();
+    if (distance[i] > 0) unit[i] /= distance[i];
+  }
+  OccludedToPoint16(origins, unit, distance, active, count, target, t_min, occluded);
+}
+
+void RayCaster::OccludedToPoint16(const Eigen::Vector3d* origins, const Eigen::Vector3d* unit, const double* distance,
+                                  const bool* active, int count, const Eigen::Vector3d& target, double t_min,
+                                  bool* occluded) const {
   RTCRay16 r;
   alignas(64) int valid[kPacket];
   for (int i = 0; i < kPacket; ++i) {
     const bool on = i < count && active[i];
     valid[i] = on ? -1 : 0;
-    const Eigen::Vector3d o = on ? origins[i] : target;
-    Eigen::Vector3d d = target - o;
-    const double dist = d.norm();
-    if (dist > 0) d /= dist;
+    // An inactive ray starts at the target with a zero direction.
+    const Eigen::Vector3d& o = on ? origins[i] : target;
+    const Eigen::Vector3d d = on ? unit[i] : Eigen::Vector3d::Zero();
+    const double dist = on ? distance[i] : 0.0;
     r.org_x[i] = static_cast<float>(o.x());
     r.org_y[i] = static_cast<float>(o.y());
     r.org_z[i] = static_cast<float>(o.z());

@@ -60,6 +60,10 @@ class RayCaster {
   // lies strictly between, more than t_min (mm) from both ends. Inactive rays report false.
   void OccludedToPoint16(const Eigen::Vector3d* origins, const bool* active, int count, const Eigen::Vector3d& target,
                          double t_min, bool* occluded) const;
+  // The same with the rays as that call computes them, from a caller that has them already: for each
+  // active ray, distance[i] = (target − origins[i]).norm() > 0 and unit[i] = (target − origins[i]) / distance[i].
+  void OccludedToPoint16(const Eigen::Vector3d* origins, const Eigen::Vector3d* unit, const double* distance,
+                         const bool* active, int count, const Eigen::Vector3d& target, double t_min, bool* occluded) const;
 
   const TriangleMesh& mesh() const { return mesh_; }
 
@@ -68,6 +72,9 @@ class RayCaster {
   bool RefineSphere(int index, const Eigen::Vector3d& o, const Eigen::Vector3d& d, SurfaceHit* hit) const;
 
   TriangleMesh mesh_;
+  // Unit geometric normal of each face, e1 × e2 normalised as RefineTriangle would compute it per
+  // hit (the same operations once per face at set-up: the same bits, one sqrt and division less).
+  std::vector<Eigen::Vector3d> face_normals_;
   std::vector<SceneSphere> spheres_;
   RTCDevice device_ = nullptr;
   RTCScene scene_ = nullptr;

@@ -5,6 +5,7 @@
 
 #include <atomic>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <thread>
 #include <opencv2/imgproc.hpp>
@@ -80,6 +81,7 @@ class PixelRng {
   // Poisson sample by Knuth's product of uniforms (for small means; larger ones use the normal
   // approximation in the caller).
   double PoissonSmall(double mean) {
+    if (mean == 0.0) return 0.0;  // limit 1: no uniform in (0, 1) exceeds it (a dark pixel, no exp)
     const double limit = std::exp(-mean);  // Knuth's product of uniforms
     double p = Uniform();
     int k = 0;
@@ -118,6 +120,54 @@ void ParallelRows(tbb::task_arena& arena, int rows, F&& f) {
   });
 }
 
+// The same pose bit for bit (a pose equal as numbers but not as bits, −0 against +0, could render
+// other bits).
+bool SameBits(const Rigid3d& a, const Rigid3d& b) {
+  return std::memcmp(a.data(), b.data(), sizeof(double) * static_cast<size_t>(a.matrix().size())) == 0;
+}
+
+// std::clamp(std::round(x), 0, max_dn) (round half away from zero) without the libm call for the
+// x in (0, max_dn + 1) of a lit pixel: there the truncation is floor and x − floor(x) is exact.
+double RoundToDn(double x, double max_dn) {
+  if (x > 0.0 && x < max_dn + 1.0) {
+    const auto i = static_cast<int64_t>(x);
+    const double dn = static_cast<double>(i) + (x - static_cast<double>(i) >= 0.5 ? 1.0 : 0.0);
+    return std::min(dn, max_dn);
+  }
+  return std::clamp(std::round(x), 0.0, max_dn);  // ≤ 0, saturated or NaN
+}
+
+// cam.Project(p) and then cam.InImage of the pixel (calib/model/camera_model.cpp), inline and
+// with the same operations in the same order (the same bits): the two calls and the optional were
+// 4 % of a frame. The truth tests (VirtualProbeTruth.*) hold projector_uv to cam.Project.
+bool ProjectInImage(const PinholeBrownConrady& cam, const Eigen::Vector3d& p, Eigen::Vector2d* pixel) {
+  if (!(p.z() > 0.0)) return false;
+  const Eigen::Vector2d xy = p.head<2>() / p.z();
+  const double x = xy.x(), y = xy.y();  // Distort
+  const double r2 = x * x + y * y;
+  const double radial = 1.0 + r2 * (cam.k1 + r2 * (cam.k2 + r2 * cam.k3));
+  const Eigen::Vector2d d(x * radial + 2.0 * cam.p1 * x * y + cam.p2 * (r2 + 2.0 * x * x),
+                          y * radial + cam.p1 * (r2 + 2.0 * y * y) + 2.0 * cam.p2 * x * y);
+  *pixel = Eigen::Vector2d(cam.fx * d.x() + cam.cx, cam.fy * d.y() + cam.cy);
+  return pixel->x() >= -0.5 && pixel->y() >= -0.5 && pixel->x() < cam.width - 0.5 && pixel->y() < cam.height - 0.5;
+}
+
+// A conservative pre-test of Shade's specular gate n·ĥ > gate (ĥ the unit half vector of l and the
+// unit view vector): false only where that test is false, so that the exact half vector (a square
+// root and three divisions) is computed only near the lobe. Here h = l + v is unnormalised, v is the
+// view vector scaled by a reciprocal; n·h/|h| is then within ~1e-15 of the exact n·ĥ (unit vectors),
+// far inside the 1e-9 margin. A near-zero h (grazing, opposite l and v) goes to the exact test.
+bool SpecularMayPass(const Eigen::Vector3d& n, const Eigen::Vector3d& point, const Eigen::Vector3d& l,
+                     const Eigen::Vector3d& cam_centre, double gate) {
+  const Eigen::Vector3d to_cam = cam_centre - point;
+  const Eigen::Vector3d h = l + to_cam * (1.0 / to_cam.norm());
+  const double h2 = h.squaredNorm();
+  if (!(h2 > 1e-6)) return true;  // also NaN
+  const double n_h = n.dot(h);
+  const double g = gate - 1e-9;   // > 0: gate ≥ 1e-6
+  return n_h > 0.0 && n_h * n_h > g * g * h2;
+}
+
 }  // namespace
 
 void RenderOptions::Check() const {
@@ -135,7 +185,11 @@ VirtualProbe::VirtualProbe(const TriangleMesh& scene, const ProbeDesign& design,
     : design_(design),
       options_(options),
       scene_(PrepareScene(scene, design, options.texture, options.texture_seed)),
-      arena_(options.threads > 0 ? options.threads : tbb::task_arena::automatic) {
+      arena_(options.threads > 0 ? options.threads : tbb::task_arena::automatic),
+      camera_blur_(design_.calibration.camera.fx, design_.optics.camera_pupil_mm, design_.optics.camera_focus_mm,
+                   design_.optics.wavelength_nm),
+      projector_blur_(design_.calibration.projector.fx, design_.optics.projector_pupil_mm,
+                      design_.optics.projector_focus_mm, design_.optics.wavelength_nm) {
   design_.Check();
   options_.Check();
   if (!options_.gamma) design_.calibration.projector_gamma = 1.0;  // a linear projector, and its calibration says so
@@ -179,7 +233,19 @@ const ProjectorRadiance& VirtualProbe::RadianceFor(const ProjectorFrame& frame) 
   return *it->second;
 }
 
-void VirtualProbe::GeometryPass(const Rigid3d& world_from_probe, std::vector<PixelGeometry>* out) {
+const std::vector<VirtualProbe::PixelGeometry>& VirtualProbe::GeometryAt(const Rigid3d& world_from_probe, bool shade) {
+  const bool same = geometry_valid_ && (geometry_shaded_ || !shade) && SameBits(geometry_pose_, world_from_probe);
+  if (!same) {
+    geometry_valid_ = false;
+    GeometryPass(world_from_probe, shade, &geometry_);
+    geometry_pose_ = world_from_probe;
+    geometry_shaded_ = shade;
+    geometry_valid_ = true;
+  }
+  return geometry_;
+}
+
+void VirtualProbe::GeometryPass(const Rigid3d& world_from_probe, bool shade, std::vector<PixelGeometry>* out) {
   const ProbeCalibration& calib = design_.calibration;
   const int width = calib.camera.width, height = calib.camera.height;
   out->resize(pixel_rays_.size());
@@ -191,10 +257,12 @@ void VirtualProbe::GeometryPass(const Rigid3d& world_from_probe, std::vector<Pix
   constexpr int kTile = 4;  // 4×4 pixel tiles: one coherent Embree packet of 16 rays
   ParallelRows(arena_, (height + kTile - 1) / kTile, [&](int tile_row) {
     size_t index[RayCaster::kPacket];
-    Eigen::Vector3d dirs[RayCaster::kPacket], points[RayCaster::kPacket];
+    Eigen::Vector3d dirs[RayCaster::kPacket], points[RayCaster::kPacket], p_in_proj[RayCaster::kPacket];
+    Eigen::Vector3d to_proj_unit[RayCaster::kPacket];  // the shadow ray's direction: l in Shade
+    double to_proj_dist[RayCaster::kPacket];
     SurfaceHit hits[RayCaster::kPacket];
     bool hit[RayCaster::kPacket], facing[RayCaster::kPacket], occluded[RayCaster::kPacket];
-    std::optional<Eigen::Vector2d> uv[RayCaster::kPacket];
+    Eigen::Vector2d uv[RayCaster::kPacket];
     for (int c0 = 0; c0 < width; c0 += kTile) {
       int n = 0;
       for (int r = tile_row * kTile; r < std::min(height, (tile_row + 1) * kTile); ++r)
@@ -209,34 +277,50 @@ void VirtualProbe::GeometryPass(const Rigid3d& world_from_probe, std::vector<Pix
       caster_->Intersect16(cam_centre, dirs, n, 0.0, hits, hit);
       for (int k = 0; k < n; ++k) {
         facing[k] = false;
+        to_proj_dist[k] = 0.0;  // read (not used) by Shade where not lit
         if (!hit[k]) continue;
         points[k] = hits[k].point;
-        uv[k] = calib.projector.Project(proj_from_world * hits[k].point);
-        facing[k] = uv[k] && calib.projector.InImage(*uv[k]) &&
-                    hits[k].geometric_normal.dot(proj_centre - hits[k].point) > 0.0;
+        p_in_proj[k] = proj_from_world * hits[k].point;
+        const Eigen::Vector3d to_proj = proj_centre - hits[k].point;
+        facing[k] = ProjectInImage(calib.projector, p_in_proj[k], &uv[k]) && hits[k].geometric_normal.dot(to_proj) > 0.0;
+        if (facing[k]) {  // to_proj ≠ 0
+          to_proj_dist[k] = to_proj.norm();
+          to_proj_unit[k] = to_proj / to_proj_dist[k];
+        }
       }
-      caster_->OccludedToPoint16(points, facing, n, proj_centre, 1e-3, occluded);
+      caster_->OccludedToPoint16(points, to_proj_unit, to_proj_dist, facing, n, proj_centre, 1e-3, occluded);
       for (int k = 0; k < n; ++k) {
-        if (hit[k]) Shade(hits[k], pixel_rays_[index[k]], cam_centre, proj_centre, proj_from_world,
-                          facing[k] && !occluded[k] ? &*uv[k] : nullptr, &(*out)[index[k]]);
+        if (!hit[k]) continue;
+        const Eigen::Vector2d* lit_uv = facing[k] && !occluded[k] ? &uv[k] : nullptr;
+        PixelGeometry* g = &(*out)[index[k]];
+        HitTruth(hits[k], index[k], lit_uv, g);
+        if (shade) Shade(hits[k], index[k], cam_centre, p_in_proj[k], lit_uv, to_proj_unit[k], to_proj_dist[k], g);
       }
     }
   });
 }
 
-void VirtualProbe::Shade(const SurfaceHit& hit, const Eigen::Vector3d& ray, const Eigen::Vector3d& cam_centre,
-                         const Eigen::Vector3d& proj_centre, const Rigid3d& proj_from_world, const Eigen::Vector2d* uv,
-                         PixelGeometry* g) const {
-  const ProbeCalibration& calib = design_.calibration;
-  const ProbeOptics& optics = design_.optics;
-  const Eigen::Vector3d p_in_cam = ray * hit.t;
+void VirtualProbe::HitTruth(const SurfaceHit& hit, size_t pixel, const Eigen::Vector2d* uv, PixelGeometry* g) const {
+  const Eigen::Vector3d p_in_cam = pixel_rays_[pixel] * hit.t;
   g->depth = static_cast<float>(hit.t);
   g->x = static_cast<float>(p_in_cam.x());
   g->y = static_cast<float>(p_in_cam.y());
   g->z = static_cast<float>(p_in_cam.z());
   g->label = static_cast<uint8_t>(hit.label);
   g->face = hit.face >= 0 ? scene_.parent_face[static_cast<size_t>(hit.face)] : -1;
-  g->vis = 1;
+  g->vis = uv ? 2 : 1;
+  if (uv) {
+    g->u = static_cast<float>(uv->x());
+    g->v = static_cast<float>(uv->y());
+  }
+}
+
+void VirtualProbe::Shade(const SurfaceHit& hit, size_t pixel, const Eigen::Vector3d& cam_centre,
+                         const Eigen::Vector3d& p_in_proj, const Eigen::Vector2d* uv, const Eigen::Vector3d& l,
+                         double dist, PixelGeometry* g) const {
+  const ProbeCalibration& calib = design_.calibration;
+  const ProbeOptics& optics = design_.optics;
+  const Eigen::Vector3d& ray = pixel_rays_[pixel];
   const Material& m = design_.MaterialOf(hit.label);
   const double vignetting = 1.0 / (ray.squaredNorm() * ray.squaredNorm());  // cos⁴ α for ray = (x, y, 1)
   double albedo;
@@ -248,19 +332,13 @@ void VirtualProbe::Shade(const SurfaceHit& hit, const Eigen::Vector3d& ray, cons
     albedo = m.albedo * (options_.texture ? AlbedoFactor(m, hit.point, options_.texture_seed) : 1.0);
   }
   g->ambient = static_cast<float>(vignetting * albedo * optics.ambient_irradiance);
-  g->sigma_cam = static_cast<float>(ProbeOptics::BlurSigmaPx(calib.camera.fx, optics.camera_pupil_mm,
-                                                             optics.camera_focus_mm, optics.wavelength_nm, hit.t));
+  g->sigma_cam = static_cast<float>(camera_blur_.SigmaPx(hit.t));
   if (!uv) return;  // not lit by the projector
-  g->vis = 2;
-  g->u = static_cast<float>(uv->x());
-  g->v = static_cast<float>(uv->y());
-  const Eigen::Vector3d to_proj = proj_centre - hit.point;
-  const double dist = to_proj.norm();
-  const Eigen::Vector3d l = to_proj / dist;
   const double cos_i = std::max(0.0, hit.shading_normal.dot(l));
   const double e_p = optics.projector_irradiance * cos_i * (optics.projector_focus_mm / dist) * (optics.projector_focus_mm / dist);
   g->diffuse = static_cast<float>(vignetting * albedo * e_p);
-  if (options_.specular && m.specular_r0 > 0.0) {
+  if (options_.specular && m.specular_r0 > 0.0 &&
+      SpecularMayPass(hit.shading_normal, hit.point, l, cam_centre, specular_gate_[static_cast<size_t>(hit.label)])) {
     const Eigen::Vector3d view = (cam_centre - hit.point).normalized();
     const double n_h = hit.shading_normal.dot((l + view).normalized());
     if (n_h > specular_gate_[static_cast<size_t>(hit.label)]) {
@@ -268,11 +346,8 @@ void VirtualProbe::Shade(const SurfaceHit& hit, const Eigen::Vector3d& ray, cons
       g->specular = static_cast<float>(vignetting * f * e_p);
     }
   }
-  const double z_p = (proj_from_world * hit.point).z();
-  const double sigma_p = options_.projector_defocus
-                             ? ProbeOptics::BlurSigmaPx(calib.projector.fx, optics.projector_pupil_mm,
-                                                        optics.projector_focus_mm, optics.wavelength_nm, z_p)
-                             : 0.0;
+  const double z_p = p_in_proj.z();
+  const double sigma_p = options_.projector_defocus ? projector_blur_.SigmaPx(z_p) : 0.0;
   g->sigma_p = static_cast<float>(sigma_p);
   if (options_.subsurface && m.subsurface_fraction > 0.0) {
     const double ss = m.subsurface_sigma_mm * calib.projector.fx / z_p;
@@ -313,20 +388,34 @@ void VirtualProbe::CameraDefocus(const std::vector<PixelGeometry>& geometry, cv:
                                                                  design_.optics.camera_focus_mm,
                                                                  design_.optics.wavelength_nm,
                                                                  design_.optics.camera_focus_mm));
+  // Each pixel's σ (into a compact array: the geometry is read once) and the largest σ, by rows in
+  // parallel. A pixel without a surface has sigma_cam 0 < airy, so the maximum is that of all
+  // sigma_cam and airy as before; std::max from airy skips a NaN in any order: the same value.
+  const int width = signal->cols;
+  pixel_sigma_.resize(geometry.size());
+  row_max_sigma_.assign(static_cast<size_t>(signal->rows), airy);
+  ParallelRows(arena_, signal->rows, [&](int row) {
+    float m = airy;
+    const size_t first = static_cast<size_t>(row) * static_cast<size_t>(width);
+    for (size_t i = first; i < first + static_cast<size_t>(width); ++i) {
+      const PixelGeometry& g = geometry[i];
+      pixel_sigma_[i] = g.vis ? g.sigma_cam : airy;
+      m = std::max(m, pixel_sigma_[i]);
+    }
+    row_max_sigma_[static_cast<size_t>(row)] = m;
+  });
   float max_sigma = airy;
-  for (const auto& g : geometry) max_sigma = std::max(max_sigma, g.sigma_cam);
+  for (const float m : row_max_sigma_) max_sigma = std::max(max_sigma, m);
   int needed = 1;
   while (needed < kCount && kLevels[needed - 1] < max_sigma) ++needed;
   blur_levels_.resize(kCount);
   for (int k = 0; k < needed; ++k) cv::GaussianBlur(*signal, blur_levels_[k], cv::Size(0, 0), kLevels[k], kLevels[k], cv::BORDER_REFLECT);
   const cv::Mat sharp = signal->clone();
-  const int width = signal->cols;
   ParallelRows(arena_, signal->rows, [&](int row) {
     float* out = signal->ptr<float>(row);
     const float* s0 = sharp.ptr<float>(row);
     for (int col = 0; col < width; ++col) {
-      const auto& g = geometry[static_cast<size_t>(row) * static_cast<size_t>(width) + static_cast<size_t>(col)];
-      const float sigma = g.vis ? g.sigma_cam : airy;
+      const float sigma = pixel_sigma_[static_cast<size_t>(row) * static_cast<size_t>(width) + static_cast<size_t>(col)];
       if (sigma <= kLevels[0]) {
         const float w = sigma / kLevels[0];
         out[col] = s0[col] + w * (blur_levels_[0].ptr<float>(row)[col] - s0[col]);
@@ -363,7 +452,7 @@ void VirtualProbe::SensorPass(const cv::Mat& signal, uint64_t frame_seed, cv::Ma
         const double shot = electrons > 64.0 ? std::max(0.0, electrons + std::sqrt(electrons) * n1) : rng.PoissonSmall(electrons);
         electrons = shot + sensor.read_noise_e * n2;
       }
-      const double dn = std::clamp(std::round(electrons * dn_per_e), 0.0, max_dn);
+      const double dn = RoundToDn(electrons * dn_per_e, max_dn);
       if (eight) image->ptr<uint8_t>(row)[col] = static_cast<uint8_t>(dn);
       else image->ptr<uint16_t>(row)[col] = static_cast<uint16_t>(dn);
     }
@@ -377,22 +466,29 @@ void VirtualProbe::FillTruth(const std::vector<PixelGeometry>& geometry, int wid
   out->visibility.create(height, width, CV_8U);
   out->label.create(height, width, CV_8U);
   out->face_index.create(height, width, CV_32S);
-  for (int r = 0; r < height; ++r)
+  ParallelRows(arena_, height, [&](int r) {
+    float* depth = out->depth_mm.ptr<float>(r);
+    cv::Vec3f* points = out->points_in_cam.ptr<cv::Vec3f>(r);
+    cv::Vec2f* uv = out->projector_uv.ptr<cv::Vec2f>(r);
+    uint8_t* visibility = out->visibility.ptr<uint8_t>(r);
+    uint8_t* label = out->label.ptr<uint8_t>(r);
+    int32_t* face = out->face_index.ptr<int32_t>(r);
     for (int c = 0; c < width; ++c) {
       const auto& g = geometry[static_cast<size_t>(r) * static_cast<size_t>(width) + static_cast<size_t>(c)];
       const bool hit = g.vis != 0;
-      out->depth_mm.at<float>(r, c) = hit ? g.depth : kNaN;
-      out->points_in_cam.at<cv::Vec3f>(r, c) = hit ? cv::Vec3f(g.x, g.y, g.z) : cv::Vec3f(kNaN, kNaN, kNaN);
-      out->projector_uv.at<cv::Vec2f>(r, c) = g.vis == 2 ? cv::Vec2f(g.u, g.v) : cv::Vec2f(kNaN, kNaN);
-      out->visibility.at<uint8_t>(r, c) = g.vis;
-      out->label.at<uint8_t>(r, c) = g.label;
-      out->face_index.at<int32_t>(r, c) = g.face;
+      depth[c] = hit ? g.depth : kNaN;
+      points[c] = hit ? cv::Vec3f(g.x, g.y, g.z) : cv::Vec3f(kNaN, kNaN, kNaN);
+      uv[c] = g.vis == 2 ? cv::Vec2f(g.u, g.v) : cv::Vec2f(kNaN, kNaN);
+      visibility[c] = g.vis;
+      label[c] = g.label;
+      face[c] = g.face;
     }
+  });
 }
 
 void VirtualProbe::RenderTruth(const Rigid3d& world_from_probe, FrameTruth* out) {
-  GeometryPass(world_from_probe, &geometry_);
-  FillTruth(geometry_, design_.calibration.camera.width, design_.calibration.camera.height, out);
+  FillTruth(GeometryAt(world_from_probe, false), design_.calibration.camera.width, design_.calibration.camera.height,
+            out);
   out->world_from_probe = world_from_probe;
 }
 
@@ -404,7 +500,7 @@ void VirtualProbe::RenderFrame(const PoseAtTime& pose, int64_t t_ns, const Proje
   out->timestamp_ns = t_ns;
   const Rigid3d world_from_probe = pose(t_ns);
   cv::Mat signal(cam.height, cam.width, CV_32F, cv::Scalar(0));
-  GeometryPass(world_from_probe, &geometry_);  // the pose at mid-exposure: truth and defocus
+  GeometryAt(world_from_probe, true);  // the pose at mid-exposure: truth and defocus
   const int samples = options_.motion_blur_samples;
   if (samples == 1) {
     ShadePass(geometry_, radiance, 1.0f, &signal);
@@ -412,8 +508,10 @@ void VirtualProbe::RenderFrame(const PoseAtTime& pose, int64_t t_ns, const Proje
     const double exposure = static_cast<double>(design_.sensor.exposure_ns);
     for (int s = 0; s < samples; ++s) {
       const auto t = t_ns + static_cast<int64_t>(std::llround(exposure * ((s + 0.5) / samples - 0.5)));
-      GeometryPass(pose(t), &geometry_sub_);
-      ShadePass(geometry_sub_, radiance, 1.0f / static_cast<float>(samples), &signal);
+      const Rigid3d sub_pose = pose(t);
+      const bool still = SameBits(sub_pose, world_from_probe);  // geometry_ is at that pose
+      if (!still) GeometryPass(sub_pose, true, &geometry_sub_);
+      ShadePass(still ? geometry_ : geometry_sub_, radiance, 1.0f / static_cast<float>(samples), &signal);
     }
   }
   if (options_.camera_defocus) CameraDefocus(geometry_, &signal);

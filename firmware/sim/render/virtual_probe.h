@@ -99,15 +99,23 @@ class VirtualProbe {
 
  private:
   struct PixelGeometry;  // per-pixel hit and shading terms (virtual_probe.cpp)
-  void GeometryPass(const Rigid3d& world_from_probe, std::vector<PixelGeometry>* out);
-  void Shade(const SurfaceHit& hit, const Eigen::Vector3d& ray, const Eigen::Vector3d& cam_centre,
-             const Eigen::Vector3d& proj_centre, const Rigid3d& proj_from_world, const Eigen::Vector2d* uv,
-             PixelGeometry* g) const;
+  // shade = false fills only what FillTruth reads (RenderTruth).
+  void GeometryPass(const Rigid3d& world_from_probe, bool shade, std::vector<PixelGeometry>* out);
+  // geometry_ at world_from_probe, shaded if `shade`: reused when the last pass was at the same
+  // pose (bit for bit; a still probe, the reference truth of a still burst), else computed.
+  const std::vector<PixelGeometry>& GeometryAt(const Rigid3d& world_from_probe, bool shade);
+  // The truth fields of g (what FillTruth reads) from a camera ray's hit; uv: the projector pixel if
+  // lit, nullptr if not.
+  void HitTruth(const SurfaceHit& hit, size_t pixel, const Eigen::Vector2d* uv, PixelGeometry* g) const;
+  // The shading fields of g; uv as for HitTruth, and where lit, l and dist: the unit vector and the
+  // distance from the hit to the projector's centre.
+  void Shade(const SurfaceHit& hit, size_t pixel, const Eigen::Vector3d& cam_centre, const Eigen::Vector3d& p_in_proj,
+             const Eigen::Vector2d* uv, const Eigen::Vector3d& l, double dist, PixelGeometry* g) const;
   void ShadePass(const std::vector<PixelGeometry>& geometry, const ProjectorRadiance& radiance, float weight,
                  cv::Mat* signal);
   void CameraDefocus(const std::vector<PixelGeometry>& geometry, cv::Mat* signal);
   void SensorPass(const cv::Mat& signal, uint64_t frame_seed, cv::Mat* image);
-  static void FillTruth(const std::vector<PixelGeometry>& geometry, int width, int height, FrameTruth* out);
+  void FillTruth(const std::vector<PixelGeometry>& geometry, int width, int height, FrameTruth* out);
   const ProjectorRadiance& RadianceFor(const ProjectorFrame& frame);
 
   ProbeDesign design_;
@@ -118,13 +126,18 @@ class VirtualProbe {
   tbb::task_arena arena_;
   std::vector<Eigen::Vector3d> pixel_rays_;  // (x, y, 1) per pixel in the camera frame, row-major
   std::vector<uint8_t> pixel_ray_valid_;
+  DeviceBlur camera_blur_, projector_blur_;  // ProbeOptics::BlurSigmaPx of each device
   std::array<double, 3> specular_gate_{};  // per SurfaceLabel: smallest n·h worth a specular term
   std::mutex radiance_mutex_;
   std::unordered_map<std::string, std::unique_ptr<ProjectorRadiance>> radiance_cache_;
   // Scratch owned by the caller thread of Render* (see class comment).
   std::vector<PixelGeometry> geometry_;
+  Rigid3d geometry_pose_;              // the pose geometry_ was computed at,
+  bool geometry_valid_ = false;        // if any,
+  bool geometry_shaded_ = false;       // and whether with the shading terms
   std::vector<PixelGeometry> geometry_sub_;
   std::vector<cv::Mat> blur_levels_;
+  std::vector<float> pixel_sigma_, row_max_sigma_;  // CameraDefocus
 };
 
 // Frame seed used by RenderBurst: splitmix64 of (seed, sequence, frame index).

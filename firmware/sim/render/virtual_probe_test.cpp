@@ -6,6 +6,7 @@
 
 #include <cmath>
 #include <complex>
+#include <cstring>
 
 namespace d3d {
 namespace {
@@ -281,6 +282,36 @@ TEST(VirtualProbeNoise, IdenticalOutputForAnyThreadCount) {
 
 // Moving probe: each frame has its own pose, and motion blur within the exposure averages the
 // fringe over the phases it sweeps (modulation × |mean of e^{iφ_k}| over the sub-exposures).
+bool SameBytes(const cv::Mat& a, const cv::Mat& b) {  // NaN included
+  return a.size() == b.size() && a.type() == b.type() && a.isContinuous() && b.isContinuous() &&
+         std::memcmp(a.data, b.data, a.total() * a.elemSize()) == 0;
+}
+
+// A still probe's frames reuse one geometry pass (bit-identical poses); the reuse must give the bits
+// of frames rendered by a probe that moved (other poses, a truth-only pass) in between.
+TEST(VirtualProbeReuse, AStillProbeRendersTheBitsOfAProbeThatMovedInBetween) {
+  const TriangleMesh plane = PlaneMesh(kTilted);
+  const Rigid3d still = Rigid3d::Identity();
+  Rigid3d other = Rigid3d::Identity();
+  other.translation() = Eigen::Vector3d(0.3, -0.2, 1.0);
+  VirtualProbe a(plane, MakeDefaultProbeDesign(), RenderOptions{}), b(plane, MakeDefaultProbeDesign(), RenderOptions{});
+  const Burst x = a.RenderBurst(Static(still), 0, 7, 42, true);
+  for (size_t i = 0; i < x.frames.size(); ++i) {
+    FrameTruth elsewhere;
+    b.RenderTruth(other, &elsewhere);  // a truth-only pass at another pose
+    BurstFrame f;
+    b.RenderFrame(Static(other), 0, b.burst_patterns().frames[(i + 1) % x.frames.size()], 1, false, &f);
+    b.RenderFrame(Static(still), x.frames[i].timestamp_ns, b.burst_patterns().frames[i], FrameNoiseSeed(42, 7, static_cast<int>(i)),
+                  true, &f);
+    EXPECT_TRUE(SameBytes(x.frames[i].image, f.image)) << i;
+    EXPECT_TRUE(SameBytes(x.frames[i].truth.points_in_cam, f.truth.points_in_cam)) << i;
+  }
+  FrameTruth reference;
+  b.RenderTruth(still, &reference);  // after a shaded pass at that pose: reused
+  EXPECT_TRUE(SameBytes(x.reference_truth.projector_uv, reference.projector_uv));
+  EXPECT_TRUE(SameBytes(x.reference_truth.visibility, reference.visibility));
+}
+
 TEST(VirtualProbeMotion, FramesHaveTheirOwnPosesAndMotionBlurAttenuatesAsPredicted) {
   // The fringes travel with the probe, so only depth changes move them on a plane: move along z,
   // 150 mm/s with an 8 ms exposure (a deliberate, large blur: ~2.8 rad swept).
