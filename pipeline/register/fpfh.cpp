@@ -271,6 +271,7 @@ FpfhAlignResult AlignByFpfh(const FpfhFeatures& s, const FpfhFeatures& t, const 
   src.normals = s.normals;
   tgt.points = t.points;
   tgt.normals = t.normals;
+  const KdTreeTarget target(std::move(tgt));
   IcpOptions icp;
   icp.levels = {{1, o.verify_iterations, o.ransac.inlier_threshold_mm, 1.0}};
   icp.min_sigma_mm = o.voxel_mm / 10;
@@ -278,12 +279,14 @@ FpfhAlignResult AlignByFpfh(const FpfhFeatures& s, const FpfhFeatures& t, const 
   icp.min_overlap = o.min_overlap;
   icp.min_eigen_ratio = o.min_eigen_ratio;
   icp.min_correspondences = std::max(6, o.ransac.min_inliers);
-  const IcpResult v = RegisterIcp(src, KdTreeTarget(std::move(tgt)), best.target_from_source, icp);
+  const IcpResult v = RegisterIcp(src, target, best.target_from_source, icp);
   r.overlap = v.overlap;
   r.eigen_ratio = v.eigen_ratio;
   r.target_from_source = v.target_from_source;
   if (!v.ok) return fail("verification: " + v.reason);
-  // Ambiguity: the largest consensus among the correspondences the winner does not explain.
+  // Ambiguity: the largest consensus among the correspondences the winner does not explain, if the
+  // same verification holds it too, elsewhere (a consensus whose surfaces do not meet, e.g. turned
+  // inside out, explains nothing and is no rival).
   if (o.ambiguity_ratio > 0) {
     std::vector<uint8_t> used(c.size(), 0);
     for (int i : best.inliers) used[static_cast<size_t>(i)] = 1;
@@ -297,9 +300,15 @@ FpfhAlignResult AlignByFpfh(const FpfhFeatures& s, const FpfhFeatures& t, const 
       r.rival_inliers = static_cast<int>(rival.inliers.size());
       r.rival_deg = RotationAngleRad(rival.target_from_source, best.target_from_source) * 180 / M_PI;
       r.rival_mm = TranslationDistanceMm(rival.target_from_source, best.target_from_source);
-      if (r.rival_inliers >= o.ambiguity_ratio * r.inliers && (r.rival_deg > o.ambiguity_deg || r.rival_mm > o.ambiguity_mm))
-        return fail("ambiguous (a second consensus of " + std::to_string(r.rival_inliers) + " vs " + std::to_string(r.inliers) +
-                    " inliers, " + std::to_string(r.rival_deg) + " deg / " + std::to_string(r.rival_mm) + " mm away)");
+      if (r.rival_inliers >= o.ambiguity_ratio * r.inliers && (r.rival_deg > o.ambiguity_deg || r.rival_mm > o.ambiguity_mm)) {
+        // Verified, and still elsewhere once refined (not the winner reached from a worse start).
+        const IcpResult rv = RegisterIcp(src, target, rival.target_from_source, icp);
+        r.rival_verified = rv.ok && (RotationAngleRad(rv.target_from_source, v.target_from_source) * 180 / M_PI > o.ambiguity_deg ||
+                                     TranslationDistanceMm(rv.target_from_source, v.target_from_source) > o.ambiguity_mm);
+        if (r.rival_verified)
+          return fail("ambiguous (a second consensus of " + std::to_string(r.rival_inliers) + " vs " + std::to_string(r.inliers) +
+                      " inliers, " + std::to_string(r.rival_deg) + " deg / " + std::to_string(r.rival_mm) + " mm away)");
+      }
     }
   }
   r.ok = true;

@@ -51,7 +51,8 @@ struct FpfhOptions {
   double min_eigen_ratio = 2e-3;
   // Ambiguity: RANSAC is run again on the correspondences outside the winner's inliers; a second
   // consensus with ≥ ambiguity_ratio × the winner's inliers whose pose differs by more than
-  // ambiguity_deg or ambiguity_mm fails the alignment ("ambiguous": a symmetric scene). 0 disables.
+  // ambiguity_deg or ambiguity_mm, and that the verification below holds as well, fails the
+  // alignment ("ambiguous": a symmetric scene). 0 disables.
   double ambiguity_ratio = 0.6;
   double ambiguity_deg = 5.0;
   double ambiguity_mm = 5.0;
@@ -95,6 +96,7 @@ struct FpfhAlignResult : FeatureAlignResult {  // matches: correspondences offer
   double eigen_ratio = 0;    // verification ICP: Hessian conditioning
   int rival_inliers = 0;     // the second, disjoint consensus (0: none)
   double rival_deg = 0, rival_mm = 0;  // its pose difference to the winner
+  bool rival_verified = false;         // it passed the verification too, elsewhere (and so refused the alignment)
 };
 
 // Correspondences by descriptor, RANSAC, verification (see FpfhOptions). target_from_source is the

@@ -173,5 +173,60 @@ TEST(AlignByFpfh, FailsAsAmbiguousOnASymmetricScene) {
   ASSERT_TRUE(u.result.ok) << u.result.reason;
 }
 
+// Hand-made features: source keypoints on a relief with a unique descriptor each; the target holds
+// them at the true pose (30 of them with their own descriptor, the rest with unrelated ones) and a
+// second copy 60 mm away, turned 180°, where 25 others keep their descriptor: a second consensus of
+// 25 vs 30 inliers, far from the first. With the copy's normals turned with it, it explains the
+// data as well (a symmetric scene): ambiguous. With its normals inside out, the verification
+// cannot hold it, so it is no rival and the true pose comes back.
+FpfhAlignResult AlignWithARivalCopy(bool rival_inside_out, Rigid3d* truth) {
+  const testing::HeightField hf(9, 40);
+  const SurfacePoints surface = SampleSurface([&](double x, double y) { return hf.Height(x, y); }, -10, 10, -10, 10, 1.0,
+                                              0.0, 0.0, 1, Rigid3d::Identity());
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> U(0, 100);
+  const auto random_descriptor = [&] {
+    FpfhDescriptor d;
+    for (int k = 0; k < kFpfhSize; ++k) d[k] = U(rng);
+    return d;
+  };
+  FpfhFeatures source, target;
+  *truth = Pose(25, {0.2, 1, -0.3}, {4, -2, 30});
+  const Rigid3d copy = *truth * Pose(180, {1, 0, 0.2}, {60, 0, 0});
+  const int n = static_cast<int>(surface.size());
+  std::vector<FpfhDescriptor> own(static_cast<size_t>(n));
+  for (int i = 0; i < n; ++i) {
+    own[static_cast<size_t>(i)] = random_descriptor();
+    source.points.push_back(surface.points[static_cast<size_t>(i)]);
+    source.normals.push_back(surface.normals[static_cast<size_t>(i)]);
+    source.descriptors.push_back(own[static_cast<size_t>(i)]);
+  }
+  for (int pass = 0; pass < 2; ++pass) {
+    const Rigid3d& pose = pass == 0 ? *truth : copy;
+    const float normal_sign = pass == 1 && rival_inside_out ? -1.0f : 1.0f;
+    for (int i = 0; i < n; ++i) {
+      const bool kept = pass == 0 ? i % 7 == 0 && i / 7 < 30 : i % 7 == 3 && i / 7 < 25;
+      target.points.push_back((pose * surface.points[static_cast<size_t>(i)].cast<double>()).cast<float>());
+      target.normals.push_back(normal_sign * (pose.linear() * surface.normals[static_cast<size_t>(i)].cast<double>()).cast<float>());
+      target.descriptors.push_back(kept ? own[static_cast<size_t>(i)] : random_descriptor());
+    }
+  }
+  return AlignByFpfh(source, target, SmallScaleOptions());
+}
+
+TEST(AlignByFpfh, ARivalConsensusCountsOnlyIfTheVerificationHoldsIt) {
+  Rigid3d truth;
+  const FpfhAlignResult symmetric = AlignWithARivalCopy(false, &truth);
+  EXPECT_FALSE(symmetric.ok);
+  EXPECT_NE(symmetric.reason.find("ambiguous"), std::string::npos) << symmetric.reason;
+  EXPECT_TRUE(symmetric.rival_verified);
+  const FpfhAlignResult inside_out = AlignWithARivalCopy(true, &truth);
+  ASSERT_TRUE(inside_out.ok) << inside_out.reason;
+  EXPECT_GE(inside_out.rival_inliers, 0.6 * inside_out.inliers);  // large enough to have refused before
+  EXPECT_FALSE(inside_out.rival_verified);
+  EXPECT_LT(TranslationDistanceMm(inside_out.target_from_source, truth), 0.05);
+  EXPECT_LT(RotationAngleRad(inside_out.target_from_source, truth) * 180 / M_PI, 0.1);
+}
+
 }  // namespace
 }  // namespace d3d

@@ -26,7 +26,7 @@ FpfhOptions DentalFpfh() {
   o.voxel_mm = 1.0;
   o.normal_radius_mm = 2.0;
   o.feature_radius_mm = 5.0;
-  o.ransac = RansacOptions{.inlier_threshold_mm = 1.5, .max_iterations = 50000, .confidence = 0.999, .min_inliers = 12,
+  o.ransac = RansacOptions{.inlier_threshold_mm = 1.5, .max_iterations = 50000, .confidence = 0.999, .min_inliers = 8,
                            .min_inlier_ratio = 0.02, .min_sample_spread_mm = 4, .min_inlier_spread_mm = 1.0,
                            .max_edge_ratio_error = 0.1, .seed = 1};
   o.ambiguity_mm = 2.0;

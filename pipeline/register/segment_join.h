@@ -22,7 +22,8 @@
 namespace d3d {
 
 // FPFH at the scale of teeth: 1 mm keypoints, 2 mm normals, 5 mm features; RANSAC inliers within
-// 1.5 mm, samples spread ≥ 4 mm; a rival consensus 2 mm or 5° away at 0.6 × the inliers refuses.
+// 1.5 mm, samples spread ≥ 4 mm, at least 8 inliers (a consensus is a proposal: the ICP of step 2
+// decides; docs/decisions/0005); a verified rival consensus 2 mm or 5° away at 0.6 × the inliers refuses.
 FpfhOptions DentalFpfh();
 // Levels 1.0 → 0.3 → 0.15 mm, residual ≤ 0.04 mm, overlap floor 0.02 (min_correspondences decides).
 IcpOptions SegmentJoinIcp();
