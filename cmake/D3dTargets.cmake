@@ -27,8 +27,52 @@ function(d3d_sanitize_at_o1)
   if(D3D_SANITIZE AND D3D_SANITIZE_OPT STREQUAL "-O0")
     foreach(t ${ARGN})
       target_compile_options(${t} PRIVATE -O1)
+      set_target_properties(${t} PROPERTIES DISABLE_PRECOMPILE_HEADERS ON)  # -O1 against the PCH's -O0
     endforeach()
   endif()
+endfunction()
+
+# Precompiled headers (D3D_PCH, on by default; not in the clang fuzzer build, whose per-target
+# sanitizer flags a shared PCH would not match): Eigen, OpenCV's core and the standard library are
+# parsed once for the whole build (d3d_pch), GoogleTest once more for the tests (d3d_pch_test),
+# instead of in each of ~570 translation units. GCC uses a PCH only where the flags that define
+# macros match (-O3 and -O1 do; -O0 against -O1, -fno-math-errno do not): a target with such flags
+# parses the headers itself (DISABLE_PRECOMPILE_HEADERS on it: CMake's -Winvalid-pch with -Werror would stop
+# the build otherwise), with the same result. Every target still includes what it uses: a build with
+# -DD3D_PCH=OFF is the check (docs/decisions/0005 has the build times).
+option(D3D_PCH "Precompile the common third-party headers" ON)
+set(D3D_PCH_HEADERS <algorithm> <array> <chrono> <cmath> <cstdint> <functional> <map> <memory> <mutex>
+    <optional> <string> <unordered_map> <vector> <Eigen/Core> <Eigen/Dense> <opencv2/core.hpp>)
+function(d3d_make_pch_targets)
+  if(NOT D3D_PCH OR D3D_FUZZ OR TARGET d3d_pch)
+    return()
+  endif()
+  add_library(d3d_pch STATIC ${PROJECT_SOURCE_DIR}/cmake/pch.cpp)
+  target_link_libraries(d3d_pch PRIVATE Eigen3::Eigen opencv_core)
+  target_precompile_headers(d3d_pch PRIVATE ${D3D_PCH_HEADERS})
+  d3d_warnings(d3d_pch)
+  add_library(d3d_pch_test STATIC ${PROJECT_SOURCE_DIR}/cmake/pch.cpp)
+  target_link_libraries(d3d_pch_test PRIVATE Eigen3::Eigen opencv_core GTest::gtest GTest::gmock)
+  target_precompile_headers(d3d_pch_test PRIVATE ${D3D_PCH_HEADERS} <gtest/gtest.h>)
+  d3d_warnings(d3d_pch_test)
+endfunction()
+
+# d3d_use_pch(TARGET FROM): TARGET's C++ sources use FROM's precompiled headers (targets with C
+# sources keep their own parsing: the PCH is C++ only).
+function(d3d_use_pch target from)
+  if(NOT TARGET ${from})
+    return()
+  endif()
+  get_target_property(sources ${target} SOURCES)
+  foreach(src ${sources})
+    if(src MATCHES "\\.c$")
+      return()
+    endif()
+  endforeach()
+  target_precompile_headers(${target} REUSE_FROM ${from})
+  # A target whose definitions turn out not to match (e.g. a package's -D in its usage requirements)
+  # gets a warning naming the macro, and builds without the PCH, instead of failing under -Werror.
+  target_compile_options(${target} PRIVATE -Wno-error=invalid-pch)
 endfunction()
 
 function(d3d_library name)
@@ -37,6 +81,7 @@ function(d3d_library name)
   target_include_directories(${name} PUBLIC ${PROJECT_SOURCE_DIR})
   target_link_libraries(${name} PUBLIC ${ARG_DEPS} PRIVATE ${ARG_PRIVATE_DEPS})
   d3d_warnings(${name})
+  d3d_use_pch(${name} d3d_pch)
 endfunction()
 
 function(d3d_executable name)
@@ -45,6 +90,7 @@ function(d3d_executable name)
   target_link_libraries(${name} PRIVATE ${ARG_DEPS})
   d3d_warnings(${name})
   d3d_thin_code(${name})
+  d3d_use_pch(${name} d3d_pch)
 endfunction()
 
 function(d3d_test name)
@@ -55,6 +101,7 @@ function(d3d_test name)
   d3d_thin_code(${name})
   set_target_properties(${name} PROPERTIES RUNTIME_OUTPUT_DIRECTORY ${CMAKE_BINARY_DIR}/tests)
   d3d_warnings(${name})
+  d3d_use_pch(${name} d3d_pch_test)
   gtest_discover_tests(${name} DISCOVERY_TIMEOUT 60 PROPERTIES LABELS "${ARG_LABELS}")
 endfunction()
 
