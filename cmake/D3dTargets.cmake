@@ -27,24 +27,24 @@ function(d3d_sanitize_at_o1)
   if(D3D_SANITIZE AND D3D_SANITIZE_OPT STREQUAL "-O0")
     foreach(t ${ARGN})
       target_compile_options(${t} PRIVATE -O1)
-      set_target_properties(${t} PROPERTIES DISABLE_PRECOMPILE_HEADERS ON)  # -O1 against the PCH's -O0
     endforeach()
   endif()
 endfunction()
 
-# Precompiled headers (D3D_PCH, on by default; not in the clang fuzzer build, whose per-target
-# sanitizer flags a shared PCH would not match): Eigen, OpenCV's core and the standard library are
-# parsed once for the whole build (d3d_pch), GoogleTest once more for the tests (d3d_pch_test),
-# instead of in each of ~570 translation units. GCC uses a PCH only where the flags that define
-# macros match (-O3 and -O1 do; -O0 against -O1, -fno-math-errno do not): a target with such flags
-# parses the headers itself (DISABLE_PRECOMPILE_HEADERS on it: CMake's -Winvalid-pch with -Werror would stop
-# the build otherwise), with the same result. Every target still includes what it uses: a build with
-# -DD3D_PCH=OFF is the check (docs/decisions/0005 has the build times).
+# Precompiled headers (D3D_PCH, on by default in the Release build; not in the sanitizer builds,
+# where GCC 12 at -O1 then reports false -Warray-bounds in std::string's memcpy, nor in the clang
+# fuzzer build, whose per-target flags a shared PCH would not match): the standard library, Eigen
+# and OpenCV's core are parsed once for the libraries and tools (d3d_pch), with GoogleTest once more
+# for the tests (d3d_pch_test), instead of in each translation unit. GCC takes a PCH only where the
+# macros the flags define match (-O3 and -O1 do; -fno-math-errno, Open3D's -D do not): such a
+# target parses its headers itself (DISABLE_PRECOMPILE_HEADERS on it; a mismatch found later warns
+# and builds without). Every file still includes what it uses: -DD3D_PCH=OFF is the check
+# (docs/decisions/0006 has the build times).
 option(D3D_PCH "Precompile the common third-party headers" ON)
 set(D3D_PCH_HEADERS <algorithm> <array> <chrono> <cmath> <cstdint> <functional> <map> <memory> <mutex>
     <optional> <string> <unordered_map> <vector> <Eigen/Core> <Eigen/Dense> <opencv2/core.hpp>)
 function(d3d_make_pch_targets)
-  if(NOT D3D_PCH OR D3D_FUZZ OR TARGET d3d_pch)
+  if(NOT D3D_PCH OR D3D_FUZZ OR D3D_SANITIZE OR TARGET d3d_pch)
     return()
   endif()
   add_library(d3d_pch STATIC ${PROJECT_SOURCE_DIR}/cmake/pch.cpp)
