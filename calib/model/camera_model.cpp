@@ -20,14 +20,6 @@ Eigen::Matrix3d PinholeBrownConrady::K() const {
   return K;
 }
 
-Eigen::Vector2d PinholeBrownConrady::Distort(const Eigen::Vector2d& xy) const {
-  const double x = xy.x(), y = xy.y();
-  const double r2 = x * x + y * y;
-  const double radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
-  return {x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
-          y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y};
-}
-
 std::optional<Eigen::Vector2d> PinholeBrownConrady::Undistort(const Eigen::Vector2d& xy_distorted) const {
   Eigen::Vector2d xy = xy_distorted;
   for (int it = 0; it < 30; ++it) {
@@ -51,21 +43,11 @@ std::optional<Eigen::Vector2d> PinholeBrownConrady::Undistort(const Eigen::Vecto
   return std::nullopt;
 }
 
-std::optional<Eigen::Vector2d> PinholeBrownConrady::Project(const Eigen::Vector3d& p_in_cam) const {
-  if (!(p_in_cam.z() > 0.0)) return std::nullopt;
-  const Eigen::Vector2d d = Distort(p_in_cam.head<2>() / p_in_cam.z());
-  return Eigen::Vector2d(fx * d.x() + cx, fy * d.y() + cy);
-}
-
 std::optional<Eigen::Vector3d> PinholeBrownConrady::PixelRay(const Eigen::Vector2d& pixel) const {
   const Eigen::Vector2d xd((pixel.x() - cx) / fx, (pixel.y() - cy) / fy);
   const auto xy = Undistort(xd);
   if (!xy) return std::nullopt;
   return Eigen::Vector3d(xy->x(), xy->y(), 1.0);
-}
-
-bool PinholeBrownConrady::InImage(const Eigen::Vector2d& pixel) const {
-  return pixel.x() >= -0.5 && pixel.y() >= -0.5 && pixel.x() < width - 0.5 && pixel.y() < height - 0.5;
 }
 
 PinholeBrownConrady BinnedCamera(const PinholeBrownConrady& camera, int factor) {

@@ -43,4 +43,22 @@ struct PinholeBrownConrady {
 // unchanged. Throws std::invalid_argument for factor < 1 or a size not divisible by factor.
 PinholeBrownConrady BinnedCamera(const PinholeBrownConrady& camera, int factor);
 
+// Inline: per pixel in the virtual probe's geometry pass (once per camera ray, for the projector).
+inline Eigen::Vector2d PinholeBrownConrady::Distort(const Eigen::Vector2d& xy) const {
+  const double x = xy.x(), y = xy.y();
+  const double r2 = x * x + y * y;
+  const double radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
+  return {x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x), y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y};
+}
+
+inline std::optional<Eigen::Vector2d> PinholeBrownConrady::Project(const Eigen::Vector3d& p_in_cam) const {
+  if (!(p_in_cam.z() > 0.0)) return std::nullopt;
+  const Eigen::Vector2d d = Distort(p_in_cam.head<2>() / p_in_cam.z());
+  return Eigen::Vector2d(fx * d.x() + cx, fy * d.y() + cy);
+}
+
+inline bool PinholeBrownConrady::InImage(const Eigen::Vector2d& pixel) const {
+  return pixel.x() >= -0.5 && pixel.y() >= -0.5 && pixel.x() < width - 0.5 && pixel.y() < height - 0.5;
+}
+
 }  // namespace d3d

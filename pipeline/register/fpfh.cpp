@@ -297,14 +297,16 @@ FpfhAlignResult AlignByFpfh(const FpfhFeatures& s, const FpfhFeatures& t, const 
     ro.min_inlier_ratio = 0;
     const RansacResult rival = RansacRigid(rest, ro);
     if (rival.ok) {
+      const auto elsewhere = [&](const Rigid3d& a, const Rigid3d& b) {
+        return RotationAngleRad(a, b) * 180 / M_PI > o.ambiguity_deg || TranslationDistanceMm(a, b) > o.ambiguity_mm;
+      };
       r.rival_inliers = static_cast<int>(rival.inliers.size());
       r.rival_deg = RotationAngleRad(rival.target_from_source, best.target_from_source) * 180 / M_PI;
       r.rival_mm = TranslationDistanceMm(rival.target_from_source, best.target_from_source);
-      if (r.rival_inliers >= o.ambiguity_ratio * r.inliers && (r.rival_deg > o.ambiguity_deg || r.rival_mm > o.ambiguity_mm)) {
+      if (r.rival_inliers >= o.ambiguity_ratio * r.inliers && elsewhere(rival.target_from_source, best.target_from_source)) {
         // Verified, and still elsewhere once refined (not the winner reached from a worse start).
         const IcpResult rv = RegisterIcp(src, target, rival.target_from_source, icp);
-        r.rival_verified = rv.ok && (RotationAngleRad(rv.target_from_source, v.target_from_source) * 180 / M_PI > o.ambiguity_deg ||
-                                     TranslationDistanceMm(rv.target_from_source, v.target_from_source) > o.ambiguity_mm);
+        r.rival_verified = rv.ok && elsewhere(rv.target_from_source, v.target_from_source);
         if (r.rival_verified)
           return fail("ambiguous (a second consensus of " + std::to_string(r.rival_inliers) + " vs " + std::to_string(r.inliers) +
                       " inliers, " + std::to_string(r.rival_deg) + " deg / " + std::to_string(r.rival_mm) + " mm away)");

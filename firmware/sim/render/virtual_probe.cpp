@@ -137,21 +137,6 @@ double RoundToDn(double x, double max_dn) {
   return std::clamp(std::round(x), 0.0, max_dn);  // ≤ 0, saturated or NaN
 }
 
-// cam.Project(p) and then cam.InImage of the pixel (calib/model/camera_model.cpp), inline and
-// with the same operations in the same order (the same bits): the two calls and the optional were
-// 4 % of a frame. The truth tests (VirtualProbeTruth.*) hold projector_uv to cam.Project.
-bool ProjectInImage(const PinholeBrownConrady& cam, const Eigen::Vector3d& p, Eigen::Vector2d* pixel) {
-  if (!(p.z() > 0.0)) return false;
-  const Eigen::Vector2d xy = p.head<2>() / p.z();
-  const double x = xy.x(), y = xy.y();  // Distort
-  const double r2 = x * x + y * y;
-  const double radial = 1.0 + r2 * (cam.k1 + r2 * (cam.k2 + r2 * cam.k3));
-  const Eigen::Vector2d d(x * radial + 2.0 * cam.p1 * x * y + cam.p2 * (r2 + 2.0 * x * x),
-                          y * radial + cam.p1 * (r2 + 2.0 * y * y) + 2.0 * cam.p2 * x * y);
-  *pixel = Eigen::Vector2d(cam.fx * d.x() + cam.cx, cam.fy * d.y() + cam.cy);
-  return pixel->x() >= -0.5 && pixel->y() >= -0.5 && pixel->x() < cam.width - 0.5 && pixel->y() < cam.height - 0.5;
-}
-
 // A conservative pre-test of Shade's specular gate n·ĥ > gate (ĥ the unit half vector of l and the
 // unit view vector): false only where that test is false, so that the exact half vector (a square
 // root and three divisions) is computed only near the lobe. Here h = l + v is unnormalised, v is the
@@ -282,7 +267,9 @@ void VirtualProbe::GeometryPass(const Rigid3d& world_from_probe, bool shade, std
         points[k] = hits[k].point;
         p_in_proj[k] = proj_from_world * hits[k].point;
         const Eigen::Vector3d to_proj = proj_centre - hits[k].point;
-        facing[k] = ProjectInImage(calib.projector, p_in_proj[k], &uv[k]) && hits[k].geometric_normal.dot(to_proj) > 0.0;
+        const std::optional<Eigen::Vector2d> pixel = calib.projector.Project(p_in_proj[k]);
+        facing[k] = pixel && calib.projector.InImage(*pixel) && hits[k].geometric_normal.dot(to_proj) > 0.0;
+        if (pixel) uv[k] = *pixel;
         if (facing[k]) {  // to_proj ≠ 0
           to_proj_dist[k] = to_proj.norm();
           to_proj_unit[k] = to_proj / to_proj_dist[k];
