@@ -91,6 +91,7 @@ void TrackerOptions::Check() const {
   D3D_CHECK_MSG(reentry_direct_max_views >= 0, "TrackerOptions: reentry_direct_max_views >= 0");
   D3D_CHECK_MSG(reentry_min_eigen_ratio >= 0 && reentry_min_eigen_ratio < 1, "TrackerOptions: reentry_min_eigen_ratio in [0, 1)");
   D3D_CHECK_MSG(reentry_ambiguity_mm >= 0, "TrackerOptions: reentry_ambiguity_mm >= 0 (0 = off)");
+  D3D_CHECK_MSG(jump_check_mm >= 0 && jump_check_deg >= 0, "TrackerOptions: jump_check_mm and jump_check_deg >= 0 (0 = off)");
   reentry_check.Check();
   D3D_CHECK_MSG(segment_after_views >= 0 && max_segments >= 1 && segment_join_every >= 1 && segment_join_feature_keyframes >= 0,
                 "TrackerOptions: segment_after_views >= 0 (0 = off), max_segments >= 1, segment_join_every >= 1, "
@@ -338,9 +339,14 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
         return out;
       }
     } else if (motion_.Consistent(out.icp.target_from_source, &out.reason)) {
-      accepted = true;
-      pose = out.icp.target_from_source;
-      out.state = TrackingState::kTracking;
+      std::string why;
+      if (JumpsFromPrediction(out.icp.target_from_source) && !MeetsJumpStandard(samples, out.icp, &why)) {
+        out.reason = "icp jumped from the prediction: " + why;  // the local search tries it again
+      } else {
+        accepted = true;
+        pose = out.icp.target_from_source;
+        out.state = TrackingState::kTracking;
+      }
     }
   } else {
     out.reason = "lost";
@@ -437,7 +443,10 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     out.prediction_offset_deg = RotationAngleRad(pose, pred) * 180 / M_PI;
   }
   state_ = out.state;
-  motion_.Advance(pose, out.state == TrackingState::kRelocalised);
+  // No velocity across a re-entry, nor from the last pose of the segment before into a new
+  // segment's frame (2 m apart: the next view's prediction would extrapolate that).
+  const bool motion_restart = out.state == TrackingState::kRelocalised || out.new_segment;
+  motion_.Advance(pose, motion_restart);
   // Into the tracking model unless its residual stands out from the recent views' (see
   // map_max_rmse_ratio); the first view (no ICP) always enters.
   out.in_model = true;
@@ -454,7 +463,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   gated_run_ = out.in_model ? 0 : gated_run_ + 1;
   ViewLog& log = view_log_.back();
   log.in_model = out.in_model;
-  log.relocalised = out.state == TrackingState::kRelocalised;
+  log.motion_restart = motion_restart;
   log.pose = pose;
   if (out.in_model) {
     InsertIntoModel(points, normals, pose);
@@ -551,8 +560,29 @@ bool Tracker::ConfirmReentry(const SurfacePoints& samples, TrackResult* out) {
 
 bool Tracker::AfterGap() const { return state_ == TrackingState::kLost || motion_.ViewsElapsed() > o_.reentry_direct_max_views; }
 
+bool Tracker::JumpsFromPrediction(const Rigid3d& pose) const {
+  if (motion_.last_view() < 0) return false;
+  // The prediction's error grows with the time it spans (a live host's views come unevenly).
+  const double views = std::max(1.0, motion_.ViewsElapsed());
+  const Rigid3d pred = motion_.Predict();
+  return (o_.jump_check_mm > 0 && TranslationDistanceMm(pose, pred) > o_.jump_check_mm * views) ||
+         (o_.jump_check_deg > 0 && RotationAngleRad(pose, pred) * 180 / M_PI > o_.jump_check_deg * views);
+}
+
+bool Tracker::MeetsJumpStandard(const SurfacePoints& samples, const IcpResult& r, std::string* why) {
+  char what[160];
+  if (r.rmse_mm > o_.relocalise_max_rmse_mm || r.overlap < o_.relocalise_min_overlap) {
+    std::snprintf(what, sizeof what, "rmse %.1f um, overlap %.2f (a jump needs <= %.1f um, >= %.2f)", r.rmse_mm * 1000, r.overlap,
+                  o_.relocalise_max_rmse_mm * 1000, o_.relocalise_min_overlap);
+    *why = what;
+    return false;
+  }
+  ReentryEvidence evidence;
+  return VerifyReentry(samples, r, &evidence, why);
+}
+
 bool Tracker::VerifyReentry(const SurfacePoints& samples, const IcpResult& r, ReentryEvidence* evidence, std::string* why) {
-  if (AfterGap() && r.eigen_ratio < o_.reentry_min_eigen_ratio) {
+  if ((AfterGap() || JumpsFromPrediction(r.target_from_source)) && r.eigen_ratio < o_.reentry_min_eigen_ratio) {
     *why = "degenerate re-entry (eigen ratio " + std::to_string(r.eigen_ratio) + " < " + std::to_string(o_.reentry_min_eigen_ratio) + ")";
     return false;
   }
@@ -583,6 +613,18 @@ ReentryEvidence Tracker::CheckReentry(const SurfacePoints& samples, const Rigid3
   return reentry_check_.Test(samples, world_from_cam, reentry_kfs_);
 }
 
+
+void Tracker::ForgetResiduals() {
+  recent_rmse_mm_.clear();
+  recent_rmse_next_ = 0;
+  gated_run_ = 0;
+}
+
+bool Tracker::SegmentStartsAt(int64_t view) const {
+  for (size_t s = 1; s < segments_.size(); ++s)
+    if (segments_[s].first_view == view) return true;
+  return false;
+}
 
 bool Tracker::SegmentInMain(int segment) const {
   return segment == 0 || (segment > 0 && segment < static_cast<int>(segments_.size()) && segments_[static_cast<size_t>(segment)].joined);
@@ -644,6 +686,7 @@ void Tracker::StartSegment(Rigid3d* pose, TrackResult* out) {
   current_occupancy_.reset();
   candidate_ = ReentryCandidate{};
   motion_.ForgetVelocity();
+  ForgetResiduals();
   lost_with_points_ = 0;
   undo_barrier_view_ = index_ + 1;
 }
@@ -1202,9 +1245,7 @@ Tracker::UndoResult Tracker::UndoFrom(int64_t first_view) {
   D3D_CHECK_MSG(current_kf_ < static_cast<int>(keep), "Tracker::UndoFrom: a kept view's keyframe went");
   current_occupancy_ = current_kf_ >= 0 ? OccupancyMap(keyframes_[static_cast<size_t>(current_kf_)].samples, kOverlapVoxelMm) : nullptr;
   // The motion state, residual history and map gate as the kept views left them (replayed in order).
-  recent_rmse_mm_.clear();
-  recent_rmse_next_ = 0;
-  gated_run_ = 0;
+  ForgetResiduals();
   motion_.Reset();
   coast_run_ = 0;
   for (size_t v = 0; v < f; ++v) {
@@ -1215,10 +1256,11 @@ Tracker::UndoResult Tracker::UndoFrom(int64_t first_view) {
       continue;
     }
     if (anchor_[v] < 0) continue;
+    if (SegmentStartsAt(static_cast<int64_t>(v))) ForgetResiduals();
     coast_run_ = 0;
     if (log.rmse_pushed_mm >= 0) PushRecentRmse(log.rmse_pushed_mm);
     gated_run_ = log.in_model ? 0 : gated_run_ + 1;
-    motion_.AdvanceAt(static_cast<int64_t>(v), log.pose, log.capture_ns, log.relocalised);
+    motion_.AdvanceAt(static_cast<int64_t>(v), log.pose, log.capture_ns, log.motion_restart);
   }
   candidate_ = ReentryCandidate{};
   // The views refused in a row before first_view count toward a new segment; the undone ones do not.

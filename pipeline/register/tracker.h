@@ -249,6 +249,15 @@ struct TrackerOptions {
   // view's surface centre more than this apart (mm) or turned by more than 2 degrees from each
   // other, the return is ambiguous and refused. 0 = the first fit that passes is taken.
   double reentry_ambiguity_mm = 0.5;
+  // A pose farther than these from the motion prediction (per view the prediction spans, at least
+  // one) is a jump, not a motion of the hand, even inside a track: a tracked view whose ICP ran off
+  // to another fit, or a view refused while tracking that the local search recovered from a
+  // keyframe's pose, sliding along a smooth stretch. Such a pose must meet the standard of a
+  // re-entry after a gap (relocalise_max_rmse_mm, relocalise_min_overlap, reentry_min_eigen_ratio,
+  // the re-entry check), or the view is refused like a failed ICP. Figures: docs/decisions/0007.
+  // 0 = off.
+  double jump_check_mm = 1.5;
+  double jump_check_deg = 3.0;
   // Every re-entry pose (local search, features, a candidate's confirmation) must also be
   // consistent with what the keyframes near it saw (reentry_check.h): a pose that fails is passed
   // over like a failed ICP, and the search goes on with the next start.
@@ -496,13 +505,24 @@ class Tracker {
   // *from_prediction: the fit started from the motion prediction.
   // A return to the model after a gap or a loss (see TrackerOptions::reentry_min_eigen_ratio).
   bool AfterGap() const;
-  // The checks of a re-entry pose (ICP result r of `samples`) beyond ICP's own: after a gap, well
-  // constrained (reentry_min_eigen_ratio); and the re-entry check, whose evidence goes to
+  // The checks of a re-entry pose (ICP result r of `samples`) beyond ICP's own: after a gap or a
+  // jump from the prediction, well constrained (reentry_min_eigen_ratio); and the re-entry check, whose evidence goes to
   // *evidence. False with *why when one fails (*evidence untouched when the first did).
   bool VerifyReentry(const SurfacePoints& samples, const IcpResult& r, ReentryEvidence* evidence, std::string* why);
+  // Whether `pose` lies farther from the motion prediction than jump_check_mm / jump_check_deg.
+  bool JumpsFromPrediction(const Rigid3d& pose) const;
+  // A tracked view's fit (ICP result r of `samples`) that jumped: the re-entry's residual and
+  // overlap limits, then VerifyReentry. False with *why.
+  bool MeetsJumpStandard(const SurfacePoints& samples, const IcpResult& r, std::string* why);
   // The re-entry check (TrackerOptions::reentry_check) of `samples` at world_from_cam against the
   // keyframes nearest to it.
   ReentryEvidence CheckReentry(const SurfacePoints& samples, const Rigid3d& world_from_cam);
+  // The map gate's residual history (map_max_rmse_ratio) starts again: a new segment's views are
+  // compared with each other, not with the residuals of the model the track left (a young
+  // segment's model fits its views worse; compared with the main model's, they stayed out of it).
+  void ForgetResiduals();
+  // Whether view `view` started a segment (> 0).
+  bool SegmentStartsAt(int64_t view) const;
   // Starts a new segment with this view (accepted at *pose, in the segment's frame).
   void StartSegment(Rigid3d* pose, TrackResult* out);
   // Tries to join segment s to the main model; true when it did (then merged, see TrackerOptions).
@@ -614,7 +634,7 @@ class Tracker {
     int lost_with_points_before = 0;  // lost_with_points_ when the view came (UndoFrom restores it)
     double rmse_pushed_mm = -1;
     bool in_model = false;
-    bool relocalised = false;
+    bool motion_restart = false;  // no velocity across it: a re-entry or a segment's first view
     bool coasted = false;  // refused but carried the motion model (TrackerOptions::max_coast_views)
     Rigid3d pose = Rigid3d::Identity();
   };

@@ -519,6 +519,11 @@ void TrackerScan::LostScanStartsASegmentThatJoins(const TrackerOptions& o, const
   for (double x = 5; x >= -0.01; x -= 1.0) {
     const TrackResult r = feed(x);
     refused += !r.accepted;
+    if (started > 0 && !r.new_segment) {
+      // Tracked from the segment's own motion: no velocity carried from the main frame, 2 m away
+      // (the local search would recover such a view, as a re-entry).
+      EXPECT_EQ(r.state, TrackingState::kTracking) << "x = " << x << ": " << r.reason;
+    }
     if (r.new_segment) {
       ++started;
       EXPECT_TRUE(r.accepted);
@@ -578,10 +583,16 @@ TEST_F(TrackerScan, ASegmentFpfhCannotPlaceJoinsByKeyframeFeatures) {
   LostScanStartsASegmentThatJoins(o, "features");
 }
 
-TEST_F(TrackerScan, UndoneRefusedViewsDoNotCountTowardASegment) {
+// A segment after 2 views that cannot be placed.
+TrackerOptions QuickSegmentOptions() {
   TrackerOptions o;
   o.features.max_features = 800;
   o.segment_after_views = 2;
+  return o;
+}
+
+TEST_F(TrackerScan, UndoneRefusedViewsDoNotCountTowardASegment) {
+  TrackerOptions o = QuickSegmentOptions();
   o.map.undo_inserts = 16;
   Tracker tracker(cam_, o);
   uint32_t seed = 1;
@@ -598,10 +609,7 @@ TEST_F(TrackerScan, UndoneRefusedViewsDoNotCountTowardASegment) {
 }
 
 TEST_F(TrackerScan, ASegmentThatNeverOverlapsStaysApart) {
-  TrackerOptions o;
-  o.features.max_features = 800;
-  o.segment_after_views = 2;
-  Tracker tracker(cam_, o);
+  Tracker tracker(cam_, QuickSegmentOptions());
   uint32_t seed = 1;
   for (double x = -24; x <= -19.99; x += 1.0) ASSERT_TRUE(Feed(&tracker, Truth(x, 0), seed++).accepted);
   const int64_t first_apart = tracker.views();
@@ -636,6 +644,28 @@ TEST_F(TrackerScan, ASegmentThatNeverOverlapsStaysApart) {
   EXPECT_GE(second, 1);
   PoseGraphSummary summary;
   EXPECT_TRUE(tracker.Optimize({}, &summary).ok());
+}
+
+// A new segment's views are compared with each other by the map gate (map_max_rmse_ratio), not
+// with the residuals of the model the track left: here the segment's views are noisier (σ 12 µm
+// against 4) and fit their young model worse than the main model's views fitted theirs; compared
+// with those, two of every three stayed out of the model and it stopped growing where the probe went.
+TEST_F(TrackerScan, ANewSegmentsViewsAreGatedAgainstTheirOwnResiduals) {
+  Tracker tracker(cam_, QuickSegmentOptions());
+  uint32_t seed = 1;
+  for (double x = -26; x <= -16.99; x += 1.0) ASSERT_TRUE(Feed(&tracker, Truth(x, 0), seed++).accepted);
+  int segment_views = 0, out_of_model = 0;
+  bool started = false;
+  for (double x = 10; x <= 14.01; x += 0.5) {
+    const TrackResult r = Feed(&tracker, Truth(x, 0), seed++, 0.012);
+    started = started || r.new_segment;
+    if (!started || !r.accepted) continue;
+    ++segment_views;
+    out_of_model += !r.in_model;
+  }
+  ASSERT_EQ(tracker.segments(), 2);
+  EXPECT_GE(segment_views, 6);
+  EXPECT_EQ(out_of_model, 0);
 }
 
 // Keyframe odometry measured by ICP between the keyframes' own samples, not taken from the
@@ -1089,6 +1119,41 @@ TEST_F(TrackerScan, AViewThatJumpsFromThePredictionBecomesAKeyframe) {
     ASSERT_TRUE(r.accepted) << r.reason;
     EXPECT_NEAR(r.prediction_offset_mm, 1.2, 0.1);
     EXPECT_EQ(r.new_keyframe, jump_mm > 0);
+  }
+}
+
+}  // namespace
+}  // namespace d3d
+
+namespace d3d {
+namespace {
+
+// A tracked view that lands far from the motion prediction (the probe jerked 1.2 mm where 0.3 were
+// predicted) must meet a re-entry's standard (TrackerOptions::jump_check_mm): a clean view does
+// and is tracked; a noisy one (ICP residual between the re-entry limit, 40 µm, and tracking's 60)
+// is refused, as a fit that ran off to a wrong place would be. With the check off, it is tracked.
+TEST_F(TrackerScan, ATrackedViewThatJumpsMeetsTheReentryStandard) {
+  struct Case {
+    double jump_check_mm, noise_mm;
+    bool accepted;
+  };
+  for (const Case c : {Case{1.0, 0.004, true}, Case{1.0, 0.055, false}, Case{0.0, 0.055, true}}) {
+    SCOPED_TRACE(std::to_string(c.jump_check_mm) + " mm check, noise " + std::to_string(c.noise_mm));
+    TrackerOptions o;
+    o.jump_check_mm = c.jump_check_mm;
+    o.jump_check_deg = 0;
+    o.relocalise = false;  // the local search only
+    Tracker tracker(cam_, o);
+    uint32_t seed = 1;
+    double x = -4;
+    for (int i = 0; i < 6; ++i, x += 0.3) ASSERT_TRUE(Feed(&tracker, Truth(x, 0), seed++).accepted) << i;
+    const TrackResult r = Feed(&tracker, Truth(x + 1.2, 0), seed++, c.noise_mm);
+    EXPECT_EQ(r.accepted, c.accepted) << r.reason << " (rmse " << r.icp.rmse_mm << " mm)";
+    if (!c.accepted) {
+      EXPECT_NE(r.reason.find("icp jumped from the prediction"), std::string::npos) << r.reason;
+    } else if (c.noise_mm > o.relocalise_max_rmse_mm) {
+      EXPECT_GT(r.icp.rmse_mm, o.relocalise_max_rmse_mm);  // the case the check refuses
+    }
   }
 }
 
