@@ -122,6 +122,20 @@ INSTANTIATE_TEST_SUITE_P(EveryStyle, ScanStylesFuse,
                            return name;
                          });
 
+// Full-arch seed 9 from burst 100: the probe turns ~2.3° per view (at 15 Hz) over smooth surfaces
+// that ICP cannot hold (eigenvalue ratios 0.001–0.015), the track is lost, and segments start. A
+// young segment's view recovered by sliding 2.6 mm / 12.8° along such a stretch (and its second view
+// predicted from the 2 m between segment frames) put 62 views at wrong poses here at e4ee8a8
+// (docs/decisions/0007); what cannot be placed must stay apart instead.
+TEST(ScanStylesFuseSmoothTurn, ViewsThatCannotBeHeldAreKeptApartNotFusedWrong) {
+  const fs::path dir = fs::temp_directory_path() / "d3d_scan_styles_full_arch_s9_turn";
+  const nlohmann::json j = RunFuse("full-arch", 9, 100, 150, dir);
+  ASSERT_TRUE(j.contains("wrong_fusions")) << "no evaluation in " << (dir / "report.json");
+  EXPECT_EQ(j["wrong_fusions"].get<int>(), 0) << j.dump(2);
+  EXPECT_GT(j["trueness_points"].get<int64_t>(), 0) << j.dump(2);
+  EXPECT_LT(j["trueness_rms_um"].get<double>(), 30.0) << j.dump(2);
+}
+
 // The glare style's scene: the same burst of the same path saturates more of the camera (the wet
 // teeth's glints), and the rest of the picture is the same scene.
 TEST(ScanStylesScene, GlareSaturatesMorePixels) {
