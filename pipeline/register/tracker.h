@@ -506,8 +506,9 @@ class Tracker {
   // A return to the model after a gap or a loss (see TrackerOptions::reentry_min_eigen_ratio).
   bool AfterGap() const;
   // The checks of a re-entry pose (ICP result r of `samples`) beyond ICP's own: after a gap or a
-  // jump from the prediction, well constrained (reentry_min_eigen_ratio); and the re-entry check, whose evidence goes to
-  // *evidence. False with *why when one fails (*evidence untouched when the first did).
+  // jump from the prediction, well constrained (reentry_min_eigen_ratio); and the re-entry check,
+  // whose evidence goes to *evidence. False with *why when one fails (*evidence untouched when the
+  // first did).
   bool VerifyReentry(const SurfacePoints& samples, const IcpResult& r, ReentryEvidence* evidence, std::string* why);
   // Whether `pose` lies farther from the motion prediction than jump_check_mm / jump_check_deg.
   bool JumpsFromPrediction(const Rigid3d& pose) const;
