@@ -865,7 +865,11 @@ bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out, 
   const IcpOptions icp = LocalSearchIcp();
   // The search is local: its result must also be a consistent motion from the last accepted pose
   // (over the views elapsed); a far return is left to the feature relocalisation.
-  std::string last_reason;
+  std::string last_reason, failures;  // failures: why each start failed, for the events
+  const auto start_name = [&](size_t i) {
+    return i == 0 ? std::string("from the prediction") : i == 1 ? std::string("from the last pose")
+                                                               : "from keyframe " + std::to_string(order[i - 2].second);
+  };
   // After a gap every start is tried: a second fit that passes too, elsewhere, makes the return
   // ambiguous (TrackerOptions::reentry_ambiguity_mm).
   const bool all_starts = AfterGap() && o_.reentry_ambiguity_mm > 0;
@@ -873,13 +877,12 @@ bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out, 
   int found = -1;
   for (size_t i = 0; i < starts.size(); ++i) {
     const IcpResult r = RunIcp(samples, starts[i], icp);
-    if (!r.ok) {
-      last_reason = r.reason;
+    ReentryEvidence evidence;
+    if (!r.ok) last_reason = r.reason;
+    if (!r.ok || !motion_.Consistent(r.target_from_source, &last_reason) || !VerifyReentry(samples, r, &evidence, &last_reason)) {
+      failures += (failures.empty() ? "" : ", ") + start_name(i) + ": " + last_reason;
       continue;
     }
-    if (!motion_.Consistent(r.target_from_source, &last_reason)) continue;
-    ReentryEvidence evidence;
-    if (!VerifyReentry(samples, r, &evidence, &last_reason)) continue;
     if (found >= 0) {
       const double apart_mm = (r.target_from_source * centre_in_cam - out->world_from_cam * centre_in_cam).norm();
       const double apart_deg = RotationAngleRad(r.target_from_source, out->world_from_cam) * 180 / M_PI;
@@ -896,11 +899,11 @@ bool Tracker::RelocaliseLocally(const SurfacePoints& samples, TrackResult* out, 
     out->icp = r;
     out->world_from_cam = r.target_from_source;
     *from_prediction = i == 0;
-    out->reason = i == 0 ? "icp from the predicted pose" : i == 1 ? "icp from the last pose" : "icp from keyframe " + std::to_string(order[i - 2].second);
+    out->reason = i == 0 ? "icp from the predicted pose" : "icp " + start_name(i);
     if (!all_starts) return true;
   }
   if (found >= 0) return true;
-  out->reason = last_reason;
+  out->reason = failures.empty() ? last_reason : failures;
   return false;
 }
 
