@@ -1122,12 +1122,6 @@ TEST_F(TrackerScan, AViewThatJumpsFromThePredictionBecomesAKeyframe) {
   }
 }
 
-}  // namespace
-}  // namespace d3d
-
-namespace d3d {
-namespace {
-
 // A tracked view that lands far from the motion prediction (the probe jerked 1.2 mm where 0.3 were
 // predicted) must meet a re-entry's standard (TrackerOptions::jump_check_mm): a clean view does
 // and is tracked; a noisy one (ICP residual between the re-entry limit, 40 µm, and tracking's 60)
