@@ -15,7 +15,7 @@ namespace d3d {
 
 // The colour cue of the preview (tracking states of pipeline/register plus the host's own).
 // kNewSegment: the scan goes on in a segment of its own (the model could not be found there), to be
-// joined to the model once they overlap (TrackerOptions::segment_after_views).
+// joined to the model once they overlap (SegmentOptions::after_views).
 enum class PreviewCue : uint8_t { kWaiting, kTracking, kLost, kRelocalised, kProbeLost, kPaused, kNewSegment, kSlowDown };
 // "WAITING FOR PROBE", "TRACKING", "LOST", "RELOCALISED", "PROBE LOST", "PAUSED", "NEW SEGMENT",
 // "SLOW DOWN" (tracking, but the host keeps too few bursts for the probe's speed: host/scan/pace_monitor.h)
@@ -25,7 +25,7 @@ struct PreviewSnapshot {
   uint64_t generation = 0;               // bumps on a model reset or an undo: points are copied anew
   std::vector<Eigen::Vector3f> points;   // model, decimated (one per preview cell), append-only within a generation
   std::vector<Eigen::Vector3f> normals;  // unit, per point
-  // The scan segment being built apart from the model (TrackerOptions::segment_after_views; cue
+  // The scan segment being built apart from the model (SegmentOptions::after_views; cue
   // kNewSegment), decimated, drawn in the segment colour where the model was lost: placed, not
   // registered (TrackResult::display_from_cam). Append-only within a segment_generation.
   uint64_t segment_generation = 0;

@@ -1,6 +1,6 @@
 // The live preview's model (the host's preview stage): the accepted views decimated to one point
-// per preview cell in the model frame, and the scan segment apart from it (TrackerOptions::
-// segment_after_views) in its display frame (TrackResult::display_from_cam: beside where the model
+// per preview cell in the model frame, and the scan segment apart from it (SegmentOptions::
+// after_views) in its display frame (TrackResult::display_from_cam: beside where the model
 // was lost, placed, not registered), which moves into the model when the segment joins
 // (TrackResult::main_from_display). Both clouds are append-only between resets, so a snapshot copies
 // only their new tails (CopyTo). Units: mm.

@@ -49,9 +49,9 @@ ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& opti
   o_.Check();
   // Undo needs the tracker's journal and the kept frames (the fused model is made again without
   // the undone views).
-  o_.scan.tracker.map.undo_inserts = o_.keep_views ? o_.undo_max_views : 0;
+  o_.scan.tracker.odometry.map.undo_inserts = o_.keep_views ? o_.undo_max_views : 0;
   // The tracker's model insert runs after the register stage has handed the burst on (RegisterAfter).
-  o_.scan.tracker.defer_model_insert = true;
+  o_.scan.tracker.odometry.defer_model_insert = true;
   registrar_ = std::make_unique<ScanRegistrar>(calibration_, o_.scan.tracker, o_.scan.anchor, o_.scan.recon.normal_max_gap_mm);
   fuser_ = std::make_unique<ScanFuser>(calibration_.camera, o_.LiveTsdf(), o_.scan.free_space);
   if (o_.keep_views && !o_.views_spill_dir.empty()) {

@@ -16,7 +16,7 @@
 //     fuse reads), packed (fuse). One thread at a time, handed over by the graph's edges.
 //   ScanReconstructor: reconstruct thread.   ScanRegistrar (Tracker): register thread (with
 //     d3d-scan's keyframe features on demand, their SIFT too, when a relocalisation needs them);
-//     with TrackerOptions::FeatureTiming::kWorker, the tracker's keyframe-feature worker thread
+//     with KeyframeGraphOptions::FeatureTiming::kWorker, the tracker's keyframe-feature worker thread
 //     touches only the copies of a keyframe's points and texture it is handed and its own job and
 //     result lists (tracker.cpp).
 //   ScanFuser (the live TSDF, at ScanAppOptions::live) and the ViewArchive: fuse thread,
@@ -93,7 +93,7 @@ struct ScanAppOptions {
   TsdfOptions LiveTsdf() const;
   // Undo: each request takes back the views captured in the last undo_seconds (of the views still
   // in the model); the tracker's undo journal reaches back undo_max_views views
-  // (TrackerOptions::map.undo_inserts; ~0.4 MB per view at bin 2). 0 or keep_views off = no undo
+  // (OdometryOptions::map.undo_inserts; ~0.4 MB per view at bin 2). 0 or keep_views off = no undo
   // (the fused model could not leave the undone views out).
   double undo_seconds = 2.0;
   int undo_max_views = 150;
@@ -158,7 +158,7 @@ class ScanApp {
   // Takes back the views of the last options().undo_seconds (any thread; applied in order with the
   // bursts, see the file comment). false when undo is off (undo_max_views 0 or keep_views off).
   bool RequestUndo();
-  bool undo_available() const { return o_.scan.tracker.map.undo_inserts > 0; }
+  bool undo_available() const { return o_.scan.tracker.odometry.map.undo_inserts > 0; }
   // What the latest undo did ("undid 2.0 s: 57 views", or why nothing), and how many undos have
   // been applied or refused so far (any thread).
   std::string LastUndoMessage() const;
@@ -199,7 +199,7 @@ class ScanApp {
   bool ReconstructStage(ScanItem& item);
   bool RegisterStage(ScanItem& item);
   // The register stage's after-hook (StageGraph::Stage::after): the tracker's model insert of the
-  // view just handed to the preview (TrackerOptions::defer_model_insert), then the memory figures.
+  // view just handed to the preview (OdometryOptions::defer_model_insert), then the memory figures.
   void RegisterAfter();
   bool FuseStage(ScanItem& item);
   bool PreviewStage(ScanItem& item);

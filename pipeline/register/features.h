@@ -33,7 +33,7 @@ struct FeatureOptions {
   // SIFT runs on the images downsampled by this factor, (0, 1]; keypoints are mapped back to the
   // full-resolution grid. OpenCV's SIFT doubles its input before the first octave, so at 0.5 the
   // finest scale it searches is the camera's own pixel. The tracker's keyframes use 0.5 (see
-  // TrackerOptions::features); the Stanford bunny's range grids need 1.0 (bun045 → bun000 fails
+  // KeyframeGraphOptions::features); the Stanford bunny's range grids need 1.0 (bun045 → bun000 fails
   // at 0.5).
   double image_scale = 1.0;
   double ratio = 0.8;             // Lowe's ratio test

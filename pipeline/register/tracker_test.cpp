@@ -34,7 +34,7 @@ class TrackerScan : public ::testing::Test {
 
 TEST_F(TrackerScan, TracksAStripRefusesABadViewAndRelocalises) {
   TrackerOptions o;
-  o.features.max_features = 800;
+  o.keyframes.features.max_features = 800;
   Tracker tracker(cam_, o);
   std::vector<Rigid3d> truth;
   uint32_t seed = 1;
@@ -92,8 +92,8 @@ TEST_F(TrackerScan, TracksAStripRefusesABadViewAndRelocalises) {
 TEST_F(TrackerScan, AReentryTheNextViewContradictsIsDropped) {
   for (const bool confirm : {true, false}) {
     TrackerOptions o;
-    o.confirm_reentry = confirm;
-    o.min_view_samples /= 4;
+    o.relocaliser.confirm_reentry = confirm;
+    o.odometry.min_view_samples /= 4;
     Tracker tracker(small_cam_, o);
     std::vector<Rigid3d> truth;
     uint32_t seed = 1;
@@ -132,14 +132,14 @@ TEST_F(TrackerScan, AReentryTheNextViewContradictsIsDropped) {
 // "Undo last seconds": the views taken back leave the tracker as one that never saw them (the
 // model sample for sample, keyframes, pose graph, kept poses), and the scan goes on from there.
 TEST_F(TrackerScan, UndoLeavesTheTrackerAsIfTheViewsHadNeverComeAndTheScanGoesOn) {
-  using Timing = TrackerOptions::FeatureTiming;
+  using Timing = KeyframeGraphOptions::FeatureTiming;
   for (const Timing timing : {Timing::kInTrack, Timing::kWorker, Timing::kOnDemand}) {
     SCOPED_TRACE(timing == Timing::kInTrack ? "features in Track" : timing == Timing::kWorker ? "features on the worker" : "features on demand");
     TrackerOptions o;
-    o.min_view_samples /= 4;
-    o.map.undo_inserts = 20;
-    o.keyframe_feature_timing = timing;
-    o.keyframe_max_views = 3;  // keyframes among the views taken back too
+    o.odometry.min_view_samples /= 4;
+    o.odometry.map.undo_inserts = 20;
+    o.keyframes.feature_timing = timing;
+    o.keyframes.max_views = 3;  // keyframes among the views taken back too
     Tracker all(small_cam_, o), kept(small_cam_, o);
     std::vector<Rigid3d> truth;
     uint32_t seed = 1;
@@ -206,8 +206,8 @@ TEST_F(TrackerScan, UndoLeavesTheTrackerAsIfTheViewsHadNeverComeAndTheScanGoesOn
 
 TEST_F(TrackerScan, UndoReachesAsFarAsTheJournalAndEverythingMeansANewStart) {
   TrackerOptions o;
-  o.min_view_samples /= 4;
-  o.map.undo_inserts = 3;
+  o.odometry.min_view_samples /= 4;
+  o.odometry.map.undo_inserts = 3;
   Tracker tracker(small_cam_, o);
   uint32_t seed = 1;
   for (int i = 0; i < 6; ++i) ASSERT_TRUE(FeedSmall(&tracker, Truth(-3 + 0.8 * i, 0), seed++).accepted);
@@ -222,7 +222,7 @@ TEST_F(TrackerScan, UndoReachesAsFarAsTheJournalAndEverythingMeansANewStart) {
   // All of a scan's views (its journal reaches the first): an empty model, and the next view
   // starts a new one.
   TrackerOptions deep = o;
-  deep.map.undo_inserts = 10;
+  deep.odometry.map.undo_inserts = 10;
   Tracker fresh(small_cam_, deep);
   for (int i = 0; i < 4; ++i) ASSERT_TRUE(FeedSmall(&fresh, Truth(-3 + 0.8 * i, 0), seed++).accepted);
   const Tracker::UndoResult all = fresh.UndoFrom(0);
@@ -244,8 +244,8 @@ TEST_F(TrackerScan, AfterOneBadViewTheTrackResumesFromThePrediction) {
   for (const double direct : {2.0, 0.0}) {
     SCOPED_TRACE(direct);
     TrackerOptions o;
-    o.min_view_samples /= 4;
-    o.reentry_direct_max_views = direct;
+    o.odometry.min_view_samples /= 4;
+    o.relocaliser.direct_max_views = direct;
     Tracker tracker(small_cam_, o);
     uint32_t seed = 1;
     std::vector<Rigid3d> truth;
@@ -289,16 +289,16 @@ TEST_F(TrackerScan, KeyframeWorkOffTrackGivesTheSameScan) {
     ~SequentialOpenCv() { cv::setNumThreads(before); }
   } sequential_opencv;
   TrackerOptions o;
-  o.features.max_features = 800;
+  o.keyframes.features.max_features = 800;
   const PinholeBrownConrady cam = TestCamera(160, 120, 500);  // the fixture's field of view, 4× fewer pixels
-  o.min_view_samples /= 4;
-  o.relocalise_candidates = 2;
-  using Timing = TrackerOptions::FeatureTiming;
+  o.odometry.min_view_samples /= 4;
+  o.relocaliser.feature_candidates = 2;
+  using Timing = KeyframeGraphOptions::FeatureTiming;
   for (const Timing timing : {Timing::kWorker, Timing::kOnDemand}) {
     SCOPED_TRACE(timing == Timing::kWorker ? "features on the worker" : "features on demand");
     TrackerOptions oa = o;
-    oa.keyframe_feature_timing = timing;
-    oa.defer_keyframe_edges = true;
+    oa.keyframes.feature_timing = timing;
+    oa.keyframes.defer_edges = true;
     Tracker inline_features(cam, o), off_track(cam, oa);
     std::vector<Rigid3d> path;
     for (double x = -3; x <= 3.01; x += 1.0) path.push_back(Truth(x, 0));
@@ -340,7 +340,7 @@ TEST_F(TrackerScan, KeyframeWorkOffTrackGivesTheSameScan) {
         extracted += !kf.features_pending();
       }
       EXPECT_GE(extracted, 1u);
-      EXPECT_LE(extracted, static_cast<size_t>(o.relocalise_candidates));
+      EXPECT_LE(extracted, static_cast<size_t>(o.relocaliser.feature_candidates));
       EXPECT_LT(extracted, off_track.keyframes().size()) << "the path must leave keyframes no relocalisation needed";
     }
     PoseGraphSummary sa, sb;
@@ -362,10 +362,10 @@ TEST_F(TrackerScan, ADeferredModelInsertGivesTheSameScan) {
   // views, with an undo and a view lost off the model among them, give the same poses, model and
   // undo as inserting at once, whether each view is committed or left to the next Track.
   TrackerOptions o;
-  o.map.undo_inserts = 10;
-  o.min_view_samples /= 4;
+  o.odometry.map.undo_inserts = 10;
+  o.odometry.min_view_samples /= 4;
   TrackerOptions od = o;
-  od.defer_model_insert = true;
+  od.odometry.defer_model_insert = true;
   Tracker now(small_cam_, o), committed(small_cam_, od), left(small_cam_, od);
   std::vector<Rigid3d> path;
   for (double x = -3; x <= 3.01; x += 0.5) path.push_back(Truth(x, 0.1 * x));
@@ -410,10 +410,10 @@ TEST_F(TrackerScan, UnevenlySpacedViewsAreTrackedByCaptureTime) {
   // and the views come 1 or 4 bursts apart. By capture time (view_period_ns) the motion prediction
   // is exact and a 4 mm step is 4 views' worth of motion; counted in views it is neither.
   TrackerOptions o;
-  o.relocalise = false;
-  o.detect_loops = false;
+  o.relocaliser.by_features = false;
+  o.keyframes.detect_loops = false;
   const PinholeBrownConrady cam = TestCamera(160, 120, 500);  // the fixture's field of view, 4× fewer pixels
-  o.min_view_samples /= 4;
+  o.odometry.min_view_samples /= 4;
   const int64_t burst_ns = 33'333'333;
   TrackerOptions timed = o;
   timed.motion.view_period_ns = burst_ns;
@@ -438,10 +438,10 @@ TEST_F(TrackerScan, UnevenlySpacedViewsAreTrackedByCaptureTime) {
 
 TEST_F(TrackerScan, ProjectiveAssociationTracksToo) {
   TrackerOptions o;
-  o.association = Association::kProjective;
-  o.relocalise = false;
-  o.detect_loops = false;
-  o.min_view_samples /= 4;
+  o.odometry.association = Association::kProjective;
+  o.relocaliser.by_features = false;
+  o.keyframes.detect_loops = false;
+  o.odometry.min_view_samples /= 4;
   Tracker tracker(small_cam_, o);
   std::vector<Rigid3d> truth;
   uint32_t seed = 1;
@@ -471,13 +471,13 @@ TEST_F(TrackerScan, ALostTrackReentersOnlyAtTheRelocalisationResidual) {
   // continues a track from the predicted pose, but does not re-enter the model through the local
   // search once the track is lost; a clean view at the same place does.
   TrackerOptions o;
-  o.relocalise = false;  // the local search only
+  o.relocaliser.by_features = false;  // the local search only
   Tracker tracker(cam_, o);
   for (double x = 0; x <= 2.01; x += 0.5) ASSERT_TRUE(Feed(&tracker, Truth(x, 0), 1).accepted);
   const TrackResult tracked = Feed(&tracker, Truth(2.2, 0), 2, 0.055);
   ASSERT_TRUE(tracked.accepted) << tracked.reason;
-  EXPECT_GT(tracked.icp.rmse_mm, o.relocalise_max_rmse_mm);
-  EXPECT_LT(tracked.icp.rmse_mm, o.icp.max_rmse_mm);
+  EXPECT_GT(tracked.icp.rmse_mm, o.relocaliser.max_rmse_mm);
+  EXPECT_LT(tracked.icp.rmse_mm, o.odometry.icp.max_rmse_mm);
   ASSERT_FALSE(Feed(&tracker, Truth(20, 0), 3).accepted);  // off the model: lost
   ASSERT_EQ(tracker.state(), TrackingState::kLost);
   const TrackResult refused = Feed(&tracker, Truth(2.3, 0), 4, 0.065);
@@ -488,8 +488,8 @@ TEST_F(TrackerScan, ALostTrackReentersOnlyAtTheRelocalisationResidual) {
   const size_t at = refused.reason.find(high);
   ASSERT_NE(at, std::string::npos) << refused.reason;
   const double rmse_um = std::stod(refused.reason.substr(at + high.size()));
-  EXPECT_GT(rmse_um, 1000 * o.relocalise_max_rmse_mm);
-  EXPECT_LT(rmse_um, 1000 * o.icp.max_rmse_mm);
+  EXPECT_GT(rmse_um, 1000 * o.relocaliser.max_rmse_mm);
+  EXPECT_LT(rmse_um, 1000 * o.odometry.icp.max_rmse_mm);
   const TrackResult candidate = Feed(&tracker, Truth(2.3, 0), 5);
   EXPECT_FALSE(candidate.accepted);
   EXPECT_NE(candidate.reason.find("re-entry candidate (icp from"), std::string::npos) << candidate.reason;
@@ -531,7 +531,7 @@ void TrackerScan::LostScanStartsASegmentThatJoins(const TrackerOptions& o, const
       EXPECT_FALSE(r.in_main);
     }
   }
-  EXPECT_EQ(refused, o.segment_after_views);
+  EXPECT_EQ(refused, o.segments.after_views);
   EXPECT_EQ(started, 1);
   ASSERT_EQ(tracker.segments(), 2);
   EXPECT_EQ(tracker.segments_joined(), 0);
@@ -565,35 +565,35 @@ void TrackerScan::LostScanStartsASegmentThatJoins(const TrackerOptions& o, const
 
 TrackerOptions SegmentTestOptions() {
   TrackerOptions o;
-  o.features.max_features = 800;
-  o.segment_after_views = 3;
-  o.segment_join.min_correspondences = 300;  // the test's views are 9.6 × 7.2 mm
+  o.keyframes.features.max_features = 800;
+  o.segments.after_views = 3;
+  o.segments.join.min_correspondences = 300;  // the test's views are 9.6 × 7.2 mm
   return o;
 }
 
 TEST_F(TrackerScan, ALostScanStartsASegmentThatJoinsWhenItOverlaps) {
   TrackerOptions o = SegmentTestOptions();
-  o.segment_join_feature_keyframes = 0;  // FPFH alone
+  o.segments.join_feature_keyframes = 0;  // FPFH alone
   LostScanStartsASegmentThatJoins(o, "fpfh");
 }
 
 TEST_F(TrackerScan, ASegmentFpfhCannotPlaceJoinsByKeyframeFeatures) {
   TrackerOptions o = SegmentTestOptions();
-  o.segment_join.fpfh.min_overlap = 1.0;  // FPFH's verification never passes: the features must join
+  o.segments.join.fpfh.min_overlap = 1.0;  // FPFH's verification never passes: the features must join
   LostScanStartsASegmentThatJoins(o, "features");
 }
 
 // A segment after 2 views that cannot be placed.
 TrackerOptions QuickSegmentOptions() {
   TrackerOptions o;
-  o.features.max_features = 800;
-  o.segment_after_views = 2;
+  o.keyframes.features.max_features = 800;
+  o.segments.after_views = 2;
   return o;
 }
 
 TEST_F(TrackerScan, UndoneRefusedViewsDoNotCountTowardASegment) {
   TrackerOptions o = QuickSegmentOptions();
-  o.map.undo_inserts = 16;
+  o.odometry.map.undo_inserts = 16;
   Tracker tracker(cam_, o);
   uint32_t seed = 1;
   for (double x = -24; x <= -19.99; x += 1.0) ASSERT_TRUE(Feed(&tracker, Truth(x, 0), seed++).accepted);
@@ -676,12 +676,12 @@ TEST_F(TrackerScan, NearLoopsCarryTheirFactorOfTheInformation) {
   // The same views through trackers with near_loop_information_factor 1 and 0.25: the same edges,
   // and only the loops to recent keyframes (fewer than loop_min_separation back) weigh a quarter.
   TrackerOptions o;
-  o.min_view_samples /= 4;
-  o.keyframe_overlap = 0.85;   // a keyframe every ~1.5 mm
-  o.loop_min_separation = 3;   // a short strip there and back has both kinds of loop
-  o.near_loop_information_factor = 1;
+  o.odometry.min_view_samples /= 4;
+  o.keyframes.overlap = 0.85;   // a keyframe every ~1.5 mm
+  o.keyframes.loop_min_separation = 3;   // a short strip there and back has both kinds of loop
+  o.keyframes.near_loop_information_factor = 1;
   TrackerOptions oq = o;
-  oq.near_loop_information_factor = 0.25;
+  oq.keyframes.near_loop_information_factor = 0.25;
   Tracker full(small_cam_, o), quarter(small_cam_, oq);
   std::vector<Rigid3d> path;
   for (double x = -4; x <= 4.01; x += 0.5) path.push_back(Truth(x, 0));
@@ -700,7 +700,7 @@ TEST_F(TrackerScan, NearLoopsCarryTheirFactorOfTheInformation) {
     ASSERT_EQ(a[i].to, b[i].to);
     ASSERT_EQ(a[i].loop, b[i].loop);
     EXPECT_TRUE(a[i].from_from_to.matrix() == b[i].from_from_to.matrix()) << "edge " << i;
-    const bool is_near = a[i].loop && a[i].to - a[i].from < o.loop_min_separation;
+    const bool is_near = a[i].loop && a[i].to - a[i].from < o.keyframes.loop_min_separation;
     near += is_near;
     far += a[i].loop && !is_near;
     const double f = is_near ? 0.25 : 1.0;
@@ -718,7 +718,7 @@ TEST_F(TrackerScan, NearLoopsCarryTheirFactorOfTheInformation) {
   EXPECT_THROW(
       [] {
         TrackerOptions bad;
-        bad.near_loop_information_factor = 0;
+        bad.keyframes.near_loop_information_factor = 0;
         bad.Check();
       }(),
       std::invalid_argument);
@@ -729,13 +729,13 @@ TEST_F(TrackerScan, NearLoopsCarryTheirFactorOfTheInformation) {
 // tracked_edge_information_factor. Nothing else in the graph changes.
 TEST_F(TrackerScan, KeyframesGetTheTrackedRelativePoseAsASecondOdometryEdge) {
   TrackerOptions o;
-  o.min_view_samples /= 4;
-  o.keyframe_overlap = 0.85;  // a keyframe every ~1.5 mm
-  o.loop_min_separation = 3;
+  o.odometry.min_view_samples /= 4;
+  o.keyframes.overlap = 0.85;  // a keyframe every ~1.5 mm
+  o.keyframes.loop_min_separation = 3;
   TrackerOptions o0 = o, o_half = o;
-  EXPECT_EQ(o0.tracked_edge_information_factor, 0.0) << "off by default";
-  o.tracked_edge_information_factor = 1;
-  o_half.tracked_edge_information_factor = 0.5;
+  EXPECT_EQ(o0.keyframes.tracked_edge_information_factor, 0.0) << "off by default";
+  o.keyframes.tracked_edge_information_factor = 1;
+  o_half.keyframes.tracked_edge_information_factor = 0.5;
   Tracker one(small_cam_, o), none(small_cam_, o0), half(small_cam_, o_half);
   std::vector<Rigid3d> path;
   for (double x = -4; x <= 4.01; x += 0.5) path.push_back(Truth(x, 0));
@@ -785,7 +785,7 @@ TEST_F(TrackerScan, KeyframesGetTheTrackedRelativePoseAsASecondOdometryEdge) {
   EXPECT_THROW(
       [] {
         TrackerOptions bad;
-        bad.tracked_edge_information_factor = -0.1;
+        bad.keyframes.tracked_edge_information_factor = -0.1;
         bad.Check();
       }(),
       std::invalid_argument);
@@ -796,11 +796,11 @@ TEST_F(TrackerScan, KeyframesGetTheTrackedRelativePoseAsASecondOdometryEdge) {
 // from it; keyframe_max_rotation_deg and keyframe_max_views make one anyway.
 TEST_F(TrackerScan, AProbeThatTurnsOrLingersMakesKeyframesAnyway) {
   TrackerOptions o;
-  o.relocalise = false;  // no keyframe features needed
-  o.min_view_samples /= 4;
-  o.keyframe_max_rotation_deg = 0;  // overlap only
-  o.keyframe_max_views = 0;
-  o.keyframe_reuse_radius_mm = 0;  // every trigger makes a keyframe (reuse: next test)
+  o.relocaliser.by_features = false;  // no keyframe features needed
+  o.odometry.min_view_samples /= 4;
+  o.keyframes.max_rotation_deg = 0;  // overlap only
+  o.keyframes.max_views = 0;
+  o.keyframes.reuse_radius_mm = 0;  // every trigger makes a keyframe (reuse: next test)
   std::vector<Rigid3d> path;
   for (int i = 0; i <= 12; ++i) path.push_back(Truth(0, 0) * Rigid3d(Eigen::AngleAxisd(i * M_PI / 180, Eigen::Vector3d::UnitZ())));
   auto keyframe_views = [&](const TrackerOptions& options) {
@@ -816,15 +816,15 @@ TEST_F(TrackerScan, AProbeThatTurnsOrLingersMakesKeyframesAnyway) {
   };
   EXPECT_EQ(keyframe_views(o), (std::vector<int64_t>{0}));  // 1° per view about the optical axis
   TrackerOptions turn = o;
-  turn.keyframe_max_rotation_deg = 4.5;
+  turn.keyframes.max_rotation_deg = 4.5;
   EXPECT_EQ(keyframe_views(turn), (std::vector<int64_t>{0, 5, 10}));
   TrackerOptions linger = o;
-  linger.keyframe_max_views = 4;
+  linger.keyframes.max_views = 4;
   EXPECT_EQ(keyframe_views(linger), (std::vector<int64_t>{0, 4, 8, 12}));
   EXPECT_THROW(
       [] {
         TrackerOptions bad;
-        bad.keyframe_max_views = -1;
+        bad.keyframes.max_views = -1;
         bad.Check();
       }(),
       std::invalid_argument);
@@ -866,12 +866,12 @@ TEST_F(TrackerScan, AProbeCirclingOneSpotReusesItsKeyframes) {
     return run;
   };
   TrackerOptions o;
-  o.relocalise = false;
-  o.min_view_samples /= 4;
-  o.keyframe_max_views = 12;
-  o.keyframe_reuse_radius_mm = 2.0;  // as d3d-scan
+  o.relocaliser.by_features = false;
+  o.odometry.min_view_samples /= 4;
+  o.keyframes.max_views = 12;
+  o.keyframes.reuse_radius_mm = 2.0;  // as d3d-scan
   TrackerOptions never = o;
-  never.keyframe_reuse_radius_mm = 0;
+  never.keyframes.reuse_radius_mm = 0;
   const Run without = scan(never), with = scan(o);
   // Without reuse every round adds keyframes (the aged rule alone makes 2 a round); with it the
   // later rounds add at most one.
@@ -887,7 +887,7 @@ TEST_F(TrackerScan, AProbeCirclingOneSpotReusesItsKeyframes) {
   // Undo across reuses: the current keyframe comes back as the kept views left it. Taken back from
   // a view in the last round whose current keyframe was a reused one (not the newest).
   TrackerOptions u = o;
-  u.map.undo_inserts = 2 * kRound;
+  u.odometry.map.undo_inserts = 2 * kRound;
   Tracker all(small_cam_, u);
   std::vector<int> current;
   std::vector<size_t> made, edges;
@@ -908,7 +908,7 @@ TEST_F(TrackerScan, AProbeCirclingOneSpotReusesItsKeyframes) {
   EXPECT_THROW(
       [] {
         TrackerOptions bad;
-        bad.keyframe_reuse_radius_mm = -1;
+        bad.keyframes.reuse_radius_mm = -1;
         bad.Check();
       }(),
       std::invalid_argument);
@@ -967,11 +967,11 @@ TEST_F(TrackerScan, KeyframeIcpEdgesRemoveAnInjectedDrift) {
 
 TEST_F(TrackerScan, AViewThatFitsMuchWorseThanTheRecentOnesStaysOutOfTheModel) {
   TrackerOptions o;
-  o.relocalise = false;  // neither is needed here: no keyframe features, no loop search
-  o.detect_loops = false;
+  o.relocaliser.by_features = false;  // neither is needed here: no keyframe features, no loop search
+  o.keyframes.detect_loops = false;
   const PinholeBrownConrady cam = TestCamera(160, 120, 500);  // the fixture's field of view, 4× fewer pixels
-  o.min_view_samples /= 4;
-  ASSERT_EQ(o.map_gate_max_run, 2);
+  o.odometry.min_view_samples /= 4;
+  ASSERT_EQ(o.odometry.map_gate_max_run, 2);
   Tracker tracker(cam, o);
   auto feed = [&](double x_mm, uint32_t seed, double noise_mm) {
     const auto v = RenderHeightField(hf_, cam, Truth(x_mm, 0), noise_mm, seed);
@@ -998,7 +998,7 @@ TEST_F(TrackerScan, AViewThatFitsMuchWorseThanTheRecentOnesStaysOutOfTheModel) {
   EXPECT_TRUE(feed(x, seed++, 0.012).in_model);
   const TrackResult next = feed(x + 1, seed++, 0.004);
   EXPECT_TRUE(next.accepted && next.in_model);
-  o.map_max_rmse_ratio = 0.5;
+  o.odometry.map_max_rmse_ratio = 0.5;
   EXPECT_THROW(o.Check(), std::invalid_argument);
 }
 
@@ -1063,7 +1063,7 @@ TEST_F(TrackerScan, ASmoothStretchIsCoastedThroughNotLost) {
   for (const int coast : {3, 0}) {
     SCOPED_TRACE(coast);
     TrackerOptions o;
-    o.max_coast_views = coast;
+    o.odometry.max_coast_views = coast;
     Tracker tracker(cam_, o);
     uint32_t seed = 1;
     // A steady hand (the motion model predicts it): level flight at a constant tilt.
@@ -1103,8 +1103,8 @@ TEST_F(TrackerScan, AViewThatJumpsFromThePredictionBecomesAKeyframe) {
   for (const double jump_mm : {0.7, 0.0}) {
     SCOPED_TRACE(jump_mm);
     TrackerOptions o;
-    o.keyframe_jump_mm = jump_mm;
-    o.keyframe_jump_deg = 0;
+    o.keyframes.jump_mm = jump_mm;
+    o.keyframes.jump_deg = 0;
     Tracker tracker(cam_, o);
     uint32_t seed = 1;
     double x = -4;
@@ -1123,7 +1123,7 @@ TEST_F(TrackerScan, AViewThatJumpsFromThePredictionBecomesAKeyframe) {
 }
 
 // A tracked view that lands far from the motion prediction (the probe jerked 1.2 mm where 0.3 were
-// predicted) must meet a re-entry's standard (TrackerOptions::jump_check_mm): a clean view does
+// predicted) must meet a re-entry's standard (RelocaliserOptions::jump_check_mm): a clean view does
 // and is tracked; a noisy one (ICP residual between the re-entry limit, 40 µm, and tracking's 60)
 // is refused, as a fit that ran off to a wrong place would be. With the check off, it is tracked.
 TEST_F(TrackerScan, ATrackedViewThatJumpsMeetsTheReentryStandard) {
@@ -1134,9 +1134,9 @@ TEST_F(TrackerScan, ATrackedViewThatJumpsMeetsTheReentryStandard) {
   for (const Case c : {Case{1.0, 0.004, true}, Case{1.0, 0.055, false}, Case{0.0, 0.055, true}}) {
     SCOPED_TRACE(std::to_string(c.jump_check_mm) + " mm check, noise " + std::to_string(c.noise_mm));
     TrackerOptions o;
-    o.jump_check_mm = c.jump_check_mm;
-    o.jump_check_deg = 0;
-    o.relocalise = false;  // the local search only
+    o.relocaliser.jump_check_mm = c.jump_check_mm;
+    o.relocaliser.jump_check_deg = 0;
+    o.relocaliser.by_features = false;  // the local search only
     Tracker tracker(cam_, o);
     uint32_t seed = 1;
     double x = -4;
@@ -1145,8 +1145,8 @@ TEST_F(TrackerScan, ATrackedViewThatJumpsMeetsTheReentryStandard) {
     EXPECT_EQ(r.accepted, c.accepted) << r.reason << " (rmse " << r.icp.rmse_mm << " mm)";
     if (!c.accepted) {
       EXPECT_NE(r.reason.find("icp jumped from the prediction"), std::string::npos) << r.reason;
-    } else if (c.noise_mm > o.relocalise_max_rmse_mm) {
-      EXPECT_GT(r.icp.rmse_mm, o.relocalise_max_rmse_mm);  // the case the check refuses
+    } else if (c.noise_mm > o.relocaliser.max_rmse_mm) {
+      EXPECT_GT(r.icp.rmse_mm, o.relocaliser.max_rmse_mm);  // the case the check refuses
     }
   }
 }

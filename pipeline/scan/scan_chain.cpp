@@ -38,7 +38,7 @@ void ScanOptions::Check() const {
 
 TrackerOptions TrackerOptionsForStep(TrackerOptions options, double every) {
   if (!(every >= 1)) throw std::invalid_argument("TrackerOptionsForStep: every must be >= 1");
-  if (!options.icp.levels.empty()) options.icp.levels[0].max_distance_mm = std::min(3.0, 0.8 * std::sqrt(every));
+  if (!options.odometry.icp.levels.empty()) options.odometry.icp.levels[0].max_distance_mm = std::min(3.0, 0.8 * std::sqrt(every));
   options.motion.max_step_mm *= every;
   options.motion.max_step_deg *= every;
   return options;
@@ -62,11 +62,11 @@ void LiveVolumeOptions::Check() const {
 
 ScanOptions LiveScanProfile(ScanOptions options) {
   TrackerOptions& t = options.tracker;
-  t.keyframe_feature_timing = TrackerOptions::FeatureTiming::kOnDemand;
-  t.defer_keyframe_edges = true;
-  t.keyframe_reuse_radius_mm = 2.0;
+  t.keyframes.feature_timing = KeyframeGraphOptions::FeatureTiming::kOnDemand;
+  t.keyframes.defer_edges = true;
+  t.keyframes.reuse_radius_mm = 2.0;
   for (auto [level, cap] : {std::pair{0, 1600}, std::pair{1, 4000}, std::pair{2, 8000}})
-    if (level < static_cast<int>(t.icp.levels.size())) t.icp.levels[static_cast<size_t>(level)].max_samples = cap;
+    if (level < static_cast<int>(t.odometry.icp.levels.size())) t.odometry.icp.levels[static_cast<size_t>(level)].max_samples = cap;
   return options;
 }
 
@@ -75,16 +75,16 @@ ScanOptions ScanOptionsForBin(ScanOptions options, int bin) {
   options.bin = bin;
   if (bin == 1) return options;
   TrackerOptions& t = options.tracker;
-  const int old_stride = t.sample_stride;
+  const int old_stride = t.odometry.sample_stride;
   const auto lattice = [bin](int stride) { return std::max(1, static_cast<int>(std::lround(static_cast<double>(stride) / bin))); };
-  t.sample_stride = lattice(t.sample_stride);
-  t.map_stride = lattice(t.map_stride);
-  t.keyframe_stride = lattice(t.keyframe_stride);
+  t.odometry.sample_stride = lattice(t.odometry.sample_stride);
+  t.odometry.map_stride = lattice(t.odometry.map_stride);
+  t.keyframes.stride = lattice(t.keyframes.stride);
   // A view of the same share of the image gives (old_stride / (bin · stride))² times the samples.
-  const double share = static_cast<double>(old_stride) / (bin * t.sample_stride);
-  t.min_view_samples = std::max(1, static_cast<int>(std::lround(t.min_view_samples * share * share)));
-  t.features.image_scale = std::min(1.0, t.features.image_scale * bin);
-  t.target_scale = std::min(2.0, t.target_scale * bin);
+  const double share = static_cast<double>(old_stride) / (bin * t.odometry.sample_stride);
+  t.odometry.min_view_samples = std::max(1, static_cast<int>(std::lround(t.odometry.min_view_samples * share * share)));
+  t.keyframes.features.image_scale = std::min(1.0, t.keyframes.features.image_scale * bin);
+  t.odometry.target_scale = std::min(2.0, t.odometry.target_scale * bin);
   // The occlusion test keeps its lattice in binned pixels (blocks of 2k × 2k camera pixels at bin 2).
   return options;
 }
@@ -152,7 +152,7 @@ TrackResult ScanRegistrar::Register(ReconstructedView& view, uint64_t burst_seq,
   }
   TrackResult r = tracker_.Track(copy ? track_points_ : view.points_in_cam, copy ? track_normals_ : view.normals, view.quality,
                                  view.texture, augment, reference_ns);
-  ms_ += MsSince(t0);  // with TrackerOptions::defer_model_insert, Commit() adds the insert's
+  ms_ += MsSince(t0);  // with OdometryOptions::defer_model_insert, Commit() adds the insert's
   if (r.accepted) ++accepted_;
   else ++rejected_;
   if (r.state == TrackingState::kLost && prev_state_ != TrackingState::kLost) ++lost_events_;
@@ -223,7 +223,7 @@ ScanRegistrar::UndoResult ScanRegistrar::UndoLastSeconds(double seconds) {
     r.clamped = true;
   }
   if (first > last) {
-    r.reason = "the undo journal reaches no accepted view (TrackerOptions::map.undo_inserts)";
+    r.reason = "the undo journal reaches no accepted view (OdometryOptions::map.undo_inserts)";
     return r;
   }
   const Tracker::UndoResult t = tracker_.UndoFrom(first);
@@ -400,7 +400,7 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   auto in_main = [&](int64_t k) { return registrar->ViewGroup(k) == model_group; };
   std::vector<Rigid3d> tracked(views.size(), Rigid3d::Identity());
   for (int64_t k = 0; k < n_views; ++k) registrar->ViewPose(k, &tracked[static_cast<size_t>(k)]);
-  const bool loops = options.tracker.detect_loops && tracker.graph().num_nodes() > 1;
+  const bool loops = options.tracker.keyframes.detect_loops && tracker.graph().num_nodes() > 1;
   if (loops) {
     D3D_RETURN_IF_ERROR(tracker.Optimize({}, &pg));
     for (int64_t k = 0; k < n_views; ++k) {
@@ -495,7 +495,7 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   }
   const double n = static_cast<double>(std::max<int64_t>(times.bursts, 1));
   j["bursts"] = n_views;
-  j["segments_started"] = tracker.segments() - 1;  // segments after the first (TrackerOptions::segment_after_views)
+  j["segments_started"] = tracker.segments() - 1;  // segments after the first (SegmentOptions::after_views)
   j["segments_joined"] = tracker.segments_joined();
   j["segments_joined_at_end"] = joined_at_end;
   j["segments_apart"] = static_cast<int64_t>(group_views.size()) - (group_views.empty() ? 0 : 1);  // saved as segment_N.ply
@@ -505,7 +505,7 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   j["fused"] = fuser->fused();
   j["rejected"] = registrar->rejected();
   j["views_undone"] = registrar->views_undone();
-  j["undo_journal_mib"] = static_cast<double>(tracker.model().journal_bytes()) / (1024.0 * 1024.0);  // TrackerOptions::map.undo_inserts
+  j["undo_journal_mib"] = static_cast<double>(tracker.model().journal_bytes()) / (1024.0 * 1024.0);  // OdometryOptions::map.undo_inserts
   j["keyframes_mib"] = static_cast<double>(tracker.keyframe_bytes()) / (1024.0 * 1024.0);  // samples, features, packed feature inputs
   j["model_samples"] = tracker.model().size();  // the tracking model's samples (one per 0.08 mm voxel)
   j["tracking_lost"] = registrar->lost_events();

@@ -85,7 +85,7 @@ struct ScanOptions {
   // the tracker and the fusion. 1 = full resolution.
   int bin = 1;
   ReconstructOptions recon = HandHeldReconstructOptions();
-  TrackerOptions tracker;  // tracker.detect_loops: keyframe loop closures and the pose graph at the end
+  TrackerOptions tracker;  // tracker.keyframes.detect_loops: keyframe loop closures and the pose graph at the end
   ModelAnchorOptions anchor;  // model-guided anchoring in the register stage (model_anchor.h)
   TsdfOptions tsdf;
   FreeSpaceOptions free_space;  // ScanFuser: points in space earlier views saw through are not fused
@@ -100,7 +100,7 @@ struct ScanOptions {
 // The live host's scan profile, one definition for d3d-scan and d3d-fuse (whose default it is), on
 // top of `options`:
 // - keyframe work off the register stage's critical path: a keyframe's SIFT features only when a
-//   relocalisation needs them (TrackerOptions::FeatureTiming::kOnDemand), the pose graph's edges
+//   relocalisation needs them (KeyframeGraphOptions::FeatureTiming::kOnDemand), the pose graph's edges
 //   (keyframe and loop-closure ICPs) at the end of the scan (defer_keyframe_edges); the same poses;
 // - keyframe_reuse_radius_mm 2: a probe that stays over one tooth returns to keyframes it made
 //   rather than making new ones (60 s circling one molar made 151 keyframes, 105 MiB, without; a
@@ -181,7 +181,7 @@ class ScanRegistrar {
   // there for the fusion's coverage. Typodont seed 2 with them registered: ATE 0.048 → 0.067 mm,
   // trueness 7.9 → 12.1 µm RMS.
   TrackResult Register(ReconstructedView& view, uint64_t burst_seq, int64_t reference_ns);
-  // With TrackerOptions::defer_model_insert: the last Register's model insert, which Register left
+  // With OdometryOptions::defer_model_insert: the last Register's model insert, which Register left
   // pending (Tracker::CommitView); call it once the view has been passed on. The next Register or
   // UndoLastSeconds runs a pending one first.
   void Commit();
@@ -202,7 +202,7 @@ class ScanRegistrar {
   // "Undo last seconds" (Register's views only, before FinishScan): the accepted views captured
   // within `seconds` of the newest accepted one (reference_ns; without capture times, the newest
   // accepted view only), back to the oldest the tracker can still undo
-  // (TrackerOptions::map.undo_inserts), are taken back (Tracker::UndoFrom): they stay in views()
+  // (OdometryOptions::map.undo_inserts), are taken back (Tracker::UndoFrom): they stay in views()
   // as not accepted, count in views_undone() and an "undo" event, and leave the pose graph and the
   // refusion. A fuser that fused them still holds them: FinishScan then fuses the kept views again.
   struct UndoResult {
@@ -305,7 +305,7 @@ struct ScanTimes {
   double ms_recon = 0, ms_register = 0, ms_fuse = 0;
 };
 
-// A scan segment that never joined the main model (TrackerOptions::segment_after_views), fused on
+// A scan segment that never joined the main model (SegmentOptions::after_views), fused on
 // its own in its own frame.
 struct ScanSegmentMesh {
   int segment = 0;

@@ -45,7 +45,7 @@ void RunShortScan(SimSession& session, int bin, ShortScan* s, ViewArchive* kept 
                   double undo_seconds = 0, ScanRegistrar::UndoResult* undo = nullptr, const std::vector<int64_t>& after_undo = {}) {
   ScanOptions o;
   o.tracker = TrackerOptionsForStep(o.tracker, 2);
-  o.tracker.map.undo_inserts = undo_after > 0 ? 30 : 0;
+  o.tracker.odometry.map.undo_inserts = undo_after > 0 ? 30 : 0;
   s->o = ScanOptionsForBin(o, bin);
   ASSERT_NO_THROW(s->o.Check());
   ScanReconstructor recon(session.calibration(), s->o.recon, s->o.bin);
@@ -186,20 +186,20 @@ TEST(ScanChain, ScanOptionsForBinScaleThePixelLattices) {
   const ScanOptions base;
   const ScanOptions two = ScanOptionsForBin(base, 2);
   EXPECT_EQ(two.bin, 2);
-  EXPECT_EQ(two.tracker.sample_stride, 1);   // 2 → 1
-  EXPECT_EQ(two.tracker.map_stride, 2);      // 3 → 1.5, rounded
-  EXPECT_EQ(two.tracker.keyframe_stride, 2);
-  EXPECT_EQ(two.tracker.min_view_samples, base.tracker.min_view_samples);  // the same share of the view
-  EXPECT_DOUBLE_EQ(two.tracker.features.image_scale, std::min(1.0, 2 * base.tracker.features.image_scale));
-  EXPECT_DOUBLE_EQ(two.tracker.target_scale, 2 * base.tracker.target_scale);
+  EXPECT_EQ(two.tracker.odometry.sample_stride, 1);   // 2 → 1
+  EXPECT_EQ(two.tracker.odometry.map_stride, 2);      // 3 → 1.5, rounded
+  EXPECT_EQ(two.tracker.keyframes.stride, 2);
+  EXPECT_EQ(two.tracker.odometry.min_view_samples, base.tracker.odometry.min_view_samples);  // the same share of the view
+  EXPECT_DOUBLE_EQ(two.tracker.keyframes.features.image_scale, std::min(1.0, 2 * base.tracker.keyframes.features.image_scale));
+  EXPECT_DOUBLE_EQ(two.tracker.odometry.target_scale, 2 * base.tracker.odometry.target_scale);
   EXPECT_EQ(two.tsdf.occlusion_stride, base.tsdf.occlusion_stride);  // kept in binned pixels (see ScanOptionsForBin)
   EXPECT_DOUBLE_EQ(two.tsdf.voxel_mm, base.tsdf.voxel_mm);
-  EXPECT_EQ(two.tracker.icp.levels.size(), base.tracker.icp.levels.size());
+  EXPECT_EQ(two.tracker.odometry.icp.levels.size(), base.tracker.odometry.icp.levels.size());
   const ScanOptions four = ScanOptionsForBin(base, 4);
-  EXPECT_EQ(four.tracker.sample_stride, 1);  // 2 / 4 → at least 1: samples of a quarter the share
-  EXPECT_EQ(four.tracker.min_view_samples, base.tracker.min_view_samples / 4);
+  EXPECT_EQ(four.tracker.odometry.sample_stride, 1);  // 2 / 4 → at least 1: samples of a quarter the share
+  EXPECT_EQ(four.tracker.odometry.min_view_samples, base.tracker.odometry.min_view_samples / 4);
   const ScanOptions one = ScanOptionsForBin(base, 1);
-  EXPECT_EQ(one.tracker.sample_stride, base.tracker.sample_stride);
+  EXPECT_EQ(one.tracker.odometry.sample_stride, base.tracker.odometry.sample_stride);
   EXPECT_EQ(one.tsdf.occlusion_stride, base.tsdf.occlusion_stride);
   EXPECT_THROW(ScanOptionsForBin(base, 0), std::invalid_argument);
   EXPECT_THROW(ScanReconstructor(MakeDefaultProbeDesign().calibration, base.recon, 7), std::invalid_argument);  // 640 % 7
@@ -382,8 +382,8 @@ TEST(ScanChain, TheLargestGroupOfViewsIsTheModelAndTheOtherIsSavedApart) {
   const HeightField hf(31);
   const PinholeBrownConrady cam = TestCamera();
   ScanOptions o;
-  o.tracker.features.max_features = 800;
-  o.tracker.segment_after_views = 2;
+  o.tracker.keyframes.features.max_features = 800;
+  o.tracker.segments.after_views = 2;
   ScanRegistrar reg(cam, o.tracker);
   ScanFuser fuser(cam, o.tsdf, o.free_space);
   std::vector<ReconstructedView> views;
@@ -443,8 +443,8 @@ TEST(ScanChain, TrackerOptionsForStepScaleTheGates) {
   const TrackerOptions six = TrackerOptionsForStep(base, 6);
   EXPECT_DOUBLE_EQ(six.motion.max_step_mm, 6 * base.motion.max_step_mm);
   EXPECT_DOUBLE_EQ(six.motion.max_step_deg, 6 * base.motion.max_step_deg);
-  EXPECT_NEAR(six.icp.levels[0].max_distance_mm, 0.8 * std::sqrt(6.0), 1e-12);
-  EXPECT_DOUBLE_EQ(TrackerOptionsForStep(base, 100).icp.levels[0].max_distance_mm, 3.0);
+  EXPECT_NEAR(six.odometry.icp.levels[0].max_distance_mm, 0.8 * std::sqrt(6.0), 1e-12);
+  EXPECT_DOUBLE_EQ(TrackerOptionsForStep(base, 100).odometry.icp.levels[0].max_distance_mm, 3.0);
   const TrackerOptions one = TrackerOptionsForStep(base, 1);
   EXPECT_DOUBLE_EQ(one.motion.max_step_mm, base.motion.max_step_mm);
   EXPECT_DOUBLE_EQ(one.motion.max_step_deg, base.motion.max_step_deg);

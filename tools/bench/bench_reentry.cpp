@@ -197,7 +197,7 @@ int main(int argc, char** argv) {
     if (!arch.ok()) throw std::runtime_error(model + " is not taken for an arch: " + arch.status.ToString());
     ScanOptions so;
     so.tracker = TrackerOptionsForStep(so.tracker, every);
-    so.tracker.map.undo_inserts = 64;  // the trials are taken back
+    so.tracker.odometry.map.undo_inserts = 64;  // the trials are taken back
     so = ScanOptionsForBin(so, bin);
     so.Check();
     const double pitch = arch.length_mm / 14;

@@ -239,7 +239,7 @@ int main(int argc, char** argv) {
     c.truth = poses[0].inverse() * poses[1];
     c.init = Rigid3d::Identity();  // no motion prediction
     c.ours.levels = {{16, 12, 1.0, 0.7}, {4, 8, 0.3, 0.9}, {1, 6, 0.1, 1.0}};
-    {  // stop as the tracker does (pipeline/register/tracker.h): same final error here, 20 vs 25 iterations
+    {  // stop as the tracker does (pipeline/register/odometry.h: DefaultTrackerIcp): same final error here, 20 vs 25 iterations
       const IcpOptions tr = DefaultTrackerIcp();
       c.ours.min_delta_translation_mm = tr.min_delta_translation_mm;
       c.ours.min_delta_rotation_rad = tr.min_delta_rotation_rad;
@@ -260,7 +260,7 @@ int main(int argc, char** argv) {
     c.target = SampleOrganised(views[0].points_in_cam, views[0].normals, cv::Mat(), 3);
     c.truth = poses[0].inverse() * poses[to];
     c.init = Perturb(c.truth, 0.5, 0.3);
-    c.ours = TrackerOptionsForStep(TrackerOptions{}, every).icp;
+    c.ours = TrackerOptionsForStep(TrackerOptions{}, every).odometry.icp;
     for (auto [level, cap] : {std::pair{0, 1600}, std::pair{1, 4000}, std::pair{2, 8000}}) c.ours.levels[static_cast<size_t>(level)].max_samples = cap;
     c.o3d_max_distance_mm = c.ours.levels[0].max_distance_mm;
     cases.push_back(std::move(c));

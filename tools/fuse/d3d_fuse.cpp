@@ -140,14 +140,14 @@ int main(int argc, char** argv) {
   double voxel_mm = 0.05, truncation_mm = 0.2;
   float min_mesh_weight = TsdfOptions{}.min_mesh_weight;
   double max_cell_sdf_span = TsdfOptions{}.max_cell_sdf_span, occlusion_margin_mm = TsdfOptions{}.occlusion_margin_mm;
-  double max_rmse_um = TrackerOptions{}.icp.max_rmse_mm * 1000;
+  double max_rmse_um = TrackerOptions{}.odometry.icp.max_rmse_mm * 1000;
   bool json = false, no_eval = false, no_loops = false, quiet = false, no_refuse = false, truth_poses = false;
   int edge_fill_passes = EdgeFillOptions{}.passes;
   float edge_fill_quality = EdgeFillOptions{}.quality_factor;
   float secondary_fade_weight = TsdfOptions{}.secondary_fade_weight;
-  double keyframe_max_rotation_deg = TrackerOptions{}.keyframe_max_rotation_deg;
-  int keyframe_max_views = TrackerOptions{}.keyframe_max_views;
-  double tracked_edge_factor = TrackerOptions{}.tracked_edge_information_factor;
+  double keyframe_max_rotation_deg = TrackerOptions{}.keyframes.max_rotation_deg;
+  int keyframe_max_views = TrackerOptions{}.keyframes.max_views;
+  double tracked_edge_factor = TrackerOptions{}.keyframes.tracked_edge_information_factor;
   double reentry_max_violation = ReentryCheckOptions{}.max_violation_fraction;
   bool no_model_anchor = false, coverage_ceiling = false, no_free_space = false;
   std::string profile = "live";
@@ -198,7 +198,7 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--tracked-edge-factor", tracked_edge_factor,
                  "pose graph: each keyframe also gets the tracked relative pose to its parent as an edge, with the keyframe ICP "
-                 "edge's information times this (0 = none; TrackerOptions::tracked_edge_information_factor)")
+                 "edge's information times this (0 = none; KeyframeGraphOptions::tracked_edge_information_factor)")
       ->check(CLI::Range(0.0, 10.0))
       ->capture_default_str();
   app.add_option("--reentry-max-violation", reentry_max_violation,
@@ -288,22 +288,22 @@ int main(int argc, char** argv) {
     // The chain of pipeline/scan, all on this thread.
     ScanOptions so;
     if (profile == "live") so = LiveScanProfile(so);
-    so.tracker.association = assoc;
-    so.tracker.detect_loops = !no_loops;
+    so.tracker.odometry.association = assoc;
+    so.tracker.keyframes.detect_loops = !no_loops;
     so.anchor.enabled = !no_model_anchor;
     so.recon.edge_fill.passes = edge_fill_passes;
     so.recon.edge_fill.quality_factor = edge_fill_quality;
     so.free_space.enabled = !no_free_space;
-    so.tracker.icp.max_rmse_mm = max_rmse_um / 1000.0;
+    so.tracker.odometry.icp.max_rmse_mm = max_rmse_um / 1000.0;
     so.tracker = TrackerOptionsForStep(so.tracker, every);  // a lower burst rate means larger steps
     so.tsdf.voxel_mm = voxel_mm;
     so.tsdf.truncation_mm = truncation_mm;
     so.tsdf.min_mesh_weight = min_mesh_weight;
     so.tsdf.secondary_fade_weight = secondary_fade_weight;
-    so.tracker.keyframe_max_rotation_deg = keyframe_max_rotation_deg;
-    so.tracker.keyframe_max_views = keyframe_max_views;
-    so.tracker.tracked_edge_information_factor = tracked_edge_factor;
-    so.tracker.reentry_check.max_violation_fraction = reentry_max_violation;
+    so.tracker.keyframes.max_rotation_deg = keyframe_max_rotation_deg;
+    so.tracker.keyframes.max_views = keyframe_max_views;
+    so.tracker.keyframes.tracked_edge_information_factor = tracked_edge_factor;
+    so.tracker.relocaliser.check.max_violation_fraction = reentry_max_violation;
     so.tsdf.max_cell_sdf_span = max_cell_sdf_span;
     so.tsdf.occlusion_margin_mm = occlusion_margin_mm;
     if (no_refuse) so.refuse_min_correction_mm = -1;

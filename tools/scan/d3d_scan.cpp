@@ -120,10 +120,10 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   cli.add_option("--association", association, "the tracker's ICP data association: grid (nearest model sample, on a decimated model at the coarse level) | kdtree (exact nearest at every level, by nanoflann) | projective")->capture_default_str();
   cli.add_option("--step", step, "expected bursts between processed views for the tracker's gates (default: 1 lossless, 6 live)");
-  double tracked_edge_factor = TrackerOptions{}.tracked_edge_information_factor;
+  double tracked_edge_factor = TrackerOptions{}.keyframes.tracked_edge_information_factor;
   cli.add_option("--tracked-edge-factor", tracked_edge_factor,
                  "pose graph: each keyframe also gets the tracked relative pose to its parent as an edge, with the keyframe ICP "
-                 "edge's information times this (0 = none; TrackerOptions::tracked_edge_information_factor)")
+                 "edge's information times this (0 = none; KeyframeGraphOptions::tracked_edge_information_factor)")
       ->check(CLI::Range(0.0, 10.0))
       ->capture_default_str();
   cli.add_option("--domain", domain, "DDS domain id")->capture_default_str();
@@ -271,8 +271,8 @@ int main(int argc, char** argv) {
     ao.policy = policy;
     ao.scan.tracker = TrackerOptionsForStep(ao.scan.tracker, step);
     ao.scan = LiveScanProfile(ao.scan);  // keyframe work off the critical path, keyframe reuse, ICP sample caps
-    ao.scan.tracker.association = assoc;
-    ao.scan.tracker.tracked_edge_information_factor = tracked_edge_factor;
+    ao.scan.tracker.odometry.association = assoc;
+    ao.scan.tracker.keyframes.tracked_edge_information_factor = tracked_edge_factor;
     // The tracker's ICP (association and normal equations) on the register thread and a oneTBB
     // worker (--icp-threads, at most --threads; its sums in a fixed order, so a lossless run still
     // repeats bit for bit). Once the graph left a share of the 2 cores idle (~67 % used live), the
@@ -284,7 +284,7 @@ int main(int argc, char** argv) {
     // cheaper: register 144 -> 78 ms per burst with 1 thread, 6.8 -> 10.8-12.1 bursts/s). Since
     // the machine's slow hours made the stages alone fill what the cores deliver, live takes 1 again
     // (see --threads above); lossless keeps 2.
-    ao.scan.tracker.icp.threads = std::clamp(icp_threads, 1, threads);
+    ao.scan.tracker.odometry.icp.threads = std::clamp(icp_threads, 1, threads);
     // The reconstruction's per-pixel passes on blocks of rows (ReconstructOptions::threads): the
     // same bits, shorter when a core is free (d3d-bench-recon, 640 x 480 on an idle machine: 47.6 ->
     // 41.3 ms; phase 11.1 -> 9.0, triangulation and normals 11.4 -> 6.8; the unwrapping stays serial).

@@ -1,0 +1,221 @@
+#include "pipeline/register/segments.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <utility>
+
+namespace d3d {
+
+void SegmentOptions::Check() const {
+  D3D_CHECK_MSG(after_views >= 0 && max_segments >= 1 && join_every >= 1 && join_feature_keyframes >= 0,
+                "SegmentOptions: after_views >= 0 (0 = off), max_segments >= 1, join_every >= 1, join_feature_keyframes >= 0");
+  join.Check();
+}
+
+Segments::Segments(const SegmentOptions& options, Odometry* odometry, KeyframeGraph* keyframes, bool by_features)
+    : o_(options), odometry_(*odometry), keyframes_(*keyframes), by_features_(by_features) {
+  o_.Check();
+}
+
+int Segments::joined() const {
+  int n = 0;
+  for (const Segment& seg : segments_) n += seg.joined;
+  return n;
+}
+
+bool Segments::InMain(int segment) const {
+  return segment == 0 || (segment > 0 && segment < static_cast<int>(segments_.size()) && segments_[static_cast<size_t>(segment)].joined);
+}
+
+bool Segments::KeyframeInActive(int k) const {
+  const int seg = keyframes_.keyframes()[static_cast<size_t>(k)].segment;
+  return seg == active_ || (InMain(seg) && InMain(active_));
+}
+
+Rigid3d Segments::MainFromSegmentFrame(int segment) const {
+  Rigid3d t = Rigid3d::Identity();
+  if (!InMain(segment)) t.translation().x() = -kSegmentSpacingMm * segment;
+  return t;
+}
+
+bool Segments::StartsAt(int64_t view) const {
+  for (size_t s = 1; s < segments_.size(); ++s)
+    if (segments_[s].first_view == view) return true;
+  return false;
+}
+
+bool Segments::CountRefused() {
+  return o_.after_views > 0 && ++refused_in_row_ > o_.after_views && static_cast<int>(segments_.size()) < o_.max_segments;
+}
+
+bool Segments::JoinDue() {
+  if (active_ <= 0 || segments_[static_cast<size_t>(active_)].joined) return false;
+  Segment& seg = segments_[static_cast<size_t>(active_)];
+  const size_t keyframes = static_cast<size_t>(keyframes_.size());
+  if (keyframes < seg.keyframes_at_attempt + static_cast<size_t>(o_.join_every)) return false;
+  seg.keyframes_at_attempt = keyframes;
+  return true;
+}
+
+SurfacePoints Segments::MainSamples() const {
+  const PointMap& map = odometry_.model();
+  SurfacePoints main;
+  for (size_t i = 0; i < map.size(); ++i) {
+    if (!InMain(SegmentOfPoint(map.points()[i]))) continue;
+    main.points.push_back(map.points()[i]);
+    main.normals.push_back(map.normals()[i]);
+  }
+  return main;
+}
+
+void Segments::RefreshJoinTarget() { join_target_ = MakeSegmentJoinTarget(MainSamples(), o_.join); }
+
+void Segments::Start(int64_t view, const Rigid3d& last_pose, Rigid3d* pose, TrackResult* out) {
+  const int s = static_cast<int>(segments_.size());
+  // The last pose in the main frame's coordinates (the track may be in another segment apart).
+  const Rigid3d last_at_origin = MainFromSegmentFrame(active_) * last_pose;
+  // The main model rests while the new segment grows: its join features are made once, now.
+  const auto t0 = std::chrono::steady_clock::now();
+  RefreshJoinTarget();
+  const double ms_target = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  segments_.push_back(Segment{view, false, static_cast<size_t>(keyframes_.size())});
+  active_ = s;
+  *pose = MainFromSegmentFrame(s).inverse() * last_at_origin;
+  out->state = TrackingState::kTracking;
+  out->new_segment = true;
+  char what[160];
+  std::snprintf(what, sizeof what, "; new segment %d after %d views that could not be placed (join features of the model: %.0f ms)", s,
+                refused_in_row_, ms_target);
+  out->reason += what;
+  refused_in_row_ = 0;
+  undo_barrier_view_ = view + 1;  // undo does not reach back before it
+}
+
+bool Segments::FindJoin(int s, SegmentJoinResult* join, int* newest_out, std::string* how, std::string* why) {
+  // The segment's model samples (they lie around its offset) and its newest keyframe.
+  const PointMap& map = odometry_.model();
+  SurfacePoints seg;
+  for (size_t i = 0; i < map.size(); ++i) {
+    if (SegmentOfPoint(map.points()[i]) != s) continue;
+    seg.points.push_back(map.points()[i]);
+    seg.normals.push_back(map.normals()[i]);
+  }
+  const std::vector<Keyframe>& kfs = keyframes_.keyframes();
+  int newest = -1;
+  for (int k = static_cast<int>(kfs.size()) - 1; k >= 0 && newest < 0; --k)
+    if (kfs[static_cast<size_t>(k)].segment == s) newest = k;
+  if (seg.empty() || newest < 0) {
+    *why = "the segment is empty";
+    return false;
+  }
+  // Thinned and described once for both ways of joining.
+  const SegmentJoinTarget source = MakeSegmentJoinTarget(seg, o_.join);
+  SegmentJoinResult r = JoinSegment(source, join_target_, o_.join);
+  *how = "fpfh";
+  if (!r.ok) {
+    *why = r.reason;
+    if (by_features_ && o_.join_feature_keyframes > 0) {
+      std::string features_why;
+      SegmentJoinResult f = JoinByFeatures(s, newest, source, &features_why);
+      if (f.ok) {
+        r = std::move(f);
+        *how = "features (" + features_why + ")";
+      } else {
+        *why += "; features: " + features_why;
+      }
+    }
+  }
+  if (!r.ok) return false;
+  *join = std::move(r);
+  *newest_out = newest;
+  return true;
+}
+
+SegmentJoinResult Segments::JoinByFeatures(int s, int newest, const SegmentJoinTarget& seg, std::string* why) {
+  SegmentJoinResult none;
+  const std::vector<Keyframe>& kfs = keyframes_.keyframes();
+  std::vector<int> main;
+  for (int k = 0; k < static_cast<int>(kfs.size()); ++k)
+    if (kfs[static_cast<size_t>(k)].segment != s && InMain(kfs[static_cast<size_t>(k)].segment)) main.push_back(k);
+  if (main.empty()) {
+    *why = "no main keyframe";
+    return none;
+  }
+  keyframes_.CollectFeatures();
+  const ViewFeatures& newest_features = keyframes_.Features(newest);
+  Segment& g = segments_[static_cast<size_t>(s)];
+  const FeatureOptions& features = keyframes_.options().features;
+  const size_t tries = std::min(main.size(), static_cast<size_t>(o_.join_feature_keyframes));
+  *why = "no feature match";
+  for (size_t i = 0; i < tries; ++i) {
+    const int j = main[(g.feature_cursor + i) % main.size()];
+    const FeatureAlignResult a = AlignByFeatures(newest_features, keyframes_.Features(j), features);
+    if (!a.ok) continue;
+    const Rigid3d guess = keyframes_.world_from_keyframe(j) * a.target_from_source * keyframes_.world_from_keyframe(newest).inverse();
+    SegmentJoinResult r = RefineSegmentJoin(seg, join_target_, guess, o_.join);
+    if (r.ok) {
+      g.feature_cursor += i + 1;
+      *why = "keyframe " + std::to_string(j) + ", " + std::to_string(a.inliers) + " feature inliers";
+      return r;
+    }
+    *why = "keyframe " + std::to_string(j) + ": " + r.reason;
+  }
+  g.feature_cursor += tries;
+  return none;
+}
+
+void Segments::Merge(int s, const Rigid3d& T, int newest, int64_t view) {
+  // The segment's keyframes and model samples into the main frame.
+  keyframes_.MoveSegment(s, T);
+  const PointMap& map = odometry_.model();
+  PointMap merged(odometry_.options().map);
+  SurfacePoints all;
+  const Eigen::Matrix3f R = T.linear().cast<float>();
+  const Eigen::Vector3f t = T.translation().cast<float>();
+  for (size_t i = 0; i < map.size(); ++i) {
+    const Eigen::Vector3f& p = map.points()[i];
+    const Eigen::Vector3f& n = map.normals()[i];
+    const bool moves = SegmentOfPoint(p) == s;
+    all.points.push_back(moves ? Eigen::Vector3f(R * p + t) : p);
+    all.normals.push_back(moves ? Eigen::Vector3f(R * n) : n);
+  }
+  merged.Insert(all, Rigid3d::Identity());
+  odometry_.ReplaceModel(std::move(merged));
+  segments_[static_cast<size_t>(s)].joined = true;
+  // A loop edge between the newest keyframe and the nearest main keyframes that overlap it.
+  const std::vector<Keyframe>& kfs = keyframes_.keyframes();
+  const Keyframe& kn = kfs[static_cast<size_t>(newest)];
+  const Eigen::Vector3d c = keyframes_.CentreInWorld(newest);
+  std::vector<std::pair<double, int>> near;
+  for (int j = 0; j < static_cast<int>(kfs.size()); ++j) {
+    const Keyframe& kf = kfs[static_cast<size_t>(j)];
+    if (kf.segment == s || !InMain(kf.segment)) continue;
+    near.emplace_back((keyframes_.CentreInWorld(j) - c).norm(), j);
+  }
+  std::sort(near.begin(), near.end());
+  int edges = 0;
+  for (size_t i = 0; i < near.size() && i < 6 && edges < 2; ++i) {
+    PoseGraphEdge e;
+    const int j = near[i].second;
+    if (!keyframes_.MeasureEdge(std::min(j, newest), std::max(j, newest), &e)) continue;
+    e.loop = true;
+    keyframes_.AddEdge(e);
+    ++edges;
+  }
+  if (edges == 0 && !near.empty()) {  // the join's own pose, on the loop σs
+    const PoseGraph& graph = keyframes_.graph();
+    PoseGraphEdge e;
+    e.from = kfs[static_cast<size_t>(near.front().second)].node;
+    e.to = kn.node;
+    e.from_from_to = graph.pose(e.from).inverse() * graph.pose(e.to);
+    e.sigma_translation_mm = keyframes_.options().loop_sigma_mm;
+    e.sigma_rotation_rad = keyframes_.options().loop_sigma_rad;
+    e.loop = true;
+    keyframes_.AddEdge(e);
+  }
+  // The rebuilt model has no undo journal: undo starts again after this view.
+  undo_barrier_view_ = view + 1;
+}
+
+}  // namespace d3d
