@@ -139,6 +139,8 @@ bool MeshClosestPoint::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector
 void EvaluateOptions::Check() const {
   D3D_CHECK_MSG(max_distance_mm > 0 && coverage_distance_mm > 0 && coverage_sample_mm2 > 0 && max_scan_points > 0,
                 "EvaluateOptions: invalid value");
+  D3D_CHECK_MSG(gap_mm >= 0 && gap_mm <= 10,
+                "EvaluateOptions: gap_mm must be in [0, 10], got " << gap_mm);
 }
 
 namespace {
@@ -160,6 +162,40 @@ bool HasToothFaces(const TriangleMesh& m) {
   for (int f = 0; f < static_cast<int>(m.faces.size()); ++f)
     if (m.Label(f) == SurfaceLabel::kTooth) return true;
   return false;
+}
+
+// Per face of `m` (only those `counted`), whether it lies in a narrow gap: some face centroid q
+// inside the ball of diameter gap_mm tangent to the face's centroid c on its front side (centre
+// c + (gap_mm/2 + ε)·n), with a normal facing back (n_q · n < −0.5). That ball holds the surfaces
+// within gap_mm in front of c and none of the face's own smooth neighbourhood.
+std::vector<uint8_t> FacesInGaps(const TriangleMesh& m, const std::vector<uint8_t>& counted,
+                                 double gap_mm) {
+  const size_t nf = m.faces.size();
+  std::vector<Eigen::Vector3f> centroids(nf), normals(nf);
+  for (size_t f = 0; f < nf; ++f) {
+    const auto& F = m.faces[f];
+    const Eigen::Vector3d& a = m.vertices[static_cast<size_t>(F[0])];
+    const Eigen::Vector3d& b = m.vertices[static_cast<size_t>(F[1])];
+    const Eigen::Vector3d& c = m.vertices[static_cast<size_t>(F[2])];
+    centroids[f] = ((a + b + c) / 3.0).cast<float>();
+    normals[f] = (b - a).cross(c - a).normalized().cast<float>();
+  }
+  const PointKdTree tree(&centroids);
+  const float radius = static_cast<float>(gap_mm / 2);
+  std::vector<uint8_t> in_gap(nf, 0);
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, nf), [&](const tbb::blocked_range<size_t>& rng) {
+    std::vector<int> near;
+    for (size_t f = rng.begin(); f < rng.end(); ++f) {
+      if (!counted[f] || !normals[f].allFinite()) continue;
+      tree.Radius(centroids[f] + (radius + 1e-3f) * normals[f], radius, &near);
+      for (int q : near)
+        if (normals[static_cast<size_t>(q)].dot(normals[f]) < -0.5f) {
+          in_gap[f] = 1;
+          break;
+        }
+    }
+  });
+  return in_gap;
 }
 
 IcpOptions BestFitIcp() {
@@ -250,10 +286,17 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
   PointKdTree tree(&scan_pts);
   std::mt19937 rng(1);
   std::uniform_real_distribution<double> U(0, 1);
+  std::vector<uint8_t> counted(R.faces.size(), 0);
+  for (int f = 0; f < static_cast<int>(R.faces.size()); ++f)
+    counted[static_cast<size_t>(f)] = !has_teeth || R.Label(f) == SurfaceLabel::kTooth;
+  const std::vector<uint8_t> in_gap =
+      o.gap_mm > 0 ? FacesInGaps(R, counted, o.gap_mm) : std::vector<uint8_t>();
   int64_t covered = 0, samples = 0;
+  int64_t gap_covered = 0, gap_samples = 0;  // of those, on faces in gaps
   const float cov2 = static_cast<float>(o.coverage_distance_mm * o.coverage_distance_mm);
   for (int f = 0; f < static_cast<int>(R.faces.size()); ++f) {
-    if (has_teeth && R.Label(f) != SurfaceLabel::kTooth) continue;
+    if (!counted[static_cast<size_t>(f)]) continue;
+    const bool gap = !in_gap.empty() && in_gap[static_cast<size_t>(f)];
     const double area = R.FaceArea(f);
     double expected = area / o.coverage_sample_mm2;
     int k = static_cast<int>(expected);
@@ -266,10 +309,23 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
                                 b * (R.vertices[static_cast<size_t>(F[2])] - R.vertices[static_cast<size_t>(F[0])]);
       float d2 = 0;
       ++samples;
-      if (tree.Nearest(p.cast<float>(), &d2, cov2) >= 0) ++covered;
+      gap_samples += gap;
+      if (tree.Nearest(p.cast<float>(), &d2, cov2) >= 0) {
+        ++covered;
+        gap_covered += gap;
+      }
     }
   }
-  r.coverage_pct = samples ? 100.0 * static_cast<double>(covered) / static_cast<double>(samples) : 0;
+  const auto pct = [](int64_t part, int64_t whole) {
+    if (whole <= 0) return std::nan("");
+    return 100.0 * static_cast<double>(part) / static_cast<double>(whole);
+  };
+  r.coverage_pct = samples ? pct(covered, samples) : 0;
+  if (!in_gap.empty() && samples > 0) {
+    r.gap_area_pct = pct(gap_samples, samples);
+    r.coverage_gap_pct = pct(gap_covered, gap_samples);
+    r.coverage_open_pct = pct(covered - gap_covered, samples - gap_samples);
+  }
   return r;
 }
 

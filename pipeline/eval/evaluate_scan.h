@@ -8,6 +8,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <cmath>
 #include <memory>
 #include <opencv2/core.hpp>
 #include <string>
@@ -53,6 +54,11 @@ struct EvaluateOptions {
   double coverage_distance_mm = 0.2;  // a reference point is covered when a scan point is this close
   double coverage_sample_mm2 = 0.01;  // reference surface per coverage sample
   bool teeth_only_coverage = true;    // coverage of tooth faces when the reference is labelled
+  // Coverage is also split into the reference surface in narrow gaps and the open rest: a face is
+  // in a gap when another surface faces it (normals more than 120 deg apart) within gap_mm in front
+  // of it, as the walls of an interproximal gap or a deep fissure do (a probe sees into such a gap
+  // only along it). 0 = no split.
+  double gap_mm = 1.0;
   int max_scan_points = 400000;       // scan vertices evaluated (evenly subsampled beyond)
   void Check() const;
 };
@@ -64,6 +70,12 @@ struct TruenessReport {
   double outlier_pct = 0;             // scan points beyond max_distance_mm or past the reference's border
   double rms_um = 0, mean_um = 0, mean_abs_um = 0, p95_um = 0, max_um = 0;  // p95 of |d|
   double coverage_pct = 0;
+  // The coverage split (EvaluateOptions::gap_mm): of the counted surface, the area share (%) in
+  // narrow gaps, and the coverage (%) of the gap surface and of the open rest; NaN where there is
+  // no such surface or no split.
+  double gap_area_pct = std::nan("");
+  double coverage_gap_pct = std::nan("");
+  double coverage_open_pct = std::nan("");
   // The same figures over the scan points whose closest reference face is a tooth (NaN-free: only
   // when the reference is labelled, else teeth_points = 0), as studies that cut the scans to the
   // teeth report them (e.g. Ender & Mehl 2013); gingiva is noisier (darker, more translucent).

@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
+
 namespace d3d {
 namespace {
 
@@ -87,6 +89,71 @@ TEST(EvaluateScan, TeethFiguresCountOnlyThePointsOnTeeth) {
   // An unlabelled reference has no teeth figures.
   const TruenessReport u = EvaluateTrueness(scan, MeshClosestPoint(Sheet()), Rigid3d::Identity(), o);
   EXPECT_EQ(u.teeth_points, 0);
+}
+
+// A flat 10 × 10 mm square at height z on a 0.1 mm grid, x from x0, faces toward +z (or −z).
+TriangleMesh Square(double x0, double z, bool facing_up) {
+  TriangleMesh m;
+  const int n = 101;
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < n; ++i) m.vertices.emplace_back(x0 + 0.1 * i, -5 + 0.1 * j, z);
+  for (int j = 0; j + 1 < n; ++j)
+    for (int i = 0; i + 1 < n; ++i) {
+      const int a = j * n + i, b = a + 1, c = a + n, d = c + 1;
+      if (facing_up) {
+        m.faces.emplace_back(a, b, d);
+        m.faces.emplace_back(a, d, c);
+      } else {
+        m.faces.emplace_back(a, d, b);
+        m.faces.emplace_back(a, c, d);
+      }
+    }
+  return m;
+}
+
+TriangleMesh Joined(const std::vector<TriangleMesh>& parts) {
+  TriangleMesh m;
+  for (const TriangleMesh& p : parts) {
+    const int base = static_cast<int>(m.vertices.size());
+    m.vertices.insert(m.vertices.end(), p.vertices.begin(), p.vertices.end());
+    for (const auto& f : p.faces) m.faces.emplace_back(f[0] + base, f[1] + base, f[2] + base);
+  }
+  return m;
+}
+
+TEST(EvaluateScan, CoverageIsSplitIntoNarrowGapsAndTheOpenSurface) {
+  // Two tooth walls 0.4 mm apart facing each other over x in [-10, 0] (a gap), and the lower wall
+  // going on in the open over x in [0, 10]. The scan has the lower wall only (the probe did not
+  // reach the upper one inside the gap).
+  const TriangleMesh lower = Joined({Square(-10, 0, true), Square(0, 0, true)});
+  TriangleMesh ref = Joined({lower, Square(-10, 0.4, false)});
+  ref.face_labels.assign(ref.faces.size(), SurfaceLabel::kTooth);
+  const MeshClosestPoint cp(ref);
+  EvaluateOptions o;
+  o.align = false;
+  const TruenessReport r = EvaluateTrueness(lower, cp, Rigid3d::Identity(), o);
+  EXPECT_NEAR(r.coverage_pct, 66.7, 1.5);
+  EXPECT_NEAR(r.gap_area_pct, 66.7, 1.5);     // both walls of the gap
+  EXPECT_NEAR(r.coverage_gap_pct, 50.0, 1.5);  // the lower one
+  EXPECT_NEAR(r.coverage_open_pct, 100.0, 0.5);
+  // A gap wider than gap_mm is open surface; gap_mm 0 makes no split.
+  o.gap_mm = 0.3;
+  const TruenessReport wide = EvaluateTrueness(lower, cp, Rigid3d::Identity(), o);
+  EXPECT_EQ(wide.gap_area_pct, 0.0);
+  EXPECT_TRUE(std::isnan(wide.coverage_gap_pct));
+  EXPECT_NEAR(wide.coverage_open_pct, wide.coverage_pct, 1e-9);
+  o.gap_mm = 0;
+  const TruenessReport none = EvaluateTrueness(lower, cp, Rigid3d::Identity(), o);
+  EXPECT_TRUE(std::isnan(none.gap_area_pct) && std::isnan(none.coverage_open_pct));
+  EXPECT_DOUBLE_EQ(none.coverage_pct, r.coverage_pct);
+  // Surfaces back to back (a thin plate's two sides) are no gap: the other side lies behind.
+  TriangleMesh plate = Joined({Square(-10, 0, false), Square(-10, 0.4, true)});
+  plate.face_labels.assign(plate.faces.size(), SurfaceLabel::kTooth);
+  o.gap_mm = 1.0;
+  const TruenessReport back = EvaluateTrueness(plate, MeshClosestPoint(plate), Rigid3d::Identity(), o);
+  EXPECT_EQ(back.gap_area_pct, 0.0);
+  o.gap_mm = -1;
+  EXPECT_THROW(o.Check(), std::invalid_argument);
 }
 
 TEST(EvaluateScan, SeenSurfaceCountsTheToothFacesAViewShowed) {

@@ -15,6 +15,7 @@
 #include <thread>
 
 #include "common/mesh/mesh_io.h"
+#include "pipeline/eval/report_json.h"
 
 namespace d3d {
 namespace {
@@ -597,7 +598,7 @@ void EvaluateScanAgainstScene(const TriangleMesh& mesh, const TriangleMesh& scen
   j["trueness_p95_um"] = t.p95_um;
   j["trueness_points"] = t.points;
   j["trueness_outlier_pct"] = t.outlier_pct;
-  j["coverage_pct"] = t.coverage_pct;
+  AddCoverageFields(t, &j);
   if (t.teeth_points > 0) {
     j["trueness_teeth_rms_um"] = t.teeth_rms_um;
     j["trueness_teeth_mean_um"] = t.teeth_mean_um;

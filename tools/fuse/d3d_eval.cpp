@@ -9,6 +9,7 @@
 
 #include "common/mesh/mesh_io.h"
 #include "pipeline/eval/evaluate_scan.h"
+#include "pipeline/eval/report_json.h"
 
 using namespace d3d;
 
@@ -107,7 +108,7 @@ int main(int argc, char** argv) {
       j["trueness_max_um"] = t.max_um;
       j["points"] = t.points;
       j["outlier_pct"] = t.outlier_pct;
-      j["coverage_pct"] = t.coverage_pct;
+      AddCoverageFields(t, &j);
       if (t.teeth_points > 0) {
         j["trueness_teeth_rms_um"] = t.teeth_rms_um;
         j["trueness_teeth_mean_um"] = t.teeth_mean_um;
