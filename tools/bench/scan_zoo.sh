@@ -2,7 +2,8 @@
 # d3d-scan-zoo: the offline chain (d3d-fuse: the virtual probe, reconstruction, tracking, fusion and
 # the evaluation against the scene) over the named scan-path styles (firmware/sim/trajectory/
 # scan_styles.h), seeds and arches of issue 50, and one table of what must hold: trueness RMS / p95,
-# coverage, ATE, the largest pose error of any fused view against the truth, and wrong fusions
+# coverage (and that of the open surface, outside narrow gaps: docs/decisions/0009), ATE, the
+# largest pose error of any fused view against the truth, and wrong fusions
 # (fused views off by > 0.2 mm or > 1 deg). A run's outputs stay in OUT/ARCH/STYLE_sSEED; a run
 # whose report.json is there is not run again (the zoo is long: start it in the background, stop
 # it, start it again).
@@ -99,7 +100,7 @@ python3 - "$out" "$list" <<'PY'
 import json, os, statistics, sys
 out, lst = sys.argv[1], sys.argv[2]
 rows, fails = [], []
-print(f"{'arch':<22} {'style':<14} {'seed':>4} {'in model':>9} {'RMS um':>7} {'p95 um':>7} {'cov %':>6} {'ATE mm':>7}"
+print(f"{'arch':<22} {'style':<14} {'seed':>4} {'in model':>9} {'RMS um':>7} {'p95 um':>7} {'cov %':>6} {'open %':>6} {'ATE mm':>7}"
       f" {'max mm':>7} {'max deg':>7} {'wrong':>6} {'reloc':>5} {'seg/join':<7} {'apart':>5}")
 for line in open(lst):
     a, st, s = line.split()
@@ -118,7 +119,7 @@ for line in open(lst):
     rows.append((name, st, j))
     if why: fails.append(f"{name} {st} seed {s}: " + ", ".join(why))
     print(f"{name:<22} {st:<14} {s:>4} {j.get('views_in_model', j['fused']):>4}/{j['bursts']:<4} {g('trueness_rms_um'):7.2f} {g('trueness_p95_um'):7.2f}"
-          f" {g('coverage_pct'):6.2f} {g('ate_mm'):7.3f} {g('ate_max_mm'):7.3f} {g('ate_max_deg'):7.3f} {g('wrong_fusions'):>6}"
+          f" {g('coverage_pct'):6.2f} {g('coverage_open_pct'):6.2f} {g('ate_mm'):7.3f} {g('ate_max_mm'):7.3f} {g('ate_max_deg'):7.3f} {g('wrong_fusions'):>6}"
           f" {g('relocalised'):>5} {j.get('segments_started', 0):>3}/{j.get('segments_joined', 0):<3} {j.get('views_apart', 0):>5}")
 for name in sorted({r[0] for r in rows}):
     full = [r[2]["trueness_rms_um"] for r in rows if r[0] == name and r[1] == "full-arch" and "trueness_rms_um" in r[2]]
