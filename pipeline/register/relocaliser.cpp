@@ -48,7 +48,7 @@ void Relocaliser::SetCandidate(int64_t view, int64_t capture_ns, const Rigid3d& 
   candidate_.how = how;
 }
 
-bool Relocaliser::Confirm(const SurfacePoints& samples, bool lost, TrackResult* out) {
+bool Relocaliser::Confirm(const SurfacePoints& samples, bool gap, TrackResult* out) {
   candidate_.pending = false;
   const IcpResult r = odometry_.Register(samples, candidate_.world_from_cam, LocalSearchIcp());
   if (!r.ok) {
@@ -57,13 +57,13 @@ bool Relocaliser::Confirm(const SurfacePoints& samples, bool lost, TrackResult* 
   }
   const double views = motion_.ViewsSince(candidate_.view, candidate_.capture_ns);
   if (!motion_.ConsistentFrom(candidate_.world_from_cam, views, r.target_from_source, &out->reason)) return false;
-  if (!VerifyReentry(samples, r, lost, &out->reentry, &out->reason)) return false;
+  if (!VerifyReentry(samples, r, gap, &out->reentry, &out->reason)) return false;
   out->icp = r;
   out->world_from_cam = r.target_from_source;
   return true;
 }
 
-bool Relocaliser::AfterGap(bool lost) const { return lost || motion_.ViewsElapsed() > o_.direct_max_views; }
+bool Relocaliser::AfterGap(bool gap) const { return gap || motion_.ViewsElapsed() > o_.direct_max_views; }
 
 bool Relocaliser::JumpsFromPrediction(const Rigid3d& pose) const {
   if (motion_.last_view() < 0) return false;
@@ -74,7 +74,7 @@ bool Relocaliser::JumpsFromPrediction(const Rigid3d& pose) const {
          (o_.jump_check_deg > 0 && RotationAngleRad(pose, pred) * 180 / M_PI > o_.jump_check_deg * views);
 }
 
-bool Relocaliser::MeetsJumpStandard(const SurfacePoints& samples, const IcpResult& r, bool lost, std::string* why) {
+bool Relocaliser::MeetsJumpStandard(const SurfacePoints& samples, const IcpResult& r, bool gap, std::string* why) {
   char what[160];
   if (r.rmse_mm > o_.max_rmse_mm || r.overlap < o_.min_overlap) {
     std::snprintf(what, sizeof what, "rmse %.1f um, overlap %.2f (a jump needs <= %.1f um, >= %.2f)", r.rmse_mm * 1000, r.overlap,
@@ -83,11 +83,11 @@ bool Relocaliser::MeetsJumpStandard(const SurfacePoints& samples, const IcpResul
     return false;
   }
   ReentryEvidence evidence;
-  return VerifyReentry(samples, r, lost, &evidence, why);
+  return VerifyReentry(samples, r, gap, &evidence, why);
 }
 
-bool Relocaliser::VerifyReentry(const SurfacePoints& samples, const IcpResult& r, bool lost, ReentryEvidence* evidence, std::string* why) {
-  if ((AfterGap(lost) || JumpsFromPrediction(r.target_from_source)) && r.eigen_ratio < o_.min_eigen_ratio) {
+bool Relocaliser::VerifyReentry(const SurfacePoints& samples, const IcpResult& r, bool gap, ReentryEvidence* evidence, std::string* why) {
+  if ((AfterGap(gap) || JumpsFromPrediction(r.target_from_source)) && r.eigen_ratio < o_.min_eigen_ratio) {
     *why = "degenerate re-entry (eigen ratio " + std::to_string(r.eigen_ratio) + " < " + std::to_string(o_.min_eigen_ratio) + ")";
     return false;
   }
@@ -127,7 +127,7 @@ std::vector<std::pair<double, int>> Relocaliser::NearestKeyframes(const SurfaceP
   return order;
 }
 
-bool Relocaliser::SearchLocally(const SurfacePoints& samples, bool lost, TrackResult* out, bool* from_prediction) {
+bool Relocaliser::SearchLocally(const SurfacePoints& samples, bool gap, TrackResult* out, bool* from_prediction) {
   *from_prediction = false;
   const std::vector<std::pair<double, int>> order = NearestKeyframes(samples);
   std::vector<Rigid3d> starts = {motion_.Predict(), motion_.last_pose()};
@@ -143,14 +143,14 @@ bool Relocaliser::SearchLocally(const SurfacePoints& samples, bool lost, TrackRe
   };
   // After a gap every start is tried: a second fit that passes too, elsewhere, makes the return
   // ambiguous (ambiguity_mm).
-  const bool all_starts = AfterGap(lost) && o_.ambiguity_mm > 0;
+  const bool all_starts = AfterGap(gap) && o_.ambiguity_mm > 0;
   const Eigen::Vector3d centre_in_cam = samples.Centroid();
   int found = -1;
   for (size_t i = 0; i < starts.size(); ++i) {
     const IcpResult r = odometry_.Register(samples, starts[i], icp);
     ReentryEvidence evidence;
     if (!r.ok) last_reason = r.reason;
-    if (!r.ok || !motion_.Consistent(r.target_from_source, &last_reason) || !VerifyReentry(samples, r, lost, &evidence, &last_reason)) {
+    if (!r.ok || !motion_.Consistent(r.target_from_source, &last_reason) || !VerifyReentry(samples, r, gap, &evidence, &last_reason)) {
       failures += (failures.empty() ? "" : ", ") + start_name(i) + ": " + last_reason;
       continue;
     }
@@ -178,7 +178,7 @@ bool Relocaliser::SearchLocally(const SurfacePoints& samples, bool lost, TrackRe
   return false;
 }
 
-bool Relocaliser::SearchByFeatures(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& texture, bool lost,
+bool Relocaliser::SearchByFeatures(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& texture, bool gap,
                                    TrackResult* out) {
   const FeatureOptions& features = keyframes_.options().features;
   const ViewFeatures f = ExtractViewFeatures(points, texture, features);
@@ -202,7 +202,7 @@ bool Relocaliser::SearchByFeatures(const SurfacePoints& samples, const cv::Mat& 
       last_reason = "icp after features: " + r.reason;
       continue;
     }
-    if (!VerifyReentry(samples, r, lost, &out->reentry, &last_reason)) {
+    if (!VerifyReentry(samples, r, gap, &out->reentry, &last_reason)) {
       last_reason = "after features: " + last_reason;
       continue;
     }

@@ -50,7 +50,8 @@ struct RelocaliserOptions {
   bool confirm_reentry = true;
   // ... except a re-entry ICP from the prediction finds at most this many views (by time with
   // motion.view_period_ns) after the last accepted one: one bad view in a track that never left,
-  // resumed at once. Also the limit of "tracking" for a gap and for coasting. 0 = always confirm.
+  // resumed at once. Also the limit of "tracking" for a gap (views with too few points in a row
+  // count: docs/decisions/0010) and for coasting. 0 = always confirm.
   double direct_max_views = 2.0;
   // A re-entry after a gap (lost, or more than direct_max_views since the last accepted view) or a
   // jump must be well constrained: ICP's eigenvalue ratio at least this (a smooth stretch slides;
@@ -76,23 +77,25 @@ class Relocaliser {
               const MotionModel* motion, KeyframeGraph* keyframes, const Segments* segments);
   const RelocaliserOptions& options() const { return o_; }
 
-  // A return to the model after a gap or a loss (lost: the tracker's state is kLost).
-  bool AfterGap(bool lost) const;
+  // A return to the model after a gap or a loss. gap (here and below): the tracker knows of one
+  // (state kLost, or back after views without points: Tracker::BackFromNoPoints); more than
+  // direct_max_views views since the last accepted one are a gap too.
+  bool AfterGap(bool gap) const;
   // Whether `pose` lies farther from the motion prediction than jump_check_mm / jump_check_deg.
   bool JumpsFromPrediction(const Rigid3d& pose) const;
   // A tracked view's fit (ICP result r of `samples`) that jumped: the re-entry's residual and
   // overlap limits, then VerifyReentry. False with *why.
-  bool MeetsJumpStandard(const SurfacePoints& samples, const IcpResult& r, bool lost, std::string* why);
+  bool MeetsJumpStandard(const SurfacePoints& samples, const IcpResult& r, bool gap, std::string* why);
   // The re-entry check of `samples` (camera frame) at world_from_cam against the keyframes nearest
   // to it (their current graph poses).
   ReentryEvidence CheckReentry(const SurfacePoints& samples, const Rigid3d& world_from_cam);
 
   // Local search; on success out->icp, world_from_cam, reentry and reason are set, and
   // *from_prediction tells whether the fit started from the motion prediction. False with out->reason.
-  bool SearchLocally(const SurfacePoints& samples, bool lost, TrackResult* out, bool* from_prediction);
+  bool SearchLocally(const SurfacePoints& samples, bool gap, TrackResult* out, bool* from_prediction);
   // Feature relocalisation of the view (points H×W CV_32FC3, texture H×W CV_8U or empty; samples
   // from them); the same outputs.
-  bool SearchByFeatures(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& texture, bool lost, TrackResult* out);
+  bool SearchByFeatures(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& texture, bool gap, TrackResult* out);
 
   // The pending re-entry candidate (confirm_reentry).
   struct Candidate {
@@ -106,7 +109,7 @@ class Relocaliser {
   void DropCandidate() { candidate_ = Candidate{}; }
   // ICP of this view from the candidate's pose (the candidate is no longer pending after); true
   // with out->icp and world_from_cam when it confirms it, false with out->reason.
-  bool Confirm(const SurfacePoints& samples, bool lost, TrackResult* out);
+  bool Confirm(const SurfacePoints& samples, bool gap, TrackResult* out);
 
  private:
   // ICP of the local search and of a confirmation: the tracking ICP with the first level's gate
@@ -115,7 +118,7 @@ class Relocaliser {
   // The checks of a re-entry pose (ICP result r of `samples`) beyond ICP's own: after a gap or a
   // jump, well constrained; and the re-entry check, whose evidence goes to *evidence. False with
   // *why when one fails (*evidence untouched when the first did).
-  bool VerifyReentry(const SurfacePoints& samples, const IcpResult& r, bool lost, ReentryEvidence* evidence, std::string* why);
+  bool VerifyReentry(const SurfacePoints& samples, const IcpResult& r, bool gap, ReentryEvidence* evidence, std::string* why);
   // Keyframes of the active segment by the distance of their centre from the view's centre at the
   // last accepted pose, nearest first.
   std::vector<std::pair<double, int>> NearestKeyframes(const SurfacePoints& samples) const;

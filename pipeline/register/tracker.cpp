@@ -92,16 +92,24 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     // tracking state is kept; the motion model restarts with the next view.
     out.state = state_;
     out.reason = "too few points in the view (" + std::to_string(samples.size()) + ")";
+    ++views_without_points_;
     out.ms = Ms(t0);
     return out;
   }
   const bool lost = state_ == TrackingState::kLost;
+  // A gap for the relocaliser: lost, or back after views with nothing to register.
+  const bool back = BackFromNoPoints();
+  const bool gap = lost || back;
   bool accepted = false;
   Rigid3d pose = motion_.last_pose();
   if (odometry_.model().empty()) {
     accepted = true;
     pose = Rigid3d::Identity();
     out.state = TrackingState::kTracking;
+  } else if (!lost && back) {
+    // The probe comes back after a stretch with nothing to register (lifted, out of range): a
+    // re-entry, wherever the last pose predicts it; the local search and confirmation below.
+    out.reason = "back after " + std::to_string(views_without_points_) + " views without points";
   } else if (!lost) {
     const Rigid3d pred = motion_.Predict();
     out.icp = odometry_.Register(samples, pred, odo.icp);
@@ -114,7 +122,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     } else if (motion_.Consistent(out.icp.target_from_source, &out.reason)) {
       std::string why;
       if (relocaliser_.JumpsFromPrediction(out.icp.target_from_source) &&
-          !relocaliser_.MeetsJumpStandard(samples, out.icp, lost, &why)) {
+          !relocaliser_.MeetsJumpStandard(samples, out.icp, gap, &why)) {
         out.reason = "icp jumped from the prediction: " + why;  // the local search tries it again
       } else {
         accepted = true;
@@ -128,7 +136,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
       // The view after a re-entry candidate: it confirms it, or the candidate is dropped.
       const std::string how = relocaliser_.candidate().how;
       const int64_t at = relocaliser_.candidate().view;
-      if (relocaliser_.Confirm(samples, lost, &out)) {
+      if (relocaliser_.Confirm(samples, gap, &out)) {
         accepted = true;
         pose = out.world_from_cam;
         out.state = TrackingState::kRelocalised;
@@ -140,7 +148,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   }
   // A view re-entering the model after a loss waits for the next view's confirmation (see
   // RelocaliserOptions::confirm_reentry); one refused while tracking is recovered at once.
-  bool needs_confirmation = o_.relocaliser.confirm_reentry && relocaliser_.AfterGap(lost);
+  bool needs_confirmation = o_.relocaliser.confirm_reentry && relocaliser_.AfterGap(gap);
   auto reentered = [&](const std::string& why) {
     if (needs_confirmation) {
       relocaliser_.SetCandidate(index_, motion_.capture_ns(), out.world_from_cam, out.reason);
@@ -157,7 +165,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     // (the probe usually comes back where it left the model).
     const std::string why = out.reason;
     bool from_prediction = false;
-    if (relocaliser_.SearchLocally(samples, lost, &out, &from_prediction)) {
+    if (relocaliser_.SearchLocally(samples, gap, &out, &from_prediction)) {
       // One bad view in a track that never left: no confirmation (direct_max_views).
       if (from_prediction && motion_.ViewsElapsed() <= o_.relocaliser.direct_max_views) needs_confirmation = false;
       accepted = reentered(why);
@@ -167,7 +175,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   }
   if (!accepted && !relocaliser_.candidate().pending && o_.relocaliser.by_features && !keyframe_graph_.empty()) {
     const std::string why = out.reason;
-    if (relocaliser_.SearchByFeatures(samples, points, texture, lost, &out)) accepted = reentered(why);
+    if (relocaliser_.SearchByFeatures(samples, points, texture, gap, &out)) accepted = reentered(why);
     else out.reason = why + "; relocalisation failed: " + out.reason;
   }
   if (!accepted && state_ != TrackingState::kInitialising && segments_.CountRefused()) {
@@ -184,6 +192,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     return out;
   }
   segments_.set_refused_in_row(0);
+  views_without_points_ = 0;
   odometry_.set_coast_run(0);
   if (augment && !odometry_.model().empty() && !augmented && augment(pose, odometry_.model())) {
     // The view gained points: register it again from its pose with all of them, when they are
@@ -334,6 +343,10 @@ int64_t Tracker::first_undoable_view() const {
   return std::max(segments_.undo_barrier_view(), static_cast<int64_t>(it - view_log_.begin()));
 }
 
+bool Tracker::BackFromNoPoints() const {
+  return views_without_points_ > 0 && views_without_points_ + 1 > o_.relocaliser.direct_max_views;
+}
+
 Tracker::UndoResult Tracker::UndoFrom(int64_t first_view) {
   CommitView();
   UndoResult r;
@@ -385,6 +398,7 @@ Tracker::UndoResult Tracker::UndoFrom(int64_t first_view) {
   relocaliser_.DropCandidate();
   // The views refused in a row before first_view count toward a new segment; the undone ones do not.
   if (logged) segments_.set_refused_in_row(view_log_[f].refused_in_row_before);
+  views_without_points_ = 0;  // the next view is searched as after a loss (state kLost) anyway
   state_ = motion_.last_view() < 0 ? TrackingState::kInitialising : TrackingState::kLost;
   if (motion_.last_view() < 0) D3D_CHECK_MSG(odometry_.model().empty(), "Tracker::UndoFrom: no view left but the model is not empty");
   r.ok = true;

@@ -133,6 +133,12 @@ class Tracker {
   int JoinApartSegments();
 
  private:
+  // The views since the last placed one, this one included, are more than
+  // RelocaliserOptions::direct_max_views and all but this one had too few points (counted as they
+  // came, whatever their capture times: a live host's dropped bursts are no such views). The view
+  // is then a re-entry (local search, re-entry standard, confirmation), not tracked from the
+  // prediction, which a lifted probe leaves seconds behind (docs/decisions/0010).
+  bool BackFromNoPoints() const;
   // Coasts the view (OdometryOptions::max_coast_views) when its ICP from `prediction` allows it:
   // true and *out filled (refused, the state kept), false when it does not apply.
   bool Coast(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& normals, const Rigid3d& prediction,
@@ -154,6 +160,7 @@ class Tracker {
   Relocaliser relocaliser_;
   TrackingState state_ = TrackingState::kInitialising;
   int64_t index_ = -1;  // current view index
+  int views_without_points_ = 0;  // views with too few points since the last placed view
   // Track()'s samples of the view (for ICP; more_samples_ after augmentation), refilled every view
   // with their buffers reused.
   SurfacePoints view_samples_, more_samples_;

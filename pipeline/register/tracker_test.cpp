@@ -1151,5 +1151,51 @@ TEST_F(TrackerScan, ATrackedViewThatJumpsMeetsTheReentryStandard) {
   }
 }
 
+TEST_F(TrackerScan, AProbeBackFromALiftIsAReentryNotTracked) {
+  // A track, then views with nothing to register (the probe lifted out of the mouth), then the
+  // probe back: after one such view it is tracked from the prediction; after more than
+  // relocaliser.direct_max_views views since the last placed one it is a re-entry, held to the
+  // re-entry residual and confirmed by the next view.
+  struct Case {
+    int empty_views;
+    double noise_mm;
+    bool tracked;
+  };
+  for (const Case c : {Case{1, 0.004, true}, Case{5, 0.004, false}, Case{5, 0.055, false}}) {
+    SCOPED_TRACE(std::to_string(c.empty_views) + " empty views, noise " + std::to_string(c.noise_mm));
+    TrackerOptions o;
+    o.odometry.min_view_samples /= 4;
+    o.relocaliser.by_features = false;  // the local search only
+    Tracker tracker(small_cam_, o);
+    uint32_t seed = 1;
+    for (int i = 0; i < 8; ++i) ASSERT_TRUE(FeedSmall(&tracker, Truth(-4 + 0.8 * i, 0), seed++).accepted) << i;
+    const cv::Mat nothing(small_cam_.height, small_cam_.width, CV_32FC3, cv::Scalar::all(std::nan("")));
+    for (int i = 0; i < c.empty_views; ++i) {
+      const TrackResult e = tracker.Track(nothing, nothing, cv::Mat(), cv::Mat());
+      ASSERT_FALSE(e.accepted);
+      ASSERT_EQ(e.state, TrackingState::kTracking);  // a view without points keeps the state
+    }
+    const auto v = RenderHeightField(hf_, small_cam_, Truth(-4 + 0.8 * 7.5, 0), c.noise_mm, seed++);
+    const TrackResult r = tracker.Track(v.points, v.normals, v.quality, v.texture);
+    if (c.tracked) {
+      EXPECT_TRUE(r.accepted) << r.reason;
+      EXPECT_EQ(r.state, TrackingState::kTracking);
+      continue;
+    }
+    EXPECT_FALSE(r.accepted) << r.reason;
+    EXPECT_NE(r.reason.find("back after " + std::to_string(c.empty_views) + " views without points"),
+              std::string::npos)
+        << r.reason;
+    const TrackResult next = FeedSmall(&tracker, Truth(-4 + 0.8 * 7.8, 0), seed++);
+    if (c.noise_mm < o.relocaliser.max_rmse_mm) {
+      EXPECT_NE(r.reason.find("re-entry candidate"), std::string::npos) << r.reason;
+      EXPECT_TRUE(next.accepted) << next.reason;
+      EXPECT_EQ(next.state, TrackingState::kRelocalised);
+    } else {
+      EXPECT_EQ(r.reason.find("re-entry candidate"), std::string::npos) << r.reason;
+    }
+  }
+}
+
 }  // namespace
 }  // namespace d3d
