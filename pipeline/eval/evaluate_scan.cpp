@@ -372,6 +372,7 @@ PrecisionReport EvaluatePrecision(const TriangleMesh& a, const TriangleMesh& b, 
   EvaluateOptions o;
   o.max_distance_mm = max_d;
   o.teeth_only_coverage = false;
+  o.gap_mm = 0;  // no coverage figures here: the split's search over a's faces would be wasted
   const TruenessReport t = EvaluateTrueness(b, ref, a_from_b, o);
   PrecisionReport p;
   p.one_sided_rms_um = t.rms_um;
