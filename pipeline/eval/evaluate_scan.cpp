@@ -178,7 +178,7 @@ std::vector<uint8_t> FacesInGaps(const TriangleMesh& m, const std::vector<uint8_
     const Eigen::Vector3d& b = m.vertices[static_cast<size_t>(F[1])];
     const Eigen::Vector3d& c = m.vertices[static_cast<size_t>(F[2])];
     centroids[f] = ((a + b + c) / 3.0).cast<float>();
-    normals[f] = (b - a).cross(c - a).normalized().cast<float>();
+    normals[f] = m.FaceNormal(static_cast<int>(f)).cast<float>();  // zero for a degenerate face
   }
   const PointKdTree tree(&centroids);
   const float radius = static_cast<float>(gap_mm / 2);
@@ -186,7 +186,7 @@ std::vector<uint8_t> FacesInGaps(const TriangleMesh& m, const std::vector<uint8_
   tbb::parallel_for(tbb::blocked_range<size_t>(0, nf), [&](const tbb::blocked_range<size_t>& rng) {
     std::vector<int> near;
     for (size_t f = rng.begin(); f < rng.end(); ++f) {
-      if (!counted[f] || !normals[f].allFinite()) continue;
+      if (!counted[f] || normals[f].isZero()) continue;
       tree.Radius(centroids[f] + (radius + 1e-3f) * normals[f], radius, &near);
       for (int q : near)
         if (normals[static_cast<size_t>(q)].dot(normals[f]) < -0.5f) {
