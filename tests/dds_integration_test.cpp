@@ -7,6 +7,7 @@
 
 #include <chrono>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -245,9 +246,17 @@ TEST(DdsIntegration, CorruptedAndTruncatedRecordingsRecoverIntactChunks) {
   EXPECT_EQ(info(write("magic.d3drec", bad), &out), 2);
   EXPECT_NE(out.find("not a d3d recording"), std::string::npos) << out;
   bad = good;
-  bad[8] = 9;
+  bad[8] = 9;  // as a newer writer leaves it: the header's CRC over the new version
+  uint32_t json_len = 0;
+  std::memcpy(&json_len, bad.data() + 12, 4);
+  const uint32_t crc = static_cast<uint32_t>(crc32(0L, reinterpret_cast<const Bytef*>(bad.data()), 16 + json_len));
+  std::memcpy(bad.data() + 16 + json_len, &crc, 4);
   EXPECT_EQ(info(write("newer.d3drec", bad), &out), 2);
   EXPECT_NE(out.find("newer than this reader"), std::string::npos) << out;
+  bad[8] = 8;  // the same with its CRC failing: a damaged header, not a newer format
+  EXPECT_EQ(info(write("damaged_header.d3drec", bad), &out), 2);
+  EXPECT_EQ(out.find("newer"), std::string::npos) << out;
+  EXPECT_NE(out.find("header damaged"), std::string::npos) << out;
   fs::remove_all(dir);
 }
 

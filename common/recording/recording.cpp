@@ -6,6 +6,7 @@
 #include <zlib.h>
 #include <zstd.h>
 
+#include <algorithm>
 #include <bit>
 #include <cerrno>
 #include <cstring>
@@ -23,6 +24,7 @@ constexpr char kEndMagic[8] = {'D', '3', 'D', 'E', 'N', 'D', '\r', '\n'};
 constexpr size_t kChunkHeaderBytes = 40;
 constexpr size_t kFooterBytes = 24;
 constexpr size_t kMessageHeaderBytes = 14;
+constexpr size_t kIndexEntryBytes = 28;
 constexpr size_t kMaxHeaderJson = size_t{16} << 20;
 
 uint32_t Crc32(std::string_view b) {
@@ -238,6 +240,7 @@ Status RecordingReader::Open(std::unique_ptr<ByteSource> source, std::unique_ptr
   D3D_RETURN_IF_ERROR(r->ParseHeader());
   if (!r->LoadIndex()) r->ScanChunks();
   r->chunk_reported_.assign(r->chunks_.size(), false);
+  for (const RecordingGap& g : r->gaps_) r->diagnostics_.uncounted_losses += g.uncounted;
   *out = std::move(r);
   return Status::Ok();
 }
@@ -248,29 +251,40 @@ Status RecordingReader::ParseHeader() {
   if (std::memcmp(b.data(), kMagic, 8) != 0) return ParseError("not a d3d recording: wrong magic");
   header_.format_major = Get<uint16_t>(b, 8);
   header_.format_minor = Get<uint16_t>(b, 10);
+  // The CRC first: the version fields of a damaged header (or random bytes after the magic) say nothing.
+  const uint32_t json_len = Get<uint32_t>(b, 12);
+  if (json_len > kMaxHeaderJson)
+    return Corrupt("recording header damaged: its length field says " + Hex(json_len) + " bytes (at most " + Hex(kMaxHeaderJson) + ")");
+  std::string all;
+  if (!source_->Read(0, 16 + size_t{json_len} + 4, &all))
+    return Corrupt("recording header damaged or cut off: the file ends within the " + Hex(16 + uint64_t{json_len} + 4) +
+                   " bytes its length field says");
+  if (Crc32(std::string_view(all).substr(0, 16 + json_len)) != Get<uint32_t>(all, 16 + json_len))
+    return Corrupt("recording header damaged: CRC mismatch (its fields, the format version among them, cannot be trusted)");
   if (header_.format_major > kRecordingMajor)
     return Unsupported("recording format " + std::to_string(header_.format_major) + "." + std::to_string(header_.format_minor) +
                        " is newer than this reader (" + std::to_string(kRecordingMajor) + ".x): update d3dscan");
-  if (header_.format_major == 0) return ParseError("recording format 0.x does not exist");
-  const uint32_t json_len = Get<uint32_t>(b, 12);
-  if (json_len > kMaxHeaderJson) return Corrupt("recording header: implausible length " + std::to_string(json_len));
-  std::string all;
-  if (!source_->Read(0, 16 + size_t{json_len} + 4, &all)) return Corrupt("recording header: cut off");
-  if (Crc32(std::string_view(all).substr(0, 16 + json_len)) != Get<uint32_t>(all, 16 + json_len))
-    return Corrupt("recording header: CRC mismatch");
+  if (header_.format_major == 0) return Corrupt("recording header: format field 0." + std::to_string(header_.format_minor) + " is no format version");
   const nlohmann::json j = nlohmann::json::parse(all.begin() + 16, all.begin() + 16 + json_len, nullptr, false);
-  if (j.is_discarded() || !j.is_object()) return Corrupt("recording header: JSON does not parse");
+  if (j.is_discarded() || !j.is_object()) return Corrupt("recording header: its JSON does not parse");
+  const char* field = "";
   try {
-    header_.protocol_version = j.at("protocol_version").get<int>();
-    header_.created_ns = j.at("created_ns").get<int64_t>();
-    header_.probe_serial = j.at("probe_serial").get<std::string>();
-    header_.calibration_json = j.at("calibration_json").get<std::string>();
-    for (const auto& c : j.at("channels")) {
+    field = "protocol_version";
+    header_.protocol_version = j.at(field).get<int>();
+    field = "created_ns";
+    header_.created_ns = j.at(field).get<int64_t>();
+    field = "probe_serial";
+    header_.probe_serial = j.at(field).get<std::string>();
+    field = "calibration_json";
+    header_.calibration_json = j.at(field).get<std::string>();
+    field = "channels";
+    for (const auto& c : j.at(field)) {
       header_.channels.push_back({c.at("id").get<uint16_t>(), c.at("topic").get<std::string>(), c.at("schema").get<std::string>()});
     }
-    if (j.contains("metadata")) header_.metadata = j.at("metadata").get<std::map<std::string, std::string>>();
-  } catch (const nlohmann::json::exception& e) {
-    return Corrupt(std::string("recording header: ") + e.what());
+    field = "metadata";
+    if (j.contains(field)) header_.metadata = j.at(field).get<std::map<std::string, std::string>>();
+  } catch (const nlohmann::json::exception&) {
+    return Corrupt(std::string("recording header: field '") + field + "' is missing or not of its type");
   }
   data_start_ = 16 + uint64_t{json_len} + 4;
   return Status::Ok();
@@ -292,49 +306,71 @@ bool RecordingReader::ReadChunkHeader(uint64_t offset, ChunkInfo* info) const {
   return offset + kChunkHeaderBytes + info->compressed_size <= source_->size();
 }
 
+bool RecordingReader::ReadIndex(uint64_t offset, std::vector<IndexEntry>* entries, uint64_t* length) const {
+  std::string h;
+  if (!source_->Read(offset, 8, &h) || std::memcmp(h.data(), "INDX", 4) != 0) return false;
+  const uint64_t n = Get<uint32_t>(h, 4);
+  const uint64_t len = 8 + n * kIndexEntryBytes + 4;
+  if (len > source_->size() - offset) return false;
+  std::string ix;
+  if (!source_->Read(offset, len, &ix) || Crc32(std::string_view(ix).substr(0, len - 4)) != Get<uint32_t>(ix, len - 4)) return false;
+  entries->clear();
+  for (uint64_t i = 0; i < n; ++i) {
+    const size_t at = 8 + i * kIndexEntryBytes;
+    entries->push_back({Get<uint64_t>(ix, at), Get<int64_t>(ix, at + 8), Get<int64_t>(ix, at + 16), Get<uint32_t>(ix, at + 24)});
+  }
+  *length = len;
+  return true;
+}
+
+void RecordingReader::AddLostChunk(size_t before, const std::string& where, uint64_t messages, const std::string& why) {
+  ++diagnostics_.corrupt_chunks;
+  diagnostics_.messages_lost += messages;
+  gaps_[before].messages += messages;
+  diagnostics_.problems.push_back(where + ": " + why + ": its " + Hex(messages) + " messages are lost");
+}
+
 bool RecordingReader::LoadIndex() {
   const uint64_t size = source_->size();
   std::string f;
-  if (size < data_start_ + kFooterBytes || !source_->Read(size - kFooterBytes, kFooterBytes, &f)) {
-    diagnostics_.problems.push_back("no footer: the recording was not closed (killed recorder or cut-off tail); chunks scanned");
-    return false;
-  }
+  if (size < data_start_ + kFooterBytes || !source_->Read(size - kFooterBytes, kFooterBytes, &f)) return false;
   if (std::memcmp(f.data(), "FOOT", 4) != 0 || std::memcmp(f.data() + 16, kEndMagic, 8) != 0 ||
-      Crc32(std::string_view(f).substr(0, 12)) != Get<uint32_t>(f, 12)) {
-    diagnostics_.problems.push_back("no valid footer: the recording was not closed or its tail is damaged; chunks scanned");
+      Crc32(std::string_view(f).substr(0, 12)) != Get<uint32_t>(f, 12))
     return false;
-  }
   const uint64_t ix_off = Get<uint64_t>(f, 4);
-  std::string h;
-  if (ix_off < data_start_ || ix_off > size - kFooterBytes || !source_->Read(ix_off, 8, &h) || std::memcmp(h.data(), "INDX", 4) != 0) {
-    diagnostics_.problems.push_back("footer points at no index; chunks scanned");
+  std::vector<IndexEntry> entries;
+  uint64_t ix_len = 0;
+  if (ix_off < data_start_ || ix_off > size - kFooterBytes || !ReadIndex(ix_off, &entries, &ix_len) || ix_off + ix_len != size - kFooterBytes)
     return false;
-  }
-  const uint64_t n = Get<uint32_t>(h, 4);
-  const uint64_t ix_len = 8 + n * 28 + 4;
-  std::string ix;
-  if (ix_off + ix_len != size - kFooterBytes || !source_->Read(ix_off, ix_len, &ix) ||
-      Crc32(std::string_view(ix).substr(0, ix_len - 4)) != Get<uint32_t>(ix, ix_len - 4)) {
-    diagnostics_.problems.push_back("index damaged; chunks scanned");
-    return false;
-  }
-  std::vector<ChunkInfo> chunks;
-  for (uint64_t i = 0; i < n; ++i) {
-    const uint64_t off = Get<uint64_t>(ix, 8 + i * 28);
+  gaps_.assign(1, RecordingGap{});
+  for (size_t i = 0; i < entries.size(); ++i) {
+    const IndexEntry& e = entries[i];
     ChunkInfo c;
-    if (off < data_start_ || off >= ix_off || !ReadChunkHeader(off, &c)) {
-      diagnostics_.problems.push_back("index entry " + std::to_string(i) + " points at no valid chunk; chunks scanned");
-      return false;
+    if (e.offset < data_start_ || e.offset >= ix_off || !ReadChunkHeader(e.offset, &c)) {
+      AddLostChunk(chunks_.size(), "chunk " + std::to_string(i) + " of the index at offset " + Hex(e.offset), e.count, "header damaged");
+      continue;
     }
-    chunks.push_back(c);
+    chunks_.push_back(c);
+    gaps_.emplace_back();
   }
-  chunks_ = std::move(chunks);
   diagnostics_.index_used = true;
   return true;
 }
 
+void RecordingReader::CountFromIndex(const std::vector<IndexEntry>& entries) {
+  for (RecordingGap& g : gaps_) g.uncounted = false;  // the index lists every chunk: skipped bytes held no other
+  size_t scanned = 0;                                 // chunks_ and entries are both in file order
+  for (size_t i = 0; i < entries.size(); ++i) {
+    const IndexEntry& e = entries[i];
+    while (scanned < chunks_.size() && chunks_[scanned].offset < e.offset) ++scanned;
+    if (scanned < chunks_.size() && chunks_[scanned].offset == e.offset) continue;
+    AddLostChunk(scanned, "chunk " + std::to_string(i) + " of the index at offset " + Hex(e.offset), e.count, "not found intact");
+  }
+}
+
 void RecordingReader::ScanChunks() {
   const uint64_t size = source_->size();
+  gaps_.assign(1, RecordingGap{});
   uint64_t pos = data_start_;
   uint64_t bad_from = 0;
   bool in_bad = false;
@@ -342,44 +378,80 @@ void RecordingReader::ScanChunks() {
     if (!in_bad) return;
     diagnostics_.skipped_bytes += at - bad_from;
     diagnostics_.problems.push_back("skipped " + Hex(at - bad_from) + " bytes at offset " + Hex(bad_from) + " that are no intact chunk");
+    gaps_.back().uncounted = true;  // unless an index tells (CountFromIndex)
     in_bad = false;
   };
+  std::vector<IndexEntry> entries;
+  uint64_t ix_len = 0;
+  bool index_reached = false, index_valid = false;
   std::string window;
   while (pos + 4 <= size) {
     ChunkInfo c;
     if (ReadChunkHeader(pos, &c)) {
       end_bad(pos);
       chunks_.push_back(c);
+      gaps_.emplace_back();
       pos += kChunkHeaderBytes + c.compressed_size;
       continue;
     }
-    // A clean index + footer after the last chunk ends the data (footer damaged, index intact).
+    // The index ends the chunks: right after the last intact chunk (even when it is damaged itself),
+    // or after damage when it checks out.
     std::string m;
-    if (source_->Read(pos, 4, &m) && m == "INDX" && !in_bad) break;
+    if (source_->Read(pos, 4, &m) && m == "INDX") {
+      index_valid = ReadIndex(pos, &entries, &ix_len);
+      if (!in_bad || index_valid) {
+        index_reached = true;
+        break;
+      }
+    }
     if (!in_bad) {
       in_bad = true;
       bad_from = pos;
     }
-    // Re-synchronise: the next "CHNK" after pos (read in 1 MiB windows).
+    // Re-synchronise: the next "CHNK" or "INDX" after pos (read in 1 MiB windows).
     uint64_t next = size;
     for (uint64_t w = pos + 1; w + 4 <= size && next == size; w += (size_t{1} << 20)) {
       const size_t n = static_cast<size_t>(std::min<uint64_t>((size_t{1} << 20) + 3, size - w));
       if (!source_->Read(w, n, &window)) break;
-      const size_t at = window.find("CHNK");
+      const size_t at = std::min(window.find("CHNK"), window.find("INDX"));
       if (at != std::string::npos) next = w + at;
     }
     pos = next;
   }
-  if (pos < size && !in_bad) {
-    // Whatever follows the last chunk: index + footer of a closed file whose footer was damaged, or a
-    // cut-off chunk.
-    std::string m;
-    if (!(source_->Read(pos, 4, &m) && m == "INDX")) {
-      in_bad = true;
-      bad_from = pos;
-    }
+  if (!index_reached && pos < size && !in_bad) {  // fewer than 4 bytes after the last chunk: the index's start?
+    std::string tail;
+    index_reached = source_->Read(pos, size - pos, &tail) && std::string_view("INDX").substr(0, tail.size()) == tail;
+    in_bad = !index_reached;
+    bad_from = pos;
   }
-  end_bad(in_bad ? size : pos);
+  end_bad(index_reached ? pos : size);
+  if (!index_reached) {
+    diagnostics_.ends_before_index = true;
+    gaps_.back().uncounted = true;
+    diagnostics_.problems.push_back(
+        "the file ends before its index: the recording was not closed (a killed recorder) or was cut off; what it held after offset " +
+        Hex(chunks_.empty() ? data_start_ : chunks_.back().offset + kChunkHeaderBytes + chunks_.back().compressed_size) + " is unknown");
+    return;
+  }
+  if (!index_valid) {
+    diagnostics_.problems.push_back(
+        "index at offset " + Hex(pos) + " damaged or cut off" +
+        (diagnostics_.skipped_bytes == 0 ? std::string(": the chunks before it follow each other without a gap, none is lost") : ""));
+    return;
+  }
+  CountFromIndex(entries);
+  // After the index: its footer, and nothing else.
+  const uint64_t end = pos + ix_len;
+  std::string f;
+  const bool footer = end + kFooterBytes <= size && source_->Read(end, kFooterBytes, &f) && std::memcmp(f.data(), "FOOT", 4) == 0 &&
+                      Get<uint64_t>(f, 4) == pos && Crc32(std::string_view(f).substr(0, 12)) == Get<uint32_t>(f, 12) &&
+                      std::memcmp(f.data() + 16, kEndMagic, 8) == 0;
+  if (!footer) {
+    diagnostics_.problems.push_back("footer at offset " + Hex(end) + " damaged or missing (the index before it checks out)");
+  } else if (size > end + kFooterBytes) {
+    diagnostics_.problems.push_back(Hex(size - end - kFooterBytes) + " bytes after the end of the recording (its footer ends at offset " +
+                                    Hex(end + kFooterBytes) + "): not part of it");
+  }
 }
 
 Status RecordingReader::ReadChunk(size_t i, std::vector<RecordedMessage>* messages) {
@@ -390,7 +462,8 @@ Status RecordingReader::ReadChunk(size_t i, std::vector<RecordedMessage>* messag
     if (!chunk_reported_[i]) {
       chunk_reported_[i] = true;
       ++diagnostics_.corrupt_chunks;
-      diagnostics_.problems.push_back(m);
+      diagnostics_.messages_lost += c.message_count;
+      diagnostics_.problems.push_back(m + ": its " + Hex(c.message_count) + " messages are lost");
     }
     messages->clear();
     return Corrupt(m);
@@ -430,6 +503,84 @@ void RecordingReader::ForEach(const std::function<bool(const RecordedMessage&)>&
     for (const auto& m : msgs)
       if (!fn(m)) return;
   }
+}
+
+// ------------------------------------------------------------------------------------------- losses
+
+std::string RecordingDiagnostics::LossSummary() const {
+  std::string s;
+  if (corrupt_chunks > 0)
+    s = Hex(corrupt_chunks) + (corrupt_chunks == 1 ? " chunk, " : " chunks, ") + Hex(messages_lost) + (messages_lost == 1 ? " message" : " messages");
+  if (uncounted_losses > 0) {
+    const std::string why = ends_before_index ? "the file ends before its index" : "bytes were skipped with no index to count their messages";
+    s = s.empty() ? "unknown: " + why : s + ", and an unknown number more: " + why;
+  }
+  return s.empty() ? "nothing" : s;
+}
+
+uint64_t SequenceLossCounter::PendingBound() const {
+  uint64_t n = 0;
+  for (const Lost& l : pending_)
+    n += l.bytes > 0 && smallest_ > 0 ? std::min<uint64_t>(l.messages, l.bytes / (kMessageHeaderBytes + smallest_)) : l.messages;
+  return n;
+}
+
+void SequenceLossCounter::ResolvePendingAsRange() {
+  range_ += PendingBound();
+  unknown_ = unknown_ || pending_uncounted_;
+  pending_.clear();
+  pending_uncounted_ = false;
+}
+
+void SequenceLossCounter::Pass(size_t i, bool chunk_lost) {
+  const RecordingGap& g = reader_->gap_before(i);
+  if (g.messages > 0) pending_.push_back({g.messages, 0});
+  pending_uncounted_ = pending_uncounted_ || g.uncounted;
+  if (chunk_lost) pending_.push_back({reader_->chunks()[i].message_count, reader_->chunks()[i].uncompressed_size});
+}
+
+void SequenceLossCounter::Chunk(size_t i, bool read_ok) {
+  D3D_CHECK_MSG(i >= next_chunk_ && i < reader_->chunks().size(), "SequenceLossCounter: chunk " << i << " out of order");
+  while (next_chunk_ < i) Pass(next_chunk_++, true);  // a chunk the caller did not read is lost to it
+  Pass(next_chunk_++, !read_ok);
+}
+
+void SequenceLossCounter::Message(uint64_t seq, size_t bytes) {
+  smallest_ = smallest_ == 0 ? bytes : std::min<uint64_t>(smallest_, bytes);
+  if (!have_seq_ || seq <= last_seq_) {
+    ResolvePendingAsRange();  // before the first number (or a restart): how many is not recorded
+  } else {
+    const uint64_t jump = seq - last_seq_ - 1;
+    uint64_t in_file = 0;
+    if (!pending_.empty() || pending_uncounted_) in_file = pending_uncounted_ ? jump : std::min(jump, PendingBound());
+    lost_ += in_file;
+    upstream_ += jump - in_file;
+    upstream_gaps_ += jump > in_file;
+    pending_.clear();
+    pending_uncounted_ = false;
+  }
+  have_seq_ = true;
+  last_seq_ = seq;
+}
+
+void SequenceLossCounter::End() {
+  while (next_chunk_ < reader_->chunks().size()) Pass(next_chunk_++, true);
+  Pass(reader_->chunks().size(), false);  // after the last chunk
+  ResolvePendingAsRange();
+}
+
+std::optional<uint64_t> SequenceLossCounter::lost_max() const {
+  if (unknown_) return std::nullopt;
+  return lost_ + range_;
+}
+
+std::string SequenceLossCounter::Describe() const {
+  if (unknown_) {
+    const std::string why =
+        reader_->diagnostics().ends_before_index ? "the file ends before its index" : "bytes were skipped with no index to count them";
+    return lost_ == 0 ? "unknown: " + why : "at least " + Hex(lost_) + ", unknown beyond: " + why;
+  }
+  return range_ == 0 ? Hex(lost_) : Hex(lost_) + " to " + Hex(lost_ + range_);
 }
 
 }  // namespace d3d

@@ -23,11 +23,20 @@ void FuzzRecordingOnce(const uint8_t* data, size_t size) {
       }
       if (total > bytes.size()) std::abort();
       std::vector<RecordedMessage> msgs;
+      SequenceLossCounter lost(r.get());  // channel 0's messages numbered by their place in the file
+      uint64_t seq = 0;
       for (size_t i = 0; i < r->chunks().size(); ++i) {
         const bool ok = r->ReadChunk(i, &msgs).ok();
         if (ok && msgs.size() != r->chunks()[i].message_count) std::abort();
         if (!ok && !msgs.empty()) std::abort();
+        if (!ok && !r->diagnostics().damaged()) std::abort();  // a lost chunk makes the file damaged
+        lost.Chunk(i, ok);
+        for (const RecordedMessage& m : msgs)
+          if (m.channel == 0) lost.Message(seq++, m.data.size());
       }
+      lost.End();
+      if (lost.lost_max() && *lost.lost_max() < lost.lost_min()) std::abort();
+      if (r->diagnostics().LossSummary().empty() || lost.Describe().empty()) std::abort();
       break;
     }
     case 1: {

@@ -3,7 +3,11 @@
 // summary instead. Damaged recordings: every intact chunk is replayed; what was lost is reported.
 //
 // Exit codes: 0 fine, 1 DDS/publish failure, 2 usage or unreadable file (wrong magic, newer
-// version, damaged header), 3 read with losses (damaged or cut-off chunks; the rest was used).
+// version, damaged header), 3 a damaged file was read (every finding: damaged or cut-off chunks, a
+// file that ends before its index, a damaged index or footer, bytes after the end; the rest was
+// used), with what was lost on stderr: chunks and messages, and bursts (from the sequence numbers:
+// exact across lost chunks between bursts, a range before the first or after the last burst read,
+// unknown after the last chunk of a file that ends before its index).
 #include <CLI/CLI.hpp>
 #include <chrono>
 #include <cmath>
@@ -28,61 +32,72 @@ void OnSignal(int) { g_stop = 1; }
 struct Summary {
   int64_t messages = 0, bursts = 0, infos = 0, statuses = 0, undecodable = 0;
   int64_t first_ns = 0, last_ns = 0;
-  uint64_t gaps = 0, missing = 0, pixel_bytes = 0;
+  uint64_t pixel_bytes = 0;
   std::map<std::string, int64_t> sizes;  // "640x480x8 4 frames" -> bursts
-  std::string calibration_source;
 };
+
+// What a damaged recording lost, on stderr (the file named): each finding, then the totals.
+void ReportDamage(const RecordingReader& r, const std::string& path, const SequenceLossCounter* bursts) {
+  for (const auto& p : r.diagnostics().problems) std::fprintf(stderr, "d3d-replay: %s: damaged: %s\n", path.c_str(), p.c_str());
+  std::fprintf(stderr, "d3d-replay: %s is damaged; every intact chunk was read; lost: %s%s%s (exit 3)\n", path.c_str(),
+               r.diagnostics().LossSummary().c_str(), bursts != nullptr ? "; bursts lost: " : "",
+               bursts != nullptr ? bursts->Describe().c_str() : "");
+}
 
 int PrintInfo(RecordingReader* r, const std::string& path) {
   Summary s;
   const RecordingChannel* cb = r->header().FindTopic(proto::kTopicPhaseBurst);
   const RecordingChannel* ci = r->header().FindTopic(proto::kTopicProbeInfo);
-  bool have_seq = false;
-  uint64_t next_seq = 0;
-  r->ForEach([&](const RecordedMessage& m) {
-    ++s.messages;
-    if (s.first_ns == 0 || m.log_time_ns < s.first_ns) s.first_ns = m.log_time_ns;
-    s.last_ns = std::max(s.last_ns, m.log_time_ns);
-    if (cb != nullptr && m.channel == cb->id) {
-      proto::BurstMsg b;
-      if (!proto::Decode(m.data, &b).ok()) {
-        ++s.undecodable;
-        return true;
+  SequenceLossCounter lost(r);
+  std::vector<RecordedMessage> msgs;
+  for (size_t c = 0; c < r->chunks().size(); ++c) {
+    const bool ok = r->ReadChunk(c, &msgs).ok();
+    lost.Chunk(c, ok);
+    if (!ok) continue;
+    for (const RecordedMessage& m : msgs) {
+      ++s.messages;
+      if (s.first_ns == 0 || m.log_time_ns < s.first_ns) s.first_ns = m.log_time_ns;
+      s.last_ns = std::max(s.last_ns, m.log_time_ns);
+      if (cb != nullptr && m.channel == cb->id) {
+        proto::BurstMsg b;
+        if (!proto::Decode(m.data, &b).ok()) {
+          ++s.undecodable;
+          continue;
+        }
+        ++s.bursts;
+        s.pixel_bytes += b.PixelBytes();
+        s.sizes[std::to_string(b.width) + "x" + std::to_string(b.height) + "x" + std::to_string(b.bit_depth) + " bit, " +
+                std::to_string(b.frames.size()) + " frames"]++;
+        lost.Message(b.burst_seq, m.data.size());
+      } else if (ci != nullptr && m.channel == ci->id) {
+        ++s.infos;
+      } else {
+        ++s.statuses;
       }
-      ++s.bursts;
-      s.pixel_bytes += b.PixelBytes();
-      s.sizes[std::to_string(b.width) + "x" + std::to_string(b.height) + "x" + std::to_string(b.bit_depth) + " bit, " +
-              std::to_string(b.frames.size()) + " frames"]++;
-      if (have_seq && b.burst_seq > next_seq) {
-        ++s.gaps;
-        s.missing += b.burst_seq - next_seq;
-      }
-      have_seq = true;
-      next_seq = b.burst_seq + 1;
-    } else if (ci != nullptr && m.channel == ci->id) {
-      ++s.infos;
-    } else {
-      ++s.statuses;
     }
-    return true;
-  });
+  }
+  lost.End();
   const RecordingHeader& h = r->header();
+  const RecordingDiagnostics& d = r->diagnostics();
   std::printf("recording:     %s (format %d.%d, protocol %d.%d)\n", path.c_str(), h.format_major, h.format_minor,
               h.protocol_version / 100, h.protocol_version % 100);
   std::printf("probe:         %s, calibration %s\n", h.probe_serial.empty() ? "(unknown)" : h.probe_serial.c_str(),
               h.calibration_json.empty() ? "absent" : "present");
   std::printf("duration:      %.3f s\n", s.messages > 0 ? static_cast<double>(s.last_ns - s.first_ns) * 1e-9 : 0.0);
-  std::printf("chunks:        %zu (%s)\n", r->chunks().size(), r->diagnostics().index_used ? "indexed" : "scanned: no valid index");
+  std::printf("chunks:        %zu (%s)\n", r->chunks().size(), d.index_used ? "indexed" : "scanned: no valid index");
   std::printf("messages:      %lld (bursts %lld, ProbeInfo %lld, ProbeStatus %lld)\n", static_cast<long long>(s.messages),
               static_cast<long long>(s.bursts), static_cast<long long>(s.infos), static_cast<long long>(s.statuses));
   for (const auto& [k, n] : s.sizes) std::printf("burst size:    %s: %lld bursts\n", k.c_str(), static_cast<long long>(n));
   std::printf("pixel bytes:   %.1f MB\n", static_cast<double>(s.pixel_bytes) / 1e6);
-  std::printf("sequence gaps: %llu (%llu bursts missing)\n", static_cast<unsigned long long>(s.gaps), static_cast<unsigned long long>(s.missing));
+  std::printf("sequence gaps: %llu in intact data (%llu bursts missing upstream, before the recorder)\n",
+              static_cast<unsigned long long>(lost.upstream_gaps()), static_cast<unsigned long long>(lost.missing_upstream()));
+  std::printf("lost:          %s\n", d.LossSummary().c_str());
+  std::printf("bursts lost:   %s\n", lost.Describe().c_str());
   if (s.undecodable > 0) std::printf("undecodable:   %lld bursts\n", static_cast<long long>(s.undecodable));
-  for (const auto& p : r->diagnostics().problems) std::fprintf(stderr, "d3d-replay: damaged: %s\n", p.c_str());
-  const bool losses = r->diagnostics().corrupt_chunks > 0 || r->diagnostics().skipped_bytes > 0 || s.undecodable > 0;
-  if (losses) std::fprintf(stderr, "d3d-replay: %s is damaged; every intact chunk was read (exit 3)\n", path.c_str());
-  return losses ? 3 : 0;
+  if (d.damaged()) ReportDamage(*r, path, &lost);
+  if (s.undecodable > 0)
+    std::fprintf(stderr, "d3d-replay: %s: %lld bursts do not decode (exit 3)\n", path.c_str(), static_cast<long long>(s.undecodable));
+  return d.damaged() || s.undecodable > 0 ? 3 : 0;
 }
 
 }  // namespace
@@ -121,7 +136,7 @@ int main(int argc, char** argv) {
 
   std::unique_ptr<RecordingReader> reader;
   if (const Status s = RecordingReader::OpenFile(path, &reader); !s.ok()) {
-    std::fprintf(stderr, "d3d-replay: %s: %s\n", path.c_str(), s.ToString().c_str());
+    std::fprintf(stderr, "d3d-replay: %s: %s\n", path.c_str(), s.message().c_str());
     return 2;
   }
   if (info) return PrintInfo(reader.get(), path);
@@ -163,13 +178,16 @@ int main(int argc, char** argv) {
   int64_t published = 0, failures = 0;
   uint64_t seq_offset = 0, max_seq = 0;
   std::vector<d3d_proto_ImageFrame> storage;
-  bool info_sent = false;
+  bool info_sent = false, looped = false;
   std::vector<RecordedMessage> msgs;
+  SequenceLossCounter lost(reader.get());  // the first pass over the file
   do {
     int64_t t0_file = -1;
     const auto t0_wall = std::chrono::steady_clock::now();
     for (size_t c = 0; c < reader->chunks().size() && !g_stop; ++c) {
-      if (!reader->ReadChunk(c, &msgs).ok()) continue;  // damaged: reported at the end
+      const bool ok = reader->ReadChunk(c, &msgs).ok();
+      if (!looped) lost.Chunk(c, ok);
+      if (!ok) continue;  // damaged: reported at the end
       for (const RecordedMessage& m : msgs) {
         if (g_stop || (frames > 0 && published >= frames)) break;
         if (t0_file < 0) t0_file = m.log_time_ns + static_cast<int64_t>(start_s * 1e9);
@@ -185,6 +203,7 @@ int main(int argc, char** argv) {
             ++failures;
             continue;
           }
+          if (!looped) lost.Message(b.burst_seq, m.data.size());
           max_seq = std::max(max_seq, b.burst_seq);
           b.burst_seq += seq_offset;
           d3d_proto_PhaseBurst s;
@@ -210,6 +229,8 @@ int main(int argc, char** argv) {
         if (rc < 0) ++failures;
       }
     }
+    if (!looped && !g_stop) lost.End();
+    looped = true;
     seq_offset += max_seq + 1;
   } while (loop && !g_stop && !(frames > 0 && published >= frames));
   bar.Finish();
@@ -217,8 +238,7 @@ int main(int argc, char** argv) {
   (void)dds_wait_for_acks(ws, DDS_SECS(2));
   std::printf("d3d-replay: published %lld bursts, %lld failures%s\n", static_cast<long long>(published), static_cast<long long>(failures),
               acked == DDS_RETCODE_OK ? "" : " (readers did not acknowledge everything)");
-  for (const auto& p : reader->diagnostics().problems) std::fprintf(stderr, "d3d-replay: damaged: %s\n", p.c_str());
+  if (reader->diagnostics().damaged()) ReportDamage(*reader, path, loop || frames > 0 || start_s > 0 || g_stop ? nullptr : &lost);
   if (failures > 0 || acked != DDS_RETCODE_OK) return 1;
-  const bool losses = reader->diagnostics().corrupt_chunks > 0 || reader->diagnostics().skipped_bytes > 0;
-  return losses ? 3 : 0;
+  return reader->diagnostics().damaged() ? 3 : 0;
 }

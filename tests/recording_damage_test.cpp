@@ -1,0 +1,218 @@
+// Damaged recordings through `d3d-replay --info` as a process (issue 55, item 1): every damaged file
+// exits 3 and says what was lost, as far as the file can tell; a file that is no recording exits 2
+// and is never called "newer". The recording is laid out as d3d-record writes one (ProbeInfo first,
+// then bursts with a ProbeStatus every 5), 20 small bursts of seeded pixels, 7 bursts a chunk, so
+// that the figures of the issue come out: a file cut at the first chunk boundary keeps 7 of 20.
+#include <gtest/gtest.h>
+
+#include <cstring>
+#include <filesystem>
+#include <random>
+#include <string>
+
+#include "common/recording/recording.h"
+#include "protocol/codec.h"
+#include "protocol/protocol.h"
+#include "tests/process_util.h"
+
+namespace fs = std::filesystem;
+
+namespace d3d {
+namespace {
+
+using test::ReadFile;
+using test::Spawn;
+using test::Wait;
+
+const std::string kBin = D3D_BIN_DIR;
+constexpr int kBursts = 20;
+
+std::string EncodedBurst(uint64_t seq, std::mt19937* rng) {
+  proto::BurstMsg m;
+  m.serial = "SIM-DAMAGE";
+  m.protocol_version = proto::kProtocolVersion;
+  m.burst_seq = seq;
+  m.pattern_set = "phase4-marker";
+  m.width = 64;
+  m.height = 48;
+  for (int k = 0; k < 4; ++k) {
+    proto::FrameMsg f;
+    f.pattern_index = static_cast<uint16_t>(k);
+    f.timestamp_ns = 1'700'000'000'000'000'000 + static_cast<int64_t>(seq) * 33'333'333 + k * 2'500'000;
+    f.pixels.resize(m.BytesPerFrame());
+    for (auto& p : f.pixels) p = static_cast<uint8_t>((*rng)());
+    m.frames.push_back(std::move(f));
+  }
+  std::string s;
+  proto::Encode(m, &s);
+  return s;
+}
+
+// The recording's bytes and where its chunks are.
+struct Made {
+  std::string bytes;
+  std::vector<ChunkInfo> chunks;
+};
+
+Made MakeRecording(const fs::path& path) {
+  std::mt19937 rng(55);
+  const size_t burst_bytes = EncodedBurst(0, &rng).size();
+  RecordingHeader h;
+  h.protocol_version = proto::kProtocolVersion;
+  h.probe_serial = "SIM-DAMAGE";
+  h.channels = {{0, proto::kTopicPhaseBurst, proto::kSchemaBurst},
+                {1, proto::kTopicProbeInfo, proto::kSchemaInfo},
+                {2, proto::kTopicProbeStatus, proto::kSchemaStatus}};
+  RecordingWriterOptions o;
+  o.chunk_bytes = 7 * burst_bytes;  // ProbeInfo + 7 bursts (+ a status) close a chunk
+  o.chunk_span_ns = int64_t{1} << 62;
+  RecordingWriter w;
+  EXPECT_TRUE(w.Open(path.string(), h, o).ok());
+  int64_t t = 1'700'000'000'000'000'000;
+  proto::InfoMsg info;
+  info.serial = "SIM-DAMAGE";
+  info.calibration_json = std::string(2000, 'c');
+  std::string s;
+  proto::Encode(info, &s);
+  EXPECT_TRUE(w.Add(1, t, s).ok());
+  for (int i = 0; i < kBursts; ++i) {
+    EXPECT_TRUE(w.Add(0, t += 33'333'333, EncodedBurst(static_cast<uint64_t>(i), &rng)).ok());
+    if (i % 5 == 4) {
+      proto::StatusMsg st;
+      st.serial = "SIM-DAMAGE";
+      st.bursts_published = static_cast<uint64_t>(i + 1);
+      s.clear();
+      proto::Encode(st, &s);
+      EXPECT_TRUE(w.Add(2, t + 1, s).ok());
+    }
+  }
+  EXPECT_TRUE(w.Close().ok());
+  Made m;
+  m.bytes = ReadFile(path.string());
+  std::unique_ptr<RecordingReader> r;
+  EXPECT_TRUE(RecordingReader::Open(MemorySource(m.bytes), &r).ok());
+  if (r) m.chunks = r->chunks();
+  return m;
+}
+
+class RecordingDamage : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() / "d3d_recording_damage_test";
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+    made_ = MakeRecording(dir_ / "intact.d3drec");
+    ASSERT_EQ(made_.chunks.size(), 3u) << "ProbeInfo + 7 bursts, 7 bursts, 6 bursts";
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+  // d3d-replay --info on these bytes (written to dir_/name); its exit code, output in *out.
+  int Info(const std::string& name, const std::string& bytes, std::string* out) {
+    const fs::path p = dir_ / name;
+    {
+      std::ofstream f(p, std::ios::binary);
+      f << bytes;
+    }
+    const test::Proc pr = Spawn({kBin + "/d3d-replay", "--info", p.string()}, (dir_ / (name + ".log")).string());
+    const int code = Wait(pr, 60);
+    *out = ReadFile((dir_ / (name + ".log")).string());
+    return code;
+  }
+  const ChunkInfo& chunk(size_t i) const { return made_.chunks[i]; }
+  size_t ChunkEnd(size_t i) const { return chunk(i).offset + 40 + chunk(i).compressed_size; }
+  fs::path dir_;
+  Made made_;
+};
+
+bool Has(const std::string& out, const std::string& what) { return out.find(what) != std::string::npos; }
+
+TEST_F(RecordingDamage, IntactFileExitsZero) {
+  std::string out;
+  EXPECT_EQ(Info("intact.d3drec", made_.bytes, &out), 0) << out;
+  EXPECT_TRUE(Has(out, "bursts 20")) << out;
+  EXPECT_TRUE(Has(out, "lost:          nothing")) << out;
+  EXPECT_FALSE(Has(out, "damaged")) << out;
+}
+
+// A flipped byte in chunk 1's header: the index still lists the chunk and its 8 messages; the
+// burst sequence numbers jump by 7 across it.
+TEST_F(RecordingDamage, FlippedChunkHeaderCountsTheLostBursts) {
+  std::string b = made_.bytes;
+  b[chunk(1).offset + 5] ^= 0x04;
+  std::string out;
+  EXPECT_EQ(Info("header.d3drec", b, &out), 3) << out;
+  EXPECT_TRUE(Has(out, "header.d3drec")) << out;
+  EXPECT_TRUE(Has(out, "bursts 13")) << out;
+  EXPECT_TRUE(Has(out, "lost:          1 chunk, 8 messages")) << out;
+  EXPECT_TRUE(Has(out, "bursts lost:   7\n")) << out;
+}
+
+// Corrupt zstd data in the first chunk: its header says 9 messages; the bursts among them are not
+// recorded per channel, so the count is a range (0 to 7: no more bursts fit its 9 messages' bytes).
+TEST_F(RecordingDamage, CorruptFirstChunkIsNotZeroBurstsMissing) {
+  std::string b = made_.bytes;
+  b[chunk(0).offset + 40 + chunk(0).compressed_size / 2] ^= 0x10;
+  std::string out;
+  EXPECT_EQ(Info("zstd0.d3drec", b, &out), 3) << out;
+  EXPECT_TRUE(Has(out, "lost:          1 chunk, 9 messages")) << out;
+  EXPECT_TRUE(Has(out, "bursts lost:   0 to 7")) << out;
+  EXPECT_FALSE(Has(out, "bursts lost:   0\n")) << out;
+}
+
+TEST_F(RecordingDamage, CorruptMiddleChunkCountsItsBursts) {
+  std::string b = made_.bytes;
+  b[chunk(1).offset + 40 + chunk(1).compressed_size / 2] ^= 0x10;
+  std::string out;
+  EXPECT_EQ(Info("zstd1.d3drec", b, &out), 3) << out;
+  EXPECT_TRUE(Has(out, "bursts lost:   7\n")) << out;
+}
+
+// Cut exactly after chunk 0 (7 of 20 bursts left): no footer, no index, no skipped byte.
+TEST_F(RecordingDamage, CutAtAChunkBoundaryIsKnownAsCut) {
+  std::string out;
+  EXPECT_EQ(Info("cut.d3drec", made_.bytes.substr(0, ChunkEnd(0)), &out), 3) << out;
+  EXPECT_TRUE(Has(out, "bursts 7")) << out;
+  EXPECT_TRUE(Has(out, "unknown: the file ends before its index")) << out;
+}
+
+TEST_F(RecordingDamage, EmptyBodyExitsThree) {
+  std::string out;
+  EXPECT_EQ(Info("empty.d3drec", made_.bytes.substr(0, chunk(0).offset), &out), 3) << out;
+  EXPECT_TRUE(Has(out, "ends before its index")) << out;
+}
+
+// The tail of a closed file damaged after the chunks: nothing lost, still damaged (exit 3).
+TEST_F(RecordingDamage, CutIndexFlippedFooterAndAppendedBytesLoseNothing) {
+  std::string out;
+  const size_t index_at = ChunkEnd(2);
+  EXPECT_EQ(Info("cutindex.d3drec", made_.bytes.substr(0, index_at + 30), &out), 3) << out;
+  EXPECT_TRUE(Has(out, "lost:          nothing")) << out;
+  EXPECT_TRUE(Has(out, "bursts 20")) << out;
+  std::string b = made_.bytes;
+  b[b.size() - 20] ^= 0x01;
+  EXPECT_EQ(Info("footer.d3drec", b, &out), 3) << out;
+  EXPECT_TRUE(Has(out, "lost:          nothing")) << out;
+  EXPECT_TRUE(Has(out, "footer")) << out;
+  std::mt19937 rng(7);
+  std::string garbage(333, '\0');
+  for (auto& c : garbage) c = static_cast<char>(rng());
+  EXPECT_EQ(Info("appended.d3drec", made_.bytes + garbage, &out), 3) << out;
+  EXPECT_TRUE(Has(out, "lost:          nothing")) << out;
+  EXPECT_TRUE(Has(out, "333 bytes after the end")) << out;
+}
+
+// Random bytes after the magic are a damaged header (exit 2), never "a newer format".
+TEST_F(RecordingDamage, RandomBytesAfterTheMagicAreNotANewerFormat) {
+  std::mt19937 rng(59633);
+  for (int trial = 0; trial < 5; ++trial) {
+    std::string b = made_.bytes.substr(0, 8);
+    for (int i = 0; i < 400; ++i) b.push_back(static_cast<char>(rng()));
+    std::string out;
+    EXPECT_EQ(Info("random.d3drec", b, &out), 2) << out;
+    EXPECT_FALSE(Has(out, "newer")) << out;
+    EXPECT_TRUE(Has(out, "random.d3drec")) << out;
+    EXPECT_TRUE(Has(out, "header")) << out;
+  }
+}
+
+}  // namespace
+}  // namespace d3d
