@@ -5,6 +5,7 @@
 // counted, the two runs give bit-identical meshes and poses, and the preview picture shows the
 // model. The second run uses a real window under Xvfb when xvfb-run is installed.
 #include <gtest/gtest.h>
+#include <sys/wait.h>
 
 #include <cstdlib>
 #include <filesystem>
@@ -167,6 +168,42 @@ TEST(ScanReplay, LosslessReplayThroughTheHostGivesTheReportAndAPicture) {
     const double lit = static_cast<double>(cv::countNonZero(middle > 90)) / static_cast<double>(middle.total());
     EXPECT_GT(lit, 0.03) << run << ": the preview looks empty";
   }
+  fs::remove_all(dir);
+}
+
+// A damaged recording (issue 55): the header of its second chunk flipped, so that the 7 bursts in it
+// (306..312) are lost. The replay still scans every intact burst and saves the scan, but warns on
+// stderr naming the file and the loss, counts the 7 lost bursts in report.json and exits 3.
+TEST(ScanReplay, ADamagedRecordingIsScannedWarnedAboutAndExitsThree) {
+  fs::path dir;
+  const std::string rec = FreshRecording("d3d_scan_replay_damaged_test", &dir);
+  ASSERT_FALSE(HasFatalFailure());
+  std::string bytes = ReadAll(rec);
+  {
+    std::unique_ptr<RecordingReader> r;
+    ASSERT_TRUE(RecordingReader::Open(MemorySource(bytes), &r).ok());
+    ASSERT_EQ(r->chunks().size(), 3u) << "7 messages a chunk at 8 MiB (6 bursts and the malformed one, 7 bursts, 3 bursts)";
+    EXPECT_EQ(r->chunks()[1].message_count, 7u);
+    bytes[r->chunks()[1].offset + 5] ^= 0x20;
+  }
+  const fs::path damaged = dir / "damaged.d3drec";
+  std::ofstream(damaged, std::ios::binary) << bytes;
+  const std::string run = kBin + "/d3d-scan --replay " + damaged.string() + " --quiet --no-preview --out " + (dir / "d").string() + " > " +
+                          (dir / "d.out").string() + " 2> " + (dir / "d.err").string();
+  const int status = std::system(run.c_str());
+  const std::string err = ReadAll(dir / "d.err");
+  ASSERT_TRUE(WIFEXITED(status)) << err;
+  EXPECT_EQ(WEXITSTATUS(status), 3) << err;
+  EXPECT_NE(err.find("warning: " + damaged.string() + " is damaged"), std::string::npos) << err;
+  EXPECT_NE(err.find("bursts lost: 7 "), std::string::npos) << err;
+  for (const char* f : {"scan.ply", "scan.stl", "poses.txt", "report.json"}) EXPECT_TRUE(fs::exists(dir / "d" / f)) << f;
+  const nlohmann::json j = nlohmann::json::parse(ReadAll(dir / "d" / "report.json"));
+  EXPECT_EQ(j["bursts_lost_in_recording"], 7);
+  EXPECT_EQ(j["bursts_lost_in_recording_max"], 7);
+  EXPECT_EQ(j["bursts_missing_upstream"], 0) << "the jump lies across the lost chunk, not in intact data";
+  EXPECT_EQ(j["recording_damaged"], true);
+  EXPECT_EQ(j["recording_lost"], "1 chunk, 7 messages");
+  EXPECT_EQ(j["bursts_received"], kCount + 1 - 7);
   fs::remove_all(dir);
 }
 

@@ -53,6 +53,7 @@ Status RecordingBurstSource::Open(const std::string& path, const RecordingSource
   s->o_ = options;
   std::sort(s->o_.select_capture_ns.begin(), s->o_.select_capture_ns.end());
   D3D_RETURN_IF_ERROR(RecordingReader::OpenFile(path, &s->reader_));
+  s->lost_ = SequenceLossCounter(s->reader_.get());
   const RecordingChannel* cb = s->reader_->header().FindTopic(proto::kTopicPhaseBurst);
   if (cb == nullptr) return InvalidArgument(path + ": no " + std::string(proto::kTopicPhaseBurst) + " channel");
   s->burst_channel_ = cb->id;
@@ -79,10 +80,16 @@ BurstSource::Result RecordingBurstSource::Next(IngestedBurst* out) {
   if (o_.max_bursts > 0 && delivered_ >= o_.max_bursts) return Result::kEnd;
   for (;;) {
     if (message_ >= messages_.size()) {
-      if (chunk_ >= reader_->chunks().size()) return Result::kEnd;
+      if (chunk_ >= reader_->chunks().size()) {
+        if (!lost_ended_) lost_.End();
+        lost_ended_ = true;
+        return Result::kEnd;
+      }
       messages_.clear();
       message_ = 0;
-      if (!reader_->ReadChunk(chunk_++, &messages_).ok()) continue;  // damaged: recorded in diagnostics()
+      const bool ok = reader_->ReadChunk(chunk_, &messages_).ok();  // damaged: recorded in diagnostics()
+      lost_.Chunk(chunk_++, ok);
+      if (!ok) continue;
     }
     const RecordedMessage& m = messages_[message_++];
     if (m.channel != burst_channel_) continue;
@@ -100,6 +107,8 @@ BurstSource::Result RecordingBurstSource::Next(IngestedBurst* out) {
       malformed_.fetch_add(1, std::memory_order_relaxed);
       continue;
     }
+    lost_.Message(msg_.burst_seq, m.data.size());  // a malformed burst's number is not to be trusted
+    missing_.store(lost_.missing_upstream(), std::memory_order_relaxed);
     if (!Selected(out->capture_ns)) {  // not one of the chosen views: as if never sent
       skipped_.fetch_add(1, std::memory_order_relaxed);
       continue;

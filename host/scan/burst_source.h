@@ -77,12 +77,17 @@ class RecordingBurstSource final : public BurstSource {
   Result Next(IngestedBurst* out) override;
   // Bursts left out by select_capture_ns (well-formed, not delivered).
   uint64_t skipped() const { return skipped_.load(std::memory_order_relaxed); }
+  // What a damaged recording lost of its bursts (from their burst_seq; missing() counts the jumps
+  // within intact data, lost before the recorder). Read it once Next() has returned kEnd.
+  const SequenceLossCounter& bursts_lost() const { return lost_; }
 
  private:
   bool Selected(int64_t capture_ns) const;
   RecordingSourceOptions o_;
   std::atomic<uint64_t> skipped_{0};
   std::unique_ptr<RecordingReader> reader_;
+  SequenceLossCounter lost_{nullptr};
+  bool lost_ended_ = false;
   ProbeCalibration calibration_;
   uint16_t burst_channel_ = 0;
   size_t chunk_ = 0, message_ = 0;

@@ -2,7 +2,8 @@
 // recording losslessly with --replay), runs the stage graph ingest → reconstruct → register → fuse →
 // preview (host/scan), shows the live preview (viewer/: a GLFW window, or offscreen with
 // --headless), and at the end writes DIR/scan.ply, DIR/scan.stl, DIR/poses.txt, DIR/report.json and
-// DIR/preview.png (and DIR/heatmap.png with a reference).
+// DIR/preview.png (and DIR/heatmap.png with a reference). A replay of a damaged recording scans
+// every intact burst and saves the scan, then says on stderr what the file lost and exits 3.
 //
 // Thread pools are capped here (the tool owns the process): OpenCV and oneTBB to --threads, Mesa's
 // llvmpipe to 1 rendering thread (LP_NUM_THREADS, unless set), so the graph's threads own the cores.
@@ -477,7 +478,16 @@ int main(int argc, char** argv) {
     }
     result.report["threads"] = threads;
     result.report["bin"] = bin;
-    if (rec) result.report["recording_problems"] = rec->diagnostics().problems;
+    if (rec) {
+      result.report["recording_problems"] = rec->diagnostics().problems;
+      // What a damaged recording lost (from the index, the chunk headers and the bursts' numbers):
+      // bursts_missing_upstream counts only the jumps within intact data.
+      const SequenceLossCounter& lost = rec->bursts_lost();
+      result.report["recording_damaged"] = rec->diagnostics().damaged();
+      result.report["recording_lost"] = rec->diagnostics().LossSummary();
+      result.report["bursts_lost_in_recording"] = lost.lost_min();
+      result.report["bursts_lost_in_recording_max"] = lost.lost_max() ? nlohmann::json(*lost.lost_max()) : nlohmann::json(nullptr);
+    }
     if (rec && !replay_views.empty()) {
       result.report["replay_views"] = replay_views;
       result.report["bursts_skipped"] = rec->skipped();
@@ -511,6 +521,13 @@ int main(int argc, char** argv) {
       nlohmann::json brief = result.report;
       brief.erase("events");
       std::printf("%s\n", brief.dump(2).c_str());
+    }
+    if (rec && rec->diagnostics().damaged()) {  // the scan is saved; the input was not whole
+      for (const std::string& p : rec->diagnostics().problems) std::fprintf(stderr, "d3d-scan: %s: damaged: %s\n", replay.c_str(), p.c_str());
+      std::fprintf(stderr,
+                   "d3d-scan: warning: %s is damaged; the scan used every intact chunk and is saved in %s; lost: %s; bursts lost: %s (exit 3)\n",
+                   replay.c_str(), out_dir.c_str(), rec->diagnostics().LossSummary().c_str(), rec->bursts_lost().Describe().c_str());
+      return 3;
     }
   } catch (const std::exception& e) {
     std::fprintf(stderr, "d3d-scan: %s\n", e.what());
