@@ -4,6 +4,7 @@
 // then bursts with a ProbeStatus every 5), 20 small bursts of seeded pixels, 7 bursts a chunk, so
 // that the figures of the issue come out: a file cut at the first chunk boundary keeps 7 of 20.
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <cstring>
 #include <filesystem>
@@ -98,7 +99,8 @@ Made MakeRecording(const fs::path& path) {
 class RecordingDamage : public ::testing::Test {
  protected:
   void SetUp() override {
-    dir_ = fs::temp_directory_path() / "d3d_recording_damage_test";
+    // One folder per test process: CTest runs the cases in parallel.
+    dir_ = fs::temp_directory_path() / ("d3d_recording_damage_test_" + std::to_string(getpid()));
     fs::remove_all(dir_);
     fs::create_directories(dir_);
     made_ = MakeRecording(dir_ / "intact.d3drec");
