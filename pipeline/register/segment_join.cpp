@@ -1,5 +1,8 @@
 #include "pipeline/register/segment_join.h"
 
+#include <cmath>
+#include <cstdio>
+
 #include "common/core/status.h"
 
 namespace d3d {
@@ -80,7 +83,16 @@ SegmentJoinResult JoinSegment(const SegmentJoinTarget& segment, const SegmentJoi
   }
   SegmentJoinResult refined = RefineSegmentJoin(segment, target, r.fpfh.target_from_source, options);
   refined.fpfh = r.fpfh;
-  if (!refined.ok) refined.reason = "after fpfh: " + refined.reason;
+  if (!refined.ok) {
+    // Where the consensus put the segment (main_from_segment's angle and translation): a refused
+    // join that proposes the same pose again and again is one wrong consensus or a right pose the
+    // verification does not hold; the truth tells which (docs/decisions/0011).
+    const Rigid3d& T = r.fpfh.target_from_source;
+    char at[96];
+    std::snprintf(at, sizeof at, "after fpfh (%.1f deg, %.1f mm): ", RotationAngleRad(T, Rigid3d::Identity()) * 180 / M_PI,
+                  T.translation().norm());
+    refined.reason = at + refined.reason;
+  }
   return refined;
 }
 
