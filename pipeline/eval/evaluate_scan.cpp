@@ -122,8 +122,10 @@ MeshClosestPoint::Hit MeshClosestPoint::Closest(const Eigen::Vector3d& p) const 
     }
   }
   if (best.face >= 0) {
-    const double s = impl_->normals[static_cast<size_t>(best.face)].dot(p - best.point);
+    const Eigen::Vector3d offset = p - best.point;
+    const double s = impl_->normals[static_cast<size_t>(best.face)].dot(offset);
     best.signed_mm = s >= 0 ? best.distance_mm : -best.distance_mm;
+    best.past_border = best.on_boundary && (offset - s * impl_->normals[static_cast<size_t>(best.face)]).norm() > kPastBorderMm;
   }
   return best;
 }
@@ -232,7 +234,7 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
     for (size_t i = range.begin(); i < range.end(); ++i) {
       if (i % step) continue;
       const MeshClosestPoint::Hit h = ref.Closest(r.reference_from_scan * scan.vertices[i]);
-      if (h.face < 0 || h.distance_mm > o.max_distance_mm || h.on_boundary) {
+      if (h.face < 0 || h.distance_mm > o.max_distance_mm || h.past_border) {
         state[i] = 2;
         continue;
       }

@@ -34,7 +34,11 @@ class MeshClosestPoint final : public IcpTarget {
     double distance_mm = 0;   // unsigned
     double signed_mm = 0;     // positive on the side the face normal points to
     bool on_boundary = false; // the closest point lies on an open (boundary) edge of the mesh
+    // on_boundary and the point lies past that border: more than kPastBorderMm of its offset is
+    // along the surface, not along the face normal (a point on the border itself is not past it).
+    bool past_border = false;
   };
+  static constexpr double kPastBorderMm = 0.001;
   Hit Closest(const Eigen::Vector3d& p) const;
   // IcpTarget: closest point and its face normal.
   bool Find(const Eigen::Vector3f& query, float max_distance_mm, Eigen::Vector3f* point,
@@ -67,7 +71,7 @@ struct TruenessReport {
   Rigid3d reference_from_scan = Rigid3d::Identity();  // the best fit applied (identity without align)
   double alignment_rmse_mm = 0;
   int64_t points = 0;                 // scan points in the figures
-  double outlier_pct = 0;             // scan points beyond max_distance_mm or past the reference's border
+  double outlier_pct = 0;             // scan points beyond max_distance_mm or past the reference's border (Hit::past_border)
   double rms_um = 0, mean_um = 0, mean_abs_um = 0, p95_um = 0, max_um = 0;  // p95 of |d|
   double coverage_pct = 0;
   // The coverage split (EvaluateOptions::gap_mm): of the counted surface, the area share (%) in

@@ -66,6 +66,25 @@ TEST(EvaluateScan, AReferenceShiftedByAKnownAmount) {
   EXPECT_LT(ga.rms_um, 1.5);
 }
 
+// Issue 55: a mesh against itself gave 1.6 % outliers (its border vertices, whose closest point is
+// on the border), and a scan reaching past the reference's border must still count as outliers.
+TEST(EvaluateScan, AMeshAgainstItselfHasNoOutlierAndAScanPastTheBorderHas) {
+  const TriangleMesh ref = Sheet(-5, 5);
+  const MeshClosestPoint cp(ref);
+  EvaluateOptions o;
+  o.align = false;
+  o.teeth_only_coverage = false;
+  const TruenessReport self = EvaluateTrueness(ref, cp, Rigid3d::Identity(), o);
+  EXPECT_EQ(self.outlier_pct, 0.0);
+  EXPECT_EQ(self.points, static_cast<int64_t>(ref.vertices.size()));
+  EXPECT_LT(self.rms_um, 1e-6);
+  EXPECT_NEAR(self.coverage_pct, 100.0, 1e-9);
+  // A sheet twice as long: the half beyond the reference's border is out of the figures.
+  const TruenessReport wider = EvaluateTrueness(Sheet(-10, 10), cp, Rigid3d::Identity(), o);
+  EXPECT_NEAR(wider.outlier_pct, 50.0, 1.0);
+  EXPECT_LT(wider.rms_um, 1e-6);
+}
+
 TEST(EvaluateScan, TeethFiguresCountOnlyThePointsOnTeeth) {
   // Left half of the reference labelled tooth, right half gingiva; the scan is 20 µm above it on
   // the left and 60 µm on the right.
