@@ -12,8 +12,10 @@
 #include <unordered_map>
 
 #include "common/core/status.h"
+#include "pipeline/register/fpfh.h"
 #include "pipeline/register/kdtree.h"
 #include "pipeline/register/rigid_fit.h"
+#include "pipeline/register/segment_join.h"  // DentalFpfh
 
 namespace d3d {
 
@@ -283,9 +285,22 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
   // Coverage: area samples of the reference (tooth faces when labelled) near a scan vertex.
   const TriangleMesh& R = ref.mesh();
   const bool has_teeth = o.teeth_only_coverage && HasToothFaces(R);
-  std::vector<Eigen::Vector3f> scan_pts(nv);
-  for (size_t i = 0; i < nv; ++i) scan_pts[i] = (r.reference_from_scan * scan.vertices[i]).cast<float>();
-  PointKdTree tree(&scan_pts);
+  // Covered: within coverage_distance_mm of the scan's surface (its faces, not only its vertices:
+  // a coarse mesh's vertices lie further apart than that). A scan without faces: its vertices.
+  TriangleMesh scan_in_ref;
+  scan_in_ref.vertices.resize(nv);
+  for (size_t i = 0; i < nv; ++i) scan_in_ref.vertices[i] = r.reference_from_scan * scan.vertices[i];
+  scan_in_ref.faces = scan.faces;
+  std::vector<Eigen::Vector3f> scan_pts;
+  std::unique_ptr<PointKdTree> vertex_tree;
+  std::unique_ptr<MeshClosestPoint> scan_surface;
+  if (scan.faces.empty()) {
+    scan_pts.resize(nv);
+    for (size_t i = 0; i < nv; ++i) scan_pts[i] = scan_in_ref.vertices[i].cast<float>();
+    vertex_tree = std::make_unique<PointKdTree>(&scan_pts);
+  } else {
+    scan_surface = std::make_unique<MeshClosestPoint>(scan_in_ref);
+  }
   std::mt19937 rng(1);
   std::uniform_real_distribution<double> U(0, 1);
   std::vector<uint8_t> counted(R.faces.size(), 0);
@@ -312,7 +327,9 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
       float d2 = 0;
       ++samples;
       gap_samples += gap;
-      if (tree.Nearest(p.cast<float>(), &d2, cov2) >= 0) {
+      const bool near = scan_surface ? scan_surface->Closest(p).distance_mm <= o.coverage_distance_mm
+                                     : vertex_tree->Nearest(p.cast<float>(), &d2, cov2) >= 0;
+      if (near) {
         ++covered;
         gap_covered += gap;
       }
@@ -331,6 +348,11 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
   return r;
 }
 
+// GlobalAlign's principal-axes starts are kept when their best ICP associates at least this
+// fraction of the scan's samples at a residual at most this (a whole arch against a whole arch,
+// a right fit: the residual is the scan's noise); otherwise FPFH is tried too.
+constexpr double kGlobalAlignFpfhBelowOverlap = 0.8, kGlobalAlignFpfhAboveRmseMm = 0.05;
+
 Rigid3d GlobalAlign(const TriangleMesh& scan, const MeshClosestPoint& ref) {
   auto frame = [](const std::vector<Eigen::Vector3d>& v, Eigen::Vector3d* mean) {
     Eigen::Vector3d m = Eigen::Vector3d::Zero();
@@ -348,7 +370,7 @@ Rigid3d GlobalAlign(const TriangleMesh& scan, const MeshClosestPoint& ref) {
   IcpOptions o = BestFitIcp();
   o.levels = {{4, 30, 5.0, 0.5}, {1, 30, 1.0, 0.9}, {1, 20, 0.3, 1.0}};
   Rigid3d best = Rigid3d::Identity();
-  double best_score = -1;
+  double best_score = -1, best_overlap = 0, best_rmse_mm = 0;
   for (int signs = 0; signs < 4; ++signs) {
     Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
     D(0, 0) = signs & 1 ? -1 : 1;
@@ -362,6 +384,19 @@ Rigid3d GlobalAlign(const TriangleMesh& scan, const MeshClosestPoint& ref) {
     if (score > best_score) {
       best_score = score;
       best = r.target_from_source;
+      best_overlap = r.overlap;
+      best_rmse_mm = r.rmse_mm;
+    }
+  }
+  // A partial scan (a quadrant, a tooth, a cut-out) has principal axes of its own, not the
+  // reference's: when those starts leave much of the scan unmatched or fit it badly, FPFH + RANSAC on both
+  // surfaces (fpfh.h, at the scale of teeth) proposes another start.
+  if (best_overlap < kGlobalAlignFpfhBelowOverlap || best_rmse_mm > kGlobalAlignFpfhAboveRmseMm) {
+    const FpfhOptions fo = DentalFpfh();
+    const FpfhAlignResult a = AlignByFpfh(ComputeFpfh(s, fo), ComputeFpfh(ScanSamples(ref.mesh(), 400000), fo), fo);
+    if (a.ok) {
+      const IcpResult r = RegisterIcp(s, ref, a.target_from_source, o);
+      if (r.overlap - r.rmse_mm > best_score) best = r.target_from_source;
     }
   }
   return best;

@@ -4,17 +4,20 @@
 
 #include <cmath>
 
+#include "pipeline/register/test_surfaces.h"
+
 namespace d3d {
 namespace {
 
-// A bumpy 20 × 10 mm sheet z = h(x, y), triangulated on a 0.1 mm grid, faces toward +z.
-TriangleMesh Sheet(double x0 = -10, double x1 = 10, double step = 0.1) {
+// A bumpy 20 × 10 mm sheet z = h(x, y), triangulated on a 0.1 mm grid, faces toward +z; with
+// `relief`, h is its height field (bumps and blobs at the scale of cusps and fissures).
+TriangleMesh Sheet(double x0 = -10, double x1 = 10, double step = 0.1, const testing::HeightField* relief = nullptr) {
   TriangleMesh m;
-  const int nx = static_cast<int>(std::lround((x1 - x0) / step)) + 1, ny = 101;
+  const int nx = static_cast<int>(std::lround((x1 - x0) / step)) + 1, ny = static_cast<int>(std::lround(10 / step)) + 1;
   for (int j = 0; j < ny; ++j)
     for (int i = 0; i < nx; ++i) {
       const double x = x0 + i * step, y = -5 + j * step;
-      m.vertices.emplace_back(x, y, 0.8 * std::sin(0.7 * x) * std::cos(0.9 * y) + 0.3 * std::sin(2.3 * x + 1.1 * y));
+      m.vertices.emplace_back(x, y, relief ? relief->Height(x, y) : 0.8 * std::sin(0.7 * x) * std::cos(0.9 * y) + 0.3 * std::sin(2.3 * x + 1.1 * y));
     }
   for (int j = 0; j + 1 < ny; ++j)
     for (int i = 0; i + 1 < nx; ++i) {
@@ -79,10 +82,33 @@ TEST(EvaluateScan, AMeshAgainstItselfHasNoOutlierAndAScanPastTheBorderHas) {
   EXPECT_EQ(self.points, static_cast<int64_t>(ref.vertices.size()));
   EXPECT_LT(self.rms_um, 1e-6);
   EXPECT_NEAR(self.coverage_pct, 100.0, 1e-9);
+  // The same surface as a coarse mesh (vertices 0.5 mm apart, more than the 0.2 mm coverage
+  // distance): covered all the same (issue 55: the real arch against itself gave 21.7 %).
+  const TruenessReport coarse = EvaluateTrueness(Sheet(-5, 5, 0.5), cp, Rigid3d::Identity(), o);
+  EXPECT_GT(coarse.coverage_pct, 99.0);
   // A sheet twice as long: the half beyond the reference's border is out of the figures.
   const TruenessReport wider = EvaluateTrueness(Sheet(-10, 10), cp, Rigid3d::Identity(), o);
   EXPECT_NEAR(wider.outlier_pct, 50.0, 1.0);
   EXPECT_LT(wider.rms_um, 1e-6);
+}
+
+// Issue 55: a partial scan (here a third of the reference) has principal axes of its own; the
+// global alignment must still find it (FPFH when the principal-axes starts leave it unmatched).
+TEST(EvaluateScan, GlobalAlignFindsAPartialScan) {
+  const testing::HeightField relief(11);
+  const TriangleMesh ref = Sheet(-10, 10, 0.1, &relief);
+  const MeshClosestPoint cp(ref);
+  Rigid3d far = Rigid3d::Identity();
+  far.linear() = Eigen::AngleAxisd(2.0, Eigen::Vector3d(0.3, -0.4, 1).normalized()).toRotationMatrix();
+  far.translation() = Eigen::Vector3d(-30, 12, 25);
+  TriangleMesh part = Sheet(-10, -3.5, 0.1, &relief);
+  for (auto& v : part.vertices) v = far * v;
+  EvaluateOptions o;
+  o.teeth_only_coverage = false;
+  const TruenessReport r = EvaluateTrueness(part, cp, GlobalAlign(part, cp), o);
+  EXPECT_LT(r.rms_um, 1.5);
+  EXPECT_LT(r.outlier_pct, 1.0);
+  EXPECT_LT(TranslationDistanceMm(r.reference_from_scan, far.inverse()), 0.01);
 }
 
 TEST(EvaluateScan, TeethFiguresCountOnlyThePointsOnTeeth) {
