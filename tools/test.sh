@@ -59,13 +59,14 @@ TSAN_OPTIONS="halt_on_error=1 suppressions=$D3D_ROOT/tools/tsan.supp" "$tsan/tes
 TSAN_OPTIONS="halt_on_error=1 suppressions=$D3D_ROOT/tools/tsan.supp" "$tsan/tests/d3d_register_test" \
   --gtest_filter='TrackerScan.KeyframeWorkOffTrackGivesTheSameScan' --gtest_brief=1
 
+lap "the TSan tests"
+
 # libFuzzer targets (clang), D3D_FUZZ_SECONDS each (default 15 s), one per core at a time.
 fuzz_s="${D3D_FUZZ_SECONDS:-15}"
 fuzz="$D3D_ROOT/build-fuzz"
 CC=clang CXX=clang++ cmake -G Ninja -S "$D3D_ROOT" -B "$fuzz" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DD3D_FUZZ=ON \
   -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ >/dev/null
 targets=$(cmake --build "$fuzz" --target help | sed -n 's/^\(d3d_[a-z_]*_fuzz\):.*/\1/p')
-lap "the TSan tests"
 cmake --build "$fuzz" -j"$(nproc)" --target $targets
 lap "the fuzzer build"
 run_fuzzer() {  # run_fuzzer TARGET: 0 when it ran its time without a crash
