@@ -285,21 +285,25 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
   // Coverage: area samples of the reference (tooth faces when labelled) near a scan vertex.
   const TriangleMesh& R = ref.mesh();
   const bool has_teeth = o.teeth_only_coverage && HasToothFaces(R);
-  // Covered: within coverage_distance_mm of the scan's surface (its faces, not only its vertices:
-  // a coarse mesh's vertices lie further apart than that). A scan without faces: its vertices.
-  TriangleMesh scan_in_ref;
-  scan_in_ref.vertices.resize(nv);
-  for (size_t i = 0; i < nv; ++i) scan_in_ref.vertices[i] = r.reference_from_scan * scan.vertices[i];
-  scan_in_ref.faces = scan.faces;
-  std::vector<Eigen::Vector3f> scan_pts;
-  std::unique_ptr<PointKdTree> vertex_tree;
+  // Covered: within coverage_distance_mm of a scan vertex, or, for a coarse mesh (edges longer on
+  // average than half that distance, whose vertices lie further apart than it), of its surface.
+  // A fused scan's vertices are dense enough (0.05 mm voxels) and its millions of faces would
+  // make the surface search the evaluation's largest cost.
+  std::vector<Eigen::Vector3f> scan_pts(nv);
+  for (size_t i = 0; i < nv; ++i) scan_pts[i] = (r.reference_from_scan * scan.vertices[i]).cast<float>();
+  PointKdTree tree(&scan_pts);
   std::unique_ptr<MeshClosestPoint> scan_surface;
-  if (scan.faces.empty()) {
-    scan_pts.resize(nv);
-    for (size_t i = 0; i < nv; ++i) scan_pts[i] = scan_in_ref.vertices[i].cast<float>();
-    vertex_tree = std::make_unique<PointKdTree>(&scan_pts);
-  } else {
-    scan_surface = std::make_unique<MeshClosestPoint>(scan_in_ref);
+  {
+    double edge_sum = 0;
+    const size_t faces = std::min<size_t>(scan.faces.size(), 100000);
+    for (size_t f = 0; f < faces; ++f) edge_sum += (scan.vertices[scan.faces[f][1]] - scan.vertices[scan.faces[f][0]]).norm();
+    if (faces > 0 && edge_sum / static_cast<double>(faces) > 0.5 * o.coverage_distance_mm) {
+      TriangleMesh scan_in_ref;
+      scan_in_ref.vertices.resize(nv);
+      for (size_t i = 0; i < nv; ++i) scan_in_ref.vertices[i] = r.reference_from_scan * scan.vertices[i];
+      scan_in_ref.faces = scan.faces;
+      scan_surface = std::make_unique<MeshClosestPoint>(scan_in_ref);
+    }
   }
   std::mt19937 rng(1);
   std::uniform_real_distribution<double> U(0, 1);
@@ -327,8 +331,8 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
       float d2 = 0;
       ++samples;
       gap_samples += gap;
-      const bool near = scan_surface ? scan_surface->Closest(p).distance_mm <= o.coverage_distance_mm
-                                     : vertex_tree->Nearest(p.cast<float>(), &d2, cov2) >= 0;
+      const bool near = tree.Nearest(p.cast<float>(), &d2, cov2) >= 0 ||
+                        (scan_surface && scan_surface->Closest(p).distance_mm <= o.coverage_distance_mm);
       if (near) {
         ++covered;
         gap_covered += gap;
