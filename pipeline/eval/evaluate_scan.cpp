@@ -282,7 +282,7 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
     r.max_um = *std::max_element(absd.begin(), absd.end());
   }
   r.outlier_pct = evaluated ? 100.0 * static_cast<double>(outliers) / static_cast<double>(evaluated) : 0;
-  // Coverage: area samples of the reference (tooth faces when labelled) near a scan vertex.
+  // Coverage: area samples of the reference (tooth faces when labelled) near the scan.
   const TriangleMesh& R = ref.mesh();
   const bool has_teeth = o.teeth_only_coverage && HasToothFaces(R);
   // Covered: within coverage_distance_mm of a scan vertex, or, for a coarse mesh (edges longer on
@@ -393,8 +393,8 @@ Rigid3d GlobalAlign(const TriangleMesh& scan, const MeshClosestPoint& ref) {
     }
   }
   // A partial scan (a quadrant, a tooth, a cut-out) has principal axes of its own, not the
-  // reference's: when those starts leave much of the scan unmatched or fit it badly, FPFH + RANSAC on both
-  // surfaces (fpfh.h, at the scale of teeth) proposes another start.
+  // reference's: when those starts leave much of the scan unmatched or fit it badly, FPFH +
+  // RANSAC on both surfaces (fpfh.h, at the scale of teeth) proposes another start.
   if (best_overlap < kGlobalAlignFpfhBelowOverlap || best_rmse_mm > kGlobalAlignFpfhAboveRmseMm) {
     const FpfhOptions fo = DentalFpfh();
     const FpfhAlignResult a = AlignByFpfh(ComputeFpfh(s, fo), ComputeFpfh(ScanSamples(ref.mesh(), 400000), fo), fo);

@@ -95,8 +95,8 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
 // A coarse global alignment when no initial pose is known: principal axes of both vertex sets
 // (4 sign hypotheses) each refined by ICP; the best (overlap, then residual) wins. When that best
 // leaves more than a fifth of the scan unmatched or fits at more than 50 µm RMS (a partial scan: a
-// quadrant, a tooth), FPFH +
-// RANSAC at the scale of teeth (fpfh.h, DentalFpfh: Rusu et al. 2009) proposes one more start.
+// quadrant, a tooth), FPFH + RANSAC at the scale of teeth (fpfh.h, DentalFpfh: Rusu et al. 2009)
+// proposes one more start.
 Rigid3d GlobalAlign(const TriangleMesh& scan, const MeshClosestPoint& reference);
 
 // Precision between two scans of the same object (ISO 5725-1: closeness of repeated
