@@ -49,15 +49,15 @@ lap "the ASan + UBSan tests"
 # Concurrency under ThreadSanitizer: the renderer's parallel loops (same output on 1 and 2 threads).
 tsan="$D3D_ROOT/build-tsan"
 cmake -G Ninja -S "$D3D_ROOT" -B "$tsan" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DD3D_SANITIZE=thread >/dev/null
-cmake --build "$tsan" -j"$(nproc)" --target d3d_virtual_probe_test d3d_graph_test d3d_register_test
+cmake --build "$tsan" -j"$(nproc)" --target d3d_virtual_probe_test d3d_graph_test d3d_tracker_worker_test
 lap "the TSan build"
 TSAN_OPTIONS="halt_on_error=1 suppressions=$D3D_ROOT/tools/tsan.supp" \
   "$tsan/tests/d3d_virtual_probe_test" --gtest_filter='*AnyThreadCount*' --gtest_brief=1
 # The host's stage graph (issue 6): random stage delays, live and lossless edges, triple buffer.
 TSAN_OPTIONS="halt_on_error=1 suppressions=$D3D_ROOT/tools/tsan.supp" "$tsan/tests/d3d_graph_test" --gtest_brief=1
 # The tracker's keyframe-feature worker thread (issue 6): same scan as without it.
-TSAN_OPTIONS="halt_on_error=1 suppressions=$D3D_ROOT/tools/tsan.supp" "$tsan/tests/d3d_register_test" \
-  --gtest_filter='TrackerScan.KeyframeWorkOffTrackGivesTheSameScan' --gtest_brief=1
+TSAN_OPTIONS="halt_on_error=1 suppressions=$D3D_ROOT/tools/tsan.supp" "$tsan/tests/d3d_tracker_worker_test" \
+  --gtest_brief=1
 
 lap "the TSan tests"
 
