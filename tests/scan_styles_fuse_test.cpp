@@ -1,6 +1,6 @@
 // The offline chain (d3d-fuse as a process) over a short stretch of scan-path styles that break a
-// scan (issue 50): no view may be fused at a wrong pose (wrong_fusions: off by > 0.2 mm or > 1°
-// from the truth), and the scan must go on after the break: the views after it are placed on the
+// scan (issue 50): no view may be fused at a wrong pose (wrong_fusions: its footprint off by
+// > 0.2 mm, or turned > 1°, from the truth), and the scan must go on after the break: the views after it are placed on the
 // model again (a re-entry, or a segment that joins), or kept apart in a segment of their own,
 // never fused at a guess.
 #include <gtest/gtest.h>

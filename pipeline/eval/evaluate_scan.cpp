@@ -1,14 +1,16 @@
 #include "pipeline/eval/evaluate_scan.h"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <Eigen/Eigenvalues>
 #include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
 #include <map>
 #include <opencv2/imgproc.hpp>
+#include <optional>
 #include <random>
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
 #include <unordered_map>
 
 #include "common/core/status.h"
@@ -145,6 +147,7 @@ void EvaluateOptions::Check() const {
                 "EvaluateOptions: invalid value");
   D3D_CHECK_MSG(gap_mm >= 0 && gap_mm <= 10,
                 "EvaluateOptions: gap_mm must be in [0, 10], got " << gap_mm);
+  D3D_CHECK_MSG(footprint_depth_mm > 0, "EvaluateOptions: footprint_depth_mm must be positive, got " << footprint_depth_mm);
 }
 
 namespace {
@@ -527,6 +530,25 @@ AteReport AbsoluteTrajectoryError(const std::vector<Rigid3d>& est, const std::ve
   r.mean_deg = sr / static_cast<double>(est.size());
   if (out) *out = T;
   return r;
+}
+
+std::vector<Eigen::Vector3d> ViewFootprint(const PinholeBrownConrady& camera, double depth_mm) {
+  D3D_CHECK_MSG(depth_mm > 0, "the footprint's depth must be positive, not " << depth_mm << " mm");
+  const double w = camera.width - 1, h = camera.height - 1;
+  std::vector<Eigen::Vector3d> footprint;
+  for (const Eigen::Vector2d& px :
+       {Eigen::Vector2d(w / 2, h / 2), Eigen::Vector2d(0, 0), Eigen::Vector2d(w, 0), Eigen::Vector2d(0, h), Eigen::Vector2d(w, h)}) {
+    const std::optional<Eigen::Vector3d> ray = camera.PixelRay(px);  // (x, y, 1): z = depth
+    if (ray) footprint.push_back(*ray * depth_mm);
+  }
+  return footprint;
+}
+
+double FootprintDistanceMm(const Rigid3d& estimate, const Rigid3d& truth, const std::vector<Eigen::Vector3d>& footprint_in_cam) {
+  if (footprint_in_cam.empty()) return TranslationDistanceMm(estimate, truth);
+  double d = 0;
+  for (const Eigen::Vector3d& p : footprint_in_cam) d = std::max(d, (estimate * p - truth * p).norm());
+  return d;
 }
 
 RpeReport RelativePoseError(const std::vector<Rigid3d>& est, const std::vector<Rigid3d>& truth) {

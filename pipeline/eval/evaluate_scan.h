@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "calib/model/camera_model.h"
 #include "common/burst/burst.h"
 #include "common/core/rigid.h"
 #include "common/mesh/mesh.h"
@@ -64,6 +65,9 @@ struct EvaluateOptions {
   // only along it). 0 = no split.
   double gap_mm = 1.0;
   int max_scan_points = 400000;       // scan vertices evaluated (evenly subsampled beyond)
+  // The depth (mm) of a view's footprint (ViewFootprint) for its pose error: the probe's working
+  // distance (the default probe's: 50 mm, the middle of its 42–58 mm measurement volume).
+  double footprint_depth_mm = 50.0;
   void Check() const;
 };
 
@@ -148,6 +152,25 @@ struct RpeReport {
   int steps = 0;
 };
 RpeReport RelativePoseError(const std::vector<Rigid3d>& estimate, const std::vector<Rigid3d>& truth);
+
+// Where a fused view's pose error is judged (issue 50's wrong fusions): the view's footprint, the
+// points (camera frame, mm) at depth_mm along the rays of the image's centre and four corner
+// pixels. A view's surface lies there (depth_mm: the probe's working distance), so the largest
+// displacement of these points is how far the view's surface was fused off; the camera centre's
+// displacement adds the lever of a rotation about the surface (a view turned 0.23° about its
+// surface moves its camera centre 0.2 mm at 50 mm and its surface 0.015 mm). Pixels whose ray the
+// model cannot give are left out. Throws std::invalid_argument for depth_mm ≤ 0.
+std::vector<Eigen::Vector3d> ViewFootprint(const PinholeBrownConrady& camera, double depth_mm);
+
+// The largest distance (mm) between estimate·p and truth·p over the points p of footprint_in_cam
+// (camera frame, mm; estimate and truth: world_from_cam); the camera centres' distance when the
+// footprint is empty.
+double FootprintDistanceMm(const Rigid3d& estimate, const Rigid3d& truth, const std::vector<Eigen::Vector3d>& footprint_in_cam);
+
+// A wrong fusion (issue 50): a fused view whose footprint (ViewFootprint) is off by more than
+// kWrongFusionMm, or whose rotation is off by more than kWrongFusionDeg, from the truth after the
+// scan's best fit: a view placed on the wrong tooth, not noise.
+constexpr double kWrongFusionMm = 0.2, kWrongFusionDeg = 1.0;
 
 // The part of a reference surface that the probe saw, from the simulator's truth maps: the
 // acquisition's own coverage limit, against which a scan's coverage_pct reads (a face no view saw

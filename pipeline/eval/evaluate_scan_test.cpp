@@ -350,5 +350,34 @@ TEST(EvaluateScan, HeatMapHasTheScanAndABar) {
   EXPECT_TRUE(blue_left || red_left) << left << " " << right;
 }
 
+// A view turned about its own surface: its camera centre moves by the lever of the working distance,
+// its footprint (the surface it sees) hardly; a view shifted moves both alike. The wrong-fusion rule
+// judges the footprint.
+TEST(ViewFootprint, MeasuresWhereTheViewsSurfaceMovesNotTheCameraCentre) {
+  const PinholeBrownConrady cam{640, 480, 2000, 2000, 319.5, 239.5, 0, 0, 0, 0, 0};
+  const std::vector<Eigen::Vector3d> foot = ViewFootprint(cam, 50.0);
+  ASSERT_EQ(foot.size(), 5u);
+  EXPECT_NEAR((foot[0] - Eigen::Vector3d(0, 0, 50)).norm(), 0.0, 1e-9);  // the image centre
+  for (const Eigen::Vector3d& p : foot) EXPECT_NEAR(p.z(), 50.0, 1e-9);
+  EXPECT_NEAR(foot[4].x(), 319.5 / 2000 * 50, 1e-9);  // a corner: 8 mm off the axis
+  EXPECT_THROW(ViewFootprint(cam, 0.0), std::invalid_argument);
+
+  const Rigid3d truth = testing::LookDown(2, -1, 30);
+  // 0.23° about x through the point of the surface 50 mm in front of the camera: the corners
+  // (5.99 mm off the axis along y) move by 5.99 · 2 sin(θ/2) = 0.024 mm.
+  Rigid3d turn = Rigid3d::Identity();
+  const Eigen::Vector3d pivot(0, 0, 50);
+  turn.linear() = Eigen::AngleAxisd(0.23 * M_PI / 180, Eigen::Vector3d::UnitX()).toRotationMatrix();
+  turn.translation() = pivot - turn.linear() * pivot;
+  const Rigid3d turned = truth * turn;
+  EXPECT_GT(TranslationDistanceMm(turned, truth), kWrongFusionMm);  // the camera centre: 0.2 mm
+  EXPECT_NEAR(FootprintDistanceMm(turned, truth, foot), 239.5 / 2000 * 50 * 2 * std::sin(0.23 * M_PI / 360), 1e-9);
+  // Shifted 0.3 mm: both.
+  Rigid3d shift = Rigid3d::Identity();
+  shift.translation() = Eigen::Vector3d(0.3, 0, 0);
+  EXPECT_NEAR(FootprintDistanceMm(truth * shift, truth, foot), 0.3, 1e-9);
+  EXPECT_NEAR(FootprintDistanceMm(truth * shift, truth, {}), 0.3, 1e-9);  // no footprint: the centre
+}
+
 }  // namespace
 }  // namespace d3d

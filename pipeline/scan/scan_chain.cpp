@@ -539,13 +539,13 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   j["events"] = registrar->events();
   if (truth.reference != nullptr && !truth.reference->faces.empty() && !out->poses.empty())
     EvaluateScanAgainstScene(out->mesh, *truth.reference, out->poses, have_truth_poses ? acc_truth : std::vector<Rigid3d>{},
-                             options.eval, &j, &out->heatmap);
+                             ViewFootprint(fuser->camera(), options.eval.footprint_depth_mm), options.eval, &j, &out->heatmap);
   return Status::Ok();
 }
 
 void EvaluateScanAgainstScene(const TriangleMesh& mesh, const TriangleMesh& scene, const std::vector<Rigid3d>& poses,
-                              const std::vector<Rigid3d>& true_poses, const EvaluateOptions& options, nlohmann::json* report,
-                              cv::Mat* heatmap) {
+                              const std::vector<Rigid3d>& true_poses, const std::vector<Eigen::Vector3d>& footprint_in_cam,
+                              const EvaluateOptions& options, nlohmann::json* report, cv::Mat* heatmap) {
   nlohmann::json& j = *report;
   const bool have_truth_poses = !true_poses.empty() && true_poses.size() == poses.size();
   const MeshClosestPoint ref(scene);
@@ -558,31 +558,35 @@ void EvaluateScanAgainstScene(const TriangleMesh& mesh, const TriangleMesh& scen
   if (have_truth_poses) {
     // ATE in the frame of the surface best fit (the trajectory-only alignment is ill-posed for
     // short, nearly straight paths); the trajectory-aligned figure is kept too.
-    // A wrong fusion: a fused view whose pose is off by more than kWrongFusionMm or kWrongFusionDeg
-    // (camera centre, after the best fit): a view placed on the wrong tooth, never noise.
-    constexpr double kWrongFusionMm = 0.2, kWrongFusionDeg = 1.0;
-    double s2 = 0, sr = 0, smax = 0, rmax = 0;
-    int64_t wrong = 0;
+    // Wrong fusions (kWrongFusionMm, kWrongFusionDeg) judge the view's footprint (ViewFootprint);
+    // the camera centre's count is kept beside them for comparison with earlier reports.
+    double s2 = 0, sr = 0, smax = 0, rmax = 0, fmax = 0;
+    int64_t wrong = 0, wrong_by_centre = 0;
     nlohmann::json wrong_views = nlohmann::json::array();  // the first 50: where to look
     for (size_t k = 0; k < poses.size(); ++k) {
       const Rigid3d e = t.reference_from_scan * poses[k];
       const double d = TranslationDistanceMm(e, true_poses[k]);
+      const double f = FootprintDistanceMm(e, true_poses[k], footprint_in_cam);
       const double r = RotationAngleRad(e, true_poses[k]) * 180 / M_PI;
       s2 += d * d;
       smax = std::max(smax, d);
+      fmax = std::max(fmax, f);
       rmax = std::max(rmax, r);
       sr += r;
-      if (d > kWrongFusionMm || r > kWrongFusionDeg) {
+      wrong_by_centre += d > kWrongFusionMm || r > kWrongFusionDeg;
+      if (f > kWrongFusionMm || r > kWrongFusionDeg) {
         ++wrong;
-        if (wrong_views.size() < 50) wrong_views.push_back({{"pose", k}, {"mm", d}, {"deg", r}});
+        if (wrong_views.size() < 50) wrong_views.push_back({{"pose", k}, {"mm", f}, {"centre_mm", d}, {"deg", r}});
       }
     }
     j["ate_mm"] = std::sqrt(s2 / static_cast<double>(poses.size()));
     j["ate_deg"] = sr / static_cast<double>(poses.size());
     j["ate_max_mm"] = smax;
     j["ate_max_deg"] = rmax;
-    j["wrong_fusions"] = wrong;  // fused views off by > 0.2 mm or > 1 deg
-    j["wrong_fusion_views"] = wrong_views;  // pose: line of poses.txt (0-based, after the header)
+    j["footprint_max_mm"] = fmax;                           // the largest footprint error of any fused view
+    j["wrong_fusions"] = wrong;                             // fused views whose footprint is off by > 0.2 mm, or turned > 1 deg
+    j["wrong_fusions_by_camera_centre"] = wrong_by_centre;  // the same rule at the camera centre
+    j["wrong_fusion_views"] = wrong_views;                  // pose: line of poses.txt (0-based, after the header); mm: footprint
     j["ate_trajectory_aligned_mm"] = ate_traj.rmse_mm;
     j["ate_trajectory_aligned_deg"] = ate_traj.mean_deg;
     // Where the trajectory jumped (views in poses.txt order, 0-based): see RelativePoseError.

@@ -333,7 +333,9 @@ struct ScanResult {
 // with a reference: trueness_rms_um, trueness_mean_um, trueness_mean_abs_um, trueness_p95_um,
 // coverage_pct, best_fit_rmse_um, and ate_mm / ate_deg and rpe_mm / rpe_deg / rpe_max_mm /
 // rpe_max_pose (relative pose error between consecutive views; NaN-free: only when true poses are known),
-// wrong_fusions (views off by > 0.2 mm or > 1°) and wrong_fusion_views (the first 50: pose index, mm, deg).
+// wrong_fusions (views whose footprint, ViewFootprint at eval.footprint_depth_mm, is off by > 0.2 mm,
+// or turned > 1°), wrong_fusions_by_camera_centre (the same rule at the camera centre),
+// footprint_max_mm and wrong_fusion_views (the first 50: pose index, footprint mm, centre_mm, deg).
 // INTERNAL when the model is empty (no view accepted).
 [[nodiscard]] Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegistrar* registrar, ScanFuser* fuser,
                                 const ScanViewProvider& provider, const ScanTruth& truth, ScanResult* out);
@@ -341,12 +343,13 @@ struct ScanResult {
 // The evaluation part of FinishScan, for tools that run their own chain (d3d-fuse): best fit of
 // `mesh` (model frame, mm) to `scene` (world frame) — started from the trajectory alignment when
 // `true_poses` (world_from_cam, one per entry of `poses`, model_from_cam) are given, else from
-// GlobalAlign — then trueness, coverage and, with true poses, ATE, added to `report` under the
-// keys listed at FinishScan; the deviation heat map (50 µm full scale) into `heatmap` if not null.
+// GlobalAlign — then trueness, coverage and, with true poses, ATE and the wrong fusions judged at
+// `footprint_in_cam` (ViewFootprint; empty: the camera centre), added to `report` under the keys
+// listed at FinishScan; the deviation heat map (50 µm full scale) into `heatmap` if not null.
 // Source: pipeline/eval (EvaluateTrueness, AbsoluteTrajectoryError).
 void EvaluateScanAgainstScene(const TriangleMesh& mesh, const TriangleMesh& scene, const std::vector<Rigid3d>& poses,
-                              const std::vector<Rigid3d>& true_poses, const EvaluateOptions& options, nlohmann::json* report,
-                              cv::Mat* heatmap);
+                              const std::vector<Rigid3d>& true_poses, const std::vector<Eigen::Vector3d>& footprint_in_cam,
+                              const EvaluateOptions& options, nlohmann::json* report, cv::Mat* heatmap);
 
 // Writes scan.ply, scan.stl, poses.txt, report.json (and heatmap.png) into `dir` (created).
 [[nodiscard]] Status WriteScanOutputs(const std::string& dir, const ScanResult& result);

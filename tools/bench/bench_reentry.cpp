@@ -14,7 +14,8 @@
 // search's own prior.
 // Each trial view the tracker accepted into the main model is checked against the truth relative
 // to the scan's view nearest it (the scan's own drift is no error here): off by more than 0.2 mm or
-// 1° is a false accept (as report.json's wrong_fusions), else right; a trial with no accepted view
+// 1° is a false accept (report.json's wrong_fusions: kWrongFusionMm at the view's footprint,
+// kWrongFusionDeg), else right; a trial with no accepted view
 // is refused. Prints a table by start (and the largest error of the right ones); --json one object.
 #include <CLI/CLI.hpp>
 #include <cmath>
@@ -31,8 +32,6 @@
 using namespace d3d;
 
 namespace {
-
-constexpr double kWrongMm = 0.2, kWrongDeg = 1.0;  // as report.json's wrong_fusions
 
 struct Start {
   std::string name;
@@ -85,6 +84,7 @@ class Chain {
     return Register(sequence);
   }
   ScanRegistrar& registrar() { return registrar_; }
+  const PinholeBrownConrady& camera() const { return recon_.calibration().camera; }  // the views' (binned)
 
  private:
   TrackResult Register(uint64_t sequence) {
@@ -102,10 +102,11 @@ class Chain {
 
 struct Scan {
   std::vector<Rigid3d> est, truth;  // the scan's views in the main model
+  std::vector<Eigen::Vector3d> footprint;  // ViewFootprint of the view camera: where errors are judged
 };
 
 // The pose error of a trial view (est, truth) relative to the scan's view nearest it (by true
-// position): (E_j⁻¹ E)⁻¹ (T_j⁻¹ T), mm at the camera centre and degrees. Relative to a neighbour the
+// position): (E_j⁻¹ E)⁻¹ (T_j⁻¹ T), mm at the view's footprint and degrees. Relative to a neighbour the
 // scan placed, its drift is no error here, and no alignment's own error enters.
 void ErrorAgainstNearest(const Scan& scan, const Rigid3d& est, const Rigid3d& truth, double* mm, double* deg) {
   size_t j = 0;
@@ -115,7 +116,7 @@ void ErrorAgainstNearest(const Scan& scan, const Rigid3d& est, const Rigid3d& tr
     if (d < best) best = d, j = i;
   }
   const Rigid3d e = scan.est[j].inverse() * est, t = scan.truth[j].inverse() * truth;
-  *mm = TranslationDistanceMm(e, t);
+  *mm = FootprintDistanceMm(e, t, scan.footprint);
   *deg = RotationAngleRad(e, t) * 180 / M_PI;
 }
 
@@ -127,7 +128,7 @@ std::vector<Tally> Evaluate(const std::vector<TrialView>& views, size_t starts, 
     if (!v.accepted) continue;
     double mm, deg;
     ErrorAgainstNearest(scan, v.est, v.truth, &mm, &deg);
-    if (mm > kWrongMm || deg > kWrongDeg) {
+    if (mm > kWrongFusionMm || deg > kWrongFusionDeg) {
       o = 2;
       tally[v.start].worst_mm = std::max(tally[v.start].worst_mm, mm);
       tally[v.start].worst_deg = std::max(tally[v.start].worst_deg, deg);
@@ -210,8 +211,10 @@ int main(int argc, char** argv) {
     std::vector<std::vector<cv::Mat>> frames(bursts.size());
     std::vector<Rigid3d> truth(bursts.size());
     std::vector<TrackResult> tracked(bursts.size());
+    std::vector<Eigen::Vector3d> footprint;
     {
       Chain chain(*session, so, every);
+      footprint = ViewFootprint(chain.camera(), EvaluateOptions{}.footprint_depth_mm);
       for (size_t i = 0; i < bursts.size(); ++i) {
         chain.Render(bursts[i], identity, static_cast<uint64_t>(bursts[i]), &frames[i], &truth[i]);
         tracked[i] = chain.Feed(frames[i], static_cast<uint64_t>(bursts[i]));
@@ -219,6 +222,7 @@ int main(int argc, char** argv) {
       }
     }
     Scan scan;
+    scan.footprint = footprint;
     for (size_t i = 0; i < bursts.size(); ++i)
       if (tracked[i].accepted && tracked[i].in_main) {
         scan.est.push_back(tracked[i].world_from_cam);

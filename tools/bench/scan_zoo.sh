@@ -3,8 +3,9 @@
 # the evaluation against the scene) over the named scan-path styles (firmware/sim/trajectory/
 # scan_styles.h), seeds and arches of issue 50, and one table of what must hold: trueness RMS / p95,
 # coverage (and that of the open surface, outside narrow gaps: docs/decisions/0009), ATE, the
-# largest pose error of any fused view against the truth, and wrong fusions
-# (fused views off by > 0.2 mm or > 1 deg). A run's outputs stay in OUT/ARCH/STYLE_sSEED; a run
+# largest pose error of any fused view against the truth (camera centre: max mm, max deg; its
+# footprint, the surface it sees: foot mm), and wrong fusions (fused views whose footprint is off by
+# > 0.2 mm or turned > 1 deg; centre: the same rule at the camera centre). A run's outputs stay in OUT/ARCH/STYLE_sSEED; a run
 # whose report.json is there is not run again (the zoo is long: start it in the background, stop
 # it, start it again).
 set -euo pipefail
@@ -101,7 +102,7 @@ import json, os, statistics, sys
 out, lst = sys.argv[1], sys.argv[2]
 rows, fails = [], []
 print(f"{'arch':<22} {'style':<14} {'seed':>4} {'in model':>9} {'RMS um':>7} {'p95 um':>7} {'cov %':>6} {'open %':>6} {'ATE mm':>7}"
-      f" {'max mm':>7} {'max deg':>7} {'wrong':>6} {'reloc':>5} {'seg/join':<7} {'apart':>5}")
+      f" {'max mm':>7} {'max deg':>7} {'foot mm':>7} {'wrong':>6} {'centre':>6} {'reloc':>5} {'seg/join':<7} {'apart':>5}")
 for line in open(lst):
     a, st, s = line.split()
     name = os.path.splitext(os.path.basename(a))[0]
@@ -119,7 +120,8 @@ for line in open(lst):
     rows.append((name, st, j))
     if why: fails.append(f"{name} {st} seed {s}: " + ", ".join(why))
     print(f"{name:<22} {st:<14} {s:>4} {j.get('views_in_model', j['fused']):>4}/{j['bursts']:<4} {g('trueness_rms_um'):7.2f} {g('trueness_p95_um'):7.2f}"
-          f" {g('coverage_pct'):6.2f} {g('coverage_open_pct'):6.2f} {g('ate_mm'):7.3f} {g('ate_max_mm'):7.3f} {g('ate_max_deg'):7.3f} {g('wrong_fusions'):>6}"
+          f" {g('coverage_pct'):6.2f} {g('coverage_open_pct'):6.2f} {g('ate_mm'):7.3f} {g('ate_max_mm'):7.3f} {g('ate_max_deg'):7.3f} {g('footprint_max_mm'):7.3f}"
+          f" {g('wrong_fusions'):>6} {g('wrong_fusions_by_camera_centre'):>6}"
           f" {g('relocalised'):>5} {j.get('segments_started', 0):>3}/{j.get('segments_joined', 0):<3} {j.get('views_apart', 0):>5}")
 for name in sorted({r[0] for r in rows}):
     full = [r[2]["trueness_rms_um"] for r in rows if r[0] == name and r[1] == "full-arch" and "trueness_rms_um" in r[2]]
