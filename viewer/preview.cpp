@@ -12,6 +12,8 @@ const char* PreviewCueText(PreviewCue c) {
     case PreviewCue::kPaused: return "PAUSED";
     case PreviewCue::kNewSegment: return "NEW SEGMENT";
     case PreviewCue::kSlowDown: return "SLOW DOWN";
+    case PreviewCue::kLostSlowDown:
+      return "LOST - SLOW DOWN";
   }
   return "?";
 }

@@ -16,9 +16,10 @@ namespace d3d {
 // The colour cue of the preview (tracking states of pipeline/register plus the host's own).
 // kNewSegment: the scan goes on in a segment of its own (the model could not be found there), to be
 // joined to the model once they overlap (SegmentOptions::after_views).
-enum class PreviewCue : uint8_t { kWaiting, kTracking, kLost, kRelocalised, kProbeLost, kPaused, kNewSegment, kSlowDown };
+enum class PreviewCue : uint8_t { kWaiting, kTracking, kLost, kRelocalised, kProbeLost, kPaused, kNewSegment, kSlowDown, kLostSlowDown };
 // "WAITING FOR PROBE", "TRACKING", "LOST", "RELOCALISED", "PROBE LOST", "PAUSED", "NEW SEGMENT",
-// "SLOW DOWN" (tracking, but the host keeps too few bursts for the probe's speed: host/scan/pace_monitor.h)
+// "SLOW DOWN" (tracking, but the host keeps too few bursts for the probe's speed: host/scan/pace_monitor.h),
+// "LOST - SLOW DOWN" (lost, and the host keeps too few bursts to track at the probe's pace)
 const char* PreviewCueText(PreviewCue c);
 
 struct PreviewSnapshot {

@@ -33,6 +33,8 @@ cv::Scalar CueColourBgr(PreviewCue c) {
     case PreviewCue::kPaused: return {200, 120, 40};
     case PreviewCue::kNewSegment: return {230, 160, 0};  // blue: scanning on, apart from the model
     case PreviewCue::kSlowDown: return {0, 200, 255};     // amber: tracking, the host falls behind the hand
+    case PreviewCue::kLostSlowDown:
+      return {40, 40, 220};  // as lost: the host fell so far behind that the track failed
     case PreviewCue::kWaiting: return {128, 128, 128};
   }
   return {255, 255, 255};

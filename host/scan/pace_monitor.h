@@ -9,9 +9,12 @@
 // on in segments. Slowing the hand is what the dentist can do about it.
 //
 // Rule, over the processed views of the last window_s of capture time: the host kept less than
-// max_kept_share of the bursts the probe sent (from the bursts' sequence numbers) and the median
-// translation between consecutive tracked views exceeds min_step_mm. The advice then holds until the
-// rule has not held for hold_s (no flicker).
+// max_kept_share of the bursts the probe sent (from the bursts' sequence numbers), and either the
+// median translation between consecutive tracked views exceeds min_step_mm, or the track already
+// fails at this pace: at least min_lost_views of the window's views, and more than half, had points
+// the tracker could not place (a host that falls far behind keeps views too far apart to track, and
+// then has no steps to measure: 1 burst in 15 on a slow machine, docs/decisions/0006). The advice
+// then holds until the rule has not held for hold_s (no flicker).
 //
 // Threads: one thread's (the preview stage's).
 #pragma once
@@ -31,7 +34,8 @@ struct PaceOptions {
   // gate (TrackerOptionsForStep at d3d-scan's live step 6: 0.8·√6 = 1.96 mm).
   double min_step_mm = 1.0;
   double hold_s = 1.0;           // an advice stays this long after the rule last held
-  int min_views = 4;             // views in the window before any advice
+  int min_views = 4;             // views in the window before an advice by the step
+  int min_lost_views = 2;        // views the tracker could not place, in the window, before an advice by them
   void Check() const;            // throws std::invalid_argument
 };
 
@@ -39,12 +43,14 @@ class PaceMonitor {
  public:
   explicit PaceMonitor(const PaceOptions& options = {});
   // One processed view, in order: the burst's sequence number and capture time (ns), and its pose
-  // when it was tracked (accepted while tracking; else nullptr: the view only counts as kept).
-  // Returns whether the dentist should slow down now.
-  bool Add(uint64_t burst_seq, int64_t capture_ns, const Rigid3d* world_from_cam);
+  // when it was tracked (accepted while tracking; else nullptr: the view only counts as kept);
+  // lost: the view had points the tracker could not place (refused while lost, not for too few
+  // points). Returns whether the dentist should slow down now.
+  bool Add(uint64_t burst_seq, int64_t capture_ns, const Rigid3d* world_from_cam, bool lost = false);
   int64_t advices() const { return advices_; }  // times the advice came on
   double kept_share() const { return kept_share_; }  // over the window, at the last Add
   double step_mm() const { return step_mm_; }        // median step over the window, at the last Add (0: too few)
+  int lost_views() const { return lost_views_; }     // views of the window the tracker could not place, at the last Add
   void Reset();  // a new scan (a reset graph): no history
 
  private:
@@ -52,6 +58,7 @@ class PaceMonitor {
     uint64_t burst_seq;
     int64_t capture_ns;
     bool tracked;
+    bool lost;
     Rigid3d pose;
   };
   PaceOptions o_;
@@ -61,6 +68,7 @@ class PaceMonitor {
   int64_t advised_since_ns_ = 0;
   int64_t advices_ = 0;
   double kept_share_ = 1.0, step_mm_ = 0.0;
+  int lost_views_ = 0;
 };
 
 }  // namespace d3d

@@ -72,5 +72,35 @@ TEST(PaceMonitor, ViewsThatWereNotTrackedGiveNoStepAndARestartedProbeStartsAgain
   EXPECT_THROW(PaceMonitor(PaceOptions{.window_s = 0}), std::invalid_argument);
 }
 
+// A host that falls far behind (1 burst in 15 on a slow machine at one core's quota) keeps views
+// too far apart to track: the tracker refuses them while lost, there is no step to measure, and the
+// dentist must still be told. A lifted probe (views without points) is no such sign, nor are lost
+// views of a host that keeps up.
+TEST(PaceMonitor, AHostSoFarBehindThatTheTrackFailsAdvises) {
+  PaceMonitor behind;
+  bool advice = false;
+  for (uint64_t seq = 0; seq < 90; seq += 15) advice = behind.Add(seq, static_cast<int64_t>(seq) * kBurstNs, nullptr, true);
+  EXPECT_TRUE(advice) << "lost views 15 bursts apart";
+  EXPECT_GE(behind.lost_views(), 2);
+  EXPECT_EQ(behind.advices(), 1);
+
+  PaceMonitor lifted;
+  for (uint64_t seq = 0; seq < 90; seq += 15) EXPECT_FALSE(lifted.Add(seq, static_cast<int64_t>(seq) * kBurstNs, nullptr, false));
+
+  PaceMonitor keeping_up;
+  for (uint64_t seq = 0; seq < 90; ++seq) EXPECT_FALSE(keeping_up.Add(seq, static_cast<int64_t>(seq) * kBurstNs, nullptr, true));
+  EXPECT_EQ(keeping_up.advices(), 0);
+
+  // Lost now and then among tracked views of a slow hand: fewer than half lost, no advice.
+  PaceMonitor mostly_tracked;
+  Rigid3d pose = Rigid3d::Identity();
+  for (uint64_t seq = 0; seq < 90; seq += 5) {
+    const bool lost = seq % 15 == 0;
+    pose.translation().x() = 2.0 * static_cast<double>(seq) * kBurstNs * 1e-9;
+    EXPECT_FALSE(mostly_tracked.Add(seq, static_cast<int64_t>(seq) * kBurstNs, lost ? nullptr : &pose, lost)) << seq;
+  }
+  EXPECT_THROW(PaceMonitor(PaceOptions{.min_lost_views = 0}), std::invalid_argument);
+}
+
 }  // namespace
 }  // namespace d3d

@@ -321,12 +321,18 @@ bool ScanApp::PreviewStage(ScanItem& item) {
   s.tan_half_y = static_cast<float>(0.5 * cam.height / cam.fy);
   s.near_mm = static_cast<float>(calibration_.depth_min_mm);
   s.far_mm = static_cast<float>(calibration_.depth_max_mm);
-  // While tracking, the host keeping too few bursts for how fast the probe moves says so (pace_monitor.h).
+  // The host keeping too few bursts for how fast the probe moves, or so few that the track fails,
+  // says so (pace_monitor.h): while tracking, and while lost, where slowing down is how the track
+  // comes back.
   const bool tracked = !item.control && item.track.accepted && item.track.state == TrackingState::kTracking && !apart;
-  const bool slow_down = !item.control && pace_.Add(item.burst.burst_seq, item.burst.capture_ns, tracked ? &item.track.world_from_cam : nullptr);
+  const bool lost = !item.control && !item.track.accepted && item.track.state == TrackingState::kLost && !item.track.too_few_points;
+  const bool slow_down =
+      !item.control && pace_.Add(item.burst.burst_seq, item.burst.capture_ns, tracked ? &item.track.world_from_cam : nullptr, lost);
   if (!item.control) pace_advices_.store(pace_.advices(), std::memory_order_relaxed);
-  s.cue = apart ? PreviewCue::kNewSegment
-                : (slow_down && item.track.state == TrackingState::kTracking ? PreviewCue::kSlowDown : CueOf(item.track.state));
+  PreviewCue cue = apart ? PreviewCue::kNewSegment : CueOf(item.track.state);
+  if (slow_down && cue == PreviewCue::kTracking) cue = PreviewCue::kSlowDown;
+  if (slow_down && cue == PreviewCue::kLost) cue = PreviewCue::kLostSlowDown;
+  s.cue = cue;
   s.bursts_in_model = preview_model_.views_in_model();
   if (!item.control) last_burst_seq_ = item.burst.burst_seq;
   s.last_burst_seq = last_burst_seq_;

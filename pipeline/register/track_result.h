@@ -43,6 +43,9 @@ struct TrackResult {
   double prediction_offset_mm = std::numeric_limits<double>::quiet_NaN();
   double prediction_offset_deg = std::numeric_limits<double>::quiet_NaN();
   double ms = 0;
+  // Refused before registration: the view had too few points to register (a lifted probe, a view
+  // out of the measurement volume), not a view the tracker failed to place.
+  bool too_few_points = false;
 };
 
 }  // namespace d3d

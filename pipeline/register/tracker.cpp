@@ -92,6 +92,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     // tracking state is kept; the motion model restarts with the next view.
     out.state = state_;
     out.reason = "too few points in the view (" + std::to_string(samples.size()) + ")";
+    out.too_few_points = true;
     ++views_without_points_;
     out.ms = Ms(t0);
     return out;
