@@ -109,6 +109,15 @@ TEST_F(RelocaliserTest, TheLocalSearchFindsAViewBackNearWhereItLeft) {
   TrackResult off;
   EXPECT_FALSE(relocaliser_.SearchLocally(Samples(View(Truth(25), 501)), true, &off, &from_prediction));
   EXPECT_NE(off.reason.find("from the last pose"), std::string::npos) << off.reason;
+  // Without a velocity the prediction is the last pose: that start is registered once, and its
+  // result stands for both (the same pose as registering it twice, at half the cost).
+  motion_.ForgetVelocity();
+  TrackResult again;
+  EXPECT_FALSE(relocaliser_.SearchLocally(Samples(View(Truth(25), 501)), true, &again, &from_prediction));
+  EXPECT_NE(again.reason.find("from the last pose: as from the prediction"), std::string::npos) << again.reason;
+  TrackResult back;
+  ASSERT_TRUE(relocaliser_.SearchLocally(Samples(View(truth, 500)), true, &back, &from_prediction)) << back.reason;
+  EXPECT_LT(TranslationDistanceMm(back.world_from_cam, truth), 0.01);
 }
 
 // Farther than the local search reaches, keyframe features place the view.
