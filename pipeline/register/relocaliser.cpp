@@ -148,9 +148,9 @@ bool Relocaliser::SearchLocally(const SurfacePoints& samples, bool gap, TrackRes
   const Eigen::Vector3d centre_in_cam = samples.Centroid();
   int found = -1;
   for (size_t i = 0; i < starts.size(); ++i) {
-    // A start equal bit for bit to an earlier one gives that one's result: skipped (when lost the
-    // prediction is the last pose, and the nearest keyframe often the last view's pose; each such
-    // ICP cost ~20-40 ms at the wide gate).
+    // A start equal bit for bit to an earlier one gives that one's result: skipped. When lost, the
+    // prediction is the last pose, and the nearest keyframe is often that pose too; each repeat was
+    // a wide-gate ICP (docs/decisions/0013).
     size_t same = 0;
     while (same < i && std::memcmp(starts[same].data(), starts[i].data(), sizeof(double) * 16) != 0) ++same;
     if (same < i) {
