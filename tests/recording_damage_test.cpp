@@ -8,8 +8,10 @@
 
 #include <cstring>
 #include <filesystem>
+#include <nlohmann/json.hpp>
 #include <random>
 #include <string>
+#include <vector>
 
 #include "common/recording/recording.h"
 #include "protocol/codec.h"
@@ -107,14 +109,16 @@ class RecordingDamage : public ::testing::Test {
     ASSERT_EQ(made_.chunks.size(), 3u) << "ProbeInfo + 7 bursts, 7 bursts, 6 bursts";
   }
   void TearDown() override { fs::remove_all(dir_); }
-  // d3d-replay --info on these bytes (written to dir_/name); its exit code, output in *out.
-  int Info(const std::string& name, const std::string& bytes, std::string* out) {
+  // d3d-replay --info (and `extra`) on these bytes (written to dir_/name); its exit code, output in *out.
+  int Info(const std::string& name, const std::string& bytes, std::string* out, const std::vector<std::string>& extra = {}) {
     const fs::path p = dir_ / name;
     {
       std::ofstream f(p, std::ios::binary);
       f << bytes;
     }
-    const test::Proc pr = Spawn({kBin + "/d3d-replay", "--info", p.string()}, (dir_ / (name + ".log")).string());
+    std::vector<std::string> args = {kBin + "/d3d-replay", "--info", p.string()};
+    args.insert(args.end(), extra.begin(), extra.end());
+    const test::Proc pr = Spawn(args, (dir_ / (name + ".log")).string());
     const int code = Wait(pr, 60);
     *out = ReadFile((dir_ / (name + ".log")).string());
     return code;
@@ -146,6 +150,27 @@ TEST_F(RecordingDamage, FlippedChunkHeaderCountsTheLostBursts) {
   EXPECT_TRUE(Has(out, "bursts 13")) << out;
   EXPECT_TRUE(Has(out, "lost:          1 chunk, 8 messages")) << out;
   EXPECT_TRUE(Has(out, "bursts lost:   7\n")) << out;
+}
+
+// The same damage summarised as JSON (--json): one object on stdout with the same counts, the damage
+// report still on stderr, the same exit code.
+TEST_F(RecordingDamage, TheJsonSummaryHoldsTheSameCounts) {
+  std::string b = made_.bytes;
+  b[chunk(1).offset + 5] ^= 0x04;
+  std::string out;
+  EXPECT_EQ(Info("header_json.d3drec", b, &out, {"--json"}), 3) << out;
+  const size_t at = out.find("{\"");
+  ASSERT_NE(at, std::string::npos) << out;
+  const nlohmann::json j = nlohmann::json::parse(out.substr(at, out.find('\n', at) - at));
+  EXPECT_EQ(j["bursts"], 13);
+  EXPECT_EQ(j["bursts_lost_min"], 7);
+  EXPECT_EQ(j["bursts_lost_max"], 7);
+  EXPECT_EQ(j["damaged"], true);
+  EXPECT_EQ(j["lost"], "1 chunk, 8 messages");
+  EXPECT_TRUE(Has(out, "is damaged")) << out;  // stderr
+  std::string intact;
+  EXPECT_EQ(Info("intact_json.d3drec", made_.bytes, &intact, {"--json"}), 0) << intact;
+  EXPECT_EQ(nlohmann::json::parse(intact.substr(intact.find("{\"")))["bursts"], 20);
 }
 
 // Corrupt zstd data in the first chunk: its header says 9 messages; the bursts among them are not

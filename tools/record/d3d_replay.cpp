@@ -14,6 +14,8 @@
 #include <csignal>
 #include <cstdio>
 #include <map>
+#include <nlohmann/json.hpp>
+#include <optional>
 #include <thread>
 
 #include "common/core/progress.h"
@@ -44,7 +46,60 @@ void ReportDamage(const RecordingReader& r, const std::string& path, const Seque
                bursts != nullptr ? bursts->Describe().c_str() : "");
 }
 
-int PrintInfo(RecordingReader* r, const std::string& path) {
+// The summary as text (--info), a field a line.
+void PrintInfoText(const RecordingReader& r, const std::string& path, const Summary& s, const SequenceLossCounter& lost) {
+  const RecordingHeader& h = r.header();
+  const RecordingDiagnostics& d = r.diagnostics();
+  std::printf("recording:     %s (format %d.%d, protocol %d.%d)\n", path.c_str(), h.format_major, h.format_minor, h.protocol_version / 100,
+              h.protocol_version % 100);
+  std::printf("probe:         %s, calibration %s\n", h.probe_serial.empty() ? "(unknown)" : h.probe_serial.c_str(),
+              h.calibration_json.empty() ? "absent" : "present");
+  std::printf("duration:      %.3f s\n", s.messages > 0 ? static_cast<double>(s.last_ns - s.first_ns) * 1e-9 : 0.0);
+  std::printf("chunks:        %zu (%s)\n", r.chunks().size(), d.index_used ? "indexed" : "scanned: no valid index");
+  std::printf("messages:      %lld (bursts %lld, ProbeInfo %lld, ProbeStatus %lld)\n", static_cast<long long>(s.messages),
+              static_cast<long long>(s.bursts), static_cast<long long>(s.infos), static_cast<long long>(s.statuses));
+  for (const auto& [k, n] : s.sizes) std::printf("burst size:    %s: %lld bursts\n", k.c_str(), static_cast<long long>(n));
+  std::printf("pixel bytes:   %.1f MB\n", static_cast<double>(s.pixel_bytes) / 1e6);
+  std::printf("sequence gaps: %llu in intact data (%llu bursts missing upstream, before the recorder)\n",
+              static_cast<unsigned long long>(lost.upstream_gaps()), static_cast<unsigned long long>(lost.missing_upstream()));
+  std::printf("lost:          %s\n", d.LossSummary().c_str());
+  std::printf("bursts lost:   %s\n", lost.Describe().c_str());
+  if (s.undecodable > 0) std::printf("undecodable:   %lld bursts\n", static_cast<long long>(s.undecodable));
+}
+
+// The summary as one JSON object (--info --json), the same fields as the text.
+void PrintInfoJson(const RecordingReader& r, const std::string& path, const Summary& s, const SequenceLossCounter& lost) {
+  const RecordingHeader& h = r.header();
+  const RecordingDiagnostics& d = r.diagnostics();
+  nlohmann::json sizes = nlohmann::json::object();
+  for (const auto& [k, n] : s.sizes) sizes[k] = n;
+  const std::optional<uint64_t> lost_max = lost.lost_max();
+  const nlohmann::json j = {{"recording", path},
+                            {"format", std::to_string(h.format_major) + "." + std::to_string(h.format_minor)},
+                            {"protocol", std::to_string(h.protocol_version / 100) + "." + std::to_string(h.protocol_version % 100)},
+                            {"probe_serial", h.probe_serial},
+                            {"calibration", !h.calibration_json.empty()},
+                            {"duration_s", s.messages > 0 ? static_cast<double>(s.last_ns - s.first_ns) * 1e-9 : 0.0},
+                            {"chunks", r.chunks().size()},
+                            {"indexed", d.index_used},
+                            {"messages", s.messages},
+                            {"bursts", s.bursts},
+                            {"probe_info", s.infos},
+                            {"probe_status", s.statuses},
+                            {"burst_sizes", sizes},
+                            {"pixel_bytes", s.pixel_bytes},
+                            {"sequence_gaps", lost.upstream_gaps()},
+                            {"bursts_missing_upstream", lost.missing_upstream()},
+                            {"damaged", d.damaged()},
+                            {"lost", d.LossSummary()},
+                            {"bursts_lost", lost.Describe()},
+                            {"bursts_lost_min", lost.lost_min()},
+                            {"bursts_lost_max", lost_max ? nlohmann::json(*lost_max) : nlohmann::json(nullptr)},  // null: unknown
+                            {"undecodable", s.undecodable}};
+  std::printf("%s\n", j.dump().c_str());
+}
+
+int PrintInfo(RecordingReader* r, const std::string& path, bool json) {
   Summary s;
   const RecordingChannel* cb = r->header().FindTopic(proto::kTopicPhaseBurst);
   const RecordingChannel* ci = r->header().FindTopic(proto::kTopicProbeInfo);
@@ -77,23 +132,11 @@ int PrintInfo(RecordingReader* r, const std::string& path) {
     }
   }
   lost.End();
-  const RecordingHeader& h = r->header();
   const RecordingDiagnostics& d = r->diagnostics();
-  std::printf("recording:     %s (format %d.%d, protocol %d.%d)\n", path.c_str(), h.format_major, h.format_minor,
-              h.protocol_version / 100, h.protocol_version % 100);
-  std::printf("probe:         %s, calibration %s\n", h.probe_serial.empty() ? "(unknown)" : h.probe_serial.c_str(),
-              h.calibration_json.empty() ? "absent" : "present");
-  std::printf("duration:      %.3f s\n", s.messages > 0 ? static_cast<double>(s.last_ns - s.first_ns) * 1e-9 : 0.0);
-  std::printf("chunks:        %zu (%s)\n", r->chunks().size(), d.index_used ? "indexed" : "scanned: no valid index");
-  std::printf("messages:      %lld (bursts %lld, ProbeInfo %lld, ProbeStatus %lld)\n", static_cast<long long>(s.messages),
-              static_cast<long long>(s.bursts), static_cast<long long>(s.infos), static_cast<long long>(s.statuses));
-  for (const auto& [k, n] : s.sizes) std::printf("burst size:    %s: %lld bursts\n", k.c_str(), static_cast<long long>(n));
-  std::printf("pixel bytes:   %.1f MB\n", static_cast<double>(s.pixel_bytes) / 1e6);
-  std::printf("sequence gaps: %llu in intact data (%llu bursts missing upstream, before the recorder)\n",
-              static_cast<unsigned long long>(lost.upstream_gaps()), static_cast<unsigned long long>(lost.missing_upstream()));
-  std::printf("lost:          %s\n", d.LossSummary().c_str());
-  std::printf("bursts lost:   %s\n", lost.Describe().c_str());
-  if (s.undecodable > 0) std::printf("undecodable:   %lld bursts\n", static_cast<long long>(s.undecodable));
+  if (json)
+    PrintInfoJson(*r, path, s, lost);
+  else
+    PrintInfoText(*r, path, s, lost);
   if (d.damaged()) ReportDamage(*r, path, &lost);
   if (s.undecodable > 0)
     std::fprintf(stderr, "d3d-replay: %s: %lld bursts do not decode (exit 3)\n", path.c_str(), static_cast<long long>(s.undecodable));
@@ -105,12 +148,13 @@ int PrintInfo(RecordingReader* r, const std::string& path) {
 int main(int argc, char** argv) {
   CLI::App cli{"d3d-replay: publish a recording back onto DDS, or print its summary (--info)"};
   std::string path, rate_text = "1.0";
-  bool info = false, loop = false;
+  bool info = false, loop = false, json = false;
   double start_s = 0, wait_timeout_s = 60;
   int64_t frames = 0;
   int domain = 0, wait_subscribers = 1;
   cli.add_option("file", path, "recording written by d3d-record")->required();
   cli.add_flag("--info", info, "print the summary (duration, bursts, sizes, gaps, damage) and exit");
+  cli.add_flag("--json", json, "--info: the summary as one JSON object on stdout (damage reports stay on stderr)");
   cli.add_option("--rate", rate_text, "1.0 = original timing (2.0 twice as fast), max = as fast as readers take it")->capture_default_str();
   cli.add_flag("--loop", loop, "repeat until interrupted (burst_seq continues across loops)");
   cli.add_option("--start", start_s, "skip the first S seconds")->capture_default_str();
@@ -139,7 +183,11 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "d3d-replay: %s: %s\n", path.c_str(), s.message().c_str());
     return 2;
   }
-  if (info) return PrintInfo(reader.get(), path);
+  if (json && !info) {
+    std::fprintf(stderr, "d3d-replay: --json goes with --info\n");
+    return 2;
+  }
+  if (info) return PrintInfo(reader.get(), path, json);
   const RecordingHeader& h = reader->header();
   const RecordingChannel* cb = h.FindTopic(proto::kTopicPhaseBurst);
   const RecordingChannel* ci = h.FindTopic(proto::kTopicProbeInfo);
