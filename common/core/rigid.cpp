@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 
 #include "common/core/status.h"
 
@@ -42,6 +43,10 @@ double RotationAngleRad(const Rigid3d& a, const Rigid3d& b) {
 
 double TranslationDistanceMm(const Rigid3d& a, const Rigid3d& b) {
   return (a.translation() - b.translation()).norm();
+}
+
+bool SameBits(const Rigid3d& a, const Rigid3d& b) {
+  return std::memcmp(a.data(), b.data(), sizeof(double) * static_cast<size_t>(a.matrix().size())) == 0;
 }
 
 Eigen::Matrix3d LookRotation(const Eigen::Vector3d& forward, const Eigen::Vector3d& right_hint) {

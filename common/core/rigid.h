@@ -20,6 +20,10 @@ Rigid3d InterpolateRigid(const Rigid3d& a, const Rigid3d& b, double s);
 double RotationAngleRad(const Rigid3d& a, const Rigid3d& b);
 double TranslationDistanceMm(const Rigid3d& a, const Rigid3d& b);
 
+// The same pose bit for bit: a computation that is a function of the pose gives the same result
+// (a pose equal as numbers but not as bits, −0 against +0, may not).
+bool SameBits(const Rigid3d& a, const Rigid3d& b);
+
 // The pose fields of a TUM trajectory line, "tx ty tz qx qy qz qw" (translation in mm to 1 nm,
 // quaternion to 1e-9), space-separated with no leading or trailing space.
 std::string TumPoseFields(const Rigid3d& pose);

@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <cstring>
 
 #include "common/core/status.h"
 
@@ -152,7 +151,7 @@ bool Relocaliser::SearchLocally(const SurfacePoints& samples, bool gap, TrackRes
     // prediction is the last pose, and the nearest keyframe is often that pose too; each repeat was
     // a wide-gate ICP (docs/decisions/0013).
     size_t same = 0;
-    while (same < i && std::memcmp(starts[same].data(), starts[i].data(), sizeof(double) * 16) != 0) ++same;
+    while (same < i && !SameBits(starts[same], starts[i])) ++same;
     if (same < i) {
       failures += (failures.empty() ? "" : ", ") + start_name(i) + ": as " + start_name(same);
       continue;

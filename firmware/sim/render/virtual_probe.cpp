@@ -5,10 +5,9 @@
 
 #include <atomic>
 #include <cmath>
-#include <cstring>
 #include <limits>
-#include <thread>
 #include <opencv2/imgproc.hpp>
+#include <thread>
 
 #include "firmware/sim/render/albedo_texture.h"
 #include "firmware/sim/render/scene_prep.h"
@@ -118,12 +117,6 @@ void ParallelRows(tbb::task_arena& arena, int rows, F&& f) {
       for (int row = r.begin(); row < r.end(); ++row) f(row);
     });
   });
-}
-
-// The same pose bit for bit (a pose equal as numbers but not as bits, −0 against +0, could render
-// other bits).
-bool SameBits(const Rigid3d& a, const Rigid3d& b) {
-  return std::memcmp(a.data(), b.data(), sizeof(double) * static_cast<size_t>(a.matrix().size())) == 0;
 }
 
 // std::clamp(std::round(x), 0, max_dn) (round half away from zero) without the libm call for the
