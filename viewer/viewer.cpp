@@ -90,6 +90,23 @@ struct Viewer::Impl {
   PanelRefresh hud_refresh;
   GLuint hud_tex = 0;
   bool hud_dirty = true;
+  // What the last drawn frame showed. A frame whose picture would be the same (no new view, same
+  // camera and panel) is not drawn again: on a software renderer the preview cost a quarter of a
+  // core at 20 fps, which a host that cannot keep up needs for the scan (docs/decisions/0014).
+  struct SceneKey {
+    uint64_t generation = 0, segment_generation = 0, last_burst_seq = 0;
+    size_t points = 0, segment_points = 0, view_points = 0;
+    bool snapshot = false, have_pose = false, view_accepted = false;
+    PreviewCue cue = PreviewCue::kWaiting;
+    float yaw = 0, pitch = 0, distance_mm = 0;
+    Eigen::Vector3f target = Eigen::Vector3f::Zero();
+    int width = 0, height = 0;
+    bool operator==(const SceneKey&) const = default;
+  };
+  SceneKey drawn_key;
+  bool drawn_once = false;
+  bool exposed = false;  // the window asked for its content again (uncovered, resized)
+  int64_t frames_drawn = 0;
 
   ~Impl() {
     if (hud_tex != 0) glDeleteTextures(1, &hud_tex);
@@ -141,6 +158,7 @@ struct Viewer::Impl {
       self->last_y = y;
       self->auto_fit = false;
     });
+    glfwSetWindowRefreshCallback(window, [](GLFWwindow* w) { static_cast<Impl*>(glfwGetWindowUserPointer(w))->exposed = true; });
     glfwSetScrollCallback(window, [](GLFWwindow* w, double, double dy) {
       auto* self = static_cast<Impl*>(glfwGetWindowUserPointer(w));
       self->distance_mm = std::clamp(self->distance_mm * static_cast<float>(std::pow(0.9, dy)), 2.0f, 2000.0f);
@@ -213,8 +231,37 @@ struct Viewer::Impl {
     return m;
   }
 
-  void UpdateHud(const PreviewSnapshot* s, const PreviewStatus& st, double fps) {
-    const PreviewCue cue = st.override_cue ? st.cue_override : (s ? s->cue : PreviewCue::kWaiting);
+  // The cue shown: the host's override (probe lost, paused, waiting) or the snapshot's.
+  static PreviewCue ShownCue(const PreviewSnapshot* s, const PreviewStatus& st) {
+    return st.override_cue ? st.cue_override : (s ? s->cue : PreviewCue::kWaiting);
+  }
+
+  SceneKey KeyOf(const PreviewSnapshot* s, const PreviewStatus& st) const {
+    SceneKey k;
+    if (s != nullptr) {
+      k.snapshot = true;
+      k.generation = s->generation;
+      k.segment_generation = s->segment_generation;
+      k.last_burst_seq = s->last_burst_seq;
+      k.points = s->points.size();
+      k.segment_points = s->segment_points.size();
+      k.view_points = s->view_points.size();
+      k.have_pose = s->have_pose;
+      k.view_accepted = s->view_accepted;
+    }
+    k.cue = ShownCue(s, st);
+    k.yaw = yaw;
+    k.pitch = pitch;
+    k.distance_mm = distance_mm;
+    k.target = target;
+    k.width = width;
+    k.height = height;
+    return k;
+  }
+
+  // Draws the panel's texture again when PanelRefresh says so; true when it did.
+  bool UpdateHud(const PreviewSnapshot* s, const PreviewStatus& st, double fps) {
+    const PreviewCue cue = ShownCue(s, st);
     char l1[160], l2[160], l3[160];
     std::snprintf(l1, sizeof l1, "bursts %llu received  %llu processed  %llu fused  %llu dropped  %llu refused",
                   static_cast<unsigned long long>(st.bursts_received), static_cast<unsigned long long>(st.bursts_processed),
@@ -227,7 +274,7 @@ struct Viewer::Impl {
     for (const char* l : {l1, l2, l3}) text.append("\n").append(l);
     text.append("\n").append(st.message);
     const int64_t now_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now().time_since_epoch()).count();
-    if (!hud_refresh.Due(cue, st.message, text, now_ns, hud_dirty)) return;
+    if (!hud_refresh.Due(cue, st.message, text, now_ns, hud_dirty)) return false;
     hud_dirty = false;
     // The texture holds the panel's rows (kHudPanelRows) and, in a window, the keys line below
     // them (kHudKeysRows): only those strips are drawn, not a quad over the whole frame
@@ -254,11 +301,12 @@ struct Viewer::Impl {
     glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
     glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
     glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA8, hud.cols, hud.rows, 0, GL_BGRA, GL_UNSIGNED_BYTE, hud.data);
+    return true;
   }
   bool headless_mode() const { return window == nullptr; }
 
-  void Draw(const PreviewSnapshot* s, const PreviewStatus& st, double fps) {
-    if (s != nullptr && auto_fit) Fit(*s);
+  // The frame (the panel's texture as UpdateHud left it).
+  void Draw(const PreviewSnapshot* s, const PreviewStatus& st) {
     glViewport(0, 0, width, height);
     glClearColor(0.12f, 0.13f, 0.16f, 1.0f);
     glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
@@ -320,7 +368,7 @@ struct Viewer::Impl {
       glDisableClientState(GL_VERTEX_ARRAY);
       // The probe frustum (apex = camera centre, near and far rectangles of the measurement volume).
       if (s->have_pose) {
-        const PreviewCue cue = st.override_cue ? st.cue_override : s->cue;
+        const PreviewCue cue = ShownCue(s, st);
         const cv::Scalar c = CueColourBgr(cue);
         glColor3ub(static_cast<GLubyte>(c[2]), static_cast<GLubyte>(c[1]), static_cast<GLubyte>(c[0]));
         glLineWidth(2);
@@ -348,7 +396,6 @@ struct Viewer::Impl {
       }
     }
     // Status panel.
-    UpdateHud(s, st, fps);
     glDisable(GL_DEPTH_TEST);
     glMatrixMode(GL_PROJECTION);
     glLoadIdentity();
@@ -409,7 +456,15 @@ bool Viewer::Render(const PreviewSnapshot* snapshot, const PreviewStatus& status
     m.height = std::max(h, 1);
   }
   if (capture != nullptr) m.hud_dirty = true;  // a saved picture shows the current counters
-  m.Draw(snapshot, status, fps);
+  if (snapshot != nullptr && m.auto_fit) m.Fit(*snapshot);
+  const bool hud_changed = m.UpdateHud(snapshot, status, fps);
+  const Impl::SceneKey key = m.KeyOf(snapshot, status);
+  if (!hud_changed && capture == nullptr && !m.exposed && m.drawn_once && key == m.drawn_key) return true;  // still current
+  m.Draw(snapshot, status);
+  m.drawn_key = key;
+  m.drawn_once = true;
+  m.exposed = false;
+  ++m.frames_drawn;
   glFinish();
   if (capture != nullptr) {
     cv::Mat bgra(m.height, m.width, CV_8UC4);
@@ -422,6 +477,8 @@ bool Viewer::Render(const PreviewSnapshot* snapshot, const PreviewStatus& status
   if (m.window != nullptr) glfwSwapBuffers(m.window);
   return true;
 }
+
+int64_t Viewer::frames_drawn() const { return impl_->frames_drawn; }
 
 std::vector<ViewerAction> Viewer::TakeActions() {
   std::vector<ViewerAction> a;

@@ -15,6 +15,7 @@
 // ~100k points at ~20 fps on this machine, so the host decimates the model (one point per cell).
 #pragma once
 
+#include <cstdint>
 #include <memory>
 #include <opencv2/core.hpp>
 #include <string>
@@ -44,8 +45,12 @@ class Viewer {
 
   // Draws one frame of `snapshot` (nullptr: nothing yet) with `status`, shows it (window) and
   // processes input; with `capture`, the frame is also read back into it (H×W CV_8UC3 BGR, top row
-  // first: --screenshot). Returns false once the window was closed.
+  // first: --screenshot). A frame that would show the same picture as the last one drawn (the same
+  // snapshot, camera and panel; the window not exposed) is not drawn again: the one shown is
+  // current. Returns false once the window was closed.
   bool Render(const PreviewSnapshot* snapshot, const PreviewStatus& status, double fps, cv::Mat* capture = nullptr);
+  // Frames Render actually drew (the others were still current).
+  int64_t frames_drawn() const;
   std::vector<ViewerAction> TakeActions();
   bool headless() const;
 

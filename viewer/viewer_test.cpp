@@ -82,5 +82,32 @@ TEST(Viewer, ASegmentApartIsDrawnInTheNewSegmentColour) {
   EXPECT_LT(mean[2], 0.5 * mean[0]) << "the segment is not blue";
 }
 
+TEST(Viewer, AFrameThatWouldShowTheSamePictureIsNotDrawnAgain) {
+  std::unique_ptr<Viewer> v;
+  const Status s = OffscreenViewer(&v);
+  if (!s.ok()) GTEST_SKIP() << "no offscreen OpenGL here: " << s.ToString();
+  PreviewSnapshot snap = Hemisphere();
+  snap.last_burst_seq = 7;
+  PreviewStatus st;
+  st.bursts_received = 10;
+  ASSERT_TRUE(v->Render(&snap, st, 20));
+  EXPECT_EQ(v->frames_drawn(), 1);
+  // The same snapshot and counters: the picture on screen is current.
+  for (int i = 0; i < 5; ++i) ASSERT_TRUE(v->Render(&snap, st, 20));
+  EXPECT_EQ(v->frames_drawn(), 1);
+  // A new view, a change of cue, a picture asked for: drawn.
+  snap.last_burst_seq = 8;
+  ASSERT_TRUE(v->Render(&snap, st, 20));
+  EXPECT_EQ(v->frames_drawn(), 2);
+  st.override_cue = true;
+  st.cue_override = PreviewCue::kPaused;
+  ASSERT_TRUE(v->Render(&snap, st, 20));
+  EXPECT_EQ(v->frames_drawn(), 3);
+  cv::Mat picture;
+  ASSERT_TRUE(v->Render(&snap, st, 20, &picture));
+  EXPECT_EQ(v->frames_drawn(), 4);
+  EXPECT_FALSE(picture.empty());
+}
+
 }  // namespace
 }  // namespace d3d

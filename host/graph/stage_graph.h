@@ -45,7 +45,14 @@
 // every burst late for long: the source then keeps one item of every live_catch_up_thin + 1 (the
 // others dropped, counted at edge 0) until it has caught up. Latest wins would jump over the whole
 // backlog at once, and the live tracker lost its view after such a ~10-burst jump at the scan's
-// start (d3d-scan at 1.0 core). After the catch-up, latest wins as before.
+// start (d3d-scan at 1.0 core). Thinned, the same trend check runs per item ingested (kept or
+// dropped): a graph that still does not gain drops one more item of each run, up to
+// live_catch_up_max_thin, so that the kept items stay a steady subset a few bursts apart. The
+// time limit live_catch_up_max_s ends only the every-item phase: a thinned catch-up ends when
+// caught up, after live_catch_up_thinned_max_s, or when it does not gain at the widest thinning
+// (a graph that slow could not follow any subset). It had ended by the same time limit, jumping
+// ~30 bursts where a host at 1.0 core was still thinned 1 in 3 after 1 s (docs/decisions/0014).
+// After the catch-up, latest wins as before.
 // Without it a live scan began ~10 bursts after the probe's first (d3d-scan, 450-burst typodont
 // recording at 30 Hz: the host needs ~0.3 s to set up once the probe's calibration arrives), a
 // different start from the lossless replay of the same recording; with every burst, the live
@@ -99,21 +106,25 @@ struct StageGraphOptions {
   int latency_stage = -1;            // the stage whose end is an item's latency (-1: the last)
   bool live_just_in_time = false;    // live, demand-driven: the first stage starts just in time (file comment)
   double just_in_time_margin_ms = 3;  // ... finishing this much before the second stage is expected free
-  double live_catch_up_max_s = 0;     // live: catch-up start for at most this long after the first item (file comment; 0 = off)
+  double live_catch_up_max_s = 0;     // live: catch-up start, every item for at most this long after the first (file comment; 0 = off)
   double live_caught_up_wait_ms = 5;  // ... caught up once the source waited this long for an item, stage 0 free
   double live_caught_up_age_ms = 50;  // ... or an item's origin is at most this old when the source hands it over
   int live_caught_up_items = 3;       // ... for this many items in a row
   int live_catch_up_window = 6;       // ... not gaining: over this many items (0 = never; ≤ 64) ...
-  double live_catch_up_min_gain_ms = 8;  // ... the items' age fell less than this per item
+  double live_catch_up_min_gain_ms = 8;  // ... the items' age fell less than this per item ingested
   int live_catch_up_thin = 2;         // ... then it keeps 1 of every thin + 1 items (dropping the others) until caught up (0 = latest wins)
+  int live_catch_up_max_thin = 5;     // ... one more dropped each time it still does not gain, up to this; then latest wins
+  double live_catch_up_thinned_max_s = 5;  // ... thinned for at most this long (then latest wins)
   void Check() const {
     if (lossless_capacity < 1 || latency_samples < 1) throw std::invalid_argument("StageGraphOptions: capacities must be >= 1");
     if (!(just_in_time_margin_ms >= 0)) throw std::invalid_argument("StageGraphOptions: just_in_time_margin_ms must be >= 0");
     if (!(live_catch_up_max_s >= 0) || !(live_caught_up_wait_ms > 0) || !(live_caught_up_age_ms >= 0) || live_caught_up_items < 1 ||
-        live_catch_up_window < 0 || live_catch_up_window > 64 || live_catch_up_thin < 0 ||
-        !(live_catch_up_min_gain_ms >= 0))
+        live_catch_up_window < 0 || live_catch_up_window > 64 || live_catch_up_thin < 0 || live_catch_up_max_thin < live_catch_up_thin ||
+        !(live_catch_up_min_gain_ms >= 0) || !(live_catch_up_thinned_max_s >= 0))
       throw std::invalid_argument(
-          "StageGraphOptions: live_catch_up_max_s >= 0, live_caught_up_wait_ms > 0, live_caught_up_age_ms >= 0, live_caught_up_items >= 1, live_catch_up_window in [0, 64], live_catch_up_thin >= 0, live_catch_up_min_gain_ms >= 0");
+          "StageGraphOptions: live_catch_up_max_s >= 0, live_caught_up_wait_ms > 0, live_caught_up_age_ms >= 0, live_caught_up_items >= 1, "
+          "live_catch_up_window in [0, 64], 0 <= live_catch_up_thin <= live_catch_up_max_thin, live_catch_up_min_gain_ms >= 0, "
+          "live_catch_up_thinned_max_s >= 0");
     if (latency_stage < -1) throw std::invalid_argument("StageGraphOptions: latency_stage must be -1 (the last) or a stage index");
   }
 };
@@ -279,9 +290,14 @@ class StageGraph {
     enum class CatchUp { kOff, kEvery, kThinned };
     CatchUp catch_up = catching_up_.load(std::memory_order_relaxed) ? CatchUp::kEvery : CatchUp::kOff;
     int64_t first_ns = 0;   // steady clock: the first catch-up item handed over
+    int64_t thinned_ns = 0;  // steady clock: thinned since
     int caught_up_run = 0;  // consecutive items that found the graph caught up
     uint64_t kept = 0, thinned = 0;  // items handed over (catch_up_items_) / seen while thinned
-    std::array<int64_t, kMaxCatchUpWindow> ages{};  // ring: the ages of the latest catch-up items (ns)
+    int thin = o_.live_catch_up_thin;  // thinned: items dropped after each one kept
+    uint64_t judged = 0;               // kept items the trend check has seen at the current thinning
+    // Ring: the ages (ns) of the latest catch-up items and the items ingested when they were handed over.
+    std::array<int64_t, kMaxCatchUpWindow> ages{};
+    std::array<uint64_t, kMaxCatchUpWindow> ingested_at{};
     while (!stop_.load(std::memory_order_acquire)) {
       if (n == nullptr && (n = TakeFree()) == nullptr) break;
       n->meta = ItemMeta{seq, GraphNowNs()};
@@ -291,7 +307,7 @@ class StageGraph {
       if (r == SourceResult::kSkip) continue;
       ++seq;
       ingested_.fetch_add(1, std::memory_order_relaxed);
-      if (catch_up == CatchUp::kThinned && thinned++ % static_cast<uint64_t>(o_.live_catch_up_thin + 1) != 0) {
+      if (catch_up == CatchUp::kThinned && thinned++ % static_cast<uint64_t>(thin + 1) != 0) {
         source_dropped_.fetch_add(1, std::memory_order_relaxed);  // counted with edge 0's drops; n is reused
         continue;
       }
@@ -307,24 +323,38 @@ class StageGraph {
         if (first_ns == 0) first_ns = taken_ns;
         const int64_t age = GraphNowNs() - n->meta.origin_ns;  // origin: Unix epoch
         caught_up_run = waited || age <= static_cast<int64_t>(o_.live_caught_up_age_ms * 1e6) ? caught_up_run + 1 : 0;
-        // Not gaining: an item handed over less than live_catch_up_min_gain_ms per item younger than
-        // the one live_catch_up_window items before it (the first two, slow while the stages warm
-        // up, are not compared).
+        // Not gaining: an item handed over less than live_catch_up_min_gain_ms per item ingested
+        // since younger than the one live_catch_up_window kept items before it (the first two, slow
+        // while the stages warm up, are not compared; after a change of thinning, a whole window).
         const size_t w = static_cast<size_t>(o_.live_catch_up_window);
+        const uint64_t ingested_now = seq;
         bool behind = false;
-        if (catch_up == CatchUp::kEvery && w > 0) {
-          if (kept >= 2 + w) behind = age > ages[kept % w] - static_cast<int64_t>(static_cast<double>(w) * o_.live_catch_up_min_gain_ms * 1e6);
-          ages[kept % w] = age;
+        if (w > 0) {
+          const uint64_t first_judged = catch_up == CatchUp::kEvery ? 2 : 0;
+          if (judged >= first_judged + w) {
+            const double items = static_cast<double>(ingested_now - ingested_at[judged % w]);
+            behind = age > ages[judged % w] - static_cast<int64_t>(items * o_.live_catch_up_min_gain_ms * 1e6);
+          }
+          ages[judged % w] = age;
+          ingested_at[judged % w] = ingested_now;
+          ++judged;
         }
         catch_up_items_.store(++kept, std::memory_order_relaxed);
-        if (caught_up_run >= o_.live_caught_up_items || taken_ns - first_ns >= static_cast<int64_t>(o_.live_catch_up_max_s * 1e9)) {
-          catch_up = CatchUp::kOff;
+        const bool every_timed_out = catch_up == CatchUp::kEvery && taken_ns - first_ns >= static_cast<int64_t>(o_.live_catch_up_max_s * 1e9);
+        const bool thinned_timed_out =
+            catch_up == CatchUp::kThinned && taken_ns - thinned_ns >= static_cast<int64_t>(o_.live_catch_up_thinned_max_s * 1e9);
+        const int next_thin = catch_up == CatchUp::kEvery ? o_.live_catch_up_thin : thin + 1;
+        if (caught_up_run >= o_.live_caught_up_items || thinned_timed_out ||
+            ((behind || every_timed_out) && (next_thin < 1 || next_thin > o_.live_catch_up_max_thin))) {
+          catch_up = CatchUp::kOff;  // caught up, out of time, or too slow for any thinning: latest wins
           catching_up_.store(false, std::memory_order_relaxed);
-        } else if (behind) {
-          catch_up = o_.live_catch_up_thin > 0 ? CatchUp::kThinned : CatchUp::kOff;
-          catching_up_.store(catch_up != CatchUp::kOff, std::memory_order_relaxed);
-          thinned_.store(catch_up == CatchUp::kThinned, std::memory_order_relaxed);
-          thinned = 1;  // the next item is the first of the live_catch_up_thin dropped
+        } else if (behind || every_timed_out) {
+          if (catch_up == CatchUp::kEvery) thinned_ns = taken_ns;
+          catch_up = CatchUp::kThinned;
+          thin = next_thin;
+          judged = 0;
+          thinned_.store(true, std::memory_order_relaxed);
+          thinned = 1;  // the next item is the first of the `thin` dropped
         }
       }
       Node* dropped = edges_[0]->Push(n);

@@ -81,7 +81,7 @@ int main(int argc, char** argv) {
   double catch_up_s = ScanAppOptions{}.live_catch_up_max_s;
   cli.add_option("--catch-up", catch_up_s,
                  "live: process the bursts that arrived while the host set up, in order, until the graph has caught up, for at most "
-                 "this many seconds (0 = start on the newest burst and drop them)")
+                 "this many seconds, then thinned out (1 of 3 to 1 of 6) until caught up (0 = start on the newest burst and drop them)")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 10.0));
   cli.add_option("--out", out_dir, "output folder")->capture_default_str();
@@ -454,6 +454,8 @@ int main(int argc, char** argv) {
     const Status fs_status = app.Finish(truth, ScanViewProvider(), &result);
     result.report["input"] = replay.empty() ? "dds" : replay;
     result.report["preview_fps"] = viewer && preview_s > 0 ? static_cast<double>(frames) / preview_s : 0.0;
+    // Of those frames, the ones drawn: the others showed the same picture (Viewer::Render).
+    result.report["preview_draws_per_s"] = viewer && preview_s > 0 ? static_cast<double>(viewer->frames_drawn()) / preview_s : 0.0;
     result.report["preview"] = viewer ? (viewer->headless() ? "offscreen" : "window") : "none";
     result.report["step"] = step;
     result.report["rss_mb_per_s"] = rss_timeline;
