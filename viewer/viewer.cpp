@@ -103,8 +103,7 @@ struct Viewer::Impl {
     int width = 0, height = 0;
     bool operator==(const SceneKey&) const = default;
   };
-  SceneKey drawn_key;
-  bool drawn_once = false;
+  SceneKey drawn_key;    // valid once frames_drawn > 0
   bool exposed = false;  // the window asked for its content again (uncovered, resized)
   int64_t frames_drawn = 0;
 
@@ -459,10 +458,9 @@ bool Viewer::Render(const PreviewSnapshot* snapshot, const PreviewStatus& status
   if (snapshot != nullptr && m.auto_fit) m.Fit(*snapshot);
   const bool hud_changed = m.UpdateHud(snapshot, status, fps);
   const Impl::SceneKey key = m.KeyOf(snapshot, status);
-  if (!hud_changed && capture == nullptr && !m.exposed && m.drawn_once && key == m.drawn_key) return true;  // still current
+  if (!hud_changed && capture == nullptr && !m.exposed && m.frames_drawn > 0 && key == m.drawn_key) return true;  // still current
   m.Draw(snapshot, status);
   m.drawn_key = key;
-  m.drawn_once = true;
   m.exposed = false;
   ++m.frames_drawn;
   glFinish();

@@ -327,16 +327,15 @@ class StageGraph {
         // since younger than the one live_catch_up_window kept items before it (the first two, slow
         // while the stages warm up, are not compared; after a change of thinning, a whole window).
         const size_t w = static_cast<size_t>(o_.live_catch_up_window);
-        const uint64_t ingested_now = seq;
         bool behind = false;
         if (w > 0) {
           const uint64_t first_judged = catch_up == CatchUp::kEvery ? 2 : 0;
           if (judged >= first_judged + w) {
-            const double items = static_cast<double>(ingested_now - ingested_at[judged % w]);
+            const double items = static_cast<double>(seq - ingested_at[judged % w]);
             behind = age > ages[judged % w] - static_cast<int64_t>(items * o_.live_catch_up_min_gain_ms * 1e6);
           }
           ages[judged % w] = age;
-          ingested_at[judged % w] = ingested_now;
+          ingested_at[judged % w] = seq;
           ++judged;
         }
         catch_up_items_.store(++kept, std::memory_order_relaxed);
