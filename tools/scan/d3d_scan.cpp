@@ -77,7 +77,8 @@ int main(int argc, char** argv) {
   cli.add_option("--replay-views", replay_views,
                  "--replay: only the bursts whose capture times this TUM file lists (e.g. a live run's poses.txt: its views again, "
                  "losslessly, with the live tracker's gates: --step 6 by default and motion by capture time)");
-  cli.add_option("--rx-queue", rx_queue, "live: bursts the DDS receiver may hold for the graph (default: 32 live, 8 with --catch-up 0, 300 lossless)");
+  cli.add_option("--rx-queue", rx_queue,
+                 "live: bursts the DDS receiver may hold for the graph (default: 64 live, 8 with --catch-up 0, 300 lossless)");
   double catch_up_s = ScanAppOptions{}.live_catch_up_max_s;
   cli.add_option("--catch-up", catch_up_s,
                  "live: process the bursts that arrived while the host set up, in order, until the graph has caught up, for at most "
@@ -236,8 +237,9 @@ int main(int argc, char** argv) {
       }
       ReceiverOptions ro;
       ro.serial = serial;
-      // Live: room for the bursts that arrive while the host sets up (~0.4 s), for the catch-up start.
-      ro.queue_capacity = rx_queue > 0 ? rx_queue : (policy == EdgePolicy::kLive ? (catch_up_s > 0 ? 32 : 8) : 300);
+      // Live: room for the backlog the catch-up start works off: the bursts that arrive while the
+      // host sets up (~0.4 s) and while it falls behind before it thins out (docs/decisions/0014).
+      ro.queue_capacity = rx_queue > 0 ? rx_queue : (policy == EdgePolicy::kLive ? (catch_up_s > 0 ? 64 : 8) : 300);
       ro.log = [](const std::string& m) { std::fprintf(stderr, "d3d-scan: %s\n", m.c_str()); };
       rx = std::make_unique<BurstReceiver>(ro);
       if (const Status s = rx->Start(&participant); !s.ok()) {
@@ -248,8 +250,9 @@ int main(int argc, char** argv) {
       dso.probe_timeout_s = probe_timeout_s;
       dso.idle_exit_s = idle_exit_s;
       // Live: no burst older than this is ingested (without the catch-up start: start on fresh bursts,
-      // not on those queued during set-up).
-      if (policy == EdgePolicy::kLive) dso.max_age_s = 0.25 + catch_up_s;
+      // not on those queued during set-up). With it, the backlog may reach ~2 s before the thinning
+      // gains on it; dropped here, its oldest bursts would leave a gap the tracker cannot bridge.
+      if (policy == EdgePolicy::kLive) dso.max_age_s = catch_up_s > 0 ? 1.25 + catch_up_s : 0.25;
       dds = std::make_unique<DdsBurstSource>(rx.get(), dso);
       std::fprintf(stderr, "d3d-scan: waiting for a probe on DDS domain %d...\n", domain);
       proto::InfoMsg info;
