@@ -35,6 +35,7 @@ void ScanAppOptions::Check() const {
     throw std::invalid_argument("ScanAppOptions: preview cell > 0 and strides >= 1");
   if (!(undo_seconds > 0) || undo_max_views < 0) throw std::invalid_argument("ScanAppOptions: undo_seconds > 0 and undo_max_views >= 0");
   live.Check();
+  bridge.Check();
   LiveTsdf().Check();  // e.g. a live voxel above the truncation
 }
 
@@ -53,6 +54,12 @@ ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& opti
   // The tracker's model insert runs after the register stage has handed the burst on (RegisterAfter).
   o_.scan.tracker.odometry.defer_model_insert = true;
   registrar_ = std::make_unique<ScanRegistrar>(calibration_, o_.scan.tracker, o_.scan.anchor, o_.scan.recon.normal_max_gap_mm);
+  if (o_.policy == EdgePolicy::kLive && o_.bridge.ring_bursts > 0) {
+    ring_ =
+        std::make_unique<BurstRing>(static_cast<size_t>(o_.bridge.ring_bursts), calibration.camera.width, calibration.camera.height, 4, o_.scan.bin);
+    bridge_ = std::make_unique<GapBridge>(o_.bridge, ring_.get(), calibration_, o_.scan.recon);
+    bridge_->WarmUp();
+  }
   fuser_ = std::make_unique<ScanFuser>(calibration_.camera, o_.LiveTsdf(), o_.scan.free_space);
   if (o_.keep_views && !o_.views_spill_dir.empty()) {
     if (const Status s = archive_.SpillTo(o_.views_spill_dir); !s.ok()) spill_error_ = s.ToString();
@@ -144,6 +151,7 @@ ScanApp::Graph::SourceResult ScanApp::Ingest(ScanItem& item, ItemMeta* meta) {
     paused_bursts_.fetch_add(1, std::memory_order_relaxed);
     return Graph::SourceResult::kSkip;
   }
+  if (ring_) ring_->Put(item.burst);  // kept or dropped by the graph, a burst a bridge may use
   item.control = false;
   item.undo_requests = undo_ingested_;
   item.epoch = epoch_.load(std::memory_order_relaxed);
@@ -185,6 +193,7 @@ bool ScanApp::RegisterStage(ScanItem& item) {
   if (item.epoch != reg_epoch_) {
     registrar_ = std::make_unique<ScanRegistrar>(calibration_, o_.scan.tracker, o_.scan.anchor, o_.scan.recon.normal_max_gap_mm);
     reg_epoch_ = item.epoch;
+    reg_last_placed_ns_ = 0;
   }
   for (; reg_undo_requests_ < item.undo_requests; ++reg_undo_requests_) {
     const ScanRegistrar::UndoResult u = registrar_->UndoLastSeconds(o_.undo_seconds);
@@ -215,7 +224,23 @@ bool ScanApp::RegisterStage(ScanItem& item) {
     return true;
   }
   item.view_index = static_cast<int64_t>(registrar_->views().size());
+  const TrackingState before = registrar_->tracker().state();
   item.track = registrar_->Register(item.view, item.burst.burst_seq, item.burst.capture_ns);
+  if (bridge_ && bridge_->Applies(before, item.track, item.burst.capture_ns, reg_last_placed_ns_)) {
+    // A gap the live policy left: a burst from between placed first, then this view again.
+    int64_t placed_ns = 0;
+    const bool placed = bridge_->Bridge(registrar_.get(), reg_last_placed_ns_, item.burst.capture_ns, &placed_ns);
+    bridge_views_.store(bridge_->stats().views, std::memory_order_relaxed);
+    bridge_attempts_.store(bridge_->stats().attempts, std::memory_order_relaxed);
+    bridge_placed_.store(bridge_->stats().placed, std::memory_order_relaxed);
+    if (placed) {
+      reg_last_placed_ns_ = placed_ns;
+      item.view_index = static_cast<int64_t>(registrar_->views().size());
+      item.track = registrar_->Register(item.view, item.burst.burst_seq, item.burst.capture_ns);
+      if (item.track.accepted) bridge_resumed_.fetch_add(1, std::memory_order_relaxed);
+    }
+  }
+  if (item.track.accepted) reg_last_placed_ns_ = item.burst.capture_ns;
   if (!item.track.accepted) refused_.fetch_add(1, std::memory_order_relaxed);
   reg_view_pending_ = true;
   return true;  // refused views still go on: the preview shows them (red)
@@ -437,6 +462,9 @@ nlohmann::json ScanApp::HostReport() const {
   j["bursts_processed"] = processed;
   j["bursts_fused"] = fused_.load();
   j["bursts_refused"] = refused_.load();
+  // Live bridging (gap_bridge.h): refused views bridged, bursts tried and placed between, views then placed.
+  j["bridges"] = {
+      {"views", bridge_views_.load()}, {"attempts", bridge_attempts_.load()}, {"placed", bridge_placed_.load()}, {"resumed", bridge_resumed_.load()}};
   j["bursts_failed"] = failed_.load();
   j["bursts_paused"] = paused_bursts_.load();
   j["undo_requests"] = undo_requests_.load();

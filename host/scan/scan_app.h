@@ -19,6 +19,8 @@
 //     with KeyframeGraphOptions::FeatureTiming::kWorker, the tracker's keyframe-feature worker thread
 //     touches only the copies of a keyframe's points and texture it is handed and its own job and
 //     result lists (tracker.cpp).
+//   BurstRing (live, ScanAppOptions::bridge): the ingest thread puts every burst, the register
+//     thread's GapBridge (its own reconstructor and view) takes one, under the ring's mutex.
 //   ScanFuser (the live TSDF, at ScanAppOptions::live) and the ViewArchive: fuse thread,
 //     then Finish(), under model_mu_, which SaveNow() (a saver thread) also takes.
 //   FramePacker: fuse thread.
@@ -50,6 +52,7 @@
 
 #include "host/graph/stage_graph.h"
 #include "host/scan/burst_source.h"
+#include "host/scan/gap_bridge.h"
 #include "host/scan/pace_monitor.h"
 #include "host/scan/preview_model.h"
 #include "pipeline/scan/scan_chain.h"
@@ -99,6 +102,9 @@ struct ScanAppOptions {
   int undo_max_views = 150;
   // Scripted undo requests (tests, demos): one right after the N-th burst ingested, for each N.
   std::vector<uint64_t> undo_after_bursts;
+  // Live: a view refused several bursts after the last one placed is tried again after a burst from
+  // between them is placed (gap_bridge.h); the ring of recent bursts it takes them from.
+  GapBridgeOptions bridge;
   void Check() const;                // throws std::invalid_argument
 };
 
@@ -223,6 +229,8 @@ class ScanApp {
   // ingest thread
   uint64_t undo_ingested_ = 0;  // undo requests already sent down the graph
   uint64_t bursts_ingested_ = 0;
+  // ingest thread (Put) and register thread (the bridge's Take): live bridging (o_.bridge)
+  std::unique_ptr<BurstRing> ring_;
   // reconstruct thread
   ScanReconstructor recon_;
   double ms_recon_ = 0;
@@ -234,6 +242,9 @@ class ScanApp {
   std::unique_ptr<ScanRegistrar> registrar_;
   uint64_t reg_memory_views_ = 0;  // views since the register stage last published its memory figures
   bool reg_view_pending_ = false;  // register thread: RegisterStage registered a view, RegisterAfter commits it
+  std::unique_ptr<GapBridge> bridge_;  // live with o_.bridge.ring_bursts > 0
+  int64_t reg_last_placed_ns_ = 0;     // capture time of the last view the tracker placed (this epoch)
+  std::atomic<uint64_t> bridge_views_{0}, bridge_attempts_{0}, bridge_placed_{0}, bridge_resumed_{0};  // register writes
   // fuse thread (+ SaveNow under model_mu_)
   std::mutex model_mu_;
   std::condition_variable model_cv_;  // the fuse stage moved fuse_undo_requests_ (SaveNow waits for it)

@@ -62,6 +62,9 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     joined_now = TryJoinSegment(active, &join_attempt, &main_from_segment);
     if (joined_now) main_from_display = main_from_segment * display_from_segment.inverse();
   }
+  const Retractable before{true, state_, segments_.refused_in_row(), views_without_points_};
+  const bool held_before = state_ == TrackingState::kTracking || state_ == TrackingState::kRelocalised;
+  retractable_ = Retractable{};
   ++index_;
   motion_.BeginView(index_, capture_ns);
   anchor_.push_back(-1);
@@ -94,6 +97,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     out.reason = "too few points in the view (" + std::to_string(samples.size()) + ")";
     out.too_few_points = true;
     ++views_without_points_;
+    if (held_before) retractable_ = before;
     out.ms = Ms(t0);
     return out;
   }
@@ -184,6 +188,7 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     accepted = true;
   }
   if (!accepted) {
+    if (held_before && !joined_now) retractable_ = before;
     state_ = state_ == TrackingState::kInitialising ? state_ : TrackingState::kLost;
     out.state = state_;
     out.segment_joined = joined_now;
@@ -314,6 +319,28 @@ bool Tracker::JoinSegmentNow(int s, std::string* why, Rigid3d* main_from_segment
   // The rebuilt model has no undo journal: undo starts again from here.
   for (ViewLog& log : view_log_) log.map_inserts_before = 0;
   *why = "joined by " + how + ": " + std::to_string(r.icp.correspondences) + " samples, rmse " + std::to_string(r.icp.rmse_mm * 1000) + " um";
+  return true;
+}
+
+bool Tracker::RetractLoss() {
+  if (!retractable_.valid) return false;
+  retracted_ = true;
+  retracted_refused_in_row_ = segments_.refused_in_row();
+  retracted_last_view_ = motion_.last_view();
+  state_ = retractable_.state;
+  segments_.set_refused_in_row(retractable_.refused_in_row);
+  views_without_points_ = retractable_.views_without_points;
+  relocaliser_.DropCandidate();
+  retractable_ = Retractable{};
+  return true;
+}
+
+bool Tracker::ReinstateLoss() {
+  if (!retracted_) return false;
+  retracted_ = false;
+  if (motion_.last_view() != retracted_last_view_ || state_ == TrackingState::kLost) return true;
+  state_ = TrackingState::kLost;
+  segments_.set_refused_in_row(std::max(segments_.refused_in_row(), retracted_refused_in_row_));
   return true;
 }
 

@@ -131,6 +131,18 @@ class Tracker {
   // A last join attempt for every segment not joined yet (at the end of a scan, before Optimize):
   // returns how many joined.
   int JoinApartSegments();
+  // Takes back what the last view did to the tracking state when it was refused right after the
+  // track was held (kTracking or kRelocalised): the state, the refused-in-a-row count, the count of
+  // views without points and any re-entry candidate are put back as before it; the view stays
+  // refused. A view from the gap before it (a live host's dropped burst: host/scan/gap_bridge.h) is
+  // then tracked from the prediction, as it would have been had it come first, instead of searched
+  // as a re-entry. False (nothing changed) when the last view was not such a refusal, or after the
+  // next Track.
+  bool RetractLoss();
+  // Puts a retracted loss back (the bridge found nothing to place): the tracker is lost as the
+  // refused view had left it, unless a view was placed since or it is lost again already. False
+  // when there is no retracted loss.
+  bool ReinstateLoss();
 
  private:
   // The views since the last placed one, this one included, are more than
@@ -161,6 +173,20 @@ class Tracker {
   TrackingState state_ = TrackingState::kInitialising;
   int64_t index_ = -1;  // current view index
   int views_without_points_ = 0;  // views with too few points since the last placed view
+  // The last view's loss, for RetractLoss: whether it may be taken back, and the state and
+  // refused-in-a-row count before it.
+  struct Retractable {
+    bool valid = false;
+    TrackingState state = TrackingState::kInitialising;
+    int refused_in_row = 0;
+    int views_without_points = 0;
+  };
+  Retractable retractable_;
+  // After RetractLoss: the refused-in-a-row count the loss had left, and the last placed view then
+  // (ReinstateLoss applies while it is still the last).
+  bool retracted_ = false;
+  int retracted_refused_in_row_ = 0;
+  int64_t retracted_last_view_ = -1;
   // Track()'s samples of the view (for ICP; more_samples_ after augmentation), refilled every view
   // with their buffers reused.
   SurfacePoints view_samples_, more_samples_;

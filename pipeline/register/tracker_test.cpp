@@ -85,6 +85,39 @@ TEST_F(TrackerScan, TracksAStripRefusesABadViewAndRelocalises) {
   EXPECT_EQ(tracker.state(), TrackingState::kTracking);
 }
 
+// A loss taken back (Tracker::RetractLoss, for a live host's gap bridge): after a view off the
+// model, the state is what it was before it, so a view from between is tracked from the prediction
+// and the track goes on; without one placed, ReinstateLoss leaves the tracker lost again. Neither
+// applies twice, nor after a view that was not a loss of a held track.
+TEST_F(TrackerScan, ALossTakenBackLetsAViewFromTheGapBeTrackedOrIsReinstated) {
+  Tracker tracker(cam_, TrackerOptions{});
+  uint32_t seed = 1;
+  for (double x = -6; x <= 0.01; x += 1.0) ASSERT_TRUE(Feed(&tracker, Truth(x, 0), seed++).accepted);
+  EXPECT_FALSE(tracker.RetractLoss()) << "the last view was placed";
+  const TrackResult bad = Feed(&tracker, Truth(25, 0), 77);
+  ASSERT_FALSE(bad.accepted);
+  ASSERT_EQ(tracker.state(), TrackingState::kLost);
+  ASSERT_TRUE(tracker.RetractLoss());
+  EXPECT_EQ(tracker.state(), TrackingState::kTracking);
+  EXPECT_FALSE(tracker.RetractLoss()) << "once";
+  const TrackResult bridge = Feed(&tracker, Truth(1, 0), seed++);
+  ASSERT_TRUE(bridge.accepted) << bridge.reason;
+  EXPECT_EQ(bridge.state, TrackingState::kTracking) << "tracked, not a re-entry";
+  EXPECT_TRUE(tracker.ReinstateLoss()) << "a retracted loss";
+  EXPECT_EQ(tracker.state(), TrackingState::kTracking) << "a view was placed since: the loss stays taken back";
+  EXPECT_FALSE(tracker.ReinstateLoss());
+  // Nothing placed after the retraction: lost again, and what comes next is a re-entry.
+  ASSERT_FALSE(Feed(&tracker, Truth(30, 0), 78).accepted);
+  ASSERT_TRUE(tracker.RetractLoss());
+  EXPECT_EQ(tracker.state(), TrackingState::kTracking);
+  ASSERT_TRUE(tracker.ReinstateLoss());
+  EXPECT_EQ(tracker.state(), TrackingState::kLost);
+  // While lost, a refused view is no loss of a held track.
+  ASSERT_FALSE(Feed(&tracker, Truth(35, 0), 79).accepted);
+  EXPECT_FALSE(tracker.RetractLoss());
+  EXPECT_EQ(tracker.state(), TrackingState::kLost);
+}
+
 // A re-entry after a loss is accepted only when two views in a row agree on it: a candidate that
 // the next view contradicts (here the next view is 6 mm away, as when the first was fitted onto a
 // similar part of the model elsewhere) is dropped and nothing is fused at it; that next view

@@ -164,9 +164,26 @@ TrackResult ScanRegistrar::Register(ReconstructedView& view, uint64_t burst_seq,
   if (!r.join_attempt.empty())  // joined, or why not
     events_.push_back({{"view", index}, {"burst", burst_seq}, {"state", TrackingStateName(r.state)}, {"fused", r.accepted && r.in_main},
                        {"reason", "segment join: " + r.join_attempt}});
+  state_before_last_ = prev_state_;
   prev_state_ = r.state;
   views_.push_back({burst_seq, reference_ns, r.accepted, r.state});
   return r;
+}
+
+bool ScanRegistrar::RetractLoss() {
+  if (!tracker_.RetractLoss()) return false;
+  retracted_counted_ = prev_state_ == TrackingState::kLost && state_before_last_ != TrackingState::kLost;
+  if (retracted_counted_) --lost_events_;
+  prev_state_ = tracker_.state();
+  return true;
+}
+
+bool ScanRegistrar::ReinstateLoss() {
+  const TrackingState was = tracker_.state();
+  if (!tracker_.ReinstateLoss()) return false;
+  if (was != TrackingState::kLost && tracker_.state() == TrackingState::kLost && retracted_counted_) ++lost_events_;
+  prev_state_ = tracker_.state();
+  return true;
 }
 
 void ScanRegistrar::Commit() { ms_ += tracker_.CommitView(); }

@@ -214,6 +214,10 @@ class ScanRegistrar {
     double seconds_undone = 0;    // capture time from the first undone view to the newest one
   };
   UndoResult UndoLastSeconds(double seconds);
+  // Tracker::RetractLoss for the last view; the loss it counted (lost_events) is taken back too.
+  bool RetractLoss();
+  // Tracker::ReinstateLoss, and the loss counted again.
+  bool ReinstateLoss();
   int64_t views_undone() const { return views_undone_; }
 
   Tracker& tracker() { return tracker_; }
@@ -242,6 +246,8 @@ class ScanRegistrar {
   void CopyWithoutEdgeFill(const ReconstructedView& view);
   int64_t accepted_ = 0, rejected_ = 0, lost_events_ = 0, relocalised_ = 0, views_undone_ = 0;
   TrackingState prev_state_ = TrackingState::kInitialising;
+  TrackingState state_before_last_ = TrackingState::kInitialising;  // prev_state_ before the last Register
+  bool retracted_counted_ = false;                                  // the retracted loss had counted in lost_events_
   nlohmann::json events_ = nlohmann::json::array();
   double ms_ = 0;
 };

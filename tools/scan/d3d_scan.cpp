@@ -85,6 +85,12 @@ int main(int argc, char** argv) {
                  "this many seconds, then thinned out (1 of 3 to 1 of 6) until caught up (0 = start on the newest burst and drop them)")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 10.0));
+  int bridge_bursts = GapBridgeOptions{}.ring_bursts;
+  cli.add_option("--bridge", bridge_bursts,
+                 "live: recent bursts kept so that a view refused several bursts after the last placed one is tried again after "
+                 "one from between (host/scan/gap_bridge.h; 0 = off)")
+      ->check(CLI::Range(0, 300))
+      ->capture_default_str();
   cli.add_option("--out", out_dir, "output folder")->capture_default_str();
   cli.add_flag("--headless", headless, "render the preview offscreen (EGL, no display needed)");
   cli.add_flag("--no-preview", no_preview, "no preview at all");
@@ -306,6 +312,7 @@ int main(int argc, char** argv) {
     ao.live.voxel_mm = live_voxel_mm;
     ao.live_just_in_time = just_in_time;
     ao.live_catch_up_max_s = catch_up_s;
+    ao.bridge.ring_bursts = bridge_bursts;
     ao.undo_seconds = undo_seconds;
     ao.undo_max_views = undo_views;
     ao.undo_after_bursts = undo_after;
