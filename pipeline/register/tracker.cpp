@@ -424,6 +424,8 @@ Tracker::UndoResult Tracker::UndoFrom(int64_t first_view) {
   }
   odometry_.set_coast_run(coast_run);
   relocaliser_.DropCandidate();
+  retractable_ = Retractable{};  // the last view's loss is no longer the state's to take back
+  retracted_ = false;
   // The views refused in a row before first_view count toward a new segment; the undone ones do not.
   if (logged) segments_.set_refused_in_row(view_log_[f].refused_in_row_before);
   views_without_points_ = 0;  // the next view is searched as after a loss (state kLost) anyway

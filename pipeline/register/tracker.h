@@ -137,7 +137,7 @@ class Tracker {
   // refused. A view from the gap before it (a live host's dropped burst: host/scan/gap_bridge.h) is
   // then tracked from the prediction, as it would have been had it come first, instead of searched
   // as a re-entry. False (nothing changed) when the last view was not such a refusal, or after the
-  // next Track.
+  // next Track or an UndoFrom.
   bool RetractLoss();
   // Puts a retracted loss back (the bridge found nothing to place): the tracker is lost as the
   // refused view had left it, unless a view was placed since or it is lost again already. False
