@@ -95,11 +95,11 @@ bool BridgeApplies(const GapBridgeOptions& o, TrackingState state_before, const 
 }
 
 bool GapBridge::Bridge(ScanRegistrar* registrar, int64_t last_placed_ns, int64_t view_capture_ns, int64_t* placed_ns) {
+  // The refused view's loss taken back: a burst from before it is tracked as if it had come first
+  // (not for a view the tracker coasted: nothing to take back, no bridge).
+  if (!registrar->RetractLoss()) return false;
   ++stats_.views;
   tried_.clear();
-  // The refused view's loss taken back: a burst from before it is tracked as if it had come first.
-  // Taken back once: after a bridge refused, the tracker is lost as the view left it.
-  if (!registrar->RetractLoss()) return false;
   const int64_t gap = view_capture_ns - last_placed_ns;
   int64_t target = last_placed_ns + gap / 2;
   for (int fits = 0; fits < o_.max_attempts && static_cast<int>(tried_.size()) < o_.max_bursts;) {
