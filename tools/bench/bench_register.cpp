@@ -8,7 +8,17 @@
 //  3. TSDF integration of the same virtual-probe views: ours (OpenVDB) vs Open3D's
 //     ScalableTSDFVolume: ms per view.
 // Speed is measured here, never in tests. Prints a table and, with --json, one JSON object.
-#include <open3d/Open3D.h>
+#include <open3d/camera/PinholeCameraIntrinsic.h>
+#include <open3d/geometry/Image.h>
+#include <open3d/geometry/KDTreeSearchParam.h>
+#include <open3d/geometry/PointCloud.h>
+#include <open3d/geometry/RGBDImage.h>
+#include <open3d/pipelines/integration/ScalableTSDFVolume.h>
+#include <open3d/pipelines/registration/CorrespondenceChecker.h>
+#include <open3d/pipelines/registration/Feature.h>
+#include <open3d/pipelines/registration/Registration.h>
+#include <open3d/pipelines/registration/TransformationEstimation.h>
+#include <open3d/utility/Logging.h>
 
 #include <CLI/CLI.hpp>
 #include <chrono>

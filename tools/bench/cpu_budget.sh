@@ -42,16 +42,14 @@ source "$root/tools/lib/bench.sh"
 base=4a94ecd base_bin="" bin="$root/build/bin" runs=3 live=0 quota="" rec="" out="cpu_budget_out" domain=78
 extra=(--threads 1)
 while [ $# -gt 0 ]; do
+  if d3d_bench_option "$1" "${2:-}"; then n=0; else n=$?; fi
+  if ((n)); then shift "$n"; continue; fi
   case "$1" in
     --base) base=$2; shift 2 ;;
     --base-bin) base_bin=$2; shift 2 ;;
-    --bin) bin=$2; shift 2 ;;
     --runs) runs=$2; shift 2 ;;
     --live) live=1; shift ;;
     --cpu-quota) quota=$2; shift 2 ;;
-    --recording) rec=$2; shift 2 ;;
-    --out) out=$2; shift 2 ;;
-    --domain) domain=$2; shift 2 ;;
     -h|--help) usage; exit 0 ;;
     --) shift; extra=("$@"); break ;;
     *) echo "cpu_budget: unknown option '$1' (see --help)" >&2; exit 2 ;;

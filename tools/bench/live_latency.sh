@@ -39,14 +39,14 @@ EOF
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 runs=3 quota="" rec="" bin="$root/build/bin" out="live_latency_out" domain=77
 extra=()
+source "$root/tools/lib/setup.sh"
+source "$root/tools/lib/bench.sh"
 while [ $# -gt 0 ]; do
+  if d3d_bench_option "$1" "${2:-}"; then n=0; else n=$?; fi
+  if ((n)); then shift "$n"; continue; fi
   case "$1" in
     --runs) runs=$2; shift 2 ;;
     --cpu-quota) quota=$2; shift 2 ;;
-    --recording) rec=$2; shift 2 ;;
-    --bin) bin=$2; shift 2 ;;
-    --out) out=$2; shift 2 ;;
-    --domain) domain=$2; shift 2 ;;
     -h|--help) usage; exit 0 ;;
     --) shift; extra=("$@"); break ;;
     *) echo "live_latency: unknown option '$1' (see --help)" >&2; exit 2 ;;
@@ -58,9 +58,6 @@ for tool in d3d-scan d3d-replay d3d-probe d3d-record; do
 done
 mkdir -p "$out"
 rec=${rec:-$out/typodont_full_arch_450.d3drec}
-
-source "$root/tools/lib/setup.sh"
-source "$root/tools/lib/bench.sh"
 d3d_record_full_arch "$bin" "$rec" "$out" "$domain" || exit 1
 
 # The CPU cgroup (removed on exit).
