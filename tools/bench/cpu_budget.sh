@@ -42,8 +42,7 @@ source "$root/tools/lib/bench.sh"
 base=4a94ecd base_bin="" bin="$root/build/bin" runs=3 live=0 quota="" rec="" out="cpu_budget_out" domain=78
 extra=(--threads 1)
 while [ $# -gt 0 ]; do
-  if d3d_bench_option "$1" "${2:-}"; then n=0; else n=$?; fi
-  if ((n)); then shift "$n"; continue; fi
+  if d3d_bench_option "$1" "${2:-}"; then shift 2; continue; fi
   case "$1" in
     --base) base=$2; shift 2 ;;
     --base-bin) base_bin=$2; shift 2 ;;

@@ -42,8 +42,7 @@ extra=()
 source "$root/tools/lib/setup.sh"
 source "$root/tools/lib/bench.sh"
 while [ $# -gt 0 ]; do
-  if d3d_bench_option "$1" "${2:-}"; then n=0; else n=$?; fi
-  if ((n)); then shift "$n"; continue; fi
+  if d3d_bench_option "$1" "${2:-}"; then shift 2; continue; fi
   case "$1" in
     --runs) runs=$2; shift 2 ;;
     --cpu-quota) quota=$2; shift 2 ;;

@@ -39,8 +39,7 @@ views=() extra=()
 source "$root/tools/lib/setup.sh"
 source "$root/tools/lib/bench.sh"
 while [ $# -gt 0 ]; do
-  if d3d_bench_option "$1" "${2:-}"; then n=0; else n=$?; fi
-  if ((n)); then shift "$n"; continue; fi
+  if d3d_bench_option "$1" "${2:-}"; then shift 2; continue; fi
   case "$1" in
     --every) every=$2; shift 2 ;;
     --views) [ -f "$2" ] || { echo "thinned_replay: --views: no file '$2'" >&2; exit 2; }; views+=("$2"); shift 2 ;;
@@ -98,7 +97,7 @@ for name in names:
     path = os.path.join(out, name, "report.json")
     r = json.load(open(path)) if os.path.exists(path) else {}
     fused, rms = r.get("fused", 0), r.get("trueness_rms_um")
-    # A run is shown with a time-free figure only when it is sane: views fused and a trueness found.
+    # A run's figures are shown only when they are sane: views fused and a trueness found.
     if not fused or rms is None or rms != rms:
         print("%-12s (no model: see %s.log)" % (name, os.path.join(out, name)))
         continue

@@ -36,16 +36,15 @@ d3d_build_commit() {
 }
 
 # d3d_bench_option ARG VALUE: the options the benchmark scripts share (--recording, --bin, --out,
-# --domain) set rec, bin, out and domain; returns how many arguments it took (2), or 0 when ARG is
-# not one of them. Use: if d3d_bench_option "$1" "${2:-}"; then n=0; else n=$?; fi
+# --domain), each with a value, set rec, bin, out and domain; 0 when ARG was one of them (the caller
+# shifts 2), 1 when not. Use: if d3d_bench_option "$1" "${2:-}"; then shift 2; continue; fi
 d3d_bench_option() {
   case "$1" in
     --recording) rec=$2 ;;
     --bin) bin=$2 ;;
     --out) out=$2 ;;
     --domain) domain=$2 ;;
-    *) return 0 ;;
+    *) return 1 ;;
   esac
   [ -n "$2" ] || { echo "${0##*/}: $1 needs a value" >&2; exit 2; }
-  return 2
 }
