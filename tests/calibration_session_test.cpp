@@ -21,17 +21,18 @@
 //    a depth-scale error of ~7 µm at 50 mm. The test holds the measured level (≤ 12 µm, within
 //    2.5 µm of the truth's) so that it catches regressions; the 10 µm is missed for the
 //    sphere and reported as such.
+#include "sim/calibration/calibration_session.h"
+
 #include <gtest/gtest.h>
 
 #include <filesystem>
 #include <opencv2/imgproc.hpp>
 
 #include "calib/system/system_calibration.h"
-#include "firmware/sim/calibration/calibration_session.h"
-#include "firmware/sim/render/test_scenes.h"
-#include "pipeline/phase/phase_eval.h"
 #include "pipeline/recon/evaluate.h"
 #include "pipeline/recon/reconstruct.h"
+#include "sim/eval/phase_eval.h"
+#include "sim/render/test_scenes.h"
 
 namespace d3d {
 namespace {

@@ -15,10 +15,10 @@
 #include <thread>
 
 #include "common/recording/recording.h"
-#include "firmware/sim/render/probe_design.h"
 #include "host/receiver/receiver.h"
 #include "protocol/codec.h"
 #include "protocol/protocol.h"
+#include "sim/render/probe_design.h"
 #include "tests/process_util.h"
 
 namespace d3d {

@@ -6,9 +6,9 @@
 
 #include <cmath>
 
-#include "firmware/sim/session/sim_session.h"
 #include "pipeline/recon/evaluate.h"
 #include "pipeline/recon/reconstruct.h"
+#include "sim/session/sim_session.h"
 
 namespace d3d {
 namespace {

@@ -10,13 +10,13 @@
 // The analysis lives in tools/recon/real_fringe_report.cpp (the d3d-real-fringe tool, which also
 // writes the PNGs); it is compiled into this test so that the tool and the test measure the same
 // thing. Skips when ../shared/data (D3D_SHARED_DATA_DIR) is absent.
-#include "tools/recon/real_fringe.h"
+#include "pipeline/recon/real_fringe.h"
+
+#include <gtest/gtest.h>
 
 #include <filesystem>
 #include <ostream>
 #include <string>
-
-#include <gtest/gtest.h>
 
 namespace d3d::real_fringe {
 namespace {

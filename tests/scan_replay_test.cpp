@@ -18,9 +18,9 @@
 #include <vector>
 
 #include "common/recording/recording.h"
-#include "firmware/sim/session/sim_session.h"
 #include "protocol/codec.h"
 #include "protocol/protocol.h"
+#include "sim/session/sim_session.h"
 
 namespace fs = std::filesystem;
 

@@ -8,12 +8,11 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
-#include <ostream>
-
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
+#include <ostream>
 
-#include "firmware/sim/session/sim_session.h"
+#include "sim/session/sim_session.h"
 
 namespace fs = std::filesystem;
 

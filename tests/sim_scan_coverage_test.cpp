@@ -12,7 +12,7 @@
 #include <cstdio>
 #include <filesystem>
 
-#include "firmware/sim/session/sim_session.h"
+#include "sim/session/sim_session.h"
 
 namespace d3d {
 namespace {

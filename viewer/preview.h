@@ -18,7 +18,7 @@ namespace d3d {
 // joined to the model once they overlap (SegmentOptions::after_views).
 enum class PreviewCue : uint8_t { kWaiting, kTracking, kLost, kRelocalised, kProbeLost, kPaused, kNewSegment, kSlowDown, kLostSlowDown };
 // "WAITING FOR PROBE", "TRACKING", "LOST", "RELOCALISED", "PROBE LOST", "PAUSED", "NEW SEGMENT",
-// "SLOW DOWN" (tracking, but the host keeps too few bursts for the probe's speed: host/scan/pace_monitor.h),
+// "SLOW DOWN" (tracking, but the host keeps too few bursts for the probe's speed: host/app/pace_monitor.h),
 // "LOST - SLOW DOWN" (lost, and the host keeps too few bursts to track at the probe's pace)
 const char* PreviewCueText(PreviewCue c);
 
@@ -64,7 +64,7 @@ class PanelRefresh {
   int64_t drawn_ns_ = 0;
 };
 
-// Counters the render thread reads each frame (atomics behind it; see host/scan/scan_app.h).
+// Counters the render thread reads each frame (atomics behind it; see host/app/scan_app.h).
 struct PreviewStatus {
   PreviewCue cue_override = PreviewCue::kTracking;  // kProbeLost / kPaused / kWaiting override the snapshot's cue
   bool override_cue = false;

@@ -1,7 +1,7 @@
 // Synthetic images of a calibration target for tests with ground truth: a printed target
 // (black features on white, outside the features white) seen by a pinhole + Brown–Conrady camera
 // at a known pose, with area sampling (n × n sub-pixels per pixel), Gaussian blur, seeded Gaussian
-// noise and 8-bit quantisation. Not a physical renderer (the virtual probe is, firmware/sim); this
+// noise and 8-bit quantisation. Not a physical renderer (the virtual probe is, sim); this
 // one is cheap and exact in geometry, for unit tests of the calibration steps.
 #pragma once
 

@@ -1,5 +1,5 @@
 // Lossless zstd packing of images (a burst's camera frames, a view's organised points): what a
-// scan keeps to reconstruct or match a view again later (pipeline/scan/view_archive.h: the kept
+// scan keeps to reconstruct or match a view again later (pipeline/chain/view_archive.h: the kept
 // views' frames; pipeline/register/keyframe_graph.h: a keyframe's feature inputs until they are needed).
 //
 // Threads: a FramePacker is one thread's (it holds a zstd context and a buffer). UnpackFrames is free.

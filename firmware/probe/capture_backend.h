@@ -3,7 +3,7 @@
 // A backend delivers one frame per projector trigger: Capture(pattern_index, trigger_seq, t_ns)
 // returns the frame whose exposure is centred on t_ns, tagged with the trigger counter the camera
 // latched (its strobe input) and the camera's own frame counter; the pairing and the checks are in
-// frame_sync.h. Backends: "sim" (the virtual probe, firmware/sim) and "libcamera" (a real sensor).
+// frame_sync.h. Backends: "sim" (the virtual probe, sim) and "libcamera" (a real sensor).
 //
 // Threads: one capture thread calls Open/Capture/Close; SetExposure may be called from the command
 // thread (backends make it thread-safe).

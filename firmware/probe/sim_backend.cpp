@@ -1,4 +1,4 @@
-// The "sim" capture backend: the virtual probe (firmware/sim/session) as a camera.
+// The "sim" capture backend: the virtual probe (sim/session) as a camera.
 //
 // Rendering is far slower than the probe's burst rate (~3.5 bursts/s per core at 640 × 480), so the
 // backend renders a cycle of `sim_cycle` consecutive bursts of the scan path at start-up (Open) and
@@ -16,7 +16,7 @@
 #include <thread>
 
 #include "firmware/probe/capture_backend.h"
-#include "firmware/sim/session/sim_session.h"
+#include "sim/session/sim_session.h"
 
 namespace d3d {
 namespace {

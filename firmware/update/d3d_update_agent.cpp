@@ -1,11 +1,12 @@
 // d3d-update-agent: the simulated probe's firmware update agent. Holds a file-backed A/B flash,
 // boots it like the probe's bootloader, and serves USB DFU 1.1 over a Unix socket (the sim link)
 // to d3d-flash. Tests start it, kill it (power loss) and restart it on the same flash.
-#include <CLI/CLI.hpp>
-#include <csignal>
-#include <cstdio>
 #include <unistd.h>
 
+#include <csignal>
+#include <cstdio>
+
+#include "common/options/option_registry.h"
 #include "firmware/update/agent_setup.h"
 #include "firmware/update/sim_link_server.h"
 #include "firmware/update/update_agent.h"
@@ -51,43 +52,42 @@ class SimProbeHooks : public ProbeHooks {
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"d3d-update-agent: the simulated probe's firmware update agent (USB DFU 1.1 over a Unix socket)"};
+  OptionRegistry options("d3d-update-agent: the simulated probe's firmware update agent (USB DFU 1.1 over a Unix socket)");
   std::string socket_path, flash_dir, pubkey_path, provision, hw = "0x0001", serial = "SIM0001";
   SimProbeHooks hooks;
   uint64_t slot_mib = 20;
   uint32_t erase_kib = 64, page_bytes = 256;
-  uint16_t transfer_size = 4096;
+  unsigned transfer_size = 4096;  // a uint16_t (wTransferSize): the range is checked
   int poll_ms = 0, trial_boots = 2;
   int64_t power_cut_after = -1;
   bool streaming = false, sim_controls = false;
-  app.add_option("--socket", socket_path, "Unix socket to serve the sim link on")->required();
-  app.add_option("--flash", flash_dir, "directory of the simulated flash (flash.bin, created erased)")->required();
-  app.add_option("--pubkey", pubkey_path, "the public key the probe trusts (d3d-fwpack --keygen)")->required();
-  app.add_option("--hw", hw, "this probe's hardware compatibility id")->capture_default_str();
-  app.add_option("--serial", serial, "USB serial number")->capture_default_str();
-  app.add_option("--provision", provision, "factory image written to slot A when the flash is blank");
-  app.add_option("--slot-mib", slot_mib, "capacity of each A/B slot, MiB")->capture_default_str();
-  app.add_option("--erase-kib", erase_kib, "flash erase block, KiB")->capture_default_str();
-  app.add_option("--page", page_bytes, "flash program page, bytes")->capture_default_str();
-  app.add_option("--transfer-size", transfer_size, "DFU wTransferSize, bytes")->capture_default_str();
-  app.add_option("--poll-ms", poll_ms, "bwPollTimeout reported while busy (-1: the flash timing model)")
-      ->capture_default_str();
-  app.add_option("--trial-boots", trial_boots, "boots a new firmware gets to confirm itself")->capture_default_str();
-  app.add_flag("--streaming", streaming, "the probe streams from the start (updates are refused)");
-  app.add_flag("--sim-controls", sim_controls, "accept the vendor request that starts/stops streaming");
-  app.add_option("--unhealthy-version", hooks.unhealthy_version, "a firmware version whose health check fails");
-  app.add_option("--silent-version", hooks.silent_version, "a firmware version that never confirms (hangs)");
-  app.add_option("--power-cut-after-ops", power_cut_after,
-                 "cut the power at flash operation N (erases + page programs since start); the agent exits 86");
-  app.add_flag("--quiet", hooks.quiet, "no log lines");
-  CLI11_PARSE(app, argc, argv);
+  options.Add("--socket", &socket_path, "Unix socket to serve the sim link on").Required();
+  options.Add("--flash", &flash_dir, "directory of the simulated flash (flash.bin, created erased)").Required();
+  options.Add("--pubkey", &pubkey_path, "the public key the probe trusts (d3d-fwpack --keygen)").Required();
+  options.Add("--hw", &hw, "this probe's hardware compatibility id");
+  options.Add("--serial", &serial, "USB serial number");
+  options.Add("--provision", &provision, "factory image written to slot A when the flash is blank");
+  options.Add("--slot-mib", &slot_mib, "capacity of each A/B slot, MiB");
+  options.Add("--erase-kib", &erase_kib, "flash erase block, KiB");
+  options.Add("--page", &page_bytes, "flash program page, bytes");
+  options.Add("--transfer-size", &transfer_size, "DFU wTransferSize, bytes").Range(0, 65535);
+  options.Add("--poll-ms", &poll_ms, "bwPollTimeout reported while busy (-1: the flash timing model)");
+  options.Add("--trial-boots", &trial_boots, "boots a new firmware gets to confirm itself");
+  options.Flag("--streaming", &streaming, "the probe streams from the start (updates are refused)");
+  options.Flag("--sim-controls", &sim_controls, "accept the vendor request that starts/stops streaming");
+  options.Add("--unhealthy-version", &hooks.unhealthy_version, "a firmware version whose health check fails");
+  options.Add("--silent-version", &hooks.silent_version, "a firmware version that never confirms (hangs)");
+  options.Add("--power-cut-after-ops", &power_cut_after,
+              "cut the power at flash operation N (erases + page programs since start); the agent exits 86");
+  options.Flag("--quiet", &hooks.quiet, "no log lines");
+  if (int code = 0; !options.Parse(argc, argv, &code)) return code;
 
   try {
     UpdateAgentOptions opt;
     opt.slots.hw_id = static_cast<uint32_t>(std::stoul(hw, nullptr, 0));
     opt.slots.slot_bytes = slot_mib << 20;
     opt.slots.trial_boots = static_cast<uint8_t>(trial_boots);
-    opt.dfu.transfer_size = transfer_size;
+    opt.dfu.transfer_size = static_cast<uint16_t>(transfer_size);
     opt.dfu.fixed_poll_ms = poll_ms;
     opt.serial = serial;
     opt.sim_controls = sim_controls;
@@ -123,7 +123,8 @@ int main(int argc, char** argv) {
       _exit(86);
     };
     so.on_reset = [&](const Status& s) {
-      if (!s.ok()) std::fprintf(stderr, "d3d-update-agent: reboot: %s\n", s.ToString().c_str());
+      if (!s.ok())
+        std::fprintf(stderr, "d3d-update-agent: reboot: %s\n", s.ToString().c_str());
       else if (!hooks.quiet && !agent.boot_log().empty()) {
         std::fprintf(stderr, "d3d-update-agent: reboot: %s\n", agent.boot_log().c_str());
       }

@@ -24,12 +24,9 @@
 // (the second stage's recent time per item, median of the last 16) − (its own median) −
 // just_in_time_margin_ms. Its output then waits less for the second stage, and the burst it
 // starts on is newer by the time held back: the latency falls by that time on average (a burst's
-// age at any instant is uniform over the source's period), the work is the same. d3d-scan, live
-// (6 runs each, interleaved): reconstruct held back 9–11 ms per burst, latency p95 81–109 ms
-// against 97–122 without, p50 50–70 against 58–92, at the same throughput (26.1–29.4 bursts/s
-// against 24.9–29.1). With the 25th / 75th percentiles instead it held back only 3–5 ms. Only
-// the first stage: a later stage holding back would keep the stage before it waiting (it waits for
-// its output to be taken before it takes its next input).
+// age at any instant is uniform over the source's period), the work is the same (figures:
+// docs/decisions/0016). Only the first stage: a later stage holding back would keep the stage
+// before it waiting (it waits for its output to be taken before it takes its next input).
 //
 // Catch-up start (StageGraphOptions::live_catch_up_max_s, live only): a live scan's first items
 // are not dropped. Until the graph has caught up with the backlog that queued while the host set
@@ -44,19 +41,16 @@
 // than live_catch_up_min_gain_ms per item over the last live_catch_up_window items) would keep
 // every burst late for long: the source then keeps one item of every live_catch_up_thin + 1 (the
 // others dropped, counted at edge 0) until it has caught up. Latest wins would jump over the whole
-// backlog at once, and the live tracker lost its view after such a ~10-burst jump at the scan's
-// start (d3d-scan at 1.0 core). Thinned, the same trend check runs per item ingested (kept or
-// dropped): a graph that still does not gain drops one more item of each run, up to
-// live_catch_up_max_thin, so that the kept items stay a steady subset a few bursts apart. The
-// time limit live_catch_up_max_s ends only the every-item phase: a thinned catch-up ends when
-// caught up, after live_catch_up_thinned_max_s, or when it does not gain at the widest thinning
-// (a graph that slow could not follow any subset). It had ended by the same time limit, jumping
-// ~30 bursts where a host at 1.0 core was still thinned 1 in 3 after 1 s (docs/decisions/0014).
-// After the catch-up, latest wins as before.
-// Without it a live scan began ~10 bursts after the probe's first (d3d-scan, 450-burst typodont
-// recording at 30 Hz: the host needs ~0.3 s to set up once the probe's calibration arrives), a
-// different start from the lossless replay of the same recording; with every burst, the live
-// tracker's result equals the lossless one within 0.04 um of trueness (11.59 against 11.63).
+// backlog at once, too far for a tracker to follow (docs/decisions/0014, 0016). Thinned, the same
+// trend check runs per item ingested (kept or dropped): a graph that still does not gain drops one
+// more item of each run, up to live_catch_up_max_thin, so that the kept items stay a steady subset
+// a few bursts apart. The time limit live_catch_up_max_s ends only the every-item phase: a thinned
+// catch-up ends when caught up, after live_catch_up_thinned_max_s, or when it does not gain at the
+// widest thinning (a graph that slow could not follow any subset). After the catch-up, latest wins
+// as before.
+// Why: without it a live scan starts with the first burst after the host's set-up, not the
+// probe's first, a different start from a lossless replay of the same recording (figures:
+// docs/decisions/0016).
 //
 // Per item the graph keeps an ItemMeta: `seq` (ingest order, 0, 1, …), `origin_ns` (the time the
 // item's latency is measured from, set by the source: capture or receive time, Unix epoch ns) and
@@ -99,21 +93,21 @@ inline int64_t GraphNowNs() {
 
 struct StageGraphOptions {
   EdgePolicy policy = EdgePolicy::kLossless;
-  size_t lossless_capacity = 4;  // items per lossless edge
-  size_t extra_items = 1;        // pool items beyond the minimum
-  size_t latency_samples = 1 << 16;  // kept for the percentiles (the latest ones, ring)
-  bool live_demand_driven = true;    // live: see the file comment (false: every edge latest-wins)
-  int latency_stage = -1;            // the stage whose end is an item's latency (-1: the last)
-  bool live_just_in_time = false;    // live, demand-driven: the first stage starts just in time (file comment)
-  double just_in_time_margin_ms = 3;  // ... finishing this much before the second stage is expected free
-  double live_catch_up_max_s = 0;     // live: catch-up start, every item for at most this long after the first (file comment; 0 = off)
-  double live_caught_up_wait_ms = 5;  // ... caught up once the source waited this long for an item, stage 0 free
-  double live_caught_up_age_ms = 50;  // ... or an item's origin is at most this old when the source hands it over
-  int live_caught_up_items = 3;       // ... for this many items in a row
-  int live_catch_up_window = 6;       // ... not gaining: over this many items (0 = never; ≤ 64) ...
-  double live_catch_up_min_gain_ms = 8;  // ... the items' age fell less than this per item ingested
-  int live_catch_up_thin = 2;         // ... then it keeps 1 of every thin + 1 items (dropping the others) until caught up (0 = latest wins)
-  int live_catch_up_max_thin = 5;     // ... one more dropped each time it still does not gain, up to this; then latest wins
+  size_t lossless_capacity = 4;            // items per lossless edge
+  size_t extra_items = 1;                  // pool items beyond the minimum
+  size_t latency_samples = 1 << 16;        // kept for the percentiles (the latest ones, ring)
+  bool live_demand_driven = true;          // live: see the file comment (false: every edge latest-wins)
+  int latency_stage = -1;                  // the stage whose end is an item's latency (-1: the last)
+  bool live_just_in_time = false;          // live, demand-driven: the first stage starts just in time (file comment)
+  double just_in_time_margin_ms = 3;       // ... finishing this much before the second stage is expected free
+  double live_catch_up_max_s = 0;          // live: catch-up start, every item for at most this long after the first (file comment; 0 = off)
+  double live_caught_up_wait_ms = 5;       // ... caught up once the source waited this long for an item, stage 0 free
+  double live_caught_up_age_ms = 50;       // ... or an item's origin is at most this old when the source hands it over
+  int live_caught_up_items = 3;            // ... for this many items in a row
+  int live_catch_up_window = 6;            // ... not gaining: over this many items (0 = never; ≤ 64) ...
+  double live_catch_up_min_gain_ms = 8;    // ... the items' age fell less than this per item ingested
+  int live_catch_up_thin = 2;              // ... then it keeps 1 of every thin + 1 items (dropping the others) until caught up (0 = latest wins)
+  int live_catch_up_max_thin = 5;          // ... one more dropped each time it still does not gain, up to this; then latest wins
   double live_catch_up_thinned_max_s = 5;  // ... thinned for at most this long (then latest wins)
   void Check() const {
     if (lossless_capacity < 1 || latency_samples < 1) throw std::invalid_argument("StageGraphOptions: capacities must be >= 1");
@@ -144,7 +138,7 @@ struct StageCounters {
   std::atomic<uint64_t> cpu_ns{0};
   std::atomic<uint64_t> max_ns{0};
   std::atomic<uint64_t> order_violations{0};  // seq not above the previous one (must stay 0)
-  std::atomic<uint64_t> held_ns{0};  // time held back before taking an item (just-in-time start)
+  std::atomic<uint64_t> held_ns{0};           // time held back before taking an item (just-in-time start)
 };
 
 // CPU time of the calling thread (ns, CLOCK_THREAD_CPUTIME_ID).
@@ -172,8 +166,7 @@ class StageGraph {
     AfterFn after = {};
   };
 
-  StageGraph(const StageGraphOptions& options, const std::function<std::unique_ptr<Item>()>& factory, SourceFn source,
-             std::vector<Stage> stages)
+  StageGraph(const StageGraphOptions& options, const std::function<std::unique_ptr<Item>()>& factory, SourceFn source, std::vector<Stage> stages)
       : o_(options), source_(std::move(source)), stages_(std::move(stages)), counters_(stages_.size()) {
     o_.Check();
     if (stages_.empty()) throw std::invalid_argument("StageGraph: no stage");
@@ -231,9 +224,7 @@ class StageGraph {
     return d;
   }
   // Edge i feeds stage i; edge 0's count includes the items the source dropped while catching up thinned.
-  uint64_t dropped_at(size_t edge) const {
-    return edges_[edge]->dropped() + (edge == 0 ? source_dropped_.load(std::memory_order_relaxed) : 0);
-  }
+  uint64_t dropped_at(size_t edge) const { return edges_[edge]->dropped() + (edge == 0 ? source_dropped_.load(std::memory_order_relaxed) : 0); }
   const StageCounters& stage(size_t i) const { return counters_[i]; }
   const std::string& stage_name(size_t i) const { return stages_[i].name; }
   size_t num_stages() const { return stages_.size(); }
@@ -259,7 +250,7 @@ class StageGraph {
   };
 
   static constexpr size_t kMaxCatchUpWindow = 64;  // StageGraphOptions::live_catch_up_window
-  Node* TakeFree() {  // source thread
+  Node* TakeFree() {                               // source thread
     std::unique_lock<std::mutex> lock(pool_mu_);
     pool_cv_.wait(lock, [this] { return !free_.empty() || stop_.load(std::memory_order_acquire); });
     if (free_.empty()) return nullptr;
@@ -277,9 +268,7 @@ class StageGraph {
 
   // Names the calling thread "g:<name>" (at most 15 characters, the kernel's limit), so that
   // top -H and perf show each stage's share of the cores.
-  static void NameThisThread(const std::string& name) {
-    pthread_setname_np(pthread_self(), ("g:" + name).substr(0, 15).c_str());
-  }
+  static void NameThisThread(const std::string& name) { pthread_setname_np(pthread_self(), ("g:" + name).substr(0, 15).c_str()); }
 
   void SourceLoop() {
     NameThisThread("source");
@@ -289,10 +278,10 @@ class StageGraph {
     // live_catch_up_thin + 1, then latest wins.
     enum class CatchUp { kOff, kEvery, kThinned };
     CatchUp catch_up = catching_up_.load(std::memory_order_relaxed) ? CatchUp::kEvery : CatchUp::kOff;
-    int64_t first_ns = 0;   // steady clock: the first catch-up item handed over
-    int64_t thinned_ns = 0;  // steady clock: thinned since
-    int caught_up_run = 0;  // consecutive items that found the graph caught up
-    uint64_t kept = 0, thinned = 0;  // items handed over (catch_up_items_) / seen while thinned
+    int64_t first_ns = 0;              // steady clock: the first catch-up item handed over
+    int64_t thinned_ns = 0;            // steady clock: thinned since
+    int caught_up_run = 0;             // consecutive items that found the graph caught up
+    uint64_t kept = 0, thinned = 0;    // items handed over (catch_up_items_) / seen while thinned
     int thin = o_.live_catch_up_thin;  // thinned: items dropped after each one kept
     uint64_t judged = 0;               // kept items the trend check has seen at the current thinning
     // Ring: the ages (ns) of the latest catch-up items and the items ingested when they were handed over.
@@ -406,7 +395,7 @@ class StageGraph {
           GiveBack(dropped);
         }
       }
-      n = nullptr;  // no longer this stage's
+      n = nullptr;             // no longer this stage's
       if (stages_[i].after) {  // its time counts; a blocking Push's wait before it does not
         const auto a0 = std::chrono::steady_clock::now();
         const uint64_t acpu0 = ThreadCpuNs();
@@ -422,8 +411,10 @@ class StageGraph {
         if (i == 1) second_median_ns_.store(own.Median(), std::memory_order_relaxed);
       }
     }
-    if (!last) edges_[i + 1]->Close();
-    else finished_.store(true, std::memory_order_release);
+    if (!last)
+      edges_[i + 1]->Close();
+    else
+      finished_.store(true, std::memory_order_release);
   }
 
   // The latest kN wall times per item of one stage (its own thread). Its median, unlike
@@ -465,8 +456,8 @@ class StageGraph {
   SourceFn source_;
   std::vector<Stage> stages_;
   std::vector<StageCounters> counters_;
-  bool just_in_time_ = false;                    // the options ask for it and the graph can do it (set-up)
-  std::atomic<int64_t> second_median_ns_{0};     // stage 1's recent median time per item (its thread writes)
+  bool just_in_time_ = false;                 // the options ask for it and the graph can do it (set-up)
+  std::atomic<int64_t> second_median_ns_{0};  // stage 1's recent median time per item (its thread writes)
   std::vector<std::unique_ptr<Node>> nodes_;
   std::vector<std::unique_ptr<Edge<Node>>> edges_;
   std::mutex pool_mu_;
@@ -484,8 +475,10 @@ class StageGraph {
   int64_t t_start_ns_ = 0;
   // Appends ms to a ring of the latest o_.latency_samples samples (*next: the slot to overwrite).
   void KeepLatency(double ms, std::vector<double>* ring, size_t* next) const {
-    if (ring->size() < o_.latency_samples) ring->push_back(ms);
-    else (*ring)[(*next)++ % o_.latency_samples] = ms;
+    if (ring->size() < o_.latency_samples)
+      ring->push_back(ms);
+    else
+      (*ring)[(*next)++ % o_.latency_samples] = ms;
   }
   size_t latency_stage_ = 0;
   std::vector<double> latency_ms_;  // the latency stage's thread; read after Join

@@ -7,25 +7,58 @@
 namespace d3d {
 namespace {
 
-int64_t NowNs() {
-  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch()).count();
+int64_t NowNs() { return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch()).count(); }
+
+// Takes `reader`'s samples of type Sample until it has none left, kBatch at a time: per batch,
+// on_batch() once, then on_sample(sample) for each sample with valid data, then the loan is returned.
+template <typename Sample, int kBatch, typename OnBatch, typename OnSample>
+void TakeAll(dds_entity_t reader, OnBatch&& on_batch, OnSample&& on_sample) {
+  void* samples[kBatch] = {};
+  dds_sample_info_t infos[kBatch];
+  for (;;) {
+    const int n = dds_take(reader, samples, infos, kBatch, kBatch);
+    if (n <= 0) return;
+    on_batch();
+    for (int i = 0; i < n; ++i) {
+      if (!infos[i].valid_data) continue;
+      on_sample(*static_cast<const Sample*>(samples[i]));
+    }
+    dds_return_loan(reader, samples, n);
+  }
+}
+
+template <typename Sample, int kBatch, typename OnSample>
+void TakeAll(dds_entity_t reader, OnSample&& on_sample) {
+  TakeAll<Sample, kBatch>(
+      reader, [] {}, on_sample);
 }
 
 }  // namespace
 
 const char* DropReasonName(DropReason r) {
   switch (r) {
-    case DropReason::kProtocolVersion: return "protocol_version";
-    case DropReason::kSerial: return "serial";
-    case DropReason::kGeometry: return "geometry";
-    case DropReason::kFrameCount: return "frame_count";
-    case DropReason::kFrameSize: return "frame_size";
-    case DropReason::kFrameOrder: return "frame_order";
-    case DropReason::kDuplicate: return "duplicate";
-    case DropReason::kCalibration: return "calibration";
-    case DropReason::kBadEnum: return "bad_enum";
-    case DropReason::kQueueFull: return "queue_full";
-    case DropReason::kCount: break;
+    case DropReason::kProtocolVersion:
+      return "protocol_version";
+    case DropReason::kSerial:
+      return "serial";
+    case DropReason::kGeometry:
+      return "geometry";
+    case DropReason::kFrameCount:
+      return "frame_count";
+    case DropReason::kFrameSize:
+      return "frame_size";
+    case DropReason::kFrameOrder:
+      return "frame_order";
+    case DropReason::kDuplicate:
+      return "duplicate";
+    case DropReason::kCalibration:
+      return "calibration";
+    case DropReason::kBadEnum:
+      return "bad_enum";
+    case DropReason::kQueueFull:
+      return "queue_full";
+    case DropReason::kCount:
+      break;
   }
   return "unknown";
 }
@@ -43,7 +76,8 @@ void ReceiverOptions::Check() const {
 
 DropReason CheckBurst(const d3d_proto_PhaseBurst& s, std::string* detail) {
   if (!proto::ProtocolCompatible(s.protocol_version)) {
-    *detail = "protocol version " + std::to_string(s.protocol_version) + ", expected major " + std::to_string(proto::ProtocolMajor(proto::kProtocolVersion));
+    *detail = "protocol version " + std::to_string(s.protocol_version) + ", expected major " +
+              std::to_string(proto::ProtocolMajor(proto::kProtocolVersion));
     return DropReason::kProtocolVersion;
   }
   if (s.width < 1 || s.height < 1 || s.width > 8192 || s.height > 8192 || s.bit_depth < 1 || s.bit_depth > 16) {
@@ -146,131 +180,107 @@ void BurstReceiver::Push(ReceivedSample&& s) {
 
 void BurstReceiver::OnBurst(dds_entity_t reader, void* arg) {
   auto* self = static_cast<BurstReceiver*>(arg);
-  void* samples[8] = {};
-  dds_sample_info_t infos[8];
-  for (;;) {
-    const int n = dds_take(reader, samples, infos, 8, 8);
-    if (n <= 0) return;
-    const int64_t now = NowNs();
-    for (int i = 0; i < n; ++i) {
-      if (!infos[i].valid_data) continue;
-      const auto& s = *static_cast<const d3d_proto_PhaseBurst*>(samples[i]);
-      std::string detail;
-      const std::string serial = proto::FromBounded(s.serial);
-      if (!self->options_.serial.empty() && serial != self->options_.serial) {
-        self->Drop(DropReason::kSerial, serial);
-        continue;
-      }
-      const DropReason r = CheckBurst(s, &detail);
-      if (r != DropReason::kCount) {
-        self->Drop(r, "burst " + std::to_string(s.burst_seq) + " from " + serial + ": " + detail);
-        continue;
-      }
-      ReceivedSample out;
-      out.receive_ns = now;
-      proto::BurstMsg msg;
-      {
-        std::lock_guard<std::mutex> lock(self->mu_);
-        auto it = self->next_seq_.find(serial);
-        if (it != self->next_seq_.end()) {
-          if (s.burst_seq == 0 && it->second > 0) {
-            ++self->counters_.probe_restarts;
-          } else if (s.burst_seq < it->second) {
-            detail = "burst " + std::to_string(s.burst_seq) + " after " + std::to_string(it->second - 1);
-          } else if (s.burst_seq > it->second) {
-            ++self->counters_.sequence_gaps;
-            self->counters_.bursts_missing += s.burst_seq - it->second;
+  int64_t now = 0;  // when the batch was taken
+  TakeAll<d3d_proto_PhaseBurst, 8>(
+      reader, [&now] { now = NowNs(); },
+      [&](const d3d_proto_PhaseBurst& s) {
+        std::string detail;
+        const std::string serial = proto::FromBounded(s.serial);
+        if (!self->options_.serial.empty() && serial != self->options_.serial) {
+          self->Drop(DropReason::kSerial, serial);
+          return;
+        }
+        const DropReason r = CheckBurst(s, &detail);
+        if (r != DropReason::kCount) {
+          self->Drop(r, "burst " + std::to_string(s.burst_seq) + " from " + serial + ": " + detail);
+          return;
+        }
+        ReceivedSample out;
+        out.receive_ns = now;
+        proto::BurstMsg msg;
+        {
+          std::lock_guard<std::mutex> lock(self->mu_);
+          auto it = self->next_seq_.find(serial);
+          if (it != self->next_seq_.end()) {
+            if (s.burst_seq == 0 && it->second > 0) {
+              ++self->counters_.probe_restarts;
+            } else if (s.burst_seq < it->second) {
+              detail = "burst " + std::to_string(s.burst_seq) + " after " + std::to_string(it->second - 1);
+            } else if (s.burst_seq > it->second) {
+              ++self->counters_.sequence_gaps;
+              self->counters_.bursts_missing += s.burst_seq - it->second;
+            }
+          }
+          if (detail.empty()) {
+            self->next_seq_[serial] = s.burst_seq + 1;
+            ++self->counters_.bursts_accepted;
+            if (!self->spare_bursts_.empty()) {
+              msg = std::move(self->spare_bursts_.back());
+              self->spare_bursts_.pop_back();
+            }
           }
         }
-        if (detail.empty()) {
-          self->next_seq_[serial] = s.burst_seq + 1;
-          ++self->counters_.bursts_accepted;
-          if (!self->spare_bursts_.empty()) {
-            msg = std::move(self->spare_bursts_.back());
-            self->spare_bursts_.pop_back();
-          }
+        if (!detail.empty()) {
+          self->Drop(DropReason::kDuplicate, detail);
+          return;
         }
-      }
-      if (!detail.empty()) {
-        self->Drop(DropReason::kDuplicate, detail);
-        continue;
-      }
-      proto::FromDds(s, &msg);  // copies into the recycled buffers' capacity
-      out.msg = std::move(msg);
-      self->Push(std::move(out));
-    }
-    dds_return_loan(reader, samples, n);
-  }
+        proto::FromDds(s, &msg);  // copies into the recycled buffers' capacity
+        out.msg = std::move(msg);
+        self->Push(std::move(out));
+      });
 }
 
 void BurstReceiver::OnInfo(dds_entity_t reader, void* arg) {
   auto* self = static_cast<BurstReceiver*>(arg);
-  void* samples[4] = {};
-  dds_sample_info_t infos[4];
-  for (;;) {
-    const int n = dds_take(reader, samples, infos, 4, 4);
-    if (n <= 0) return;
-    for (int i = 0; i < n; ++i) {
-      if (!infos[i].valid_data) continue;
-      proto::InfoMsg m;
-      proto::FromDds(*static_cast<const d3d_proto_ProbeInfo*>(samples[i]), &m);
-      if (!self->options_.serial.empty() && m.serial != self->options_.serial) {
-        self->Drop(DropReason::kSerial, m.serial);
-        continue;
-      }
-      ProbeCalibration cal;
-      std::string detail;
-      const DropReason r = CheckInfo(m, &cal, &detail);
-      if (r != DropReason::kCount) {
-        self->Drop(r, "ProbeInfo from " + m.serial + ": " + detail);
-        continue;
-      }
-      {
-        std::lock_guard<std::mutex> lock(self->mu_);
-        self->info_ = m;
-        self->calibration_ = cal;
-        self->have_info_ = true;
-        ++self->counters_.infos_accepted;
-      }
-      self->Push(ReceivedSample{NowNs(), std::move(m)});
+  TakeAll<d3d_proto_ProbeInfo, 4>(reader, [&](const d3d_proto_ProbeInfo& s) {
+    proto::InfoMsg m;
+    proto::FromDds(s, &m);
+    if (!self->options_.serial.empty() && m.serial != self->options_.serial) {
+      self->Drop(DropReason::kSerial, m.serial);
+      return;
     }
-    dds_return_loan(reader, samples, n);
-  }
+    ProbeCalibration cal;
+    std::string detail;
+    const DropReason r = CheckInfo(m, &cal, &detail);
+    if (r != DropReason::kCount) {
+      self->Drop(r, "ProbeInfo from " + m.serial + ": " + detail);
+      return;
+    }
+    {
+      std::lock_guard<std::mutex> lock(self->mu_);
+      self->info_ = m;
+      self->calibration_ = cal;
+      self->have_info_ = true;
+      ++self->counters_.infos_accepted;
+    }
+    self->Push(ReceivedSample{NowNs(), std::move(m)});
+  });
 }
 
 void BurstReceiver::OnStatus(dds_entity_t reader, void* arg) {
   auto* self = static_cast<BurstReceiver*>(arg);
-  void* samples[8] = {};
-  dds_sample_info_t infos[8];
-  for (;;) {
-    const int n = dds_take(reader, samples, infos, 8, 8);
-    if (n <= 0) return;
-    for (int i = 0; i < n; ++i) {
-      if (!infos[i].valid_data) continue;
-      const auto& s = *static_cast<const d3d_proto_ProbeStatus*>(samples[i]);
-      const std::string serial = proto::FromBounded(s.serial);
-      if (!self->options_.serial.empty() && serial != self->options_.serial) {
-        self->Drop(DropReason::kSerial, serial);
-        continue;
-      }
-      if (!proto::ProtocolCompatible(s.protocol_version)) {
-        self->Drop(DropReason::kProtocolVersion, "ProbeStatus version " + std::to_string(s.protocol_version));
-        continue;
-      }
-      if (static_cast<int>(s.state) < 0 || static_cast<int>(s.state) > 3) {
-        self->Drop(DropReason::kBadEnum, "ProbeStatus state " + std::to_string(static_cast<int>(s.state)));
-        continue;
-      }
-      proto::StatusMsg m;
-      proto::FromDds(s, &m);
-      {
-        std::lock_guard<std::mutex> lock(self->mu_);
-        ++self->counters_.statuses_accepted;
-      }
-      self->Push(ReceivedSample{NowNs(), std::move(m)});
+  TakeAll<d3d_proto_ProbeStatus, 8>(reader, [&](const d3d_proto_ProbeStatus& s) {
+    const std::string serial = proto::FromBounded(s.serial);
+    if (!self->options_.serial.empty() && serial != self->options_.serial) {
+      self->Drop(DropReason::kSerial, serial);
+      return;
     }
-    dds_return_loan(reader, samples, n);
-  }
+    if (!proto::ProtocolCompatible(s.protocol_version)) {
+      self->Drop(DropReason::kProtocolVersion, "ProbeStatus version " + std::to_string(s.protocol_version));
+      return;
+    }
+    if (static_cast<int>(s.state) < 0 || static_cast<int>(s.state) > 3) {
+      self->Drop(DropReason::kBadEnum, "ProbeStatus state " + std::to_string(static_cast<int>(s.state)));
+      return;
+    }
+    proto::StatusMsg m;
+    proto::FromDds(s, &m);
+    {
+      std::lock_guard<std::mutex> lock(self->mu_);
+      ++self->counters_.statuses_accepted;
+    }
+    self->Push(ReceivedSample{NowNs(), std::move(m)});
+  });
 }
 
 bool BurstReceiver::Pop(ReceivedSample* out, int64_t timeout_ns) {

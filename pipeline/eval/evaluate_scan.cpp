@@ -14,6 +14,7 @@
 #include <unordered_map>
 
 #include "common/core/status.h"
+#include "common/mesh/closest_point.h"
 #include "pipeline/register/fpfh.h"
 #include "pipeline/register/kdtree.h"
 #include "pipeline/register/rigid_fit.h"
@@ -22,33 +23,6 @@
 namespace d3d {
 
 namespace {
-
-// Closest point on triangle abc to p (Ericson 2005, §5.1.5). region: 0 interior, 1..3 vertex a,b,c,
-// 4 edge ab, 5 edge bc, 6 edge ca.
-Eigen::Vector3d ClosestOnTriangle(const Eigen::Vector3d& p, const Eigen::Vector3d& a, const Eigen::Vector3d& b,
-                                  const Eigen::Vector3d& c, int* region) {
-  const Eigen::Vector3d ab = b - a, ac = c - a, ap = p - a;
-  const double d1 = ab.dot(ap), d2 = ac.dot(ap);
-  if (d1 <= 0 && d2 <= 0) { *region = 1; return a; }
-  const Eigen::Vector3d bp = p - b;
-  const double d3 = ab.dot(bp), d4 = ac.dot(bp);
-  if (d3 >= 0 && d4 <= d3) { *region = 2; return b; }
-  const double vc = d1 * d4 - d3 * d2;
-  if (vc <= 0 && d1 >= 0 && d3 <= 0) { *region = 4; return a + d1 / (d1 - d3) * ab; }
-  const Eigen::Vector3d cp = p - c;
-  const double d5 = ab.dot(cp), d6 = ac.dot(cp);
-  if (d6 >= 0 && d5 <= d6) { *region = 3; return c; }
-  const double vb = d5 * d2 - d1 * d6;
-  if (vb <= 0 && d2 >= 0 && d6 <= 0) { *region = 6; return a + d2 / (d2 - d6) * ac; }
-  const double va = d3 * d6 - d5 * d4;
-  if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
-    *region = 5;
-    return b + (d4 - d3) / ((d4 - d3) + (d5 - d6)) * (c - b);
-  }
-  const double den = 1.0 / (va + vb + vc);
-  *region = 0;
-  return a + ab * (vb * den) + ac * (vc * den);
-}
 
 uint64_t EdgeKey(int a, int b) {
   if (a > b) std::swap(a, b);
@@ -72,8 +46,7 @@ struct MeshClosestPoint::Impl {
   std::vector<uint8_t> boundary_vertex;
 };
 
-MeshClosestPoint::MeshClosestPoint(const TriangleMesh& mesh, int candidates)
-    : mesh_(mesh), candidates_(candidates), impl_(std::make_unique<Impl>()) {
+MeshClosestPoint::MeshClosestPoint(const TriangleMesh& mesh, int candidates) : mesh_(mesh), candidates_(candidates), impl_(std::make_unique<Impl>()) {
   mesh_.Check();
   D3D_CHECK_MSG(!mesh_.faces.empty(), "MeshClosestPoint: mesh has no faces");
   D3D_CHECK_MSG(candidates >= 1, "MeshClosestPoint: candidates >= 1");
@@ -83,8 +56,9 @@ MeshClosestPoint::MeshClosestPoint(const TriangleMesh& mesh, int candidates)
   impl_->boundary_vertex.assign(mesh_.vertices.size(), 0);
   for (int i = 0; i < static_cast<int>(mesh_.faces.size()); ++i) {
     const auto& f = mesh_.faces[static_cast<size_t>(i)];
-    impl_->centroids.push_back(((mesh_.vertices[static_cast<size_t>(f[0])] + mesh_.vertices[static_cast<size_t>(f[1])] +
-                                 mesh_.vertices[static_cast<size_t>(f[2])]) / 3).cast<float>());
+    impl_->centroids.push_back(
+        ((mesh_.vertices[static_cast<size_t>(f[0])] + mesh_.vertices[static_cast<size_t>(f[1])] + mesh_.vertices[static_cast<size_t>(f[2])]) / 3)
+            .cast<float>());
     impl_->normals.push_back(mesh_.FaceNormal(i));
     uint8_t b = 0;
     for (int k = 0; k < 3; ++k)
@@ -119,9 +93,17 @@ MeshClosestPoint::Hit MeshClosestPoint::Closest(const Eigen::Vector3d& p) const 
       best.face = fi;
       const uint8_t be = impl_->boundary_edge[static_cast<size_t>(fi)];
       switch (region) {
-        case 0: best.on_boundary = false; break;
-        case 1: case 2: case 3: best.on_boundary = impl_->boundary_vertex[static_cast<size_t>(f[region - 1])]; break;
-        default: best.on_boundary = (be >> (region - 4)) & 1; break;
+        case kTriangleInterior:
+          best.on_boundary = false;
+          break;
+        case kTriangleVertexA:
+        case kTriangleVertexB:
+        case kTriangleVertexC:
+          best.on_boundary = impl_->boundary_vertex[static_cast<size_t>(f[region - kTriangleVertexA])];
+          break;
+        default:
+          best.on_boundary = (be >> (region - kTriangleEdgeAB)) & 1;
+          break;  // bit 0 ab, 1 bc, 2 ca
       }
     }
   }
@@ -143,10 +125,8 @@ bool MeshClosestPoint::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector
 }
 
 void EvaluateOptions::Check() const {
-  D3D_CHECK_MSG(max_distance_mm > 0 && coverage_distance_mm > 0 && coverage_sample_mm2 > 0 && max_scan_points > 0,
-                "EvaluateOptions: invalid value");
-  D3D_CHECK_MSG(gap_mm >= 0 && gap_mm <= 10,
-                "EvaluateOptions: gap_mm must be in [0, 10], got " << gap_mm);
+  D3D_CHECK_MSG(max_distance_mm > 0 && coverage_distance_mm > 0 && coverage_sample_mm2 > 0 && max_scan_points > 0, "EvaluateOptions: invalid value");
+  D3D_CHECK_MSG(gap_mm >= 0 && gap_mm <= 10, "EvaluateOptions: gap_mm must be in [0, 10], got " << gap_mm);
   D3D_CHECK_MSG(footprint_depth_mm > 0, "EvaluateOptions: footprint_depth_mm must be positive, got " << footprint_depth_mm);
 }
 
@@ -175,8 +155,7 @@ bool HasToothFaces(const TriangleMesh& m) {
 // inside the ball of diameter gap_mm tangent to the face's centroid c on its front side (centre
 // c + (gap_mm/2 + ε)·n), with a normal facing back (n_q · n < −0.5). That ball holds the surfaces
 // within gap_mm in front of c and none of the face's own smooth neighbourhood.
-std::vector<uint8_t> FacesInGaps(const TriangleMesh& m, const std::vector<uint8_t>& counted,
-                                 double gap_mm) {
+std::vector<uint8_t> FacesInGaps(const TriangleMesh& m, const std::vector<uint8_t>& counted, double gap_mm) {
   const size_t nf = m.faces.size();
   std::vector<Eigen::Vector3f> centroids(nf), normals(nf);
   for (size_t f = 0; f < nf; ++f) {
@@ -218,8 +197,7 @@ IcpOptions BestFitIcp() {
 
 }  // namespace
 
-TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint& ref, const Rigid3d& initial,
-                                const EvaluateOptions& o) {
+TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint& ref, const Rigid3d& initial, const EvaluateOptions& o) {
   o.Check();
   TruenessReport r;
   r.reference_from_scan = initial;
@@ -311,10 +289,8 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
   std::mt19937 rng(1);
   std::uniform_real_distribution<double> U(0, 1);
   std::vector<uint8_t> counted(R.faces.size(), 0);
-  for (int f = 0; f < static_cast<int>(R.faces.size()); ++f)
-    counted[static_cast<size_t>(f)] = !has_teeth || R.Label(f) == SurfaceLabel::kTooth;
-  const std::vector<uint8_t> in_gap =
-      o.gap_mm > 0 ? FacesInGaps(R, counted, o.gap_mm) : std::vector<uint8_t>();
+  for (int f = 0; f < static_cast<int>(R.faces.size()); ++f) counted[static_cast<size_t>(f)] = !has_teeth || R.Label(f) == SurfaceLabel::kTooth;
+  const std::vector<uint8_t> in_gap = o.gap_mm > 0 ? FacesInGaps(R, counted, o.gap_mm) : std::vector<uint8_t>();
   int64_t covered = 0, samples = 0;
   int64_t gap_covered = 0, gap_samples = 0;  // of those, on faces in gaps
   const float cov2 = static_cast<float>(o.coverage_distance_mm * o.coverage_distance_mm);
@@ -328,14 +304,18 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
     const auto& F = R.faces[static_cast<size_t>(f)];
     for (int j = 0; j < k; ++j) {
       double a = U(rng), b = U(rng);
-      if (a + b > 1) { a = 1 - a; b = 1 - b; }
-      const Eigen::Vector3d p = R.vertices[static_cast<size_t>(F[0])] + a * (R.vertices[static_cast<size_t>(F[1])] - R.vertices[static_cast<size_t>(F[0])]) +
+      if (a + b > 1) {
+        a = 1 - a;
+        b = 1 - b;
+      }
+      const Eigen::Vector3d p = R.vertices[static_cast<size_t>(F[0])] +
+                                a * (R.vertices[static_cast<size_t>(F[1])] - R.vertices[static_cast<size_t>(F[0])]) +
                                 b * (R.vertices[static_cast<size_t>(F[2])] - R.vertices[static_cast<size_t>(F[0])]);
       float d2 = 0;
       ++samples;
       gap_samples += gap;
-      const bool near = tree.Nearest(p.cast<float>(), &d2, cov2) >= 0 ||
-                        (scan_surface && scan_surface->Closest(p).distance_mm <= o.coverage_distance_mm);
+      const bool near =
+          tree.Nearest(p.cast<float>(), &d2, cov2) >= 0 || (scan_surface && scan_surface->Closest(p).distance_mm <= o.coverage_distance_mm);
       if (near) {
         ++covered;
         gap_covered += gap;
@@ -409,8 +389,7 @@ Rigid3d GlobalAlign(const TriangleMesh& scan, const MeshClosestPoint& ref) {
   return best;
 }
 
-PrecisionReport EvaluatePrecision(const TriangleMesh& a, const TriangleMesh& b, const Rigid3d& a_from_b, double max_d,
-                                  double reciprocal_below_um) {
+PrecisionReport EvaluatePrecision(const TriangleMesh& a, const TriangleMesh& b, const Rigid3d& a_from_b, double max_d, double reciprocal_below_um) {
   D3D_CHECK_MSG(reciprocal_below_um >= 0, "EvaluatePrecision: reciprocal_below_um must be >= 0");
   const MeshClosestPoint ref(a);
   EvaluateOptions o;

@@ -31,7 +31,7 @@ void TsdfOptions::Check() const {
 }
 
 struct TsdfVolume::Impl {
-  openvdb::FloatGrid::Ptr tsdf;    // D' (the surface's field) and W of all fused points (file comment)
+  openvdb::FloatGrid::Ptr tsdf;  // D' (the surface's field) and W of all fused points (file comment)
   openvdb::FloatGrid::Ptr weight;
   // D_s and W_s of the secondary points alone, only where λ > 0 (leaves without any go).
   openvdb::FloatGrid::Ptr secondary_tsdf;
@@ -40,11 +40,11 @@ struct TsdfVolume::Impl {
 
 namespace {
 constexpr int kLeafDim = 8;  // openvdb::FloatTree::LeafNodeType::DIM
+using Leaf = openvdb::FloatTree::LeafNodeType;
 
 struct CoordHash {
   size_t operator()(const openvdb::Coord& c) const {
-    return static_cast<size_t>(c.x()) * 73856093u ^ static_cast<size_t>(c.y()) * 19349663u ^
-           static_cast<size_t>(c.z()) * 83492791u;
+    return static_cast<size_t>(c.x()) * 73856093u ^ static_cast<size_t>(c.y()) * 19349663u ^ static_cast<size_t>(c.z()) * 83492791u;
   }
 };
 
@@ -119,6 +119,23 @@ D3D_AVX2_CLONE void ProjectRow(const ProjectionF& c, const float* x0, const floa
 
 }  // namespace
 
+// A leaf near a view's points, in each grid.
+struct TsdfVolume::ViewLeaf {
+  Leaf *tsdf, *weight;                      // D', W
+  Leaf *secondary_tsdf, *secondary_weight;  // D_s, W_s, or null (none here)
+};
+
+// What FuseLeaf needs of the view (FuseVoxels sets it up).
+struct TsdfVolume::VoxelPass {
+  Eigen::Matrix3d R_index;                 // camera-frame step per index step (double: leaf origins)
+  Eigen::Vector3d t;                       // cam_from_world's translation
+  Eigen::Vector3f step_i, step_j, step_k;  // R_index's columns in float (steps within a leaf)
+  ProjectionF proj;
+  const FusePixel* pixels;  // fuse_pixels_
+  float trunc, maxw, fade_weight;
+  bool fade;  // secondary points fade out (secondary_fade_weight > 0)
+};
+
 TsdfVolume::TsdfVolume(const TsdfOptions& options) : o_(options), impl_(std::make_unique<Impl>()) {
   o_.Check();
   openvdb::initialize();
@@ -139,69 +156,85 @@ TsdfVolume::TsdfVolume(const TsdfOptions& options) : o_(options), impl_(std::mak
 
 TsdfVolume::~TsdfVolume() = default;
 
-Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& Q, const PinholeBrownConrady& camera,
-                             const Rigid3d& world_from_cam, const cv::Mat& S) {
+Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& Q, const PinholeBrownConrady& camera, const Rigid3d& world_from_cam,
+                             const cv::Mat& S) {
   if (P.type() != CV_32FC3 || N.type() != CV_32FC3 || P.size() != N.size())
     return InvalidArgument("tsdf: points and normals must be CV_32FC3 of one size");
   if (!Q.empty() && (Q.type() != CV_32F || Q.size() != P.size())) return InvalidArgument("tsdf: quality must be CV_32F like points");
   if (!S.empty() && (S.type() != CV_8U || S.size() != P.size())) return InvalidArgument("tsdf: secondary must be CV_8U like points");
   if (P.cols != camera.width || P.rows != camera.height) return InvalidArgument("tsdf: image size differs from the camera's");
-  const double inv_voxel = 1.0 / o_.voxel_mm;
-  const double band = o_.truncation_mm * inv_voxel + 1.0;
-  const float cos_max = static_cast<float>(std::cos(o_.max_incidence_deg * M_PI / 180.0));
   // 0. Occlusion test against the model so far (file comment): occluded_mask_ 1 = not fused.
   const bool test_occlusion = o_.occlusion_margin_mm > 0 && views_ > 0;
   last_occluded_ = 0;
-  if (test_occlusion) {
-    occluded_mask_.create(P.size(), CV_8U);
-    occluded_mask_.setTo(0);
-    const int k = o_.occlusion_stride;
-    // Samples behind a known surface (D < −0.1·truncation, within the band's back half, at least
-    // 0.9·truncation thick along any ray) are what counts; the step is shorter than that, less a
-    // voxel either side (a sample reads its nearest voxel centre: at 0.8·truncation, a band whose
-    // back began on a voxel boundary was stepped over). The band's front half is not used: a
-    // point's own surface, seen grazing, lies within it along its ray.
-    const double step = std::max(0.9 * o_.truncation_mm - 2.0 * o_.voxel_mm, 0.5 * o_.voxel_mm);
-    const float behind = static_cast<float>(-0.1 * o_.truncation_mm);
-    const Eigen::Vector3d centre = world_from_cam.translation();  // the camera's, world frame
-    std::vector<int64_t> per_row((P.rows + k - 1) / k, 0);
-    tbb::parallel_for(tbb::blocked_range<int>(0, (P.rows + k - 1) / k), [&](const tbb::blocked_range<int>& rows) {
-      auto tacc = impl_->tsdf->getConstAccessor();
-      auto wacc = impl_->weight->getConstAccessor();
-      for (int br = rows.begin(); br < rows.end(); ++br) {
-        const int r = br * k;
-        const cv::Vec3f* p = P.ptr<cv::Vec3f>(r);
-        for (int c = 0; c < P.cols; c += k) {
-          if (!std::isfinite(p[c][0]) || !std::isfinite(p[c][2])) continue;
-          const Eigen::Vector3d pc(p[c][0], p[c][1], p[c][2]);
-          const double range = pc.norm();
-          // Toward the camera along the ray, in index space: q(s) = p + s·(centre − p)/range.
-          const Eigen::Vector3d p_index = (world_from_cam * pc) * inv_voxel;
-          const Eigen::Vector3d toward = (centre * inv_voxel - p_index) / range;
-          bool hidden = false;
-          for (double s = o_.occlusion_margin_mm; s <= o_.occlusion_reach_mm && s < range && !hidden; s += step) {
-            const Eigen::Vector3d q = p_index + s * toward;
-            const openvdb::Coord ijk(RoundToInt(q.x()), RoundToInt(q.y()), RoundToInt(q.z()));
-            hidden = tacc.getValue(ijk) < behind && wacc.getValue(ijk) >= o_.occlusion_min_weight;
-          }
-          if (!hidden) continue;
-          const int r1 = std::min(r + k, P.rows), c1 = std::min(c + k, P.cols);
-          for (int rr = r; rr < r1; ++rr)
-            for (int cc = c; cc < c1; ++cc) {
-              occluded_mask_.at<uint8_t>(rr, cc) = 1;
-              per_row[static_cast<size_t>(br)] += std::isfinite(P.at<cv::Vec3f>(rr, cc)[2]) ? 1 : 0;
-            }
+  if (test_occlusion) TestOcclusion(P, world_from_cam);
+  // 1. Per pixel, once: what a voxel projecting there adds.
+  PreparePixels(P, N, Q, S, test_occlusion);
+  // 2. The leaves near the view's points, allocated.
+  const std::vector<ViewLeaf> nodes = AllocateLeaves(P, world_from_cam, test_occlusion);
+  // 3. Every voxel of those leaves, projectively.
+  const std::vector<uint8_t> secondary_left = FuseVoxels(nodes, camera, world_from_cam, P.cols, P.rows);
+  // 4. Secondary leaves without bookkeeping left go.
+  FreeSecondaryLeaves(nodes, secondary_left);
+  ++views_;
+  return Status::Ok();
+}
+
+// 0. Occlusion test against the model so far (file comment): occluded_mask_ 1 = a point behind a
+// well-known surface, not fused; counts them in last_occluded_ and occluded_.
+void TsdfVolume::TestOcclusion(const cv::Mat& P, const Rigid3d& world_from_cam) {
+  const double inv_voxel = 1.0 / o_.voxel_mm;
+  occluded_mask_.create(P.size(), CV_8U);
+  occluded_mask_.setTo(0);
+  const int k = o_.occlusion_stride;
+  // Samples behind a known surface (D < −0.1·truncation, within the band's back half, at least
+  // 0.9·truncation thick along any ray) are what counts; the step is shorter than that, less a
+  // voxel either side (a sample reads its nearest voxel centre: at 0.8·truncation, a band whose
+  // back began on a voxel boundary was stepped over). The band's front half is not used: a
+  // point's own surface, seen grazing, lies within it along its ray.
+  const double step = std::max(0.9 * o_.truncation_mm - 2.0 * o_.voxel_mm, 0.5 * o_.voxel_mm);
+  const float behind = static_cast<float>(-0.1 * o_.truncation_mm);
+  const Eigen::Vector3d centre = world_from_cam.translation();  // the camera's, world frame
+  std::vector<int64_t> per_row((P.rows + k - 1) / k, 0);
+  tbb::parallel_for(tbb::blocked_range<int>(0, (P.rows + k - 1) / k), [&](const tbb::blocked_range<int>& rows) {
+    auto tacc = impl_->tsdf->getConstAccessor();
+    auto wacc = impl_->weight->getConstAccessor();
+    for (int br = rows.begin(); br < rows.end(); ++br) {
+      const int r = br * k;
+      const cv::Vec3f* p = P.ptr<cv::Vec3f>(r);
+      for (int c = 0; c < P.cols; c += k) {
+        if (!std::isfinite(p[c][0]) || !std::isfinite(p[c][2])) continue;
+        const Eigen::Vector3d pc(p[c][0], p[c][1], p[c][2]);
+        const double range = pc.norm();
+        // Toward the camera along the ray, in index space: q(s) = p + s·(centre − p)/range.
+        const Eigen::Vector3d p_index = (world_from_cam * pc) * inv_voxel;
+        const Eigen::Vector3d toward = (centre * inv_voxel - p_index) / range;
+        bool hidden = false;
+        for (double s = o_.occlusion_margin_mm; s <= o_.occlusion_reach_mm && s < range && !hidden; s += step) {
+          const Eigen::Vector3d q = p_index + s * toward;
+          const openvdb::Coord ijk(RoundToInt(q.x()), RoundToInt(q.y()), RoundToInt(q.z()));
+          hidden = tacc.getValue(ijk) < behind && wacc.getValue(ijk) >= o_.occlusion_min_weight;
         }
+        if (!hidden) continue;
+        const int r1 = std::min(r + k, P.rows), c1 = std::min(c + k, P.cols);
+        for (int rr = r; rr < r1; ++rr)
+          for (int cc = c; cc < c1; ++cc) {
+            occluded_mask_.at<uint8_t>(rr, cc) = 1;
+            per_row[static_cast<size_t>(br)] += std::isfinite(P.at<cv::Vec3f>(rr, cc)[2]) ? 1 : 0;
+          }
       }
-    });
-    for (int64_t n : per_row) last_occluded_ += n;
-    occluded_ += last_occluded_;
-  }
+    }
+  });
+  for (int64_t n : per_row) last_occluded_ += n;
+  occluded_ += last_occluded_;
+}
+
+// 1. Per pixel, once: what a voxel projecting there adds (the tests that depend on the pixel
+// only, taken out of the voxel loop): its point, its normal turned toward the camera (NaN: no
+// normal, the range difference is used), its weight (0: not fused: no point, occluded, quality
+// below min_point_weight, or seen more grazing than max_incidence_deg).
+void TsdfVolume::PreparePixels(const cv::Mat& P, const cv::Mat& N, const cv::Mat& Q, const cv::Mat& S, bool test_occlusion) {
+  const float cos_max = static_cast<float>(std::cos(o_.max_incidence_deg * M_PI / 180.0));
   auto occluded = [&](int r, int c) { return test_occlusion && occluded_mask_.at<uint8_t>(r, c) != 0; };
-  // 1. Per pixel, once: what a voxel projecting there adds (the tests that depend on the pixel
-  // only, taken out of the voxel loop): its point, its normal turned toward the camera (NaN: no
-  // normal, the range difference is used), its weight (0: not fused: no point, occluded, quality
-  // below min_point_weight, or seen more grazing than max_incidence_deg).
   fuse_pixels_.resize(static_cast<size_t>(P.rows) * static_cast<size_t>(P.cols));
   tbb::parallel_for(tbb::blocked_range<int>(0, P.rows), [&](const tbb::blocked_range<int>& rows) {
     for (int r = rows.begin(); r < rows.end(); ++r) {
@@ -234,37 +267,42 @@ Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& 
       }
     }
   });
-  // 2. Leaves near the view's points: collected in parallel (a set per worker thread), then
-  // allocated serially (topology changes). Their order does not matter: each voxel is written once
-  // per view, by the task that owns its leaf. The secondary grids get the leaves near the view's
-  // secondary points (a subset), and keep those where secondary bookkeeping remains (step 4).
+}
+
+// 2. Leaves near the view's points: collected in parallel (a set per worker thread), then
+// allocated serially (topology changes). Their order does not matter: each voxel is written once
+// per view, by the task that owns its leaf. The secondary grids get the leaves near the view's
+// secondary points (a subset), and keep those where secondary bookkeeping remains (step 4).
+std::vector<TsdfVolume::ViewLeaf> TsdfVolume::AllocateLeaves(const cv::Mat& P, const Rigid3d& world_from_cam, bool test_occlusion) {
+  const double inv_voxel = 1.0 / o_.voxel_mm;
+  const double band = o_.truncation_mm * inv_voxel + 1.0;
+  auto occluded = [&](int r, int c) { return test_occlusion && occluded_mask_.at<uint8_t>(r, c) != 0; };
   const bool fade = o_.secondary_fade_weight > 0;
   using LeafSet = std::unordered_set<openvdb::Coord, CoordHash>;
   tbb::enumerable_thread_specific<LeafSet> leaves_per_thread, secondary_per_thread;
-  tbb::parallel_for(tbb::blocked_range<int>(0, (P.rows + o_.pixel_stride - 1) / o_.pixel_stride),
-                    [&](const tbb::blocked_range<int>& strided_rows) {
-                      LeafSet& leaves = leaves_per_thread.local();
-                      LeafSet& secondary_leaves = secondary_per_thread.local();
-                      for (int br = strided_rows.begin(); br < strided_rows.end(); ++br) {
-                        const int r = br * o_.pixel_stride;
-                        const cv::Vec3f* p = P.ptr<cv::Vec3f>(r);
-                        const FusePixel* fp = &fuse_pixels_[static_cast<size_t>(r) * static_cast<size_t>(P.cols)];
-                        // Neighbouring pixels mostly touch the same leaves: insert only on a change.
-                        LeafRange last, last_secondary;
-                        for (int c = 0; c < P.cols; c += o_.pixel_stride) {
-                          if (!std::isfinite(p[c][0]) || !std::isfinite(p[c][2]) || occluded(r, c)) continue;
-                          const Eigen::Vector3d w = world_from_cam * Eigen::Vector3d(p[c][0], p[c][1], p[c][2]);
-                          const LeafRange range = LeavesWithin(w * inv_voxel, band);
-                          if (fade && fp[c].secondary && fp[c].weight > 0 && !(range == last_secondary)) {
-                            last_secondary = range;
-                            TouchLeaves(range, &secondary_leaves);
-                          }
-                          if (range == last) continue;
-                          last = range;
-                          TouchLeaves(range, &leaves);
-                        }
-                      }
-                    });
+  tbb::parallel_for(tbb::blocked_range<int>(0, (P.rows + o_.pixel_stride - 1) / o_.pixel_stride), [&](const tbb::blocked_range<int>& strided_rows) {
+    LeafSet& leaves = leaves_per_thread.local();
+    LeafSet& secondary_leaves = secondary_per_thread.local();
+    for (int br = strided_rows.begin(); br < strided_rows.end(); ++br) {
+      const int r = br * o_.pixel_stride;
+      const cv::Vec3f* p = P.ptr<cv::Vec3f>(r);
+      const FusePixel* fp = &fuse_pixels_[static_cast<size_t>(r) * static_cast<size_t>(P.cols)];
+      // Neighbouring pixels mostly touch the same leaves: insert only on a change.
+      LeafRange last, last_secondary;
+      for (int c = 0; c < P.cols; c += o_.pixel_stride) {
+        if (!std::isfinite(p[c][0]) || !std::isfinite(p[c][2]) || occluded(r, c)) continue;
+        const Eigen::Vector3d w = world_from_cam * Eigen::Vector3d(p[c][0], p[c][1], p[c][2]);
+        const LeafRange range = LeavesWithin(w * inv_voxel, band);
+        if (fade && fp[c].secondary && fp[c].weight > 0 && !(range == last_secondary)) {
+          last_secondary = range;
+          TouchLeaves(range, &secondary_leaves);
+        }
+        if (range == last) continue;
+        last = range;
+        TouchLeaves(range, &leaves);
+      }
+    }
+  });
   auto merge = [](tbb::enumerable_thread_specific<LeafSet>& parts) {
     LeafSet all;
     for (LeafSet& part : parts) {
@@ -277,19 +315,14 @@ Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& 
   };
   const LeafSet leaves = merge(leaves_per_thread);
   const LeafSet secondary_leaves = merge(secondary_per_thread);
-  using Leaf = openvdb::FloatTree::LeafNodeType;
-  struct Node {
-    Leaf *tsdf, *weight;                       // D', W
-    Leaf *secondary_tsdf, *secondary_weight;   // D_s, W_s, or null (none here)
-  };
   auto& ttree = impl_->tsdf->tree();
   auto& wtree = impl_->weight->tree();
   auto& sttree = impl_->secondary_tsdf->tree();
   auto& swtree = impl_->secondary_weight->tree();
-  std::vector<Node> nodes;
+  std::vector<ViewLeaf> nodes;
   nodes.reserve(leaves.size());
   for (const auto& o : leaves) {
-    Node n{ttree.touchLeaf(o), wtree.touchLeaf(o), nullptr, nullptr};
+    ViewLeaf n{ttree.touchLeaf(o), wtree.touchLeaf(o), nullptr, nullptr};
     if (secondary_leaves.count(o) != 0) {
       n.secondary_tsdf = sttree.touchLeaf(o);
       n.secondary_weight = swtree.touchLeaf(o);
@@ -300,113 +333,133 @@ Status TsdfVolume::Integrate(const cv::Mat& P, const cv::Mat& N, const cv::Mat& 
     }
     nodes.push_back(n);
   }
-  // 3. Every voxel of those leaves, projectively (parallel over leaves: each leaf is one task's).
-  // Single precision: camera-frame coordinates are tens of mm, a voxel step 0.05 mm.
+  return nodes;
+}
+
+// 3. Every voxel of the view's leaves, projectively (parallel over leaves: each leaf is one task's).
+// Single precision: camera-frame coordinates are tens of mm, a voxel step 0.05 mm. Returns per
+// leaf whether its secondary leaf still holds bookkeeping (W_s > 0 somewhere) after the view.
+std::vector<uint8_t> TsdfVolume::FuseVoxels(const std::vector<ViewLeaf>& nodes, const PinholeBrownConrady& camera, const Rigid3d& world_from_cam,
+                                            int cols, int rows) {
+  VoxelPass v;
   const Rigid3d cam_from_world = world_from_cam.inverse();
-  const Eigen::Vector3d t = cam_from_world.translation();
+  v.t = cam_from_world.translation();
   // Camera-frame step per index step along i, j, k: in double for each leaf's origin (indices in the
   // thousands), in float for the steps within a leaf.
-  const Eigen::Matrix3d R_index = cam_from_world.linear() * o_.voxel_mm;
-  const Eigen::Matrix3f R_voxel = R_index.cast<float>();
-  const float trunc = static_cast<float>(o_.truncation_mm);
-  const float maxw = o_.max_weight;
-  const float fade_weight = o_.secondary_fade_weight;
-  auto lambda = [fade_weight](float primary_weight) { return std::max(0.0f, 1.0f - primary_weight / fade_weight); };
+  v.R_index = cam_from_world.linear() * o_.voxel_mm;
+  const Eigen::Matrix3f R_voxel = v.R_index.cast<float>();
+  v.trunc = static_cast<float>(o_.truncation_mm);
+  v.maxw = o_.max_weight;
+  v.fade_weight = o_.secondary_fade_weight;
+  v.fade = o_.secondary_fade_weight > 0;
   // The camera's projection (PinholeBrownConrady::Project, inlined: it runs for every voxel of
   // every touched leaf, a row of 8 at a time).
-  auto f = [](double v) { return static_cast<float>(v); };
-  const ProjectionF proj{f(camera.fx), f(camera.fy), f(camera.cx), f(camera.cy), f(camera.k1), f(camera.k2), f(camera.k3),
-                         f(camera.p1), f(camera.p2), f(P.cols - 0.5),   f(P.rows - 0.5),   P.cols};
-  const FusePixel* pixels = fuse_pixels_.data();
-  const Eigen::Vector3f step_i = R_voxel.col(0), step_j = R_voxel.col(1), step_k = R_voxel.col(2);
-  // Per node: whether its secondary leaf still holds bookkeeping (W_s > 0 somewhere) after the view.
+  auto f = [](double x) { return static_cast<float>(x); };
+  v.proj = {f(camera.fx), f(camera.fy), f(camera.cx), f(camera.cy),  f(camera.k1),  f(camera.k2),
+            f(camera.k3), f(camera.p1), f(camera.p2), f(cols - 0.5), f(rows - 0.5), cols};
+  v.pixels = fuse_pixels_.data();
+  v.step_i = R_voxel.col(0);
+  v.step_j = R_voxel.col(1);
+  v.step_k = R_voxel.col(2);
   std::vector<uint8_t> secondary_left(nodes.size(), 0);
   tbb::parallel_for(tbb::blocked_range<size_t>(0, nodes.size(), 16), [&](const tbb::blocked_range<size_t>& range) {
-    int32_t pixel[kLeafDim];
-    for (size_t li = range.begin(); li < range.end(); ++li) {
-      const Node& node = nodes[li];
-      Leaf* tl = node.tsdf;
-      Leaf* wl = node.weight;
-      const openvdb::Coord origin = tl->origin();
-      const Eigen::Vector3f x_origin = (R_index * Eigen::Vector3d(origin.x(), origin.y(), origin.z()) + t).cast<float>();
-      float* tdata = tl->buffer().data();
-      float* wdata = wl->buffer().data();
-      float* sdata = node.secondary_tsdf ? node.secondary_tsdf->buffer().data() : nullptr;
-      float* swdata = node.secondary_weight ? node.secondary_weight->buffer().data() : nullptr;
-      // Leaf offset = (i << 6) | (j << 3) | k (OpenVDB's LeafNode::coordToOffset): rows of 8 along k.
-      for (int i = 0; i < kLeafDim; ++i) {
-        for (int j = 0; j < kLeafDim; ++j) {
-          const Eigen::Vector3f row = x_origin + static_cast<float>(i) * step_i + static_cast<float>(j) * step_j;
-          ProjectRow(proj, row.data(), step_k.data(), pixel);
-          const openvdb::Index row_off = static_cast<openvdb::Index>((i << 6) | (j << 3));
-          for (int k = 0; k < kLeafDim; ++k) {
-            if (pixel[k] < 0) continue;
-            const FusePixel& px = pixels[pixel[k]];
-            const float q = px.weight;
-            if (q <= 0.0f) continue;
-            const bool secondary = fade && px.secondary;
-            if (secondary && swdata == nullptr) continue;  // beyond the leaves near its point: left out
-            const Eigen::Vector3f x = row + static_cast<float>(k) * step_k;
-            float sdf = std::isfinite(px.normal.x()) ? px.normal.dot(x - px.point) : px.range - x.norm();
-            if (sdf < -trunc) continue;
-            if (sdf > trunc) sdf = trunc;
-            const openvdb::Index off = row_off + static_cast<openvdb::Index>(k);
-            // A new leaf's buffers hold the grids' backgrounds (weight 0): W = 0 where nothing was fused.
-            const float W = wdata[off];
-            const float D = W > 0 ? tdata[off] : 0.0f;
-            const float Ws = swdata != nullptr ? swdata[off] : 0.0f;
-            if (!secondary && Ws <= 0.0f) {  // no secondary points here: the plain running average
-              const float Wn = W + q;
-              tdata[off] = (D * W + sdf * q) / Wn;
-              wdata[off] = std::min(Wn, maxw);
-            } else {
-              // Two channels (file comment): recover D_p from D' = (W_p·D_p + λ·W_s·D_s)/(W_p + λ·W_s),
-              // add the measurement to its channel, blend again; a voxel whose λ reaches 0 keeps D_p only.
-              float Wp = std::max(0.0f, W - Ws);
-              if (secondary && Wp >= fade_weight) continue;  // λ = 0: the primary points' surface
-              const float Ds = Ws > 0 ? sdata[off] : 0.0f;
-              const float l0 = lambda(Wp);
-              float Dp = Wp > 0 ? ((Wp + l0 * Ws) * D - l0 * Ws * Ds) / Wp : 0.0f;
-              float Dsn = Ds, Wsn = Ws;
-              if (secondary) {
-                Wsn = Ws + q;
-                Dsn = (Ds * Ws + sdf * q) / Wsn;
-              } else {
-                Dp = (Dp * Wp + sdf * q) / (Wp + q);
-                Wp += q;
-              }
-              const float l1 = lambda(Wp);
-              if (l1 <= 0.0f) {
-                tdata[off] = Dp;
-                wdata[off] = std::min(Wp, maxw);
-                Wsn = 0.0f;
-                Dsn = trunc;
-              } else {
-                tdata[off] = (Wp * Dp + l1 * Wsn * Dsn) / (Wp + l1 * Wsn);
-                wdata[off] = std::min(Wp + Wsn, maxw);
-              }
-              sdata[off] = Dsn;
-              swdata[off] = Wsn;
-            }
-            tl->setValueOn(off);
-            wl->setValueOn(off);
-          }
-        }
-      }
-      if (swdata != nullptr)
-        secondary_left[li] = std::any_of(swdata, swdata + Leaf::SIZE, [](float w) { return w > 0.0f; }) ? 1 : 0;
-    }
+    for (size_t li = range.begin(); li < range.end(); ++li) secondary_left[li] = FuseLeaf(nodes[li], v) ? 1 : 0;
   });
-  // 4. Secondary leaves without bookkeeping left go (they hold only backgrounds): the secondary
-  // grids stay as sparse as the surface that only secondary points (or weak primary ones) saw.
+  return secondary_left;
+}
+
+// 3, one leaf: adds the view to each of its voxels (rows of 8 along k projected at once). Returns
+// whether its secondary leaf holds bookkeeping (W_s > 0 somewhere) afterwards.
+bool TsdfVolume::FuseLeaf(const ViewLeaf& node, const VoxelPass& v) {
+  const Eigen::Vector3f step_i = v.step_i, step_j = v.step_j, step_k = v.step_k;
+  const ProjectionF& proj = v.proj;
+  const FusePixel* pixels = v.pixels;
+  const float trunc = v.trunc, maxw = v.maxw, fade_weight = v.fade_weight;
+  const bool fade = v.fade;
+  auto lambda = [fade_weight](float primary_weight) { return std::max(0.0f, 1.0f - primary_weight / fade_weight); };
+  int32_t pixel[kLeafDim];
+  Leaf* tl = node.tsdf;
+  Leaf* wl = node.weight;
+  const openvdb::Coord origin = tl->origin();
+  const Eigen::Vector3f x_origin = (v.R_index * Eigen::Vector3d(origin.x(), origin.y(), origin.z()) + v.t).cast<float>();
+  float* tdata = tl->buffer().data();
+  float* wdata = wl->buffer().data();
+  float* sdata = node.secondary_tsdf ? node.secondary_tsdf->buffer().data() : nullptr;
+  float* swdata = node.secondary_weight ? node.secondary_weight->buffer().data() : nullptr;
+  // Leaf offset = (i << 6) | (j << 3) | k (OpenVDB's LeafNode::coordToOffset): rows of 8 along k.
+  for (int i = 0; i < kLeafDim; ++i) {
+    for (int j = 0; j < kLeafDim; ++j) {
+      const Eigen::Vector3f row = x_origin + static_cast<float>(i) * step_i + static_cast<float>(j) * step_j;
+      ProjectRow(proj, row.data(), step_k.data(), pixel);
+      const openvdb::Index row_off = static_cast<openvdb::Index>((i << 6) | (j << 3));
+      for (int k = 0; k < kLeafDim; ++k) {
+        if (pixel[k] < 0) continue;
+        const FusePixel& px = pixels[pixel[k]];
+        const float q = px.weight;
+        if (q <= 0.0f) continue;
+        const bool secondary = fade && px.secondary;
+        if (secondary && swdata == nullptr) continue;  // beyond the leaves near its point: left out
+        const Eigen::Vector3f x = row + static_cast<float>(k) * step_k;
+        float sdf = std::isfinite(px.normal.x()) ? px.normal.dot(x - px.point) : px.range - x.norm();
+        if (sdf < -trunc) continue;
+        if (sdf > trunc) sdf = trunc;
+        const openvdb::Index off = row_off + static_cast<openvdb::Index>(k);
+        // A new leaf's buffers hold the grids' backgrounds (weight 0): W = 0 where nothing was fused.
+        const float W = wdata[off];
+        const float D = W > 0 ? tdata[off] : 0.0f;
+        const float Ws = swdata != nullptr ? swdata[off] : 0.0f;
+        if (!secondary && Ws <= 0.0f) {  // no secondary points here: the plain running average
+          const float Wn = W + q;
+          tdata[off] = (D * W + sdf * q) / Wn;
+          wdata[off] = std::min(Wn, maxw);
+        } else {
+          // Two channels (file comment): recover D_p from D' = (W_p·D_p + λ·W_s·D_s)/(W_p + λ·W_s),
+          // add the measurement to its channel, blend again; a voxel whose λ reaches 0 keeps D_p only.
+          float Wp = std::max(0.0f, W - Ws);
+          if (secondary && Wp >= fade_weight) continue;  // λ = 0: the primary points' surface
+          const float Ds = Ws > 0 ? sdata[off] : 0.0f;
+          const float l0 = lambda(Wp);
+          float Dp = Wp > 0 ? ((Wp + l0 * Ws) * D - l0 * Ws * Ds) / Wp : 0.0f;
+          float Dsn = Ds, Wsn = Ws;
+          if (secondary) {
+            Wsn = Ws + q;
+            Dsn = (Ds * Ws + sdf * q) / Wsn;
+          } else {
+            Dp = (Dp * Wp + sdf * q) / (Wp + q);
+            Wp += q;
+          }
+          const float l1 = lambda(Wp);
+          if (l1 <= 0.0f) {
+            tdata[off] = Dp;
+            wdata[off] = std::min(Wp, maxw);
+            Wsn = 0.0f;
+            Dsn = trunc;
+          } else {
+            tdata[off] = (Wp * Dp + l1 * Wsn * Dsn) / (Wp + l1 * Wsn);
+            wdata[off] = std::min(Wp + Wsn, maxw);
+          }
+          sdata[off] = Dsn;
+          swdata[off] = Wsn;
+        }
+        tl->setValueOn(off);
+        wl->setValueOn(off);
+      }
+    }
+  }
+  return swdata != nullptr && std::any_of(swdata, swdata + Leaf::SIZE, [](float w) { return w > 0.0f; });
+}
+
+// 4. Secondary leaves without bookkeeping left go (they hold only backgrounds): the secondary
+// grids stay as sparse as the surface that only secondary points (or weak primary ones) saw.
+void TsdfVolume::FreeSecondaryLeaves(const std::vector<ViewLeaf>& nodes, const std::vector<uint8_t>& secondary_left) {
+  auto& sttree = impl_->secondary_tsdf->tree();
+  auto& swtree = impl_->secondary_weight->tree();
   for (size_t li = 0; li < nodes.size(); ++li)
     if (nodes[li].secondary_weight != nullptr && !secondary_left[li]) {
       const openvdb::Coord o = nodes[li].tsdf->origin();
       sttree.addTile(1, o, sttree.background(), false);
       swtree.addTile(1, o, swtree.background(), false);
     }
-  ++views_;
-  return Status::Ok();
 }
 
 void TsdfVolume::IntegratePoints(const std::vector<Eigen::Vector3f>& points, const std::vector<Eigen::Vector3f>& normals,
@@ -458,8 +511,8 @@ TriangleMesh TsdfVolume::ExtractMesh(float min_weight) const {
   const auto wacc = impl_->weight->getConstAccessor();
   const auto dacc = impl_->tsdf->getConstAccessor();
   const double inv_voxel = 1.0 / o_.voxel_mm;
-  const float max_span = o_.max_cell_sdf_span > 0 ? static_cast<float>(o_.max_cell_sdf_span * std::sqrt(3.0) * o_.voxel_mm)
-                                                  : std::numeric_limits<float>::max();
+  const float max_span =
+      o_.max_cell_sdf_span > 0 ? static_cast<float>(o_.max_cell_sdf_span * std::sqrt(3.0) * o_.voxel_mm) : std::numeric_limits<float>::max();
   for (size_t i = 0; i < pts.size(); ++i) {
     const int x = static_cast<int>(std::floor(pts[i].x() * inv_voxel)), y = static_cast<int>(std::floor(pts[i].y() * inv_voxel)),
               z = static_cast<int>(std::floor(pts[i].z() * inv_voxel));

@@ -100,7 +100,7 @@ struct TsdfOptions {
   // weight times λ = max(0, 1 − W_p / secondary_fade_weight), W_p the voxel's weight from primary
   // points (file comment). 0 (default) = secondary points count like the rest; 2 is the value measured.
   float secondary_fade_weight = 0.0f;
-  void Check() const;              // throws std::invalid_argument
+  void Check() const;  // throws std::invalid_argument
 };
 
 class TsdfVolume {
@@ -118,14 +118,12 @@ class TsdfVolume {
   // CV_8U, nonzero = a secondary point (less trusted: see secondary_fade_weight), or empty (none).
   // INVALID_ARGUMENT for mismatched sizes or types.
   [[nodiscard]] Status Integrate(const cv::Mat& points_in_cam, const cv::Mat& normals_in_cam, const cv::Mat& quality,
-                                 const PinholeBrownConrady& camera, const Rigid3d& world_from_cam,
-                                 const cv::Mat& secondary = cv::Mat());
+                                 const PinholeBrownConrady& camera, const Rigid3d& world_from_cam, const cv::Mat& secondary = cv::Mat());
 
   // Fuses an unorganised set of points with normals (world frame) by splatting each point's
   // tangent-plane distance into the voxels within truncation of it (used by tests and for clouds
   // without a camera): same averaging, weight per point.
-  void IntegratePoints(const std::vector<Eigen::Vector3f>& points, const std::vector<Eigen::Vector3f>& normals,
-                       const std::vector<float>& weights);
+  void IntegratePoints(const std::vector<Eigen::Vector3f>& points, const std::vector<Eigen::Vector3f>& normals, const std::vector<float>& weights);
 
   // The zero level as a mesh (world frame, mm, faces counter-clockwise seen from the front /
   // camera side), with polygons whose cell corners all have weight ≥ min_weight (< 0: the option)
@@ -163,6 +161,18 @@ class TsdfVolume {
     bool secondary = false;  // from Integrate's secondary mask
   };
   std::vector<FusePixel> fuse_pixels_;
+
+  // Integrate's steps, in order (tsdf.cpp).
+  struct ViewLeaf;   // a leaf near the view's points, in each grid
+  struct VoxelPass;  // the view as FuseLeaf needs it
+  void TestOcclusion(const cv::Mat& points_in_cam, const Rigid3d& world_from_cam);
+  void PreparePixels(const cv::Mat& points_in_cam, const cv::Mat& normals_in_cam, const cv::Mat& quality, const cv::Mat& secondary,
+                     bool test_occlusion);
+  std::vector<ViewLeaf> AllocateLeaves(const cv::Mat& points_in_cam, const Rigid3d& world_from_cam, bool test_occlusion);
+  std::vector<uint8_t> FuseVoxels(const std::vector<ViewLeaf>& leaves, const PinholeBrownConrady& camera, const Rigid3d& world_from_cam, int cols,
+                                  int rows);
+  static bool FuseLeaf(const ViewLeaf& leaf, const VoxelPass& view);
+  void FreeSecondaryLeaves(const std::vector<ViewLeaf>& leaves, const std::vector<uint8_t>& secondary_left);
 };
 
 }  // namespace d3d

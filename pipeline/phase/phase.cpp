@@ -1,5 +1,8 @@
 #include "pipeline/phase/phase.h"
 
+#include <tbb/enumerable_thread_specific.h>
+
+#include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -10,12 +13,8 @@
 #include <string>
 #include <utility>
 
-#include <tbb/enumerable_thread_specific.h>
-
 #include "common/core/parallel_rows.h"
 #include "pipeline/phase/phase_model.h"
-
-#include <Eigen/Dense>
 
 namespace d3d {
 
@@ -35,7 +34,7 @@ inline int DriftRow(float kappa) {
   const int j = static_cast<int>(kappa * ((kDriftRows - 1) / static_cast<float>(phase_internal::kKappaMax)) + 0.5f);
   return j < 0 ? 0 : (j >= kDriftRows ? kDriftRows - 1 : j);
 }
-constexpr float kSuspect = 0.3f;     // |r| (B units) above which the N-step result is not trusted
+constexpr float kSuspect = 0.3f;  // |r| (B units) above which the N-step result is not trusted
 
 inline float WrapPos(float a) {
   a = a < 0.0f ? a + kTwoPiF : a;
@@ -64,27 +63,25 @@ inline int KappaRow(float kappa, float rows_per_kappa, int rows) {
 inline FullEntry ReadFullRow(const FullEntry* row, BinPos b) {
   const FullEntry& a = row[b.i];
   const FullEntry& c = row[b.i + 1];
-  return {a.corr + b.t * (c.corr - a.corr), a.ginv + b.t * (c.ginv - a.ginv), a.e + b.t * (c.e - a.e),
-          a.e1 + b.t * (c.e1 - a.e1)};
+  return {a.corr + b.t * (c.corr - a.corr), a.ginv + b.t * (c.ginv - a.ginv), a.e + b.t * (c.e - a.e), a.e1 + b.t * (c.e1 - a.e1)};
 }
 inline SubEntry ReadSubRow(const SubEntry* row, BinPos b) {
   const SubEntry& a = row[b.i];
   const SubEntry& c = row[b.i + 1];
-  return {a.corr + b.t * (c.corr - a.corr), a.ginv + b.t * (c.ginv - a.ginv), a.e + b.t * (c.e - a.e),
-          a.d + b.t * (c.d - a.d), a.off + b.t * (c.off - a.off)};
+  return {a.corr + b.t * (c.corr - a.corr), a.ginv + b.t * (c.ginv - a.ginv), a.e + b.t * (c.e - a.e), a.d + b.t * (c.d - a.d),
+          a.off + b.t * (c.off - a.off)};
 }
 
 std::string ModelKey(const FringePatternSpec& s, double gamma, bool marker, int bins, int rows) {
   std::ostringstream os;
   os.precision(17);
-  os << s.steps << '|' << s.fringe_period_px << '|' << (marker ? s.marker_frame : -1) << '|' << s.marker_width_periods
-     << '|' << gamma << '|' << bins << '|' << rows;
+  os << s.steps << '|' << s.fringe_period_px << '|' << (marker ? s.marker_frame : -1) << '|' << s.marker_width_periods << '|' << gamma << '|' << bins
+     << '|' << rows;
   return os.str();
 }
 
 // Models are immutable once built: share them between estimators (the last few keys).
-std::shared_ptr<const PhaseModel> CachedModel(const FringePatternSpec& spec, double gamma, bool marker, int bins,
-                                              int rows) {
+std::shared_ptr<const PhaseModel> CachedModel(const FringePatternSpec& spec, double gamma, bool marker, int bins, int rows) {
   static std::mutex mutex;
   static std::list<std::pair<std::string, std::shared_ptr<const PhaseModel>>> cache;
   const std::string key = ModelKey(spec, gamma, marker, bins, rows);
@@ -122,24 +119,24 @@ void Accumulate(const float* w, const std::vector<std::vector<float>>& f, int W,
 
 const char* PhaseAlgorithmName(PhaseAlgorithm algorithm) {
   switch (algorithm) {
-    case PhaseAlgorithm::kStandard: return "standard";
-    case PhaseAlgorithm::kLutGamma: return "lut-gamma";
-    case PhaseAlgorithm::kAdaptiveHarmonic: return "adaptive-harmonic";
+    case PhaseAlgorithm::kStandard:
+      return "standard";
+    case PhaseAlgorithm::kLutGamma:
+      return "lut-gamma";
+    case PhaseAlgorithm::kAdaptiveHarmonic:
+      return "adaptive-harmonic";
   }
   return "?";
 }
 
 void PhaseOptions::Check() const {
-  D3D_CHECK_MSG(algorithm == PhaseAlgorithm::kStandard || algorithm == PhaseAlgorithm::kLutGamma ||
-                    algorithm == PhaseAlgorithm::kAdaptiveHarmonic,
+  D3D_CHECK_MSG(algorithm == PhaseAlgorithm::kStandard || algorithm == PhaseAlgorithm::kLutGamma || algorithm == PhaseAlgorithm::kAdaptiveHarmonic,
                 "unknown phase algorithm " << static_cast<int>(algorithm));
-  D3D_CHECK_MSG(std::isfinite(min_modulation_dn) && min_modulation_dn >= 0.0,
-                "min_modulation_dn must be ≥ 0, got " << min_modulation_dn);
+  D3D_CHECK_MSG(std::isfinite(min_modulation_dn) && min_modulation_dn >= 0.0, "min_modulation_dn must be ≥ 0, got " << min_modulation_dn);
   D3D_CHECK_MSG(std::isfinite(saturation_dn) && saturation_dn >= 0.0, "saturation_dn must be ≥ 0, got " << saturation_dn);
   D3D_CHECK_MSG(marker_threshold > 0.0 && marker_threshold < 2.0, "marker_threshold must be in (0, 2), got " << marker_threshold);
   D3D_CHECK_MSG(marker_guard_px >= 0 && marker_guard_px <= 32, "marker_guard_px must be in [0, 32], got " << marker_guard_px);
-  D3D_CHECK_MSG(marker_box_px >= 1 && marker_box_px <= 63 && marker_box_px % 2 == 1,
-                "marker_box_px must be odd in [1, 63], got " << marker_box_px);
+  D3D_CHECK_MSG(marker_box_px >= 1 && marker_box_px <= 63 && marker_box_px % 2 == 1, "marker_box_px must be odd in [1, 63], got " << marker_box_px);
   D3D_CHECK_MSG(marker_close_px >= 1 && marker_close_px <= 31 && marker_close_px % 2 == 1,
                 "marker_close_px must be odd in [1, 31], got " << marker_close_px);
   D3D_CHECK_MSG(marker_suspect_reach_px >= 0 && marker_suspect_reach_px <= 128,
@@ -200,16 +197,35 @@ struct PhaseEstimator::Impl {
   void EstimateKappa(const PhaseMaps& out, int H, int W, cv::Mat* kappa);
   void TileSums(const PhaseMaps& out, const cv::Mat* exclude_with, int H, int W);
   cv::Mat SolveTiles(int TH, int TW, int window, const cv::Mat* fallback, double fallback_value) const;
+
+  // Compute's per-call values, shared by its passes (below, in Compute's order).
+  struct Call {
+    int H = 0, W = 0;
+    bool wide = false;                           // CV_16U frames
+    bool need_kappa = false;                     // κ is estimated (pass 2)
+    bool drift = false;                          // in-burst motion is compensated (pass 2b)
+    float bins_per_rad = 0, rows_per_kappa = 0;  // table indexing
+    int bins = 0, rows = 0;
+    const FullEntry* lut_full = nullptr;  // the tables' row at κ = 1 (kLutGamma)
+    const SubEntry* lut_sub = nullptr;    // with a marker
+  };
+  void CreateMaps(const Call& c, PhaseMaps* out);
+  void LinearSums(const std::vector<cv::Mat>& frames, const Call& c, PhaseMaps* out);
+  void Kappa(const Call& c, PhaseMaps* out);
+  void Drift(const Call& c, PhaseMaps* out);
+  void Compensate(const Call& c, PhaseMaps* out);
+  void MarkerScores(const Call& c, PhaseMaps* out);
+  void MarkerMasks(PhaseMaps* out);
+  void UnmarkedPhaseInStripes(const Call& c, PhaseMaps* out);
+  void Finish(const Call& c, PhaseMaps* out);
 };
 
-PhaseEstimator::PhaseEstimator(const FringePatternSpec& spec, double projector_gamma, const PhaseOptions& options)
-    : impl_(std::make_unique<Impl>()) {
+PhaseEstimator::PhaseEstimator(const FringePatternSpec& spec, double projector_gamma, const PhaseOptions& options) : impl_(std::make_unique<Impl>()) {
   spec.Check();
   options.Check();
   D3D_CHECK_MSG(projector_gamma > 0.1 && projector_gamma < 10.0, "projector gamma " << projector_gamma << " is implausible");
   D3D_CHECK_MSG(!(spec.HasMarker() && options.detect_marker) || spec.steps >= 4,
-                "marker detection needs N ≥ 4 phase steps, the spec has " << spec.steps
-                                                                          << " (set detect_marker = false or marker_frame = -1)");
+                "marker detection needs N ≥ 4 phase steps, the spec has " << spec.steps << " (set detect_marker = false or marker_frame = -1)");
   impl_->spec = spec;
   impl_->options = options;
   impl_->gamma = projector_gamma;
@@ -272,9 +288,9 @@ void PhaseEstimator::Impl::BuildDriftTables() {
           const double x = side == 0 ? -h : h;
           for (int n = 0; n < N; ++n) {
             const double s_n = n - (N - 1) / 2.0;
-            I[n] = k == 0 ? m.Waveform(n, Phi + s_n * x, kappa)
-                 : k == 1 ? (1.0 + s_n * x) * m.Waveform(n, Phi, kappa)
-                          : m.Waveform(n, Phi, kappa) + s_n * x;
+            I[n] = k == 0   ? m.Waveform(n, Phi + s_n * x, kappa)
+                   : k == 1 ? (1.0 + s_n * x) * m.Waveform(n, Phi, kappa)
+                            : m.Waveform(n, Phi, kappa) + s_n * x;
           }
           pm[side] = estimate(model_row);
         }
@@ -333,8 +349,8 @@ void PhaseEstimator::Impl::EstimateDrift(const PhaseMaps& out, int H, int W) {
   const int window = options.kappa_window_tiles;
   cv::Mat sums[10];
   for (int q = 0; q < 10; ++q)
-    cv::boxFilter(cv::Mat(TH, TW, CV_64F, drift_sums[q].data()), sums[q], CV_64F, cv::Size(window, window),
-                  cv::Point(-1, -1), false, cv::BORDER_CONSTANT);
+    cv::boxFilter(cv::Mat(TH, TW, CV_64F, drift_sums[q].data()), sums[q], CV_64F, cv::Size(window, window), cv::Point(-1, -1), false,
+                  cv::BORDER_CONSTANT);
   const double min_count = std::max(8.0, window * window * t * t / (kKappaStride * kKappaStride) / 8.0);
   const double max_eps = options.max_phase_drift_rad;
   for (auto& d : drift_tiles) d.create(TH, TW, CV_32F);
@@ -369,21 +385,19 @@ Status PhaseEstimator::Impl::Validate(const std::vector<cv::Mat>& frames, PhaseM
   if (out == nullptr) return InvalidArgument("phase: no output PhaseMaps given");
   if (frames.empty()) return InvalidArgument("phase: no frames given");
   if (static_cast<int>(frames.size()) != spec.steps)
-    return InvalidArgument("phase: got " + std::to_string(frames.size()) + " frames, the pattern '" + spec.name +
-                           "' has " + std::to_string(spec.steps) + " steps");
+    return InvalidArgument("phase: got " + std::to_string(frames.size()) + " frames, the pattern '" + spec.name + "' has " +
+                           std::to_string(spec.steps) + " steps");
   for (size_t n = 0; n < frames.size(); ++n) {
     const cv::Mat& f = frames[n];
     if (f.empty()) return InvalidArgument("phase: frame " + std::to_string(n) + " is empty");
     if (f.type() != CV_8UC1 && f.type() != CV_16UC1)
-      return InvalidArgument("phase: frame " + std::to_string(n) + " has type " + cv::typeToString(f.type()) +
-                             ", expected CV_8UC1 or CV_16UC1");
+      return InvalidArgument("phase: frame " + std::to_string(n) + " has type " + cv::typeToString(f.type()) + ", expected CV_8UC1 or CV_16UC1");
     if (f.size() != frames[0].size())
-      return InvalidArgument("phase: frame " + std::to_string(n) + " is " + std::to_string(f.cols) + "x" +
-                             std::to_string(f.rows) + ", frame 0 is " + std::to_string(frames[0].cols) + "x" +
-                             std::to_string(frames[0].rows));
+      return InvalidArgument("phase: frame " + std::to_string(n) + " is " + std::to_string(f.cols) + "x" + std::to_string(f.rows) + ", frame 0 is " +
+                             std::to_string(frames[0].cols) + "x" + std::to_string(frames[0].rows));
     if (f.type() != frames[0].type())
-      return InvalidArgument("phase: frame " + std::to_string(n) + " has type " + cv::typeToString(f.type()) +
-                             ", frame 0 has " + cv::typeToString(frames[0].type()));
+      return InvalidArgument("phase: frame " + std::to_string(n) + " has type " + cv::typeToString(f.type()) + ", frame 0 has " +
+                             cv::typeToString(frames[0].type()));
   }
   return Status::Ok();
 }
@@ -415,8 +429,8 @@ void PhaseEstimator::Impl::TileSums(const PhaseMaps& out, const cv::Mat* exclude
     for (int x = kKappaStride / 2; x < W; x += kKappaStride) {
       if (sat[x] || !(mod[x] >= min_mod)) continue;
       // Φ and B through the current κ (the N-step distortion depends on it), basis E(Φ; 1).
-      const FullEntry f = ReadFullRow(m.full_row(kt ? KappaRow(kt[x / t], rows_per_kappa, m.rows()) : prior_row),
-                                      PhaseBin(phi[x], bins_per_rad, m.bins()));
+      const FullEntry f =
+          ReadFullRow(m.full_row(kt ? KappaRow(kt[x / t], rows_per_kappa, m.rows()) : prior_row), PhaseBin(phi[x], bins_per_rad, m.bins()));
       const float b = mod[x] * f.ginv * f.e1;
       if (kt && std::abs(e[x] - mod[x] * f.ginv * f.e) > excl * mod[x] * f.ginv) continue;
       tn[x / t] += static_cast<double>(e[x]) * b;
@@ -428,8 +442,7 @@ void PhaseEstimator::Impl::TileSums(const PhaseMaps& out, const cv::Mat* exclude
 
 // κ per tile from the sums over a window of tiles; tiles without enough support get the fallback
 // tile map's value (or fallback_value).
-cv::Mat PhaseEstimator::Impl::SolveTiles(int TH, int TW, int window, const cv::Mat* fallback,
-                                         double fallback_value) const {
+cv::Mat PhaseEstimator::Impl::SolveTiles(int TH, int TW, int window, const cv::Mat* fallback, double fallback_value) const {
   const int half = window / 2;  // window = 2·half + 1
   const int t = options.kappa_tile_px;
   const double min_count = std::max(8.0, (2.0 * half + 1) * (2.0 * half + 1) * t * t / (kKappaStride * kKappaStride) / 8.0);
@@ -437,8 +450,8 @@ cv::Mat PhaseEstimator::Impl::SolveTiles(int TH, int TW, int window, const cv::M
   cv::Mat sums[3];
   const std::vector<double>* grids[3] = {&num, &den, &cnt};
   for (int g = 0; g < 3; ++g)
-    cv::boxFilter(cv::Mat(TH, TW, CV_64F, const_cast<double*>(grids[g]->data())), sums[g], CV_64F, cv::Size(window, window),
-                  cv::Point(-1, -1), false, cv::BORDER_CONSTANT);
+    cv::boxFilter(cv::Mat(TH, TW, CV_64F, const_cast<double*>(grids[g]->data())), sums[g], CV_64F, cv::Size(window, window), cv::Point(-1, -1), false,
+                  cv::BORDER_CONSTANT);
   cv::Mat k(TH, TW, CV_32F);
   for (int ty = 0; ty < TH; ++ty)
     for (int tx = 0; tx < TW; ++tx) {
@@ -482,36 +495,66 @@ Status PhaseEstimator::Compute(const std::vector<cv::Mat>& frames, PhaseMaps* ou
   Impl& I = *impl_;
   D3D_RETURN_IF_ERROR(I.Validate(frames, out));
   const PhaseModel& m = *I.model;
-  const int N = I.spec.steps, H = frames[0].rows, W = frames[0].cols;
-  const bool wide = frames[0].depth() == CV_16U;
-  const float sat_dn = static_cast<float>(I.options.saturation_dn > 0 ? I.options.saturation_dn : (wide ? 65535.0 : 255.0));
-  const float min_mod = static_cast<float>(I.options.min_modulation_dn);
+  Impl::Call c;
+  c.H = frames[0].rows;
+  c.W = frames[0].cols;
+  c.wide = frames[0].depth() == CV_16U;
   const PhaseAlgorithm alg = I.options.algorithm;
-  const bool marker = I.marker;
-  const bool need_kappa = m.has_residual() && m.residual_informative() &&
-                          (alg == PhaseAlgorithm::kAdaptiveHarmonic || marker);
+  c.need_kappa = m.has_residual() && m.residual_informative() && (alg == PhaseAlgorithm::kAdaptiveHarmonic || I.marker);
+  c.drift = alg == PhaseAlgorithm::kAdaptiveHarmonic && !I.drift_g[0].empty();
+  c.bins_per_rad = static_cast<float>(m.bins() / (2.0 * M_PI));
+  c.rows_per_kappa = static_cast<float>(1.0 / m.KappaStep());
+  c.bins = m.bins();
+  c.rows = m.rows();
+  c.lut_full = m.full_row(m.RowOf(1.0));
+  c.lut_sub = I.marker ? m.sub_row(m.RowOf(1.0)) : nullptr;
 
+  I.CreateMaps(c, out);
+  I.LinearSums(frames, c, out);                                // pass 1
+  I.Kappa(c, out);                                             // pass 2
+  I.Drift(c, out);                                             // pass 2b
+  if (alg != PhaseAlgorithm::kStandard) I.Compensate(c, out);  // pass 3
+  if (I.marker) {                                              // pass 4
+    I.MarkerScores(c, out);
+    I.MarkerMasks(out);
+    I.UnmarkedPhaseInStripes(c, out);
+  } else {
+    out->marker_score.release();
+  }
+  I.Finish(c, out);  // pass 5
+  return Status::Ok();
+}
+
+void PhaseEstimator::Impl::CreateMaps(const Call& c, PhaseMaps* out) {
+  const PhaseModel& m = *model;
+  const int H = c.H, W = c.W;
   out->phi.create(H, W, CV_32F);
   out->modulation.create(H, W, CV_32F);
   out->offset.create(H, W, CV_32F);
-  out->texture.create(H, W, wide ? CV_16U : CV_8U);
+  out->texture.create(H, W, c.wide ? CV_16U : CV_8U);
   out->valid.create(H, W, CV_8U);
   out->saturated.create(H, W, CV_8U);
   out->marker.create(H, W, CV_8U);
   out->marker.setTo(0);
-  if (need_kappa || m.has_residual()) I.residual.create(H, W, CV_32F);
+  if (c.need_kappa || m.has_residual()) residual.create(H, W, CV_32F);
   if (marker) {
-    I.phi_sub.create(H, W, CV_32F);
-    I.mod_sub.create(H, W, CV_32F);
-    I.dc_sub.create(H, W, CV_32F);
+    phi_sub.create(H, W, CV_32F);
+    mod_sub.create(H, W, CV_32F);
+    dc_sub.create(H, W, CV_32F);
   }
+}
 
-  // Pass 1: linear sums per pixel (vectorised row loops): raw N-step φ', B', mean, saturation,
-  // residual e, and the N−1-frame fit.
+// Pass 1: linear sums per pixel (vectorised row loops): raw N-step φ', B', mean, saturation,
+// residual e, and the N−1-frame fit.
+void PhaseEstimator::Impl::LinearSums(const std::vector<cv::Mat>& frames, const Call& c, PhaseMaps* out) {
+  const PhaseModel& m = *model;
+  const int N = spec.steps, H = c.H, W = c.W;
+  const bool wide = c.wide;
+  const float sat_dn = static_cast<float>(options.saturation_dn > 0 ? options.saturation_dn : (wide ? 65535.0 : 255.0));
   const std::vector<float> ones(N, 1.0f / N);
-  const int threads = I.options.threads;
+  const int threads = options.threads;
   ForRowBlocks(H, threads, [&](int y0, int y1) {
-    Impl::RowScratch& rs = I.row_scratch.local();  // this thread's; sized once
+    RowScratch& rs = row_scratch.local();  // this thread's; sized once
     rs.frame_rows.resize(N);
     for (auto& r : rs.frame_rows) r.resize(W);
     rs.acc_c.resize(W);
@@ -544,13 +587,13 @@ Status PhaseEstimator::Compute(const std::vector<cv::Mat>& frames, PhaseMaps* ou
         mod[x] = std::sqrt(C[x] * C[x] + S[x] * S[x]);
       }
       for (int x = 0; x < W; ++x) sat[x] = static_cast<uint8_t>(-static_cast<int>(mx[x] >= sat_dn));
-      if (!I.residual.empty()) Accumulate(m.res_w().data(), rs.frame_rows, W, I.residual.ptr<float>(y));
+      if (!residual.empty()) Accumulate(m.res_w().data(), rs.frame_rows, W, residual.ptr<float>(y));
       if (marker) {
         Accumulate(m.sub_cos_w().data(), rs.frame_rows, W, C);
         Accumulate(m.sub_sin_w().data(), rs.frame_rows, W, S);
-        Accumulate(m.sub_dc_w().data(), rs.frame_rows, W, I.dc_sub.ptr<float>(y));
-        float* p3 = I.phi_sub.ptr<float>(y);
-        float* m3 = I.mod_sub.ptr<float>(y);
+        Accumulate(m.sub_dc_w().data(), rs.frame_rows, W, dc_sub.ptr<float>(y));
+        float* p3 = phi_sub.ptr<float>(y);
+        float* m3 = mod_sub.ptr<float>(y);
         for (int x = 0; x < W; ++x) {
           p3[x] = FastAtan2Pos(S[x], C[x]);
           m3[x] = std::sqrt(C[x] * C[x] + S[x] * S[x]);
@@ -558,165 +601,193 @@ Status PhaseEstimator::Compute(const std::vector<cv::Mat>& frames, PhaseMaps* ou
       }
     }
   });
+}
 
-  // Pass 2: harmonic attenuation κ.
-  if (need_kappa) {
-    I.EstimateKappa(*out, H, W, &out->kappa);
-  } else if (alg == PhaseAlgorithm::kAdaptiveHarmonic) {
+// Pass 2: harmonic attenuation κ.
+void PhaseEstimator::Impl::Kappa(const Call& c, PhaseMaps* out) {
+  const int H = c.H, W = c.W;
+  if (c.need_kappa) {
+    EstimateKappa(*out, H, W, &out->kappa);
+  } else if (options.algorithm == PhaseAlgorithm::kAdaptiveHarmonic) {
     out->kappa.create(H, W, CV_32F);
-    out->kappa.setTo(static_cast<float>(I.options.kappa_prior));
+    out->kappa.setTo(static_cast<float>(options.kappa_prior));
   } else {
     out->kappa.release();
   }
+}
 
-  const float bins_per_rad = static_cast<float>(m.bins() / (2.0 * M_PI));
-  const float rows_per_kappa = static_cast<float>(1.0 / m.KappaStep());
-  const int bins = m.bins(), rows = m.rows();
-  const FullEntry* lut_full = m.full_row(m.RowOf(1.0));
-  const SubEntry* lut_sub = marker ? m.sub_row(m.RowOf(1.0)) : nullptr;
-
-  // Pass 2b: in-burst motion (ours only; the textbook and LUT baselines stay as published).
-  const bool drift = alg == PhaseAlgorithm::kAdaptiveHarmonic && !I.drift_g[0].empty();
-  if (drift) {
-    I.EstimateDrift(*out, H, W);
-    I.drift_maps[0].copyTo(out->phase_drift);
+// Pass 2b: in-burst motion (ours only; the textbook and LUT baselines stay as published).
+void PhaseEstimator::Impl::Drift(const Call& c, PhaseMaps* out) {
+  if (c.drift) {
+    EstimateDrift(*out, c.H, c.W);
+    drift_maps[0].copyTo(out->phase_drift);
   } else {
     out->phase_drift.release();
   }
-
-  // Pass 3: compensated N-step phase and modulation; with drift, also the N−1-frame phase and the
-  // residual (what the marker detector sees) lose their motion terms.
-  if (alg != PhaseAlgorithm::kStandard) {
-    ForRowBlocks(H, threads, [&](int y0, int y1) {
-      for (int y = y0; y < y1; ++y) {
-        float* phi = out->phi.ptr<float>(y);
-        float* mod = out->modulation.ptr<float>(y);
-        const float* kap = alg == PhaseAlgorithm::kAdaptiveHarmonic ? out->kappa.ptr<float>(y) : nullptr;
-        for (int x = 0; x < W; ++x) {
-          const BinPos b = PhaseBin(phi[x], bins_per_rad, bins);
-          const FullEntry e = ReadFullRow(kap ? m.full_row(KappaRow(kap[x], rows_per_kappa, rows)) : lut_full, b);
-          phi[x] = WrapPos(phi[x] + e.corr);
-          mod[x] *= e.ginv;
-        }
-        if (!drift) continue;
-        const float* d0 = I.drift_maps[0].ptr<float>(y);
-        const float* d1 = I.drift_maps[1].ptr<float>(y);
-        const float* d2 = I.drift_maps[2].ptr<float>(y);
-        float* res = I.residual.ptr<float>(y);
-        float* p3 = marker ? I.phi_sub.ptr<float>(y) : nullptr;
-        for (int x = 0; x < W; ++x) {
-          const size_t row0 = static_cast<size_t>(DriftRow(kap[x])) * bins;
-          const size_t i = row0 + PhaseBin(phi[x], bins_per_rad, bins).i;
-          res[x] -= mod[x] * (d0[x] * I.drift_g[0][i] + d1[x] * I.drift_g[1][i] + d2[x] * I.drift_g[2][i]);
-          phi[x] = WrapPos(phi[x] - (d0[x] * I.drift_h[0][i] + d1[x] * I.drift_h[1][i] + d2[x] * I.drift_h[2][i]));
-          if (p3) {
-            const size_t j = row0 + PhaseBin(p3[x], bins_per_rad, bins).i;
-            p3[x] = WrapPos(p3[x] - (d0[x] * I.drift_hs[0][j] + d1[x] * I.drift_hs[1][j] + d2[x] * I.drift_hs[2][j]));
-          }
-        }
-      }
-    });
-  }
-
-  // Pass 4: marker detection against the adaptive model (whatever the phase algorithm).
-  if (marker) {
-    out->marker_score.create(H, W, CV_32F);
-    I.marker_raw.create(H, W, CV_8U);
-    const float thr = static_cast<float>(I.options.marker_threshold);
-    ForRowBlocks(H, threads, [&](int y0, int y1) {
-      for (int y = y0; y < y1; ++y) {
-        const float* p3 = I.phi_sub.ptr<float>(y);
-        const float* m3 = I.mod_sub.ptr<float>(y);
-        const float* e = I.residual.ptr<float>(y);
-        const float* kap = need_kappa ? out->kappa.ptr<float>(y) : nullptr;
-        const uint8_t* sat = out->saturated.ptr<uint8_t>(y);
-        float* score = out->marker_score.ptr<float>(y);
-        uint8_t* raw = I.marker_raw.ptr<uint8_t>(y);
-        const float kappa_const = static_cast<float>(I.options.kappa_prior);
-        for (int x = 0; x < W; ++x) {
-          const SubEntry s = ReadSubRow(m.sub_row(KappaRow(kap ? kap[x] : kappa_const, rows_per_kappa, rows)),
-                                        PhaseBin(p3[x], bins_per_rad, bins));
-          const float B = m3[x] * s.ginv;
-          float alpha = 0.0f;
-          bool suspect = false;
-          if (!sat[x] && B >= min_mod) {
-            const float r = (e[x] - B * s.e) / B;
-            alpha = r * s.d / (s.d * s.d + kMarkerEps);
-            suspect = std::abs(r) > kSuspect;
-          }
-          score[x] = alpha;
-          raw[x] = suspect ? 255 : 0;
-        }
-      }
-    });
-    // α averaged over a box (noise of low-modulation pixels, the blurred jump in a stripe's middle),
-    // thresholded, then a closing and an opening.
-    const int box = I.options.marker_box_px, close = I.options.marker_close_px;
-    const int reach = I.options.marker_suspect_reach_px;
-    cv::blur(out->marker_score, out->marker_score, cv::Size(box, box), cv::Point(-1, -1), cv::BORDER_REPLICATE);
-    cv::compare(out->marker_score, thr, out->marker, cv::CMP_GT);
-    const cv::Mat k3 = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(close, close));
-    cv::morphologyEx(out->marker, out->marker, cv::MORPH_CLOSE, k3);
-    cv::morphologyEx(out->marker, out->marker, cv::MORPH_OPEN, k3);
-    // The N−1-frame phase is used in the stripes dilated by the guard (transition pixels) and
-    // wherever the N frames contradict the non-marker model (|r| > kSuspect: a stripe's fringe
-    // missed by the detector, a partly marked pixel, a glint's edge).
-    // Only near detected stripes (marker_suspect_reach_px): elsewhere |r| > kSuspect is mostly noise of
-    // low-modulation pixels, for which the N-step phase is the better one.
-    const int g = I.options.marker_guard_px;
-    if (g > 0)
-      cv::dilate(out->marker, I.guard, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * g + 1, 2 * g + 1)));
-    else
-      out->marker.copyTo(I.guard);
-    cv::dilate(out->marker, I.near, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * reach + 1, 2 * reach + 1)));
-    cv::bitwise_and(I.marker_raw, I.near, I.marker_raw);
-    cv::bitwise_or(I.guard, I.marker_raw, I.guard);
-
-    // Inside the guarded stripes: phase, modulation and offset from the N−1 unmarked frames.
-    ForRowBlocks(H, threads, [&](int y0, int y1) {
-      for (int y = y0; y < y1; ++y) {
-        const uint8_t* gd = I.guard.ptr<uint8_t>(y);
-        const float* p3 = I.phi_sub.ptr<float>(y);
-        const float* m3 = I.mod_sub.ptr<float>(y);
-        const float* dc = I.dc_sub.ptr<float>(y);
-        const float* kap = need_kappa ? out->kappa.ptr<float>(y) : nullptr;
-        float* phi = out->phi.ptr<float>(y);
-        float* mod = out->modulation.ptr<float>(y);
-        float* off = out->offset.ptr<float>(y);
-        for (int x = 0; x < W; ++x) {
-          if (!gd[x]) continue;
-          const BinPos b = PhaseBin(p3[x], bins_per_rad, bins);
-          SubEntry s{0.0f, 1.0f, 0.0f, 0.0f, 0.0f};
-          if (alg == PhaseAlgorithm::kLutGamma) {
-            s = ReadSubRow(lut_sub, b);
-          } else if (alg == PhaseAlgorithm::kAdaptiveHarmonic) {
-            s = ReadSubRow(m.sub_row(KappaRow(kap ? kap[x] : static_cast<float>(I.options.kappa_prior), rows_per_kappa, rows)), b);
-          }
-          phi[x] = WrapPos(p3[x] + s.corr);
-          mod[x] = m3[x] * s.ginv;
-          off[x] = dc[x] - mod[x] * s.off;
-        }
-      }
-    });
-  } else {
-    out->marker_score.release();
-  }
-
-  // Pass 5: validity, NaN where invalid, texture, counts (OpenCV's vectorised array operations).
-  cv::compare(out->modulation, min_mod, out->valid, cv::CMP_GE);
-  cv::bitwise_and(out->valid, out->saturated == 0, out->valid);
-  cv::bitwise_not(out->valid, I.invalid);
-  out->phi.setTo(std::numeric_limits<float>::quiet_NaN(), I.invalid);
-  out->marker.setTo(0, I.invalid);
-  out->num_valid = cv::countNonZero(out->valid);
-  out->num_saturated = cv::countNonZero(out->saturated);
-  out->offset.convertTo(out->texture, wide ? CV_16U : CV_8U);
-  out->num_marker = marker ? cv::countNonZero(out->marker) : 0;
-  return Status::Ok();
 }
 
-Status ComputePhase(const std::vector<cv::Mat>& frames, const FringePatternSpec& spec, double projector_gamma,
-                    const PhaseOptions& options, PhaseMaps* out) {
+// Pass 3: compensated N-step phase and modulation; with drift, also the N−1-frame phase and the
+// residual (what the marker detector sees) lose their motion terms.
+void PhaseEstimator::Impl::Compensate(const Call& c, PhaseMaps* out) {
+  const PhaseModel& m = *model;
+  const int H = c.H, W = c.W;
+  const PhaseAlgorithm alg = options.algorithm;
+  const bool drift = c.drift;
+  const float bins_per_rad = c.bins_per_rad, rows_per_kappa = c.rows_per_kappa;
+  const int bins = c.bins, rows = c.rows;
+  const FullEntry* lut_full = c.lut_full;
+  const int threads = options.threads;
+  ForRowBlocks(H, threads, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y) {
+      float* phi = out->phi.ptr<float>(y);
+      float* mod = out->modulation.ptr<float>(y);
+      const float* kap = alg == PhaseAlgorithm::kAdaptiveHarmonic ? out->kappa.ptr<float>(y) : nullptr;
+      for (int x = 0; x < W; ++x) {
+        const BinPos b = PhaseBin(phi[x], bins_per_rad, bins);
+        const FullEntry e = ReadFullRow(kap ? m.full_row(KappaRow(kap[x], rows_per_kappa, rows)) : lut_full, b);
+        phi[x] = WrapPos(phi[x] + e.corr);
+        mod[x] *= e.ginv;
+      }
+      if (!drift) continue;
+      const float* d0 = drift_maps[0].ptr<float>(y);
+      const float* d1 = drift_maps[1].ptr<float>(y);
+      const float* d2 = drift_maps[2].ptr<float>(y);
+      float* res = residual.ptr<float>(y);
+      float* p3 = marker ? phi_sub.ptr<float>(y) : nullptr;
+      for (int x = 0; x < W; ++x) {
+        const size_t row0 = static_cast<size_t>(DriftRow(kap[x])) * bins;
+        const size_t i = row0 + PhaseBin(phi[x], bins_per_rad, bins).i;
+        res[x] -= mod[x] * (d0[x] * drift_g[0][i] + d1[x] * drift_g[1][i] + d2[x] * drift_g[2][i]);
+        phi[x] = WrapPos(phi[x] - (d0[x] * drift_h[0][i] + d1[x] * drift_h[1][i] + d2[x] * drift_h[2][i]));
+        if (p3) {
+          const size_t j = row0 + PhaseBin(p3[x], bins_per_rad, bins).i;
+          p3[x] = WrapPos(p3[x] - (d0[x] * drift_hs[0][j] + d1[x] * drift_hs[1][j] + d2[x] * drift_hs[2][j]));
+        }
+      }
+    }
+  });
+}
+
+// Pass 4a: marker detection against the adaptive model (whatever the phase algorithm): the
+// matched-filter amplitude α per pixel (out->marker_score), and in marker_raw the pixels whose
+// N frames contradict the non-marker model.
+void PhaseEstimator::Impl::MarkerScores(const Call& c, PhaseMaps* out) {
+  const PhaseModel& m = *model;
+  const int H = c.H, W = c.W;
+  const bool need_kappa = c.need_kappa;
+  const float min_mod = static_cast<float>(options.min_modulation_dn);
+  const float bins_per_rad = c.bins_per_rad, rows_per_kappa = c.rows_per_kappa;
+  const int bins = c.bins, rows = c.rows;
+  const int threads = options.threads;
+  out->marker_score.create(H, W, CV_32F);
+  marker_raw.create(H, W, CV_8U);
+  ForRowBlocks(H, threads, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y) {
+      const float* p3 = phi_sub.ptr<float>(y);
+      const float* m3 = mod_sub.ptr<float>(y);
+      const float* e = residual.ptr<float>(y);
+      const float* kap = need_kappa ? out->kappa.ptr<float>(y) : nullptr;
+      const uint8_t* sat = out->saturated.ptr<uint8_t>(y);
+      float* score = out->marker_score.ptr<float>(y);
+      uint8_t* raw = marker_raw.ptr<uint8_t>(y);
+      const float kappa_const = static_cast<float>(options.kappa_prior);
+      for (int x = 0; x < W; ++x) {
+        const SubEntry s = ReadSubRow(m.sub_row(KappaRow(kap ? kap[x] : kappa_const, rows_per_kappa, rows)), PhaseBin(p3[x], bins_per_rad, bins));
+        const float B = m3[x] * s.ginv;
+        float alpha = 0.0f;
+        bool suspect = false;
+        if (!sat[x] && B >= min_mod) {
+          const float r = (e[x] - B * s.e) / B;
+          alpha = r * s.d / (s.d * s.d + kMarkerEps);
+          suspect = std::abs(r) > kSuspect;
+        }
+        score[x] = alpha;
+        raw[x] = suspect ? 255 : 0;
+      }
+    }
+  });
+}
+
+// Pass 4b: the marker stripes (out->marker) and the pixels that take the N−1-frame phase (guard).
+void PhaseEstimator::Impl::MarkerMasks(PhaseMaps* out) {
+  const float thr = static_cast<float>(options.marker_threshold);
+  // α averaged over a box (noise of low-modulation pixels, the blurred jump in a stripe's middle),
+  // thresholded, then a closing and an opening.
+  const int box = options.marker_box_px, close = options.marker_close_px;
+  const int reach = options.marker_suspect_reach_px;
+  cv::blur(out->marker_score, out->marker_score, cv::Size(box, box), cv::Point(-1, -1), cv::BORDER_REPLICATE);
+  cv::compare(out->marker_score, thr, out->marker, cv::CMP_GT);
+  const cv::Mat k3 = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(close, close));
+  cv::morphologyEx(out->marker, out->marker, cv::MORPH_CLOSE, k3);
+  cv::morphologyEx(out->marker, out->marker, cv::MORPH_OPEN, k3);
+  // The N−1-frame phase is used in the stripes dilated by the guard (transition pixels) and
+  // wherever the N frames contradict the non-marker model (|r| > kSuspect: a stripe's fringe
+  // missed by the detector, a partly marked pixel, a glint's edge).
+  // Only near detected stripes (marker_suspect_reach_px): elsewhere |r| > kSuspect is mostly noise of
+  // low-modulation pixels, for which the N-step phase is the better one.
+  const int g = options.marker_guard_px;
+  if (g > 0)
+    cv::dilate(out->marker, guard, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * g + 1, 2 * g + 1)));
+  else
+    out->marker.copyTo(guard);
+  cv::dilate(out->marker, near, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * reach + 1, 2 * reach + 1)));
+  cv::bitwise_and(marker_raw, near, marker_raw);
+  cv::bitwise_or(guard, marker_raw, guard);
+}
+
+// Pass 4c: inside the guarded stripes, phase, modulation and offset from the N−1 unmarked frames.
+void PhaseEstimator::Impl::UnmarkedPhaseInStripes(const Call& c, PhaseMaps* out) {
+  const PhaseModel& m = *model;
+  const int H = c.H, W = c.W;
+  const PhaseAlgorithm alg = options.algorithm;
+  const bool need_kappa = c.need_kappa;
+  const float bins_per_rad = c.bins_per_rad, rows_per_kappa = c.rows_per_kappa;
+  const int bins = c.bins, rows = c.rows;
+  const SubEntry* lut_sub = c.lut_sub;
+  const int threads = options.threads;
+  ForRowBlocks(H, threads, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y) {
+      const uint8_t* gd = guard.ptr<uint8_t>(y);
+      const float* p3 = phi_sub.ptr<float>(y);
+      const float* m3 = mod_sub.ptr<float>(y);
+      const float* dc = dc_sub.ptr<float>(y);
+      const float* kap = need_kappa ? out->kappa.ptr<float>(y) : nullptr;
+      float* phi = out->phi.ptr<float>(y);
+      float* mod = out->modulation.ptr<float>(y);
+      float* off = out->offset.ptr<float>(y);
+      for (int x = 0; x < W; ++x) {
+        if (!gd[x]) continue;
+        const BinPos b = PhaseBin(p3[x], bins_per_rad, bins);
+        SubEntry s{0.0f, 1.0f, 0.0f, 0.0f, 0.0f};
+        if (alg == PhaseAlgorithm::kLutGamma) {
+          s = ReadSubRow(lut_sub, b);
+        } else if (alg == PhaseAlgorithm::kAdaptiveHarmonic) {
+          s = ReadSubRow(m.sub_row(KappaRow(kap ? kap[x] : static_cast<float>(options.kappa_prior), rows_per_kappa, rows)), b);
+        }
+        phi[x] = WrapPos(p3[x] + s.corr);
+        mod[x] = m3[x] * s.ginv;
+        off[x] = dc[x] - mod[x] * s.off;
+      }
+    }
+  });
+}
+
+// Pass 5: validity, NaN where invalid, texture, counts (OpenCV's vectorised array operations).
+void PhaseEstimator::Impl::Finish(const Call& c, PhaseMaps* out) {
+  const float min_mod = static_cast<float>(options.min_modulation_dn);
+  cv::compare(out->modulation, min_mod, out->valid, cv::CMP_GE);
+  cv::bitwise_and(out->valid, out->saturated == 0, out->valid);
+  cv::bitwise_not(out->valid, invalid);
+  out->phi.setTo(std::numeric_limits<float>::quiet_NaN(), invalid);
+  out->marker.setTo(0, invalid);
+  out->num_valid = cv::countNonZero(out->valid);
+  out->num_saturated = cv::countNonZero(out->saturated);
+  out->offset.convertTo(out->texture, c.wide ? CV_16U : CV_8U);
+  out->num_marker = marker ? cv::countNonZero(out->marker) : 0;
+}
+
+Status ComputePhase(const std::vector<cv::Mat>& frames, const FringePatternSpec& spec, double projector_gamma, const PhaseOptions& options,
+                    PhaseMaps* out) {
   PhaseEstimator estimator(spec, projector_gamma, options);
   return estimator.Compute(frames, out);
 }

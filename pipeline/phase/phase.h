@@ -124,7 +124,7 @@ struct PhaseOptions {
   // stripes (static renders: 0.006 → 0.015 rad outside the stripes, 0.02 → 0.10 inside) and 50
   // moving bursts gain little (typodont 17.2 → 17.0 µm RMS, real arch 13.9 → 14.3 µm). Fitting the
   // drift after the marker is known is the next step. A hand-held scan turns it on all the same
-  // (pipeline/scan HandHeldReconstructOptions): the uncompensated drift is alike in consecutive
+  // (pipeline/chain HandHeldReconstructOptions): the uncompensated drift is alike in consecutive
   // views and biases their registration, which costs the fused arch more than the single view loses.
   bool motion_compensation = false;
   double max_phase_drift_rad = 0.5; // |ε| per frame interval is clamped to this (rad)

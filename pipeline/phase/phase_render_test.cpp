@@ -6,7 +6,7 @@
 #include <iostream>
 #include <map>
 
-#include "pipeline/phase/phase_eval.h"
+#include "sim/eval/phase_eval.h"
 
 namespace d3d {
 namespace {

@@ -5,8 +5,8 @@
 #include <cmath>
 #include <random>
 
-#include "firmware/sim/render/test_scenes.h"
-#include "firmware/sim/render/virtual_probe.h"
+#include "sim/render/test_scenes.h"
+#include "sim/render/virtual_probe.h"
 
 namespace d3d {
 namespace {

@@ -1,14 +1,14 @@
 #include "pipeline/recon/reconstruct.h"
 
 #include <gtest/gtest.h>
+#include <tbb/global_control.h>
 
 #include <cmath>
 #include <cstring>
-#include <tbb/global_control.h>
 
-#include "firmware/sim/render/test_scenes.h"
-#include "firmware/sim/render/virtual_probe.h"
 #include "pipeline/recon/evaluate.h"
+#include "sim/render/test_scenes.h"
+#include "sim/render/virtual_probe.h"
 
 namespace d3d {
 namespace {

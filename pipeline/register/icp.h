@@ -49,11 +49,12 @@ inline float L2SimpleDistance2(const Eigen::Vector3f& q, const Eigen::Vector3f& 
 //     other lies ≥ clearance − |Δ| from q'), so Find(q', r) is `point` when |q' − point| < r, else none;
 //   not found, r + |Δ| < clearance_mm → nothing lies within r of q': Find(q', r) finds none.
 struct CertifiedNearest {
-  bool certified = false;     // false: no answer to reuse (the caller searches every time)
-  bool found = false;         // a sample lies within the search's reach
-  Eigen::Vector3f point = Eigen::Vector3f::Zero(), normal = Eigen::Vector3f::Zero();  // the nearest (target frame)
-  float distance_mm = 0;      // |query − point|
-  float clearance_mm = 0;     // found: no other sample is nearer the query than this; else none within it
+  bool certified = false;  // false: no answer to reuse (the caller searches every time)
+  bool found = false;      // a sample lies within the search's reach
+  // The nearest sample (target frame).
+  Eigen::Vector3f point = Eigen::Vector3f::Zero(), normal = Eigen::Vector3f::Zero();
+  float distance_mm = 0;   // |query − point|
+  float clearance_mm = 0;  // found: no other sample is nearer the query than this; else none within it
 };
 
 // Associates a query point (target frame, mm) with a target sample: returns true and writes the
@@ -62,13 +63,11 @@ struct CertifiedNearest {
 class IcpTarget {
  public:
   virtual ~IcpTarget() = default;
-  virtual bool Find(const Eigen::Vector3f& query, float max_distance_mm, Eigen::Vector3f* point,
-                    Eigen::Vector3f* normal) const = 0;
+  virtual bool Find(const Eigen::Vector3f& query, float max_distance_mm, Eigen::Vector3f* point, Eigen::Vector3f* normal) const = 0;
   // The nearest sample with a clearance (CertifiedNearest) for a search with gate max_distance_mm,
   // certifying up to margin_mm beyond the nearest. Returns out->certified; targets that cannot
   // certify leave it false (the default).
-  virtual bool FindCertified(const Eigen::Vector3f& query, float max_distance_mm, float margin_mm,
-                             CertifiedNearest* out) const {
+  virtual bool FindCertified(const Eigen::Vector3f& query, float max_distance_mm, float margin_mm, CertifiedNearest* out) const {
     (void)query;
     (void)max_distance_mm;
     (void)margin_mm;
@@ -81,8 +80,7 @@ class IcpTarget {
 class KdTreeTarget final : public IcpTarget {
  public:
   explicit KdTreeTarget(SurfacePoints target);  // normals required (same size as points)
-  bool Find(const Eigen::Vector3f& query, float max_distance_mm, Eigen::Vector3f* point,
-            Eigen::Vector3f* normal) const override;
+  bool Find(const Eigen::Vector3f& query, float max_distance_mm, Eigen::Vector3f* point, Eigen::Vector3f* normal) const override;
   const SurfacePoints& samples() const { return target_; }
 
  private:
@@ -97,7 +95,7 @@ struct PinholeBrownConrady;  // calib/model/camera_model.h
 struct PinholeIntrinsics {
   double fx = 0, fy = 0, cx = 0, cy = 0;
   int width = 0, height = 0;
-  PinholeIntrinsics Scaled(double s) const;  // for an image s times the size
+  PinholeIntrinsics Scaled(double s) const;                        // for an image s times the size
   static PinholeIntrinsics Of(const PinholeBrownConrady& camera);  // its pinhole part (distortion dropped)
 };
 
@@ -107,10 +105,8 @@ struct PinholeIntrinsics {
 // (NaN = empty), H×W = intrinsics' size.
 class ProjectiveTarget final : public IcpTarget {
  public:
-  ProjectiveTarget(cv::Mat points, cv::Mat normals, const PinholeIntrinsics& intrinsics, const Rigid3d& cam_from_target,
-                   int window = 1);
-  bool Find(const Eigen::Vector3f& query, float max_distance_mm, Eigen::Vector3f* point,
-            Eigen::Vector3f* normal) const override;
+  ProjectiveTarget(cv::Mat points, cv::Mat normals, const PinholeIntrinsics& intrinsics, const Rigid3d& cam_from_target, int window = 1);
+  bool Find(const Eigen::Vector3f& query, float max_distance_mm, Eigen::Vector3f* point, Eigen::Vector3f* normal) const override;
 
  private:
   cv::Mat points_, normals_;
@@ -121,9 +117,9 @@ class ProjectiveTarget final : public IcpTarget {
 };
 
 struct IcpLevel {
-  int stride = 1;                 // use every stride-th source sample
-  int max_iterations = 10;
-  double max_distance_mm = 0.5;   // association gate
+  int stride = 1;                // use every stride-th source sample
+  int max_iterations = 10;       // at most this many Gauss–Newton iterations at this level
+  double max_distance_mm = 0.5;  // association gate
   // α of the combined metric at this level, [0, 1]. The point-to-point term widens the basin on
   // coarse levels but, with nearest-neighbour association, also damps (and biases) tangential
   // motion, so the finest level is pure point-to-plane by default.
@@ -141,15 +137,15 @@ struct IcpLevel {
 struct IcpOptions {
   // Coarse to fine. The last level decides the reported figures.
   std::vector<IcpLevel> levels = {{16, 12, 1.0, 0.7}, {4, 10, 0.3, 0.9}, {1, 8, 0.15, 1.0}};
-  double max_normal_angle_deg = 45;        // association refused when normals disagree more
-  double min_sigma_mm = 0.004;             // floor of the robust scale
-  double min_delta_rotation_rad = 2e-6;    // level ends when the update is smaller ...
-  double min_delta_translation_mm = 1e-4;  // ... in both rotation and translation (see IcpLevel)
-  double min_relative_error_change = 1e-4; // ... or the error stops changing
+  double max_normal_angle_deg = 45;         // association refused when normals disagree more
+  double min_sigma_mm = 0.004;              // floor of the robust scale
+  double min_delta_rotation_rad = 2e-6;     // level ends when the update is smaller ...
+  double min_delta_translation_mm = 1e-4;   // ... in both rotation and translation (see IcpLevel)
+  double min_relative_error_change = 1e-4;  // ... or the error stops changing
   // Acceptance (a registration failing these comes back not ok, with the reason):
-  double min_overlap = 0.3;                // fraction of final-level source samples associated
-  double max_rmse_mm = 0.06;               // RMS point-to-plane residual of the associated samples
-  int min_correspondences = 30;
+  double min_overlap = 0.3;      // fraction of final-level source samples associated
+  double max_rmse_mm = 0.06;     // RMS point-to-plane residual of the associated samples
+  int min_correspondences = 30;  // associated final-level source samples, at least
   // Degeneracy: smallest / largest eigenvalue of the point-to-plane Hessian (rotation scaled by the
   // source radius so that all six are in mm²). Below: a direction slides freely (plane, sphere,
   // cylinder, extrusion): not ok.
@@ -171,20 +167,20 @@ struct IcpOptions {
   // time (up to 1e-5 mm of slack in the test); targets that cannot certify search every time.
   // 0 = search every time.
   double association_reuse_margin = 0.1;
-  void Check() const;                      // throws std::invalid_argument
+  void Check() const;  // throws std::invalid_argument
 };
 
 struct IcpResult {
   bool ok = false;
-  std::string reason;                      // why not ok
+  std::string reason;  // why not ok
   Rigid3d target_from_source = Rigid3d::Identity();
-  double rmse_mm = 0;                      // final point-to-plane RMS of associated samples
-  double overlap = 0;                      // associated / final-level samples
+  double rmse_mm = 0;  // final point-to-plane RMS of associated samples
+  double overlap = 0;  // associated / final-level samples
   int correspondences = 0;
-  int iterations = 0;                      // over all levels
-  int64_t searches = 0;                    // nearest-sample searches, over all levels and iterations
-  int64_t searches_reused = 0;             // associations reused instead (association_reuse_margin)
-  double eigen_ratio = 0;                  // see IcpOptions::min_eigen_ratio
+  int iterations = 0;           // over all levels
+  int64_t searches = 0;         // nearest-sample searches, over all levels and iterations
+  int64_t searches_reused = 0;  // associations reused instead (association_reuse_margin)
+  double eigen_ratio = 0;       // see IcpOptions::min_eigen_ratio
   // Gauss–Newton information of the final level, [ω (rad), t (mm)], scaled by 1/σ²: the inverse
   // covariance of the left-perturbation of target_from_source (pose graph edges use it).
   Eigen::Matrix<double, 6, 6> information = Eigen::Matrix<double, 6, 6>::Zero();
@@ -193,7 +189,6 @@ struct IcpResult {
 // Registers `source` (its own frame; normals used for the compatibility test and the source
 // weights as per-sample confidence) to `target`, starting from `initial` (target_from_source).
 // Throws std::invalid_argument for invalid options; expected failures are returned.
-IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, const Rigid3d& initial,
-                      const IcpOptions& options = {});
+IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, const Rigid3d& initial, const IcpOptions& options = {});
 
 }  // namespace d3d

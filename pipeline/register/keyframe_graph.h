@@ -31,7 +31,7 @@
 namespace d3d {
 
 // FeatureOptions with image_scale 0.5 (the keyframes' features: as many view pairs aligned as at
-// full size, 4–10× faster; docs/decisions/0008).
+// full size, several times faster; docs/decisions/0008).
 FeatureOptions HalfScaleFeatures();
 
 struct KeyframeGraphOptions {
@@ -51,15 +51,15 @@ struct KeyframeGraphOptions {
   // Reuse: a view that would become a keyframe makes an older one current again instead when that
   // one's centre lies within reuse_radius_mm of the view's, turned at most max_rotation_deg / 2, and
   // it overlaps the view by `overlap` (of the reuse_candidates nearest, the first that passes). Why:
-  // a keyframe holds ~0.4–0.7 MB and a probe circling one tooth kept making them. 0 = never reuse;
-  // d3d-scan: 2 mm.
+  // a probe circling one tooth kept making keyframes, each holding memory (docs/decisions/0008).
+  // 0 = never reuse; d3d-scan: 2 mm.
   double reuse_radius_mm = 0;
   int reuse_candidates = 3;
-  int stride = 4;  // px lattice of a keyframe's samples
+  int stride = 4;                                 // px lattice of a keyframe's samples
   FeatureOptions features = HalfScaleFeatures();  // keyframe and relocalisation features
   // When a keyframe's features (SIFT on three images) are extracted; the same features in every mode.
   //  kInTrack:  in Track(), when the keyframe is made.
-  //  kWorker:   on a worker thread (Track() pays a copy of the points and texture, ~1 ms); a
+  //  kWorker:   on a worker thread (Track() pays a copy of the points and texture); a
   //             relocalisation first waits for every keyframe's features.
   //  kOnDemand: when a relocalisation or join first matches against the keyframe; until then it
   //             keeps its points and texture packed (less than the features), freed once extracted.
@@ -69,9 +69,9 @@ struct KeyframeGraphOptions {
   // instead of in Track(): the same edges (the graph's poses do not move before), only
   // TrackResult::loops_added stays 0. For a live host, whose Track() is on the critical path.
   bool defer_edges = false;
-  bool detect_loops = true;
-  double loop_radius_mm = 10.0;  // keyframe centres closer than this are loop candidates
-  int loop_min_separation = 10;  // keyframes
+  bool detect_loops = true;       // search loop closures for each new keyframe
+  double loop_radius_mm = 10.0;   // keyframe centres closer than this are loop candidates
+  int loop_min_separation = 10;   // keyframes
   double loop_min_overlap = 0.3;  // overlap index of a loop candidate with the new keyframe
   int max_loop_candidates = 6;    // per new keyframe, older than loop_min_separation, nearest first
   // Per new keyframe, edges to recent keyframes too (2 .. loop_min_separation − 1 back), nearest
@@ -89,10 +89,10 @@ struct KeyframeGraphOptions {
   // tracker's drift into the loop-closing full arch (docs/decisions/0008). d3d-fuse / d3d-scan
   // --tracked-edge-factor.
   double tracked_edge_information_factor = 0.0;
-  double edge_information_scale = 1e-3;
+  double edge_information_scale = 1e-3;                         // ICP information × this on ICP edges (icp_edges)
   double odometry_sigma_mm = 0.005, odometry_sigma_rad = 1e-4;  // edge σ (without ICP information)
-  double loop_sigma_mm = 0.005, loop_sigma_rad = 1e-4;
-  void Check() const;  // throws std::invalid_argument
+  double loop_sigma_mm = 0.005, loop_sigma_rad = 1e-4;          // loop edge σ (without ICP information)
+  void Check() const;                                           // throws std::invalid_argument
 };
 
 // ICP levels of keyframe-to-keyframe registration (gates 0.5 → 0.1 mm), acceptance from `base`.
@@ -103,20 +103,19 @@ IcpOptions KeyframeIcp(const IcpOptions& base = DefaultTrackerIcp());
 // `guess` (from_from_to). On success *edge gets from_from_to and ICP's information matrix times
 // information_scale (pose_graph.h EdgeInformationFromIcp); its nodes and `loop` are left to the
 // caller. Returns false (edge untouched) when the ICP is not ok; *result (optional) gets the ICP.
-bool MeasureKeyframeEdge(const SurfacePoints& from_samples, const SurfacePoints& to_samples, const Rigid3d& guess,
-                         const IcpOptions& icp, double information_scale, PoseGraphEdge* edge, IcpResult* result = nullptr);
+bool MeasureKeyframeEdge(const SurfacePoints& from_samples, const SurfacePoints& to_samples, const Rigid3d& guess, const IcpOptions& icp,
+                         double information_scale, PoseGraphEdge* edge, IcpResult* result = nullptr);
 
 struct Keyframe {
-  int64_t view = 0;                   // index of the view (Track call) it was made from
-  int node = 0;                       // pose graph node
-  SurfacePoints samples;              // camera frame
-  ViewFeatures features;              // camera frame (kWorker: once collected; kOnDemand: once extracted)
+  int64_t view = 0;       // index of the view (Track call) it was made from
+  int node = 0;           // pose graph node
+  SurfacePoints samples;  // camera frame
+  ViewFeatures features;  // camera frame (kWorker: once collected; kOnDemand: once extracted)
   // kOnDemand: the inputs of its features (points H×W CV_32FC3, texture H×W CV_8U or empty), packed
   // losslessly (common/pack/frame_pack.h; texture: empty when there is none) until a relocalisation
-  // extracts them (both released then): ~0.1–0.38 MB against 0.92 MB unpacked at 320 × 240. A
-  // keyframe's points are never empty.
+  // extracts them (both released then; sizes: docs/decisions/0008). A keyframe's points are never empty.
   std::string packed_feature_points, packed_feature_texture;
-  int segment = 0;                    // the scan segment it was made in (segments.h)
+  int segment = 0;  // the scan segment it was made in (segments.h)
   bool features_pending() const { return !packed_feature_points.empty(); }
   // Bytes the keyframe holds: samples, features and packed feature inputs.
   int64_t bytes() const;
@@ -147,18 +146,18 @@ class KeyframeGraph {
     const Keyframe& kf = keyframes_[static_cast<size_t>(k)];
     return graph_.pose(kf.node) * kf.centre_in_cam;
   }
-  int current() const { return current_kf_; }  // the keyframe views anchor to now (−1: none yet)
+  int current() const { return current_kf_; }               // the keyframe views anchor to now (−1: none yet)
   int64_t current_since() const { return current_since_; }  // the view that made it current
-  int reused() const { return keyframes_reused_; }  // times an older keyframe became current again
-  int64_t bytes() const;                            // the keyframes' Keyframe::bytes(), summed
+  int reused() const { return keyframes_reused_; }          // times an older keyframe became current again
+  int64_t bytes() const;                                    // the keyframes' Keyframe::bytes(), summed
   int loop_edges() const;
 
   // The keyframe step of an accepted view `view` (points, normals H×W CV_32FC3 camera frame,
   // texture H×W CV_8U or empty) at `pose` (world_from_cam) in segment `segment`: it becomes a
   // keyframe, reuses an older one, or anchors to the current one. Reads out->prediction_offset_mm /
   // _deg; sets out->new_keyframe, keyframe_reused, loops_added.
-  void Update(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& texture, const Rigid3d& pose, int64_t view,
-              int segment, TrackResult* out);
+  void Update(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& texture, const Rigid3d& pose, int64_t view, int segment,
+              TrackResult* out);
 
   // Keyframe k's features, extracted first when kOnDemand left them pending.
   const ViewFeatures& Features(int k);

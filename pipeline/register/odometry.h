@@ -33,7 +33,7 @@ bool ParseAssociation(const std::string& name, Association* out);
 // level on every 2nd sample, the two coarse levels pure point-to-plane and ended at 10 / 5 µm (a
 // level only has to bring the pose inside the next one's gate), the finest at pose updates below
 // 0.5 µm / 2e-5 rad or an error change below 0.1 %: the same trueness as IcpOptions' stricter
-// defaults for ~60 % of the time (figures: docs/decisions/0008).
+// defaults in less time (figures: docs/decisions/0008).
 IcpOptions DefaultTrackerIcp();
 
 // Segment frames (segments.h): segment s's frame is the main one moved by s · kSegmentSpacingMm
@@ -47,7 +47,7 @@ struct OdometryOptions {
   IcpOptions icp = DefaultTrackerIcp();  // frame-to-model
   PointMapOptions map;                   // the tracking model (map.undo_inserts: the undo journal)
   // Nearest model sample by grids (the k-d tree finds the same samples, slower); projective
-  // association is faster but gave 4× the trueness error (docs/decisions/0008).
+  // association is faster but far less true (docs/decisions/0008).
   Association association = Association::kGrid;
   int sample_stride = 2;  // px lattice of the ICP source samples
   int map_stride = 3;     // px lattice of the samples added to the model
@@ -79,7 +79,7 @@ struct OdometryOptions {
   // Coasting: a view whose ICP from the prediction fits but is degenerate (a smooth stretch) is not
   // fused but, while tracking, keeps the track: ICP again stepping only along directions with an
   // eigenvalue ratio ≥ coast_min_eigen_ratio, and that pose feeds the motion and tracking models. At
-  // most max_coast_views in a row; 0 = off, the default (it placed a view 2 mm off on the zoo:
+  // most max_coast_views in a row; 0 = off, the default (it placed a view off on the zoo:
   // docs/decisions/0003).
   int max_coast_views = 0;
   double coast_min_eigen_ratio = 0.02;
@@ -120,8 +120,7 @@ class Odometry {
   // Coasting (max_coast_views): `failed` is ICP's result from `prediction`. When it fits the model
   // but is degenerate, ICP again along the constrained directions; true with *fit when that fits
   // and is a consistent motion (the coast run grows), false otherwise.
-  bool Coast(const SurfacePoints& samples, const IcpResult& failed, const Rigid3d& prediction,
-             const MotionModel& motion, IcpResult* fit);
+  bool Coast(const SurfacePoints& samples, const IcpResult& failed, const Rigid3d& prediction, const MotionModel& motion, IcpResult* fit);
   int coast_run() const { return coast_run_; }  // views coasted in a row
   void set_coast_run(int views) { coast_run_ = views; }
 
@@ -138,7 +137,7 @@ class Odometry {
   mutable SurfacePoints gathered_;
   mutable GridTarget grid_;
   static constexpr size_t kRecentResiduals = 16;  // the "last 16" of map_max_rmse_ratio
-  std::vector<double> recent_rmse_mm_;             // the last kRecentResiduals residuals (ring)
+  std::vector<double> recent_rmse_mm_;            // the last kRecentResiduals residuals (ring)
   size_t recent_rmse_next_ = 0;
   int gated_run_ = 0;  // views in a row kept out of the model
   int coast_run_ = 0;  // views in a row coasted

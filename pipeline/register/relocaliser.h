@@ -35,13 +35,12 @@
 namespace d3d {
 
 struct RelocaliserOptions {
-  bool by_features = true;       // feature relocalisation (and the keyframes' features) on
-  int feature_candidates = 6;    // keyframes matched by features, nearest the last accepted view first
-  int local_candidates = 4;      // local search: ICP from the last pose and this many nearest keyframes
+  bool by_features = true;            // feature relocalisation (and the keyframes' features) on
+  int feature_candidates = 6;         // keyframes matched by features, nearest the last accepted view first
+  int local_candidates = 4;           // local search: ICP from the last pose and this many nearest keyframes
   double local_search_gate_mm = 4.0;  // first-level association gate of the local search
-  // A re-entering view's (local search, features, confirmation) ICP residual and overlap limits,
-  // stricter than tracking's: neighbouring-tooth fits after a gap came back just under tracking's
-  // 60 µm, correct re-entries at 11–31 µm.
+  // A re-entering view's (local search, features, confirmation) ICP residual (mm) and overlap
+  // limits, stricter than tracking's, which a neighbouring-tooth fit after a gap can pass (docs/decisions/0008).
   double max_rmse_mm = 0.04;
   double min_overlap = 0.5;
   // After a loss, a found view is a re-entry candidate (refused, state kLost) that the next view
@@ -73,8 +72,8 @@ struct RelocaliserOptions {
 class Relocaliser {
  public:
   // camera: intrinsics of the views (the re-entry check). Throws for invalid options.
-  Relocaliser(const PinholeBrownConrady& camera, const RelocaliserOptions& options, const Odometry* odometry,
-              const MotionModel* motion, KeyframeGraph* keyframes, const Segments* segments);
+  Relocaliser(const PinholeBrownConrady& camera, const RelocaliserOptions& options, const Odometry* odometry, const MotionModel* motion,
+              KeyframeGraph* keyframes, const Segments* segments);
   const RelocaliserOptions& options() const { return o_; }
 
   // A return to the model after a gap or a loss. gap (here and below): the tracker knows of one

@@ -66,7 +66,7 @@ class Tracker {
 
   // Called once per accepted view (not the first), with its pose, before the view enters the model:
   // it may add points to the view, writing into the same buffers as the points, normals and quality
-  // given to Track (e.g. surfaces the model confirms: pipeline/scan/model_anchor.h), and returns
+  // given to Track (e.g. surfaces the model confirms: pipeline/chain/model_anchor.h), and returns
   // true if it did. Track then runs ICP again from that pose with all the points (when they grew by
   // OdometryOptions::reregister_min_gain) and takes the new pose if that ICP is ok and a consistent
   // motion. A view with too few points for ICP, right after an accepted one while tracking, is
@@ -134,7 +134,7 @@ class Tracker {
   // Takes back what the last view did to the tracking state when it was refused right after the
   // track was held (kTracking or kRelocalised): the state, the refused-in-a-row count, the count of
   // views without points and any re-entry candidate are put back as before it; the view stays
-  // refused. A view from the gap before it (a live host's dropped burst: host/scan/gap_bridge.h) is
+  // refused. A view from the gap before it (a live host's dropped burst: host/app/gap_bridge.h) is
   // then tracked from the prediction, as it would have been had it come first, instead of searched
   // as a re-entry. False (nothing changed) when the last view was not such a refusal, or after the
   // next Track or an UndoFrom.

@@ -6,8 +6,8 @@
 #include <cstring>
 #include <random>
 
-#include "firmware/sim/render/test_scenes.h"
-#include "firmware/sim/render/virtual_probe.h"
+#include "sim/render/test_scenes.h"
+#include "sim/render/virtual_probe.h"
 
 namespace d3d {
 namespace {

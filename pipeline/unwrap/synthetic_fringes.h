@@ -6,7 +6,7 @@
 //   u(x, Z) = fp·(x − cx)/fc − fp·b/Z + proj_cx,
 // and its absolute phase is Φ = 2π(u − phase_origin_px)/T (calib/model/probe_calibration.h).
 // Φ grows with Z, so the measurement volume [z_min, z_max] gives phase_min = Φ(x, z_min) and
-// phase_max = Φ(x, z_max). The defaults follow the probe head (firmware/sim/render/probe_design.h):
+// phase_max = Φ(x, z_max). The defaults follow the probe head (sim/render/probe_design.h):
 // fc = 2000 px, fp = 2100 px, b = 10.63 mm, T = 24 px, 42–58 mm (≈ 6 orders per pixel), marker
 // stripes at orders 4, 14, 24, 34.
 #pragma once

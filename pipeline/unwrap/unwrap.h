@@ -50,9 +50,8 @@
 #pragma once
 
 #include <cstdint>
-#include <vector>
-
 #include <opencv2/core.hpp>
+#include <vector>
 
 #include "common/core/status.h"
 
@@ -85,10 +84,10 @@ struct UnwrapOptions {
   int marker_margin_below = 0;
   int marker_margin_above = 1;
 
-  float min_quality = 0.05f;    // usable pixels: quality ≥ this
-  float seed_quality = 0.5f;    // first-pass seeds: quality ≥ this
-  int quality_levels = 32;      // buckets of the priority queue (2..256)
-  double max_jump = 1.6;        // rad: |W(Δφ)| above this is not crossed (0 < max_jump < π)
+  float min_quality = 0.05f;  // usable pixels: quality ≥ this
+  float seed_quality = 0.5f;  // first-pass seeds: quality ≥ this
+  int quality_levels = 32;    // buckets of the priority queue (2..256)
+  double max_jump = 1.6;      // rad: |W(Δφ)| above this is not crossed (0 < max_jump < π)
   // Ordering constraint: on a surface lit by the projector and seen by the camera, Φ is monotonic
   // along camera rows (the projector column grows with the camera column unless the surface turns
   // away from the projector, i.e. is in its shadow), so a horizontal step against that direction
@@ -108,7 +107,7 @@ struct UnwrapOptions {
   double max_violation_share = 3e-4;
 
   int min_region_pixels = 400;  // smaller regions are dropped
-  int min_marker_votes = 30;        // hits needed to anchor by marker
+  int min_marker_votes = 30;    // hits needed to anchor by marker
   // hits / predicted stripe pixels of the winning K: a part of the region whose orders are off has
   // predicted stripe pixels without detections and lowers the density. High on purpose (a region
   // that grew across a hidden near-integer jump is rejected); assumes a detector that finds ≳ 90 %
@@ -120,7 +119,7 @@ struct UnwrapOptions {
   // is dropped (seen on noise-free renders: a 572-px fragment with 561 stripe pixels and 58 % of its
   // pixels one order off).
   double marker_max_stripe_share = 0.6;
-  int marker_rival_votes = 10;      // another K with this many hits ...
+  int marker_rival_votes = 10;        // another K with this many hits ...
   double marker_rival_density = 0.2;  // ... at this density rejects the region
   // The same test within each marker_tile_px square tile of the image, over the pixels where the
   // region's K is admissible: another K with at least marker_tile_rival_votes hits at a density
@@ -140,9 +139,9 @@ struct UnwrapOptions {
   // palate 10–17 mm behind the crowns: 24 % of a typodont view's region), and those pixels are
   // dropped by drop_outside_volume. At 0.8, such whole views were lost.
   double marker_depth_fraction = 0.5;
-  double depth_fraction = 0.97;        // share of bounded pixels that must admit a depth-only K
-  double volume_margin = 0.0;          // rad added on both sides of [phase_min, phase_max]
-  bool drop_outside_volume = true;     // drop pixels whose Φ lies outside their admissible range
+  double depth_fraction = 0.97;     // share of bounded pixels that must admit a depth-only K
+  double volume_margin = 0.0;       // rad added on both sides of [phase_min, phase_max]
+  bool drop_outside_volume = true;  // drop pixels whose Φ lies outside their admissible range
   // Neck pruning of marker-anchored regions (step 3c): a region that leaked around a cut through a
   // gap of a few pixels (e.g. at an image border or where two tooth/gingiva borders meet) carries
   // a wrong order beyond it. The region's mask is eroded by neck_radius px (square), the 8-connected
@@ -170,43 +169,43 @@ const char* RegionAnchorName(RegionAnchor anchor);
 inline bool IsAnchored(RegionAnchor anchor) { return anchor == RegionAnchor::kMarker || anchor == RegionAnchor::kDepth; }
 
 struct RegionInfo {
-  int pixels = 0;               // pixels of the region (after conflict drops)
+  int pixels = 0;  // pixels of the region (after conflict drops)
   RegionAnchor anchor = RegionAnchor::kTooSmall;
-  int offset = 0;               // K: absolute order = relative order + K (valid if anchored)
-  int marker_hits = 0;          // detected marker pixels on a stripe for the winning K
-  int marker_predicted = 0;     // stripe-core pixels predicted in a stripe for the winning K
-  int marker_rival_hits = 0;    // hits of the strongest rival K (0 if none; in one tile if the tile test found it)
-  int bounded_pixels = 0;       // pixels with a finite admissible range
-  int admitting_pixels = 0;     // bounded pixels that admit the chosen (or best) K
-  int candidates = 0;           // K admitted by ≥ depth_fraction (depth anchoring)
-  int violations = 0;           // ordering violations (see UnwrapOptions::violation_phase)
+  int offset = 0;             // K: absolute order = relative order + K (valid if anchored)
+  int marker_hits = 0;        // detected marker pixels on a stripe for the winning K
+  int marker_predicted = 0;   // stripe-core pixels predicted in a stripe for the winning K
+  int marker_rival_hits = 0;  // hits of the strongest rival K (0 if none; in one tile if the tile test found it)
+  int bounded_pixels = 0;     // pixels with a finite admissible range
+  int admitting_pixels = 0;   // bounded pixels that admit the chosen (or best) K
+  int candidates = 0;         // K admitted by ≥ depth_fraction (depth anchoring)
+  int violations = 0;         // ordering violations (see UnwrapOptions::violation_phase)
 };
 
 struct UnwrapStats {
   int regions_total = 0;
-  int regions_marker = 0;       // anchored by marker
-  int regions_depth = 0;        // anchored by the depth constraint
-  int regions_rejected = 0;     // marker conflict, ambiguous or inconsistent (≥ min_region_pixels)
-  int regions_small = 0;        // dropped as too small
-  int64_t pixels_usable = 0;    // quality ≥ min_quality
-  int64_t pixels_valid = 0;     // with an absolute order in the output
-  int64_t pixels_dropped = 0;   // usable but without an order (the reasons below add up to it)
+  int regions_marker = 0;            // anchored by marker
+  int regions_depth = 0;             // anchored by the depth constraint
+  int regions_rejected = 0;          // marker conflict, ambiguous or inconsistent (≥ min_region_pixels)
+  int regions_small = 0;             // dropped as too small
+  int64_t pixels_usable = 0;         // quality ≥ min_quality
+  int64_t pixels_valid = 0;          // with an absolute order in the output
+  int64_t pixels_dropped = 0;        // usable but without an order (the reasons below add up to it)
   int64_t pixels_discontinuity = 0;  //   at a backward horizontal step (reverse_barrier)
-  int64_t pixels_conflict = 0;  //   neighbours predicted different orders
-  int64_t pixels_small = 0;     //   in regions too small
-  int64_t pixels_rejected = 0;  //   in rejected regions
-  int64_t pixels_outside = 0;   //   outside the measurement volume (drop_outside_volume)
-  int64_t pixels_neck = 0;      //   in parts of marker regions not verified on their own (neck_radius)
+  int64_t pixels_conflict = 0;       //   neighbours predicted different orders
+  int64_t pixels_small = 0;          //   in regions too small
+  int64_t pixels_rejected = 0;       //   in rejected regions
+  int64_t pixels_outside = 0;        //   outside the measurement volume (drop_outside_volume)
+  int64_t pixels_neck = 0;           //   in parts of marker regions not verified on their own (neck_radius)
 };
 
 struct UnwrapResult {
-  cv::Mat Phi;     // H×W CV_32F absolute phase Φ [rad], NaN where dropped
-  cv::Mat order;   // H×W CV_32S fringe order k = floor(Φ/2π), −1 where dropped
-  cv::Mat region;  // H×W CV_32S index into `regions` for every pixel of a grown region (anchored
-                   // or not), −1 for pixels in none (unusable or conflict)
+  cv::Mat Phi;       // H×W CV_32F absolute phase Φ [rad], NaN where dropped
+  cv::Mat order;     // H×W CV_32S fringe order k = floor(Φ/2π), −1 where dropped
+  cv::Mat region;    // H×W CV_32S index into `regions` for every pixel of a grown region (anchored
+                     // or not), −1 for pixels in none (unusable or conflict)
   cv::Mat relative;  // H×W CV_32S region-relative order r of every pixel of a grown region (its
                      // absolute order is r + K for the region's offset K, once one is known: see
-                     // pipeline/scan/model_anchor.h), INT32_MIN for pixels in none
+                     // pipeline/chain/model_anchor.h), INT32_MIN for pixels in none
   std::vector<RegionInfo> regions;
   UnwrapStats stats;
 };
@@ -227,12 +226,17 @@ class Unwrapper {
   //              NaN/inf or phase_min > phase_max = unknown there; both empty = no depth constraint
   // INVALID_ARGUMENT for empty phi, mismatched sizes/types, or a null `out`; then `out` is untouched.
   // All-invalid input is fine: every pixel dropped, OK.
-  [[nodiscard]] Status Run(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker,
-                           const cv::Mat& phase_min, const cv::Mat& phase_max, UnwrapResult* out);
+  [[nodiscard]] Status Run(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker, const cv::Mat& phase_min, const cv::Mat& phase_max,
+                           UnwrapResult* out);
 
  private:
-  void Prepare(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker,
-               const cv::Mat& phase_min, const cv::Mat& phase_max);
+  void Prepare(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker, const cv::Mat& phase_min, const cv::Mat& phase_max);
+  // Prepare's steps, in order.
+  void ResizeGrid(int w, int h);
+  void ReadPixels(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker, const cv::Mat& phase_min, const cv::Mat& phase_max);
+  void MarkReverseBarriers(float lo_x, float hi_x, float max_jump);
+  void AddEdges(float lo_x, float hi_x, float max_jump);
+  void ClearPixel(size_t i);  // an unusable pixel (border, or not usable)
   void GrowRegion(int seed, UnwrapResult* out);
   void AnchorRegion(RegionInfo* info, int region_id);
   void PruneNecks(const UnwrapResult& out);
@@ -251,20 +255,19 @@ class Unwrapper {
   std::vector<int32_t> next_;       // bucket queue: next pixel in the same level's list
   std::vector<int32_t> head_;       // bucket queue: first pixel of each level's list, −1 empty
   int64_t barrier_ = 0;
-  std::vector<int32_t> members_;    // pixels of the region being grown
-  std::vector<int32_t> hist_;       // per-K histograms of one region
+  std::vector<int32_t> members_;  // pixels of the region being grown
+  std::vector<int32_t> hist_;     // per-K histograms of one region
   std::vector<int32_t> predicted_, hits_;
   std::vector<int32_t> tile_predicted_, tile_hits_;  // per tile and K of one region (tile-major)
-  std::vector<int> offsets_;        // per region: K, or INT_MIN if not anchored
-  std::vector<int32_t> lab_, ero_, tmp_;  // neck pruning: region labels, eroded labels, scratch
-  std::vector<uint8_t> keep_;       // neck pruning: 1 = verified part of a marker region
-  std::vector<int32_t> stack_;      // neck pruning: flood-fill stack
+  std::vector<int> offsets_;                         // per region: K, or INT_MIN if not anchored
+  std::vector<int32_t> lab_, ero_, tmp_;             // neck pruning: region labels, eroded labels, scratch
+  std::vector<uint8_t> keep_;                        // neck pruning: 1 = verified part of a marker region
+  std::vector<int32_t> stack_;                       // neck pruning: flood-fill stack
   int64_t conflicts_ = 0;
 };
 
 // One-shot convenience: Unwrapper(options).Run(...). Invalid options give INVALID_ARGUMENT.
-[[nodiscard]] Status UnwrapPhase(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker,
-                                 const cv::Mat& phase_min, const cv::Mat& phase_max,
-                                 const UnwrapOptions& options, UnwrapResult* out);
+[[nodiscard]] Status UnwrapPhase(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker, const cv::Mat& phase_min,
+                                 const cv::Mat& phase_max, const UnwrapOptions& options, UnwrapResult* out);
 
 }  // namespace d3d

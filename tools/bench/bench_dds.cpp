@@ -10,13 +10,13 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
-#include <CLI/CLI.hpp>
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <random>
 #include <thread>
 
+#include "common/options/option_registry.h"
 #include "host/receiver/receiver.h"
 #include "protocol/protocol.h"
 #include "tools/dds/tool_dds.h"
@@ -25,9 +25,7 @@ using namespace d3d;
 
 namespace {
 
-int64_t NowNs() {
-  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch()).count();
-}
+int64_t NowNs() { return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch()).count(); }
 
 struct TrialResult {
   int64_t received = 0;
@@ -136,16 +134,16 @@ bool Trial(int domain, int w, int h, double rate_hz, int64_t n, TrialResult* res
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App cli{"d3d-bench-dds: max lossless PhaseBurst throughput and p50/p99 latency over loopback (two processes)"};
+  OptionRegistry options("d3d-bench-dds: max lossless PhaseBurst throughput and p50/p99 latency over loopback (two processes)");
   int domain = 90;
   double seconds = 2.0;
   std::vector<double> rates = {30, 60, 90, 120, 180, 240};
-  cli.add_option("--domain", domain, "DDS domain id")->capture_default_str();
-  cli.add_option("--seconds", seconds, "duration of each fixed-rate trial")->capture_default_str();
-  cli.add_option("--rates", rates, "offered burst rates (Hz); a 'max' trial always follows")->capture_default_str();
-  CLI11_PARSE(cli, argc, argv);
-  std::printf("%-10s %8s %8s %8s %6s %9s %9s %9s %10s %9s\n", "size", "offered", "sent", "recv", "lost", "p50_ms", "p99_ms", "max_ms",
-              "recv_hz", "MB/s");
+  options.Add("--domain", &domain, "DDS domain id");
+  options.Add("--seconds", &seconds, "duration of each fixed-rate trial");
+  options.Add("--rates", &rates, "offered burst rates (Hz); a 'max' trial always follows");
+  if (int code = 0; !options.Parse(argc, argv, &code)) return code;
+  std::printf("%-10s %8s %8s %8s %6s %9s %9s %9s %10s %9s\n", "size", "offered", "sent", "recv", "lost", "p50_ms", "p99_ms", "max_ms", "recv_hz",
+              "MB/s");
   for (const auto& [w, h] : std::vector<std::pair<int, int>>{{640, 480}, {1280, 1024}}) {
     double best_lossless = 0;
     TrialResult at60{};
@@ -171,8 +169,9 @@ int main(int argc, char** argv) {
                   static_cast<long long>(t.received), static_cast<long long>(n - t.received), t.p50_ms, t.p99_ms, t.max_ms, t.achieved_hz,
                   t.achieved_hz * 4.0 * w * h / 1e6);
     }
-    std::printf("SUMMARY %dx%d: max lossless offered rate %.0f bursts/s; at 60 Hz p50 %.2f ms p99 %.2f ms; flow-controlled max %.1f bursts/s (%lld/%lld)\n",
-                w, h, best_lossless, at60.p50_ms, at60.p99_ms, t.achieved_hz, static_cast<long long>(t.received), static_cast<long long>(n));
+    std::printf(
+        "SUMMARY %dx%d: max lossless offered rate %.0f bursts/s; at 60 Hz p50 %.2f ms p99 %.2f ms; flow-controlled max %.1f bursts/s (%lld/%lld)\n",
+        w, h, best_lossless, at60.p50_ms, at60.p99_ms, t.achieved_hz, static_cast<long long>(t.received), static_cast<long long>(n));
     std::fflush(stdout);
   }
   return 0;

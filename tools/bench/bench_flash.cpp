@@ -2,13 +2,13 @@
 // separate process, file-backed flash, full verification by the probe) and prints the estimate for
 // a real USB full-speed / high-speed link from the block size and the DFU round trips
 // (model: firmware/update/README.md, "How long a real probe takes").
-#include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 
+#include "common/options/option_registry.h"
 #include "firmware/update/agent_process.h"
 #include "firmware/update/flash_model.h"
 #include "firmware/update/test_images.h"
@@ -22,8 +22,8 @@ namespace {
 
 struct LinkModel {
   const char* name;
-  double packet_us;      // bus time of one 64-byte EP0 data transaction (token, data, handshake, overhead)
-  double transfer_ms;    // completion latency of one control transfer (a frame / a microframe)
+  double packet_us;    // bus time of one 64-byte EP0 data transaction (token, data, handshake, overhead)
+  double transfer_ms;  // completion latency of one control transfer (a frame / a microframe)
 };
 
 // Link time of one DFU block: the DNLOAD data stage plus `transfers` control-transfer latencies.
@@ -40,13 +40,13 @@ void WriteFile(const fs::path& p, const std::vector<uint8_t>& d) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"d3d-bench-flash: 16 MiB over the sim link, and the real-USB estimate"};
+  OptionRegistry options("d3d-bench-flash: 16 MiB over the sim link, and the real-USB estimate");
   int runs = 3, transfer_size = 4096;
   uint64_t image_mib = 16;
-  app.add_option("--runs", runs, "timed runs (median reported)")->capture_default_str();
-  app.add_option("--transfer-size", transfer_size, "DFU wTransferSize of the simulated probe")->capture_default_str();
-  app.add_option("--image-mib", image_mib, "image size, MiB")->capture_default_str();
-  CLI11_PARSE(app, argc, argv);
+  options.Add("--runs", &runs, "timed runs (median reported)");
+  options.Add("--transfer-size", &transfer_size, "DFU wTransferSize of the simulated probe");
+  options.Add("--image-mib", &image_mib, "image size, MiB");
+  if (int code = 0; !options.Parse(argc, argv, &code)) return code;
 
   const fs::path dir = fs::temp_directory_path() / ("d3d_bench_flash_" + std::to_string(::getpid()));
   fs::create_directories(dir);
@@ -62,11 +62,11 @@ int main(int argc, char** argv) {
     fs::remove_all(dir / "flash");
     const std::string sock = (dir / "probe.sock").string();
     fw::AgentProcess agent;
-    const Status s = agent.Start(agent_bin,
-                                 {"--socket", sock, "--flash", (dir / "flash").string(), "--pubkey", (dir / "signing.pub").string(),
-                                  "--provision", (dir / "v1.0.img").string(), "--transfer-size", std::to_string(transfer_size),
-                                  "--slot-mib", std::to_string(image_mib + 4), "--quiet"},
-                                 sock);
+    const Status s = agent.Start(
+        agent_bin,
+        {"--socket", sock, "--flash", (dir / "flash").string(), "--pubkey", (dir / "signing.pub").string(), "--provision",
+         (dir / "v1.0.img").string(), "--transfer-size", std::to_string(transfer_size), "--slot-mib", std::to_string(image_mib + 4), "--quiet"},
+        sock);
     if (!s.ok()) {
       std::fprintf(stderr, "d3d-bench-flash: %s\n", s.ToString().c_str());
       return 1;
@@ -82,18 +82,17 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "d3d-bench-flash: run %d: %s: %s\n", run, flash::FlashOutcomeName(r.outcome), r.reason.c_str());
       return 1;
     }
-    std::printf("run %d: total %.3f s = download %.3f s + manifestation (verify) %.3f s + reboot (verified boot) %.3f s\n", run,
-                r.total_s, r.download_s, r.manifest_s, r.reboot_s);
+    std::printf("run %d: total %.3f s = download %.3f s + manifestation (verify) %.3f s + reboot (verified boot) %.3f s\n", run, r.total_s,
+                r.download_s, r.manifest_s, r.reboot_s);
     reports.push_back(r);
   }
   fs::remove_all(dir);
   std::sort(reports.begin(), reports.end(), [](const auto& a, const auto& b) { return a.total_s < b.total_s; });
   const flash::FlashReport& m = reports[reports.size() / 2];
   const double per_block = static_cast<double>(m.download_transfers) / static_cast<double>(m.blocks);
-  std::printf("\nsim link, %llu MiB image, wTransferSize %d (median of %d):\n", static_cast<unsigned long long>(image_mib),
-              transfer_size, runs);
-  std::printf("  total %.2f s (limit 10 s): download %.2f s (%.1f MiB/s), probe verification %.2f s, reboot %.2f s\n",
-              m.total_s, m.download_s, static_cast<double>(m.bytes) / (1 << 20) / m.download_s, m.manifest_s, m.reboot_s);
+  std::printf("\nsim link, %llu MiB image, wTransferSize %d (median of %d):\n", static_cast<unsigned long long>(image_mib), transfer_size, runs);
+  std::printf("  total %.2f s (limit 10 s): download %.2f s (%.1f MiB/s), probe verification %.2f s, reboot %.2f s\n", m.total_s, m.download_s,
+              static_cast<double>(m.bytes) / (1 << 20) / m.download_s, m.manifest_s, m.reboot_s);
   std::printf("  %lld blocks, %lld control transfers in all, %.2f per block (DNLOAD + GETSTATUS dfuDNBUSY + GETSTATUS dfuDNLOAD-IDLE)\n",
               static_cast<long long>(m.blocks), static_cast<long long>(m.control_transfers), per_block);
   std::printf("  mean control round trip %.1f us (including the probe writing its flash file)\n",
@@ -114,11 +113,10 @@ int main(int argc, char** argv) {
     for (int b : {1024, 4096, 32768}) {
       const double blocks = std::ceil(static_cast<double>(image_bytes) / b);
       const double link_s = blocks * BlockLinkMs(l, b, static_cast<int>(std::round(per_block))) / 1000.0 + verify_s;
-      std::printf("  %-26s %6d B %10.1f s %12.1f s %14.1f s\n", l.name, b, link_s, link_s + nor_s,
-                  link_s + static_cast<double>(image_bytes) / 20e6);
+      std::printf("  %-26s %6d B %10.1f s %12.1f s %14.1f s\n", l.name, b, link_s, link_s + nor_s, link_s + static_cast<double>(image_bytes) / 20e6);
     }
   }
-  std::printf("  (NOR: %.0f page programs x %.1f ms + %.0f block erases x %.0f ms = %.1f s of device busy time, waited via bwPollTimeout)\n",
-              pages, nor.page_program_ms, erases, nor.block_erase_ms, nor_s);
+  std::printf("  (NOR: %.0f page programs x %.1f ms + %.0f block erases x %.0f ms = %.1f s of device busy time, waited via bwPollTimeout)\n", pages,
+              nor.page_program_ms, erases, nor.block_erase_ms, nor_s);
   return 0;
 }

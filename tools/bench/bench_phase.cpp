@@ -12,8 +12,8 @@
 #include <memory>
 #include <opencv2/core.hpp>
 
-#include "firmware/sim/session/sim_session.h"
-#include "pipeline/phase/phase_eval.h"
+#include "sim/eval/phase_eval.h"
+#include "sim/session/sim_session.h"
 
 namespace d3d {
 namespace {

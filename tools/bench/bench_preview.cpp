@@ -11,13 +11,13 @@
 #include <malloc.h>
 #include <sys/resource.h>
 
-#include <CLI/CLI.hpp>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <memory>
 
+#include "common/options/option_registry.h"
 #include "host/graph/stage_graph.h"
 #include "viewer/viewer.h"
 
@@ -54,19 +54,19 @@ struct Phase {
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App cli{"d3d-bench-preview: CPU and wall time per preview frame (offscreen, llvmpipe) on a growing synthetic model"};
+  OptionRegistry options("d3d-bench-preview: CPU and wall time per preview frame (offscreen, llvmpipe) on a growing synthetic model");
   size_t points = 150000, grow = 400;
   int hold_frames = 100, width = 960, height = 720;
   float point_size_px = ViewerOptions{}.point_size_px;
   bool glibc_heap = false;
-  cli.add_option("--points", points, "model points at the end (d3d-scan's preview cap)")->capture_default_str();
-  cli.add_option("--grow", grow, "points appended before each frame while growing")->capture_default_str();
-  cli.add_option("--hold-frames", hold_frames, "frames drawn of the full model")->capture_default_str();
-  cli.add_option("--width", width)->capture_default_str();
-  cli.add_option("--height", height)->capture_default_str();
-  cli.add_option("--point-size", point_size_px, "model point size (px)")->capture_default_str();
-  cli.add_flag("--glibc-default-heap", glibc_heap, "leave glibc's heap as a fresh process has it (see the file comment)");
-  CLI11_PARSE(cli, argc, argv);
+  options.Add("--points", &points, "model points at the end (d3d-scan's preview cap)");
+  options.Add("--grow", &grow, "points appended before each frame while growing");
+  options.Add("--hold-frames", &hold_frames, "frames drawn of the full model");
+  options.Add("--width", &width, "offscreen frame width (px)");
+  options.Add("--height", &height, "offscreen frame height (px)");
+  options.Add("--point-size", &point_size_px, "model point size (px)");
+  options.Flag("--glibc-default-heap", &glibc_heap, "leave glibc's heap as a fresh process has it (see the file comment)");
+  if (int code = 0; !options.Parse(argc, argv, &code)) return code;
   setenv("LP_NUM_THREADS", "1", 0);  // as d3d-scan
   // llvmpipe allocates and frees buffers of a few MB per frame. In d3d-scan the pipeline's own
   // large blocks have already raised glibc's dynamic mmap and trim thresholds, so those buffers are

@@ -4,14 +4,14 @@
 // Target (issue "single-view reconstruction"): ≤ 5 ms at 640×480. Per-stage times are reported as
 // counters (ms).
 #include <benchmark/benchmark.h>
+#include <tbb/global_control.h>
 
 #include <map>
 #include <memory>
 #include <opencv2/core.hpp>
-#include <tbb/global_control.h>
 
-#include "firmware/sim/session/sim_session.h"
 #include "pipeline/recon/reconstruct.h"
+#include "sim/session/sim_session.h"
 
 namespace d3d {
 namespace {

@@ -8,11 +8,11 @@
 
 #include <map>
 #include <memory>
-#include <tuple>
 #include <opencv2/core.hpp>
 #include <string>
+#include <tuple>
 
-#include "firmware/sim/session/sim_session.h"
+#include "sim/session/sim_session.h"
 
 namespace d3d {
 namespace {

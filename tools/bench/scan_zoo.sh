@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # d3d-scan-zoo: the offline chain (d3d-fuse: the virtual probe, reconstruction, tracking, fusion and
-# the evaluation against the scene) over the named scan-path styles (firmware/sim/trajectory/
+# the evaluation against the scene) over the named scan-path styles (sim/trajectory/
 # scan_styles.h), seeds and arches of issue 50, and one table of what must hold: trueness RMS / p95,
 # coverage (and that of the open surface, outside narrow gaps: docs/decisions/0009), ATE, the
 # largest pose error of any fused view against the truth (camera centre: max mm, max deg; its

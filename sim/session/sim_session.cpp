@@ -1,0 +1,47 @@
+#include "sim/session/sim_session.h"
+
+namespace d3d {
+
+void SimSessionOptions::Check() const {
+  D3D_CHECK_MSG(!model.empty(), "model must be 'typodont' or a mesh file");
+  D3D_CHECK_MSG(!trajectory.empty(), "trajectory must be a scan style (scan_styles.h), quadrant or a TUM file");
+  D3D_CHECK_MSG(burst_rate_hz > 0 && burst_rate_hz <= 1000, "burst rate must be in (0, 1000] Hz, got " << burst_rate_hz);
+  render.Check();
+  typodont.Check();
+}
+
+Status SimSession::Create(const SimSessionOptions& options, std::unique_ptr<SimSession>* out) {
+  options.Check();
+  std::unique_ptr<SimSession> s(new SimSession());
+  s->options_ = options;
+  SimSceneOptions world;
+  world.model = options.model;
+  world.trajectory = options.trajectory;
+  world.seed = options.seed;
+  world.burst_rate_hz = options.burst_rate_hz;
+  world.frame_interval_ns = options.render.frame_interval_ns;
+  world.typodont = options.typodont;
+  world.scan_path = options.scan_path;
+  D3D_RETURN_IF_ERROR(SimScene::Create(world, &s->world_));
+  const std::string& t = options.trajectory;
+  ProbeDesign design = MakeDefaultProbeDesign(options.camera_width, options.camera_height);
+  if (IsScanStyle(t)) {  // the style's scene: wet teeth for "glare"
+    design.enamel.specular_r0 *= ScanStyleWetness(t);
+    design.gingiva.specular_r0 *= ScanStyleWetness(t);
+  }
+  design.calibration.pattern.texture_frame = options.texture_frame;
+  s->probe_ = std::make_unique<VirtualProbe>(s->world_.scene(), design, options.render);
+  *out = std::move(s);
+  return Status::Ok();
+}
+
+int64_t SimSession::BurstStartNs(int64_t index) const { return world_.BurstStartNs(index); }
+
+int64_t SimSession::NumBursts() const { return world_.NumBursts(static_cast<int>(probe_->burst_patterns().frames.size())); }
+
+Burst SimSession::RenderBurst(int64_t index, bool with_truth) {
+  const PoseAtTime pose = [this](int64_t t_ns) { return world_.trajectory().WorldFromProbe(t_ns); };
+  return probe_->RenderBurst(pose, BurstStartNs(index), static_cast<uint64_t>(index), options_.seed, with_truth);
+}
+
+}  // namespace d3d
