@@ -26,7 +26,8 @@ class Writer {
  private:
   std::string* out_;
 };
-static_assert(std::endian::native == std::endian::little, "the recording codec assumes a little-endian host");
+static_assert(std::endian::native == std::endian::little,
+              "the recording codec assumes a little-endian host");
 
 class Reader {
  public:
@@ -72,7 +73,10 @@ class Reader {
     if (!Get(&v)) return Finish(type);
     if (v > kCodecVersion) {
       std::string m(type);
-      m.append(": codec version ").append(std::to_string(v)).append(" is newer than this reader's ").append(std::to_string(kCodecVersion));
+      m.append(": codec version ")
+          .append(std::to_string(v))
+          .append(" is newer than this reader's ")
+          .append(std::to_string(kCodecVersion));
       return Unsupported(m);
     }
     if (v == 0) Fail("codec version 0");
@@ -117,9 +121,10 @@ Status Decode(std::string_view bytes, BurstMsg* out) {
   D3D_RETURN_IF_ERROR(r.Version("PhaseBurst"));
   uint8_t nframes = 0;
   BurstMsg m;
-  bool ok = r.Str(&m.serial, 32, "serial longer than 32") && r.Get(&m.protocol_version) && r.Get(&m.burst_seq) &&
-            r.Get(&m.exposure_ns) && r.Get(&m.frame_interval_ns) && r.Str(&m.pattern_set, 64, "pattern set longer than 64") &&
-            r.Get(&m.width) && r.Get(&m.height) && r.Get(&m.bit_depth) && r.Get(&nframes);
+  bool ok = r.Str(&m.serial, 32, "serial longer than 32") && r.Get(&m.protocol_version) &&
+            r.Get(&m.burst_seq) && r.Get(&m.exposure_ns) && r.Get(&m.frame_interval_ns) &&
+            r.Str(&m.pattern_set, 64, "pattern set longer than 64") && r.Get(&m.width) &&
+            r.Get(&m.height) && r.Get(&m.bit_depth) && r.Get(&nframes);
   if (ok && (m.bit_depth < 1 || m.bit_depth > 16)) ok = r.Fail("bit depth outside 1..16");
   if (ok && nframes > 8) ok = r.Fail("more than 8 frames");
   if (ok && (m.width > 4096 || m.height > 4096)) ok = r.Fail("image larger than 4096 x 4096");
@@ -129,8 +134,9 @@ Status Decode(std::string_view bytes, BurstMsg* out) {
     m.frames.resize(nframes);
     for (FrameMsg& f : m.frames) {
       if (!ok) break;
-      ok = r.Str(&f.pattern, 64, "pattern name longer than 64") && r.Get(&f.pattern_index) && r.Get(&f.timestamp_ns) &&
-           r.Get(&f.camera_frame_seq) && r.Blob(&f.pixels, frame_bytes, "frame size differs from width x height x depth");
+      ok = r.Str(&f.pattern, 64, "pattern name longer than 64") && r.Get(&f.pattern_index) &&
+           r.Get(&f.timestamp_ns) && r.Get(&f.camera_frame_seq) &&
+           r.Blob(&f.pixels, frame_bytes, "frame size differs from width x height x depth");
     }
   }
   D3D_RETURN_IF_ERROR(r.Finish("PhaseBurst"));
@@ -158,9 +164,12 @@ Status Decode(std::string_view bytes, InfoMsg* out) {
   D3D_RETURN_IF_ERROR(r.Version("ProbeInfo"));
   InfoMsg m;
   (void)(r.Str(&m.serial, 32, "serial longer than 32") && r.Get(&m.protocol_version) &&
-         r.Str(&m.firmware_version, 64, "firmware version longer than 64") && r.Str(&m.sensor_model, 64, "sensor model longer than 64") &&
-         r.Str(&m.projector_model, 64, "projector model longer than 64") && r.Str(&m.capture_backend, 32, "backend longer than 32") &&
-         r.Get(&m.width) && r.Get(&m.height) && r.Get(&m.bit_depth) && r.Str(&m.calibration_json, 1 << 20, "calibration longer than 1 MiB"));
+         r.Str(&m.firmware_version, 64, "firmware version longer than 64") &&
+         r.Str(&m.sensor_model, 64, "sensor model longer than 64") &&
+         r.Str(&m.projector_model, 64, "projector model longer than 64") &&
+         r.Str(&m.capture_backend, 32, "backend longer than 32") && r.Get(&m.width) &&
+         r.Get(&m.height) && r.Get(&m.bit_depth) &&
+         r.Str(&m.calibration_json, 1 << 20, "calibration longer than 1 MiB"));
   D3D_RETURN_IF_ERROR(r.Finish("ProbeInfo"));
   *out = std::move(m);
   return Status::Ok();
@@ -187,11 +196,13 @@ Status Decode(std::string_view bytes, StatusMsg* out) {
   D3D_RETURN_IF_ERROR(r.Version("ProbeStatus"));
   StatusMsg m;
   uint8_t state = 0;
-  bool ok = r.Str(&m.serial, 32, "serial longer than 32") && r.Get(&m.protocol_version) && r.Get(&m.timestamp_ns) && r.Get(&state);
+  bool ok = r.Str(&m.serial, 32, "serial longer than 32") && r.Get(&m.protocol_version) &&
+            r.Get(&m.timestamp_ns) && r.Get(&state);
   if (ok && state > 3) ok = r.Fail("state outside 0..3");
   m.state = static_cast<ProbeStateKind>(state);
-  (void)(ok && r.Get(&m.temperature_c) && r.Get(&m.bursts_published) && r.Get(&m.bursts_dropped_sync) &&
-         r.Get(&m.frames_dropped_camera) && r.Get(&m.publish_failures) && r.Get(&m.last_command_id) &&
+  (void)(ok && r.Get(&m.temperature_c) && r.Get(&m.bursts_published) &&
+         r.Get(&m.bursts_dropped_sync) && r.Get(&m.frames_dropped_camera) &&
+         r.Get(&m.publish_failures) && r.Get(&m.last_command_id) &&
          r.Str(&m.last_error, 256, "error text longer than 256"));
   D3D_RETURN_IF_ERROR(r.Finish("ProbeStatus"));
   *out = std::move(m);

@@ -1,8 +1,8 @@
 // Byte encoding of protocol samples inside recordings (common/recording stores opaque payloads).
 // Little-endian, one leading codec version byte (kCodecVersion), then the members in IDL order;
-// strings and byte arrays as u32 length + bytes. Decode is a parser of untrusted bytes: it checks every
-// length against the input and the IDL bounds and returns PARSE_ERROR (never throws or over-reads);
-// UNSUPPORTED for a newer codec version. Fuzzed by tests/fuzz (d3d_recording_fuzz).
+// strings and byte arrays as u32 length + bytes. Decode is a parser of untrusted bytes: it checks
+// every length against the input and the IDL bounds and returns PARSE_ERROR (never throws or
+// over-reads); UNSUPPORTED for a newer codec version. Fuzzed by tests/fuzz (d3d_recording_fuzz).
 #pragma once
 
 #include <string>

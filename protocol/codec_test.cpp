@@ -41,7 +41,8 @@ TEST(Codec, BurstRoundTrip) {
 }
 
 TEST(Codec, InfoAndStatusRoundTrip) {
-  InfoMsg i{"SIM-0001", 101, "0.1.0", "virtual-640x480", "virtual-dmd", "sim", 640, 480, 8, "{\"format\":\"x\"}"};
+  InfoMsg i{"SIM-0001", 101, "0.1.0", "virtual-640x480",   "virtual-dmd", "sim",
+            640,        480, 8,       "{\"format\":\"x\"}"};
   std::string bytes;
   Encode(i, &bytes);
   InfoMsg di;
@@ -64,7 +65,8 @@ TEST(Codec, RejectsEveryTruncationAndTrailingBytes) {
   Encode(MakeBurst(1, 4, 3, 4), &bytes);
   for (size_t n = 0; n < bytes.size(); ++n) {
     BurstMsg d;
-    EXPECT_EQ(Decode(std::string_view(bytes).substr(0, n), &d).code(), StatusCode::kParseError) << n;
+    EXPECT_EQ(Decode(std::string_view(bytes).substr(0, n), &d).code(), StatusCode::kParseError)
+        << n;
   }
   BurstMsg d;
   EXPECT_EQ(Decode(bytes + "x", &d).code(), StatusCode::kParseError);

@@ -5,7 +5,8 @@
 namespace d3d::proto {
 
 void DdsOptions::Check() const {
-  D3D_CHECK_MSG(domain_id >= 0 && domain_id <= 232, "DDS domain id must be in 0..232, got " << domain_id);
+  D3D_CHECK_MSG(domain_id >= 0 && domain_id <= 232,
+                "DDS domain id must be in 0..232, got " << domain_id);
 }
 
 Status DdsError(const char* what, dds_return_t rc) {
@@ -26,8 +27,8 @@ void RelaxMinimum(std::string* xml, std::string_view tag) {
 }
 }  // namespace
 
-std::string SelectCycloneConfig(const char* cyclonedds_uri_env, int64_t rmem_max_bytes, int64_t wmem_max_bytes,
-                                std::string* warning) {
+std::string SelectCycloneConfig(const char* cyclonedds_uri_env, int64_t rmem_max_bytes,
+                                int64_t wmem_max_bytes, std::string* warning) {
   if (cyclonedds_uri_env != nullptr && cyclonedds_uri_env[0] != '\0') return "";
   std::string xml = ShippedCycloneConfig();
   constexpr int64_t kRecvMin = 4 << 20, kSendMin = 2 << 20;
@@ -42,7 +43,9 @@ std::string SelectCycloneConfig(const char* cyclonedds_uri_env, int64_t rmem_max
   }
   if (!w.empty() && warning != nullptr) {
     *warning = w;
-    warning->append("large bursts may be lost or slow (sysctl -w net.core.rmem_max=8388608 net.core.wmem_max=8388608)");
+    warning->append(
+        "large bursts may be lost or slow (sysctl -w net.core.rmem_max=8388608 "
+        "net.core.wmem_max=8388608)");
   }
   return xml;
 }
@@ -55,12 +58,16 @@ DdsParticipant::~DdsParticipant() {
 Status DdsParticipant::Create(const DdsOptions& options) {
   options.Check();
   if (!options.config_xml.empty()) {
-    const dds_entity_t d = dds_create_domain(static_cast<dds_domainid_t>(options.domain_id), options.config_xml.c_str());
-    // PRECONDITION_NOT_MET: the domain already exists in this process (created by an earlier participant).
-    if (d < 0 && d != DDS_RETCODE_PRECONDITION_NOT_MET) return DdsError("dds_create_domain (check the Cyclone config)", d);
+    const dds_entity_t d = dds_create_domain(static_cast<dds_domainid_t>(options.domain_id),
+                                             options.config_xml.c_str());
+    // PRECONDITION_NOT_MET: the domain already exists in this process (created by an earlier
+    // participant).
+    if (d < 0 && d != DDS_RETCODE_PRECONDITION_NOT_MET)
+      return DdsError("dds_create_domain (check the Cyclone config)", d);
     if (d > 0) domain_ = d;
   }
-  participant_ = dds_create_participant(static_cast<dds_domainid_t>(options.domain_id), nullptr, nullptr);
+  participant_ =
+      dds_create_participant(static_cast<dds_domainid_t>(options.domain_id), nullptr, nullptr);
   if (participant_ < 0) {
     const dds_return_t rc = participant_;
     participant_ = 0;
@@ -69,7 +76,8 @@ Status DdsParticipant::Create(const DdsOptions& options) {
   return Status::Ok();
 }
 
-dds_entity_t DdsParticipant::Topic(const dds_topic_descriptor_t* desc, const char* name, Status* status) {
+dds_entity_t DdsParticipant::Topic(const dds_topic_descriptor_t* desc, const char* name,
+                                   Status* status) {
   const dds_entity_t t = dds_create_topic(participant_, desc, name, nullptr, nullptr);
   if (t < 0) {
     *status = DdsError("dds_create_topic", t);

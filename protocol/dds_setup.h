@@ -3,10 +3,10 @@
 // SelectCycloneConfig) and pass the result in DdsOptions.
 #pragma once
 
+#include <dds/dds.h>
+
 #include <cstdint>
 #include <string>
-
-#include <dds/dds.h>
 
 #include "common/core/status.h"
 
@@ -17,20 +17,21 @@ const char* ShippedCycloneConfig();
 
 // The configuration a tool should use. `cyclonedds_uri_env`: the value of $CYCLONEDDS_URI or
 // nullptr; when set, returns "" (Cyclone then reads that variable itself). Otherwise the shipped
-// config; if the kernel's socket buffer limits (net.core.rmem_max / wmem_max, bytes; ≤ 0 unknown) are
-// below the config's minimums, the `min` requirement is relaxed so that Cyclone still starts, and
+// config; if the kernel's socket buffer limits (net.core.rmem_max / wmem_max, bytes; ≤ 0 unknown)
+// are below the config's minimums, the `min` requirement is relaxed so that Cyclone still starts,
+// and
 // `*warning` says what to raise for lossless bursts.
-std::string SelectCycloneConfig(const char* cyclonedds_uri_env, int64_t rmem_max_bytes, int64_t wmem_max_bytes,
-                                std::string* warning);
+std::string SelectCycloneConfig(const char* cyclonedds_uri_env, int64_t rmem_max_bytes,
+                                int64_t wmem_max_bytes, std::string* warning);
 
 struct DdsOptions {
-  int domain_id = 0;        // 0..232
-  std::string config_xml;   // Cyclone XML; "" = Cyclone's own default (or $CYCLONEDDS_URI)
-  void Check() const;       // throws std::invalid_argument
+  int domain_id = 0;       // 0..232
+  std::string config_xml;  // Cyclone XML; "" = Cyclone's own default (or $CYCLONEDDS_URI)
+  void Check() const;      // throws std::invalid_argument
 };
 
-// Owns a domain participant (and the explicitly created domain, if this was the first participant of
-// the domain in the process). Entities created under participant() are deleted with it.
+// Owns a domain participant (and the explicitly created domain, if this was the first participant
+// of the domain in the process). Entities created under participant() are deleted with it.
 class DdsParticipant {
  public:
   DdsParticipant() = default;

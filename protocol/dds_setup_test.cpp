@@ -61,12 +61,14 @@ TEST(ProtocolVersioning, NewerReaderReadsOlderWriter) {
   const dds_entity_t rs = dds_create_reader(p.participant(), ts, q.get(), nullptr);
   ASSERT_GT(rb, 0);
   ASSERT_GT(rs, 0);
-  const pid_t pid = Spawn({D3D_V1_0_WRITER, D3D_CYCLONE_XML_PATH, std::to_string(kDomain), std::to_string(kBursts)});
+  const pid_t pid = Spawn(
+      {D3D_V1_0_WRITER, D3D_CYCLONE_XML_PATH, std::to_string(kDomain), std::to_string(kBursts)});
 
   std::vector<BurstMsg> bursts;
   std::vector<StatusMsg> statuses;
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(30);
-  while ((bursts.size() < kBursts || statuses.empty()) && std::chrono::steady_clock::now() < deadline) {
+  while ((bursts.size() < kBursts || statuses.empty()) &&
+         std::chrono::steady_clock::now() < deadline) {
     void* samples[4] = {};
     dds_sample_info_t infos[4];
     int n = dds_take(rb, samples, infos, 4, 4);

@@ -10,16 +10,22 @@ size_t BurstMsg::PixelBytes() const {
 
 const char* ProbeStateName(ProbeStateKind s) {
   switch (s) {
-    case ProbeStateKind::kIdle: return "idle";
-    case ProbeStateKind::kStreaming: return "streaming";
-    case ProbeStateKind::kError: return "error";
-    case ProbeStateKind::kRecovering: return "recovering";
+    case ProbeStateKind::kIdle:
+      return "idle";
+    case ProbeStateKind::kStreaming:
+      return "streaming";
+    case ProbeStateKind::kError:
+      return "error";
+    case ProbeStateKind::kRecovering:
+      return "recovering";
   }
   return "unknown";
 }
 
-void ToDds(const BurstMsg& m, d3d_proto_PhaseBurst* out, std::vector<d3d_proto_ImageFrame>* frame_storage) {
-  D3D_CHECK_MSG(m.frames.size() <= 8, "a PhaseBurst holds at most 8 frames, got " << m.frames.size());
+void ToDds(const BurstMsg& m, d3d_proto_PhaseBurst* out,
+           std::vector<d3d_proto_ImageFrame>* frame_storage) {
+  D3D_CHECK_MSG(m.frames.size() <= 8,
+                "a PhaseBurst holds at most 8 frames, got " << m.frames.size());
   *out = {};
   CopyBounded(out->serial, m.serial);
   out->protocol_version = m.protocol_version;

@@ -2,8 +2,8 @@
 // idlc-generated C types, and their byte encoding for recordings (codec.h).
 //
 // Ownership: a *Msg owns its bytes. ToDds() fills a generated C struct whose sequences and strings
-// POINT INTO the message (no pixel copy): the message must outlive the struct, which is only valid for
-// dds_write. FromDds() copies a received sample (which may be a loan) into the message.
+// POINT INTO the message (no pixel copy): the message must outlive the struct, which is only valid
+// for dds_write. FromDds() copies a received sample (which may be a loan) into the message.
 #pragma once
 
 #include <cstdint>
@@ -16,9 +16,9 @@
 namespace d3d::proto {
 
 struct FrameMsg {
-  std::string pattern;          // projector frame name, ≤ 64 bytes
+  std::string pattern;  // projector frame name, ≤ 64 bytes
   uint16_t pattern_index = 0;
-  int64_t timestamp_ns = 0;     // middle of the exposure, ns since the Unix epoch
+  int64_t timestamp_ns = 0;  // middle of the exposure, ns since the Unix epoch
   uint64_t camera_frame_seq = 0;
   std::vector<uint8_t> pixels;  // H×W bytes (8 bit) or H×W×2 little endian (9..16 bit)
   bool operator==(const FrameMsg&) const = default;
@@ -35,7 +35,9 @@ struct BurstMsg {
   uint32_t height = 0;
   uint8_t bit_depth = 8;
   std::vector<FrameMsg> frames;  // ≤ 8
-  size_t BytesPerFrame() const { return static_cast<size_t>(width) * height * (bit_depth > 8 ? 2 : 1); }
+  size_t BytesPerFrame() const {
+    return static_cast<size_t>(width) * height * (bit_depth > 8 ? 2 : 1);
+  }
   size_t PixelBytes() const;
   bool operator==(const BurstMsg&) const = default;
 };
@@ -72,9 +74,10 @@ struct StatusMsg {
   bool operator==(const StatusMsg&) const = default;
 };
 
-// Fixed-size string members are truncated to their bound. Throws std::invalid_argument if a burst has
-// more than 8 frames.
-void ToDds(const BurstMsg& m, d3d_proto_PhaseBurst* out, std::vector<d3d_proto_ImageFrame>* frame_storage);
+// Fixed-size string members are truncated to their bound. Throws std::invalid_argument if a burst
+// has more than 8 frames.
+void ToDds(const BurstMsg& m, d3d_proto_PhaseBurst* out,
+           std::vector<d3d_proto_ImageFrame>* frame_storage);
 void ToDds(const InfoMsg& m, d3d_proto_ProbeInfo* out);  // out->calibration_json points into m
 void ToDds(const StatusMsg& m, d3d_proto_ProbeStatus* out);
 void FromDds(const d3d_proto_PhaseBurst& s, BurstMsg* out);

@@ -2,9 +2,9 @@
 // protocol/idl/d3d_protocol.idl (generated C types: "protocol/d3d_protocol.h").
 #pragma once
 
-#include <cstdint>
-
 #include <dds/dds.h>
+
+#include <cstdint>
 
 namespace d3d::proto {
 
@@ -12,7 +12,9 @@ namespace d3d::proto {
 // a different major is rejected with a counted reason.
 inline constexpr uint16_t kProtocolVersion = 101;  // 1.1
 inline constexpr uint16_t ProtocolMajor(uint16_t v) { return static_cast<uint16_t>(v / 100); }
-inline constexpr bool ProtocolCompatible(uint16_t v) { return ProtocolMajor(v) == ProtocolMajor(kProtocolVersion); }
+inline constexpr bool ProtocolCompatible(uint16_t v) {
+  return ProtocolMajor(v) == ProtocolMajor(kProtocolVersion);
+}
 
 inline constexpr const char* kTopicPhaseBurst = "d3d/PhaseBurst";
 inline constexpr const char* kTopicProbeInfo = "d3d/ProbeInfo";
@@ -30,12 +32,12 @@ enum class QosProfile {
   kInfoReader,
   kStatusWriter,
   kStatusReader,
-  kCommandWriter,       // ProbeCommand and ProbeCommandAck, both directions
+  kCommandWriter,  // ProbeCommand and ProbeCommandAck, both directions
   kCommandReader,
 };
 
-// A new dds_qos_t for the profile; the caller owns it (dds_delete_qos). `depth` overrides the history
-// depth of the KEEP_LAST profiles when > 0 (benchmarks).
+// A new dds_qos_t for the profile; the caller owns it (dds_delete_qos). `depth` overrides the
+// history depth of the KEEP_LAST profiles when > 0 (benchmarks).
 dds_qos_t* MakeQos(QosProfile profile, int depth = 0);
 
 // RAII for a dds_qos_t.

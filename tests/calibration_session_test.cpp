@@ -54,15 +54,18 @@ double DistortionMapDifferencePx(const PinholeBrownConrady& a, const PinholeBrow
 // Without the edge fill (pipeline/unwrap/edge_fill.h): the pixels it fills beside the sphere's
 // silhouette carry the camera blur's error (tens of µm), whatever the calibration, and would mask
 // what this measures.
-double ReconstructionRmsUm(const Burst& burst, const TriangleMesh& scene, const ProbeCalibration& calibration) {
+double ReconstructionRmsUm(const Burst& burst, const TriangleMesh& scene,
+                           const ProbeCalibration& calibration) {
   ReconstructOptions options;
   options.edge_fill.passes = 0;
   Reconstructor recon(calibration, options);
   std::vector<cv::Mat> frames;
-  for (int n = 0; n < calibration.pattern.steps; ++n) frames.push_back(burst.frames[static_cast<size_t>(n)].image);
+  for (int n = 0; n < calibration.pattern.steps; ++n)
+    frames.push_back(burst.frames[static_cast<size_t>(n)].image);
   ReconstructedView view;
   EXPECT_TRUE(recon.Reconstruct(frames, &view).ok());
-  const CloudErrors e = EvaluateCloud(view.points_in_cam, view.unwrap.Phi, burst.reference_truth, scene, calibration.pattern);
+  const CloudErrors e = EvaluateCloud(view.points_in_cam, view.unwrap.Phi, burst.reference_truth,
+                                      scene, calibration.pattern);
   return e.rms_um;
 }
 
@@ -80,7 +83,9 @@ TEST(CalibrationSession, VirtualProbeIsCalibratedToItsTruth) {
   std::vector<CalibrationImage> images;
   SystemCalibrationOptions opt;
   opt.refine.sample_step_px = 8;
-  ASSERT_TRUE(LoadCalibrationImages((dir / "images").string(), (dir / "phase").string(), &images, &opt).ok());
+  ASSERT_TRUE(
+      LoadCalibrationImages((dir / "images").string(), (dir / "phase").string(), &images, &opt)
+          .ok());
   ASSERT_EQ(images.size(), 12u);
   CalibrationTarget target;
   ASSERT_TRUE(ParseTarget("circles:9x7:1.2", &target).ok());  // the diameter is estimated
@@ -91,24 +96,40 @@ TEST(CalibrationSession, VirtualProbeIsCalibratedToItsTruth) {
   const auto& proj = r.calibration.projector;
   const double rot = RotationAngleRad(r.calibration.cam_from_proj, truth.cam_from_proj);
   const double tr = TranslationDistanceMm(r.calibration.cam_from_proj, truth.cam_from_proj);
-  std::printf("views %d, circle diameter %.4f mm (true 0.6, estimated)\n", r.views_used, r.circle_diameter_mm);
-  std::printf("camera:    rms %.4f px; fx %.3f fy %.3f cx %.3f cy %.3f (true %.1f %.1f %.2f %.2f); k1 %.4f k2 %.4f (true %.4f %.4f); "
-              "distortion map diff %.4f px\n",
-              r.camera_rms_px, cam.fx, cam.fy, cam.cx, cam.cy, truth.camera.fx, truth.camera.fy, truth.camera.cx, truth.camera.cy,
-              cam.k1, cam.k2, truth.camera.k1, truth.camera.k2, DistortionMapDifferencePx(truth.camera, cam));
-  std::printf("projector: rms %.4f px; fx %.3f fy %.3f cx %.3f cy %.3f (true %.1f %.1f %.2f %.2f); distortion map diff %.4f px\n",
-              r.projector_rms_px, proj.fx, proj.fy, proj.cx, proj.cy, truth.projector.fx, truth.projector.fy, truth.projector.cx,
-              truth.projector.cy, DistortionMapDifferencePx(truth.projector, proj));
-  std::printf("cam_from_proj: rotation error %.3f mrad, translation error %.2f um (start of the BA: %.3f mrad, %.2f um)\n",
-              1e3 * rot, 1e3 * tr, 1e3 * RotationAngleRad(r.stereo.initial_cam_from_proj, truth.cam_from_proj),
-              1e3 * TranslationDistanceMm(r.stereo.initial_cam_from_proj, truth.cam_from_proj));
-  std::printf("steps: camera alone rms %.4f px (Tsai start f %.1f, rms %.2f px); projector alone rms %.4f px (Tsai start f %.1f); "
-              "BA cam %.4f proj %.4f px\n",
-              r.stereo.camera_only.rms_px, r.stereo.camera_only.initial.fx, r.stereo.camera_only.initial_rms_px,
-              r.stereo.projector_only.rms_px, r.stereo.projector_only.initial.fx, r.stereo.camera_rms_px, r.stereo.projector_rms_px);
-  std::printf("multi-plane: %d samples; dense rms %.4f -> %.4f px; plane fit %.3f -> %.3f um; target plane %.3f -> %.3f um\n",
-              r.refine.samples, r.refine.dense_rms_before_px, r.refine.dense_rms_after_px, r.refine.plane_fit_rms_before_um,
-              r.refine.plane_fit_rms_after_um, r.refine.target_plane_rms_before_um, r.refine.target_plane_rms_after_um);
+  std::printf("views %d, circle diameter %.4f mm (true 0.6, estimated)\n", r.views_used,
+              r.circle_diameter_mm);
+  std::printf(
+      "camera:    rms %.4f px; fx %.3f fy %.3f cx %.3f cy %.3f (true %.1f %.1f %.2f %.2f); k1 %.4f "
+      "k2 %.4f (true %.4f %.4f); "
+      "distortion map diff %.4f px\n",
+      r.camera_rms_px, cam.fx, cam.fy, cam.cx, cam.cy, truth.camera.fx, truth.camera.fy,
+      truth.camera.cx, truth.camera.cy, cam.k1, cam.k2, truth.camera.k1, truth.camera.k2,
+      DistortionMapDifferencePx(truth.camera, cam));
+  std::printf(
+      "projector: rms %.4f px; fx %.3f fy %.3f cx %.3f cy %.3f (true %.1f %.1f %.2f %.2f); "
+      "distortion map diff %.4f px\n",
+      r.projector_rms_px, proj.fx, proj.fy, proj.cx, proj.cy, truth.projector.fx,
+      truth.projector.fy, truth.projector.cx, truth.projector.cy,
+      DistortionMapDifferencePx(truth.projector, proj));
+  std::printf(
+      "cam_from_proj: rotation error %.3f mrad, translation error %.2f um (start of the BA: %.3f "
+      "mrad, %.2f um)\n",
+      1e3 * rot, 1e3 * tr,
+      1e3 * RotationAngleRad(r.stereo.initial_cam_from_proj, truth.cam_from_proj),
+      1e3 * TranslationDistanceMm(r.stereo.initial_cam_from_proj, truth.cam_from_proj));
+  std::printf(
+      "steps: camera alone rms %.4f px (Tsai start f %.1f, rms %.2f px); projector alone rms %.4f "
+      "px (Tsai start f %.1f); "
+      "BA cam %.4f proj %.4f px\n",
+      r.stereo.camera_only.rms_px, r.stereo.camera_only.initial.fx,
+      r.stereo.camera_only.initial_rms_px, r.stereo.projector_only.rms_px,
+      r.stereo.projector_only.initial.fx, r.stereo.camera_rms_px, r.stereo.projector_rms_px);
+  std::printf(
+      "multi-plane: %d samples; dense rms %.4f -> %.4f px; plane fit %.3f -> %.3f um; target plane "
+      "%.3f -> %.3f um\n",
+      r.refine.samples, r.refine.dense_rms_before_px, r.refine.dense_rms_after_px,
+      r.refine.plane_fit_rms_before_um, r.refine.plane_fit_rms_after_um,
+      r.refine.target_plane_rms_before_um, r.refine.target_plane_rms_after_um);
   EXPECT_LE(r.camera_rms_px, 0.05);
   EXPECT_LE(r.projector_rms_px, 0.1);
   EXPECT_NEAR(cam.fx, truth.camera.fx, 1e-3 * truth.camera.fx);
@@ -137,12 +158,14 @@ TEST(CalibrationSession, VirtualProbeIsCalibratedToItsTruth) {
     spec.scene = scene;
     ProbeCalibration design_calibration;
     const Burst burst = phase_eval::RenderScene(spec, &design_calibration);
-    const TriangleMesh mesh = std::string(scene) == "plane"
-                                  ? PlaneMesh(Eigen::Vector3d(0.25, -0.15, -1.0).normalized(), Eigen::Vector3d(0, 0, 50))
-                                  : PlaneMesh(Eigen::Vector3d(0.1, 0.05, -1.0).normalized(), Eigen::Vector3d(0, 0, 57));
+    const TriangleMesh mesh =
+        std::string(scene) == "plane"
+            ? PlaneMesh(Eigen::Vector3d(0.25, -0.15, -1.0).normalized(), Eigen::Vector3d(0, 0, 50))
+            : PlaneMesh(Eigen::Vector3d(0.1, 0.05, -1.0).normalized(), Eigen::Vector3d(0, 0, 57));
     const double with_truth = ReconstructionRmsUm(burst, mesh, design_calibration);
     const double with_recovered = ReconstructionRmsUm(burst, mesh, recovered);
-    std::printf("%s: RMS %.2f um with the true calibration, %.2f um with the recovered one\n", scene, with_truth, with_recovered);
+    std::printf("%s: RMS %.2f um with the true calibration, %.2f um with the recovered one\n",
+                scene, with_truth, with_recovered);
     EXPECT_LE(with_recovered, 12.0) << scene;
     EXPECT_LE(std::abs(with_recovered - with_truth), 2.5) << scene;
   }

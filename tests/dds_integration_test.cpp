@@ -33,7 +33,8 @@ using test::Spawn;
 using test::Wait;
 
 fs::path TestDir(const std::string& name) {
-  const fs::path d = fs::temp_directory_path() / ("d3d_dds_it_" + name + "_" + std::to_string(getpid()));
+  const fs::path d =
+      fs::temp_directory_path() / ("d3d_dds_it_" + name + "_" + std::to_string(getpid()));
   fs::create_directories(d);
   return d;
 }
@@ -41,13 +42,14 @@ fs::path TestDir(const std::string& name) {
 // Probe and recorder as two processes; returns the recording path.
 fs::path ProbeToRecording(const fs::path& dir, int domain, int frames, double rate) {
   const fs::path rec = dir / "probe.d3drec";
-  const Proc recorder = Spawn({kBin + "/d3d-record", "--out", rec.string(), "--frames", std::to_string(frames), "--domain",
-                               std::to_string(domain)},
+  const Proc recorder = Spawn({kBin + "/d3d-record", "--out", rec.string(), "--frames",
+                               std::to_string(frames), "--domain", std::to_string(domain)},
                               (dir / "record.log").string());
-  const Proc probe = Spawn({kBin + "/d3d-probe", "--sim", "typodont", "--rate", std::to_string(rate), "--frames", std::to_string(frames),
-                            "--domain", std::to_string(domain), "--wait-subscribers", "1", "--sim-cycle", "8", "--manifest",
-                            (dir / "manifest.txt").string()},
-                           (dir / "probe.log").string());
+  const Proc probe =
+      Spawn({kBin + "/d3d-probe", "--sim", "typodont", "--rate", std::to_string(rate), "--frames",
+             std::to_string(frames), "--domain", std::to_string(domain), "--wait-subscribers", "1",
+             "--sim-cycle", "8", "--manifest", (dir / "manifest.txt").string()},
+            (dir / "probe.log").string());
   EXPECT_EQ(Wait(probe, 180), 0) << ReadFile(probe.log);
   EXPECT_EQ(Wait(recorder, 60), 0) << ReadFile(recorder.log);
   return rec;
@@ -68,14 +70,17 @@ std::vector<std::pair<proto::BurstMsg, std::string>> RecordedBursts(RecordingRea
 }
 
 // Replays `rec` on `domain` into an in-process receiver; returns the bursts received.
-std::vector<proto::BurstMsg> ReplayInto(const fs::path& rec, int domain, size_t expect, const fs::path& dir, int* exit_code) {
+std::vector<proto::BurstMsg> ReplayInto(const fs::path& rec, int domain, size_t expect,
+                                        const fs::path& dir, int* exit_code) {
   proto::DdsParticipant pp;
   EXPECT_TRUE(pp.Create({domain, proto::SelectCycloneConfig(nullptr, 0, 0, nullptr)}).ok());
   ReceiverOptions o;
   o.queue_capacity = 1024;
   BurstReceiver rx(o);
   EXPECT_TRUE(rx.Start(&pp).ok());
-  const Proc replay = Spawn({kBin + "/d3d-replay", rec.string(), "--rate", "max", "--domain", std::to_string(domain)}, (dir / "replay.log").string());
+  const Proc replay = Spawn(
+      {kBin + "/d3d-replay", rec.string(), "--rate", "max", "--domain", std::to_string(domain)},
+      (dir / "replay.log").string());
   std::vector<proto::BurstMsg> got;
   ReceivedSample r;
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(120);
@@ -116,7 +121,8 @@ TEST(DdsIntegration, Probe300ToRecordToReplayByteIdentical) {
     line << b.burst_seq;
     for (const auto& f : b.frames) {
       char hex[16];
-      std::snprintf(hex, sizeof hex, " %08lx", crc32(0L, f.pixels.data(), static_cast<uInt>(f.pixels.size())));
+      std::snprintf(hex, sizeof hex, " %08lx",
+                    crc32(0L, f.pixels.data(), static_cast<uInt>(f.pixels.size())));
       line << hex;
     }
     EXPECT_EQ(line.str(), manifest[i]) << "burst " << i << " differs from what the probe published";
@@ -128,7 +134,8 @@ TEST(DdsIntegration, Probe300ToRecordToReplayByteIdentical) {
   for (size_t i = 0; i < replayed.size(); ++i) {
     std::string bytes;
     proto::Encode(replayed[i], &bytes);
-    EXPECT_TRUE(bytes == recorded[i].second) << "replayed burst " << i << " differs from the recording";
+    EXPECT_TRUE(bytes == recorded[i].second)
+        << "replayed burst " << i << " differs from the recording";
   }
   fs::remove_all(dir);
 }
@@ -137,16 +144,18 @@ TEST(DdsIntegration, Probe300ToRecordToReplayByteIdentical) {
 TEST(DdsIntegration, LateJoinerReceivesProbeInfoAndCalibration) {
   const fs::path dir = TestDir("late");
   constexpr int kDomain = 73;
-  const Proc probe = Spawn({kBin + "/d3d-probe", "--sim", "typodont", "--rate", "30", "--frames", "15", "--domain", std::to_string(kDomain),
-                            "--wait-subscribers", "1", "--sim-cycle", "2"},
-                           (dir / "probe.log").string());
+  const Proc probe =
+      Spawn({kBin + "/d3d-probe", "--sim", "typodont", "--rate", "30", "--frames", "15", "--domain",
+             std::to_string(kDomain), "--wait-subscribers", "1", "--sim-cycle", "2"},
+            (dir / "probe.log").string());
   proto::DdsParticipant pp;
   ASSERT_TRUE(pp.Create({kDomain, proto::SelectCycloneConfig(nullptr, 0, 0, nullptr)}).ok());
   {
     // Wait for the probe's first ProbeStatus: ProbeInfo was published before it.
     Status st;
     const dds_entity_t t = pp.Topic(&d3d_proto_ProbeStatus_desc, proto::kTopicProbeStatus, &st);
-    std::unique_ptr<dds_qos_t, proto::QosDeleter> q(proto::MakeQos(proto::QosProfile::kStatusReader));
+    std::unique_ptr<dds_qos_t, proto::QosDeleter> q(
+        proto::MakeQos(proto::QosProfile::kStatusReader));
     const dds_entity_t r = dds_create_reader(pp.participant(), t, q.get(), nullptr);
     bool seen = false;
     for (int i = 0; i < 1200 && !seen; ++i) {
@@ -167,18 +176,20 @@ TEST(DdsIntegration, LateJoinerReceivesProbeInfoAndCalibration) {
   proto::InfoMsg info;
   ProbeCalibration cal;
   bool got = false;
-  for (int i = 0; i < 200 && !(got = late.LatestInfo(&info, &cal)); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  for (int i = 0; i < 200 && !(got = late.LatestInfo(&info, &cal)); ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
   ASSERT_TRUE(got) << "no ProbeInfo for the late joiner";
   EXPECT_EQ(info.serial, "SIM-0001");
   EXPECT_EQ(info.capture_backend, "sim");
   EXPECT_FALSE(info.firmware_version.empty());
-  EXPECT_EQ(cal.ToJson(), MakeDefaultProbeDesign(640, 480).calibration.ToJson()) << "the probe's own calibration";
+  EXPECT_EQ(cal.ToJson(), MakeDefaultProbeDesign(640, 480).calibration.ToJson())
+      << "the probe's own calibration";
   EXPECT_EQ(Wait(probe, 120), 0);  // it streamed to the late joiner and exited
   fs::remove_all(dir);
 }
 
-// Damaged recordings: clear errors, and every intact chunk is recovered (by d3d-replay --info and by
-// a replay into a subscriber).
+// Damaged recordings: clear errors, and every intact chunk is recovered (by d3d-replay --info and
+// by a replay into a subscriber).
 TEST(DdsIntegration, CorruptedAndTruncatedRecordingsRecoverIntactChunks) {
   const fs::path dir = TestDir("corrupt");
   const fs::path rec = ProbeToRecording(dir, 74, 24, 30);
@@ -193,7 +204,8 @@ TEST(DdsIntegration, CorruptedAndTruncatedRecordingsRecoverIntactChunks) {
     return p;
   };
   auto info = [&](const fs::path& p, std::string* out) {
-    const Proc pr = Spawn({kBin + "/d3d-replay", "--info", p.string()}, (dir / "info.log").string());
+    const Proc pr =
+        Spawn({kBin + "/d3d-replay", "--info", p.string()}, (dir / "info.log").string());
     const int code = Wait(pr, 30);
     *out = ReadFile((dir / "info.log").string());
     return code;
@@ -249,7 +261,8 @@ TEST(DdsIntegration, CorruptedAndTruncatedRecordingsRecoverIntactChunks) {
   bad[8] = 9;  // as a newer writer leaves it: the header's CRC over the new version
   uint32_t json_len = 0;
   std::memcpy(&json_len, bad.data() + 12, 4);
-  const uint32_t crc = static_cast<uint32_t>(crc32(0L, reinterpret_cast<const Bytef*>(bad.data()), 16 + json_len));
+  const uint32_t crc =
+      static_cast<uint32_t>(crc32(0L, reinterpret_cast<const Bytef*>(bad.data()), 16 + json_len));
   std::memcpy(bad.data() + 16 + json_len, &crc, 4);
   EXPECT_EQ(info(write("newer.d3drec", bad), &out), 2);
   EXPECT_NE(out.find("newer than this reader"), std::string::npos) << out;

@@ -54,8 +54,9 @@ void WriteFile(const fs::path& p, std::span<const uint8_t> d) {
 class FirmwareUpdateTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    dir = fs::temp_directory_path() / ("d3d_fwtest_" + std::to_string(::getpid()) + "_" +
-                                       ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    dir = fs::temp_directory_path() /
+          ("d3d_fwtest_" + std::to_string(::getpid()) + "_" +
+           ::testing::UnitTest::GetInstance()->current_test_info()->name());
     fs::remove_all(dir);
     fs::create_directories(dir);
     ASSERT_TRUE(fw::SavePublicKey((dir / "signing.pub").string(), key.pk).ok());
@@ -72,14 +73,19 @@ class FirmwareUpdateTest : public ::testing::Test {
   }
   // The simulated probe: 4 KiB erase blocks, 256 B pages, 1 MiB slots, 4 KiB DFU blocks.
   std::vector<std::string> AgentArgs(std::vector<std::string> extra = {}) {
-    std::vector<std::string> a = {"--socket", sock, "--flash", (dir / "flash").string(), "--pubkey",
-                                  (dir / "signing.pub").string(), "--provision", (dir / "v1.0.img").string(),
-                                  "--erase-kib", "4", "--slot-mib", "1", "--sim-controls", "--quiet"};
+    std::vector<std::string> a = {"--socket",       sock,
+                                  "--flash",        (dir / "flash").string(),
+                                  "--pubkey",       (dir / "signing.pub").string(),
+                                  "--provision",    (dir / "v1.0.img").string(),
+                                  "--erase-kib",    "4",
+                                  "--slot-mib",     "1",
+                                  "--sim-controls", "--quiet"};
     a.insert(a.end(), extra.begin(), extra.end());
     return a;
   }
   void StartAgent(std::vector<std::string> extra = {}) {
-    const Status s = agent.Start(kBin + "/d3d-update-agent", AgentArgs(extra), sock, (dir / "agent.log").string());
+    const Status s = agent.Start(kBin + "/d3d-update-agent", AgentArgs(extra), sock,
+                                 (dir / "agent.log").string());
     ASSERT_TRUE(s.ok()) << s.ToString();
   }
   FlashReport FlashOver(std::span<const uint8_t> image, flash::FlashOptions o = {}) {
@@ -117,7 +123,8 @@ class FirmwareUpdateTest : public ::testing::Test {
 
 TEST_F(FirmwareUpdateTest, HappyPathWithD3dFlashBootsAndConfirmsTheNewVersion) {
   StartAgent();
-  const RunResult r = RunCmd(kBin + "/d3d-flash " + (dir / "v1.1.img").string() + " --device sim:" + sock + " --no-progress");
+  const RunResult r = RunCmd(kBin + "/d3d-flash " + (dir / "v1.1.img").string() +
+                             " --device sim:" + sock + " --no-progress");
   EXPECT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("runs 1.0.0 (slot A, confirmed)"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("after 1.1.0 (slot B, confirmed)"), std::string::npos) << r.output;
@@ -136,10 +143,27 @@ TEST_F(FirmwareUpdateTest, HappyPathWithD3dFlashBootsAndConfirmsTheNewVersion) {
 TEST_F(FirmwareUpdateTest, D3dProbeHostsTheAgentAndReportsTheNewVersionOverDds) {
   constexpr int kDomain = 74;
   const Status started = agent.Start(kBin + "/d3d-probe",
-                                     {"--sim", "typodont", "--sim-cycle", "1", "--idle", "--domain", std::to_string(kDomain),
-                                      "--update-socket", sock, "--flash", (dir / "flash").string(), "--pubkey",
-                                      (dir / "signing.pub").string(), "--provision", (dir / "v1.0.img").string(),
-                                      "--hw", "1", "--slot-mib", "1", "--erase-kib", "4"},
+                                     {"--sim",
+                                      "typodont",
+                                      "--sim-cycle",
+                                      "1",
+                                      "--idle",
+                                      "--domain",
+                                      std::to_string(kDomain),
+                                      "--update-socket",
+                                      sock,
+                                      "--flash",
+                                      (dir / "flash").string(),
+                                      "--pubkey",
+                                      (dir / "signing.pub").string(),
+                                      "--provision",
+                                      (dir / "v1.0.img").string(),
+                                      "--hw",
+                                      "1",
+                                      "--slot-mib",
+                                      "1",
+                                      "--erase-kib",
+                                      "4"},
                                      sock, (dir / "probe.log").string(), 60000);
   ASSERT_TRUE(started.ok()) << started.ToString();
   proto::DdsParticipant pp;
@@ -156,7 +180,8 @@ TEST_F(FirmwareUpdateTest, D3dProbeHostsTheAgentAndReportsTheNewVersionOverDds) 
     return got;
   };
   EXPECT_EQ(version("1.0.0"), "1.0.0");
-  const RunResult r = RunCmd(kBin + "/d3d-flash " + (dir / "v1.1.img").string() + " --device sim:" + sock + " --no-progress");
+  const RunResult r = RunCmd(kBin + "/d3d-flash " + (dir / "v1.1.img").string() +
+                             " --device sim:" + sock + " --no-progress");
   EXPECT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("result: UPDATED 1.0.0 -> 1.1.0"), std::string::npos) << r.output;
   EXPECT_EQ(version("1.1.0"), "1.1.0") << "ProbeInfo.firmware_version after the confirmed update";
@@ -165,8 +190,8 @@ TEST_F(FirmwareUpdateTest, D3dProbeHostsTheAgentAndReportsTheNewVersionOverDds) 
 
 TEST_F(FirmwareUpdateTest, DryRunSendsNothing) {
   StartAgent();
-  const RunResult r =
-      RunCmd(kBin + "/d3d-flash " + (dir / "v1.1.img").string() + " --device sim:" + sock + " --dry-run --no-progress");
+  const RunResult r = RunCmd(kBin + "/d3d-flash " + (dir / "v1.1.img").string() +
+                             " --device sim:" + sock + " --dry-run --no-progress");
   EXPECT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("result: DRY RUN"), std::string::npos) << r.output;
   EXPECT_EQ(Info().VersionString(), "1.0.0");
@@ -195,16 +220,21 @@ TEST_F(FirmwareUpdateTest, RefusedImagesNameTheExactReasonAndTheOldVersionKeepsR
       {"flipped header bit (hash)", flip(50, 3), dfu::kErrVerify, "payload-hash"},
       {"flipped payload bit", flip(fw::kHeaderBytes + 20000, 5), dfu::kErrVerify, "payload-hash"},
       {"flipped signature bit", flip(v11.size() - 10, 7), dfu::kErrFile, "bad-signature"},
-      {"truncated", std::vector<uint8_t>(v11.begin(), v11.end() - 1000), dfu::kErrNotDone, "truncated"},
-      {"wrong hardware id", MakeImage(&key, {1, 1, 0}, 1, 2, 45000, 2), dfu::kErrTarget, "wrong-hardware"},
-      {"downgrade (counter 0 < floor 1)", MakeImage(&key, {1, 2, 0}, 0, 1, 45000, 2), dfu::kErrFile, "downgrade"},
-      {"oversize (2 MiB > 1 MiB slot)", MakeImage(&key, {1, 1, 0}, 1, 1, 2 << 20, 2), dfu::kErrAddress, "oversize"},
+      {"truncated", std::vector<uint8_t>(v11.begin(), v11.end() - 1000), dfu::kErrNotDone,
+       "truncated"},
+      {"wrong hardware id", MakeImage(&key, {1, 1, 0}, 1, 2, 45000, 2), dfu::kErrTarget,
+       "wrong-hardware"},
+      {"downgrade (counter 0 < floor 1)", MakeImage(&key, {1, 2, 0}, 0, 1, 45000, 2), dfu::kErrFile,
+       "downgrade"},
+      {"oversize (2 MiB > 1 MiB slot)", MakeImage(&key, {1, 1, 0}, 1, 1, 2 << 20, 2),
+       dfu::kErrAddress, "oversize"},
   };
   StartAgent();
   for (const Refusal& c : cases) {
     SCOPED_TRACE(c.name);
     const FlashReport r = FlashOver(c.image);
-    EXPECT_EQ(r.outcome, FlashOutcome::kRefused) << flash::FlashOutcomeName(r.outcome) << " " << r.reason;
+    EXPECT_EQ(r.outcome, FlashOutcome::kRefused)
+        << flash::FlashOutcomeName(r.outcome) << " " << r.reason;
     EXPECT_EQ(r.dfu_status, c.dfu_status) << dfu::StatusName(r.dfu_status) << " " << r.reason;
     EXPECT_EQ(r.reason.rfind(c.token + ":", 0), 0u) << r.reason;
     // The probe's reason is the one d3d-fwpack --verify gives for the same bytes.
@@ -228,9 +258,11 @@ TEST_F(FirmwareUpdateTest, RefusedImagesNameTheExactReasonAndTheOldVersionKeepsR
 
 TEST_F(FirmwareUpdateTest, ImageSentWhileStreamingIsRefusedAndStreamingGoesOn) {
   StartAgent({"--streaming"});
-  const RunResult r = RunCmd(kBin + "/d3d-flash " + (dir / "v1.1.img").string() + " --device sim:" + sock + " --no-progress");
+  const RunResult r = RunCmd(kBin + "/d3d-flash " + (dir / "v1.1.img").string() +
+                             " --device sim:" + sock + " --no-progress");
   EXPECT_EQ(r.exit_code, 3) << r.output;
-  EXPECT_NE(r.output.find("REFUSED by the probe (errVENDOR): streaming:"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("REFUSED by the probe (errVENDOR): streaming:"), std::string::npos)
+      << r.output;
   const dfu::FirmwareInfo f = Info();
   EXPECT_TRUE(f.streaming);
   EXPECT_EQ(f.VersionString(), "1.0.0");
@@ -240,9 +272,11 @@ TEST_F(FirmwareUpdateTest, ImageSentWhileStreamingIsRefusedAndStreamingGoesOn) {
 TEST_F(FirmwareUpdateTest, D3dFlashReportsARefusalWithExitCode3) {
   StartAgent();
   WriteFile(dir / "wrong_hw.img", MakeImage(&key, {1, 1, 0}, 1, 9, 45000, 2));
-  const RunResult r = RunCmd(kBin + "/d3d-flash " + (dir / "wrong_hw.img").string() + " --device sim:" + sock + " --no-progress");
+  const RunResult r = RunCmd(kBin + "/d3d-flash " + (dir / "wrong_hw.img").string() +
+                             " --device sim:" + sock + " --no-progress");
   EXPECT_EQ(r.exit_code, 3) << r.output;
-  EXPECT_NE(r.output.find("REFUSED by the probe (errTARGET): wrong-hardware: image is for hardware 0x0009, this probe is 0x0001"),
+  EXPECT_NE(r.output.find("REFUSED by the probe (errTARGET): wrong-hardware: image is for hardware "
+                          "0x0009, this probe is 0x0001"),
             std::string::npos)
       << r.output;
   EXPECT_NE(r.output.find("still runs 1.0.0 (slot A, confirmed)"), std::string::npos) << r.output;
@@ -316,8 +350,8 @@ TEST_F(FirmwareUpdateTest, PowerLossAtEveryFlashOperationIncludingManifestation)
       agent.Kill();
       break;  // k is past the last operation of the update
     }
-    EXPECT_EQ(code, 86) << "agent did not die of the injected cut: " << flash::FlashOutcomeName(r.outcome) << " "
-                        << r.reason;
+    EXPECT_EQ(code, 86) << "agent did not die of the injected cut: "
+                        << flash::FlashOutcomeName(r.outcome) << " " << r.reason;
     if (r.blocks < static_cast<int64_t>((v11.size() + 4095) / 4096)) {
       ++download_cuts;
     } else if (r.manifest_s == 0 && r.reboot_s == 0) {
@@ -339,16 +373,20 @@ TEST_F(FirmwareUpdateTest, PowerLossAtEveryFlashOperationIncludingManifestation)
   EXPECT_GT(boot_cuts, 0);
   RecordProperty("cut_points", static_cast<int>(k));
   RecordProperty("manifestation_cuts", manifest_cuts);
-  std::printf("power-cut matrix: %lld cut points (download %d, manifestation %d, reboot/confirm %d), all booted a good version\n",
-              static_cast<long long>(k), download_cuts, manifest_cuts, boot_cuts);
+  std::printf(
+      "power-cut matrix: %lld cut points (download %d, manifestation %d, reboot/confirm %d), all "
+      "booted a good version\n",
+      static_cast<long long>(k), download_cuts, manifest_cuts, boot_cuts);
 }
 
 // dfu-util (Debian's), the reference DFU 1.1 client, flashes the simulated probe: its libusb calls
 // are carried over the sim link by an LD_PRELOAD stand-in (tests/dfu_util/libusb_sim_shim.cpp).
 TEST_F(FirmwareUpdateTest, DfuUtilAsReferenceClient) {
-  if (RunCmd("command -v dfu-util").exit_code != 0) GTEST_SKIP() << "dfu-util is not installed (tools/deps.txt lists it)";
+  if (RunCmd("command -v dfu-util").exit_code != 0)
+    GTEST_SKIP() << "dfu-util is not installed (tools/deps.txt lists it)";
   StartAgent();
-  const std::string env = std::string("LD_PRELOAD=") + D3D_SIM_SHIM + " D3D_SIM_SOCKET=" + sock + " timeout 60 dfu-util ";
+  const std::string env = std::string("LD_PRELOAD=") + D3D_SIM_SHIM + " D3D_SIM_SOCKET=" + sock +
+                          " timeout 60 dfu-util ";
   RunResult r = RunCmd(env + "-l");
   EXPECT_NE(r.output.find("Found Runtime: [1209:0010]"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("serial=\"SIM0001\""), std::string::npos) << r.output;
@@ -375,12 +413,15 @@ TEST_F(FirmwareUpdateTest, FwpackKeygenPackVerify) {
   const std::string keys = (dir / "keys").string();
   RunResult r = RunCmd(kBin + "/d3d-fwpack --keygen --out " + keys);
   ASSERT_EQ(r.exit_code, 0) << r.output;
-  EXPECT_EQ(RunCmd(kBin + "/d3d-fwpack --keygen --out " + keys).exit_code, 2);  // never overwrites a key
+  EXPECT_EQ(RunCmd(kBin + "/d3d-fwpack --keygen --out " + keys).exit_code,
+            2);  // never overwrites a key
   WriteFile(dir / "payload.bin", fw::testing::MakePayload(10000, 3));
-  r = RunCmd(kBin + "/d3d-fwpack --key " + keys + "/signing.key --version 2.3.4 --hw 0x0001 --counter 3 --in " +
-          (dir / "payload.bin").string() + " --out " + (dir / "out.img").string());
+  r = RunCmd(kBin + "/d3d-fwpack --key " + keys +
+             "/signing.key --version 2.3.4 --hw 0x0001 --counter 3 --in " +
+             (dir / "payload.bin").string() + " --out " + (dir / "out.img").string());
   ASSERT_EQ(r.exit_code, 0) << r.output;
-  r = RunCmd(kBin + "/d3d-fwpack --verify --pubkey " + keys + "/signing.pub --hw 0x0001 --min-counter 3 " + (dir / "out.img").string());
+  r = RunCmd(kBin + "/d3d-fwpack --verify --pubkey " + keys +
+             "/signing.pub --hw 0x0001 --min-counter 3 " + (dir / "out.img").string());
   EXPECT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("version    2.3.4"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("verdict    OK"), std::string::npos) << r.output;
@@ -390,17 +431,20 @@ TEST_F(FirmwareUpdateTest, FwpackKeygenPackVerify) {
   for (const Bad& b : std::vector<Bad>{{"--hw 0x0002", "wrong-hardware"},
                                        {"--min-counter 4", "downgrade"},
                                        {"--max-size 5000", "oversize"}}) {
-    r = RunCmd(kBin + "/d3d-fwpack --verify --pubkey " + keys + "/signing.pub " + b.args + " " + (dir / "out.img").string());
+    r = RunCmd(kBin + "/d3d-fwpack --verify --pubkey " + keys + "/signing.pub " + b.args + " " +
+               (dir / "out.img").string());
     EXPECT_EQ(r.exit_code, 1) << r.output;
     EXPECT_NE(r.output.find("verdict    REFUSED: " + b.token + ":"), std::string::npos) << r.output;
   }
-  r = RunCmd(kBin + "/d3d-fwpack --verify --pubkey " + (dir / "signing.pub").string() + " " + (dir / "out.img").string());
+  r = RunCmd(kBin + "/d3d-fwpack --verify --pubkey " + (dir / "signing.pub").string() + " " +
+             (dir / "out.img").string());
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.output.find("REFUSED: unknown-key:"), std::string::npos) << r.output;
-  r = RunCmd(kBin + "/d3d-fwpack --unsigned --version 1.0.0 --hw 1 --in " + (dir / "payload.bin").string() + " --out " +
-          (dir / "u.img").string());
+  r = RunCmd(kBin + "/d3d-fwpack --unsigned --version 1.0.0 --hw 1 --in " +
+             (dir / "payload.bin").string() + " --out " + (dir / "u.img").string());
   ASSERT_EQ(r.exit_code, 0) << r.output;
-  r = RunCmd(kBin + "/d3d-fwpack --verify --pubkey " + keys + "/signing.pub " + (dir / "u.img").string());
+  r = RunCmd(kBin + "/d3d-fwpack --verify --pubkey " + keys + "/signing.pub " +
+             (dir / "u.img").string());
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.output.find("REFUSED: unsigned:"), std::string::npos) << r.output;
 }
@@ -409,7 +453,8 @@ TEST_F(FirmwareUpdateTest, UsbTransportSaysClearlyThatThereIsNoProbe) {
   RunResult r = RunCmd(kBin + "/d3d-flash --list");
   EXPECT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("usb: "), std::string::npos) << r.output;
-  r = RunCmd("timeout 10 " + kBin + "/d3d-flash " + (dir / "v1.1.img").string() + " --device usb:1209:0010 --no-progress");
+  r = RunCmd("timeout 10 " + kBin + "/d3d-flash " + (dir / "v1.1.img").string() +
+             " --device usb:1209:0010 --no-progress");
   EXPECT_EQ(r.exit_code, 2) << r.output;
   EXPECT_TRUE(r.output.find("no USB device usb:1209:0010 is attached") != std::string::npos ||
               r.output.find("libusb cannot be initialised") != std::string::npos)

@@ -49,7 +49,8 @@ inline std::string ReadFile(const std::string& path) {
 inline int Wait(const Proc& p, double timeout_s) {
   int status = 0;
   for (int i = 0; i < static_cast<int>(timeout_s * 20); ++i) {
-    if (waitpid(p.pid, &status, WNOHANG) == p.pid) return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+    if (waitpid(p.pid, &status, WNOHANG) == p.pid)
+      return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
     std::this_thread::sleep_for(std::chrono::milliseconds(50));
   }
   kill(p.pid, SIGKILL);

@@ -1,10 +1,10 @@
 // Real-image validation of pipeline/phase and pipeline/unwrap (issue "Real images").
 //
-// kamino410/object2: a real camera and projector, 3-step fringes of period 200/3 px, projector gamma
-// ≈ 1.64. Our wrapped phase, unwrapped by quality-guided region growing with the Gray-code frames as
-// per-pixel phase bounds, must give a projector column inside the decoded Gray cell (± 1.5 px) on
-// ≥ 99 % of the pixels where both are valid; the Gray decoding must agree with the author's
-// vizualized.png. kylemcdonald/{zhang,kyle}: smoke test, the relatively unwrapped phase is
+// kamino410/object2: a real camera and projector, 3-step fringes of period 200/3 px, projector
+// gamma ≈ 1.64. Our wrapped phase, unwrapped by quality-guided region growing with the Gray-code
+// frames as per-pixel phase bounds, must give a projector column inside the decoded Gray cell
+// (± 1.5 px) on ≥ 99 % of the pixels where both are valid; the Gray decoding must agree with the
+// author's vizualized.png. kylemcdonald/{zhang,kyle}: smoke test, the relatively unwrapped phase is
 // continuous (≥ 99.9 % of 4-neighbour pairs inside a region step by less than π).
 //
 // The analysis lives in tools/recon/real_fringe_report.cpp (the d3d-real-fringe tool, which also
@@ -32,7 +32,8 @@ struct KaminoCase {
   const char* name;
   PhaseAlgorithm algorithm;
   double gamma;
-  double max_cross_rms_px;  // bound on RMS |c(66.67-px set) − c(100-px set)| (measured value × ~1.15)
+  double
+      max_cross_rms_px;  // bound on RMS |c(66.67-px set) − c(100-px set)| (measured value × ~1.15)
 };
 
 void PrintTo(const KaminoCase& c, std::ostream* os) { *os << c.name; }  // readable CTest names
@@ -51,12 +52,16 @@ TEST_P(KaminoTest, UnwrappedPhaseAgreesWithGrayCode) {
   KaminoReport r;
   const Status s = RunKamino(o, &r);
   ASSERT_TRUE(s.ok()) << s.ToString();
-  std::printf("[%s, gamma %.2f] agreement %.4f %% (%lld of %lld), Gray valid %lld, unwrapped %lld, Gray vs viz "
-              "%.4f %%, |c - viz x| median %.3f px, within 2 px %.3f %%, c(66.67) - c(100) RMS %.3f px, %.2f s\n",
-              PhaseAlgorithmName(c.algorithm), c.gamma, 100.0 * r.agree_share, static_cast<long long>(r.agree),
-              static_cast<long long>(r.both_valid), static_cast<long long>(r.gray_valid),
-              static_cast<long long>(r.unwrapped_valid), 100.0 * r.gray_viz_share, r.c_viz_median_px,
-              100.0 * r.c_viz_within2_share, r.cross_rms_px, r.seconds);
+  std::printf(
+      "[%s, gamma %.2f] agreement %.4f %% (%lld of %lld), Gray valid %lld, unwrapped %lld, Gray vs "
+      "viz "
+      "%.4f %%, |c - viz x| median %.3f px, within 2 px %.3f %%, c(66.67) - c(100) RMS %.3f px, "
+      "%.2f s\n",
+      PhaseAlgorithmName(c.algorithm), c.gamma, 100.0 * r.agree_share,
+      static_cast<long long>(r.agree), static_cast<long long>(r.both_valid),
+      static_cast<long long>(r.gray_valid), static_cast<long long>(r.unwrapped_valid),
+      100.0 * r.gray_viz_share, r.c_viz_median_px, 100.0 * r.c_viz_within2_share, r.cross_rms_px,
+      r.seconds);
   RecordProperty("agree_share", std::to_string(r.agree_share));
   RecordProperty("both_valid", std::to_string(r.both_valid));
   RecordProperty("c_viz_median_px", std::to_string(r.c_viz_median_px));
@@ -101,9 +106,10 @@ TEST_P(KaminoTest, UnwrappedPhaseAgreesWithGrayCode) {
 
 INSTANTIATE_TEST_SUITE_P(
     RealFringe, KaminoTest,
-    ::testing::Values(KaminoCase{"AdaptiveHarmonicGamma164", PhaseAlgorithm::kAdaptiveHarmonic, 1.64, 3.2},
-                      KaminoCase{"Standard", PhaseAlgorithm::kStandard, 1.64, 5.0},
-                      KaminoCase{"AdaptiveHarmonicGamma26", PhaseAlgorithm::kAdaptiveHarmonic, 2.6, 1.05}),
+    ::testing::Values(
+        KaminoCase{"AdaptiveHarmonicGamma164", PhaseAlgorithm::kAdaptiveHarmonic, 1.64, 3.2},
+        KaminoCase{"Standard", PhaseAlgorithm::kStandard, 1.64, 5.0},
+        KaminoCase{"AdaptiveHarmonicGamma26", PhaseAlgorithm::kAdaptiveHarmonic, 2.6, 1.05}),
     [](const ::testing::TestParamInfo<KaminoCase>& info) { return std::string(info.param.name); });
 
 class KyleMcDonaldTest : public ::testing::TestWithParam<const char*> {};
@@ -115,20 +121,25 @@ TEST_P(KyleMcDonaldTest, UnwrappedPhaseIsContinuous) {
   o.dir = dir;
   RelativeReport r;
   ASSERT_TRUE(RunRelative(o, &r).ok());
-  std::printf("[%s] continuity %.4f %% of %lld pairs, unwrapped %lld of %lld phase-valid (%.1f %%), %.2f s\n",
-              GetParam(), 100.0 * r.continuity_share, static_cast<long long>(r.pairs),
-              static_cast<long long>(r.unwrapped_valid), static_cast<long long>(r.phase_valid), 100.0 * r.coverage,
-              r.seconds);
+  std::printf(
+      "[%s] continuity %.4f %% of %lld pairs, unwrapped %lld of %lld phase-valid (%.1f %%), %.2f "
+      "s\n",
+      GetParam(), 100.0 * r.continuity_share, static_cast<long long>(r.pairs),
+      static_cast<long long>(r.unwrapped_valid), static_cast<long long>(r.phase_valid),
+      100.0 * r.coverage, r.seconds);
   RecordProperty("continuity_share", std::to_string(r.continuity_share));
   RecordProperty("coverage", std::to_string(r.coverage));
   EXPECT_GE(r.continuity_share, 0.999);  // measured 100.0000 % (zhang 348 k pairs, kyle 228 k)
-  // Not vacuous: nearly all of the phase-valid pixels are unwrapped (measured 99.7 % zhang, 99.4 % kyle).
+  // Not vacuous: nearly all of the phase-valid pixels are unwrapped (measured 99.7 % zhang, 99.4 %
+  // kyle).
   EXPECT_GE(r.coverage, 0.95);
   EXPECT_GT(r.pairs, 50000);
 }
 
 INSTANTIATE_TEST_SUITE_P(RealFringe, KyleMcDonaldTest, ::testing::Values("zhang", "kyle"),
-                         [](const ::testing::TestParamInfo<const char*>& info) { return std::string(info.param); });
+                         [](const ::testing::TestParamInfo<const char*>& info) {
+                           return std::string(info.param);
+                         });
 
 }  // namespace
 }  // namespace d3d::real_fringe

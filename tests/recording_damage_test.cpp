@@ -1,8 +1,9 @@
-// Damaged recordings through `d3d-replay --info` as a process (issue 55, item 1): every damaged file
-// exits 3 and says what was lost, as far as the file can tell; a file that is no recording exits 2
-// and is never called "newer". The recording is laid out as d3d-record writes one (ProbeInfo first,
-// then bursts with a ProbeStatus every 5), 20 small bursts of seeded pixels, 7 bursts a chunk, so
-// that the figures of the issue come out: a file cut at the first chunk boundary keeps 7 of 20.
+// Damaged recordings through `d3d-replay --info` as a process (issue 55, item 1): every damaged
+// file exits 3 and says what was lost, as far as the file can tell; a file that is no recording
+// exits 2 and is never called "newer". The recording is laid out as d3d-record writes one
+// (ProbeInfo first, then bursts with a ProbeStatus every 5), 20 small bursts of seeded pixels, 7
+// bursts a chunk, so that the figures of the issue come out: a file cut at the first chunk boundary
+// keeps 7 of 20.
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -41,7 +42,8 @@ std::string EncodedBurst(uint64_t seq, std::mt19937* rng) {
   for (int k = 0; k < 4; ++k) {
     proto::FrameMsg f;
     f.pattern_index = static_cast<uint16_t>(k);
-    f.timestamp_ns = 1'700'000'000'000'000'000 + static_cast<int64_t>(seq) * 33'333'333 + k * 2'500'000;
+    f.timestamp_ns =
+        1'700'000'000'000'000'000 + static_cast<int64_t>(seq) * 33'333'333 + k * 2'500'000;
     f.pixels.resize(m.BytesPerFrame());
     for (auto& p : f.pixels) p = static_cast<uint8_t>((*rng)());
     m.frames.push_back(std::move(f));
@@ -109,8 +111,10 @@ class RecordingDamage : public ::testing::Test {
     ASSERT_EQ(made_.chunks.size(), 3u) << "ProbeInfo + 7 bursts, 7 bursts, 6 bursts";
   }
   void TearDown() override { fs::remove_all(dir_); }
-  // d3d-replay --info (and `extra`) on these bytes (written to dir_/name); its exit code, output in *out.
-  int Info(const std::string& name, const std::string& bytes, std::string* out, const std::vector<std::string>& extra = {}) {
+  // d3d-replay --info (and `extra`) on these bytes (written to dir_/name); its exit code, output in
+  // *out.
+  int Info(const std::string& name, const std::string& bytes, std::string* out,
+           const std::vector<std::string>& extra = {}) {
     const fs::path p = dir_ / name;
     {
       std::ofstream f(p, std::ios::binary);
@@ -129,7 +133,9 @@ class RecordingDamage : public ::testing::Test {
   Made made_;
 };
 
-bool Has(const std::string& out, const std::string& what) { return out.find(what) != std::string::npos; }
+bool Has(const std::string& out, const std::string& what) {
+  return out.find(what) != std::string::npos;
+}
 
 TEST_F(RecordingDamage, IntactFileExitsZero) {
   std::string out;
@@ -152,8 +158,8 @@ TEST_F(RecordingDamage, FlippedChunkHeaderCountsTheLostBursts) {
   EXPECT_TRUE(Has(out, "bursts lost:   7\n")) << out;
 }
 
-// The same damage summarised as JSON (--json): one object on stdout with the same counts, the damage
-// report still on stderr, the same exit code.
+// The same damage summarised as JSON (--json): one object on stdout with the same counts, the
+// damage report still on stderr, the same exit code.
 TEST_F(RecordingDamage, TheJsonSummaryHoldsTheSameCounts) {
   std::string b = made_.bytes;
   b[chunk(1).offset + 5] ^= 0x04;

@@ -73,18 +73,33 @@ long long PlyVertices(const fs::path& ply) {
 std::vector<std::string> ProbeArgs(const fs::path& manifest) {
   // 12 distinct bursts of the full-arch path, repeated, at 15 Hz: light enough to render beside the
   // host on 2 cores.
-  return {kBin + "/d3d-probe", "--sim", "typodont", "--rate", "15", "--sim-cycle", "12", "--render-threads", "1",
-          "--domain", std::to_string(kDomain), "--wait-subscribers", "1", "--manifest", manifest.string()};
+  return {kBin + "/d3d-probe",
+          "--sim",
+          "typodont",
+          "--rate",
+          "15",
+          "--sim-cycle",
+          "12",
+          "--render-threads",
+          "1",
+          "--domain",
+          std::to_string(kDomain),
+          "--wait-subscribers",
+          "1",
+          "--manifest",
+          manifest.string()};
 }
 
 TEST(ScanLive, AProbeKilledMidScanLeavesTheModelSavableAndTheScanResumesWhenItReturns) {
-  const fs::path dir = fs::temp_directory_path() / ("d3d_scan_live_fault_" + std::to_string(getpid()));
+  const fs::path dir =
+      fs::temp_directory_path() / ("d3d_scan_live_fault_" + std::to_string(getpid()));
   fs::remove_all(dir);
   fs::create_directories(dir);
   const fs::path out = dir / "out";
-  const test::Proc scan = test::Spawn({kBin + "/d3d-scan", "--domain", std::to_string(kDomain), "--policy", "live", "--no-preview",
-                                       "--out", out.string(), "--probe-timeout", "0.5", "--wait-probe", "120"},
-                                      (dir / "scan.log").string());
+  const test::Proc scan = test::Spawn(
+      {kBin + "/d3d-scan", "--domain", std::to_string(kDomain), "--policy", "live", "--no-preview",
+       "--out", out.string(), "--probe-timeout", "0.5", "--wait-probe", "120"},
+      (dir / "scan.log").string());
   const auto scan_log = [&] { return test::ReadFile(scan.log); };
 
   // The first probe streams until the host has processed 20 bursts, then dies.
@@ -95,13 +110,16 @@ TEST(ScanLive, AProbeKilledMidScanLeavesTheModelSavableAndTheScanResumesWhenItRe
   ASSERT_TRUE(streamed) << scan_log() << test::ReadFile(probe1.log);
 
   // The host notices (0.5 s without a burst) and keeps what it has.
-  ASSERT_TRUE(test::WaitUntil([&] { return !FirstWith(scan_log(), "PROBE LOST").empty(); }, 30)) << scan_log();
+  ASSERT_TRUE(test::WaitUntil([&] { return !FirstWith(scan_log(), "PROBE LOST").empty(); }, 30))
+      << scan_log();
   const long long processed_before = Processed(FirstWith(scan_log(), "PROBE LOST"));
   EXPECT_GE(processed_before, 20);
 
   // A save while the probe is away: the live model, to --out.
   kill(scan.pid, SIGUSR1);
-  ASSERT_TRUE(test::WaitUntil([&] { return scan_log().find("saved " + (out / "scan.ply").string()) != std::string::npos; }, 120))
+  ASSERT_TRUE(test::WaitUntil(
+      [&] { return scan_log().find("saved " + (out / "scan.ply").string()) != std::string::npos; },
+      120))
       << scan_log();
   EXPECT_GT(PlyVertices(out / "scan.ply"), 1000);
   EXPECT_TRUE(fs::exists(out / "scan.stl"));
@@ -111,14 +129,16 @@ TEST(ScanLive, AProbeKilledMidScanLeavesTheModelSavableAndTheScanResumesWhenItRe
   again.insert(again.end(), {"--frames", "30"});
   const test::Proc probe2 = test::Spawn(again, (dir / "probe2.log").string());
   EXPECT_EQ(test::Wait(probe2, 300), 0) << test::ReadFile(probe2.log);
-  EXPECT_TRUE(test::WaitUntil([&] { return LastProcessed(scan_log()) > processed_before; }, 30)) << scan_log();
+  EXPECT_TRUE(test::WaitUntil([&] { return LastProcessed(scan_log()) > processed_before; }, 30))
+      << scan_log();
   kill(scan.pid, SIGINT);  // the end of the scan: the model and the report
   ASSERT_EQ(test::Wait(scan, 600), 0) << scan_log();
 
   const nlohmann::json j = nlohmann::json::parse(test::ReadFile((out / "report.json").string()));
   EXPECT_EQ(j["probe_returns"], 1) << j.dump();
   EXPECT_EQ(j["bursts_malformed"], 0);
-  EXPECT_GT(j["bursts_processed"].get<long long>(), processed_before + 5) << "the scan did not resume";
+  EXPECT_GT(j["bursts_processed"].get<long long>(), processed_before + 5)
+      << "the scan did not resume";
   EXPECT_GT(j["fused"].get<long long>(), processed_before / 2);
   EXPECT_GT(PlyVertices(out / "scan.ply"), 1000);
   fs::remove_all(dir);

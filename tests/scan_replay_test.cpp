@@ -104,20 +104,25 @@ TEST(ScanReplay, LosslessReplayThroughTheHostGivesTheReportAndAPicture) {
   const std::string rec = FreshRecording("d3d_scan_replay_test", &dir);
   ASSERT_FALSE(HasFatalFailure());
   ASSERT_TRUE(fs::exists(rec));
-  const std::string common = kBin + "/d3d-scan --replay " + rec + " --reference typodont --sim-trajectory full-arch --sim-seed 1 --quiet --json";
-  const std::string run1 = common + " --headless --out " + (dir / "a").string() + " > " + (dir / "a.json").string() + " 2> " + (dir / "a.err").string();
+  const std::string common =
+      kBin + "/d3d-scan --replay " + rec +
+      " --reference typodont --sim-trajectory full-arch --sim-seed 1 --quiet --json";
+  const std::string run1 = common + " --headless --out " + (dir / "a").string() + " > " +
+                           (dir / "a.json").string() + " 2> " + (dir / "a.err").string();
   ASSERT_EQ(std::system(run1.c_str()), 0) << ReadAll(dir / "a.err");
   const nlohmann::json j = nlohmann::json::parse(ReadAll(dir / "a" / "report.json"));
-  for (const char* k : {"bursts", "fused", "rejected", "tracking_lost", "trueness_rms_um", "trueness_mean_um", "trueness_p95_um", "coverage_pct",
-                        "ate_mm", "ate_deg", "ms_per_burst", "bursts_received", "bursts_processed", "bursts_dropped", "bursts_per_s",
-                        "latency_ms_p50", "latency_ms_p95", "peak_rss_mb"})
+  for (const char* k : {"bursts", "fused", "rejected", "tracking_lost", "trueness_rms_um",
+                        "trueness_mean_um", "trueness_p95_um", "coverage_pct", "ate_mm", "ate_deg",
+                        "ms_per_burst", "bursts_received", "bursts_processed", "bursts_dropped",
+                        "bursts_per_s", "latency_ms_p50", "latency_ms_p95", "peak_rss_mb"})
     EXPECT_TRUE(j.contains(k)) << k;
   EXPECT_EQ(j["policy"], "lossless");
   EXPECT_EQ(j["bursts_received"], kCount + 1);
   EXPECT_EQ(j["bursts_malformed"], 1);
   EXPECT_EQ(j["bursts_processed"], kCount);
   EXPECT_EQ(j["bursts_dropped"], 0);
-  EXPECT_EQ(j["slow_down_cues"], 0) << "every burst kept: no reason to tell the dentist to slow down";
+  EXPECT_EQ(j["slow_down_cues"], 0)
+      << "every burst kept: no reason to tell the dentist to slow down";
   EXPECT_EQ(j["bursts"], kCount);
   EXPECT_GE(j["fused"].get<int>(), kCount - 2);
   EXPECT_LT(j["trueness_rms_um"].get<double>(), 20.0);
@@ -126,9 +131,12 @@ TEST(ScanReplay, LosslessReplayThroughTheHostGivesTheReportAndAPicture) {
   for (const auto& [name, s] : j["stages"].items()) EXPECT_EQ(s["order_violations"], 0) << name;
   // The memory timeline: one entry of each figure per RSS sample.
   ASSERT_TRUE(j.contains("memory_per_s") && j.contains("rss_mb_per_s"));
-  for (const char* k : {"views", "model_samples", "model_mib", "undo_journal_mib", "keyframes", "keyframes_mib", "tsdf_mib", "views_kept_memory_mib", "preview_points", "heap_in_use_mib"})
+  for (const char* k :
+       {"views", "model_samples", "model_mib", "undo_journal_mib", "keyframes", "keyframes_mib",
+        "tsdf_mib", "views_kept_memory_mib", "preview_points", "heap_in_use_mib"})
     EXPECT_EQ(j["memory_per_s"][k].size(), j["rss_mb_per_s"].size()) << k;
-  for (const char* f : {"scan.ply", "scan.stl", "poses.txt", "report.json"}) EXPECT_TRUE(fs::exists(dir / "a" / f)) << f;
+  for (const char* f : {"scan.ply", "scan.stl", "poses.txt", "report.json"})
+    EXPECT_TRUE(fs::exists(dir / "a" / f)) << f;
   // The kept frames went to an unnamed file in the --out folder: memory held their index only, and
   // the folder holds just the outputs.
   EXPECT_TRUE(j["views_spilled"].get<bool>());
@@ -137,18 +145,20 @@ TEST(ScanReplay, LosslessReplayThroughTheHostGivesTheReportAndAPicture) {
   EXPECT_LT(j["views_kept_memory_mib"].get<double>(), 0.01);
   for (const auto& e : fs::directory_iterator(dir / "a")) {
     const std::string name = e.path().filename().string();
-    EXPECT_TRUE(name == "scan.ply" || name == "scan.stl" || name == "poses.txt" || name == "report.json" || name == "preview.png" ||
-                name == "heatmap.png")
+    EXPECT_TRUE(name == "scan.ply" || name == "scan.stl" || name == "poses.txt" ||
+                name == "report.json" || name == "preview.png" || name == "heatmap.png")
         << "left in --out: " << name;
   }
 
   // The second run: same bytes out (lossless is deterministic), in a window under Xvfb if possible,
   // with the kept frames in memory (the mesh does not depend on where they were kept).
   const bool xvfb = HaveXvfbRun();
-  const std::string run2 = (xvfb ? "xvfb-run -a " + common : common + " --headless") + " --spill-views memory --out " + (dir / "b").string() +
-                           " > " + (dir / "b.json").string() + " 2> " + (dir / "b.err").string();
+  const std::string run2 = (xvfb ? "xvfb-run -a " + common : common + " --headless") +
+                           " --spill-views memory --out " + (dir / "b").string() + " > " +
+                           (dir / "b.json").string() + " 2> " + (dir / "b.err").string();
   ASSERT_EQ(std::system(run2.c_str()), 0) << ReadAll(dir / "b.err");
-  EXPECT_EQ(ReadAll(dir / "a" / "scan.ply"), ReadAll(dir / "b" / "scan.ply")) << "lossless replay is not bit-identical";
+  EXPECT_EQ(ReadAll(dir / "a" / "scan.ply"), ReadAll(dir / "b" / "scan.ply"))
+      << "lossless replay is not bit-identical";
   EXPECT_EQ(ReadAll(dir / "a" / "poses.txt"), ReadAll(dir / "b" / "poses.txt"));
   const nlohmann::json j2 = nlohmann::json::parse(ReadAll(dir / "b" / "report.json"));
   EXPECT_FALSE(j2["views_spilled"].get<bool>());
@@ -161,19 +171,21 @@ TEST(ScanReplay, LosslessReplayThroughTheHostGivesTheReportAndAPicture) {
   for (const char* run : {"a", "b"}) {
     const cv::Mat png = cv::imread((dir / run / "preview.png").string(), cv::IMREAD_GRAYSCALE);
     if (png.empty()) {
-      ADD_FAILURE() << run << ": no preview.png (" << ReadAll(dir / (std::string(run) + ".err")) << ")";
+      ADD_FAILURE() << run << ": no preview.png (" << ReadAll(dir / (std::string(run) + ".err"))
+                    << ")";
       continue;
     }
     const cv::Mat middle = png(cv::Rect(png.cols / 4, png.rows / 4, png.cols / 2, png.rows / 2));
-    const double lit = static_cast<double>(cv::countNonZero(middle > 90)) / static_cast<double>(middle.total());
+    const double lit =
+        static_cast<double>(cv::countNonZero(middle > 90)) / static_cast<double>(middle.total());
     EXPECT_GT(lit, 0.03) << run << ": the preview looks empty";
   }
   fs::remove_all(dir);
 }
 
-// A damaged recording (issue 55): the header of its second chunk flipped, so that the 7 bursts in it
-// (306..312) are lost. The replay still scans every intact burst and saves the scan, but warns on
-// stderr naming the file and the loss, counts the 7 lost bursts in report.json and exits 3.
+// A damaged recording (issue 55): the header of its second chunk flipped, so that the 7 bursts in
+// it (306..312) are lost. The replay still scans every intact burst and saves the scan, but warns
+// on stderr naming the file and the loss, counts the 7 lost bursts in report.json and exits 3.
 TEST(ScanReplay, ADamagedRecordingIsScannedWarnedAboutAndExitsThree) {
   fs::path dir;
   const std::string rec = FreshRecording("d3d_scan_replay_damaged_test", &dir);
@@ -182,13 +194,15 @@ TEST(ScanReplay, ADamagedRecordingIsScannedWarnedAboutAndExitsThree) {
   {
     std::unique_ptr<RecordingReader> r;
     ASSERT_TRUE(RecordingReader::Open(MemorySource(bytes), &r).ok());
-    ASSERT_EQ(r->chunks().size(), 3u) << "7 messages a chunk at 8 MiB (6 bursts and the malformed one, 7 bursts, 3 bursts)";
+    ASSERT_EQ(r->chunks().size(), 3u)
+        << "7 messages a chunk at 8 MiB (6 bursts and the malformed one, 7 bursts, 3 bursts)";
     EXPECT_EQ(r->chunks()[1].message_count, 7u);
     bytes[r->chunks()[1].offset + 5] ^= 0x20;
   }
   const fs::path damaged = dir / "damaged.d3drec";
   std::ofstream(damaged, std::ios::binary) << bytes;
-  const std::string run = kBin + "/d3d-scan --replay " + damaged.string() + " --quiet --no-preview --out " + (dir / "d").string() + " > " +
+  const std::string run = kBin + "/d3d-scan --replay " + damaged.string() +
+                          " --quiet --no-preview --out " + (dir / "d").string() + " > " +
                           (dir / "d.out").string() + " 2> " + (dir / "d.err").string();
   const int status = std::system(run.c_str());
   const std::string err = ReadAll(dir / "d.err");
@@ -196,11 +210,13 @@ TEST(ScanReplay, ADamagedRecordingIsScannedWarnedAboutAndExitsThree) {
   EXPECT_EQ(WEXITSTATUS(status), 3) << err;
   EXPECT_NE(err.find("warning: " + damaged.string() + " is damaged"), std::string::npos) << err;
   EXPECT_NE(err.find("bursts lost: 7 "), std::string::npos) << err;
-  for (const char* f : {"scan.ply", "scan.stl", "poses.txt", "report.json"}) EXPECT_TRUE(fs::exists(dir / "d" / f)) << f;
+  for (const char* f : {"scan.ply", "scan.stl", "poses.txt", "report.json"})
+    EXPECT_TRUE(fs::exists(dir / "d" / f)) << f;
   const nlohmann::json j = nlohmann::json::parse(ReadAll(dir / "d" / "report.json"));
   EXPECT_EQ(j["bursts_lost_in_recording"], 7);
   EXPECT_EQ(j["bursts_lost_in_recording_max"], 7);
-  EXPECT_EQ(j["bursts_missing_upstream"], 0) << "the jump lies across the lost chunk, not in intact data";
+  EXPECT_EQ(j["bursts_missing_upstream"], 0)
+      << "the jump lies across the lost chunk, not in intact data";
   EXPECT_EQ(j["recording_damaged"], true);
   EXPECT_EQ(j["recording_lost"], "1 chunk, 7 messages");
   EXPECT_EQ(j["bursts_received"], kCount + 1 - 7);
@@ -214,8 +230,10 @@ TEST(ScanReplay, AScriptedUndoTakesTheLastViewsOut) {
   const std::string rec = FreshRecording("d3d_scan_replay_undo_test", &dir);
   ASSERT_FALSE(HasFatalFailure());
   const std::string run = kBin + "/d3d-scan --replay " + rec +
-                          " --reference typodont --sim-trajectory full-arch --sim-seed 1 --quiet --no-preview --undo-after 12 --undo-seconds 0.1 --out " +
-                          (dir / "u").string() + " > " + (dir / "u.out").string() + " 2> " + (dir / "u.err").string();
+                          " --reference typodont --sim-trajectory full-arch --sim-seed 1 --quiet "
+                          "--no-preview --undo-after 12 --undo-seconds 0.1 --out " +
+                          (dir / "u").string() + " > " + (dir / "u.out").string() + " 2> " +
+                          (dir / "u.err").string();
   ASSERT_EQ(std::system(run.c_str()), 0) << ReadAll(dir / "u.err");
   const nlohmann::json j = nlohmann::json::parse(ReadAll(dir / "u" / "report.json"));
   EXPECT_EQ(j["bursts_processed"], kCount);  // the undo request is not a burst
@@ -240,9 +258,11 @@ TEST(ScanReplay, ReplayViewsTakesOnlyTheListedBursts) {
   const std::string rec = FreshRecording("d3d_scan_replay_views_test", &dir);
   ASSERT_FALSE(HasFatalFailure());
   const std::string common = kBin + "/d3d-scan --replay " + rec + " --quiet --no-preview";
-  const std::string full = common + " --out " + (dir / "a").string() + " > " + (dir / "a.out").string() + " 2> " + (dir / "a.err").string();
+  const std::string full = common + " --out " + (dir / "a").string() + " > " +
+                           (dir / "a.out").string() + " 2> " + (dir / "a.err").string();
   ASSERT_EQ(std::system(full.c_str()), 0) << ReadAll(dir / "a.err");
-  std::vector<std::string> stamps;  // the timestamps of every other pose, as the TUM file gives them
+  std::vector<std::string>
+      stamps;  // the timestamps of every other pose, as the TUM file gives them
   {
     std::ifstream in(dir / "a" / "poses.txt");
     std::ofstream out(dir / "views.txt");
@@ -255,13 +275,15 @@ TEST(ScanReplay, ReplayViewsTakesOnlyTheListedBursts) {
     }
   }
   ASSERT_EQ(stamps.size(), static_cast<size_t>(kCount / 2));
-  const std::string views = common + " --replay-views " + (dir / "views.txt").string() + " --out " + (dir / "b").string() + " > " +
-                            (dir / "b.out").string() + " 2> " + (dir / "b.err").string();
+  const std::string views = common + " --replay-views " + (dir / "views.txt").string() + " --out " +
+                            (dir / "b").string() + " > " + (dir / "b.out").string() + " 2> " +
+                            (dir / "b.err").string();
   ASSERT_EQ(std::system(views.c_str()), 0) << ReadAll(dir / "b.err");
   const nlohmann::json j = nlohmann::json::parse(ReadAll(dir / "b" / "report.json"));
   EXPECT_EQ(j["bursts_processed"], kCount / 2);
   EXPECT_EQ(j["bursts_skipped"], kCount / 2);
-  EXPECT_EQ(j["bursts_received"], kCount / 2 + 1);  // and the malformed one, which is never selected
+  EXPECT_EQ(j["bursts_received"],
+            kCount / 2 + 1);  // and the malformed one, which is never selected
   EXPECT_EQ(j["bursts_dropped"], 0);
   EXPECT_EQ(j["step"], 6.0);
   std::vector<std::string> got;
@@ -271,10 +293,11 @@ TEST(ScanReplay, ReplayViewsTakesOnlyTheListedBursts) {
   EXPECT_EQ(got, stamps);
   // A file that is no trajectory is refused before anything runs.
   std::ofstream(dir / "bad.txt") << "not a pose\n";
-  const std::string bad = common + " --replay-views " + (dir / "bad.txt").string() + " --out " + (dir / "c").string() + " 2> " +
-                          (dir / "c.err").string();
+  const std::string bad = common + " --replay-views " + (dir / "bad.txt").string() + " --out " +
+                          (dir / "c").string() + " 2> " + (dir / "c.err").string();
   EXPECT_NE(std::system(bad.c_str()), 0);
-  EXPECT_NE(ReadAll(dir / "c.err").find("--replay-views"), std::string::npos) << ReadAll(dir / "c.err");
+  EXPECT_NE(ReadAll(dir / "c.err").find("--replay-views"), std::string::npos)
+      << ReadAll(dir / "c.err");
   fs::remove_all(dir);
 }
 

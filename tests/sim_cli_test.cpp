@@ -18,8 +18,8 @@ const std::string kBin = D3D_BIN_DIR;
 // Runs d3d-sim for one burst into dir; returns its exit status.
 int RunSim(const fs::path& dir, const std::string& truth) {
   fs::remove_all(dir);
-  const std::string cmd = kBin + "/d3d-sim --frames 1 --index 200 --threads 2 --quiet --truth " + truth + " --out " +
-                          dir.string() + " > " + dir.string() + ".log 2>&1";
+  const std::string cmd = kBin + "/d3d-sim --frames 1 --index 200 --threads 2 --quiet --truth " +
+                          truth + " --out " + dir.string() + " > " + dir.string() + ".log 2>&1";
   return std::system(cmd.c_str());
 }
 
@@ -49,7 +49,8 @@ TEST(SimCli, ANegativeFrameCountIsRefused) {
   const fs::path dir = fs::temp_directory_path() / "d3d_sim_cli_negative";
   fs::remove_all(dir);
   for (const std::string bad : {"--frames -1", "--index -5"}) {
-    const std::string cmd = kBin + "/d3d-sim " + bad + " --quiet --out " + dir.string() + " > " + dir.string() + ".log 2>&1";
+    const std::string cmd = kBin + "/d3d-sim " + bad + " --quiet --out " + dir.string() + " > " +
+                            dir.string() + ".log 2>&1";
     EXPECT_NE(std::system(cmd.c_str()), 0) << bad;
     EXPECT_FALSE(fs::exists(dir / "bursts")) << bad;
   }

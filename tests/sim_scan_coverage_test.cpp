@@ -39,7 +39,8 @@ ScanCoverage Measure(const std::string& model) {
   int64_t in_dof_pixels = 0, surface_pixels = 0;
   FrameTruth t;
   for (int64_t i = 0; i < session->NumBursts(); i += 3) {
-    session->probe().RenderTruth(session->trajectory().WorldFromProbe(session->BurstStartNs(i)), &t);
+    session->probe().RenderTruth(session->trajectory().WorldFromProbe(session->BurstStartNs(i)),
+                                 &t);
     int surface = 0, inside = 0, tooth = 0, tooth_inside = 0;
     for (int r = 0; r < t.depth_mm.rows; ++r)
       for (int col = 0; col < t.depth_mm.cols; ++col) {
@@ -57,7 +58,8 @@ ScanCoverage Measure(const std::string& model) {
         if (v == 2 && in && f >= 0) seen[static_cast<size_t>(f)] = 1;
       }
     ++c.bursts;
-    c.bursts_in_dof += tooth >= 0.05 * static_cast<double>(t.depth_mm.total()) && tooth_inside >= 0.8 * tooth;
+    c.bursts_in_dof +=
+        tooth >= 0.05 * static_cast<double>(t.depth_mm.total()) && tooth_inside >= 0.8 * tooth;
     in_dof_pixels += inside;
     surface_pixels += surface;
   }
@@ -68,12 +70,15 @@ ScanCoverage Measure(const std::string& model) {
     tooth_area += a;
     seen_area += seen[f] ? a : 0.0;
   }
-  c.pixel_in_dof_share = static_cast<double>(in_dof_pixels) / static_cast<double>(std::max<int64_t>(surface_pixels, 1));
+  c.pixel_in_dof_share = static_cast<double>(in_dof_pixels) /
+                         static_cast<double>(std::max<int64_t>(surface_pixels, 1));
   c.tooth_coverage = tooth_area > 0 ? seen_area / tooth_area : 0.0;
-  std::printf("[ scan     ] %s: %d bursts checked, %.1f %% within the depth of field, %.1f %% of surface pixels "
-              "inside it, tooth surface covered %.2f %%\n",
-              model.c_str(), c.bursts, 100.0 * c.bursts_in_dof / std::max(c.bursts, 1), 100.0 * c.pixel_in_dof_share,
-              100.0 * c.tooth_coverage);
+  std::printf(
+      "[ scan     ] %s: %d bursts checked, %.1f %% within the depth of field, %.1f %% of surface "
+      "pixels "
+      "inside it, tooth surface covered %.2f %%\n",
+      model.c_str(), c.bursts, 100.0 * c.bursts_in_dof / std::max(c.bursts, 1),
+      100.0 * c.pixel_in_dof_share, 100.0 * c.tooth_coverage);
   return c;
 }
 
@@ -87,7 +92,8 @@ TEST(SimScanCoverage, TypodontFullArch) { ExpectGoodScan(Measure("typodont")); }
 
 TEST(SimScanCoverage, RealUpperArchFullArch) {
   const std::string path = std::string(D3D_SHARED_DATA_DIR) + "/dental/upper_arch_0189MCMV.ply";
-  if (!std::filesystem::exists(path)) GTEST_SKIP() << "../shared/data absent: " << path << " not found";
+  if (!std::filesystem::exists(path))
+    GTEST_SKIP() << "../shared/data absent: " << path << " not found";
   ExpectGoodScan(Measure(path));
 }
 

@@ -18,7 +18,8 @@
 namespace d3d {
 
 void ViewerOptions::Check() const {
-  if (width < 64 || height < 64 || width > 8192 || height > 8192) throw std::invalid_argument("ViewerOptions: size out of 64..8192 px");
+  if (width < 64 || height < 64 || width > 8192 || height > 8192)
+    throw std::invalid_argument("ViewerOptions: size out of 64..8192 px");
   if (!(point_size_px > 0)) throw std::invalid_argument("ViewerOptions: point_size_px must be > 0");
 }
 
@@ -26,16 +27,24 @@ namespace {
 
 cv::Scalar CueColourBgr(PreviewCue c) {
   switch (c) {
-    case PreviewCue::kTracking: return {60, 190, 60};
-    case PreviewCue::kLost: return {40, 40, 220};
-    case PreviewCue::kRelocalised: return {0, 200, 230};
-    case PreviewCue::kProbeLost: return {200, 40, 200};
-    case PreviewCue::kPaused: return {200, 120, 40};
-    case PreviewCue::kNewSegment: return {230, 160, 0};  // blue: scanning on, apart from the model
-    case PreviewCue::kSlowDown: return {0, 200, 255};     // amber: tracking, the host falls behind the hand
+    case PreviewCue::kTracking:
+      return {60, 190, 60};
+    case PreviewCue::kLost:
+      return {40, 40, 220};
+    case PreviewCue::kRelocalised:
+      return {0, 200, 230};
+    case PreviewCue::kProbeLost:
+      return {200, 40, 200};
+    case PreviewCue::kPaused:
+      return {200, 120, 40};
+    case PreviewCue::kNewSegment:
+      return {230, 160, 0};  // blue: scanning on, apart from the model
+    case PreviewCue::kSlowDown:
+      return {0, 200, 255};  // amber: tracking, the host falls behind the hand
     case PreviewCue::kLostSlowDown:
       return {40, 40, 220};  // as lost: the host fell so far behind that the track failed
-    case PreviewCue::kWaiting: return {128, 128, 128};
+    case PreviewCue::kWaiting:
+      return {128, 128, 128};
   }
   return {255, 255, 255};
 }
@@ -50,15 +59,22 @@ struct FboFns {
   PFNGLFRAMEBUFFERRENDERBUFFERPROC FramebufferRenderbuffer = nullptr;
   PFNGLCHECKFRAMEBUFFERSTATUSPROC CheckFramebufferStatus = nullptr;
   bool Load() {
-    GenFramebuffers = reinterpret_cast<PFNGLGENFRAMEBUFFERSPROC>(eglGetProcAddress("glGenFramebuffers"));
-    BindFramebuffer = reinterpret_cast<PFNGLBINDFRAMEBUFFERPROC>(eglGetProcAddress("glBindFramebuffer"));
-    GenRenderbuffers = reinterpret_cast<PFNGLGENRENDERBUFFERSPROC>(eglGetProcAddress("glGenRenderbuffers"));
-    BindRenderbuffer = reinterpret_cast<PFNGLBINDRENDERBUFFERPROC>(eglGetProcAddress("glBindRenderbuffer"));
-    RenderbufferStorage = reinterpret_cast<PFNGLRENDERBUFFERSTORAGEPROC>(eglGetProcAddress("glRenderbufferStorage"));
-    FramebufferRenderbuffer = reinterpret_cast<PFNGLFRAMEBUFFERRENDERBUFFERPROC>(eglGetProcAddress("glFramebufferRenderbuffer"));
-    CheckFramebufferStatus = reinterpret_cast<PFNGLCHECKFRAMEBUFFERSTATUSPROC>(eglGetProcAddress("glCheckFramebufferStatus"));
-    return GenFramebuffers && BindFramebuffer && GenRenderbuffers && BindRenderbuffer && RenderbufferStorage &&
-           FramebufferRenderbuffer && CheckFramebufferStatus;
+    GenFramebuffers =
+        reinterpret_cast<PFNGLGENFRAMEBUFFERSPROC>(eglGetProcAddress("glGenFramebuffers"));
+    BindFramebuffer =
+        reinterpret_cast<PFNGLBINDFRAMEBUFFERPROC>(eglGetProcAddress("glBindFramebuffer"));
+    GenRenderbuffers =
+        reinterpret_cast<PFNGLGENRENDERBUFFERSPROC>(eglGetProcAddress("glGenRenderbuffers"));
+    BindRenderbuffer =
+        reinterpret_cast<PFNGLBINDRENDERBUFFERPROC>(eglGetProcAddress("glBindRenderbuffer"));
+    RenderbufferStorage =
+        reinterpret_cast<PFNGLRENDERBUFFERSTORAGEPROC>(eglGetProcAddress("glRenderbufferStorage"));
+    FramebufferRenderbuffer = reinterpret_cast<PFNGLFRAMEBUFFERRENDERBUFFERPROC>(
+        eglGetProcAddress("glFramebufferRenderbuffer"));
+    CheckFramebufferStatus = reinterpret_cast<PFNGLCHECKFRAMEBUFFERSTATUSPROC>(
+        eglGetProcAddress("glCheckFramebufferStatus"));
+    return GenFramebuffers && BindFramebuffer && GenRenderbuffers && BindRenderbuffer &&
+           RenderbufferStorage && FramebufferRenderbuffer && CheckFramebufferStatus;
   }
 };
 
@@ -121,7 +137,9 @@ struct Viewer::Impl {
   }
 
   Status CreateWindow() {
-    if (!glfwInit()) return Status(StatusCode::kUnavailable, "GLFW cannot start (no display? run under xvfb-run -a, or use --headless)");
+    if (!glfwInit())
+      return Status(StatusCode::kUnavailable,
+                    "GLFW cannot start (no display? run under xvfb-run -a, or use --headless)");
     glfwWindowHint(GLFW_SAMPLES, 0);
     window = glfwCreateWindow(o.width, o.height, o.title.c_str(), nullptr, nullptr);
     if (window == nullptr) {
@@ -134,12 +152,18 @@ struct Viewer::Impl {
     glfwSetKeyCallback(window, [](GLFWwindow* w, int key, int, int action, int) {
       auto* self = static_cast<Impl*>(glfwGetWindowUserPointer(w));
       if (action != GLFW_PRESS) return;
-      if (key == GLFW_KEY_SPACE) self->actions.push_back(ViewerAction::kPause);
-      else if (key == GLFW_KEY_R) self->actions.push_back(ViewerAction::kReset);
-      else if (key == GLFW_KEY_U) self->actions.push_back(ViewerAction::kUndo);
-      else if (key == GLFW_KEY_S) self->actions.push_back(ViewerAction::kSave);
-      else if (key == GLFW_KEY_Q || key == GLFW_KEY_ESCAPE) self->actions.push_back(ViewerAction::kQuit);
-      else if (key == GLFW_KEY_F) self->auto_fit = true;
+      if (key == GLFW_KEY_SPACE)
+        self->actions.push_back(ViewerAction::kPause);
+      else if (key == GLFW_KEY_R)
+        self->actions.push_back(ViewerAction::kReset);
+      else if (key == GLFW_KEY_U)
+        self->actions.push_back(ViewerAction::kUndo);
+      else if (key == GLFW_KEY_S)
+        self->actions.push_back(ViewerAction::kSave);
+      else if (key == GLFW_KEY_Q || key == GLFW_KEY_ESCAPE)
+        self->actions.push_back(ViewerAction::kQuit);
+      else if (key == GLFW_KEY_F)
+        self->auto_fit = true;
     });
     glfwSetMouseButtonCallback(window, [](GLFWwindow* w, int button, int action, int) {
       auto* self = static_cast<Impl*>(glfwGetWindowUserPointer(w));
@@ -152,36 +176,55 @@ struct Viewer::Impl {
       auto* self = static_cast<Impl*>(glfwGetWindowUserPointer(w));
       if (!self->dragging) return;
       self->yaw += static_cast<float>(x - self->last_x) * 0.008f;
-      self->pitch = std::clamp(self->pitch + static_cast<float>(y - self->last_y) * 0.008f, -1.5f, 1.5f);
+      self->pitch =
+          std::clamp(self->pitch + static_cast<float>(y - self->last_y) * 0.008f, -1.5f, 1.5f);
       self->last_x = x;
       self->last_y = y;
       self->auto_fit = false;
     });
-    glfwSetWindowRefreshCallback(window, [](GLFWwindow* w) { static_cast<Impl*>(glfwGetWindowUserPointer(w))->exposed = true; });
+    glfwSetWindowRefreshCallback(window, [](GLFWwindow* w) {
+      static_cast<Impl*>(glfwGetWindowUserPointer(w))->exposed = true;
+    });
     glfwSetScrollCallback(window, [](GLFWwindow* w, double, double dy) {
       auto* self = static_cast<Impl*>(glfwGetWindowUserPointer(w));
-      self->distance_mm = std::clamp(self->distance_mm * static_cast<float>(std::pow(0.9, dy)), 2.0f, 2000.0f);
+      self->distance_mm =
+          std::clamp(self->distance_mm * static_cast<float>(std::pow(0.9, dy)), 2.0f, 2000.0f);
       self->auto_fit = false;
     });
     return Status::Ok();
   }
 
   Status CreateOffscreen() {
-    auto get_platform_display = reinterpret_cast<PFNEGLGETPLATFORMDISPLAYEXTPROC>(eglGetProcAddress("eglGetPlatformDisplayEXT"));
-    if (get_platform_display == nullptr) return Status(StatusCode::kUnavailable, "EGL: no eglGetPlatformDisplayEXT");
+    auto get_platform_display = reinterpret_cast<PFNEGLGETPLATFORMDISPLAYEXTPROC>(
+        eglGetProcAddress("eglGetPlatformDisplayEXT"));
+    if (get_platform_display == nullptr)
+      return Status(StatusCode::kUnavailable, "EGL: no eglGetPlatformDisplayEXT");
     egl_display = get_platform_display(EGL_PLATFORM_SURFACELESS_MESA, EGL_DEFAULT_DISPLAY, nullptr);
     EGLint major = 0, minor = 0;
     if (egl_display == EGL_NO_DISPLAY || !eglInitialize(egl_display, &major, &minor)) {
       egl_display = EGL_NO_DISPLAY;
       return Status(StatusCode::kUnavailable, "EGL: Mesa's surfaceless platform is not available");
     }
-    const EGLint attribs[] = {EGL_SURFACE_TYPE, 0, EGL_RENDERABLE_TYPE, EGL_OPENGL_BIT, EGL_RED_SIZE, 8, EGL_GREEN_SIZE, 8, EGL_BLUE_SIZE, 8, EGL_NONE};
+    const EGLint attribs[] = {EGL_SURFACE_TYPE,
+                              0,
+                              EGL_RENDERABLE_TYPE,
+                              EGL_OPENGL_BIT,
+                              EGL_RED_SIZE,
+                              8,
+                              EGL_GREEN_SIZE,
+                              8,
+                              EGL_BLUE_SIZE,
+                              8,
+                              EGL_NONE};
     EGLConfig config = nullptr;
     EGLint n = 0;
-    if (!eglChooseConfig(egl_display, attribs, &config, 1, &n) || n < 1) return Status(StatusCode::kUnavailable, "EGL: no OpenGL config");
-    if (!eglBindAPI(EGL_OPENGL_API)) return Status(StatusCode::kUnavailable, "EGL: no desktop OpenGL");
+    if (!eglChooseConfig(egl_display, attribs, &config, 1, &n) || n < 1)
+      return Status(StatusCode::kUnavailable, "EGL: no OpenGL config");
+    if (!eglBindAPI(EGL_OPENGL_API))
+      return Status(StatusCode::kUnavailable, "EGL: no desktop OpenGL");
     egl_context = eglCreateContext(egl_display, config, EGL_NO_CONTEXT, nullptr);
-    if (egl_context == EGL_NO_CONTEXT) return Status(StatusCode::kUnavailable, "EGL: cannot create an OpenGL context");
+    if (egl_context == EGL_NO_CONTEXT)
+      return Status(StatusCode::kUnavailable, "EGL: cannot create an OpenGL context");
     if (!eglMakeCurrent(egl_display, EGL_NO_SURFACE, EGL_NO_SURFACE, egl_context))
       return Status(StatusCode::kUnavailable, "EGL: surfaceless context cannot be made current");
     FboFns f;
@@ -196,7 +239,8 @@ struct Viewer::Impl {
     f.BindRenderbuffer(GL_RENDERBUFFER, depth_rb);
     f.RenderbufferStorage(GL_RENDERBUFFER, GL_DEPTH_COMPONENT24, o.width, o.height);
     f.FramebufferRenderbuffer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, depth_rb);
-    if (f.CheckFramebufferStatus(GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE) return Status(StatusCode::kUnavailable, "OpenGL: framebuffer incomplete");
+    if (f.CheckFramebufferStatus(GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE)
+      return Status(StatusCode::kUnavailable, "OpenGL: framebuffer incomplete");
     width = o.width;
     height = o.height;
     return Status::Ok();
@@ -205,7 +249,8 @@ struct Viewer::Impl {
   void Fit(const PreviewSnapshot& s) {
     if (s.points.empty() && s.segment_points.empty()) {
       if (s.have_pose) {
-        target = (s.model_from_cam * Eigen::Vector4f(0, 0, 0.5f * (s.near_mm + s.far_mm), 1)).head<3>();
+        target =
+            (s.model_from_cam * Eigen::Vector4f(0, 0, 0.5f * (s.near_mm + s.far_mm), 1)).head<3>();
         distance_mm = 60;
       }
       return;
@@ -223,7 +268,9 @@ struct Viewer::Impl {
 
   // model_from_eye of the orbit camera (eye looks along +z, y down: the model's camera convention).
   Eigen::Matrix4f ModelFromEye() const {
-    const Eigen::Matrix3f r = (Eigen::AngleAxisf(yaw, Eigen::Vector3f::UnitY()) * Eigen::AngleAxisf(-pitch, Eigen::Vector3f::UnitX())).toRotationMatrix();
+    const Eigen::Matrix3f r = (Eigen::AngleAxisf(yaw, Eigen::Vector3f::UnitY()) *
+                               Eigen::AngleAxisf(-pitch, Eigen::Vector3f::UnitX()))
+                                  .toRotationMatrix();
     Eigen::Matrix4f m = Eigen::Matrix4f::Identity();
     m.topLeftCorner<3, 3>() = r;
     m.topRightCorner<3, 1>() = target - r * Eigen::Vector3f(0, 0, distance_mm);
@@ -262,44 +309,61 @@ struct Viewer::Impl {
   bool UpdateHud(const PreviewSnapshot* s, const PreviewStatus& st, double fps) {
     const PreviewCue cue = ShownCue(s, st);
     char l1[160], l2[160], l3[160];
-    std::snprintf(l1, sizeof l1, "bursts %llu received  %llu processed  %llu fused  %llu dropped  %llu refused",
-                  static_cast<unsigned long long>(st.bursts_received), static_cast<unsigned long long>(st.bursts_processed),
-                  static_cast<unsigned long long>(st.bursts_fused), static_cast<unsigned long long>(st.bursts_dropped),
+    std::snprintf(l1, sizeof l1,
+                  "bursts %llu received  %llu processed  %llu fused  %llu dropped  %llu refused",
+                  static_cast<unsigned long long>(st.bursts_received),
+                  static_cast<unsigned long long>(st.bursts_processed),
+                  static_cast<unsigned long long>(st.bursts_fused),
+                  static_cast<unsigned long long>(st.bursts_dropped),
                   static_cast<unsigned long long>(st.bursts_rejected));
-    std::snprintf(l2, sizeof l2, "%.1f bursts/s   latency p50 %.0f ms  p95 %.0f ms   preview %.0f fps", st.bursts_per_s, st.latency_ms_p50,
-                  st.latency_ms_p95, fps);
-    std::snprintf(l3, sizeof l3, "coverage %.0f mm2   %zu points", s ? s->model_area_mm2 : 0.0, s ? s->points.size() : size_t{0});
+    std::snprintf(l2, sizeof l2,
+                  "%.1f bursts/s   latency p50 %.0f ms  p95 %.0f ms   preview %.0f fps",
+                  st.bursts_per_s, st.latency_ms_p50, st.latency_ms_p95, fps);
+    std::snprintf(l3, sizeof l3, "coverage %.0f mm2   %zu points", s ? s->model_area_mm2 : 0.0,
+                  s ? s->points.size() : size_t{0});
     std::string text = PreviewCueText(cue);
     for (const char* l : {l1, l2, l3}) text.append("\n").append(l);
     text.append("\n").append(st.message);
-    const int64_t now_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now().time_since_epoch()).count();
+    const int64_t now_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(
+                               std::chrono::steady_clock::now().time_since_epoch())
+                               .count();
     if (!hud_refresh.Due(cue, st.message, text, now_ns, hud_dirty)) return false;
     hud_dirty = false;
     // The texture holds the panel's rows (kHudPanelRows) and, in a window, the keys line below
     // them (kHudKeysRows): only those strips are drawn, not a quad over the whole frame
-    // (llvmpipe blends every pixel of a quad, and the texture is uploaded whenever the text changes).
+    // (llvmpipe blends every pixel of a quad, and the texture is uploaded whenever the text
+    // changes).
     const int keys_rows = headless_mode() ? 0 : kHudKeysRows;
     hud.create(kHudPanelRows + keys_rows, width, CV_8UC4);
     hud.setTo(cv::Scalar(0, 0, 0, 0));
     const cv::Scalar colour = CueColourBgr(cue);
-    cv::rectangle(hud, cv::Rect(10, 10, 250, 34), cv::Scalar(colour[0], colour[1], colour[2], 255), cv::FILLED);
-    cv::putText(hud, PreviewCueText(cue), {18, 34}, cv::FONT_HERSHEY_SIMPLEX, 0.65, cv::Scalar(255, 255, 255, 255), 2, cv::LINE_AA);
+    cv::rectangle(hud, cv::Rect(10, 10, 250, 34), cv::Scalar(colour[0], colour[1], colour[2], 255),
+                  cv::FILLED);
+    cv::putText(hud, PreviewCueText(cue), {18, 34}, cv::FONT_HERSHEY_SIMPLEX, 0.65,
+                cv::Scalar(255, 255, 255, 255), 2, cv::LINE_AA);
     int y = 66;
-    for (const char* l : {static_cast<const char*>(l1), static_cast<const char*>(l2), static_cast<const char*>(l3), st.message.c_str()}) {
-      cv::putText(hud, l, {12, y}, cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0, 255), 3, cv::LINE_AA);
-      cv::putText(hud, l, {12, y}, cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(255, 255, 255, 255), 1, cv::LINE_AA);
+    for (const char* l : {static_cast<const char*>(l1), static_cast<const char*>(l2),
+                          static_cast<const char*>(l3), st.message.c_str()}) {
+      cv::putText(hud, l, {12, y}, cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0, 255), 3,
+                  cv::LINE_AA);
+      cv::putText(hud, l, {12, y}, cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(255, 255, 255, 255), 1,
+                  cv::LINE_AA);
       y += 22;
     }
     if (keys_rows > 0) {
-      const char* keys = "drag: orbit   wheel: zoom   f: fit   space: pause   r: reset   u: undo   s: save   q: quit";
-      cv::putText(hud, keys, {12, kHudPanelRows + keys_rows - 10}, cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(200, 200, 200, 255), 1, cv::LINE_AA);
+      const char* keys =
+          "drag: orbit   wheel: zoom   f: fit   space: pause   r: reset   u: undo   s: save   q: "
+          "quit";
+      cv::putText(hud, keys, {12, kHudPanelRows + keys_rows - 10}, cv::FONT_HERSHEY_SIMPLEX, 0.45,
+                  cv::Scalar(200, 200, 200, 255), 1, cv::LINE_AA);
     }
     if (hud_tex == 0) glGenTextures(1, &hud_tex);
     glBindTexture(GL_TEXTURE_2D, hud_tex);
     glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
     glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
     glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
-    glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA8, hud.cols, hud.rows, 0, GL_BGRA, GL_UNSIGNED_BYTE, hud.data);
+    glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA8, hud.cols, hud.rows, 0, GL_BGRA, GL_UNSIGNED_BYTE,
+                 hud.data);
     return true;
   }
   bool headless_mode() const { return window == nullptr; }
@@ -329,7 +393,8 @@ struct Viewer::Impl {
       // Model points, shaded by a headlight: |n · view direction|.
       const Eigen::Vector3f dir = model_from_eye.block<3, 1>(0, 2);
       // RGB shaded by floor + (1 − floor) · |n · dir|.
-      const auto shade = [&](const std::vector<Eigen::Vector3f>& normals, const float rgb[3], float floor, std::vector<uint8_t>* out) {
+      const auto shade = [&](const std::vector<Eigen::Vector3f>& normals, const float rgb[3],
+                             float floor, std::vector<uint8_t>* out) {
         out->resize(normals.size() * 3);
         for (size_t i = 0; i < normals.size(); ++i) {
           const float f = floor + (1 - floor) * std::abs(normals[i].dot(dir));
@@ -349,7 +414,8 @@ struct Viewer::Impl {
       // The segment apart from the model, in the NEW SEGMENT colour, shaded alike.
       if (!s->segment_points.empty()) {
         const cv::Scalar c = CueColourBgr(PreviewCue::kNewSegment);
-        const float blue[3] = {static_cast<float>(c[2]), static_cast<float>(c[1]), static_cast<float>(c[0])};
+        const float blue[3] = {static_cast<float>(c[2]), static_cast<float>(c[1]),
+                               static_cast<float>(c[0])};
         shade(s->segment_normals, blue, 0.35f, &segment_colours);
         glVertexPointer(3, GL_FLOAT, sizeof(Eigen::Vector3f), s->segment_points.data());
         glColorPointer(3, GL_UNSIGNED_BYTE, 0, segment_colours.data());
@@ -358,18 +424,22 @@ struct Viewer::Impl {
       glDisableClientState(GL_COLOR_ARRAY);
       // The current view, highlighted.
       if (!s->view_points.empty()) {
-        if (s->view_accepted) glColor3ub(255, 150, 30);
-        else glColor3ub(230, 40, 40);
+        if (s->view_accepted)
+          glColor3ub(255, 150, 30);
+        else
+          glColor3ub(230, 40, 40);
         glPointSize(o.point_size_px + 1);
         glVertexPointer(3, GL_FLOAT, sizeof(Eigen::Vector3f), s->view_points.data());
         glDrawArrays(GL_POINTS, 0, static_cast<GLsizei>(s->view_points.size()));
       }
       glDisableClientState(GL_VERTEX_ARRAY);
-      // The probe frustum (apex = camera centre, near and far rectangles of the measurement volume).
+      // The probe frustum (apex = camera centre, near and far rectangles of the measurement
+      // volume).
       if (s->have_pose) {
         const PreviewCue cue = ShownCue(s, st);
         const cv::Scalar c = CueColourBgr(cue);
-        glColor3ub(static_cast<GLubyte>(c[2]), static_cast<GLubyte>(c[1]), static_cast<GLubyte>(c[0]));
+        glColor3ub(static_cast<GLubyte>(c[2]), static_cast<GLubyte>(c[1]),
+                   static_cast<GLubyte>(c[0]));
         glLineWidth(2);
         auto corner = [&](float z, int sx, int sy) {
           const Eigen::Vector4f p(sx * s->tan_half_x * z, sy * s->tan_half_y * z, z, 1);
@@ -408,8 +478,10 @@ struct Viewer::Impl {
     glColor4f(1, 1, 1, 1);
     // Texture rows [r0, r1) onto frame rows [y0, y0 + r1 − r0).
     const auto strip = [&](int r0, int r1, int y0) {
-      const float t0 = static_cast<float>(r0) / static_cast<float>(hud.rows), t1 = static_cast<float>(r1) / static_cast<float>(hud.rows);
-      const float w = static_cast<float>(width), ya = static_cast<float>(y0), yb = static_cast<float>(y0 + r1 - r0);
+      const float t0 = static_cast<float>(r0) / static_cast<float>(hud.rows),
+                  t1 = static_cast<float>(r1) / static_cast<float>(hud.rows);
+      const float w = static_cast<float>(width), ya = static_cast<float>(y0),
+                  yb = static_cast<float>(y0 + r1 - r0);
       glTexCoord2f(0, t0);
       glVertex2f(0, ya);
       glTexCoord2f(1, t0);
@@ -421,7 +493,8 @@ struct Viewer::Impl {
     };
     glBegin(GL_QUADS);
     strip(0, kHudPanelRows, 0);
-    if (hud.rows > kHudPanelRows) strip(kHudPanelRows, hud.rows, height - (hud.rows - kHudPanelRows));
+    if (hud.rows > kHudPanelRows)
+      strip(kHudPanelRows, hud.rows, height - (hud.rows - kHudPanelRows));
     glEnd();
     glDisable(GL_BLEND);
     glDisable(GL_TEXTURE_2D);
@@ -443,7 +516,8 @@ Status Viewer::Create(const ViewerOptions& options, std::unique_ptr<Viewer>* out
 
 bool Viewer::headless() const { return impl_->window == nullptr; }
 
-bool Viewer::Render(const PreviewSnapshot* snapshot, const PreviewStatus& status, double fps, cv::Mat* capture) {
+bool Viewer::Render(const PreviewSnapshot* snapshot, const PreviewStatus& status, double fps,
+                    cv::Mat* capture) {
   Impl& m = *impl_;
   if (m.window != nullptr) {
     glfwPollEvents();
@@ -458,7 +532,8 @@ bool Viewer::Render(const PreviewSnapshot* snapshot, const PreviewStatus& status
   if (snapshot != nullptr && m.auto_fit) m.Fit(*snapshot);
   const bool hud_changed = m.UpdateHud(snapshot, status, fps);
   const Impl::SceneKey key = m.KeyOf(snapshot, status);
-  if (!hud_changed && capture == nullptr && !m.exposed && m.frames_drawn > 0 && key == m.drawn_key) return true;  // still current
+  if (!hud_changed && capture == nullptr && !m.exposed && m.frames_drawn > 0 && key == m.drawn_key)
+    return true;  // still current
   m.Draw(snapshot, status);
   m.drawn_key = key;
   m.exposed = false;

@@ -7,8 +7,8 @@
 // 4 times a second, a change of state or message at once (PanelRefresh, preview.h).
 //
 // Input (window only): left drag orbits, wheel zooms, keys: space = pause, r = reset the model,
-// u = undo the last seconds, s = save, q / Esc = quit, f = fit the view to the model again. Actions are queued and taken by
-// the caller with TakeActions(); the viewer never waits for the pipeline.
+// u = undo the last seconds, s = save, q / Esc = quit, f = fit the view to the model again. Actions
+// are queued and taken by the caller with TakeActions(); the viewer never waits for the pipeline.
 //
 // Thread: everything here runs on the one render thread that created the viewer (GLFW requires
 // the main thread for the window). Rendering cost grows with the points drawn: llvmpipe draws
@@ -31,7 +31,7 @@ struct ViewerOptions {
   bool headless = false;          // offscreen (EGL surfaceless) instead of a window
   std::string title = "d3d-scan";
   float point_size_px = 3.0f;
-  void Check() const;             // throws std::invalid_argument
+  void Check() const;  // throws std::invalid_argument
 };
 
 enum class ViewerAction { kPause, kReset, kUndo, kSave, kQuit };
@@ -48,7 +48,8 @@ class Viewer {
   // first: --screenshot). A frame that would show the same picture as the last one drawn (the same
   // snapshot, camera and panel; the window not exposed) is not drawn again: the one shown is
   // current. Returns false once the window was closed.
-  bool Render(const PreviewSnapshot* snapshot, const PreviewStatus& status, double fps, cv::Mat* capture = nullptr);
+  bool Render(const PreviewSnapshot* snapshot, const PreviewStatus& status, double fps,
+              cv::Mat* capture = nullptr);
   // Frames Render actually drew (the others were still current).
   int64_t frames_drawn() const;
   std::vector<ViewerAction> TakeActions();

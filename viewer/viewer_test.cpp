@@ -15,12 +15,15 @@ PreviewSnapshot Hemisphere() {
   PreviewSnapshot s;
   for (int i = 0; i < 60; ++i)
     for (int j = 0; j < 120; ++j) {
-      const float th = static_cast<float>(i) / 60 * 1.5f, ph = static_cast<float>(j) / 120 * 6.2832f;
-      const Eigen::Vector3f n(std::sin(th) * std::cos(ph), std::sin(th) * std::sin(ph), -std::cos(th));
+      const float th = static_cast<float>(i) / 60 * 1.5f,
+                  ph = static_cast<float>(j) / 120 * 6.2832f;
+      const Eigen::Vector3f n(std::sin(th) * std::cos(ph), std::sin(th) * std::sin(ph),
+                              -std::cos(th));
       s.points.push_back(Eigen::Vector3f(0, 0, 50) + 5.0f * n);
       s.normals.push_back(n);
     }
-  for (int i = 0; i < 200; ++i) s.view_points.push_back(Eigen::Vector3f(0.05f * static_cast<float>(i) - 5, 0, 45));
+  for (int i = 0; i < 200; ++i)
+    s.view_points.push_back(Eigen::Vector3f(0.05f * static_cast<float>(i) - 5, 0, 45));
   s.view_accepted = true;
   s.have_pose = true;
   s.cue = PreviewCue::kTracking;
@@ -58,7 +61,8 @@ TEST(Viewer, OffscreenPictureShowsTheModelAndThePanel) {
   EXPECT_GT(sd[0], 5) << "no shading";
   cv::Mat ecentre;
   cv::cvtColor(empty, ecentre, cv::COLOR_BGR2GRAY);
-  EXPECT_LT(cv::mean(ecentre(cv::Rect(110, 80, 100, 100)))[0], 60) << "an empty preview must stay dark";
+  EXPECT_LT(cv::mean(ecentre(cv::Rect(110, 80, 100, 100)))[0], 60)
+      << "an empty preview must stay dark";
   // The status panel: the tracking colour (green) in the top-left box.
   const cv::Vec3b box = full.at<cv::Vec3b>(20, 200);
   EXPECT_GT(box[1], 150);

@@ -9,8 +9,8 @@
 #include <limits>
 #include <sstream>
 
-#include "calib/camera/conditioning.h"
 #include "calib/camera/ceres_terms.h"
+#include "calib/camera/conditioning.h"
 #include "common/core/status.h"
 
 namespace d3d {
@@ -41,8 +41,9 @@ Rigid3d ParamsToPose(const double* params) {
   return pose;
 }
 
-Eigen::Vector2d ProjectTargetFeature(const PinholeBrownConrady& camera, const Rigid3d& device_from_target,
-                                     const Eigen::Vector3d& X, double circle_radius_mm) {
+Eigen::Vector2d ProjectTargetFeature(const PinholeBrownConrady& camera,
+                                     const Rigid3d& device_from_target, const Eigen::Vector3d& X,
+                                     double circle_radius_mm) {
   const double intr[4] = {camera.fx, camera.fy, camera.cx, camera.cy};
   const double dist[5] = {camera.k1, camera.k2, camera.p1, camera.p2, camera.k3};
   const auto pose = PoseToParams(device_from_target);
@@ -51,17 +52,21 @@ Eigen::Vector2d ProjectTargetFeature(const PinholeBrownConrady& camera, const Ri
   return {uv[0], uv[1]};
 }
 
-std::vector<Eigen::Vector2d> ReprojectionResiduals(const TargetView& view, const PinholeBrownConrady& camera,
-                                                   const Rigid3d& device_from_target, double circle_radius_mm) {
+std::vector<Eigen::Vector2d> ReprojectionResiduals(const TargetView& view,
+                                                   const PinholeBrownConrady& camera,
+                                                   const Rigid3d& device_from_target,
+                                                   double circle_radius_mm) {
   std::vector<Eigen::Vector2d> r;
   r.reserve(view.image_points.size());
   for (size_t i = 0; i < view.image_points.size(); ++i)
-    r.push_back(view.image_points[i] - ProjectTargetFeature(camera, device_from_target, view.object_points[i], circle_radius_mm));
+    r.push_back(view.image_points[i] - ProjectTargetFeature(camera, device_from_target,
+                                                            view.object_points[i],
+                                                            circle_radius_mm));
   return r;
 }
 
-TsaiPoseResult TsaiPlanarPose(const TargetView& view, double cx, double cy, double aspect, double fixed_f_px,
-                              double min_tilt_rad) {
+TsaiPoseResult TsaiPlanarPose(const TargetView& view, double cx, double cy, double aspect,
+                              double fixed_f_px, double min_tilt_rad) {
   TsaiPoseResult out;
   const size_t n = view.image_points.size();
   if (n < 6 || view.object_points.size() != n) {
@@ -101,14 +106,16 @@ TsaiPoseResult TsaiPlanarPose(const TargetView& view, double cx, double cy, doub
   const double det = a1 * a5 - a2 * a4;
   const double lambda2 = 0.5 * (norm2 + std::sqrt(std::max(0.0, norm2 * norm2 - 4.0 * det * det)));
   if (!(lambda2 > 0)) {
-    out.reason = "radial alignment constraint is degenerate (features collinear with the principal point?)";
+    out.reason =
+        "radial alignment constraint is degenerate (features collinear with the principal point?)";
     return out;
   }
   double lambda = std::sqrt(lambda2);
   // Sign: the projection of the target must lie in the observed image quadrants.
   double agree = 0;
   for (size_t i = 0; i < n; ++i)
-    agree += xd[i] * (v[0] * X[i] + v[1] * Y[i] + v[2]) + yd[i] * (v[3] * X[i] + v[4] * Y[i] + v[5]);
+    agree +=
+        xd[i] * (v[0] * X[i] + v[1] * Y[i] + v[2]) + yd[i] * (v[3] * X[i] + v[4] * Y[i] + v[5]);
   if (agree < 0) lambda = -lambda;
   Eigen::Matrix3d R;
   double r1 = v[0] / lambda, r2 = v[1] / lambda, r4 = v[3] / lambda, r5 = v[4] / lambda;
@@ -214,7 +221,8 @@ void CameraCalibrationOptions::Check() const {
   D3D_CHECK_MSG(circle_radius_mm >= 0, "circle radius must be ≥ 0");
   D3D_CHECK_MSG(min_views >= 2, "at least 2 views are needed");
   D3D_CHECK_MSG(min_points_per_view >= 6, "at least 6 features per view are needed");
-  D3D_CHECK_MSG(min_tilt_deg >= 0 && max_relative_sigma > 0 && max_iterations > 0, "bad calibration limits");
+  D3D_CHECK_MSG(min_tilt_deg >= 0 && max_relative_sigma > 0 && max_iterations > 0,
+                "bad calibration limits");
 }
 
 CameraCalibrationResult CalibrateCamera(const std::vector<TargetView>& views, int width, int height,
@@ -222,7 +230,8 @@ CameraCalibrationResult CalibrateCamera(const std::vector<TargetView>& views, in
   options.Check();
   D3D_CHECK_MSG(width > 0 && height > 0, "image size must be positive");
   for (const auto& v : views)
-    D3D_CHECK_MSG(v.object_points.size() == v.image_points.size(), "view '" << v.name << "': point lists differ in length");
+    D3D_CHECK_MSG(v.object_points.size() == v.image_points.size(),
+                  "view '" << v.name << "': point lists differ in length");
   CameraCalibrationResult res;
   std::ostringstream why;
   if (static_cast<int>(views.size()) < options.min_views) {
@@ -232,7 +241,8 @@ CameraCalibrationResult CalibrateCamera(const std::vector<TargetView>& views, in
   }
   for (const auto& v : views) {
     if (static_cast<int>(v.image_points.size()) < options.min_points_per_view) {
-      why << "view '" << v.name << "' has " << v.image_points.size() << " features < " << options.min_points_per_view;
+      why << "view '" << v.name << "' has " << v.image_points.size() << " features < "
+          << options.min_points_per_view;
       res.reason = why.str();
       return res;
     }
@@ -257,13 +267,15 @@ CameraCalibrationResult CalibrateCamera(const std::vector<TargetView>& views, in
   if (votes.empty()) {
     double max_tilt = 0;
     for (const auto& v : res.views) max_tilt = std::max(max_tilt, v.tilt_deg);
-    why << "all " << views.size() << " views are nearly fronto-parallel (largest tilt " << max_tilt << " deg < "
-        << options.min_tilt_deg << " deg): the focal length is undetermined; tilt the target by 10–40 deg";
+    why << "all " << views.size() << " views are nearly fronto-parallel (largest tilt " << max_tilt
+        << " deg < " << options.min_tilt_deg
+        << " deg): the focal length is undetermined; tilt the target by 10–40 deg";
     res.reason = why.str();
     return res;
   }
   if (votes.size() < 2) {
-    why << "only 1 view is tilted enough (≥ " << options.min_tilt_deg << " deg) to determine the focal length; need 2";
+    why << "only 1 view is tilted enough (≥ " << options.min_tilt_deg
+        << " deg) to determine the focal length; need 2";
     res.reason = why.str();
     return res;
   }
@@ -280,7 +292,8 @@ CameraCalibrationResult CalibrateCamera(const std::vector<TargetView>& views, in
       return res;
     }
     poses[i] = PoseToParams(t.device_from_target);
-    for (const auto& r : ReprojectionResiduals(views[i], res.initial, t.device_from_target, options.circle_radius_mm)) {
+    for (const auto& r : ReprojectionResiduals(views[i], res.initial, t.device_from_target,
+                                               options.circle_radius_mm)) {
       sum_sq += r.squaredNorm();
       ++count;
     }
@@ -293,13 +306,15 @@ CameraCalibrationResult CalibrateCamera(const std::vector<TargetView>& views, in
   double dist[5] = {0, 0, 0, 0, 0};
   int residuals = 0;
   for (const auto& v : views) residuals += 2 * static_cast<int>(v.image_points.size());
-  const std::vector<int> fixed_intr = FixedIntrinsics(options), fixed_dist = FixedDistortion(options);
+  const std::vector<int> fixed_intr = FixedIntrinsics(options),
+                         fixed_dist = FixedDistortion(options);
   const ceres::Solver::Options so = CalibrationSolverOptions(options.max_iterations);
   ceres::Solver::Summary summary;
   // Stages (a distortion-free start is far from a distorted optimum; freeing everything at once
   // lets k2/k3 run away): 1) f and poses, 2) + principal point and k1, 3) everything asked for.
   const std::vector<std::vector<int>> stage_fixed_intr = {{1, 2, 3}, {1}, fixed_intr};
-  const std::vector<std::vector<int>> stage_fixed_dist = {{0, 1, 2, 3, 4}, {1, 2, 3, 4}, fixed_dist};
+  const std::vector<std::vector<int>> stage_fixed_dist = {
+      {0, 1, 2, 3, 4}, {1, 2, 3, 4}, fixed_dist};
   for (size_t stage = 0; stage < 3; ++stage) {
     std::vector<int> fi = stage_fixed_intr[stage], fd = stage_fixed_dist[stage];
     for (int k : fixed_intr)
@@ -308,13 +323,15 @@ CameraCalibrationResult CalibrateCamera(const std::vector<TargetView>& views, in
       if (std::find(fd.begin(), fd.end(), k) == fd.end()) fd.push_back(k);
     std::sort(fi.begin(), fi.end());
     std::sort(fd.begin(), fd.end());
-    if (stage < 2 && !options.fix_aspect_ratio) intr[1] = intr[0] * aspect0;  // one f in the first stages
+    if (stage < 2 && !options.fix_aspect_ratio)
+      intr[1] = intr[0] * aspect0;  // one f in the first stages
     const double stage_aspect = stage < 2 ? aspect0 : fixed_aspect;
     ceres::Problem problem;
     for (size_t i = 0; i < views.size(); ++i) {
       for (size_t k = 0; k < views[i].image_points.size(); ++k) {
         auto* cost = new ceres::AutoDiffCostFunction<CameraFeatureCost, 2, 4, 5, 6>(
-            new CameraFeatureCost{views[i].object_points[k], views[i].image_points[k], options.circle_radius_mm, stage_aspect});
+            new CameraFeatureCost{views[i].object_points[k], views[i].image_points[k],
+                                  options.circle_radius_mm, stage_aspect});
         problem.AddResidualBlock(cost, nullptr, intr, dist, poses[i].data());
       }
     }
@@ -352,13 +369,15 @@ CameraCalibrationResult CalibrateCamera(const std::vector<TargetView>& views, in
     res.reason = "nonlinear refinement failed: " + summary.message;
     return res;
   }
-  res.camera = {width, height, intr[0], intr[1], intr[2], intr[3], dist[0], dist[1], dist[2], dist[3], dist[4]};
+  res.camera = {width,   height,  intr[0], intr[1], intr[2], intr[3],
+                dist[0], dist[1], dist[2], dist[3], dist[4]};
   sum_sq = 0;
   res.features = 0;
   for (size_t i = 0; i < views.size(); ++i) {
     auto& vr = res.views[i];
     vr.device_from_target = ParamsToPose(poses[i].data());
-    vr.residuals_px = ReprojectionResiduals(views[i], res.camera, vr.device_from_target, options.circle_radius_mm);
+    vr.residuals_px = ReprojectionResiduals(views[i], res.camera, vr.device_from_target,
+                                            options.circle_radius_mm);
     double s = 0;
     for (const auto& r : vr.residuals_px) s += r.squaredNorm();
     vr.rms_px = std::sqrt(s / static_cast<double>(std::max<size_t>(1, vr.residuals_px.size())));
@@ -368,15 +387,16 @@ CameraCalibrationResult CalibrateCamera(const std::vector<TargetView>& views, in
   res.rms_px = std::sqrt(sum_sq / std::max(1, res.features));
 
   if (!std::isfinite(res.sigma[0])) {
-    why << "ill-conditioned: the Jacobian is rank-deficient (reciprocal condition " << res.reciprocal_condition
-        << "); views too similar or too flat";
+    why << "ill-conditioned: the Jacobian is rank-deficient (reciprocal condition "
+        << res.reciprocal_condition << "); views too similar or too flat";
     res.reason = why.str();
     return res;
   }
   const double rel = std::max(res.sigma[0] / res.camera.fx, res.sigma[1] / res.camera.fy);
   if (!(rel <= options.max_relative_sigma)) {
-    why << "ill-conditioned: sigma(fx) = " << res.sigma[0] << " px, sigma(fy) = " << res.sigma[1] << " px ("
-        << 100.0 * rel << " % > " << 100.0 * options.max_relative_sigma << " %); add views at other tilts";
+    why << "ill-conditioned: sigma(fx) = " << res.sigma[0] << " px, sigma(fy) = " << res.sigma[1]
+        << " px (" << 100.0 * rel << " % > " << 100.0 * options.max_relative_sigma
+        << " %); add views at other tilts";
     res.reason = why.str();
     return res;
   }

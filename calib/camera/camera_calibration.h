@@ -55,45 +55,47 @@ struct TsaiPoseResult {
 
 // Tsai's RAC start for one view (see above), principal point (cx, cy), aspect ratio fy/fx.
 // fixed_f_px > 0: f is not estimated, only tz (for the poses once f is known).
-TsaiPoseResult TsaiPlanarPose(const TargetView& view, double cx, double cy, double aspect, double fixed_f_px = 0.0,
-                              double min_tilt_rad = 0.05);
+TsaiPoseResult TsaiPlanarPose(const TargetView& view, double cx, double cy, double aspect,
+                              double fixed_f_px = 0.0, double min_tilt_rad = 0.05);
 
 struct CameraCalibrationOptions {
-  bool fix_aspect_ratio = false;    // fy = aspect_ratio · fx (OpenCV's CALIB_FIX_ASPECT_RATIO)
+  bool fix_aspect_ratio = false;  // fy = aspect_ratio · fx (OpenCV's CALIB_FIX_ASPECT_RATIO)
   double aspect_ratio = 1.0;
-  bool fix_principal_point = false; // cx, cy stay at the image centre
-  bool fix_tangential = false;      // p1 = p2 = 0
-  bool fix_k3 = false;              // k3 = 0
-  double circle_radius_mm = 0.0;    // > 0: image points are centroids of imaged circles (projection.h)
+  bool fix_principal_point = false;  // cx, cy stay at the image centre
+  bool fix_tangential = false;       // p1 = p2 = 0
+  bool fix_k3 = false;               // k3 = 0
+  double circle_radius_mm =
+      0.0;  // > 0: image points are centroids of imaged circles (projection.h)
   int min_views = 3;
   int min_points_per_view = 6;
-  double min_tilt_deg = 3.0;        // flatter views do not vote for f in the start values
-  double max_relative_sigma = 0.01; // σ(fx)/fx, σ(fy)/fy above this: ill-conditioned, fails
+  double min_tilt_deg = 3.0;         // flatter views do not vote for f in the start values
+  double max_relative_sigma = 0.01;  // σ(fx)/fx, σ(fy)/fy above this: ill-conditioned, fails
   int max_iterations = 200;
-  void Check() const;               // throws std::invalid_argument
+  void Check() const;  // throws std::invalid_argument
 };
 
 struct CameraViewResult {
   std::string name;
   Rigid3d device_from_target = Rigid3d::Identity();
-  double rms_px = 0;                        // reprojection RMS of this view
+  double rms_px = 0;                          // reprojection RMS of this view
   std::vector<Eigen::Vector2d> residuals_px;  // observed − predicted, per feature
-  double tsai_f_px = 0;                     // the view's vote for f (0: too flat)
+  double tsai_f_px = 0;                       // the view's vote for f (0: too flat)
   double tilt_deg = 0;
 };
 
 struct CameraCalibrationResult {
   bool ok = false;
-  std::string reason;                // why it failed (too few views, fronto-parallel, ill-conditioned ...)
-  PinholeBrownConrady camera;        // refined
-  PinholeBrownConrady initial;       // Tsai start (no distortion)
-  double initial_rms_px = 0;         // reprojection RMS of the start values
-  double rms_px = 0;                 // sqrt(Σ|e|² / features), OpenCV's "avg reprojection error"
+  std::string reason;  // why it failed (too few views, fronto-parallel, ill-conditioned ...)
+  PinholeBrownConrady camera;   // refined
+  PinholeBrownConrady initial;  // Tsai start (no distortion)
+  double initial_rms_px = 0;    // reprojection RMS of the start values
+  double rms_px = 0;            // sqrt(Σ|e|² / features), OpenCV's "avg reprojection error"
   int features = 0;
   std::vector<CameraViewResult> views;
   // Standard deviations of (fx, fy, cx, cy, k1, k2, p1, p2, k3); 0 for fixed parameters.
   std::array<double, 9> sigma{};
-  double reciprocal_condition = 0;   // of the column-scaled normal matrix (1 = perfect, < 1e-12 = rank-deficient)
+  double reciprocal_condition =
+      0;  // of the column-scaled normal matrix (1 = perfect, < 1e-12 = rank-deficient)
   int iterations = 0;
 };
 
@@ -104,13 +106,16 @@ CameraCalibrationResult CalibrateCamera(const std::vector<TargetView>& views, in
                                         const CameraCalibrationOptions& options = {});
 
 // Reprojection of one view with a known camera and pose: observed − predicted per feature.
-std::vector<Eigen::Vector2d> ReprojectionResiduals(const TargetView& view, const PinholeBrownConrady& camera,
-                                                   const Rigid3d& device_from_target, double circle_radius_mm);
+std::vector<Eigen::Vector2d> ReprojectionResiduals(const TargetView& view,
+                                                   const PinholeBrownConrady& camera,
+                                                   const Rigid3d& device_from_target,
+                                                   double circle_radius_mm);
 
 // Pixel of the centre of the image of a circle of radius r (projection.h's circle model); r = 0:
 // the plain projection.
-Eigen::Vector2d ProjectTargetFeature(const PinholeBrownConrady& camera, const Rigid3d& device_from_target,
-                                     const Eigen::Vector3d& X, double circle_radius_mm);
+Eigen::Vector2d ProjectTargetFeature(const PinholeBrownConrady& camera,
+                                     const Rigid3d& device_from_target, const Eigen::Vector3d& X,
+                                     double circle_radius_mm);
 
 // Pose as a 6-vector (angle-axis, t) and back.
 std::array<double, 6> PoseToParams(const Rigid3d& pose);

@@ -17,10 +17,12 @@ std::vector<Eigen::Vector3d> Grid(int cols, int rows, double s) {
 
 // A pose that looks at the target centre from distance z with the target tilted by `tilt` about
 // a random in-plane axis and rolled by `roll`.
-Rigid3d LookPose(const Eigen::Vector3d& centre, double z, double tilt, double axis_angle, double roll,
-                 const Eigen::Vector2d& shift = {0, 0}) {
+Rigid3d LookPose(const Eigen::Vector3d& centre, double z, double tilt, double axis_angle,
+                 double roll, const Eigen::Vector2d& shift = {0, 0}) {
   const Eigen::Vector3d axis(std::cos(axis_angle), std::sin(axis_angle), 0);
-  const Eigen::Matrix3d R = (Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitZ()) * Eigen::AngleAxisd(tilt, axis)).toRotationMatrix();
+  const Eigen::Matrix3d R =
+      (Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitZ()) * Eigen::AngleAxisd(tilt, axis))
+          .toRotationMatrix();
   Rigid3d p = Rigid3d::Identity();
   p.linear() = R;
   p.translation() = Eigen::Vector3d(shift.x(), shift.y(), z) - R * centre;
@@ -33,8 +35,8 @@ struct Synthetic {
   std::vector<TargetView> views;
 };
 
-Synthetic MakeViews(const PinholeBrownConrady& cam, int n, double noise_px, uint64_t seed, double tilt_deg = 30,
-                    double radius_mm = 0.0, double spacing_mm = 1.2) {
+Synthetic MakeViews(const PinholeBrownConrady& cam, int n, double noise_px, uint64_t seed,
+                    double tilt_deg = 30, double radius_mm = 0.0, double spacing_mm = 1.2) {
   Synthetic s;
   s.camera = cam;
   const auto pts = Grid(9, 7, spacing_mm);
@@ -43,8 +45,9 @@ Synthetic MakeViews(const PinholeBrownConrady& cam, int n, double noise_px, uint
   std::uniform_real_distribution<double> u(-1, 1);
   std::normal_distribution<double> noise(0, noise_px);
   for (int i = 0; i < n; ++i) {
-    const Rigid3d pose = LookPose(centre, 50 + 3 * u(rng), tilt_deg * M_PI / 180 * (0.5 + 0.5 * std::abs(u(rng))),
-                                  M_PI * u(rng), 0.25 * u(rng), {0.8 * u(rng), 0.6 * u(rng)});
+    const Rigid3d pose =
+        LookPose(centre, 50 + 3 * u(rng), tilt_deg * M_PI / 180 * (0.5 + 0.5 * std::abs(u(rng))),
+                 M_PI * u(rng), 0.25 * u(rng), {0.8 * u(rng), 0.6 * u(rng)});
     TargetView v;
     v.name = "view" + std::to_string(i);
     for (const auto& p : pts) {
@@ -60,9 +63,11 @@ Synthetic MakeViews(const PinholeBrownConrady& cam, int n, double noise_px, uint
 }
 
 // The virtual probe's camera: a narrow field (fx = 2000 px on 640 × 480).
-const PinholeBrownConrady kProbeCam{640, 480, 2000, 2000, 322.7, 236.9, -0.045, 0.12, 2e-4, -1.5e-4, 0};
+const PinholeBrownConrady kProbeCam{640,    480,  2000, 2000,    322.7, 236.9,
+                                    -0.045, 0.12, 2e-4, -1.5e-4, 0};
 // A wide-angle camera with strong distortion (like OpenCV's sample images).
-const PinholeBrownConrady kWideCam{640, 480, 536, 536, 342.3, 235.6, -0.27, 0.1, 1.5e-3, -3e-4, -0.02};
+const PinholeBrownConrady kWideCam{640,   480, 536,    536,   342.3, 235.6,
+                                   -0.27, 0.1, 1.5e-3, -3e-4, -0.02};
 
 TEST(TsaiPlanarPose, ExactWithoutNoiseOrDistortion) {
   PinholeBrownConrady cam = kProbeCam;
@@ -96,10 +101,13 @@ TEST(CalibrateCamera, RecoversProbeCameraFromNoisyViews) {
   o.fix_k3 = true;
   const CameraCalibrationResult r = CalibrateCamera(s.views, 640, 480, o);
   ASSERT_TRUE(r.ok) << r.reason;
-  std::printf("probe camera: rms %.4f px (start %.3f px); fx %.3f fy %.3f cx %.3f cy %.3f k1 %.5f k2 %.4f  sigma(fx) %.3f px\n",
-              r.rms_px, r.initial_rms_px, r.camera.fx, r.camera.fy, r.camera.cx, r.camera.cy, r.camera.k1, r.camera.k2,
-              r.sigma[0]);
-  EXPECT_NEAR(r.rms_px, 0.03 * std::sqrt(2.0), 0.005);  // the noise (2-D RMS): nothing left unexplained
+  std::printf(
+      "probe camera: rms %.4f px (start %.3f px); fx %.3f fy %.3f cx %.3f cy %.3f k1 %.5f k2 %.4f  "
+      "sigma(fx) %.3f px\n",
+      r.rms_px, r.initial_rms_px, r.camera.fx, r.camera.fy, r.camera.cx, r.camera.cy, r.camera.k1,
+      r.camera.k2, r.sigma[0]);
+  EXPECT_NEAR(r.rms_px, 0.03 * std::sqrt(2.0),
+              0.005);  // the noise (2-D RMS): nothing left unexplained
   EXPECT_NEAR(r.camera.fx, kProbeCam.fx, 0.001 * kProbeCam.fx);
   EXPECT_NEAR(r.camera.fy, kProbeCam.fy, 0.001 * kProbeCam.fy);
   EXPECT_NEAR(r.camera.cx, kProbeCam.cx, 1.0);
@@ -122,11 +130,16 @@ TEST(CalibrateCamera, RecoversWideAngleDistortion) {
   double max_diff = 0;
   for (double x = -0.4; x <= 0.4; x += 0.1)  // the part of the image the views cover
     for (double y = -0.3; y <= 0.3; y += 0.1) {
-      const Eigen::Vector2d a = kWideCam.Distort({x, y}) * kWideCam.fx, b = r.camera.Distort({x, y}) * r.camera.fx;
-      max_diff = std::max(max_diff, ((a + Eigen::Vector2d(kWideCam.cx, kWideCam.cy)) - (b + Eigen::Vector2d(r.camera.cx, r.camera.cy))).norm());
+      const Eigen::Vector2d a = kWideCam.Distort({x, y}) * kWideCam.fx,
+                            b = r.camera.Distort({x, y}) * r.camera.fx;
+      max_diff = std::max(max_diff, ((a + Eigen::Vector2d(kWideCam.cx, kWideCam.cy)) -
+                                     (b + Eigen::Vector2d(r.camera.cx, r.camera.cy)))
+                                        .norm());
     }
-  std::printf("wide camera: rms %.4f px, fx %.2f (true %.2f), k1 %.4f (true %.4f), max pixel-map difference %.3f px\n",
-              r.rms_px, r.camera.fx, kWideCam.fx, r.camera.k1, kWideCam.k1, max_diff);
+  std::printf(
+      "wide camera: rms %.4f px, fx %.2f (true %.2f), k1 %.4f (true %.4f), max pixel-map "
+      "difference %.3f px\n",
+      r.rms_px, r.camera.fx, kWideCam.fx, r.camera.k1, kWideCam.k1, max_diff);
   EXPECT_NEAR(r.rms_px, 0.1 * std::sqrt(2.0), 0.02);
   EXPECT_NEAR(r.camera.fx, kWideCam.fx, 0.005 * kWideCam.fx);
   EXPECT_LT(max_diff, 0.3);
@@ -143,8 +156,10 @@ TEST(CalibrateCamera, CircleCentreModelRemovesPerspectiveBias) {
   const CameraCalibrationResult b = CalibrateCamera(s.views, 640, 480);
   ASSERT_TRUE(a.ok) << a.reason;
   ASSERT_TRUE(b.ok) << b.reason;
-  std::printf("circle centres: conic model rms %.5f px fx %.4f; point model rms %.5f px fx %.4f (true %.1f)\n", a.rms_px,
-              a.camera.fx, b.rms_px, b.camera.fx, kWideCam.fx);
+  std::printf(
+      "circle centres: conic model rms %.5f px fx %.4f; point model rms %.5f px fx %.4f (true "
+      "%.1f)\n",
+      a.rms_px, a.camera.fx, b.rms_px, b.camera.fx, kWideCam.fx);
   EXPECT_LT(a.rms_px, 1e-4);
   EXPECT_NEAR(a.camera.fx, kWideCam.fx, 1e-3);
   EXPECT_GT(b.rms_px, 100 * a.rms_px);

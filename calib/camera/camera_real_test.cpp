@@ -48,8 +48,10 @@ RunResult CalibrateSample(const fs::path& dir, const FeatureOptions& fo) {
     std::vector<cv::Point3f> o;
     std::vector<cv::Point2f> p;
     for (size_t k = 0; k < v.image_points.size(); ++k) {
-      o.emplace_back(static_cast<float>(v.object_points[k].x()), static_cast<float>(v.object_points[k].y()), 0.f);
-      p.emplace_back(static_cast<float>(v.image_points[k].x()), static_cast<float>(v.image_points[k].y()));
+      o.emplace_back(static_cast<float>(v.object_points[k].x()),
+                     static_cast<float>(v.object_points[k].y()), 0.f);
+      p.emplace_back(static_cast<float>(v.image_points[k].x()),
+                     static_cast<float>(v.image_points[k].y()));
     }
     cv_object.push_back(o);
     cv_image.push_back(p);
@@ -65,7 +67,8 @@ RunResult CalibrateSample(const fs::path& dir, const FeatureOptions& fo) {
   cv::Mat& d_cv = out.d_cv;
   K_cv = cv::Mat::eye(3, 3, CV_64F);
   std::vector<cv::Mat> rv, tv;
-  cv::calibrateCamera(cv_object, cv_image, cv::Size(640, 480), K_cv, d_cv, rv, tv, cv::CALIB_FIX_ASPECT_RATIO);
+  cv::calibrateCamera(cv_object, cv_image, cv::Size(640, 480), K_cv, d_cv, rv, tv,
+                      cv::CALIB_FIX_ASPECT_RATIO);
   // OpenCV's "avg reprojection error" of its sample: sqrt(Σ|e|² / N), the definition of our rms_px.
   double sum = 0;
   int n = 0;
@@ -80,14 +83,19 @@ RunResult CalibrateSample(const fs::path& dir, const FeatureOptions& fo) {
   }
   out.rms_cv = std::sqrt(sum / n);
   const double rms_cv = out.rms_cv;
-  std::printf("ours:      fx %.3f fy %.3f cx %.3f cy %.3f k1 %.4f k2 %.4f p1 %.5f p2 %.5f k3 %.4f rms %.4f px (start: f %.1f, rms %.2f px)\n",
-              r.camera.fx, r.camera.fy, r.camera.cx, r.camera.cy, r.camera.k1, r.camera.k2, r.camera.p1, r.camera.p2,
-              r.camera.k3, r.rms_px, r.initial.fx, r.initial_rms_px);
-  std::printf("          sigma fx %.3f cx %.3f cy %.3f k1 %.4f; reciprocal condition %.2e\n", r.sigma[0], r.sigma[2], r.sigma[3],
-              r.sigma[4], r.reciprocal_condition);
-  std::printf("OpenCV now: fx %.3f fy %.3f cx %.3f cy %.3f k1 %.4f rms %.4f px\n", K_cv.at<double>(0, 0), K_cv.at<double>(1, 1),
-              K_cv.at<double>(0, 2), K_cv.at<double>(1, 2), d_cv.at<double>(0), rms_cv);
-  for (size_t i = 0; i < r.views.size(); ++i) std::printf("  %s: %.3f px, tilt %.1f deg\n", r.views[i].name.c_str(), r.views[i].rms_px, r.views[i].tilt_deg);
+  std::printf(
+      "ours:      fx %.3f fy %.3f cx %.3f cy %.3f k1 %.4f k2 %.4f p1 %.5f p2 %.5f k3 %.4f rms %.4f "
+      "px (start: f %.1f, rms %.2f px)\n",
+      r.camera.fx, r.camera.fy, r.camera.cx, r.camera.cy, r.camera.k1, r.camera.k2, r.camera.p1,
+      r.camera.p2, r.camera.k3, r.rms_px, r.initial.fx, r.initial_rms_px);
+  std::printf("          sigma fx %.3f cx %.3f cy %.3f k1 %.4f; reciprocal condition %.2e\n",
+              r.sigma[0], r.sigma[2], r.sigma[3], r.sigma[4], r.reciprocal_condition);
+  std::printf("OpenCV now: fx %.3f fy %.3f cx %.3f cy %.3f k1 %.4f rms %.4f px\n",
+              K_cv.at<double>(0, 0), K_cv.at<double>(1, 1), K_cv.at<double>(0, 2),
+              K_cv.at<double>(1, 2), d_cv.at<double>(0), rms_cv);
+  for (size_t i = 0; i < r.views.size(); ++i)
+    std::printf("  %s: %.3f px, tilt %.1f deg\n", r.views[i].name.c_str(), r.views[i].rms_px,
+                r.views[i].tilt_deg);
   return out;
 }
 
@@ -104,8 +112,9 @@ TEST(RealCameraCalibration, OpenCvSampleChessboardAgreesWithPublishedResult) {
   yml["camera_matrix"] >> K_pub;
   yml["distortion_coefficients"] >> d_pub;
   yml["avg_reprojection_error"] >> rms_pub;
-  std::printf("published: fx %.3f fy %.3f cx %.3f cy %.3f k1 %.4f rms %.4f px\n", K_pub.at<double>(0, 0), K_pub.at<double>(1, 1),
-              K_pub.at<double>(0, 2), K_pub.at<double>(1, 2), d_pub.at<double>(0), rms_pub);
+  std::printf("published: fx %.3f fy %.3f cx %.3f cy %.3f k1 %.4f rms %.4f px\n",
+              K_pub.at<double>(0, 0), K_pub.at<double>(1, 1), K_pub.at<double>(0, 2),
+              K_pub.at<double>(1, 2), d_pub.at<double>(0), rms_pub);
   FeatureOptions sample;
   sample.corner_window_half_px = 11;
   sample.corner_epsilon_px = 0.1;

@@ -36,7 +36,8 @@ struct ProjectorFeatureCost {
   Eigen::Vector2d observed;
   double fixed_aspect;
   template <typename T>
-  bool operator()(const T* intr, const T* dist, const T* proj_from_cam, const T* cam_from_target, T* r) const {
+  bool operator()(const T* intr, const T* dist, const T* proj_from_cam, const T* cam_from_target,
+                  T* r) const {
     T R[9], t[3], xy[2], xyd[2];
     ComposePoses(proj_from_cam, cam_from_target, R, t);
     NormalisedFeature(R, t, X, 0.0, xy);
@@ -71,9 +72,12 @@ inline std::vector<int> FixedDistortion(const CameraCalibrationOptions& o) {
 }
 
 // Holds `fixed` (sorted, unique indices) of a parameter block of `size` constant.
-inline void SetFixedSubset(ceres::Problem* p, double* block, int size, const std::vector<int>& fixed) {
-  if (static_cast<int>(fixed.size()) == size) p->SetParameterBlockConstant(block);
-  else if (!fixed.empty()) p->SetManifold(block, new ceres::SubsetManifold(size, fixed));
+inline void SetFixedSubset(ceres::Problem* p, double* block, int size,
+                           const std::vector<int>& fixed) {
+  if (static_cast<int>(fixed.size()) == size)
+    p->SetParameterBlockConstant(block);
+  else if (!fixed.empty())
+    p->SetManifold(block, new ceres::SubsetManifold(size, fixed));
 }
 
 // The solver settings of the camera and stereo bundle adjustments: dense Schur, tight tolerances

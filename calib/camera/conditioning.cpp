@@ -7,8 +7,8 @@
 
 namespace d3d {
 
-ConditioningReport ComputeCovariance(ceres::Problem* problem, const std::vector<double*>& blocks, int residual_count,
-                                     double min_reciprocal_condition) {
+ConditioningReport ComputeCovariance(ceres::Problem* problem, const std::vector<double*>& blocks,
+                                     int residual_count, double min_reciprocal_condition) {
   ConditioningReport rep;
   std::vector<double*> variable;
   for (double* b : blocks)
@@ -38,8 +38,11 @@ ConditioningReport ComputeCovariance(ceres::Problem* problem, const std::vector<
   rep.ok = rep.reciprocal_condition >= min_reciprocal_condition && (d.array() > 0).all();
   rep.sigma.assign(static_cast<size_t>(n), 0.0);
   if (!rep.ok) return rep;
-  const Eigen::MatrixXd inv = eig.eigenvectors() * eig.eigenvalues().cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
-  for (int i = 0; i < n; ++i) rep.sigma[static_cast<size_t>(i)] = rep.residual_sigma * d[i] * std::sqrt(std::max(0.0, inv(i, i)));
+  const Eigen::MatrixXd inv = eig.eigenvectors() * eig.eigenvalues().cwiseInverse().asDiagonal() *
+                              eig.eigenvectors().transpose();
+  for (int i = 0; i < n; ++i)
+    rep.sigma[static_cast<size_t>(i)] =
+        rep.residual_sigma * d[i] * std::sqrt(std::max(0.0, inv(i, i)));
   return rep;
 }
 

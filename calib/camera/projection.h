@@ -31,7 +31,8 @@ template <typename T>
 void NormalisedFeature(const T* R, const T* t, const Eigen::Vector3d& X, double radius_mm, T* xy) {
   if (radius_mm <= 0.0) {
     T p[3];
-    for (int i = 0; i < 3; ++i) p[i] = R[3 * i] * X.x() + R[3 * i + 1] * X.y() + R[3 * i + 2] * X.z() + t[i];
+    for (int i = 0; i < 3; ++i)
+      p[i] = R[3 * i] * X.x() + R[3 * i + 1] * X.y() + R[3 * i + 2] * X.z() + t[i];
     xy[0] = p[0] / p[2];
     xy[1] = p[1] / p[2];
     return;
@@ -39,7 +40,8 @@ void NormalisedFeature(const T* R, const T* t, const Eigen::Vector3d& X, double 
   // The target plane is z = 0: H = [r1 r2 t] (columns 0, 1 of R and t). X.z() must be 0.
   const double X0 = X.x(), Y0 = X.y(), r2 = radius_mm * radius_mm;
   const T h3[3] = {R[6], R[7], t[2]};  // row 3 of H
-  const double Q[3][3] = {{r2 - X0 * X0, -X0 * Y0, -X0}, {-X0 * Y0, r2 - Y0 * Y0, -Y0}, {-X0, -Y0, -1.0}};
+  const double Q[3][3] = {
+      {r2 - X0 * X0, -X0 * Y0, -X0}, {-X0 * Y0, r2 - Y0 * Y0, -Y0}, {-X0, -Y0, -1.0}};
   T m[3];
   for (int i = 0; i < 3; ++i) m[i] = Q[i][0] * h3[0] + Q[i][1] * h3[1] + Q[i][2] * h3[2];
   T c[3];
@@ -85,8 +87,8 @@ void FocalLengths(const T* intr, double fixed_aspect, T* fx, T* fy) {
 
 // Pixel of a target feature: pose block → R, t → normalised → distorted → K.
 template <typename T>
-void ProjectFeature(const T* intr, const T* dist, const T* pose, const Eigen::Vector3d& X, double radius_mm,
-                    double fixed_aspect, T* uv) {
+void ProjectFeature(const T* intr, const T* dist, const T* pose, const Eigen::Vector3d& X,
+                    double radius_mm, double fixed_aspect, T* uv) {
   T R[9];
   ceres::AngleAxisToRotationMatrix(pose, ceres::RowMajorAdapter3x3(R));
   T xy[2], xyd[2];
@@ -106,9 +108,10 @@ void ComposePoses(const T* dev2_from_dev1, const T* dev1_from_target, T* R, T* t
   ceres::AngleAxisToRotationMatrix(dev2_from_dev1, ceres::RowMajorAdapter3x3(Ra));
   ceres::AngleAxisToRotationMatrix(dev1_from_target, ceres::RowMajorAdapter3x3(Rb));
   for (int i = 0; i < 3; ++i) {
-    for (int j = 0; j < 3; ++j) R[3 * i + j] = Ra[3 * i] * Rb[j] + Ra[3 * i + 1] * Rb[3 + j] + Ra[3 * i + 2] * Rb[6 + j];
-    t[i] = Ra[3 * i] * dev1_from_target[3] + Ra[3 * i + 1] * dev1_from_target[4] + Ra[3 * i + 2] * dev1_from_target[5] +
-           dev2_from_dev1[3 + i];
+    for (int j = 0; j < 3; ++j)
+      R[3 * i + j] = Ra[3 * i] * Rb[j] + Ra[3 * i + 1] * Rb[3 + j] + Ra[3 * i + 2] * Rb[6 + j];
+    t[i] = Ra[3 * i] * dev1_from_target[3] + Ra[3 * i + 1] * dev1_from_target[4] +
+           Ra[3 * i + 2] * dev1_from_target[5] + dev2_from_dev1[3 + i];
   }
 }
 

@@ -31,31 +31,33 @@
 namespace d3d {
 
 struct FeatureOptions {
-  int corner_window_half_px = 5;   // cv::cornerSubPix window (2·half+1 square; OpenCV's sample: 5 → 11×11)
-  int corner_max_iterations = 30;  // cv::cornerSubPix stop: iterations ...
-  double corner_epsilon_px = 1e-4; // ... or a step below this
-  double min_blob_area_px = 12;    // circle blobs smaller than this are ignored (noise)
+  int corner_window_half_px =
+      5;  // cv::cornerSubPix window (2·half+1 square; OpenCV's sample: 5 → 11×11)
+  int corner_max_iterations = 30;        // cv::cornerSubPix stop: iterations ...
+  double corner_epsilon_px = 1e-4;       // ... or a step below this
+  double min_blob_area_px = 12;          // circle blobs smaller than this are ignored (noise)
   double max_blob_area_fraction = 0.05;  // ... and larger than this share of the image
-  int centroid_iterations = 10;    // moment centroid re-centring passes
-  void Check() const;              // throws std::invalid_argument
+  int centroid_iterations = 10;          // moment centroid re-centring passes
+  void Check() const;                    // throws std::invalid_argument
 };
 
 struct DetectedFeatures {
   bool found = false;
   std::string reason;                      // why not found ("" when found)
   std::vector<Eigen::Vector2d> points_px;  // target.NumFeatures() points, detector order (target.h)
-  std::vector<double> blob_area_px;        // circles: m00 of each blob (px²); empty for chessboards
+  std::vector<double> blob_area_px;  // circles: m00 of each blob (px²); empty for chessboards
 };
 
 // gray: H×W CV_8U (CV_16U is scaled to 8 bits). Throws std::invalid_argument for another type or
 // an invalid target/options. A target that is not found (or found with the wrong number of
 // features) is an expected failure: found = false with the reason.
-DetectedFeatures DetectTarget(const cv::Mat& gray, const CalibrationTarget& target, const FeatureOptions& options = {});
+DetectedFeatures DetectTarget(const cv::Mat& gray, const CalibrationTarget& target,
+                              const FeatureOptions& options = {});
 
 // The moment centroid of one dark blob near `start_px` (see above), window radius limited to
 // max_radius_px. Returns false if the blob has no contrast. Exposed for tests and for other
 // blob-like targets. area_px (optional): the blob's m00.
-bool DarkBlobCentroid(const cv::Mat& gray8, const Eigen::Vector2d& start_px, double max_radius_px, int iterations,
-                      Eigen::Vector2d* centre_px, double* area_px = nullptr);
+bool DarkBlobCentroid(const cv::Mat& gray8, const Eigen::Vector2d& start_px, double max_radius_px,
+                      int iterations, Eigen::Vector2d* centre_px, double* area_px = nullptr);
 
 }  // namespace d3d

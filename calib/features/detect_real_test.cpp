@@ -55,8 +55,8 @@ struct Agreement {
   int64_t points = 0;
 };
 
-Agreement Compare(const fs::path& dir, const std::string& image_prefix, const std::string& ref_prefix, int count,
-                  TargetKind kind) {
+Agreement Compare(const fs::path& dir, const std::string& image_prefix,
+                  const std::string& ref_prefix, int count, TargetKind kind) {
   Agreement a;
   for (int i = 1; i <= count; ++i) {
     const fs::path img_path = dir / (image_prefix + std::to_string(i) + ".png");
@@ -73,7 +73,8 @@ Agreement Compare(const fs::path& dir, const std::string& image_prefix, const st
     EXPECT_TRUE(f.found) << img_path << ": " << f.reason;
     if (!f.found) continue;
     const double rms = RmsBestOrder(f.points_px, ref.points);
-    std::printf("  %s: %zu features, RMS vs OpenCV reference %.4f px\n", img_path.filename().c_str(), f.points_px.size(), rms);
+    std::printf("  %s: %zu features, RMS vs OpenCV reference %.4f px\n",
+                img_path.filename().c_str(), f.points_px.size(), rms);
     a.images++;
     a.sum_sq += rms * rms * static_cast<double>(f.points_px.size());
     a.points += static_cast<int64_t>(f.points_px.size());
@@ -89,17 +90,20 @@ TEST(RealFeatures, ChessCornersAgreeWithOpenCvReference) {
   const Agreement a = Compare(dir, "chess", "chess_corners", 9, TargetKind::kChessboard);
   ASSERT_GE(a.images, 7);
   const double rms = std::sqrt(a.sum_sq / static_cast<double>(a.points));
-  std::printf("chess: %d images, %lld corners, RMS vs reference %.4f px\n", a.images, static_cast<long long>(a.points), rms);
+  std::printf("chess: %d images, %lld corners, RMS vs reference %.4f px\n", a.images,
+              static_cast<long long>(a.points), rms);
   EXPECT_LE(rms, 0.1);
 }
 
 TEST(RealFeatures, AsymmetricCircleCentresAgreeWithOpenCvReference) {
   const fs::path dir = kData / "opencv_extra_acircles";
   if (!fs::exists(dir)) GTEST_SKIP() << "real data absent: " << dir;
-  const Agreement a = Compare(dir, "acircles", "acircles_corners", 5, TargetKind::kAsymmetricCircleGrid);
+  const Agreement a =
+      Compare(dir, "acircles", "acircles_corners", 5, TargetKind::kAsymmetricCircleGrid);
   ASSERT_GE(a.images, 4);
   const double rms = std::sqrt(a.sum_sq / static_cast<double>(a.points));
-  std::printf("acircles: %d images, %lld centres, RMS vs reference %.4f px\n", a.images, static_cast<long long>(a.points), rms);
+  std::printf("acircles: %d images, %lld centres, RMS vs reference %.4f px\n", a.images,
+              static_cast<long long>(a.points), rms);
   EXPECT_LE(rms, 0.1);
 }
 

@@ -13,7 +13,9 @@ const PinholeBrownConrady kCam{640, 480, 900, 900, 322.5, 238.0, -0.1, 0.05, 0, 
 
 Rigid3d Pose(double ax, double ay, const Eigen::Vector3d& t) {
   Rigid3d p = Rigid3d::Identity();
-  p.linear() = (Eigen::AngleAxisd(ax, Eigen::Vector3d::UnitX()) * Eigen::AngleAxisd(ay, Eigen::Vector3d::UnitY())).toRotationMatrix();
+  p.linear() = (Eigen::AngleAxisd(ax, Eigen::Vector3d::UnitX()) *
+                Eigen::AngleAxisd(ay, Eigen::Vector3d::UnitY()))
+                   .toRotationMatrix();
   p.translation() = t;
   return p;
 }
@@ -28,7 +30,8 @@ Eigen::Vector2d ConicCentre(const Rigid3d& cam_from_target, const Eigen::Vector3
   Eigen::Matrix3d T = Eigen::Matrix3d::Identity();
   T(0, 2) = c.x();
   T(1, 2) = c.y();
-  const Eigen::Matrix3d dual = H * T * Eigen::Vector3d(r * r, r * r, -1).asDiagonal() * T.transpose() * H.transpose();
+  const Eigen::Matrix3d dual =
+      H * T * Eigen::Vector3d(r * r, r * r, -1).asDiagonal() * T.transpose() * H.transpose();
   const Eigen::Vector3d e = dual.col(2);
   return e.head<2>() / e.z();
 }
@@ -52,9 +55,11 @@ TEST(DetectTarget, ChessboardCornersMatchTruth) {
   const bool rev = RmsError(f.points_px, truth_rev) < RmsError(f.points_px, truth);
   const auto& ref = rev ? truth_rev : truth;
   Eigen::Vector2d mean = Eigen::Vector2d::Zero();
-  for (size_t i = 0; i < ref.size(); ++i) mean += (f.points_px[i] - ref[i]) / static_cast<double>(ref.size());
+  for (size_t i = 0; i < ref.size(); ++i)
+    mean += (f.points_px[i] - ref[i]) / static_cast<double>(ref.size());
   const double rms = RmsError(f.points_px, ref);
-  std::printf("chessboard corners vs truth: RMS %.4f px, mean (%.4f, %.4f) px\n", rms, mean.x(), mean.y());
+  std::printf("chessboard corners vs truth: RMS %.4f px, mean (%.4f, %.4f) px\n", rms, mean.x(),
+              mean.y());
   EXPECT_LT(rms, 0.1);  // cornerSubPix on a 45-px square under perspective: a few hundredths
   EXPECT_LT(mean.norm(), 0.03);  // no convention offset (pixel centres at integers)
 }
@@ -76,7 +81,8 @@ TEST(DetectTarget, CircleCentroidsMatchProjectedConicCentres) {
       point_truth.push_back(*kCam.Project(pose * p));
     }
     // Try the detector's order and its reverse (a grid seen upside down).
-    std::vector<Eigen::Vector2d> rev(centre_truth.rbegin(), centre_truth.rend()), prev(point_truth.rbegin(), point_truth.rend());
+    std::vector<Eigen::Vector2d> rev(centre_truth.rbegin(), centre_truth.rend()),
+        prev(point_truth.rbegin(), point_truth.rend());
     const bool reversed = RmsError(f.points_px, rev) < RmsError(f.points_px, centre_truth);
     const double rms_centre = RmsError(f.points_px, reversed ? rev : centre_truth);
     const double rms_point = RmsError(f.points_px, reversed ? prev : point_truth);

@@ -13,7 +13,8 @@ namespace {
 
 double Percentile(std::vector<float> v, double q) {
   if (v.empty()) return 0.0;
-  const size_t k = std::min(v.size() - 1, static_cast<size_t>(q * static_cast<double>(v.size() - 1) + 0.5));
+  const size_t k =
+      std::min(v.size() - 1, static_cast<size_t>(q * static_cast<double>(v.size() - 1) + 0.5));
   std::nth_element(v.begin(), v.begin() + static_cast<long>(k), v.end());
   return v[k];
 }
@@ -21,12 +22,14 @@ double Percentile(std::vector<float> v, double q) {
 }  // namespace
 
 void ImageQualityOptions::Check() const {
-  D3D_CHECK_MSG(max_edge_blur_px > 0 && max_noise_dn > 0 && min_contrast_dn >= 0, "image quality thresholds must be positive");
+  D3D_CHECK_MSG(max_edge_blur_px > 0 && max_noise_dn > 0 && min_contrast_dn >= 0,
+                "image quality thresholds must be positive");
 }
 
 ImageQuality AssessImage(const cv::Mat& gray, const ImageQualityOptions& options) {
   options.Check();
-  D3D_CHECK_MSG(gray.type() == CV_8U || gray.type() == CV_16U, "AssessImage needs a CV_8U or CV_16U grey image");
+  D3D_CHECK_MSG(gray.type() == CV_8U || gray.type() == CV_16U,
+                "AssessImage needs a CV_8U or CV_16U grey image");
   D3D_CHECK_MSG(gray.rows >= 16 && gray.cols >= 16, "image too small for a quality estimate");
   cv::Mat f;
   gray.convertTo(f, CV_32F, gray.type() == CV_16U ? 1.0 / 257.0 : 1.0);
@@ -64,7 +67,8 @@ ImageQuality AssessImage(const cv::Mat& gray, const ImageQualityOptions& options
 
   std::ostringstream why;
   if (q.contrast_dn < options.min_contrast_dn) {
-    why << "contrast " << q.contrast_dn << " DN < " << options.min_contrast_dn << " DN (under-exposed or no target)";
+    why << "contrast " << q.contrast_dn << " DN < " << options.min_contrast_dn
+        << " DN (under-exposed or no target)";
   } else if (q.edge_blur_px > options.max_edge_blur_px) {
     why << "blurred: edge blur " << q.edge_blur_px << " px > " << options.max_edge_blur_px << " px";
   } else if (q.noise_dn > options.max_noise_dn) {

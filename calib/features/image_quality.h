@@ -9,8 +9,8 @@
 // A perfectly sharp, pixel-sampled edge gives ≈ 0.4–0.5 px (the pixel's own footprint).
 // Noise: Immerkær's fast noise variance estimation ("Fast noise variance estimation", Computer
 // Vision and Image Understanding 64(2):300–302, 1996): σ = √(π/2) · mean |I ∗ N| / 6 with the
-// Laplacian-difference mask N = [1 −2 1; −2 4 −2; 1 −2 1], here restricted to pixels away from edges
-// (Scharr magnitude below its 60th percentile), which the mask would take for noise.
+// Laplacian-difference mask N = [1 −2 1; −2 4 −2; 1 −2 1], here restricted to pixels away from
+// edges (Scharr magnitude below its 60th percentile), which the mask would take for noise.
 #pragma once
 
 #include <opencv2/core.hpp>
@@ -30,7 +30,7 @@ struct ImageQuality {
   double noise_dn = 0;      // σ of the noise, 8-bit DN
   double contrast_dn = 0;   // 98th − 2nd percentile, 8-bit DN
   bool accepted = false;
-  std::string reason;       // why rejected ("" when accepted)
+  std::string reason;  // why rejected ("" when accepted)
 };
 
 // gray: H×W CV_8U or CV_16U (16-bit is scaled by 1/257). Throws std::invalid_argument for another

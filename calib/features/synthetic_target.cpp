@@ -38,7 +38,8 @@ double TargetAlbedo(const CalibrationTarget& t, double x, double y) {
 }
 
 cv::Mat RenderSyntheticTarget(const CalibrationTarget& target, const PinholeBrownConrady& camera,
-                              const Rigid3d& cam_from_target, const SyntheticImageOptions& options) {
+                              const Rigid3d& cam_from_target,
+                              const SyntheticImageOptions& options) {
   target.Check();
   camera.Check();
   options.Check();
@@ -68,7 +69,9 @@ cv::Mat RenderSyntheticTarget(const CalibrationTarget& target, const PinholeBrow
         }
       f.at<float>(r, c) = static_cast<float>(sum / (n * n));
     }
-  if (options.blur_sigma_px > 0) cv::GaussianBlur(f, f, cv::Size(0, 0), options.blur_sigma_px, options.blur_sigma_px, cv::BORDER_REFLECT);
+  if (options.blur_sigma_px > 0)
+    cv::GaussianBlur(f, f, cv::Size(0, 0), options.blur_sigma_px, options.blur_sigma_px,
+                     cv::BORDER_REFLECT);
   std::mt19937_64 rng(options.seed);
   std::normal_distribution<double> noise(0.0, options.noise_dn);
   cv::Mat out(f.size(), CV_8U);

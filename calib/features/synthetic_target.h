@@ -22,7 +22,7 @@ struct SyntheticImageOptions {
   double black_dn = 30.0;       // level of the black print
   double background_dn = 60.0;  // where the ray misses the target plane (behind the camera)
   uint64_t seed = 1;
-  void Check() const;           // throws std::invalid_argument
+  void Check() const;  // throws std::invalid_argument
 };
 
 // Albedo of the printed target at target point (x, y) mm: 1 on white, 0 on black. Circles need
@@ -31,6 +31,7 @@ double TargetAlbedo(const CalibrationTarget& target, double x_mm, double y_mm);
 
 // H×W CV_8U image of the camera's size.
 cv::Mat RenderSyntheticTarget(const CalibrationTarget& target, const PinholeBrownConrady& camera,
-                              const Rigid3d& cam_from_target, const SyntheticImageOptions& options = {});
+                              const Rigid3d& cam_from_target,
+                              const SyntheticImageOptions& options = {});
 
 }  // namespace d3d

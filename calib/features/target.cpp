@@ -34,8 +34,10 @@ bool ParseDouble(const std::string& s, double* v) {
 
 void CalibrationTarget::Check() const {
   const int min_cols = kind == TargetKind::kAsymmetricCircleGrid ? 2 : 3;
-  D3D_CHECK_MSG(cols >= min_cols && rows >= 3, "target needs at least " << min_cols << "x3 features, got " << cols << "x" << rows);
-  D3D_CHECK_MSG(std::isfinite(spacing_mm) && spacing_mm > 0, "target spacing must be positive, got " << spacing_mm);
+  D3D_CHECK_MSG(cols >= min_cols && rows >= 3,
+                "target needs at least " << min_cols << "x3 features, got " << cols << "x" << rows);
+  D3D_CHECK_MSG(std::isfinite(spacing_mm) && spacing_mm > 0,
+                "target spacing must be positive, got " << spacing_mm);
   D3D_CHECK_MSG(circle_diameter_mm >= 0 && circle_diameter_mm < NearestFeatureDistanceMm(),
                 "circle diameter " << circle_diameter_mm << " mm does not fit between circles "
                                    << NearestFeatureDistanceMm() << " mm apart");
@@ -47,7 +49,8 @@ std::vector<Eigen::Vector3d> CalibrationTarget::FeaturePoints() const {
   p.reserve(static_cast<size_t>(NumFeatures()));
   for (int r = 0; r < rows; ++r)
     for (int c = 0; c < cols; ++c) {
-      const double x = kind == TargetKind::kAsymmetricCircleGrid ? (2 * c + r % 2) * spacing_mm : c * spacing_mm;
+      const double x =
+          kind == TargetKind::kAsymmetricCircleGrid ? (2 * c + r % 2) * spacing_mm : c * spacing_mm;
       p.emplace_back(x, r * spacing_mm, 0.0);
     }
   return p;
@@ -76,8 +79,9 @@ std::string CalibrationTarget::ToString() const {
 
 Status ParseTarget(const std::string& text, CalibrationTarget* out) {
   const auto parts = Split(text, ':');
-  const std::string usage =
-      "target '" + text + "': expected chessboard:COLSxROWS:SQUARE_MM or circles:COLSxROWS:SPACING_MM[:asymmetric][:d=DIAM_MM]";
+  const std::string usage = "target '" + text +
+                            "': expected chessboard:COLSxROWS:SQUARE_MM or "
+                            "circles:COLSxROWS:SPACING_MM[:asymmetric][:d=DIAM_MM]";
   if (parts.size() < 3) return InvalidArgument(usage);
   CalibrationTarget t;
   if (parts[0] == "chessboard") {
@@ -95,12 +99,14 @@ Status ParseTarget(const std::string& text, CalibrationTarget* out) {
   }
   t.cols = cols;
   t.rows = rows;
-  if (!ParseDouble(parts[2], &t.spacing_mm)) return InvalidArgument(usage + " (spacing '" + parts[2] + "' is not a number)");
+  if (!ParseDouble(parts[2], &t.spacing_mm))
+    return InvalidArgument(usage + " (spacing '" + parts[2] + "' is not a number)");
   for (size_t i = 3; i < parts.size(); ++i) {
     if (parts[i] == "asymmetric") {
       t.kind = TargetKind::kAsymmetricCircleGrid;
     } else if (parts[i].rfind("d=", 0) == 0) {
-      if (!ParseDouble(parts[i].substr(2), &t.circle_diameter_mm)) return InvalidArgument(usage + " (bad diameter)");
+      if (!ParseDouble(parts[i].substr(2), &t.circle_diameter_mm))
+        return InvalidArgument(usage + " (bad diameter)");
     } else {
       return InvalidArgument(usage + " (unknown option '" + parts[i] + "')");
     }

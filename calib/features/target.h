@@ -42,8 +42,8 @@ struct CalibrationTarget {
   std::string ToString() const;
 };
 
-// Parses "chessboard:COLSxROWS:SQUARE_MM" or "circles:COLSxROWS:SPACING_MM[:asymmetric][:d=DIAM_MM]".
-// INVALID_ARGUMENT naming what is wrong.
+// Parses "chessboard:COLSxROWS:SQUARE_MM" or
+// "circles:COLSxROWS:SPACING_MM[:asymmetric][:d=DIAM_MM]". INVALID_ARGUMENT naming what is wrong.
 [[nodiscard]] Status ParseTarget(const std::string& text, CalibrationTarget* out);
 
 }  // namespace d3d

@@ -24,8 +24,9 @@ TEST(CalibrationTarget, ParsesAllForms) {
 
 TEST(CalibrationTarget, RejectsBadSpecsWithReason) {
   CalibrationTarget t;
-  for (const char* bad : {"chessboard:9x6", "board:9x6:1", "chessboard:9by6:1", "chessboard:9x6:-1", "chessboard:2x2:1",
-                          "circles:9x7:1:d=1.5", "circles:9x7:1:triangular", "chessboard:9x6:1:asymmetric"}) {
+  for (const char* bad : {"chessboard:9x6", "board:9x6:1", "chessboard:9by6:1", "chessboard:9x6:-1",
+                          "chessboard:2x2:1", "circles:9x7:1:d=1.5", "circles:9x7:1:triangular",
+                          "chessboard:9x6:1:asymmetric"}) {
     const Status s = ParseTarget(bad, &t);
     EXPECT_FALSE(s.ok()) << bad;
     EXPECT_NE(s.message().find(bad), std::string::npos) << s.message();
@@ -37,8 +38,8 @@ TEST(CalibrationTarget, FeatureLayoutsFollowOpenCv) {
   ASSERT_TRUE(ParseTarget("circles:4x11:1:asymmetric", &t).ok());
   const auto p = t.FeaturePoints();
   ASSERT_EQ(p.size(), 44u);
-  EXPECT_EQ(p[1], Eigen::Vector3d(2, 0, 0));   // row 0: x = 2c
-  EXPECT_EQ(p[4], Eigen::Vector3d(1, 1, 0));   // row 1: x = 2c + 1
+  EXPECT_EQ(p[1], Eigen::Vector3d(2, 0, 0));  // row 0: x = 2c
+  EXPECT_EQ(p[4], Eigen::Vector3d(1, 1, 0));  // row 1: x = 2c + 1
   EXPECT_NEAR(t.NearestFeatureDistanceMm(), std::sqrt(2.0), 1e-12);
   ASSERT_TRUE(ParseTarget("chessboard:9x6:2", &t).ok());
   const auto q = t.FeaturePoints();

@@ -8,10 +8,12 @@
 namespace d3d {
 
 void PinholeBrownConrady::Check() const {
-  D3D_CHECK_MSG(width > 0 && height > 0, "image size must be positive, got " << width << "x" << height);
+  D3D_CHECK_MSG(width > 0 && height > 0,
+                "image size must be positive, got " << width << "x" << height);
   D3D_CHECK_MSG(fx > 0 && fy > 0 && std::isfinite(fx) && std::isfinite(fy),
                 "focal lengths must be positive, got fx=" << fx << " fy=" << fy);
-  for (double v : {cx, cy, k1, k2, p1, p2, k3}) D3D_CHECK_MSG(std::isfinite(v), "non-finite intrinsic/distortion");
+  for (double v : {cx, cy, k1, k2, p1, p2, k3})
+    D3D_CHECK_MSG(std::isfinite(v), "non-finite intrinsic/distortion");
 }
 
 Eigen::Matrix3d PinholeBrownConrady::K() const {
@@ -20,7 +22,8 @@ Eigen::Matrix3d PinholeBrownConrady::K() const {
   return K;
 }
 
-std::optional<Eigen::Vector2d> PinholeBrownConrady::Undistort(const Eigen::Vector2d& xy_distorted) const {
+std::optional<Eigen::Vector2d> PinholeBrownConrady::Undistort(
+    const Eigen::Vector2d& xy_distorted) const {
   Eigen::Vector2d xy = xy_distorted;
   for (int it = 0; it < 30; ++it) {
     const double x = xy.x(), y = xy.y();
@@ -53,7 +56,8 @@ std::optional<Eigen::Vector3d> PinholeBrownConrady::PixelRay(const Eigen::Vector
 PinholeBrownConrady BinnedCamera(const PinholeBrownConrady& camera, int factor) {
   D3D_CHECK_MSG(factor >= 1, "binning factor must be >= 1, got " << factor);
   D3D_CHECK_MSG(camera.width % factor == 0 && camera.height % factor == 0,
-                "camera size " << camera.width << "x" << camera.height << " is not divisible by the binning factor " << factor);
+                "camera size " << camera.width << "x" << camera.height
+                               << " is not divisible by the binning factor " << factor);
   PinholeBrownConrady b = camera;
   const double f = factor, half = 0.5 * (factor - 1);
   b.width = camera.width / factor;

@@ -14,9 +14,9 @@
 namespace d3d {
 
 struct PinholeBrownConrady {
-  int width = 0;   // image size, pixels
+  int width = 0;  // image size, pixels
   int height = 0;
-  double fx = 0, fy = 0, cx = 0, cy = 0;  // intrinsics K, pixels
+  double fx = 0, fy = 0, cx = 0, cy = 0;          // intrinsics K, pixels
   double k1 = 0, k2 = 0, p1 = 0, p2 = 0, k3 = 0;  // distortion, OpenCV order (k1,k2,p1,p2,k3)
 
   // Throws std::invalid_argument for a non-positive size or focal length, or non-finite values.
@@ -30,7 +30,8 @@ struct PinholeBrownConrady {
   std::optional<Eigen::Vector2d> Undistort(const Eigen::Vector2d& xy_distorted) const;
   // p_in_cam (mm, Z > 0) → pixel. nullopt for Z <= 0.
   std::optional<Eigen::Vector2d> Project(const Eigen::Vector3d& p_in_cam) const;
-  // Pixel → ray direction (x, y, 1) in the camera frame (not normalised). nullopt if Undistort fails.
+  // Pixel → ray direction (x, y, 1) in the camera frame (not normalised). nullopt if Undistort
+  // fails.
   std::optional<Eigen::Vector3d> PixelRay(const Eigen::Vector2d& pixel) const;
   // True if the pixel lies inside the image [-0.5, width-0.5) × [-0.5, height-0.5).
   bool InImage(const Eigen::Vector2d& pixel) const;
@@ -38,9 +39,9 @@ struct PinholeBrownConrady {
 
 // The camera whose pixels are `factor` × `factor` blocks of `camera`'s (a binned read-out, or the
 // frames averaged over such blocks): size / factor, fx, fy / factor, and the principal point moved
-// so that binned pixel (u', v') is centred where its block's centre was, u = factor·u' + (factor − 1)/2:
-// cx' = (cx − (factor − 1)/2) / factor (cy alike). Distortion acts on normalised coordinates and is
-// unchanged. Throws std::invalid_argument for factor < 1 or a size not divisible by factor.
+// so that binned pixel (u', v') is centred where its block's centre was, u = factor·u' + (factor −
+// 1)/2: cx' = (cx − (factor − 1)/2) / factor (cy alike). Distortion acts on normalised coordinates
+// and is unchanged. Throws std::invalid_argument for factor < 1 or a size not divisible by factor.
 PinholeBrownConrady BinnedCamera(const PinholeBrownConrady& camera, int factor);
 
 // Inline: per pixel in the virtual probe's geometry pass (once per camera ray, for the projector).
@@ -48,17 +49,20 @@ inline Eigen::Vector2d PinholeBrownConrady::Distort(const Eigen::Vector2d& xy) c
   const double x = xy.x(), y = xy.y();
   const double r2 = x * x + y * y;
   const double radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
-  return {x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x), y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y};
+  return {x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
+          y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y};
 }
 
-inline std::optional<Eigen::Vector2d> PinholeBrownConrady::Project(const Eigen::Vector3d& p_in_cam) const {
+inline std::optional<Eigen::Vector2d> PinholeBrownConrady::Project(
+    const Eigen::Vector3d& p_in_cam) const {
   if (!(p_in_cam.z() > 0.0)) return std::nullopt;
   const Eigen::Vector2d d = Distort(p_in_cam.head<2>() / p_in_cam.z());
   return Eigen::Vector2d(fx * d.x() + cx, fy * d.y() + cy);
 }
 
 inline bool PinholeBrownConrady::InImage(const Eigen::Vector2d& pixel) const {
-  return pixel.x() >= -0.5 && pixel.y() >= -0.5 && pixel.x() < width - 0.5 && pixel.y() < height - 0.5;
+  return pixel.x() >= -0.5 && pixel.y() >= -0.5 && pixel.x() < width - 0.5 &&
+         pixel.y() < height - 0.5;
 }
 
 }  // namespace d3d

@@ -86,11 +86,12 @@ json PatternToJson(const FringePatternSpec& p) {
               {"steps", p.steps},
               {"fringe_period_px", p.fringe_period_px},
               {"phase_origin_px", p.phase_origin_px},
-              {"marker", {{"frame", p.marker_frame},
-                          {"first_order", p.marker_first_order},
-                          {"spacing_orders", p.marker_spacing_orders},
-                          {"width_periods", p.marker_width_periods},
-                          {"kind", "half-offset"}}},
+              {"marker",
+               {{"frame", p.marker_frame},
+                {"first_order", p.marker_first_order},
+                {"spacing_orders", p.marker_spacing_orders},
+                {"width_periods", p.marker_width_periods},
+                {"kind", "half-offset"}}},
               {"texture_frame", p.texture_frame}};
 }
 
@@ -115,12 +116,16 @@ FringePatternSpec PatternFromJson(const Field& j) {
 }  // namespace
 
 void FringePatternSpec::Check() const {
-  D3D_CHECK_MSG(axis == 'x' || axis == 'y', "pattern axis must be 'x' or 'y', got '" << axis << "'");
+  D3D_CHECK_MSG(axis == 'x' || axis == 'y',
+                "pattern axis must be 'x' or 'y', got '" << axis << "'");
   D3D_CHECK_MSG(steps >= 3, "phase shift needs at least 3 steps, got " << steps);
-  D3D_CHECK_MSG(fringe_period_px >= 2.0, "fringe period must be ≥ 2 projector px, got " << fringe_period_px);
-  D3D_CHECK_MSG(marker_frame >= -1 && marker_frame < steps, "marker frame " << marker_frame << " not in [−1, steps)");
+  D3D_CHECK_MSG(fringe_period_px >= 2.0,
+                "fringe period must be ≥ 2 projector px, got " << fringe_period_px);
+  D3D_CHECK_MSG(marker_frame >= -1 && marker_frame < steps,
+                "marker frame " << marker_frame << " not in [−1, steps)");
   D3D_CHECK_MSG(marker_spacing_orders >= 0, "marker spacing must be ≥ 0");
-  D3D_CHECK_MSG(marker_width_periods > 0.0 && marker_width_periods <= 1.0, "marker width must be in (0, 1] periods");
+  D3D_CHECK_MSG(marker_width_periods > 0.0 && marker_width_periods <= 1.0,
+                "marker width must be in (0, 1] periods");
 }
 
 double FringePatternSpec::AbsolutePhase(double coord_px) const {
@@ -132,7 +137,8 @@ bool FringePatternSpec::InMarker(double coord_px) const {
   const double turns = (coord_px - phase_origin_px) / fringe_period_px;  // Φ / 2π
   const double k = std::floor(turns);
   const double frac = turns - k;
-  if (marker_width_periods < 1.0 && std::abs(frac - 0.5) >= 0.5 * marker_width_periods) return false;
+  if (marker_width_periods < 1.0 && std::abs(frac - 0.5) >= 0.5 * marker_width_periods)
+    return false;
   const long long order = static_cast<long long>(k) - marker_first_order;
   if (marker_spacing_orders == 0) return order == 0;
   return order >= 0 && order % marker_spacing_orders == 0;
@@ -150,10 +156,13 @@ void ProbeCalibration::Check() const {
   projector.Check();
   pattern.Check();
   const Eigen::Matrix3d R = cam_from_proj.rotation();
-  D3D_CHECK_MSG((R * R.transpose() - Eigen::Matrix3d::Identity()).norm() < 1e-6 && R.determinant() > 0,
-                "cam_from_proj rotation is not a proper rotation");
-  D3D_CHECK_MSG(cam_from_proj.translation().norm() > 0.0, "camera and projector centres coincide (no baseline)");
-  D3D_CHECK_MSG(projector_gamma > 0.1 && projector_gamma < 10.0, "projector gamma " << projector_gamma << " is implausible");
+  D3D_CHECK_MSG(
+      (R * R.transpose() - Eigen::Matrix3d::Identity()).norm() < 1e-6 && R.determinant() > 0,
+      "cam_from_proj rotation is not a proper rotation");
+  D3D_CHECK_MSG(cam_from_proj.translation().norm() > 0.0,
+                "camera and projector centres coincide (no baseline)");
+  D3D_CHECK_MSG(projector_gamma > 0.1 && projector_gamma < 10.0,
+                "projector gamma " << projector_gamma << " is implausible");
   D3D_CHECK_MSG(depth_min_mm > 0.0 && depth_max_mm > depth_min_mm,
                 "measurement volume [" << depth_min_mm << ", " << depth_max_mm << "] mm is empty");
 }
@@ -166,19 +175,21 @@ double ProbeCalibration::TriangulationAngleRad() const {
 std::string ProbeCalibration::ToJson() const {
   const Eigen::Matrix3d R = cam_from_proj.rotation();
   const Eigen::Vector3d t = cam_from_proj.translation();
-  json j{{"format", "d3dscan.calibration"},
-         {"version", kFormatVersion},
-         {"units", {{"length", "mm"}, {"angle", "rad"}, {"image", "px"}}},
-         {"source", source},
-         {"camera", CameraToJson(camera)},
-         {"projector", CameraToJson(projector)},
-         {"cam_from_proj",
-          {{"R", {{R(0, 0), R(0, 1), R(0, 2)}, {R(1, 0), R(1, 1), R(1, 2)}, {R(2, 0), R(2, 1), R(2, 2)}}},
-           {"t_mm", {t.x(), t.y(), t.z()}}}},
-         {"projector_gamma", projector_gamma},
-         {"measurement_volume", {{"depth_min_mm", depth_min_mm}, {"depth_max_mm", depth_max_mm}}},
-         {"triangulation_angle_deg", TriangulationAngleRad() * 180.0 / M_PI},
-         {"pattern", PatternToJson(pattern)}};
+  json j{
+      {"format", "d3dscan.calibration"},
+      {"version", kFormatVersion},
+      {"units", {{"length", "mm"}, {"angle", "rad"}, {"image", "px"}}},
+      {"source", source},
+      {"camera", CameraToJson(camera)},
+      {"projector", CameraToJson(projector)},
+      {"cam_from_proj",
+       {{"R",
+         {{R(0, 0), R(0, 1), R(0, 2)}, {R(1, 0), R(1, 1), R(1, 2)}, {R(2, 0), R(2, 1), R(2, 2)}}},
+        {"t_mm", {t.x(), t.y(), t.z()}}}},
+      {"projector_gamma", projector_gamma},
+      {"measurement_volume", {{"depth_min_mm", depth_min_mm}, {"depth_max_mm", depth_max_mm}}},
+      {"triangulation_angle_deg", TriangulationAngleRad() * 180.0 / M_PI},
+      {"pattern", PatternToJson(pattern)}};
   return j.dump(2) + "\n";
 }
 
@@ -187,26 +198,30 @@ Status ProbeCalibration::FromJson(const std::string& text, ProbeCalibration* out
   try {
     const json doc = json::parse(text);
     const Field j{doc, ""};
-    if (!j.Has("format") || !j.At("format").j.is_string() || j.At("format").Text() != "d3dscan.calibration")
+    if (!j.Has("format") || !j.At("format").j.is_string() ||
+        j.At("format").Text() != "d3dscan.calibration")
       return ParseError("calibration: not a d3dscan.calibration document (format)");
     const int version = j.At("version").Integer();
     if (version > kFormatVersion) {
-      return Unsupported("calibration: format version " + std::to_string(version) + " is newer than " +
-                         std::to_string(kFormatVersion));
+      return Unsupported("calibration: format version " + std::to_string(version) +
+                         " is newer than " + std::to_string(kFormatVersion));
     }
     // Lengths are read as millimetres: a document in other units is refused, not misread.
     if (j.Has("units") && j.At("units").Has("length") && j.At("units").At("length").Text() != "mm")
-      return ParseError("calibration: units.length is '" + j.At("units").At("length").Text() + "'; only mm is read");
+      return ParseError("calibration: units.length is '" + j.At("units").At("length").Text() +
+                        "'; only mm is read");
     c.source = j.Has("source") ? j.At("source").Text() : "";
     c.camera = CameraFromJson(j.At("camera"));
     c.projector = CameraFromJson(j.At("projector"));
     const Field e = j.At("cam_from_proj");
     Eigen::Matrix3d R;
     for (size_t r = 0; r < 3; ++r)
-      for (size_t k = 0; k < 3; ++k) R(static_cast<int>(r), static_cast<int>(k)) = e.At("R").At(r).At(k).Number();
+      for (size_t k = 0; k < 3; ++k)
+        R(static_cast<int>(r), static_cast<int>(k)) = e.At("R").At(r).At(k).Number();
     c.cam_from_proj = Rigid3d::Identity();
     c.cam_from_proj.linear() = R;
-    c.cam_from_proj.translation() = Eigen::Vector3d(e.At("t_mm").At(0).Number(), e.At("t_mm").At(1).Number(), e.At("t_mm").At(2).Number());
+    c.cam_from_proj.translation() = Eigen::Vector3d(
+        e.At("t_mm").At(0).Number(), e.At("t_mm").At(1).Number(), e.At("t_mm").At(2).Number());
     // Required: a missing gamma read as 1 (linear) gave wrong phases and no point, silently.
     c.projector_gamma = j.At("projector_gamma").Number();
     c.depth_min_mm = j.At("measurement_volume").At("depth_min_mm").Number();

@@ -19,14 +19,14 @@ namespace d3d {
 // fringe order k = floor(Φ / 2π), wrapped phase φ = Φ − 2πk ∈ [0, 2π).
 // Frame n (n = 0..N−1) shows p_n(c) = ½ + ½ cos(Φ(c) − δ_n), δ_n = 2πn/N, so that
 //   Φ = atan2(Σ I_n sin δ_n, Σ I_n cos δ_n)  for I_n = A + B cos(Φ − δ_n).
-// Marker (dissertation D3DscannerII, 4 images instead of 5): in frame `marker_frame`, inside stripes
-// of fringe order k_m = marker_first_order + j·marker_spacing_orders (j ≥ 0; only j = 0 if spacing is
-// 0), over Φ ∈ [2πk_m + π(1−w), 2πk_m + π(1+w)) with w = marker_width_periods, the pattern value is
-// replaced by p' = p + ½ if p < ½ else p − ½. For N = 4 and marker_frame = 3 the consistency
-// residual I_0 + I_2 − I_1 − I_3 is then ±½·(projector amplitude) in the stripe and 0 elsewhere,
-// while frames 0–2 (a 3-step set with π/2 shifts) still give Φ there. Stripes are spaced farther
-// apart than the fringe orders the measurement volume admits at one pixel, so a detected stripe's
-// order is unique.
+// Marker (dissertation D3DscannerII, 4 images instead of 5): in frame `marker_frame`, inside
+// stripes of fringe order k_m = marker_first_order + j·marker_spacing_orders (j ≥ 0; only j = 0 if
+// spacing is 0), over Φ ∈ [2πk_m + π(1−w), 2πk_m + π(1+w)) with w = marker_width_periods, the
+// pattern value is replaced by p' = p + ½ if p < ½ else p − ½. For N = 4 and marker_frame = 3 the
+// consistency residual I_0 + I_2 − I_1 − I_3 is then ±½·(projector amplitude) in the stripe and 0
+// elsewhere, while frames 0–2 (a 3-step set with π/2 shifts) still give Φ there. Stripes are spaced
+// farther apart than the fringe orders the measurement volume admits at one pixel, so a detected
+// stripe's order is unique.
 struct FringePatternSpec {
   std::string name = "phase4-marker";  // id published with every burst
   char axis = 'x';                     // coded projector axis: 'x' (columns, default) or 'y'
@@ -37,7 +37,7 @@ struct FringePatternSpec {
   int marker_first_order = 4;          // fringe order of the first marker stripe
   int marker_spacing_orders = 10;      // orders between stripes; 0 = one stripe
   double marker_width_periods = 1.0;   // stripe width w in periods, (0, 1]
-  bool texture_frame = false;          // a 5th, uniformly lit frame (default: texture = mean of the 4)
+  bool texture_frame = false;  // a 5th, uniformly lit frame (default: texture = mean of the 4)
 
   void Check() const;  // throws std::invalid_argument
   bool HasMarker() const { return marker_frame >= 0; }
@@ -57,12 +57,12 @@ struct ProbeCalibration {
   // calibration (a real DMD with an uncorrected video path has γ ≈ 2.2); phase algorithms that
   // compensate the non-sinusoidal error take it from here.
   double projector_gamma = 1.0;
-  double depth_min_mm = 0.0;                    // measurement volume along the camera's z
+  double depth_min_mm = 0.0;  // measurement volume along the camera's z
   double depth_max_mm = 0.0;
   FringePatternSpec pattern;
   std::string source;  // who made it: "virtual-probe", "d3d-calibrate", ...
 
-  void Check() const;  // throws std::invalid_argument
+  void Check() const;          // throws std::invalid_argument
   std::string ToJson() const;  // pretty-printed calibration.json
   [[nodiscard]] static Status FromJson(const std::string& text, ProbeCalibration* out);
   [[nodiscard]] Status Save(const std::string& path) const;

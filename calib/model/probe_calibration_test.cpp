@@ -13,7 +13,8 @@ ProbeCalibration TestCalibration() {
   c.camera = {640, 480, 2000, 2000, 319.5, 239.5, -0.05, 0.1, 0.0002, -0.0001, 0.0};
   c.projector = {912, 1140, 2280, 2280, 455.5, 569.5, 0.02, 0.0, 0.0, 0.0, 0.0};
   c.cam_from_proj = Rigid3d::Identity();
-  c.cam_from_proj.linear() = Eigen::AngleAxisd(-12.0 * M_PI / 180.0, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  c.cam_from_proj.linear() =
+      Eigen::AngleAxisd(-12.0 * M_PI / 180.0, Eigen::Vector3d::UnitY()).toRotationMatrix();
   c.cam_from_proj.translation() = Eigen::Vector3d(10.63, 0, 0);
   c.depth_min_mm = 42;
   c.depth_max_mm = 58;
@@ -51,12 +52,13 @@ TEST(ProbeCalibration, RefusesMalformedAndNewerFiles) {
   j = nlohmann::json::parse(TestCalibration().ToJson());
   j["measurement_volume"]["depth_max_mm"] = 10;
   EXPECT_EQ(ProbeCalibration::FromJson(j.dump(), &out).code(), StatusCode::kInvalidArgument);
-  EXPECT_EQ(ProbeCalibration::Load("/nonexistent/calibration.json", &out).code(), StatusCode::kNotFound);
+  EXPECT_EQ(ProbeCalibration::Load("/nonexistent/calibration.json", &out).code(),
+            StatusCode::kNotFound);
 }
 
 // Issue 55: a field missing or of the wrong kind is named by its path, never by the JSON library's
-// own text; a missing projector gamma is an error (read as 1 it gave no point, silently); lengths in
-// another unit than mm are refused, not misread.
+// own text; a missing projector gamma is an error (read as 1 it gave no point, silently); lengths
+// in another unit than mm are refused, not misread.
 TEST(ProbeCalibration, NamesTheFieldThatIsMissingOrWrong) {
   ProbeCalibration out;
   const auto refused = [&](const nlohmann::json& j, const std::string& says) {
@@ -82,7 +84,8 @@ TEST(ProbeCalibration, NamesTheFieldThatIsMissingOrWrong) {
   j["pattern"]["marker"].erase("frame");
   refused(j, "pattern.marker.frame is missing");
   const Status bad_json = ProbeCalibration::FromJson("{\"format\": ", &out);
-  EXPECT_NE(bad_json.message().find("not valid JSON (at byte"), std::string::npos) << bad_json.ToString();
+  EXPECT_NE(bad_json.message().find("not valid JSON (at byte"), std::string::npos)
+      << bad_json.ToString();
 }
 
 TEST(FringePattern, PhaseShiftFramesRecoverTheAbsolutePhase) {
@@ -105,7 +108,8 @@ TEST(FringePattern, MarkerResidualIsHalfInStripesAndZeroElsewhere) {
   FringePatternSpec p;  // 4 steps, marker in frame 3, orders 4, 14, 24, ...
   int in_marker = 0;
   for (double c = 0.25; c < 912; c += 0.5) {
-    const double r = p.PatternValue(0, c) + p.PatternValue(2, c) - p.PatternValue(1, c) - p.PatternValue(3, c);
+    const double r =
+        p.PatternValue(0, c) + p.PatternValue(2, c) - p.PatternValue(1, c) - p.PatternValue(3, c);
     const long k = static_cast<long>(std::floor(c / p.fringe_period_px));
     const bool expected = k >= 4 && (k - 4) % 10 == 0;
     EXPECT_EQ(p.InMarker(c), expected) << c;

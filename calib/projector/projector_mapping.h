@@ -4,12 +4,12 @@
 // mapped to the projector, which yields "projector images" of the target (Zhang & Huang 2006,
 // "Novel method for structured light system calibration", Opt. Eng. 45(8):083601).
 //
-// Phase: N-step phase shift per period in the convention of the patterns (frame n shows ½ + ½ cos(2πc/T − δ_n), δ_n = 2πn/N, so
-// Σ I_n e^{iδ_n} ∝ e^{iΦ} and Φ = atan2(Σ I_n sin δ_n, Σ I_n cos δ_n) = 2πc/T mod 2π), and
-// B = (2/N)|Σ I_n e^{iδ_n}|. Temporal (hierarchical) unwrapping over the periods, coarse to fine
-// (Huntley & Saldner 1993; Zuo et al. 2016, "Temporal phase unwrapping algorithms for fringe
-// projection profilometry: a comparative review", Opt. Lasers Eng. 85:84–103, sect. 2.2): the
-// first period covers the projector (Φ₁ is absolute), then
+// Phase: N-step phase shift per period in the convention of the patterns (frame n shows ½ + ½
+// cos(2πc/T − δ_n), δ_n = 2πn/N, so Σ I_n e^{iδ_n} ∝ e^{iΦ} and Φ = atan2(Σ I_n sin δ_n, Σ I_n cos
+// δ_n) = 2πc/T mod 2π), and B = (2/N)|Σ I_n e^{iδ_n}|. Temporal (hierarchical) unwrapping over the
+// periods, coarse to fine (Huntley & Saldner 1993; Zuo et al. 2016, "Temporal phase unwrapping
+// algorithms for fringe projection profilometry: a comparative review", Opt. Lasers Eng. 85:84–103,
+// sect. 2.2): the first period covers the projector (Φ₁ is absolute), then
 //   c_j = T_j/(2π) · (φ_j + 2π·round((2π c_{j−1}/T_j − φ_j) / 2π)).
 //
 // Feature mapping: around each feature (camera px), the decoded projector coordinates of the
@@ -31,9 +31,10 @@ namespace d3d {
 
 struct PhaseDecodeOptions {
   int steps = 4;
-  std::vector<double> periods_px = {1200.0, 120.0, 24.0};  // coarse → fine; periods_px[0] ≥ projector extent
-  double min_modulation_dn = 3.0;  // B of the finest period below this: invalid
-  void Check() const;              // throws std::invalid_argument
+  std::vector<double> periods_px = {1200.0, 120.0,
+                                    24.0};  // coarse → fine; periods_px[0] ≥ projector extent
+  double min_modulation_dn = 3.0;           // B of the finest period below this: invalid
+  void Check() const;                       // throws std::invalid_argument
 };
 
 struct ProjectorCoordinateMap {
@@ -43,14 +44,15 @@ struct ProjectorCoordinateMap {
 
 // frames: steps × periods frames, period-major (all steps of periods_px[0] first), H×W CV_8U or
 // CV_16U, all of one size. INVALID_ARGUMENT for a wrong count, size or type.
-[[nodiscard]] Status DecodeProjectorCoordinate(const std::vector<cv::Mat>& frames, const PhaseDecodeOptions& options,
+[[nodiscard]] Status DecodeProjectorCoordinate(const std::vector<cv::Mat>& frames,
+                                               const PhaseDecodeOptions& options,
                                                ProjectorCoordinateMap* out);
 
 struct FeatureMappingOptions {
-  double window_radius_px = 20.0;   // fit window around each feature, camera px
-  double modulation_fraction = 0.5; // pixels with B < this × p90(B in the window) are left out
-  int min_samples = 40;             // fewer good pixels: the feature is not mapped
-  double max_fit_rms_px = 0.5;      // a worse fit (projector px): not mapped
+  double window_radius_px = 20.0;    // fit window around each feature, camera px
+  double modulation_fraction = 0.5;  // pixels with B < this × p90(B in the window) are left out
+  int min_samples = 40;              // fewer good pixels: the feature is not mapped
+  double max_fit_rms_px = 0.5;       // a worse fit (projector px): not mapped
   void Check() const;
 };
 
@@ -63,7 +65,8 @@ struct MappedFeature {
 };
 
 // Maps camera points (px) to the projector with the u (axis x) and v (axis y) maps.
-std::vector<MappedFeature> MapFeaturesToProjector(const ProjectorCoordinateMap& u_map, const ProjectorCoordinateMap& v_map,
+std::vector<MappedFeature> MapFeaturesToProjector(const ProjectorCoordinateMap& u_map,
+                                                  const ProjectorCoordinateMap& v_map,
                                                   const std::vector<Eigen::Vector2d>& camera_px,
                                                   const FeatureMappingOptions& options = {});
 

@@ -9,8 +9,8 @@ namespace {
 
 // Frames of an N-step multi-frequency set over a known projector coordinate map c(x, y), with
 // offset A, modulation B·albedo and seeded noise.
-std::vector<cv::Mat> Frames(const cv::Mat& coord, const cv::Mat& albedo, const PhaseDecodeOptions& o, double noise,
-                            uint64_t seed) {
+std::vector<cv::Mat> Frames(const cv::Mat& coord, const cv::Mat& albedo,
+                            const PhaseDecodeOptions& o, double noise, uint64_t seed) {
   std::mt19937_64 rng(seed);
   std::normal_distribution<double> n(0.0, noise);
   std::vector<cv::Mat> frames;
@@ -19,7 +19,8 @@ std::vector<cv::Mat> Frames(const cv::Mat& coord, const cv::Mat& albedo, const P
       cv::Mat f(coord.size(), CV_8U);
       for (int r = 0; r < coord.rows; ++r)
         for (int c = 0; c < coord.cols; ++c) {
-          const double p = 0.5 + 0.5 * std::cos(2 * M_PI * coord.at<float>(r, c) / T - 2 * M_PI * s / o.steps);
+          const double p =
+              0.5 + 0.5 * std::cos(2 * M_PI * coord.at<float>(r, c) / T - 2 * M_PI * s / o.steps);
           const double v = albedo.at<float>(r, c) * (20 + 200 * p) + n(rng);
           f.at<uint8_t>(r, c) = static_cast<uint8_t>(std::clamp(std::lround(v), 0L, 255L));
         }

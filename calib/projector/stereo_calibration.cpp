@@ -6,20 +6,19 @@
 #include <cmath>
 #include <sstream>
 
-#include "calib/camera/conditioning.h"
 #include "calib/camera/ceres_terms.h"
+#include "calib/camera/conditioning.h"
 #include "common/core/status.h"
 
 namespace d3d {
-namespace {
-
-}  // namespace
+namespace {}  // namespace
 
 void StereoCalibrationOptions::Check() const {
   camera.Check();
   projector.Check();
   D3D_CHECK_MSG(max_iterations > 0, "max_iterations must be positive");
-  D3D_CHECK_MSG(max_extrinsic_sigma_mm > 0 && max_extrinsic_sigma_rad > 0, "extrinsic limits must be positive");
+  D3D_CHECK_MSG(max_extrinsic_sigma_mm > 0 && max_extrinsic_sigma_rad > 0,
+                "extrinsic limits must be positive");
 }
 
 Rigid3d AverageRigid(const std::vector<Rigid3d>& poses) {
@@ -40,11 +39,14 @@ Rigid3d AverageRigid(const std::vector<Rigid3d>& poses) {
   return out;
 }
 
-StereoCalibrationResult CalibrateStereo(const std::vector<StereoView>& views, int camera_width, int camera_height,
-                                        int projector_width, int projector_height, const StereoCalibrationOptions& options) {
+StereoCalibrationResult CalibrateStereo(const std::vector<StereoView>& views, int camera_width,
+                                        int camera_height, int projector_width,
+                                        int projector_height,
+                                        const StereoCalibrationOptions& options) {
   options.Check();
   for (const auto& v : views) {
-    D3D_CHECK_MSG(v.object_points.size() == v.camera_px.size() && v.camera_px.size() == v.projector_px.size() &&
+    D3D_CHECK_MSG(v.object_points.size() == v.camera_px.size() &&
+                      v.camera_px.size() == v.projector_px.size() &&
                       v.projector_px.size() == v.projector_valid.size(),
                   "stereo view '" << v.name << "': point lists differ in length");
   }
@@ -76,7 +78,8 @@ StereoCalibrationResult CalibrateStereo(const std::vector<StereoView>& views, in
   }
   std::vector<Rigid3d> rel;
   for (size_t i = 0; i < views.size(); ++i)
-    rel.push_back(res.projector_only.views[i].device_from_target * res.camera_only.views[i].device_from_target.inverse());
+    rel.push_back(res.projector_only.views[i].device_from_target *
+                  res.camera_only.views[i].device_from_target.inverse());
   const Rigid3d proj_from_cam0 = AverageRigid(rel);
   res.initial_cam_from_proj = proj_from_cam0.inverse();
 
@@ -89,20 +92,23 @@ StereoCalibrationResult CalibrateStereo(const std::vector<StereoView>& views, in
   std::vector<std::array<double, 6>> poses;
   for (const auto& v : res.camera_only.views) poses.push_back(PoseToParams(v.device_from_target));
   const double cam_aspect = options.camera.fix_aspect_ratio ? options.camera.aspect_ratio : 0.0;
-  const double proj_aspect = options.projector.fix_aspect_ratio ? options.projector.aspect_ratio : 0.0;
+  const double proj_aspect =
+      options.projector.fix_aspect_ratio ? options.projector.aspect_ratio : 0.0;
   ceres::Problem problem;
   int residuals = 0;
   for (size_t i = 0; i < views.size(); ++i) {
     const auto& v = views[i];
     for (size_t k = 0; k < v.object_points.size(); ++k) {
-      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<CameraFeatureCost, 2, 4, 5, 6>(new CameraFeatureCost{
-                                   v.object_points[k], v.camera_px[k], options.camera.circle_radius_mm, cam_aspect}),
-                               nullptr, cam_intr, cam_dist, poses[i].data());
+      problem.AddResidualBlock(
+          new ceres::AutoDiffCostFunction<CameraFeatureCost, 2, 4, 5, 6>(new CameraFeatureCost{
+              v.object_points[k], v.camera_px[k], options.camera.circle_radius_mm, cam_aspect}),
+          nullptr, cam_intr, cam_dist, poses[i].data());
       residuals += 2;
       if (!v.projector_valid[k]) continue;
-      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<ProjectorFeatureCost, 2, 4, 5, 6, 6>(
-                                   new ProjectorFeatureCost{v.object_points[k], v.projector_px[k], proj_aspect}),
-                               nullptr, proj_intr, proj_dist, extr.data(), poses[i].data());
+      problem.AddResidualBlock(
+          new ceres::AutoDiffCostFunction<ProjectorFeatureCost, 2, 4, 5, 6, 6>(
+              new ProjectorFeatureCost{v.object_points[k], v.projector_px[k], proj_aspect}),
+          nullptr, proj_intr, proj_dist, extr.data(), poses[i].data());
       residuals += 2;
     }
   }
@@ -122,9 +128,10 @@ StereoCalibrationResult CalibrateStereo(const std::vector<StereoView>& views, in
   if (cam_aspect > 0) cam_intr[1] = cam_aspect * cam_intr[0];
   if (proj_aspect > 0) proj_intr[1] = proj_aspect * proj_intr[0];
   res.camera = {camera_width, camera_height, cam_intr[0], cam_intr[1], cam_intr[2], cam_intr[3],
-                cam_dist[0], cam_dist[1], cam_dist[2], cam_dist[3], cam_dist[4]};
-  res.projector = {projector_width, projector_height, proj_intr[0], proj_intr[1], proj_intr[2], proj_intr[3],
-                   proj_dist[0], proj_dist[1], proj_dist[2], proj_dist[3], proj_dist[4]};
+                cam_dist[0],  cam_dist[1],   cam_dist[2], cam_dist[3], cam_dist[4]};
+  res.projector = {projector_width, projector_height, proj_intr[0], proj_intr[1],
+                   proj_intr[2],    proj_intr[3],     proj_dist[0], proj_dist[1],
+                   proj_dist[2],    proj_dist[3],     proj_dist[4]};
   const Rigid3d proj_from_cam = ParamsToPose(extr.data());
   res.cam_from_proj = proj_from_cam.inverse();
   double cs = 0, ps = 0;
@@ -135,20 +142,25 @@ StereoCalibrationResult CalibrateStereo(const std::vector<StereoView>& views, in
     std::vector<Eigen::Vector2d> cr, pr;
     double vs = 0, vp = 0;
     for (size_t k = 0; k < views[i].object_points.size(); ++k) {
-      cr.push_back(views[i].camera_px[k] - ProjectTargetFeature(res.camera, pose, views[i].object_points[k], options.camera.circle_radius_mm));
+      cr.push_back(views[i].camera_px[k] - ProjectTargetFeature(res.camera, pose,
+                                                                views[i].object_points[k],
+                                                                options.camera.circle_radius_mm));
       vs += cr.back().squaredNorm();
       if (!views[i].projector_valid[k]) {
         pr.push_back(Eigen::Vector2d(NAN, NAN));
         continue;
       }
-      pr.push_back(views[i].projector_px[k] - ProjectTargetFeature(res.projector, proj_from_cam * pose, views[i].object_points[k], 0.0));
+      pr.push_back(views[i].projector_px[k] - ProjectTargetFeature(res.projector,
+                                                                   proj_from_cam * pose,
+                                                                   views[i].object_points[k], 0.0));
       vp += pr.back().squaredNorm();
       ++pn;
     }
     cn += static_cast<int>(cr.size());
     cs += vs;
     ps += vp;
-    const int vpn = static_cast<int>(std::count(views[i].projector_valid.begin(), views[i].projector_valid.end(), 1));
+    const int vpn = static_cast<int>(
+        std::count(views[i].projector_valid.begin(), views[i].projector_valid.end(), 1));
     res.camera_view_rms_px.push_back(std::sqrt(vs / std::max<size_t>(1, cr.size())));
     res.projector_view_rms_px.push_back(std::sqrt(vp / std::max(1, vpn)));
     res.camera_residuals_px.push_back(std::move(cr));
@@ -164,25 +176,30 @@ StereoCalibrationResult CalibrateStereo(const std::vector<StereoView>& views, in
   const ConditioningReport cond = ComputeCovariance(&problem, order, residuals);
   res.reciprocal_condition = cond.reciprocal_condition;
   if (!cond.ok) {
-    why << "ill-conditioned: the stereo Jacobian is rank-deficient (reciprocal condition " << cond.reciprocal_condition << ")";
+    why << "ill-conditioned: the stereo Jacobian is rank-deficient (reciprocal condition "
+        << cond.reciprocal_condition << ")";
     res.reason = why.str();
     return res;
   }
   size_t off = 6 * views.size();
   auto take = [&](std::array<double, 9>* sig, int base, int size, const std::vector<int>& fixed) {
     for (int k = 0; k < size; ++k)
-      if (std::find(fixed.begin(), fixed.end(), k) == fixed.end()) (*sig)[static_cast<size_t>(base + k)] = cond.sigma[off++];
+      if (std::find(fixed.begin(), fixed.end(), k) == fixed.end())
+        (*sig)[static_cast<size_t>(base + k)] = cond.sigma[off++];
   };
   take(&res.camera_sigma, 0, 4, fci);
   take(&res.camera_sigma, 4, 5, fcd);
   take(&res.projector_sigma, 0, 4, fpi);
   take(&res.projector_sigma, 4, 5, fpd);
   for (size_t k = 0; k < 6; ++k) res.extrinsic_sigma[k] = cond.sigma[off++];
-  const double sig_rot = std::max({res.extrinsic_sigma[0], res.extrinsic_sigma[1], res.extrinsic_sigma[2]});
-  const double sig_t = std::max({res.extrinsic_sigma[3], res.extrinsic_sigma[4], res.extrinsic_sigma[5]});
+  const double sig_rot =
+      std::max({res.extrinsic_sigma[0], res.extrinsic_sigma[1], res.extrinsic_sigma[2]});
+  const double sig_t =
+      std::max({res.extrinsic_sigma[3], res.extrinsic_sigma[4], res.extrinsic_sigma[5]});
   if (sig_rot > options.max_extrinsic_sigma_rad || sig_t > options.max_extrinsic_sigma_mm) {
-    why << "ill-conditioned: sigma of cam_from_proj " << sig_rot << " rad, " << sig_t << " mm (limits "
-        << options.max_extrinsic_sigma_rad << " rad, " << options.max_extrinsic_sigma_mm << " mm)";
+    why << "ill-conditioned: sigma of cam_from_proj " << sig_rot << " rad, " << sig_t
+        << " mm (limits " << options.max_extrinsic_sigma_rad << " rad, "
+        << options.max_extrinsic_sigma_mm << " mm)";
     res.reason = why.str();
     return res;
   }

@@ -26,15 +26,15 @@ struct StereoView {
 };
 
 struct StereoCalibrationOptions {
-  CameraCalibrationOptions camera;     // camera.circle_radius_mm: circle model for the camera features
+  CameraCalibrationOptions camera;  // camera.circle_radius_mm: circle model for the camera features
   CameraCalibrationOptions projector;  // its circle_radius_mm is ignored (point model)
   int max_iterations = 200;
-  double max_extrinsic_sigma_mm = 0.05;    // σ of the baseline above this: ill-conditioned
+  double max_extrinsic_sigma_mm = 0.05;  // σ of the baseline above this: ill-conditioned
   // σ of the rotation above this: ill-conditioned. The rotation is strongly correlated with the
-  // projector's principal point (1 px ≈ 0.5 mrad at f = 2100 px), which the 3-D measurement does not
-  // see; σ ≈ 1 mrad is normal for 10–15 views of the probe.
+  // projector's principal point (1 px ≈ 0.5 mrad at f = 2100 px), which the 3-D measurement does
+  // not see; σ ≈ 1 mrad is normal for 10–15 views of the probe.
   double max_extrinsic_sigma_rad = 5e-3;
-  void Check() const;                  // throws std::invalid_argument
+  void Check() const;  // throws std::invalid_argument
 };
 
 struct StereoCalibrationResult {
@@ -48,7 +48,8 @@ struct StereoCalibrationResult {
   std::vector<Rigid3d> cam_from_target;
   double camera_rms_px = 0, projector_rms_px = 0;  // after the bundle adjustment
   std::vector<double> camera_view_rms_px, projector_view_rms_px;
-  std::vector<std::vector<Eigen::Vector2d>> camera_residuals_px, projector_residuals_px;  // observed − predicted
+  std::vector<std::vector<Eigen::Vector2d>> camera_residuals_px,
+      projector_residuals_px;                               // observed − predicted
   std::array<double, 9> camera_sigma{}, projector_sigma{};  // (fx, fy, cx, cy, k1, k2, p1, p2, k3)
   std::array<double, 6> extrinsic_sigma{};  // proj_from_cam: angle-axis (rad), t (mm)
   double reciprocal_condition = 0;
@@ -56,8 +57,10 @@ struct StereoCalibrationResult {
 
 // Throws std::invalid_argument for inconsistent views. Failures (either device cannot be
 // calibrated, too few projector features, ill-conditioned) return ok = false with the reason.
-StereoCalibrationResult CalibrateStereo(const std::vector<StereoView>& views, int camera_width, int camera_height,
-                                        int projector_width, int projector_height, const StereoCalibrationOptions& options = {});
+StereoCalibrationResult CalibrateStereo(const std::vector<StereoView>& views, int camera_width,
+                                        int camera_height, int projector_width,
+                                        int projector_height,
+                                        const StereoCalibrationOptions& options = {});
 
 // Mean of rigid transforms: chordal L2 mean of the rotations (principal eigenvector of Σ q qᵀ),
 // arithmetic mean of the translations. Throws std::invalid_argument for an empty list.

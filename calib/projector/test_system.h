@@ -11,8 +11,10 @@
 
 namespace d3d::testing {
 
-inline const PinholeBrownConrady kTestCam{640, 480, 2000, 2000, 322.7, 236.9, -0.045, 0.12, 2e-4, -1.5e-4, 0};
-inline const PinholeBrownConrady kTestProj{912, 1140, 2100, 2100, 457.3, 566.4, 0.03, -0.05, -1e-4, 0.8e-4, 0};
+inline const PinholeBrownConrady kTestCam{640,    480,  2000, 2000,    322.7, 236.9,
+                                          -0.045, 0.12, 2e-4, -1.5e-4, 0};
+inline const PinholeBrownConrady kTestProj{912,  1140,  2100,  2100,   457.3, 566.4,
+                                           0.03, -0.05, -1e-4, 0.8e-4, 0};
 
 inline Rigid3d TestCamFromProj() {
   Rigid3d p = Rigid3d::Identity();

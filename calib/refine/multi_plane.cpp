@@ -17,8 +17,8 @@ struct DenseCost {
   Eigen::Vector2d camera_px, projector_px;
   double cam_aspect, proj_aspect;
   template <typename T>
-  bool operator()(const T* ci, const T* cd, const T* pi, const T* pd, const T* proj_from_cam, const T* cam_from_target,
-                  T* r) const {
+  bool operator()(const T* ci, const T* cd, const T* pi, const T* pd, const T* proj_from_cam,
+                  const T* cam_from_target, T* r) const {
     T fx, fy;
     FocalLengths(ci, cam_aspect, &fx, &fy);
     const T xyd[2] = {(T(camera_px.x()) - ci[2]) / fx, (T(camera_px.y()) - ci[3]) / fy};
@@ -28,12 +28,14 @@ struct DenseCost {
     ceres::AngleAxisToRotationMatrix(cam_from_target, ceres::RowMajorAdapter3x3(R));
     const T n[3] = {R[2], R[5], R[8]};  // target normal in the camera frame
     const T* t = cam_from_target + 3;
-    const T lambda = (n[0] * t[0] + n[1] * t[1] + n[2] * t[2]) / (n[0] * xy[0] + n[1] * xy[1] + n[2]);
+    const T lambda =
+        (n[0] * t[0] + n[1] * t[1] + n[2] * t[2]) / (n[0] * xy[0] + n[1] * xy[1] + n[2]);
     const T P[3] = {lambda * xy[0], lambda * xy[1], lambda};
     T Rp[9];
     ceres::AngleAxisToRotationMatrix(proj_from_cam, ceres::RowMajorAdapter3x3(Rp));
     T Q[3];
-    for (int i = 0; i < 3; ++i) Q[i] = Rp[3 * i] * P[0] + Rp[3 * i + 1] * P[1] + Rp[3 * i + 2] * P[2] + proj_from_cam[3 + i];
+    for (int i = 0; i < 3; ++i)
+      Q[i] = Rp[3 * i] * P[0] + Rp[3 * i + 1] * P[1] + Rp[3 * i + 2] * P[2] + proj_from_cam[3 + i];
     const T q[2] = {Q[0] / Q[2], Q[1] / Q[2]};
     T qd[2];
     DistortNormalised(pd, q, qd);
@@ -45,10 +47,13 @@ struct DenseCost {
   }
 };
 
-double DenseRms(const PinholeBrownConrady& cam, const PinholeBrownConrady& proj, const Rigid3d& cam_from_proj,
-                const std::vector<Rigid3d>& poses, const std::vector<std::vector<PlaneSample>>& dense) {
-  const double ci[4] = {cam.fx, cam.fy, cam.cx, cam.cy}, cd[5] = {cam.k1, cam.k2, cam.p1, cam.p2, cam.k3};
-  const double pi[4] = {proj.fx, proj.fy, proj.cx, proj.cy}, pd[5] = {proj.k1, proj.k2, proj.p1, proj.p2, proj.k3};
+double DenseRms(const PinholeBrownConrady& cam, const PinholeBrownConrady& proj,
+                const Rigid3d& cam_from_proj, const std::vector<Rigid3d>& poses,
+                const std::vector<std::vector<PlaneSample>>& dense) {
+  const double ci[4] = {cam.fx, cam.fy, cam.cx, cam.cy},
+               cd[5] = {cam.k1, cam.k2, cam.p1, cam.p2, cam.k3};
+  const double pi[4] = {proj.fx, proj.fy, proj.cx, proj.cy},
+               pd[5] = {proj.k1, proj.k2, proj.p1, proj.p2, proj.k3};
   const auto extr = PoseToParams(cam_from_proj.inverse());
   double s = 0;
   int64_t n = 0;
@@ -56,7 +61,8 @@ double DenseRms(const PinholeBrownConrady& cam, const PinholeBrownConrady& proj,
     const auto pose = PoseToParams(poses[i]);
     for (const auto& smp : dense[i]) {
       double r[2];
-      DenseCost{smp.camera_px, smp.projector_px, 0.0, 0.0}(ci, cd, pi, pd, extr.data(), pose.data(), r);
+      DenseCost{smp.camera_px, smp.projector_px, 0.0, 0.0}(ci, cd, pi, pd, extr.data(), pose.data(),
+                                                           r);
       s += r[0] * r[0] + r[1] * r[1];
       ++n;
     }
@@ -68,11 +74,13 @@ double DenseRms(const PinholeBrownConrady& cam, const PinholeBrownConrady& proj,
 
 void MultiPlaneOptions::Check() const {
   D3D_CHECK_MSG(sample_step_px >= 1, "sample step must be ≥ 1 px");
-  D3D_CHECK_MSG(modulation_fraction >= 0 && modulation_fraction < 1, "modulation fraction must be in [0, 1)");
+  D3D_CHECK_MSG(modulation_fraction >= 0 && modulation_fraction < 1,
+                "modulation fraction must be in [0, 1)");
   D3D_CHECK_MSG(edge_guard_px >= 0 && huber_px > 0 && max_iterations > 0, "bad refinement options");
 }
 
-std::vector<PlaneSample> SampleDensePlane(const ProjectorCoordinateMap& u_map, const ProjectorCoordinateMap& v_map,
+std::vector<PlaneSample> SampleDensePlane(const ProjectorCoordinateMap& u_map,
+                                          const ProjectorCoordinateMap& v_map,
                                           const MultiPlaneOptions& options) {
   options.Check();
   D3D_CHECK_MSG(u_map.coord_px.size() == v_map.coord_px.size(), "u and v maps must have one size");
@@ -83,8 +91,11 @@ std::vector<PlaneSample> SampleDensePlane(const ProjectorCoordinateMap& u_map, c
     for (int c = 0; c < mod.cols; c += 2) values.push_back(mod.at<float>(r, c));
   std::vector<PlaneSample> out;
   if (values.empty()) return out;
-  std::nth_element(values.begin(), values.begin() + static_cast<long>(0.9 * static_cast<double>(values.size() - 1)), values.end());
-  const double limit = options.modulation_fraction * values[static_cast<size_t>(0.9 * static_cast<double>(values.size() - 1))];
+  std::nth_element(values.begin(),
+                   values.begin() + static_cast<long>(0.9 * static_cast<double>(values.size() - 1)),
+                   values.end());
+  const double limit = options.modulation_fraction *
+                       values[static_cast<size_t>(0.9 * static_cast<double>(values.size() - 1))];
   cv::Mat good = mod >= limit;
   good &= (u_map.coord_px == u_map.coord_px) & (v_map.coord_px == v_map.coord_px);  // not NaN
   if (options.edge_guard_px > 0) {
@@ -94,13 +105,15 @@ std::vector<PlaneSample> SampleDensePlane(const ProjectorCoordinateMap& u_map, c
   for (int r = options.sample_step_px / 2; r < mod.rows; r += options.sample_step_px)
     for (int c = options.sample_step_px / 2; c < mod.cols; c += options.sample_step_px) {
       if (!good.at<uint8_t>(r, c)) continue;
-      out.push_back({Eigen::Vector2d(c, r), Eigen::Vector2d(u_map.coord_px.at<float>(r, c), v_map.coord_px.at<float>(r, c))});
+      out.push_back({Eigen::Vector2d(c, r), Eigen::Vector2d(u_map.coord_px.at<float>(r, c),
+                                                            v_map.coord_px.at<float>(r, c))});
     }
   return out;
 }
 
-bool TriangulateColumn(const PinholeBrownConrady& camera, const PinholeBrownConrady& projector, const Rigid3d& cam_from_proj,
-                       const Eigen::Vector2d& camera_px, double projector_u, Eigen::Vector3d* p_in_cam) {
+bool TriangulateColumn(const PinholeBrownConrady& camera, const PinholeBrownConrady& projector,
+                       const Rigid3d& cam_from_proj, const Eigen::Vector2d& camera_px,
+                       double projector_u, Eigen::Vector3d* p_in_cam) {
   const auto ray = camera.PixelRay(camera_px);
   if (!ray) return false;
   const Rigid3d proj_from_cam = cam_from_proj.inverse();
@@ -125,15 +138,18 @@ bool TriangulateColumn(const PinholeBrownConrady& camera, const PinholeBrownConr
   return true;
 }
 
-std::vector<PlanarityFigures> MeasurePlanarity(const PinholeBrownConrady& camera, const PinholeBrownConrady& projector,
-                                               const Rigid3d& cam_from_proj, const std::vector<Rigid3d>& cam_from_target,
+std::vector<PlanarityFigures> MeasurePlanarity(const PinholeBrownConrady& camera,
+                                               const PinholeBrownConrady& projector,
+                                               const Rigid3d& cam_from_proj,
+                                               const std::vector<Rigid3d>& cam_from_target,
                                                const std::vector<std::vector<PlaneSample>>& dense) {
   std::vector<PlanarityFigures> out(dense.size());
   for (size_t i = 0; i < dense.size(); ++i) {
     std::vector<Eigen::Vector3d> pts;
     for (const auto& s : dense[i]) {
       Eigen::Vector3d p;
-      if (TriangulateColumn(camera, projector, cam_from_proj, s.camera_px, s.projector_px.x(), &p)) pts.push_back(p);
+      if (TriangulateColumn(camera, projector, cam_from_proj, s.camera_px, s.projector_px.x(), &p))
+        pts.push_back(p);
     }
     PlanarityFigures& f = out[i];
     f.points = static_cast<int>(pts.size());
@@ -158,8 +174,10 @@ std::vector<PlanarityFigures> MeasurePlanarity(const PinholeBrownConrady& camera
   return out;
 }
 
-MultiPlaneResult RefineMultiPlane(const std::vector<StereoView>& views, const std::vector<std::vector<PlaneSample>>& dense,
-                                  const StereoCalibrationResult& start, const StereoCalibrationOptions& so_in,
+MultiPlaneResult RefineMultiPlane(const std::vector<StereoView>& views,
+                                  const std::vector<std::vector<PlaneSample>>& dense,
+                                  const StereoCalibrationResult& start,
+                                  const StereoCalibrationOptions& so_in,
                                   const MultiPlaneOptions& options) {
   options.Check();
   D3D_CHECK_MSG(views.size() == dense.size() && views.size() == start.cam_from_target.size(),
@@ -181,18 +199,21 @@ MultiPlaneResult RefineMultiPlane(const std::vector<StereoView>& views, const st
   for (size_t i = 0; i < views.size(); ++i) {
     const auto& v = views[i];
     for (size_t k = 0; k < v.object_points.size(); ++k) {
-      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<CameraFeatureCost, 2, 4, 5, 6>(
-                                   new CameraFeatureCost{v.object_points[k], v.camera_px[k], so_in.camera.circle_radius_mm, ca}),
-                               nullptr, ci, cd, poses[i].data());
+      problem.AddResidualBlock(
+          new ceres::AutoDiffCostFunction<CameraFeatureCost, 2, 4, 5, 6>(new CameraFeatureCost{
+              v.object_points[k], v.camera_px[k], so_in.camera.circle_radius_mm, ca}),
+          nullptr, ci, cd, poses[i].data());
       if (!v.projector_valid[k]) continue;
-      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<ProjectorFeatureCost, 2, 4, 5, 6, 6>(
-                                   new ProjectorFeatureCost{v.object_points[k], v.projector_px[k], pa}),
-                               nullptr, pi, pd, extr.data(), poses[i].data());
+      problem.AddResidualBlock(
+          new ceres::AutoDiffCostFunction<ProjectorFeatureCost, 2, 4, 5, 6, 6>(
+              new ProjectorFeatureCost{v.object_points[k], v.projector_px[k], pa}),
+          nullptr, pi, pd, extr.data(), poses[i].data());
     }
     for (const auto& s : dense[i]) {
       problem.AddResidualBlock(new ceres::AutoDiffCostFunction<DenseCost, 2, 4, 5, 4, 5, 6, 6>(
                                    new DenseCost{s.camera_px, s.projector_px, ca, pa}),
-                               new ceres::HuberLoss(options.huber_px), ci, cd, pi, pd, extr.data(), poses[i].data());
+                               new ceres::HuberLoss(options.huber_px), ci, cd, pi, pd, extr.data(),
+                               poses[i].data());
       ++res.samples;
     }
   }
@@ -215,22 +236,29 @@ MultiPlaneResult RefineMultiPlane(const std::vector<StereoView>& views, const st
   if (ca > 0) ci[1] = ca * ci[0];
   if (pa > 0) pi[1] = pa * pi[0];
   res.camera = {c.width, c.height, ci[0], ci[1], ci[2], ci[3], cd[0], cd[1], cd[2], cd[3], cd[4]};
-  res.projector = {p.width, p.height, pi[0], pi[1], pi[2], pi[3], pd[0], pd[1], pd[2], pd[3], pd[4]};
+  res.projector = {p.width, p.height, pi[0], pi[1], pi[2], pi[3],
+                   pd[0],   pd[1],    pd[2], pd[3], pd[4]};
   res.cam_from_proj = ParamsToPose(extr.data()).inverse();
   for (const auto& q : poses) res.cam_from_target.push_back(ParamsToPose(q.data()));
-  res.after = MeasurePlanarity(res.camera, res.projector, res.cam_from_proj, res.cam_from_target, dense);
-  res.dense_rms_after_px = DenseRms(res.camera, res.projector, res.cam_from_proj, res.cam_from_target, dense);
+  res.after =
+      MeasurePlanarity(res.camera, res.projector, res.cam_from_proj, res.cam_from_target, dense);
+  res.dense_rms_after_px =
+      DenseRms(res.camera, res.projector, res.cam_from_proj, res.cam_from_target, dense);
   double cs = 0, ps = 0;
   int cn = 0, pn = 0;
   const Rigid3d proj_from_cam = res.cam_from_proj.inverse();
   for (size_t i = 0; i < views.size(); ++i)
     for (size_t k = 0; k < views[i].object_points.size(); ++k) {
-      cs += (views[i].camera_px[k] - ProjectTargetFeature(res.camera, res.cam_from_target[i], views[i].object_points[k],
-                                                          so_in.camera.circle_radius_mm)).squaredNorm();
+      cs += (views[i].camera_px[k] - ProjectTargetFeature(res.camera, res.cam_from_target[i],
+                                                          views[i].object_points[k],
+                                                          so_in.camera.circle_radius_mm))
+                .squaredNorm();
       ++cn;
       if (!views[i].projector_valid[k]) continue;
-      ps += (views[i].projector_px[k] -
-             ProjectTargetFeature(res.projector, proj_from_cam * res.cam_from_target[i], views[i].object_points[k], 0.0)).squaredNorm();
+      ps += (views[i].projector_px[k] - ProjectTargetFeature(res.projector,
+                                                             proj_from_cam * res.cam_from_target[i],
+                                                             views[i].object_points[k], 0.0))
+                .squaredNorm();
       ++pn;
     }
   res.camera_rms_px = std::sqrt(cs / std::max(1, cn));

@@ -33,22 +33,25 @@ struct PlaneSample {
 };
 
 struct MultiPlaneOptions {
-  int sample_step_px = 6;            // dense samples on this camera-pixel grid
-  double modulation_fraction = 0.6;  // keep pixels with B ≥ this × the view's 90th percentile (paper, not print)
-  double edge_guard_px = 3.0;        // and at least this far from any low-modulation pixel
+  int sample_step_px = 6;  // dense samples on this camera-pixel grid
+  double modulation_fraction =
+      0.6;  // keep pixels with B ≥ this × the view's 90th percentile (paper, not print)
+  double edge_guard_px = 3.0;  // and at least this far from any low-modulation pixel
   int max_iterations = 50;
-  double huber_px = 1.0;             // robust loss scale of the dense residuals (projector px)
-  void Check() const;                // throws std::invalid_argument
+  double huber_px = 1.0;  // robust loss scale of the dense residuals (projector px)
+  void Check() const;     // throws std::invalid_argument
 };
 
 // Dense samples of one view from its decoded u and v maps (H×W, projector_mapping.h).
-std::vector<PlaneSample> SampleDensePlane(const ProjectorCoordinateMap& u_map, const ProjectorCoordinateMap& v_map,
+std::vector<PlaneSample> SampleDensePlane(const ProjectorCoordinateMap& u_map,
+                                          const ProjectorCoordinateMap& v_map,
                                           const MultiPlaneOptions& options);
 
 // Scanner-style triangulation: the point on the camera ray of pixel p whose projection in the
 // projector has column u (both distortions; Newton/secant along the ray). false if it fails.
-bool TriangulateColumn(const PinholeBrownConrady& camera, const PinholeBrownConrady& projector, const Rigid3d& cam_from_proj,
-                       const Eigen::Vector2d& camera_px, double projector_u, Eigen::Vector3d* p_in_cam);
+bool TriangulateColumn(const PinholeBrownConrady& camera, const PinholeBrownConrady& projector,
+                       const Rigid3d& cam_from_proj, const Eigen::Vector2d& camera_px,
+                       double projector_u, Eigen::Vector3d* p_in_cam);
 
 struct PlanarityFigures {
   double fit_rms_um = 0;     // RMS distance to the least-squares plane of the view's points
@@ -57,8 +60,10 @@ struct PlanarityFigures {
 };
 
 // Planarity of every view's dense samples under a calibration (see above).
-std::vector<PlanarityFigures> MeasurePlanarity(const PinholeBrownConrady& camera, const PinholeBrownConrady& projector,
-                                               const Rigid3d& cam_from_proj, const std::vector<Rigid3d>& cam_from_target,
+std::vector<PlanarityFigures> MeasurePlanarity(const PinholeBrownConrady& camera,
+                                               const PinholeBrownConrady& projector,
+                                               const Rigid3d& cam_from_proj,
+                                               const std::vector<Rigid3d>& cam_from_target,
                                                const std::vector<std::vector<PlaneSample>>& dense);
 
 struct MultiPlaneResult {
@@ -71,15 +76,17 @@ struct MultiPlaneResult {
   double dense_rms_before_px = 0, dense_rms_after_px = 0;  // dense residuals (u, v), projector px
   double camera_rms_px = 0, projector_rms_px = 0;          // feature reprojection after
   std::vector<PlanarityFigures> before, after;
-  double plane_fit_rms_before_um = 0, plane_fit_rms_after_um = 0;      // over all views
+  double plane_fit_rms_before_um = 0, plane_fit_rms_after_um = 0;  // over all views
   double target_plane_rms_before_um = 0, target_plane_rms_after_um = 0;
 };
 
 // views: the stereo views (features) of the bundle adjustment; dense: per view (same order) the
 // dense samples; start: the stereo calibration to refine; stereo_options: which parameters are
 // fixed, the circle radius.
-MultiPlaneResult RefineMultiPlane(const std::vector<StereoView>& views, const std::vector<std::vector<PlaneSample>>& dense,
-                                  const StereoCalibrationResult& start, const StereoCalibrationOptions& stereo_options,
+MultiPlaneResult RefineMultiPlane(const std::vector<StereoView>& views,
+                                  const std::vector<std::vector<PlaneSample>>& dense,
+                                  const StereoCalibrationResult& start,
+                                  const StereoCalibrationOptions& stereo_options,
                                   const MultiPlaneOptions& options = {});
 
 }  // namespace d3d

@@ -35,10 +35,13 @@ TEST(MultiPlane, RefinementMakesTheMeasuredPlanesFlat) {
   const int n = 10;
   for (int i = 0; i < n; ++i) {
     const double a = 2 * M_PI * (i + 0.5 * (u(rng) + 1)) / n;
-    const Eigen::Matrix3d R = Eigen::AngleAxisd((22 + 10 * u(rng)) * M_PI / 180, Eigen::Vector3d(std::cos(a), std::sin(a), 0)).toRotationMatrix();
+    const Eigen::Matrix3d R = Eigen::AngleAxisd((22 + 10 * u(rng)) * M_PI / 180,
+                                                Eigen::Vector3d(std::cos(a), std::sin(a), 0))
+                                  .toRotationMatrix();
     Rigid3d pose = Rigid3d::Identity();
     pose.linear() = R;
-    pose.translation() = Eigen::Vector3d(0.5 * u(rng), 0.5 * u(rng), 50 + 3 * u(rng)) - R * Eigen::Vector3d(4.8, 3.6, 0);
+    pose.translation() = Eigen::Vector3d(0.5 * u(rng), 0.5 * u(rng), 50 + 3 * u(rng)) -
+                         R * Eigen::Vector3d(4.8, 3.6, 0);
     truth.push_back(pose);
     StereoView v;
     for (int r = 0; r < 7; ++r)
@@ -46,7 +49,8 @@ TEST(MultiPlane, RefinementMakesTheMeasuredPlanesFlat) {
         const Eigen::Vector3d X(c * 1.2, r * 1.2, 0);
         v.object_points.push_back(X);
         v.camera_px.push_back(*kCam.Project(pose * X) + Eigen::Vector2d(cn(rng), cn(rng)));
-        v.projector_px.push_back(*kProj.Project(proj_from_cam * pose * X) + Eigen::Vector2d(pn(rng), pn(rng)));
+        v.projector_px.push_back(*kProj.Project(proj_from_cam * pose * X) +
+                                 Eigen::Vector2d(pn(rng), pn(rng)));
         v.projector_valid.push_back(1);
       }
     views.push_back(v);
@@ -69,18 +73,24 @@ TEST(MultiPlane, RefinementMakesTheMeasuredPlanesFlat) {
   ASSERT_TRUE(start.ok) << start.reason;
   const MultiPlaneResult r = RefineMultiPlane(views, dense, start, so);
   ASSERT_TRUE(r.ok) << r.reason;
-  std::printf("multi-plane: %d samples; dense rms %.4f -> %.4f px; plane fit %.2f -> %.2f um; target plane %.2f -> %.2f um\n",
-              r.samples, r.dense_rms_before_px, r.dense_rms_after_px, r.plane_fit_rms_before_um, r.plane_fit_rms_after_um,
-              r.target_plane_rms_before_um, r.target_plane_rms_after_um);
-  std::printf("  proj fx %.2f -> %.2f (true 2100); cam_from_proj rot %.2e -> %.2e rad, t %.4f -> %.4f mm\n", start.projector.fx,
-              r.projector.fx, RotationAngleRad(start.cam_from_proj, CamFromProj()), RotationAngleRad(r.cam_from_proj, CamFromProj()),
-              TranslationDistanceMm(start.cam_from_proj, CamFromProj()), TranslationDistanceMm(r.cam_from_proj, CamFromProj()));
+  std::printf(
+      "multi-plane: %d samples; dense rms %.4f -> %.4f px; plane fit %.2f -> %.2f um; target plane "
+      "%.2f -> %.2f um\n",
+      r.samples, r.dense_rms_before_px, r.dense_rms_after_px, r.plane_fit_rms_before_um,
+      r.plane_fit_rms_after_um, r.target_plane_rms_before_um, r.target_plane_rms_after_um);
+  std::printf(
+      "  proj fx %.2f -> %.2f (true 2100); cam_from_proj rot %.2e -> %.2e rad, t %.4f -> %.4f mm\n",
+      start.projector.fx, r.projector.fx, RotationAngleRad(start.cam_from_proj, CamFromProj()),
+      RotationAngleRad(r.cam_from_proj, CamFromProj()),
+      TranslationDistanceMm(start.cam_from_proj, CamFromProj()),
+      TranslationDistanceMm(r.cam_from_proj, CamFromProj()));
   EXPECT_LT(r.dense_rms_after_px, r.dense_rms_before_px);
   EXPECT_NEAR(r.dense_rms_after_px, 0.02 * std::sqrt(2.0), 0.01);  // down to the decoding noise
   EXPECT_LE(r.target_plane_rms_after_um, r.target_plane_rms_before_um);
   // The floor: 0.02 px of decoding noise is 0.02 × 24 µm / tan 12° ≈ 2.3 µm of depth per point.
   EXPECT_LT(r.target_plane_rms_after_um, 2.6);
-  EXPECT_LT(RotationAngleRad(r.cam_from_proj, CamFromProj()), 0.5 * RotationAngleRad(start.cam_from_proj, CamFromProj()));
+  EXPECT_LT(RotationAngleRad(r.cam_from_proj, CamFromProj()),
+            0.5 * RotationAngleRad(start.cam_from_proj, CamFromProj()));
   EXPECT_LT(TranslationDistanceMm(r.cam_from_proj, CamFromProj()), 0.02);
   EXPECT_NEAR(r.projector.fx, kProj.fx, 0.001 * kProj.fx);
 }

@@ -14,7 +14,8 @@ namespace d3d {
 namespace {
 
 namespace fs = std::filesystem;
-const Eigen::Vector2d kNaN2(std::numeric_limits<double>::quiet_NaN(), std::numeric_limits<double>::quiet_NaN());
+const Eigen::Vector2d kNaN2(std::numeric_limits<double>::quiet_NaN(),
+                            std::numeric_limits<double>::quiet_NaN());
 
 double Median(std::vector<double> v) {
   if (v.empty()) return 0.0;
@@ -26,9 +27,11 @@ double Median(std::vector<double> v) {
 double AreaScale(const PinholeBrownConrady& cam, const Rigid3d& pose, const Eigen::Vector3d& X) {
   const double h = 1e-3;
   const Eigen::Vector2d du = (ProjectTargetFeature(cam, pose, X + Eigen::Vector3d(h, 0, 0), 0) -
-                              ProjectTargetFeature(cam, pose, X - Eigen::Vector3d(h, 0, 0), 0)) / (2 * h);
+                              ProjectTargetFeature(cam, pose, X - Eigen::Vector3d(h, 0, 0), 0)) /
+                             (2 * h);
   const Eigen::Vector2d dv = (ProjectTargetFeature(cam, pose, X + Eigen::Vector3d(0, h, 0), 0) -
-                              ProjectTargetFeature(cam, pose, X - Eigen::Vector3d(0, h, 0), 0)) / (2 * h);
+                              ProjectTargetFeature(cam, pose, X - Eigen::Vector3d(0, h, 0), 0)) /
+                             (2 * h);
   return std::abs(du.x() * dv.y() - du.y() * dv.x());
 }
 
@@ -52,10 +55,12 @@ void SystemCalibrationOptions::Check() const {
   m.Check();
   refine.Check();
   D3D_CHECK_MSG(projector_gamma > 0.1 && projector_gamma < 10, "projector gamma out of range");
-  D3D_CHECK_MSG(depth_margin_mm >= 0 && min_projector_features >= 6, "bad depth margin or projector feature minimum");
+  D3D_CHECK_MSG(depth_margin_mm >= 0 && min_projector_features >= 6,
+                "bad depth margin or projector feature minimum");
 }
 
-SystemCalibrationResult CalibrateSystem(const CalibrationTarget& target, const std::vector<CalibrationImage>& images,
+SystemCalibrationResult CalibrateSystem(const CalibrationTarget& target,
+                                        const std::vector<CalibrationImage>& images,
                                         const SystemCalibrationOptions& options) {
   target.Check();
   options.Check();
@@ -69,13 +74,14 @@ SystemCalibrationResult CalibrateSystem(const CalibrationTarget& target, const s
   const cv::Size size = images[0].white.size();
   for (const auto& im : images) {
     if (im.white.size() != size) {
-      why << "images of different sizes: '" << images[0].name << "' is " << size.width << "x" << size.height << ", '"
-          << im.name << "' is " << im.white.cols << "x" << im.white.rows;
+      why << "images of different sizes: '" << images[0].name << "' is " << size.width << "x"
+          << size.height << ", '" << im.name << "' is " << im.white.cols << "x" << im.white.rows;
       res.reason = why.str();
       return res;
     }
   }
-  const bool with_phase = std::any_of(images.begin(), images.end(), [](const CalibrationImage& i) { return !i.phase_x.empty(); });
+  const bool with_phase = std::any_of(images.begin(), images.end(),
+                                      [](const CalibrationImage& i) { return !i.phase_x.empty(); });
   if (with_phase && (options.projector_width <= 0 || options.projector_height <= 0)) {
     res.reason = "phase sets given but the projector size is unknown";
     return res;
@@ -104,9 +110,11 @@ SystemCalibrationResult CalibrateSystem(const CalibrationTarget& target, const s
     res.images.push_back(rep);
   }
   if (used.size() < static_cast<size_t>(options.camera.min_views)) {
-    why << "too few usable views: " << used.size() << " of " << images.size() << " (need " << options.camera.min_views << ")";
+    why << "too few usable views: " << used.size() << " of " << images.size() << " (need "
+        << options.camera.min_views << ")";
     if (not_found == static_cast<int>(images.size())) {
-      why << "; target " << target.ToString() << " not found in any image (wrong target size or kind?)";
+      why << "; target " << target.ToString()
+          << " not found in any image (wrong target size or kind?)";
     } else {
       for (const auto& r : res.images)
         if (!r.used) why << "; " << r.name << ": " << r.rejected;
@@ -116,7 +124,8 @@ SystemCalibrationResult CalibrateSystem(const CalibrationTarget& target, const s
   }
   // Step 3: the camera (point model first when the circle diameter must be estimated).
   std::vector<TargetView> views;
-  for (size_t i : used) views.push_back({images[i].name, target.FeaturePoints(), feats[i].points_px});
+  for (size_t i : used)
+    views.push_back({images[i].name, target.FeaturePoints(), feats[i].points_px});
   CameraCalibrationOptions co = options.camera;
   res.circle_diameter_mm = target.circle_diameter_mm;
   if (target.IsCircles() && res.circle_diameter_mm <= 0) {
@@ -130,7 +139,8 @@ SystemCalibrationResult CalibrateSystem(const CalibrationTarget& target, const s
     for (size_t v = 0; v < used.size(); ++v) {
       const auto& areas = feats[used[v]].blob_area_px;
       for (size_t k = 0; k < areas.size(); ++k) {
-        const double s = AreaScale(first.camera, first.views[v].device_from_target, views[v].object_points[k]);
+        const double s =
+            AreaScale(first.camera, first.views[v].device_from_target, views[v].object_points[k]);
         if (s > 0) d.push_back(2.0 * std::sqrt(areas[k] / (M_PI * s)));
       }
     }
@@ -177,17 +187,21 @@ SystemCalibrationResult CalibrateSystem(const CalibrationTarget& target, const s
       }
       const Rigid3d& pose = res.camera.views[v].device_from_target;
       const double r = co.circle_radius_mm;
-      std::vector<Eigen::Vector2d> corrected;  // images of the circles' centres (perspective bias removed)
+      std::vector<Eigen::Vector2d>
+          corrected;  // images of the circles' centres (perspective bias removed)
       std::vector<double> spacing;
       for (size_t k = 0; k < views[v].object_points.size(); ++k) {
         const Eigen::Vector3d& X = views[v].object_points[k];
-        const Eigen::Vector2d bias = ProjectTargetFeature(res.camera.camera, pose, X, r) - ProjectTargetFeature(res.camera.camera, pose, X, 0.0);
+        const Eigen::Vector2d bias = ProjectTargetFeature(res.camera.camera, pose, X, r) -
+                                     ProjectTargetFeature(res.camera.camera, pose, X, 0.0);
         corrected.push_back(views[v].image_points[k] - bias);
         if (k + 1 < views[v].object_points.size())
           spacing.push_back((views[v].image_points[k + 1] - views[v].image_points[k]).norm());
       }
       FeatureMappingOptions mo = options.mapping;
-      if (mo.window_radius_px <= 0) mo.window_radius_px = std::max(8.0, 0.8 * Median(spacing) * target.NearestFeatureDistanceMm() / target.spacing_mm);
+      if (mo.window_radius_px <= 0)
+        mo.window_radius_px = std::max(
+            8.0, 0.8 * Median(spacing) * target.NearestFeatureDistanceMm() / target.spacing_mm);
       const auto mapped = MapFeaturesToProjector(umap, vmap, corrected, mo);
       StereoView sv{im.name, views[v].object_points, views[v].image_points, {}, {}};
       for (const auto& m : mapped) {
@@ -202,14 +216,16 @@ SystemCalibrationResult CalibrateSystem(const CalibrationTarget& target, const s
       dense.push_back(SampleDensePlane(umap, vmap, options.refine));
     }
     if (sviews.size() < static_cast<size_t>(options.projector.min_views)) {
-      why << "too few views with projector features: " << sviews.size() << " (need " << options.projector.min_views << ")";
+      why << "too few views with projector features: " << sviews.size() << " (need "
+          << options.projector.min_views << ")";
       res.reason = why.str();
       return res;
     }
     StereoCalibrationOptions so;
     so.camera = co;
     so.projector = options.projector;
-    res.stereo = CalibrateStereo(sviews, size.width, size.height, options.projector_width, options.projector_height, so);
+    res.stereo = CalibrateStereo(sviews, size.width, size.height, options.projector_width,
+                                 options.projector_height, so);
     if (!res.stereo.ok) {
       res.reason = "stereo: " + res.stereo.reason;
       return res;
@@ -247,13 +263,16 @@ SystemCalibrationResult CalibrateSystem(const CalibrationTarget& target, const s
       int np = 0;
       for (size_t k = 0; k < sviews[s].object_points.size(); ++k) {
         const Eigen::Vector3d& X = sviews[s].object_points[k];
-        rep.camera_residuals_px.push_back(sviews[s].camera_px[k] - ProjectTargetFeature(cam, poses[s], X, co.circle_radius_mm));
+        rep.camera_residuals_px.push_back(
+            sviews[s].camera_px[k] - ProjectTargetFeature(cam, poses[s], X, co.circle_radius_mm));
         vc += rep.camera_residuals_px.back().squaredNorm();
         if (!sviews[s].projector_valid[k]) {
           rep.projector_residuals_px.push_back(kNaN2);
           continue;
         }
-        rep.projector_residuals_px.push_back(sviews[s].projector_px[k] - ProjectTargetFeature(proj, proj_from_cam * poses[s], X, 0.0));
+        rep.projector_residuals_px.push_back(
+            sviews[s].projector_px[k] -
+            ProjectTargetFeature(proj, proj_from_cam * poses[s], X, 0.0));
         vp += rep.projector_residuals_px.back().squaredNorm();
         ++np;
       }
@@ -281,7 +300,8 @@ SystemCalibrationResult CalibrateSystem(const CalibrationTarget& target, const s
     }
   res.calibration.depth_min_mm = std::max(1e-3, zmin - options.depth_margin_mm);
   res.calibration.depth_max_mm = zmax + options.depth_margin_mm;
-  if (!res.has_projector) {  // camera only: no probe calibration to check (the projector is unknown)
+  if (!res.has_projector) {  // camera only: no probe calibration to check (the projector is
+                             // unknown)
     res.ok = true;
     return res;
   }
@@ -296,14 +316,18 @@ SystemCalibrationResult CalibrateSystem(const CalibrationTarget& target, const s
 }
 
 Status LoadCalibrationImages(const std::string& images_dir, const std::string& phase_dir,
-                             std::vector<CalibrationImage>* out, SystemCalibrationOptions* options) {
+                             std::vector<CalibrationImage>* out,
+                             SystemCalibrationOptions* options) {
   out->clear();
-  if (!fs::is_directory(images_dir)) return NotFound("images folder '" + images_dir + "' not found");
+  if (!fs::is_directory(images_dir))
+    return NotFound("images folder '" + images_dir + "' not found");
   std::vector<fs::path> files;
   for (const auto& e : fs::directory_iterator(images_dir)) {
     std::string ext = e.path().extension().string();
-    std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
-    if (e.is_regular_file() && (ext == ".png" || ext == ".jpg" || ext == ".jpeg" || ext == ".bmp" || ext == ".tif" || ext == ".tiff"))
+    std::transform(ext.begin(), ext.end(), ext.begin(),
+                   [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+    if (e.is_regular_file() && (ext == ".png" || ext == ".jpg" || ext == ".jpeg" || ext == ".bmp" ||
+                                ext == ".tif" || ext == ".tiff"))
       files.push_back(e.path());
   }
   std::sort(files.begin(), files.end());
@@ -330,15 +354,21 @@ Status LoadCalibrationImages(const std::string& images_dir, const std::string& p
     if (im.white.empty()) return ParseError("cannot read image '" + path.string() + "'");
     if (!phase_dir.empty()) {
       const fs::path dir = fs::path(phase_dir) / path.stem();
-      if (!fs::is_directory(dir)) return NotFound("phase frames of '" + im.name + "' not found: no folder '" + dir.string() + "'");
+      if (!fs::is_directory(dir))
+        return NotFound("phase frames of '" + im.name + "' not found: no folder '" + dir.string() +
+                        "'");
       for (const char axis : {'x', 'y'}) {
         auto& frames = axis == 'x' ? im.phase_x : im.phase_y;
         for (size_t p = 0; p < options->phase.periods_px.size(); ++p)
           for (int s = 0; s < options->phase.steps; ++s) {
-            const fs::path file = dir / (std::string(1, axis) + "_" + std::to_string(p) + "_" + std::to_string(s) + ".png");
+            const fs::path file = dir / (std::string(1, axis) + "_" + std::to_string(p) + "_" +
+                                         std::to_string(s) + ".png");
             cv::Mat f = cv::imread(file.string(), cv::IMREAD_ANYDEPTH | cv::IMREAD_GRAYSCALE);
-            if (f.empty()) return NotFound("phase frame '" + file.string() + "' missing or unreadable");
-            if (f.size() != im.white.size()) return InvalidArgument("phase frame '" + file.string() + "' differs in size from its image");
+            if (f.empty())
+              return NotFound("phase frame '" + file.string() + "' missing or unreadable");
+            if (f.size() != im.white.size())
+              return InvalidArgument("phase frame '" + file.string() +
+                                     "' differs in size from its image");
             frames.push_back(f);
           }
       }

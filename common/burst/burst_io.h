@@ -22,7 +22,8 @@ namespace d3d {
 
 // Writes `burst` into `dir` (created). Truth maps are written for the frames in `truth_frames`
 // that have them. IO_ERROR on failure; INVALID_ARGUMENT for an empty burst.
-[[nodiscard]] Status WriteBurstDir(const std::string& dir, const Burst& burst, const std::vector<int>& truth_frames);
+[[nodiscard]] Status WriteBurstDir(const std::string& dir, const Burst& burst,
+                                   const std::vector<int>& truth_frames);
 
 // Reads a burst folder. With read_truth, loads poses and truth maps where present. Errors:
 // NOT_FOUND (no burst.json / a frame file missing), PARSE_ERROR (malformed json, unreadable image),

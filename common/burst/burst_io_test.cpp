@@ -21,8 +21,9 @@ Burst MakeBurst() {
     f.image = cv::Mat(12, 16, CV_8U, cv::Scalar(10 * i));
     f.image.at<uint8_t>(3, 4) = 200;
     f.timestamp_ns = 1'000'000'000 + i * 2'500'000;
-    f.truth.world_from_probe = RigidFromQuaternion(Eigen::Quaterniond(Eigen::AngleAxisd(0.1 * i, Eigen::Vector3d::UnitX())),
-                                                   Eigen::Vector3d(1, 2, 3 + i));
+    f.truth.world_from_probe = RigidFromQuaternion(
+        Eigen::Quaterniond(Eigen::AngleAxisd(0.1 * i, Eigen::Vector3d::UnitX())),
+        Eigen::Vector3d(1, 2, 3 + i));
     b.frames.push_back(f);
   }
   FrameTruth& t = b.frames[0].truth;
@@ -57,7 +58,8 @@ TEST(BurstIo, RoundTripWithTruth) {
     EXPECT_EQ(back.frames[i].pattern, b.frames[i].pattern);
     EXPECT_EQ(back.frames[i].timestamp_ns, b.frames[i].timestamp_ns);
     EXPECT_EQ(cv::norm(back.frames[i].image, b.frames[i].image, cv::NORM_INF), 0.0);
-    EXPECT_TRUE(back.frames[i].truth.world_from_probe.isApprox(b.frames[i].truth.world_from_probe, 1e-12));
+    EXPECT_TRUE(
+        back.frames[i].truth.world_from_probe.isApprox(b.frames[i].truth.world_from_probe, 1e-12));
   }
   const FrameTruth& t = back.frames[0].truth;
   ASSERT_TRUE(t.has_maps());

@@ -1,7 +1,7 @@
 #include "common/core/fd_io.h"
 
-#include <gtest/gtest.h>
 #include <fcntl.h>
+#include <gtest/gtest.h>
 #include <unistd.h>
 
 #include <cerrno>
@@ -17,7 +17,8 @@ TEST(FdIo, WholeWritesAndReadsAtOffsetsAndWhatAShortOneSays) {
   const int fd = fileno(f);
   const std::string a(100000, 'a'), b = "tail";
   EXPECT_EQ(PwriteFull(fd, a.data(), a.size(), 0), a.size());
-  EXPECT_EQ(PwriteFull(fd, b.data(), b.size(), 200000), b.size());  // past the end: a hole before it
+  EXPECT_EQ(PwriteFull(fd, b.data(), b.size(), 200000),
+            b.size());  // past the end: a hole before it
   std::string back(a.size(), '\0');
   EXPECT_EQ(PreadFull(fd, back.data(), back.size(), 0), back.size());
   EXPECT_EQ(back, a);

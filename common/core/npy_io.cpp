@@ -9,22 +9,33 @@ namespace {
 
 const char* Descr(NpyType t) {
   switch (t) {
-    case NpyType::kFloat32: return "<f4";
-    case NpyType::kFloat64: return "<f8";
-    case NpyType::kUint8: return "|u1";
-    case NpyType::kUint16: return "<u2";
-    case NpyType::kInt32: return "<i4";
+    case NpyType::kFloat32:
+      return "<f4";
+    case NpyType::kFloat64:
+      return "<f8";
+    case NpyType::kUint8:
+      return "|u1";
+    case NpyType::kUint16:
+      return "<u2";
+    case NpyType::kInt32:
+      return "<i4";
   }
   return "";
 }
 
 bool TypeFromDescr(const std::string& d, NpyType* t) {
-  if (d == "<f4") *t = NpyType::kFloat32;
-  else if (d == "<f8") *t = NpyType::kFloat64;
-  else if (d == "|u1" || d == "<u1") *t = NpyType::kUint8;
-  else if (d == "<u2") *t = NpyType::kUint16;
-  else if (d == "<i4") *t = NpyType::kInt32;
-  else return false;
+  if (d == "<f4")
+    *t = NpyType::kFloat32;
+  else if (d == "<f8")
+    *t = NpyType::kFloat64;
+  else if (d == "|u1" || d == "<u1")
+    *t = NpyType::kUint8;
+  else if (d == "<u2")
+    *t = NpyType::kUint16;
+  else if (d == "<i4")
+    *t = NpyType::kInt32;
+  else
+    return false;
   return true;
 }
 
@@ -53,11 +64,16 @@ bool DictValue(const std::string& header, const std::string& key, std::string* v
 
 int NpyArray::ElementSize(NpyType type) {
   switch (type) {
-    case NpyType::kFloat32: return 4;
-    case NpyType::kFloat64: return 8;
-    case NpyType::kUint8: return 1;
-    case NpyType::kUint16: return 2;
-    case NpyType::kInt32: return 4;
+    case NpyType::kFloat32:
+      return 4;
+    case NpyType::kFloat64:
+      return 8;
+    case NpyType::kUint8:
+      return 1;
+    case NpyType::kUint16:
+      return 2;
+    case NpyType::kInt32:
+      return 4;
   }
   return 0;
 }
@@ -68,7 +84,8 @@ int64_t NpyArray::NumElements() const {
   return n;
 }
 
-Status WriteNpy(const std::string& path, NpyType type, const std::vector<int64_t>& shape, const void* data) {
+Status WriteNpy(const std::string& path, NpyType type, const std::vector<int64_t>& shape,
+                const void* data) {
   std::ostringstream dict;
   dict << "{'descr': '" << Descr(type) << "', 'fortran_order': False, 'shape': (";
   int64_t n = 1;
@@ -92,7 +109,8 @@ Status WriteNpy(const std::string& path, NpyType type, const std::vector<int64_t
   const char len_le[2] = {static_cast<char>(len & 0xff), static_cast<char>(len >> 8)};
   f.write(len_le, 2);
   f.write(header.data(), static_cast<std::streamsize>(header.size()));
-  f.write(static_cast<const char*>(data), static_cast<std::streamsize>(n * NpyArray::ElementSize(type)));
+  f.write(static_cast<const char*>(data),
+          static_cast<std::streamsize>(n * NpyArray::ElementSize(type)));
   if (!f) return IoError("npy: write failed for '" + path + "'");
   return Status::Ok();
 }
@@ -119,7 +137,8 @@ Status ParseNpy(std::string_view bytes, NpyArray* out) {
   } else {
     return Unsupported("npy: format version " + std::to_string(pre[6]));
   }
-  if (header_len > (1u << 20)) return ParseError("npy: header length " + std::to_string(header_len) + " is implausible");
+  if (header_len > (1u << 20))
+    return ParseError("npy: header length " + std::to_string(header_len) + " is implausible");
   if (bytes.size() < offset + header_len) return ParseError("npy: truncated header");
   const std::string header(bytes.substr(offset, header_len));
   std::string descr, fortran, shape;
@@ -145,7 +164,8 @@ Status ParseNpy(std::string_view bytes, NpyArray* out) {
       if (v < 0) return ParseError("npy: negative dimension");
       a.shape.push_back(v);
       n *= static_cast<uint64_t>(v);
-      if (v > 0 && n > payload) return Corrupt("npy: data is shorter than its header says");  // before any allocation
+      if (v > 0 && n > payload)
+        return Corrupt("npy: data is shorter than its header says");  // before any allocation
     } catch (const std::exception&) {
       return ParseError("npy: bad shape '" + shape + "'");
     }

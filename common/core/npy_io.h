@@ -24,8 +24,8 @@ struct NpyArray {
 };
 
 // Writes `data` (NumElements * ElementSize bytes) with the given shape. IO_ERROR on failure.
-[[nodiscard]] Status WriteNpy(const std::string& path, NpyType type, const std::vector<int64_t>& shape,
-                              const void* data);
+[[nodiscard]] Status WriteNpy(const std::string& path, NpyType type,
+                              const std::vector<int64_t>& shape, const void* data);
 // Reads an .npy written by WriteNpy or numpy.save (v1.0/2.0 header, little-endian, C order).
 // PARSE_ERROR for a bad magic/header, UNSUPPORTED for big-endian/Fortran order/other dtypes,
 // CORRUPT when the file is shorter than its header says.

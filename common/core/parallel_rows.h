@@ -1,9 +1,9 @@
 // Row-parallel loops for the per-pixel passes of an image chain (phase, triangulation, normals).
 //
 // ForRowBlocks(rows, threads, fn) calls fn(y_begin, y_end) on consecutive blocks of rows that
-// cover [0, rows) exactly once: with threads ≤ 1 (or too few rows to split) once, fn(0, rows), on the
-// calling thread; otherwise as oneTBB tasks of at most kRowBlock rows (tbb::parallel_for, simple
-// partitioner), on the calling thread and the pool's workers. How many run at once is the
+// cover [0, rows) exactly once: with threads ≤ 1 (or too few rows to split) once, fn(0, rows), on
+// the calling thread; otherwise as oneTBB tasks of at most kRowBlock rows (tbb::parallel_for,
+// simple partitioner), on the calling thread and the pool's workers. How many run at once is the
 // process's oneTBB cap (tbb::global_control, e.g. d3d-scan --threads), not `threads`.
 //
 // Results do not depend on the schedule when fn writes only its own rows (and per-thread scratch)
@@ -31,7 +31,8 @@ void ForRowBlocks(int rows, int threads, F&& fn) {
     return;
   }
   tbb::parallel_for(
-      tbb::blocked_range<int>(0, rows, kRowBlock), [&fn](const tbb::blocked_range<int>& r) { fn(r.begin(), r.end()); },
+      tbb::blocked_range<int>(0, rows, kRowBlock),
+      [&fn](const tbb::blocked_range<int>& r) { fn(r.begin(), r.end()); },
       tbb::simple_partitioner());
 }
 

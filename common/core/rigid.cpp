@@ -19,7 +19,8 @@ std::string TumPoseFields(const Rigid3d& pose) {
   const Eigen::Quaterniond q(pose.linear());
   const Eigen::Vector3d t = pose.translation();
   char buf[192];
-  std::snprintf(buf, sizeof buf, "%.6f %.6f %.6f %.9f %.9f %.9f %.9f", t.x(), t.y(), t.z(), q.x(), q.y(), q.z(), q.w());
+  std::snprintf(buf, sizeof buf, "%.6f %.6f %.6f %.9f %.9f %.9f %.9f", t.x(), t.y(), t.z(), q.x(),
+                q.y(), q.z(), q.w());
   return buf;
 }
 
@@ -46,13 +47,15 @@ double TranslationDistanceMm(const Rigid3d& a, const Rigid3d& b) {
 }
 
 bool SameBits(const Rigid3d& a, const Rigid3d& b) {
-  return std::memcmp(a.data(), b.data(), sizeof(double) * static_cast<size_t>(a.matrix().size())) == 0;
+  return std::memcmp(a.data(), b.data(), sizeof(double) * static_cast<size_t>(a.matrix().size())) ==
+         0;
 }
 
 Eigen::Matrix3d LookRotation(const Eigen::Vector3d& forward, const Eigen::Vector3d& right_hint) {
   const Eigen::Vector3d z = forward.normalized();
   Eigen::Vector3d x = right_hint - right_hint.dot(z) * z;
-  D3D_CHECK_MSG(x.norm() > 1e-9 * right_hint.norm(), "LookRotation: right_hint parallel to forward");
+  D3D_CHECK_MSG(x.norm() > 1e-9 * right_hint.norm(),
+                "LookRotation: right_hint parallel to forward");
   x.normalize();
   const Eigen::Vector3d y = z.cross(x);
   Eigen::Matrix3d R;

@@ -11,7 +11,8 @@ namespace {
 
 TEST(Rigid, InterpolateEndpointsAndMidpoint) {
   const Rigid3d a = RigidFromQuaternion(Eigen::Quaterniond::Identity(), {0, 0, 0});
-  const Rigid3d b = RigidFromQuaternion(Eigen::Quaterniond(Eigen::AngleAxisd(0.4, Eigen::Vector3d::UnitZ())), {2, 4, 6});
+  const Rigid3d b = RigidFromQuaternion(
+      Eigen::Quaterniond(Eigen::AngleAxisd(0.4, Eigen::Vector3d::UnitZ())), {2, 4, 6});
   EXPECT_LT(RotationAngleRad(InterpolateRigid(a, b, 0.0), a), 1e-12);
   EXPECT_LT(RotationAngleRad(InterpolateRigid(a, b, 1.0), b), 1e-12);
   const Rigid3d m = InterpolateRigid(a, b, 0.5);
@@ -30,8 +31,9 @@ TEST(Rigid, LookRotationIsProperAndAims) {
 }
 
 TEST(Rigid, TumPoseFieldsReadBackToThePose) {
-  const Rigid3d p =
-      RigidFromQuaternion(Eigen::Quaterniond(Eigen::AngleAxisd(2.5, Eigen::Vector3d(1, -2, 0.5).normalized())), {-12.25, 3.5, 48.125});
+  const Rigid3d p = RigidFromQuaternion(
+      Eigen::Quaterniond(Eigen::AngleAxisd(2.5, Eigen::Vector3d(1, -2, 0.5).normalized())),
+      {-12.25, 3.5, 48.125});
   const std::string s = TumPoseFields(p);
   EXPECT_EQ(s.front(), '-');
   EXPECT_NE(s.back(), ' ');
@@ -42,7 +44,8 @@ TEST(Rigid, TumPoseFieldsReadBackToThePose) {
   ASSERT_FALSE(in.fail()) << s;
   std::string rest;
   EXPECT_FALSE(in >> rest) << "7 fields, not more: " << s;
-  const Rigid3d r = RigidFromQuaternion(Eigen::Quaterniond(q[3], q[0], q[1], q[2]), {t[0], t[1], t[2]});
+  const Rigid3d r =
+      RigidFromQuaternion(Eigen::Quaterniond(q[3], q[0], q[1], q[2]), {t[0], t[1], t[2]});
   EXPECT_LT(TranslationDistanceMm(r, p), 1e-6);
   EXPECT_LT(RotationAngleRad(r, p), 1e-8);
 }

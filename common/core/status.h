@@ -41,7 +41,9 @@ class [[nodiscard]] Status {
   std::string message_;
 };
 
-inline Status InvalidArgument(std::string m) { return {StatusCode::kInvalidArgument, std::move(m)}; }
+inline Status InvalidArgument(std::string m) {
+  return {StatusCode::kInvalidArgument, std::move(m)};
+}
 inline Status NotFound(std::string m) { return {StatusCode::kNotFound, std::move(m)}; }
 inline Status IoError(std::string m) { return {StatusCode::kIoError, std::move(m)}; }
 inline Status ParseError(std::string m) { return {StatusCode::kParseError, std::move(m)}; }
@@ -50,28 +52,29 @@ inline Status Corrupt(std::string m) { return {StatusCode::kCorrupt, std::move(m
 inline Status Unavailable(std::string m) { return {StatusCode::kUnavailable, std::move(m)}; }
 
 namespace internal {
-[[noreturn]] void ThrowCheckFailure(const char* file, int line, const char* expr, const std::string& msg);
+[[noreturn]] void ThrowCheckFailure(const char* file, int line, const char* expr,
+                                    const std::string& msg);
 }  // namespace internal
 
 }  // namespace d3d
 
 // Contract checks at set-up time: throw std::invalid_argument naming file, line and expression.
 // D3D_CHECK(x > 0);  D3D_CHECK_MSG(x > 0, "width must be positive, got " << x);
-#define D3D_CHECK(expr)                                                          \
-  do {                                                                           \
+#define D3D_CHECK(expr)                                                             \
+  do {                                                                              \
     if (!(expr)) ::d3d::internal::ThrowCheckFailure(__FILE__, __LINE__, #expr, ""); \
   } while (0)
-#define D3D_CHECK_MSG(expr, stream)                                                          \
-  do {                                                                                       \
-    if (!(expr)) {                                                                           \
-      std::ostringstream d3d_check_os_;                                                      \
-      d3d_check_os_ << stream;                                                               \
-      ::d3d::internal::ThrowCheckFailure(__FILE__, __LINE__, #expr, d3d_check_os_.str());    \
-    }                                                                                        \
+#define D3D_CHECK_MSG(expr, stream)                                                       \
+  do {                                                                                    \
+    if (!(expr)) {                                                                        \
+      std::ostringstream d3d_check_os_;                                                   \
+      d3d_check_os_ << stream;                                                            \
+      ::d3d::internal::ThrowCheckFailure(__FILE__, __LINE__, #expr, d3d_check_os_.str()); \
+    }                                                                                     \
   } while (0)
 // Propagate a non-ok Status from a function that returns Status.
-#define D3D_RETURN_IF_ERROR(expr)            \
-  do {                                       \
-    ::d3d::Status d3d_status_ = (expr);      \
+#define D3D_RETURN_IF_ERROR(expr)              \
+  do {                                         \
+    ::d3d::Status d3d_status_ = (expr);        \
     if (!d3d_status_.ok()) return d3d_status_; \
   } while (0)

@@ -26,8 +26,9 @@ enum TriangleRegion : int {
 // the edge vectors; otherwise p projects into the triangle, and the projection is built from its
 // barycentric coordinates. No square root; one division on an edge or inside. abc should have
 // non-zero area: inside, the division is by |ab|²·|ac|² − (ab·ac)², zero for a degenerate triangle.
-Eigen::Vector3d ClosestOnTriangle(const Eigen::Vector3d& p, const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c,
-                                  int* region);
-Eigen::Vector3d ClosestOnTriangle(const Eigen::Vector3d& p, const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c);
+Eigen::Vector3d ClosestOnTriangle(const Eigen::Vector3d& p, const Eigen::Vector3d& a,
+                                  const Eigen::Vector3d& b, const Eigen::Vector3d& c, int* region);
+Eigen::Vector3d ClosestOnTriangle(const Eigen::Vector3d& p, const Eigen::Vector3d& a,
+                                  const Eigen::Vector3d& b, const Eigen::Vector3d& c);
 
 }  // namespace d3d

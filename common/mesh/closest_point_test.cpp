@@ -33,7 +33,8 @@ TEST(ClosestOnTriangleTest, EveryRegion) {
     const Vector3d q = ClosestOnTriangle(c.p, kA, kB, kC, &region);
     EXPECT_EQ(region, c.region) << c.p.transpose();
     EXPECT_NEAR((q - c.expected).norm(), 0.0, 1e-12) << c.p.transpose();
-    EXPECT_EQ(ClosestOnTriangle(c.p, kA, kB, kC), q) << "the form without region gives the same point";
+    EXPECT_EQ(ClosestOnTriangle(c.p, kA, kB, kC), q)
+        << "the form without region gives the same point";
   }
 }
 
@@ -53,7 +54,8 @@ TEST(ClosestOnTriangleTest, NoTrianglePointIsCloser) {
     constexpr int kSteps = 200;
     for (int i = 0; i <= kSteps; ++i)
       for (int j = 0; i + j <= kSteps; ++j) {
-        const Vector3d s = a + (b - a) * (static_cast<double>(i) / kSteps) + (c - a) * (static_cast<double>(j) / kSteps);
+        const Vector3d s = a + (b - a) * (static_cast<double>(i) / kSteps) +
+                           (c - a) * (static_cast<double>(j) / kSteps);
         ASSERT_LE(d, (p - s).norm() + 1e-12) << "trial " << trial;
       }
   }

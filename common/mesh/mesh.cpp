@@ -23,8 +23,8 @@ void CheckFaceIndex(const TriangleMesh& mesh, int face) {
 }
 
 void CheckOptionalSize(size_t size, size_t expected, const char* what, const char* per) {
-  D3D_CHECK_MSG(size == 0 || size == expected,
-                what << " has " << size << " entries, expected 0 or " << expected << " (one per " << per << ")");
+  D3D_CHECK_MSG(size == 0 || size == expected, what << " has " << size << " entries, expected 0 or "
+                                                    << expected << " (one per " << per << ")");
 }
 
 }  // namespace
@@ -108,10 +108,12 @@ void TriangleMesh::Append(const TriangleMesh& other_in) {
 
   vertices.insert(vertices.end(), other.vertices.begin(), other.vertices.end());
   faces.reserve(old_faces + other.faces.size());
-  for (const Eigen::Vector3i& f : other.faces) faces.push_back(f + Eigen::Vector3i::Constant(offset));
+  for (const Eigen::Vector3i& f : other.faces)
+    faces.push_back(f + Eigen::Vector3i::Constant(offset));
 
   if (keep_normals) {
-    vertex_normals.insert(vertex_normals.end(), other.vertex_normals.begin(), other.vertex_normals.end());
+    vertex_normals.insert(vertex_normals.end(), other.vertex_normals.begin(),
+                          other.vertex_normals.end());
   } else {
     vertex_normals.clear();
   }
@@ -133,7 +135,8 @@ void TriangleMesh::Append(const TriangleMesh& other_in) {
     if (other.face_tooth_ids.empty()) {
       face_tooth_ids.resize(faces.size(), 0);
     } else {
-      face_tooth_ids.insert(face_tooth_ids.end(), other.face_tooth_ids.begin(), other.face_tooth_ids.end());
+      face_tooth_ids.insert(face_tooth_ids.end(), other.face_tooth_ids.begin(),
+                            other.face_tooth_ids.end());
     }
   }
 }

@@ -18,15 +18,16 @@ enum class SurfaceLabel : uint8_t {
 // An indexed triangle mesh. Faces are counter-clockwise seen from outside (normal = (b-a)×(c-a)).
 // Optional arrays are either empty or have one entry per vertex/face.
 struct TriangleMesh {
-  std::vector<Eigen::Vector3d> vertices;                // mm
-  std::vector<Eigen::Vector3i> faces;                   // indices into vertices
-  std::vector<Eigen::Vector3d> vertex_normals;          // optional, unit length
-  std::vector<std::array<uint8_t, 4>> face_colors;      // optional RGBA as stored in the file
-  std::vector<SurfaceLabel> face_labels;                // optional
-  std::vector<uint8_t> face_tooth_ids;                  // optional, FDI number (11..48) or 0
+  std::vector<Eigen::Vector3d> vertices;            // mm
+  std::vector<Eigen::Vector3i> faces;               // indices into vertices
+  std::vector<Eigen::Vector3d> vertex_normals;      // optional, unit length
+  std::vector<std::array<uint8_t, 4>> face_colors;  // optional RGBA as stored in the file
+  std::vector<SurfaceLabel> face_labels;            // optional
+  std::vector<uint8_t> face_tooth_ids;              // optional, FDI number (11..48) or 0
 
   bool empty() const { return faces.empty(); }
-  // Throws std::invalid_argument if an index is out of range or an optional array has the wrong size.
+  // Throws std::invalid_argument if an index is out of range or an optional array has the wrong
+  // size.
   void Check() const;
   // Unit face normal (zero for a degenerate face).
   Eigen::Vector3d FaceNormal(int face) const;

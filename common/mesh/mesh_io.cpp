@@ -30,7 +30,9 @@ std::string Cat(const Args&... args) {
   return os.str();
 }
 
-bool IsSpace(char c) { return c == ' ' || c == '\t' || c == '\n' || c == '\r' || c == '\v' || c == '\f'; }
+bool IsSpace(char c) {
+  return c == ' ' || c == '\t' || c == '\n' || c == '\r' || c == '\v' || c == '\f';
+}
 
 char ToLower(char c) { return (c >= 'A' && c <= 'Z') ? static_cast<char>(c - 'A' + 'a') : c; }
 
@@ -111,7 +113,9 @@ double ToFloatPrecision(double v) {
   return static_cast<float>(v);
 }
 
-bool FitsFloat(const Eigen::Vector3d& v) { return v.allFinite() && v.cwiseAbs().maxCoeff() <= kFloatMax; }
+bool FitsFloat(const Eigen::Vector3d& v) {
+  return v.allFinite() && v.cwiseAbs().maxCoeff() <= kFloatMax;
+}
 
 // Reads a T stored at `p` with the given byte order.
 template <typename T>
@@ -204,13 +208,23 @@ class VertexWelder {
 
 // Appends the fan triangulation (c0, ci, ci+1) of a polygon.
 void AppendFan(const std::vector<int>& corners, TriangleMesh* mesh) {
-  for (size_t i = 1; i + 1 < corners.size(); ++i) mesh->faces.emplace_back(corners[0], corners[i], corners[i + 1]);
+  for (size_t i = 1; i + 1 < corners.size(); ++i)
+    mesh->faces.emplace_back(corners[0], corners[i], corners[i + 1]);
 }
 
 // ------------------------------------------------------------------------------------------------
 // PLY
 
-enum class PlyType : uint8_t { kInt8, kUint8, kInt16, kUint16, kInt32, kUint32, kFloat32, kFloat64 };
+enum class PlyType : uint8_t {
+  kInt8,
+  kUint8,
+  kInt16,
+  kUint16,
+  kInt32,
+  kUint32,
+  kFloat32,
+  kFloat64
+};
 enum class PlyEncoding { kAscii, kBinaryLittleEndian, kBinaryBigEndian };
 
 struct PlyTypeInfo {
@@ -280,7 +294,9 @@ bool IsPlyMagic(std::string_view bytes) {
   return bytes.size() >= 4 && bytes.substr(0, 3) == "ply" && IsSpace(bytes[3]);
 }
 
-Status HeaderError(int line, const std::string& what) { return ParseError(Cat("ply header line ", line, ": ", what)); }
+Status HeaderError(int line, const std::string& what) {
+  return ParseError(Cat("ply header line ", line, ": ", what));
+}
 
 Status ParsePlyFormat(const std::vector<std::string_view>& t, int line, PlyHeader* header) {
   if (t.size() < 2) return HeaderError(line, "malformed 'format' line");
@@ -298,7 +314,8 @@ Status ParsePlyFormat(const std::vector<std::string_view>& t, int line, PlyHeade
 
 Status ParsePlyElement(const std::vector<std::string_view>& t, int line, PlyHeader* header) {
   PlyElement element;
-  if (t.size() != 3) return HeaderError(line, "malformed 'element' line (want: element NAME COUNT)");
+  if (t.size() != 3)
+    return HeaderError(line, "malformed 'element' line (want: element NAME COUNT)");
   element.name = std::string(t[1]);
   int64_t count = 0;
   if (!ParseInt64(t[2], &count) || count < 0) {
@@ -318,14 +335,19 @@ Status ParsePlyProperty(const std::vector<std::string_view>& t, int line, PlyHea
   if (header->elements.empty()) return HeaderError(line, "'property' before any 'element'");
   PlyProperty prop;
   if (t.size() >= 2 && t[1] == "list") {
-    if (t.size() != 5) return HeaderError(line, "malformed list property (want: property list COUNT_TYPE TYPE NAME)");
+    if (t.size() != 5)
+      return HeaderError(line,
+                         "malformed list property (want: property list COUNT_TYPE TYPE NAME)");
     prop.is_list = true;
-    if (!ParsePlyType(t[2], &prop.count_type)) return HeaderError(line, Cat("unknown list count type ", Quote(t[2])));
-    if (!ParsePlyType(t[3], &prop.type)) return HeaderError(line, Cat("unknown list item type ", Quote(t[3])));
+    if (!ParsePlyType(t[2], &prop.count_type))
+      return HeaderError(line, Cat("unknown list count type ", Quote(t[2])));
+    if (!ParsePlyType(t[3], &prop.type))
+      return HeaderError(line, Cat("unknown list item type ", Quote(t[3])));
     prop.name = std::string(t[4]);
   } else {
     if (t.size() != 3) return HeaderError(line, "malformed property (want: property TYPE NAME)");
-    if (!ParsePlyType(t[1], &prop.type)) return HeaderError(line, Cat("unknown property type ", Quote(t[1])));
+    if (!ParsePlyType(t[1], &prop.type))
+      return HeaderError(line, Cat("unknown property type ", Quote(t[1])));
     prop.name = std::string(t[2]);
   }
   header->elements.back().properties.push_back(std::move(prop));
@@ -395,7 +417,9 @@ class PlyBodyReader {
   }
 
   // Bytes left after the current position.
-  size_t remaining() const { return encoding_ == PlyEncoding::kAscii ? tokens_.remaining() : body_.size() - pos_; }
+  size_t remaining() const {
+    return encoding_ == PlyEncoding::kAscii ? tokens_.remaining() : body_.size() - pos_;
+  }
   const std::string& error() const { return error_; }
 
  private:
@@ -417,7 +441,8 @@ class PlyBodyReader {
     int64_t v = 0;
     if (!ParseInt64(token, &v)) return Fail(Cat(Quote(token), " is not a ", info.name));
     *value = static_cast<double>(v);
-    if (*value < info.min || *value > info.max) return Fail(Cat(v, " is out of range for ", info.name));
+    if (*value < info.min || *value > info.max)
+      return Fail(Cat(v, " is out of range for ", info.name));
     return true;
   }
 
@@ -428,27 +453,44 @@ class PlyBodyReader {
     const bool big = encoding_ == PlyEncoding::kBinaryBigEndian;
     pos_ += size;
     switch (type) {
-      case PlyType::kInt8: *value = LoadScalar<int8_t>(p, big); break;
-      case PlyType::kUint8: *value = LoadScalar<uint8_t>(p, big); break;
-      case PlyType::kInt16: *value = LoadScalar<int16_t>(p, big); break;
-      case PlyType::kUint16: *value = LoadScalar<uint16_t>(p, big); break;
-      case PlyType::kInt32: *value = LoadScalar<int32_t>(p, big); break;
-      case PlyType::kUint32: *value = LoadScalar<uint32_t>(p, big); break;
-      case PlyType::kFloat32: *value = LoadScalar<float>(p, big); break;
-      case PlyType::kFloat64: *value = LoadScalar<double>(p, big); break;
+      case PlyType::kInt8:
+        *value = LoadScalar<int8_t>(p, big);
+        break;
+      case PlyType::kUint8:
+        *value = LoadScalar<uint8_t>(p, big);
+        break;
+      case PlyType::kInt16:
+        *value = LoadScalar<int16_t>(p, big);
+        break;
+      case PlyType::kUint16:
+        *value = LoadScalar<uint16_t>(p, big);
+        break;
+      case PlyType::kInt32:
+        *value = LoadScalar<int32_t>(p, big);
+        break;
+      case PlyType::kUint32:
+        *value = LoadScalar<uint32_t>(p, big);
+        break;
+      case PlyType::kFloat32:
+        *value = LoadScalar<float>(p, big);
+        break;
+      case PlyType::kFloat64:
+        *value = LoadScalar<double>(p, big);
+        break;
     }
     return true;
   }
 
   std::string_view body_;
   PlyEncoding encoding_;
-  size_t pos_ = 0;         // binary
-  TextTokenizer tokens_;   // ascii
+  size_t pos_ = 0;        // binary
+  TextTokenizer tokens_;  // ascii
   std::string error_;
 };
 
 // Refuses an element whose count the remaining data cannot hold, before anything is allocated:
-// each item takes at least one byte per scalar/list count in binary, two (value + separator) in ascii.
+// each item takes at least one byte per scalar/list count in binary, two (value + separator) in
+// ascii.
 Status CheckElementFits(const PlyElement& element, PlyEncoding encoding, size_t remaining) {
   uint64_t min_bytes = 0;
   for (const PlyProperty& p : element.properties) {
@@ -461,13 +503,15 @@ Status CheckElementFits(const PlyElement& element, PlyEncoding encoding, size_t 
   if (min_bytes == 0 || element.count == 0) return Status::Ok();
   const uint64_t room = encoding == PlyEncoding::kAscii ? remaining + 1 : remaining;
   if (element.count > room / min_bytes) {
-    return ParseError(Cat("ply: header claims ", element.count, " '", element.name, "' items of at least ", min_bytes,
-                          " bytes each, but only ", remaining, " bytes of data remain (truncated or corrupt count)"));
+    return ParseError(Cat("ply: header claims ", element.count, " '", element.name,
+                          "' items of at least ", min_bytes, " bytes each, but only ", remaining,
+                          " bytes of data remain (truncated or corrupt count)"));
   }
   return Status::Ok();
 }
 
-Status ItemError(const PlyElement& element, uint64_t item, const PlyProperty& prop, const std::string& what) {
+Status ItemError(const PlyElement& element, uint64_t item, const PlyProperty& prop,
+                 const std::string& what) {
   return ParseError(Cat("ply: ", element.name, " ", item, " property '", prop.name, "': ", what));
 }
 
@@ -479,18 +523,22 @@ Status ReadPlyItem(const PlyElement& element, uint64_t item, int keep_list, PlyB
   for (size_t p = 0; p < element.properties.size(); ++p) {
     const PlyProperty& prop = element.properties[p];
     if (!prop.is_list) {
-      if (!reader->Read(prop.type, &(*scalars)[p])) return ItemError(element, item, prop, reader->error());
+      if (!reader->Read(prop.type, &(*scalars)[p]))
+        return ItemError(element, item, prop, reader->error());
       continue;
     }
     double count_value = 0.0;
-    if (!reader->Read(prop.count_type, &count_value)) return ItemError(element, item, prop, reader->error());
+    if (!reader->Read(prop.count_type, &count_value))
+      return ItemError(element, item, prop, reader->error());
     if (!(count_value >= 0.0) || count_value != std::floor(count_value)) {
-      return ItemError(element, item, prop, Cat("list count ", FormatValue(count_value), " is not a count"));
+      return ItemError(element, item, prop,
+                       Cat("list count ", FormatValue(count_value), " is not a count"));
     }
     const auto count = static_cast<uint64_t>(std::min(count_value, 1e19));
     if (!reader->CanHold(prop.type, count)) {
       return ItemError(element, item, prop,
-                       Cat("list of ", count, " items does not fit in the remaining ", reader->remaining(), " bytes"));
+                       Cat("list of ", count, " items does not fit in the remaining ",
+                           reader->remaining(), " bytes"));
     }
     if (static_cast<int>(p) != keep_list) {
       if (!reader->Skip(prop.type, count)) return ItemError(element, item, prop, reader->error());
@@ -518,10 +566,12 @@ Status SkipPlyElement(const PlyElement& element, PlyBodyReader* reader) {
 }
 
 Status ReadPlyVertices(const PlyElement& element, PlyBodyReader* reader, TriangleMesh* mesh) {
-  const std::array<int, 3> xyz = {element.Find({"x"}, false), element.Find({"y"}, false), element.Find({"z"}, false)};
+  const std::array<int, 3> xyz = {element.Find({"x"}, false), element.Find({"y"}, false),
+                                  element.Find({"z"}, false)};
   const std::array<int, 3> nxyz = {element.Find({"nx"}, false), element.Find({"ny"}, false),
                                    element.Find({"nz"}, false)};
-  if (*std::min_element(xyz.begin(), xyz.end()) < 0) return ParseError("ply: vertex element lacks x, y or z");
+  if (*std::min_element(xyz.begin(), xyz.end()) < 0)
+    return ParseError("ply: vertex element lacks x, y or z");
   if (element.count > static_cast<uint64_t>(std::numeric_limits<int>::max())) {
     return ParseError(Cat("ply: ", element.count, " vertices is more than a mesh can index"));
   }
@@ -532,12 +582,16 @@ Status ReadPlyVertices(const PlyElement& element, PlyBodyReader* reader, Triangl
   std::vector<double> unused;
   for (uint64_t i = 0; i < element.count; ++i) {
     D3D_RETURN_IF_ERROR(ReadPlyItem(element, i, -1, reader, &s, &unused));
-    const Eigen::Vector3d p(s[static_cast<size_t>(xyz[0])], s[static_cast<size_t>(xyz[1])], s[static_cast<size_t>(xyz[2])]);
-    if (!IsFinite(p)) return Corrupt(Cat("ply: vertex ", i, " has a non-finite coordinate (", p.transpose(), ")"));
+    const Eigen::Vector3d p(s[static_cast<size_t>(xyz[0])], s[static_cast<size_t>(xyz[1])],
+                            s[static_cast<size_t>(xyz[2])]);
+    if (!IsFinite(p))
+      return Corrupt(Cat("ply: vertex ", i, " has a non-finite coordinate (", p.transpose(), ")"));
     mesh->vertices.push_back(p);
     if (!has_normals) continue;
-    Eigen::Vector3d n(s[static_cast<size_t>(nxyz[0])], s[static_cast<size_t>(nxyz[1])], s[static_cast<size_t>(nxyz[2])]);
-    if (!IsFinite(n)) return Corrupt(Cat("ply: vertex ", i, " has a non-finite normal (", n.transpose(), ")"));
+    Eigen::Vector3d n(s[static_cast<size_t>(nxyz[0])], s[static_cast<size_t>(nxyz[1])],
+                      s[static_cast<size_t>(nxyz[2])]);
+    if (!IsFinite(n))
+      return Corrupt(Cat("ply: vertex ", i, " has a non-finite normal (", n.transpose(), ")"));
     const double len = n.norm();
     mesh->vertex_normals.push_back(len > 0.0 ? Eigen::Vector3d(n / len) : n);
   }
@@ -563,14 +617,16 @@ uint8_t ColorChannel(double v, PlyType type) {
 // Fan-triangulates one face's index list, checking every index against the vertex count.
 Status AppendPlyPolygon(const std::vector<double>& list, uint64_t face, uint64_t vertex_count,
                         std::vector<int>* corners, TriangleMesh* mesh) {
-  if (list.size() < 3) return ParseError(Cat("ply: face ", face, " has ", list.size(), " vertices (need at least 3)"));
+  if (list.size() < 3)
+    return ParseError(Cat("ply: face ", face, " has ", list.size(), " vertices (need at least 3)"));
   corners->clear();
   for (double v : list) {
     if (!(v >= 0.0) || v != std::floor(v)) {
       return Corrupt(Cat("ply: face ", face, " index ", FormatValue(v), " is not a vertex index"));
     }
     if (v >= static_cast<double>(vertex_count)) {
-      return Corrupt(Cat("ply: face ", face, " index ", FormatValue(v), " >= vertex count ", vertex_count));
+      return Corrupt(
+          Cat("ply: face ", face, " index ", FormatValue(v), " >= vertex count ", vertex_count));
     }
     corners->push_back(static_cast<int>(v));
   }
@@ -579,22 +635,27 @@ Status AppendPlyPolygon(const std::vector<double>& list, uint64_t face, uint64_t
 }
 
 // Copies the per-face scalars of face `face` to its `triangles` new triangles.
-Status AppendPlyFaceData(const PlyElement& element, const PlyFaceLayout& layout, const std::vector<double>& s,
-                         uint64_t face, size_t triangles, TriangleMesh* mesh) {
+Status AppendPlyFaceData(const PlyElement& element, const PlyFaceLayout& layout,
+                         const std::vector<double>& s, uint64_t face, size_t triangles,
+                         TriangleMesh* mesh) {
   if (layout.has_color()) {
     std::array<uint8_t, 4> rgba = {0, 0, 0, 255};
     for (size_t c = 0; c < 4; ++c) {
       const int p = layout.rgba[c];
-      if (p >= 0) rgba[c] = ColorChannel(s[static_cast<size_t>(p)], element.properties[static_cast<size_t>(p)].type);
+      if (p >= 0)
+        rgba[c] = ColorChannel(s[static_cast<size_t>(p)],
+                               element.properties[static_cast<size_t>(p)].type);
     }
     mesh->face_colors.insert(mesh->face_colors.end(), triangles, rgba);
   }
   if (layout.label >= 0) {
     const double v = s[static_cast<size_t>(layout.label)];
     if (v != 0.0 && v != 1.0 && v != 2.0) {
-      return Corrupt(Cat("ply: face ", face, " label ", FormatValue(v), " is not 0 (unknown), 1 (gingiva) or 2 (tooth)"));
+      return Corrupt(Cat("ply: face ", face, " label ", FormatValue(v),
+                         " is not 0 (unknown), 1 (gingiva) or 2 (tooth)"));
     }
-    mesh->face_labels.insert(mesh->face_labels.end(), triangles, static_cast<SurfaceLabel>(static_cast<int>(v)));
+    mesh->face_labels.insert(mesh->face_labels.end(), triangles,
+                             static_cast<SurfaceLabel>(static_cast<int>(v)));
   }
   if (layout.tooth_id >= 0) {
     const double v = s[static_cast<size_t>(layout.tooth_id)];
@@ -606,12 +667,14 @@ Status AppendPlyFaceData(const PlyElement& element, const PlyFaceLayout& layout,
   return Status::Ok();
 }
 
-Status ReadPlyFaces(const PlyElement& element, uint64_t vertex_count, PlyBodyReader* reader, TriangleMesh* mesh) {
+Status ReadPlyFaces(const PlyElement& element, uint64_t vertex_count, PlyBodyReader* reader,
+                    TriangleMesh* mesh) {
   PlyFaceLayout layout;
   layout.indices = element.Find({"vertex_indices", "vertex_index"}, true);
-  if (layout.indices < 0) return ParseError("ply: face element has no 'vertex_indices' or 'vertex_index' list");
-  layout.rgba = {element.Find({"red"}, false), element.Find({"green"}, false), element.Find({"blue"}, false),
-                 element.Find({"alpha"}, false)};
+  if (layout.indices < 0)
+    return ParseError("ply: face element has no 'vertex_indices' or 'vertex_index' list");
+  layout.rgba = {element.Find({"red"}, false), element.Find({"green"}, false),
+                 element.Find({"blue"}, false), element.Find({"alpha"}, false)};
   layout.label = element.Find({"label"}, false);
   layout.tooth_id = element.Find({"tooth_id"}, false);
   mesh->faces.reserve(static_cast<size_t>(element.count));
@@ -622,7 +685,8 @@ Status ReadPlyFaces(const PlyElement& element, uint64_t vertex_count, PlyBodyRea
     D3D_RETURN_IF_ERROR(ReadPlyItem(element, i, layout.indices, reader, &s, &list));
     const size_t before = mesh->faces.size();
     D3D_RETURN_IF_ERROR(AppendPlyPolygon(list, i, vertex_count, &corners, mesh));
-    D3D_RETURN_IF_ERROR(AppendPlyFaceData(element, layout, s, i, mesh->faces.size() - before, mesh));
+    D3D_RETURN_IF_ERROR(
+        AppendPlyFaceData(element, layout, s, i, mesh->faces.size() - before, mesh));
   }
   return Status::Ok();
 }
@@ -640,7 +704,8 @@ Status ParsePly(std::string_view bytes, TriangleMesh* mesh) {
   const PlyElement* vertex = FindElement(header, "vertex");
   const PlyElement* face = FindElement(header, "face");
   if (vertex == nullptr) return ParseError("ply: no 'vertex' element");
-  if (face == nullptr || face->count == 0) return ParseError("ply: no faces (a point cloud is not a mesh)");
+  if (face == nullptr || face->count == 0)
+    return ParseError("ply: no faces (a point cloud is not a mesh)");
   PlyBodyReader reader(bytes.substr(header.body_offset), header.encoding);
   for (const PlyElement& element : header.elements) {
     D3D_RETURN_IF_ERROR(CheckElementFits(element, header.encoding, reader.remaining()));
@@ -671,30 +736,34 @@ bool StartsWithSolid(std::string_view bytes) { return StartsWithIgnoreCase(Trim(
 
 Status ParseStlBinary(std::string_view bytes, TriangleMesh* mesh) {
   if (bytes.size() < kStlHeaderBytes) {
-    return ParseError(Cat("stl: binary file of ", bytes.size(), " bytes is shorter than the 84-byte header"));
+    return ParseError(
+        Cat("stl: binary file of ", bytes.size(), " bytes is shorter than the 84-byte header"));
   }
   const uint64_t n = LoadScalar<uint32_t>(bytes.data() + 80, false);
   const uint64_t need = kStlHeaderBytes + kStlTriangleBytes * n;
   if (bytes.size() < need) {
-    return ParseError(Cat("stl: binary header claims ", n, " triangles (", need, " bytes) but the data has ",
-                          bytes.size(), " bytes (truncated)"));
+    return ParseError(Cat("stl: binary header claims ", n, " triangles (", need,
+                          " bytes) but the data has ", bytes.size(), " bytes (truncated)"));
   }
   // Whole triangles beyond the count: the count is wrong, and reading it would drop them silently.
   // Fewer surplus bytes than a triangle are tolerated (writers that pad the file).
   if (const uint64_t extra = (bytes.size() - need) / kStlTriangleBytes; extra > 0) {
-    return ParseError(Cat("stl: binary header claims ", n, " triangles but the data holds ", n + extra,
-                          " (", bytes.size() - need, " bytes beyond them): the triangle count is wrong"));
+    return ParseError(Cat("stl: binary header claims ", n, " triangles but the data holds ",
+                          n + extra, " (", bytes.size() - need,
+                          " bytes beyond them): the triangle count is wrong"));
   }
   if (n == 0) return ParseError("stl: no faces (binary header says 0 triangles)");
   VertexWelder welder(mesh);
   mesh->faces.reserve(static_cast<size_t>(n));
   for (uint64_t t = 0; t < n; ++t) {
-    const char* p = bytes.data() + kStlHeaderBytes + kStlTriangleBytes * t + 12;  // after the normal
+    const char* p =
+        bytes.data() + kStlHeaderBytes + kStlTriangleBytes * t + 12;  // after the normal
     Eigen::Vector3i face;
     for (int k = 0; k < 3; ++k) {
       Eigen::Vector3d v;
       for (int a = 0; a < 3; ++a) v[a] = LoadScalar<float>(p + 4 * (3 * k + a), false);
-      if (!IsFinite(v)) return Corrupt(Cat("stl: triangle ", t, " has a non-finite vertex (", v.transpose(), ")"));
+      if (!IsFinite(v))
+        return Corrupt(Cat("stl: triangle ", t, " has a non-finite vertex (", v.transpose(), ")"));
       face[k] = welder.Add(v);
     }
     mesh->faces.push_back(face);
@@ -722,7 +791,8 @@ Status ReadStlNumbers(TextTokenizer* tok, Eigen::Vector3d* v) {
 }
 
 // One "facet normal .. outer loop vertex .. (×3 or more) endloop endfacet" (after "facet").
-Status ParseStlFacet(TextTokenizer* tok, VertexWelder* welder, std::vector<int>* corners, TriangleMesh* mesh) {
+Status ParseStlFacet(TextTokenizer* tok, VertexWelder* welder, std::vector<int>* corners,
+                     TriangleMesh* mesh) {
   Eigen::Vector3d v;
   D3D_RETURN_IF_ERROR(ExpectKeyword(tok, "normal"));
   D3D_RETURN_IF_ERROR(ReadStlNumbers(tok, &v));  // the stored normal is not kept
@@ -734,11 +804,13 @@ Status ParseStlFacet(TextTokenizer* tok, VertexWelder* welder, std::vector<int>*
     if (EqualsIgnoreCase(t, "endloop")) break;
     if (!EqualsIgnoreCase(t, "vertex")) return StlSyntaxError(*tok, "'vertex' or 'endloop'", t);
     D3D_RETURN_IF_ERROR(ReadStlNumbers(tok, &v));
-    if (!IsFinite(v)) return Corrupt(Cat("stl: line ", tok->line(), ": non-finite vertex (", v.transpose(), ")"));
+    if (!IsFinite(v))
+      return Corrupt(Cat("stl: line ", tok->line(), ": non-finite vertex (", v.transpose(), ")"));
     corners->push_back(welder->Add(v));
   }
   if (corners->size() < 3) {
-    return ParseError(Cat("stl: line ", tok->line(), ": facet has ", corners->size(), " vertices (need at least 3)"));
+    return ParseError(Cat("stl: line ", tok->line(), ": facet has ", corners->size(),
+                          " vertices (need at least 3)"));
   }
   AppendFan(*corners, mesh);
   return ExpectKeyword(tok, "endfacet");
@@ -777,8 +849,8 @@ Status ParseStl(std::string_view bytes, TriangleMesh* mesh) {
 // OBJ
 
 bool IsObjKeyword(std::string_view t) {
-  static constexpr std::array<std::string_view, 13> kKeywords = {"v", "vn", "vt", "vp", "f", "l", "p",
-                                                                  "o", "g", "s", "usemtl", "mtllib", "cstype"};
+  static constexpr std::array<std::string_view, 13> kKeywords = {
+      "v", "vn", "vt", "vp", "f", "l", "p", "o", "g", "s", "usemtl", "mtllib", "cstype"};
   return std::find(kKeywords.begin(), kKeywords.end(), t) != kKeywords.end();
 }
 
@@ -819,7 +891,9 @@ class ObjParser {
   }
 
  private:
-  Status Error(const std::string& what) const { return ParseError(Cat("obj: line ", line_, ": ", what)); }
+  Status Error(const std::string& what) const {
+    return ParseError(Cat("obj: line ", line_, ": ", what));
+  }
 
   Status ParseRecord() {
     const std::string_view keyword = tokens_[0];
@@ -845,18 +919,25 @@ class ObjParser {
         return Error(Cat(Quote(tokens_[static_cast<size_t>(a) + 1]), " is not a number"));
       }
     }
-    if (!IsFinite(*v)) return Corrupt(Cat("obj: line ", line_, ": non-finite '", tokens_[0], "' (", v->transpose(), ")"));
+    if (!IsFinite(*v))
+      return Corrupt(
+          Cat("obj: line ", line_, ": non-finite '", tokens_[0], "' (", v->transpose(), ")"));
     return Status::Ok();
   }
 
   // 1-based (or negative, relative to the `count` defined so far) index → 0-based.
   Status ResolveIndex(std::string_view token, size_t count, const char* what, int* index) const {
     int64_t i = 0;
-    if (!ParseInt64(token, &i)) return Error(Cat(what, " index ", Quote(token), " is not an integer"));
+    if (!ParseInt64(token, &i))
+      return Error(Cat(what, " index ", Quote(token), " is not an integer"));
     const auto n = static_cast<int64_t>(count);
-    if (i == 0) return Corrupt(Cat("obj: line ", line_, ": ", what, " index 0 (OBJ indices start at 1)"));
-    if (i > n) return Corrupt(Cat("obj: line ", line_, ": ", what, " index ", i, " > ", what, " count ", n));
-    if (i < -n) return Corrupt(Cat("obj: line ", line_, ": ", what, " index ", i, " reaches before the first ", what));
+    if (i == 0)
+      return Corrupt(Cat("obj: line ", line_, ": ", what, " index 0 (OBJ indices start at 1)"));
+    if (i > n)
+      return Corrupt(Cat("obj: line ", line_, ": ", what, " index ", i, " > ", what, " count ", n));
+    if (i < -n)
+      return Corrupt(
+          Cat("obj: line ", line_, ": ", what, " index ", i, " reaches before the first ", what));
     *index = static_cast<int>(i > 0 ? i - 1 : n + i);
     return Status::Ok();
   }
@@ -864,10 +945,12 @@ class ObjParser {
   // One corner: "v", "v/vt", "v//vn" or "v/vt/vn".
   Status ParseCorner(std::string_view token, int* vertex) {
     const size_t slash1 = token.find('/');
-    D3D_RETURN_IF_ERROR(ResolveIndex(token.substr(0, slash1), mesh_->vertices.size(), "vertex", vertex));
+    D3D_RETURN_IF_ERROR(
+        ResolveIndex(token.substr(0, slash1), mesh_->vertices.size(), "vertex", vertex));
     if (slash1 == std::string_view::npos) return Status::Ok();
     const size_t slash2 = token.find('/', slash1 + 1);
-    if (slash2 == std::string_view::npos || slash2 + 1 == token.size()) return Status::Ok();  // v/vt, v/vt/
+    if (slash2 == std::string_view::npos || slash2 + 1 == token.size())
+      return Status::Ok();  // v/vt, v/vt/
     int normal = 0;
     D3D_RETURN_IF_ERROR(ResolveIndex(token.substr(slash2 + 1), normals_.size(), "normal", &normal));
     int& slot = normal_of_vertex_[static_cast<size_t>(*vertex)];
@@ -876,9 +959,11 @@ class ObjParser {
   }
 
   Status ParseFace() {
-    if (tokens_.size() < 4) return Error(Cat("face has ", tokens_.size() - 1, " corners (need at least 3)"));
+    if (tokens_.size() < 4)
+      return Error(Cat("face has ", tokens_.size() - 1, " corners (need at least 3)"));
     corners_.resize(tokens_.size() - 1);
-    for (size_t i = 1; i < tokens_.size(); ++i) D3D_RETURN_IF_ERROR(ParseCorner(tokens_[i], &corners_[i - 1]));
+    for (size_t i = 1; i < tokens_.size(); ++i)
+      D3D_RETURN_IF_ERROR(ParseCorner(tokens_[i], &corners_[i - 1]));
     AppendFan(corners_, mesh_);
     return Status::Ok();
   }
@@ -886,7 +971,9 @@ class ObjParser {
   // Vertex normals only when every vertex got one from a face corner.
   void FillVertexNormals() {
     if (normals_.empty()) return;
-    if (std::find(normal_of_vertex_.begin(), normal_of_vertex_.end(), -1) != normal_of_vertex_.end()) return;
+    if (std::find(normal_of_vertex_.begin(), normal_of_vertex_.end(), -1) !=
+        normal_of_vertex_.end())
+      return;
     mesh_->vertex_normals.reserve(mesh_->vertices.size());
     for (int n : normal_of_vertex_) {
       const Eigen::Vector3d& v = normals_[static_cast<size_t>(n)];
@@ -917,15 +1004,19 @@ MeshFormat FormatFromExtension(const std::string& path) {
 
 Status ParseAs(std::string_view bytes, MeshFormat format, TriangleMesh* mesh) {
   switch (format) {
-    case MeshFormat::kPly: return ParsePly(bytes, mesh);
-    case MeshFormat::kStl: return ParseStl(bytes, mesh);
+    case MeshFormat::kPly:
+      return ParsePly(bytes, mesh);
+    case MeshFormat::kStl:
+      return ParseStl(bytes, mesh);
     case MeshFormat::kObj: {
       ObjParser parser;
       return parser.Parse(bytes, mesh);
     }
-    case MeshFormat::kAuto: break;
+    case MeshFormat::kAuto:
+      break;
   }
-  return ParseError(Cat("mesh: unknown format (not PLY, STL or OBJ), data starts with ", Quote(bytes.substr(0, 16))));
+  return ParseError(Cat("mesh: unknown format (not PLY, STL or OBJ), data starts with ",
+                        Quote(bytes.substr(0, 16))));
 }
 
 // Parses `bytes` into *out without throwing; *out is replaced only on success.
@@ -950,7 +1041,8 @@ Status LoadNoThrow(std::string_view bytes, MeshFormat format, TriangleMesh* out)
 Status ReadWholeFile(const std::string& path, std::string* bytes) {
   std::error_code ec;
   if (!std::filesystem::exists(path, ec)) return NotFound(Cat("mesh: no such file '", path, "'"));
-  if (std::filesystem::is_directory(path, ec)) return IoError(Cat("mesh: '", path, "' is a directory"));
+  if (std::filesystem::is_directory(path, ec))
+    return IoError(Cat("mesh: '", path, "' is a directory"));
   std::ifstream f(path, std::ios::binary);
   if (!f) return IoError(Cat("mesh: cannot open '", path, "' for reading"));
   std::ostringstream ss;
@@ -971,10 +1063,12 @@ Status ValidateForSave(const TriangleMesh& mesh) {
   }
   if (mesh.faces.empty()) return InvalidArgument("mesh has no faces");
   for (size_t i = 0; i < mesh.vertices.size(); ++i) {
-    if (!FitsFloat(mesh.vertices[i])) return InvalidArgument(Cat("vertex ", i, " is not a finite float"));
+    if (!FitsFloat(mesh.vertices[i]))
+      return InvalidArgument(Cat("vertex ", i, " is not a finite float"));
   }
   for (size_t i = 0; i < mesh.vertex_normals.size(); ++i) {
-    if (!FitsFloat(mesh.vertex_normals[i])) return InvalidArgument(Cat("normal ", i, " is not a finite float"));
+    if (!FitsFloat(mesh.vertex_normals[i]))
+      return InvalidArgument(Cat("normal ", i, " is not a finite float"));
   }
   return Status::Ok();
 }
@@ -982,8 +1076,10 @@ Status ValidateForSave(const TriangleMesh& mesh) {
 std::string PlyHeaderText(const TriangleMesh& mesh, const char* format) {
   std::ostringstream h;
   h << "ply\nformat " << format << " 1.0\ncomment d3dscan mesh, units mm\n";
-  h << "element vertex " << mesh.vertices.size() << "\nproperty float x\nproperty float y\nproperty float z\n";
-  if (!mesh.vertex_normals.empty()) h << "property float nx\nproperty float ny\nproperty float nz\n";
+  h << "element vertex " << mesh.vertices.size()
+    << "\nproperty float x\nproperty float y\nproperty float z\n";
+  if (!mesh.vertex_normals.empty())
+    h << "property float nx\nproperty float ny\nproperty float nz\n";
   h << "element face " << mesh.faces.size() << "\nproperty list uchar int vertex_indices\n";
   if (!mesh.face_colors.empty()) {
     h << "property uchar red\nproperty uchar green\nproperty uchar blue\nproperty uchar alpha\n";
@@ -1026,7 +1122,8 @@ std::string EncodePlyBinary(const TriangleMesh& mesh) {
 void AppendAsciiFloats(std::string* out, const Eigen::Vector3d& v) {
   for (int a = 0; a < 3; ++a) {
     std::array<char, 32> buf;
-    const auto [end, ec] = std::to_chars(buf.data(), buf.data() + buf.size(), static_cast<float>(v[a]));
+    const auto [end, ec] =
+        std::to_chars(buf.data(), buf.data() + buf.size(), static_cast<float>(v[a]));
     out->append(buf.data(), ec == std::errc() ? end : buf.data());
     out->push_back(' ');
   }
@@ -1056,7 +1153,8 @@ std::string EncodeStlBinary(const TriangleMesh& mesh) {
   out.reserve(out.size() + mesh.faces.size() * kStlTriangleBytes);
   for (size_t f = 0; f < mesh.faces.size(); ++f) {
     AppendFloats(&out, mesh.FaceNormal(static_cast<int>(f)));
-    for (int k = 0; k < 3; ++k) AppendFloats(&out, mesh.vertices[static_cast<size_t>(mesh.faces[f][k])]);
+    for (int k = 0; k < 3; ++k)
+      AppendFloats(&out, mesh.vertices[static_cast<size_t>(mesh.faces[f][k])]);
     AppendLittleEndian(&out, static_cast<uint16_t>(0));
   }
   return out;
@@ -1073,7 +1171,8 @@ Status WriteWholeFile(const std::string& path, const std::string& bytes) {
 
 // Validates, encodes and writes a mesh without throwing.
 template <typename Encoder>
-Status SaveWith(const std::string& path, const TriangleMesh& mesh, const char* what, Encoder encode) {
+Status SaveWith(const std::string& path, const TriangleMesh& mesh, const char* what,
+                Encoder encode) {
   try {
     D3D_RETURN_IF_ERROR(Prefixed(Cat(what, " '", path, "': "), ValidateForSave(mesh)));
     if (mesh.faces.size() > std::numeric_limits<uint32_t>::max()) {
@@ -1089,10 +1188,14 @@ Status SaveWith(const std::string& path, const TriangleMesh& mesh, const char* w
 
 const char* MeshFormatName(MeshFormat format) {
   switch (format) {
-    case MeshFormat::kAuto: return "auto";
-    case MeshFormat::kPly: return "PLY";
-    case MeshFormat::kStl: return "STL";
-    case MeshFormat::kObj: return "OBJ";
+    case MeshFormat::kAuto:
+      return "auto";
+    case MeshFormat::kPly:
+      return "PLY";
+    case MeshFormat::kStl:
+      return "STL";
+    case MeshFormat::kObj:
+      return "OBJ";
   }
   return "unknown";
 }
@@ -1131,7 +1234,8 @@ void LabelFacesFromColors(TriangleMesh* mesh) {
     const std::array<uint8_t, 4>& c = mesh->face_colors[f];
     const int hi = std::max({c[0], c[1], c[2]});
     const int lo = std::min({c[0], c[1], c[2]});
-    mesh->face_labels[f] = (hi - lo < kMinToothSaturation) ? SurfaceLabel::kGingiva : SurfaceLabel::kTooth;
+    mesh->face_labels[f] =
+        (hi - lo < kMinToothSaturation) ? SurfaceLabel::kGingiva : SurfaceLabel::kTooth;
   }
   mesh->face_tooth_ids.assign(mesh->face_colors.size(), 0);
 }

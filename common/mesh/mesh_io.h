@@ -12,8 +12,10 @@
 //   CORRUPT           well-formed but inconsistent: index out of range, NaN/inf coordinate or
 //                     normal, a label outside SurfaceLabel, a tooth_id outside 0..255
 //   INVALID_ARGUMENT  null output, or a mesh that cannot be written (fails Check, no faces, NaN)
-//   INTERNAL          an unexpected exception inside a loader or writer (a bug), caught and reported
-// On failure the output mesh is left untouched. A successful load always passes TriangleMesh::Check.
+//   INTERNAL          an unexpected exception inside a loader or writer (a bug), caught and
+//   reported
+// On failure the output mesh is left untouched. A successful load always passes
+// TriangleMesh::Check.
 #pragma once
 
 #include <string>
@@ -57,7 +59,8 @@ MeshFormat DetectMeshFormat(std::string_view bytes);
 
 // Same as LoadMesh on bytes held in memory. `hint` forces a parser; kAuto detects from the content
 // and fails with PARSE_ERROR when the content matches no format.
-[[nodiscard]] Status LoadMeshFromMemory(const std::string& bytes, MeshFormat hint, TriangleMesh* out);
+[[nodiscard]] Status LoadMeshFromMemory(const std::string& bytes, MeshFormat hint,
+                                        TriangleMesh* out);
 
 // Labels faces from their colour as in the real intraoral scans (white/grey = gingiva, each
 // saturated colour = a tooth pair): saturation max(r,g,b) - min(r,g,b) < 40 → kGingiva, otherwise

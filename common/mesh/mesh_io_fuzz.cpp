@@ -14,7 +14,8 @@ namespace {
 std::string CheckOneLoad(const Status& status, const TriangleMesh& mesh, MeshFormat format) {
   const std::string where = std::string(" (format ") + MeshFormatName(format) + ")";
   if (!status.ok()) {
-    if (status.code() == StatusCode::kInternal) return "INTERNAL status: " + status.message() + where;
+    if (status.code() == StatusCode::kInternal)
+      return "INTERNAL status: " + status.message() + where;
     if (status.message().empty()) return "error status without a message" + where;
     return {};
   }
@@ -35,7 +36,8 @@ std::string CheckOneLoad(const Status& status, const TriangleMesh& mesh, MeshFor
 FuzzLoadOutcome FuzzLoadMeshOnce(const uint8_t* data, size_t size) {
   FuzzLoadOutcome outcome;
   const std::string bytes(reinterpret_cast<const char*>(data), size);
-  for (MeshFormat format : {MeshFormat::kAuto, MeshFormat::kPly, MeshFormat::kStl, MeshFormat::kObj}) {
+  for (MeshFormat format :
+       {MeshFormat::kAuto, MeshFormat::kPly, MeshFormat::kStl, MeshFormat::kObj}) {
     TriangleMesh mesh;
     std::string problem;
     try {

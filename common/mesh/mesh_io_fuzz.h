@@ -9,9 +9,10 @@
 namespace d3d {
 
 struct FuzzLoadOutcome {
-  int loaded = 0;         // parses that succeeded (each passed TriangleMesh::Check)
-  int refused = 0;        // parses that returned a non-ok Status
-  std::string violation;  // empty, or what broke the loaders' contract (an exception, a bad mesh, INTERNAL)
+  int loaded = 0;   // parses that succeeded (each passed TriangleMesh::Check)
+  int refused = 0;  // parses that returned a non-ok Status
+  std::string
+      violation;  // empty, or what broke the loaders' contract (an exception, a bad mesh, INTERNAL)
 };
 
 // Feeds `data` to LoadMeshFromMemory with auto-detection and with each format forced (PLY, STL,

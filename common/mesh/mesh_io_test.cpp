@@ -25,7 +25,9 @@ namespace {
 using ::testing::HasSubstr;
 
 std::string TempPath(const std::string& name) {
-  return (std::filesystem::temp_directory_path() / ("d3d_mesh_io_" + std::to_string(getpid()) + "_" + name)).string();
+  return (std::filesystem::temp_directory_path() /
+          ("d3d_mesh_io_" + std::to_string(getpid()) + "_" + name))
+      .string();
 }
 
 void WriteFile(const std::string& path, const std::string& bytes) {
@@ -58,7 +60,9 @@ class ByteWriter {
 
 std::string OddPlyHeader(const std::string& format) {
   return "ply\n"
-         "format " + format + " 1.0\n"
+         "format " +
+         format +
+         " 1.0\n"
          "comment odd property order and types\n"
          "element vertex 4\n"
          "property uchar quality\n"
@@ -99,8 +103,14 @@ std::string OddPlyAscii() {
 
 std::string OddPlyBinary(bool big_endian) {
   ByteWriter w(big_endian);
-  struct V { double z; std::vector<float> extra; float y; int8_t x; };
-  const V vs[4] = {{0.5, {1.5f, 2.5f}, 0.f, 0}, {0.5, {}, 0.f, 1}, {0.5, {-3.f}, 1.5f, 1}, {-0.25, {}, 1.5f, 0}};
+  struct V {
+    double z;
+    std::vector<float> extra;
+    float y;
+    int8_t x;
+  };
+  const V vs[4] = {
+      {0.5, {1.5f, 2.5f}, 0.f, 0}, {0.5, {}, 0.f, 1}, {0.5, {-3.f}, 1.5f, 1}, {-0.25, {}, 1.5f, 0}};
   for (const V& v : vs) {
     w << uint8_t{7} << v.z << static_cast<uint8_t>(v.extra.size());
     for (float e : v.extra) w << e;
@@ -124,7 +134,7 @@ void ExpectOddMesh(const TriangleMesh& m) {
   EXPECT_EQ(m.vertices[3], Eigen::Vector3d(0, 1.5, -0.25));
   ASSERT_EQ(m.vertex_normals.size(), 4u);
   EXPECT_EQ(m.vertex_normals[2], Eigen::Vector3d(0, 0, 1));  // (0,0,2) normalised
-  ASSERT_EQ(m.faces.size(), 3u);  // the quad became two triangles
+  ASSERT_EQ(m.faces.size(), 3u);                             // the quad became two triangles
   EXPECT_EQ(m.faces[0], Eigen::Vector3i(0, 1, 2));
   EXPECT_EQ(m.faces[1], Eigen::Vector3i(0, 2, 3));
   EXPECT_EQ(m.faces[2], Eigen::Vector3i(0, 2, 1));
@@ -132,8 +142,8 @@ void ExpectOddMesh(const TriangleMesh& m) {
   EXPECT_EQ(m.face_colors[0], (std::array<uint8_t, 4>{10, 255, 0, 255}));  // alpha 255 when absent
   EXPECT_EQ(m.face_colors[1], (std::array<uint8_t, 4>{10, 255, 0, 255}));
   EXPECT_EQ(m.face_colors[2], (std::array<uint8_t, 4>{200, 200, 200, 255}));
-  EXPECT_EQ(m.face_labels,
-            (std::vector<SurfaceLabel>{SurfaceLabel::kTooth, SurfaceLabel::kTooth, SurfaceLabel::kGingiva}));
+  EXPECT_EQ(m.face_labels, (std::vector<SurfaceLabel>{SurfaceLabel::kTooth, SurfaceLabel::kTooth,
+                                                      SurfaceLabel::kGingiva}));
   EXPECT_TRUE(m.face_tooth_ids.empty());
   EXPECT_NO_THROW(m.Check());
 }
@@ -168,7 +178,8 @@ TEST(MeshIoPly, AllTypeNamesAndFloatColours) {
       "property int i\r\nproperty int32 j\r\nproperty uint k\r\nproperty uint32 l\r\n"
       "property float32 x\r\nproperty float64 y\r\nproperty double z\r\n"
       "element face 1\r\nproperty list int short vertex_indices\r\n"
-      "property float red\r\nproperty double green\r\nproperty float blue\r\nproperty float alpha\r\n"
+      "property float red\r\nproperty double green\r\nproperty float blue\r\nproperty float "
+      "alpha\r\n"
       "property uchar tooth_id\r\nend_header\r\n";
   for (int v = 0; v < 3; ++v) {
     ply += "-128 127 255 0 -32768 32767 65535 0 -2147483648 2147483647 4294967295 0 ";
@@ -187,7 +198,8 @@ TEST(MeshIoPly, AllTypeNamesAndFloatColours) {
 
 TEST(MeshIoPly, PolygonsAreFanTriangulated) {
   const std::string ply =
-      "ply\nformat ascii 1.0\nelement vertex 6\nproperty float x\nproperty float y\nproperty float z\n"
+      "ply\nformat ascii 1.0\nelement vertex 6\nproperty float x\nproperty float y\nproperty float "
+      "z\n"
       "element face 1\nproperty list uchar int vertex_indices\nproperty uchar label\nend_header\n"
       "0 0 0\n1 0 0\n2 1 0\n1 2 0\n0 2 0\n-1 1 0\n6 0 1 2 3 4 5 1\n";
   TriangleMesh m;
@@ -203,15 +215,18 @@ TEST(MeshIoPly, PolygonsAreFanTriangulated) {
 
 TriangleMesh DecoratedCube() {
   TriangleMesh m;
-  for (int i = 0; i < 8; ++i) m.vertices.emplace_back(10.25 * (i & 1), -3.5 + ((i >> 1) & 1), 0.125 * ((i >> 2) & 1));
-  const int quads[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
+  for (int i = 0; i < 8; ++i)
+    m.vertices.emplace_back(10.25 * (i & 1), -3.5 + ((i >> 1) & 1), 0.125 * ((i >> 2) & 1));
+  const int quads[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4},
+                           {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
   for (const auto& q : quads) {
     m.faces.emplace_back(q[0], q[1], q[2]);
     m.faces.emplace_back(q[0], q[2], q[3]);
   }
   m.ComputeVertexNormals();
   for (size_t f = 0; f < m.faces.size(); ++f) {
-    m.face_colors.push_back({static_cast<uint8_t>(20 * f), 255, static_cast<uint8_t>(f), static_cast<uint8_t>(200 + f)});
+    m.face_colors.push_back({static_cast<uint8_t>(20 * f), 255, static_cast<uint8_t>(f),
+                             static_cast<uint8_t>(200 + f)});
     m.face_labels.push_back(f % 3 == 0 ? SurfaceLabel::kGingiva : SurfaceLabel::kTooth);
     m.face_tooth_ids.push_back(static_cast<uint8_t>(11 + f));
   }
@@ -220,7 +235,8 @@ TriangleMesh DecoratedCube() {
 
 void ExpectSameMesh(const TriangleMesh& a, const TriangleMesh& b) {
   ASSERT_EQ(a.vertices.size(), b.vertices.size());
-  for (size_t i = 0; i < a.vertices.size(); ++i) EXPECT_TRUE(a.vertices[i].isApprox(b.vertices[i], 1e-6)) << i;
+  for (size_t i = 0; i < a.vertices.size(); ++i)
+    EXPECT_TRUE(a.vertices[i].isApprox(b.vertices[i], 1e-6)) << i;
   ASSERT_EQ(a.vertex_normals.size(), b.vertex_normals.size());
   for (size_t i = 0; i < a.vertex_normals.size(); ++i) {
     EXPECT_TRUE(a.vertex_normals[i].isApprox(b.vertex_normals[i], 1e-6)) << i;
@@ -251,7 +267,8 @@ TEST(MeshIoRoundTrip, PlyAsciiIsFloatExact) {
   const Status s = LoadMesh(path, &back);
   ASSERT_TRUE(s.ok()) << s.ToString();
   ExpectSameMesh(cube, back);
-  for (int a = 0; a < 3; ++a) EXPECT_EQ(back.vertices[3][a], static_cast<double>(static_cast<float>(cube.vertices[3][a])));
+  for (int a = 0; a < 3; ++a)
+    EXPECT_EQ(back.vertices[3][a], static_cast<double>(static_cast<float>(cube.vertices[3][a])));
   std::filesystem::remove(path);
 }
 
@@ -274,7 +291,8 @@ std::vector<std::array<double, 9>> Corners(const TriangleMesh& m) {
   for (const Eigen::Vector3i& f : m.faces) {
     std::array<double, 9> c{};
     for (int k = 0; k < 3; ++k) {
-      for (int a = 0; a < 3; ++a) c[static_cast<size_t>(3 * k + a)] = static_cast<float>(m.vertices[f[k]][a]);
+      for (int a = 0; a < 3; ++a)
+        c[static_cast<size_t>(3 * k + a)] = static_cast<float>(m.vertices[f[k]][a]);
     }
     out.push_back(c);
   }
@@ -299,11 +317,14 @@ TEST(MeshIoRoundTrip, StlBinaryWeldsCorners) {
 TEST(MeshIoStl, AsciiWithPolygonAndTwoSolids) {
   const std::string stl =
       "  solid my part\n"
-      "facet normal 0 0 1\n outer loop\n  vertex 0 0 0\n  vertex 1 0 0\n  vertex 1 1 0\n endloop\nendfacet\n"
-      "FACET NORMAL 0 0 1\n OUTER LOOP\n  VERTEX 0 0 0\n  VERTEX 1 1 0\n  VERTEX 0 1 0\n ENDLOOP\nENDFACET\n"
+      "facet normal 0 0 1\n outer loop\n  vertex 0 0 0\n  vertex 1 0 0\n  vertex 1 1 0\n "
+      "endloop\nendfacet\n"
+      "FACET NORMAL 0 0 1\n OUTER LOOP\n  VERTEX 0 0 0\n  VERTEX 1 1 0\n  VERTEX 0 1 0\n "
+      "ENDLOOP\nENDFACET\n"
       "endsolid my part\n"
       "solid second\n"
-      "facet normal 0 0 0\n outer loop\n vertex 0 0 0\n vertex 0 -1 0\n vertex -1 -1 0\n vertex -1 0 0\n endloop\n"
+      "facet normal 0 0 0\n outer loop\n vertex 0 0 0\n vertex 0 -1 0\n vertex -1 -1 0\n vertex -1 "
+      "0 0\n endloop\n"
       "endfacet\nendsolid\n";
   TriangleMesh m;
   const Status s = LoadMeshFromMemory(stl, MeshFormat::kAuto, &m);
@@ -365,7 +386,8 @@ TEST(MeshIoObj, AllFaceFormsNegativeIndicesAndQuads) {
   const Status s = LoadMeshFromMemory(obj, MeshFormat::kAuto, &m);
   ASSERT_TRUE(s.ok()) << s.ToString();
   ASSERT_EQ(m.vertices.size(), 4u);
-  const std::vector<Eigen::Vector3i> expected = {{0, 1, 2}, {0, 2, 3}, {0, 1, 2}, {0, 1, 2}, {0, 2, 3}, {3, 2, 1}};
+  const std::vector<Eigen::Vector3i> expected = {{0, 1, 2}, {0, 2, 3}, {0, 1, 2},
+                                                 {0, 1, 2}, {0, 2, 3}, {3, 2, 1}};
   EXPECT_EQ(m.faces, expected);
   ASSERT_EQ(m.vertex_normals.size(), 4u);  // every vertex got a normal from some corner
   for (const Eigen::Vector3d& n : m.vertex_normals) EXPECT_EQ(n, Eigen::Vector3d(0, 0, 1));
@@ -403,7 +425,8 @@ TEST(MeshIoDispatch, ContentFirstThenExtension) {
 
 // Loads `bytes`, expects failure with `code` and a message containing `needle`; the output mesh
 // must be left untouched.
-void ExpectRefused(const std::string& bytes, MeshFormat format, StatusCode code, const std::string& needle) {
+void ExpectRefused(const std::string& bytes, MeshFormat format, StatusCode code,
+                   const std::string& needle) {
   TriangleMesh m;
   m.vertices = {{7, 7, 7}};
   const Status s = LoadMeshFromMemory(bytes, format, &m);
@@ -415,7 +438,8 @@ void ExpectRefused(const std::string& bytes, MeshFormat format, StatusCode code,
 }
 
 const std::string kTriPlyHeader =
-    "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+    "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float "
+    "z\n"
     "element face 1\nproperty list uchar int vertex_indices\nend_header\n";
 
 TEST(MeshIoRefuse, EmptyData) {
@@ -432,39 +456,49 @@ TEST(MeshIoRefuse, EmptyData) {
 }
 
 TEST(MeshIoRefuse, UnknownFormat) {
-  ExpectRefused("hello, I am not a mesh\n", MeshFormat::kAuto, StatusCode::kParseError, "unknown format");
-  ExpectRefused(std::string(100, '\x01'), MeshFormat::kAuto, StatusCode::kParseError, "unknown format");
-  ExpectRefused("ply\nformat binary_middle_endian 1.0\nend_header\n", MeshFormat::kAuto, StatusCode::kUnsupported,
-                "binary_middle_endian");
+  ExpectRefused("hello, I am not a mesh\n", MeshFormat::kAuto, StatusCode::kParseError,
+                "unknown format");
+  ExpectRefused(std::string(100, '\x01'), MeshFormat::kAuto, StatusCode::kParseError,
+                "unknown format");
+  ExpectRefused("ply\nformat binary_middle_endian 1.0\nend_header\n", MeshFormat::kAuto,
+                StatusCode::kUnsupported, "binary_middle_endian");
 }
 
 TEST(MeshIoRefuse, NoFaces) {
-  ExpectRefused("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\n"
-                "end_header\n0 0 0\n",
-                MeshFormat::kAuto, StatusCode::kParseError, "no faces");
-  ExpectRefused("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\n"
-                "element face 0\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n",
-                MeshFormat::kAuto, StatusCode::kParseError, "no faces");
+  ExpectRefused(
+      "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float "
+      "z\n"
+      "end_header\n0 0 0\n",
+      MeshFormat::kAuto, StatusCode::kParseError, "no faces");
+  ExpectRefused(
+      "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float "
+      "z\n"
+      "element face 0\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n",
+      MeshFormat::kAuto, StatusCode::kParseError, "no faces");
   ExpectRefused("v 0 0 0\nv 1 0 0\n", MeshFormat::kAuto, StatusCode::kParseError, "no faces");
   ExpectRefused(BinaryStl("binary", 0), MeshFormat::kAuto, StatusCode::kParseError, "no faces");
-  ExpectRefused("solid empty\nendsolid empty\n", MeshFormat::kAuto, StatusCode::kParseError, "no faces");
+  ExpectRefused("solid empty\nendsolid empty\n", MeshFormat::kAuto, StatusCode::kParseError,
+                "no faces");
 }
 
 TEST(MeshIoRefuse, IndexOutOfRangeNamesFaceIndexAndCount) {
   std::string ply =
-      "ply\nformat ascii 1.0\nelement vertex 8502\nproperty float x\nproperty float y\nproperty float z\n"
+      "ply\nformat ascii 1.0\nelement vertex 8502\nproperty float x\nproperty float y\nproperty "
+      "float z\n"
       "element face 13\nproperty list uchar int vertex_indices\nend_header\n";
   for (int v = 0; v < 8502; ++v) ply += "0 0 " + std::to_string(v) + "\n";
   for (int f = 0; f < 12; ++f) ply += "3 0 1 2\n";
   ply += "3 1 9001 2\n";
-  ExpectRefused(ply, MeshFormat::kAuto, StatusCode::kCorrupt, "ply: face 12 index 9001 >= vertex count 8502");
-  ExpectRefused(kTriPlyHeader + "0 0 0\n1 0 0\n0 1 0\n3 0 -1 2\n", MeshFormat::kAuto, StatusCode::kCorrupt,
-                "face 0 index -1 is not a vertex index");
-  ExpectRefused(kTriPlyHeader + "0 0 0\n1 0 0\n0 1 0\n2 0 1\n", MeshFormat::kAuto, StatusCode::kParseError,
-                "face 0 has 2 vertices");
+  ExpectRefused(ply, MeshFormat::kAuto, StatusCode::kCorrupt,
+                "ply: face 12 index 9001 >= vertex count 8502");
+  ExpectRefused(kTriPlyHeader + "0 0 0\n1 0 0\n0 1 0\n3 0 -1 2\n", MeshFormat::kAuto,
+                StatusCode::kCorrupt, "face 0 index -1 is not a vertex index");
+  ExpectRefused(kTriPlyHeader + "0 0 0\n1 0 0\n0 1 0\n2 0 1\n", MeshFormat::kAuto,
+                StatusCode::kParseError, "face 0 has 2 vertices");
   ExpectRefused("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", MeshFormat::kAuto, StatusCode::kCorrupt,
                 "line 4: vertex index 9 > vertex count 3");
-  ExpectRefused("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", MeshFormat::kAuto, StatusCode::kCorrupt, "index 0");
+  ExpectRefused("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", MeshFormat::kAuto, StatusCode::kCorrupt,
+                "index 0");
   ExpectRefused("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -4 1 2\n", MeshFormat::kAuto, StatusCode::kCorrupt,
                 "vertex index -4 reaches before the first vertex");
   ExpectRefused("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1//2 2 3\n", MeshFormat::kAuto, StatusCode::kCorrupt,
@@ -472,22 +506,26 @@ TEST(MeshIoRefuse, IndexOutOfRangeNamesFaceIndexAndCount) {
 }
 
 TEST(MeshIoRefuse, NonFiniteCoordinates) {
-  ExpectRefused(kTriPlyHeader + "0 0 0\nnan 0 0\n0 1 0\n3 0 1 2\n", MeshFormat::kAuto, StatusCode::kCorrupt,
-                "vertex 1 has a non-finite coordinate");
-  ExpectRefused(kTriPlyHeader + "0 0 0\n1 0 0\n0 -inf 0\n3 0 1 2\n", MeshFormat::kAuto, StatusCode::kCorrupt,
-                "vertex 2 has a non-finite coordinate");
-  ExpectRefused(kTriPlyHeader + "0 0 0\n1 0 0\n0 1 -1e39\n3 0 1 2\n", MeshFormat::kAuto, StatusCode::kCorrupt,
+  ExpectRefused(kTriPlyHeader + "0 0 0\nnan 0 0\n0 1 0\n3 0 1 2\n", MeshFormat::kAuto,
+                StatusCode::kCorrupt, "vertex 1 has a non-finite coordinate");
+  ExpectRefused(kTriPlyHeader + "0 0 0\n1 0 0\n0 -inf 0\n3 0 1 2\n", MeshFormat::kAuto,
+                StatusCode::kCorrupt, "vertex 2 has a non-finite coordinate");
+  ExpectRefused(kTriPlyHeader + "0 0 0\n1 0 0\n0 1 -1e39\n3 0 1 2\n", MeshFormat::kAuto,
+                StatusCode::kCorrupt,
                 "vertex 2 has a non-finite coordinate");  // beyond the range of "property float"
   std::string bin = OddPlyBinary(false);
   const size_t body = bin.find("end_header\n") + 11;
   const double nan = std::numeric_limits<double>::quiet_NaN();
   std::memcpy(&bin[body + 1], &nan, sizeof(nan));  // z of vertex 0
-  ExpectRefused(bin, MeshFormat::kAuto, StatusCode::kCorrupt, "vertex 0 has a non-finite coordinate");
+  ExpectRefused(bin, MeshFormat::kAuto, StatusCode::kCorrupt,
+                "vertex 0 has a non-finite coordinate");
   ExpectRefused("v 0 0 0\nv 1 inf 0\nv 0 1 0\nf 1 2 3\n", MeshFormat::kAuto, StatusCode::kCorrupt,
                 "line 2: non-finite 'v'");
-  ExpectRefused("solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex nan 0 0\nvertex 0 1 0\nendloop\n"
-                "endfacet\nendsolid x\n",
-                MeshFormat::kAuto, StatusCode::kCorrupt, "line 5: non-finite vertex");
+  ExpectRefused(
+      "solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex nan 0 0\nvertex 0 1 "
+      "0\nendloop\n"
+      "endfacet\nendsolid x\n",
+      MeshFormat::kAuto, StatusCode::kCorrupt, "line 5: non-finite vertex");
   std::string stl = BinaryStl("binary", 2);
   const float inf = std::numeric_limits<float>::infinity();
   std::memcpy(&stl[84 + 50 + 12 + 4], &inf, sizeof(inf));
@@ -496,45 +534,57 @@ TEST(MeshIoRefuse, NonFiniteCoordinates) {
 
 TEST(MeshIoRefuse, TruncatedBinary) {
   const std::string bin = OddPlyBinary(false);
-  ExpectRefused(bin.substr(0, bin.size() - 10), MeshFormat::kAuto, StatusCode::kParseError,
-                "ply: face 1 property 'vertex_index': list of 3 items does not fit in the remaining 9 bytes");
+  ExpectRefused(
+      bin.substr(0, bin.size() - 10), MeshFormat::kAuto, StatusCode::kParseError,
+      "ply: face 1 property 'vertex_index': list of 3 items does not fit in the remaining 9 bytes");
   const size_t body = bin.find("end_header\n") + 11;
-  ExpectRefused(bin.substr(0, body + 30), MeshFormat::kAuto, StatusCode::kParseError, "ply: header claims 4 'vertex'");
+  ExpectRefused(bin.substr(0, body + 30), MeshFormat::kAuto, StatusCode::kParseError,
+                "ply: header claims 4 'vertex'");
   // Truncated past the guard: the cut is found while reading the items.
-  ExpectRefused(bin.substr(0, body + 110), MeshFormat::kAuto, StatusCode::kParseError, "unexpected end of data");
+  ExpectRefused(bin.substr(0, body + 110), MeshFormat::kAuto, StatusCode::kParseError,
+                "unexpected end of data");
   const std::string stl = BinaryStl("binary", 3);
   ExpectRefused(stl.substr(0, stl.size() - 1), MeshFormat::kStl, StatusCode::kParseError,
                 "claims 3 triangles (234 bytes) but the data has 233 bytes (truncated)");
-  ExpectRefused(stl.substr(0, 40), MeshFormat::kStl, StatusCode::kParseError, "shorter than the 84-byte header");
+  ExpectRefused(stl.substr(0, 40), MeshFormat::kStl, StatusCode::kParseError,
+                "shorter than the 84-byte header");
   // A count below the data (100 triangles fewer: their data was silently ignored).
   std::string low = BinaryStl("binary", 103);
   const uint32_t three = 3;
   std::memcpy(&low[80], &three, sizeof(three));
-  ExpectRefused(low, MeshFormat::kStl, StatusCode::kParseError, "claims 3 triangles but the data holds 103");
-  ExpectRefused("solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1", MeshFormat::kAuto,
-                StatusCode::kParseError, "expected a number, got end of data");
+  ExpectRefused(low, MeshFormat::kStl, StatusCode::kParseError,
+                "claims 3 triangles but the data holds 103");
+  ExpectRefused("solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1",
+                MeshFormat::kAuto, StatusCode::kParseError, "expected a number, got end of data");
 }
 
 TEST(MeshIoRefuse, AbsurdCountsFailFast) {
   // A 1 kB binary PLY claiming 4e9 vertices.
   std::string ply =
-      "ply\nformat binary_little_endian 1.0\nelement vertex 4000000000\nproperty float x\nproperty float y\n"
-      "property float z\nelement face 4000000000\nproperty list uchar int vertex_indices\nend_header\n";
+      "ply\nformat binary_little_endian 1.0\nelement vertex 4000000000\nproperty float x\nproperty "
+      "float y\n"
+      "property float z\nelement face 4000000000\nproperty list uchar int "
+      "vertex_indices\nend_header\n";
   ply.resize(1024, '\0');
   // Each refusal names the header's claim: it comes from comparing the counts with the bytes left,
   // before anything is reserved (no timing here: speed is not a pass/fail test).
-  ExpectRefused(ply, MeshFormat::kAuto, StatusCode::kParseError, "header claims 4000000000 'vertex' items");
+  ExpectRefused(ply, MeshFormat::kAuto, StatusCode::kParseError,
+                "header claims 4000000000 'vertex' items");
   // The same in ascii, and a list claiming 4e9 items.
   std::string ascii = kTriPlyHeader;
   ascii.replace(ascii.find("vertex 3"), 8, "vertex 4000000000");
   ascii.resize(1024, ' ');
-  ExpectRefused(ascii, MeshFormat::kAuto, StatusCode::kParseError, "header claims 4000000000 'vertex' items");
+  ExpectRefused(ascii, MeshFormat::kAuto, StatusCode::kParseError,
+                "header claims 4000000000 'vertex' items");
   ByteWriter w(false);
-  w << 0.f << 0.f << 0.f << 1.f << 0.f << 0.f << 0.f << 1.f << 0.f << uint32_t{4000000000u} << int32_t{0};
+  w << 0.f << 0.f << 0.f << 1.f << 0.f << 0.f << 0.f << 1.f << 0.f << uint32_t{4000000000u}
+    << int32_t{0};
   const std::string list_ply =
       "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
-      "property float z\nelement face 1\nproperty list uint int vertex_indices\nend_header\n" + w.bytes;
-  ExpectRefused(list_ply, MeshFormat::kAuto, StatusCode::kParseError, "list of 4000000000 items does not fit");
+      "property float z\nelement face 1\nproperty list uint int vertex_indices\nend_header\n" +
+      w.bytes;
+  ExpectRefused(list_ply, MeshFormat::kAuto, StatusCode::kParseError,
+                "list of 4000000000 items does not fit");
   std::string stl = BinaryStl("binary", 2);
   const uint32_t huge = 0xffffffffu;
   std::memcpy(&stl[80], &huge, 4);
@@ -542,34 +592,46 @@ TEST(MeshIoRefuse, AbsurdCountsFailFast) {
 }
 
 TEST(MeshIoRefuse, MalformedHeadersAndValues) {
-  ExpectRefused("ply\nformat ascii 1.0\nelement vertex 3\n", MeshFormat::kAuto, StatusCode::kParseError,
-                "no 'end_header'");
-  ExpectRefused("ply\nformat ascii 1.0\nelement vertex 3\nproperty flaot x\nend_header\n", MeshFormat::kAuto,
-                StatusCode::kParseError, "line 4: unknown property type 'flaot'");
-  ExpectRefused("ply\nformat ascii 1.0\nelement vertex -3\nend_header\n", MeshFormat::kAuto, StatusCode::kParseError,
-                "invalid count '-3'");
-  ExpectRefused("ply\nformat ascii 1.0\nproperty float x\nend_header\n", MeshFormat::kAuto, StatusCode::kParseError,
-                "'property' before any 'element'");
-  ExpectRefused("ply\nformat ascii 1.0\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n3 0 1 2\n",
-                MeshFormat::kAuto, StatusCode::kParseError, "no 'vertex' element");
-  ExpectRefused(kTriPlyHeader + "0 0 0\n1 zero 0\n0 1 0\n3 0 1 2\n", MeshFormat::kAuto, StatusCode::kParseError,
-                "ply: vertex 1 property 'y': 'zero' is not a float");
-  ExpectRefused(kTriPlyHeader + "0 0 0\n1 0 0\n0 1 0\n300 0 1 2\n", MeshFormat::kAuto, StatusCode::kParseError,
-                "300 is out of range for uchar");
-  ExpectRefused("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
-                "element face 1\nproperty list uchar int vertex_indices\nproperty int label\nend_header\n"
-                "0 0 0\n1 0 0\n0 1 0\n3 0 1 2 7\n",
-                MeshFormat::kAuto, StatusCode::kCorrupt, "face 0 label 7 is not 0 (unknown), 1 (gingiva) or 2 (tooth)");
-  ExpectRefused("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
-                "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0\n1 0\n0 1\n3 0 1 2\n",
-                MeshFormat::kAuto, StatusCode::kParseError, "lacks x, y or z");
-  ExpectRefused("solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nendloop\nendfacet\n",
-                MeshFormat::kAuto, StatusCode::kParseError, "facet has 2 vertices");
-  ExpectRefused("solid x\nfacet normal 0 0 1\ninner loop\n", MeshFormat::kAuto, StatusCode::kParseError,
-                "line 3: expected 'outer', got 'inner'");
-  ExpectRefused("v 0 0\nf 1 1 1\n", MeshFormat::kAuto, StatusCode::kParseError, "line 1: 'v' needs 3 numbers");
-  ExpectRefused("v 0 0 0\nf 1 1\n", MeshFormat::kAuto, StatusCode::kParseError, "face has 2 corners");
-  ExpectRefused("v 0 0 0\nf 1 a 1\n", MeshFormat::kAuto, StatusCode::kParseError, "vertex index 'a' is not an integer");
+  ExpectRefused("ply\nformat ascii 1.0\nelement vertex 3\n", MeshFormat::kAuto,
+                StatusCode::kParseError, "no 'end_header'");
+  ExpectRefused("ply\nformat ascii 1.0\nelement vertex 3\nproperty flaot x\nend_header\n",
+                MeshFormat::kAuto, StatusCode::kParseError,
+                "line 4: unknown property type 'flaot'");
+  ExpectRefused("ply\nformat ascii 1.0\nelement vertex -3\nend_header\n", MeshFormat::kAuto,
+                StatusCode::kParseError, "invalid count '-3'");
+  ExpectRefused("ply\nformat ascii 1.0\nproperty float x\nend_header\n", MeshFormat::kAuto,
+                StatusCode::kParseError, "'property' before any 'element'");
+  ExpectRefused(
+      "ply\nformat ascii 1.0\nelement face 1\nproperty list uchar int "
+      "vertex_indices\nend_header\n3 0 1 2\n",
+      MeshFormat::kAuto, StatusCode::kParseError, "no 'vertex' element");
+  ExpectRefused(kTriPlyHeader + "0 0 0\n1 zero 0\n0 1 0\n3 0 1 2\n", MeshFormat::kAuto,
+                StatusCode::kParseError, "ply: vertex 1 property 'y': 'zero' is not a float");
+  ExpectRefused(kTriPlyHeader + "0 0 0\n1 0 0\n0 1 0\n300 0 1 2\n", MeshFormat::kAuto,
+                StatusCode::kParseError, "300 is out of range for uchar");
+  ExpectRefused(
+      "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float "
+      "z\n"
+      "element face 1\nproperty list uchar int vertex_indices\nproperty int label\nend_header\n"
+      "0 0 0\n1 0 0\n0 1 0\n3 0 1 2 7\n",
+      MeshFormat::kAuto, StatusCode::kCorrupt,
+      "face 0 label 7 is not 0 (unknown), 1 (gingiva) or 2 (tooth)");
+  ExpectRefused(
+      "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+      "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0\n1 0\n0 1\n3 0 1 "
+      "2\n",
+      MeshFormat::kAuto, StatusCode::kParseError, "lacks x, y or z");
+  ExpectRefused(
+      "solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nendloop\nendfacet\n",
+      MeshFormat::kAuto, StatusCode::kParseError, "facet has 2 vertices");
+  ExpectRefused("solid x\nfacet normal 0 0 1\ninner loop\n", MeshFormat::kAuto,
+                StatusCode::kParseError, "line 3: expected 'outer', got 'inner'");
+  ExpectRefused("v 0 0\nf 1 1 1\n", MeshFormat::kAuto, StatusCode::kParseError,
+                "line 1: 'v' needs 3 numbers");
+  ExpectRefused("v 0 0 0\nf 1 1\n", MeshFormat::kAuto, StatusCode::kParseError,
+                "face has 2 corners");
+  ExpectRefused("v 0 0 0\nf 1 a 1\n", MeshFormat::kAuto, StatusCode::kParseError,
+                "vertex index 'a' is not an integer");
   // A forced parser on the wrong content says what it expected.
   ExpectRefused(OddPlyAscii(), MeshFormat::kStl, StatusCode::kParseError, "stl");
   ExpectRefused("v 0 0 0\n", MeshFormat::kPly, StatusCode::kParseError, "missing 'ply' magic");
@@ -584,7 +646,8 @@ TEST(MeshIoRefuse, FileErrors) {
   s = LoadMesh(std::filesystem::temp_directory_path().string(), &m);
   EXPECT_EQ(s.code(), StatusCode::kIoError);
   EXPECT_EQ(LoadMesh(missing, nullptr).code(), StatusCode::kInvalidArgument);
-  EXPECT_EQ(LoadMeshFromMemory(OddPlyAscii(), MeshFormat::kAuto, nullptr).code(), StatusCode::kInvalidArgument);
+  EXPECT_EQ(LoadMeshFromMemory(OddPlyAscii(), MeshFormat::kAuto, nullptr).code(),
+            StatusCode::kInvalidArgument);
   // The path is named in load errors.
   const std::string bad = TempPath("bad_index.ply");
   WriteFile(bad, kTriPlyHeader + "0 0 0\n1 0 0\n0 1 0\n3 0 1 5\n");
@@ -620,14 +683,16 @@ TEST(MeshIoSave, RefusesBadMeshesAndPaths) {
 TEST(MeshIoLabels, SaturationSplitsGingivaFromTeeth) {
   TriangleMesh m;
   m.vertices = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}};
-  m.face_colors = {{255, 255, 255, 255}, {150, 150, 150, 255}, {200, 180, 170, 255}, {255, 255, 0, 255},
-                   {0, 255, 0, 255},     {255, 125, 0, 255},   {0, 0, 255, 255},     {255, 0, 255, 255},
-                   {0, 255, 255, 255},   {100, 60, 60, 255}};
+  m.face_colors = {{255, 255, 255, 255}, {150, 150, 150, 255}, {200, 180, 170, 255},
+                   {255, 255, 0, 255},   {0, 255, 0, 255},     {255, 125, 0, 255},
+                   {0, 0, 255, 255},     {255, 0, 255, 255},   {0, 255, 255, 255},
+                   {100, 60, 60, 255}};
   m.faces.assign(m.face_colors.size(), Eigen::Vector3i(0, 1, 2));
   LabelFacesFromColors(&m);
   using L = SurfaceLabel;
-  EXPECT_EQ(m.face_labels, (std::vector<L>{L::kGingiva, L::kGingiva, L::kGingiva, L::kTooth, L::kTooth, L::kTooth,
-                                           L::kTooth, L::kTooth, L::kTooth, L::kTooth}));
+  EXPECT_EQ(m.face_labels,
+            (std::vector<L>{L::kGingiva, L::kGingiva, L::kGingiva, L::kTooth, L::kTooth, L::kTooth,
+                            L::kTooth, L::kTooth, L::kTooth, L::kTooth}));
   EXPECT_EQ(m.face_tooth_ids, std::vector<uint8_t>(10, 0));
   EXPECT_NO_THROW(m.Check());
 
@@ -644,7 +709,8 @@ TEST(MeshIoLabels, SaturationSplitsGingivaFromTeeth) {
 
 TEST(MeshIoRealData, UpperArch) {
   const std::string path = std::string(D3D_SHARED_DATA_DIR) + "/dental/upper_arch_0189MCMV.ply";
-  if (!std::filesystem::exists(path)) GTEST_SKIP() << "../shared/data absent: " << path << " not found";
+  if (!std::filesystem::exists(path))
+    GTEST_SKIP() << "../shared/data absent: " << path << " not found";
   TriangleMesh arch;
   const Status s = LoadMesh(path, &arch);
   ASSERT_TRUE(s.ok()) << s.ToString();
@@ -659,8 +725,10 @@ TEST(MeshIoRealData, UpperArch) {
   EXPECT_NEAR(extent.z(), 50.7, 0.2);
 
   LabelFacesFromColors(&arch);
-  const auto gingiva = std::count(arch.face_labels.begin(), arch.face_labels.end(), SurfaceLabel::kGingiva);
-  const auto tooth = std::count(arch.face_labels.begin(), arch.face_labels.end(), SurfaceLabel::kTooth);
+  const auto gingiva =
+      std::count(arch.face_labels.begin(), arch.face_labels.end(), SurfaceLabel::kGingiva);
+  const auto tooth =
+      std::count(arch.face_labels.begin(), arch.face_labels.end(), SurfaceLabel::kTooth);
   EXPECT_EQ(gingiva, 8300);
   EXPECT_EQ(tooth, 7700);
 
@@ -690,12 +758,18 @@ std::vector<std::string> MutationSeeds() {
     ss << f.rdbuf();
     return ss.str();
   };
-  std::vector<std::string> seeds = {
-      OddPlyAscii(), OddPlyBinary(false), OddPlyBinary(true), slurp(ply_path), slurp(stl_path),
-      "solid s\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 1 1 0\nendloop\nendfacet\n"
-      "facet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 1 0\nvertex 0 1 0\nendloop\nendfacet\nendsolid s\n",
-      "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\nf 1 2 3\nf 1/1 3/1 4/1\nf -4//1 -3//1 -2//1\n"
-      "f 1/1/1 2/1/1 3/1/1 4/1/1\n"};
+  std::vector<std::string> seeds = {OddPlyAscii(),
+                                    OddPlyBinary(false),
+                                    OddPlyBinary(true),
+                                    slurp(ply_path),
+                                    slurp(stl_path),
+                                    "solid s\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex "
+                                    "1 0 0\nvertex 1 1 0\nendloop\nendfacet\n"
+                                    "facet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 1 "
+                                    "0\nvertex 0 1 0\nendloop\nendfacet\nendsolid s\n",
+                                    "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\nf 1 2 "
+                                    "3\nf 1/1 3/1 4/1\nf -4//1 -3//1 -2//1\n"
+                                    "f 1/1/1 2/1/1 3/1/1 4/1/1\n"};
   std::filesystem::remove(ply_path);
   std::filesystem::remove(stl_path);
   return seeds;
@@ -739,7 +813,8 @@ void Mutate(std::string* s, std::mt19937* rng) {
 TEST(MeshIoFuzz, SeededMutationsNeverBreakTheContract) {
   const std::vector<std::string> seeds = MutationSeeds();
   for (const std::string& seed : seeds) {
-    const FuzzLoadOutcome o = FuzzLoadMeshOnce(reinterpret_cast<const uint8_t*>(seed.data()), seed.size());
+    const FuzzLoadOutcome o =
+        FuzzLoadMeshOnce(reinterpret_cast<const uint8_t*>(seed.data()), seed.size());
     ASSERT_TRUE(o.violation.empty()) << o.violation;
     ASSERT_GE(o.loaded, 2) << "seed does not load: " << seed.substr(0, 40);
   }
@@ -750,7 +825,8 @@ TEST(MeshIoFuzz, SeededMutationsNeverBreakTheContract) {
     std::string s = seeds[static_cast<size_t>(i) % seeds.size()];
     const int mutations = 1 + static_cast<int>(rng() % 4);
     for (int k = 0; k < mutations; ++k) Mutate(&s, &rng);
-    const FuzzLoadOutcome o = FuzzLoadMeshOnce(reinterpret_cast<const uint8_t*>(s.data()), s.size());
+    const FuzzLoadOutcome o =
+        FuzzLoadMeshOnce(reinterpret_cast<const uint8_t*>(s.data()), s.size());
     ASSERT_TRUE(o.violation.empty()) << "mutation " << i << ": " << o.violation;
     loaded += o.loaded;
     refused += o.refused;

@@ -12,7 +12,8 @@ namespace {
 TriangleMesh UnitCube() {
   TriangleMesh m;
   for (int i = 0; i < 8; ++i) m.vertices.emplace_back(i & 1, (i >> 1) & 1, (i >> 2) & 1);
-  const int quads[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
+  const int quads[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4},
+                           {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
   for (const auto& q : quads) {
     m.faces.emplace_back(q[0], q[1], q[2]);
     m.faces.emplace_back(q[0], q[2], q[3]);
@@ -93,7 +94,8 @@ TEST(TriangleMesh, CubeNormalsPointOutward) {
   EXPECT_NEAR(m.SurfaceArea(), 6.0, 1e-12);
   const Eigen::Vector3d centre(0.5, 0.5, 0.5);
   for (int f = 0; f < static_cast<int>(m.faces.size()); ++f) {
-    const Eigen::Vector3d c = (m.vertices[m.faces[f][0]] + m.vertices[m.faces[f][1]] + m.vertices[m.faces[f][2]]) / 3;
+    const Eigen::Vector3d c =
+        (m.vertices[m.faces[f][0]] + m.vertices[m.faces[f][1]] + m.vertices[m.faces[f][2]]) / 3;
     EXPECT_GT(m.FaceNormal(f).dot(c - centre), 0.0) << "face " << f;
   }
 }
@@ -149,9 +151,10 @@ TEST(TriangleMesh, AppendShiftsIndicesAndMergesArrays) {
   EXPECT_EQ(a.faces[1], Eigen::Vector3i(3, 4, 5));
   EXPECT_EQ(a.vertices[3], Eigen::Vector3d(10, 0, 0));
   EXPECT_TRUE(a.vertex_normals.empty());  // b had none
-  ASSERT_EQ(a.face_colors.size(), 2u);   // both had colours
+  ASSERT_EQ(a.face_colors.size(), 2u);    // both had colours
   EXPECT_EQ(a.face_colors[1][0], 9);
-  EXPECT_EQ(a.face_labels, (std::vector<SurfaceLabel>{SurfaceLabel::kTooth, SurfaceLabel::kUnknown}));
+  EXPECT_EQ(a.face_labels,
+            (std::vector<SurfaceLabel>{SurfaceLabel::kTooth, SurfaceLabel::kUnknown}));
   EXPECT_EQ(a.face_tooth_ids, (std::vector<uint8_t>{0, 21}));
 }
 

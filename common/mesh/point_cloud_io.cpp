@@ -7,16 +7,21 @@
 
 namespace d3d {
 
-Status SavePointCloudPly(const std::string& path, const cv::Mat& points, const cv::Mat& normals, const cv::Mat& grey,
-                         const cv::Mat& quality, int64_t* written) {
+Status SavePointCloudPly(const std::string& path, const cv::Mat& points, const cv::Mat& normals,
+                         const cv::Mat& grey, const cv::Mat& quality, int64_t* written) {
   if (points.type() != CV_32FC3) return InvalidArgument("point cloud: points must be CV_32FC3");
-  auto same = [&](const cv::Mat& m, int type) { return m.empty() || (m.size() == points.size() && m.type() == type); };
+  auto same = [&](const cv::Mat& m, int type) {
+    return m.empty() || (m.size() == points.size() && m.type() == type);
+  };
   if (!same(normals, CV_32FC3) || !same(grey, CV_8U) || !same(quality, CV_32F)) {
-    return InvalidArgument("point cloud: normals/grey/quality must match the points' size (CV_32FC3/CV_8U/CV_32F)");
+    return InvalidArgument(
+        "point cloud: normals/grey/quality must match the points' size (CV_32FC3/CV_8U/CV_32F)");
   }
   std::vector<char> body;
   int64_t n = 0;
-  auto put = [&](const void* p, size_t bytes) { body.insert(body.end(), static_cast<const char*>(p), static_cast<const char*>(p) + bytes); };
+  auto put = [&](const void* p, size_t bytes) {
+    body.insert(body.end(), static_cast<const char*>(p), static_cast<const char*>(p) + bytes);
+  };
   for (int r = 0; r < points.rows; ++r)
     for (int c = 0; c < points.cols; ++c) {
       const cv::Vec3f& p = points.at<cv::Vec3f>(r, c);

@@ -18,7 +18,8 @@ struct OptionRegistry::Impl {
   std::deque<Option> options;  // stable addresses for the handles given out
 };
 
-OptionRegistry::OptionRegistry(const std::string& description) : impl_(std::make_unique<Impl>(description)) {}
+OptionRegistry::OptionRegistry(const std::string& description)
+    : impl_(std::make_unique<Impl>(description)) {}
 OptionRegistry::~OptionRegistry() = default;
 
 OptionRegistry::Option& OptionRegistry::Keep(void* cli_option, bool text) {
@@ -29,13 +30,18 @@ OptionRegistry::Option& OptionRegistry::Keep(void* cli_option, bool text) {
 }
 
 template <typename T>
-OptionRegistry::Option& OptionRegistry::Add(const std::string& names, T* value, const std::string& help) {
-  if (value == nullptr) throw std::invalid_argument("OptionRegistry: " + names + " is bound to no variable");
+OptionRegistry::Option& OptionRegistry::Add(const std::string& names, T* value,
+                                            const std::string& help) {
+  if (value == nullptr)
+    throw std::invalid_argument("OptionRegistry: " + names + " is bound to no variable");
   try {
     CLI::Option* o = impl_->app.add_option(names, *value, help);
     Option& kept = Keep(o, std::is_same_v<T, std::string>);
-    if constexpr (std::is_arithmetic_v<T>)  // the bounds in the option's type: "INT in [1 - 8]" in the help
-      kept.range_ = [o](double min, double max) { o->check(CLI::Range(static_cast<T>(min), static_cast<T>(max))); };
+    if constexpr (std::is_arithmetic_v<T>)  // the bounds in the option's type: "INT in [1 - 8]" in
+                                            // the help
+      kept.range_ = [o](double min, double max) {
+        o->check(CLI::Range(static_cast<T>(min), static_cast<T>(max)));
+      };
     return kept;
   } catch (const CLI::ConstructionError& e) {
     throw std::invalid_argument("OptionRegistry: " + names + ": " + e.what());
@@ -43,19 +49,31 @@ OptionRegistry::Option& OptionRegistry::Add(const std::string& names, T* value, 
 }
 
 template OptionRegistry::Option& OptionRegistry::Add(const std::string&, int*, const std::string&);
-template OptionRegistry::Option& OptionRegistry::Add(const std::string&, unsigned*, const std::string&);
-template OptionRegistry::Option& OptionRegistry::Add(const std::string&, int64_t*, const std::string&);
-template OptionRegistry::Option& OptionRegistry::Add(const std::string&, uint64_t*, const std::string&);
-template OptionRegistry::Option& OptionRegistry::Add(const std::string&, float*, const std::string&);
-template OptionRegistry::Option& OptionRegistry::Add(const std::string&, double*, const std::string&);
-template OptionRegistry::Option& OptionRegistry::Add(const std::string&, std::string*, const std::string&);
-template OptionRegistry::Option& OptionRegistry::Add(const std::string&, std::vector<int>*, const std::string&);
-template OptionRegistry::Option& OptionRegistry::Add(const std::string&, std::vector<uint64_t>*, const std::string&);
-template OptionRegistry::Option& OptionRegistry::Add(const std::string&, std::vector<double>*, const std::string&);
-template OptionRegistry::Option& OptionRegistry::Add(const std::string&, std::vector<std::string>*, const std::string&);
+template OptionRegistry::Option& OptionRegistry::Add(const std::string&, unsigned*,
+                                                     const std::string&);
+template OptionRegistry::Option& OptionRegistry::Add(const std::string&, int64_t*,
+                                                     const std::string&);
+template OptionRegistry::Option& OptionRegistry::Add(const std::string&, uint64_t*,
+                                                     const std::string&);
+template OptionRegistry::Option& OptionRegistry::Add(const std::string&, float*,
+                                                     const std::string&);
+template OptionRegistry::Option& OptionRegistry::Add(const std::string&, double*,
+                                                     const std::string&);
+template OptionRegistry::Option& OptionRegistry::Add(const std::string&, std::string*,
+                                                     const std::string&);
+template OptionRegistry::Option& OptionRegistry::Add(const std::string&, std::vector<int>*,
+                                                     const std::string&);
+template OptionRegistry::Option& OptionRegistry::Add(const std::string&, std::vector<uint64_t>*,
+                                                     const std::string&);
+template OptionRegistry::Option& OptionRegistry::Add(const std::string&, std::vector<double>*,
+                                                     const std::string&);
+template OptionRegistry::Option& OptionRegistry::Add(const std::string&, std::vector<std::string>*,
+                                                     const std::string&);
 
-OptionRegistry::Option& OptionRegistry::Flag(const std::string& names, bool* value, const std::string& help) {
-  if (value == nullptr) throw std::invalid_argument("OptionRegistry: " + names + " is bound to no variable");
+OptionRegistry::Option& OptionRegistry::Flag(const std::string& names, bool* value,
+                                             const std::string& help) {
+  if (value == nullptr)
+    throw std::invalid_argument("OptionRegistry: " + names + " is bound to no variable");
   try {
     return Keep(impl_->app.add_flag(names, *value, help), false);
   } catch (const CLI::ConstructionError& e) {

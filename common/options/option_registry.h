@@ -33,8 +33,9 @@ class OptionRegistry {
 
    private:
     friend class OptionRegistry;
-    void* cli_option_ = nullptr;                 // CLI::Option*, owned by the registry's parser
-    std::function<void(double, double)> range_;  // numeric options: checks [min, max] in their own type
+    void* cli_option_ = nullptr;  // CLI::Option*, owned by the registry's parser
+    std::function<void(double, double)>
+        range_;  // numeric options: checks [min, max] in their own type
     bool text_ = false;
   };
 

@@ -38,7 +38,9 @@ TEST(OptionRegistry, BindsValuesAndKeepsDefaultsOfTheOnesNotGiven) {
   r.Add("--after", &list, "repeatable");
   r.Flag("--flag", &flag, "");
   r.Flag("--on,!--off", &on, "");
-  EXPECT_EQ(ParseArgs(&r, {"in.ply", "-n", "7", "--big", "5000000000", "--after", "3", "--after", "11", "--flag", "--off"}), -1);
+  EXPECT_EQ(ParseArgs(&r, {"in.ply", "-n", "7", "--big", "5000000000", "--after", "3", "--after",
+                           "11", "--flag", "--off"}),
+            -1);
   EXPECT_EQ(file, "in.ply");
   EXPECT_EQ(n, 7);
   EXPECT_EQ(x, 0.5);
@@ -63,8 +65,10 @@ TEST(OptionRegistry, UsageErrorsExitTwoAndHelpExitsZero) {
     std::vector<std::string> args;
     int code;
   };
-  for (const Case& c : {Case{{"--req", "1"}, -1}, Case{{"--req", "1", "--x", "1.5"}, 2}, Case{{"--req", "1", "--s", "c"}, 2}, Case{{"--x", "0.2"}, 2},
-                        Case{{"--req", "one"}, 2}, Case{{"--req", "1", "--unknown"}, 2}, Case{{"--req"}, 2}, Case{{"--help"}, 0}}) {
+  for (const Case& c :
+       {Case{{"--req", "1"}, -1}, Case{{"--req", "1", "--x", "1.5"}, 2},
+        Case{{"--req", "1", "--s", "c"}, 2}, Case{{"--x", "0.2"}, 2}, Case{{"--req", "one"}, 2},
+        Case{{"--req", "1", "--unknown"}, 2}, Case{{"--req"}, 2}, Case{{"--help"}, 0}}) {
     OptionRegistry r("test tool");
     double x = 0;
     std::string s = "a";

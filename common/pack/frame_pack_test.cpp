@@ -1,5 +1,4 @@
 #include "common/pack/frame_pack.h"
-#include "common/pack/frame_pack_testing.h"
 
 #include <gtest/gtest.h>
 
@@ -7,6 +6,8 @@
 #include <limits>
 #include <opencv2/core.hpp>
 #include <random>
+
+#include "common/pack/frame_pack_testing.h"
 
 namespace d3d {
 namespace {
@@ -28,7 +29,8 @@ TEST(FramePack, FramesComeBackBitForBit) {
   cv::Mat points(30, 40, CV_32FC3);
   cv::RNG rng(9);
   rng.fill(points, cv::RNG::UNIFORM, -20.0, 20.0);
-  for (int y = 0; y < points.rows; y += 3) points.row(y).setTo(cv::Scalar::all(std::numeric_limits<float>::quiet_NaN()));
+  for (int y = 0; y < points.rows; y += 3)
+    points.row(y).setTo(cv::Scalar::all(std::numeric_limits<float>::quiet_NaN()));
   ASSERT_TRUE(packer.Pack({points}, &blob).ok());
   std::vector<cv::Mat> back_points;
   ASSERT_TRUE(UnpackFrames(blob, &back_points).ok());
@@ -38,7 +40,8 @@ TEST(FramePack, FramesComeBackBitForBit) {
   EXPECT_EQ(std::memcmp(back_points[0].data, points.data, points.total() * points.elemSize()), 0);
   // A view into a larger image (not continuous) packs its own pixels only.
   const std::vector<cv::Mat> big = RandomFrames(2, 60, 80, CV_8UC1, 3);
-  const std::vector<cv::Mat> rois = {big[0](cv::Rect(5, 7, 40, 30)), big[1](cv::Rect(5, 7, 40, 30))};
+  const std::vector<cv::Mat> rois = {big[0](cv::Rect(5, 7, 40, 30)),
+                                     big[1](cv::Rect(5, 7, 40, 30))};
   ASSERT_FALSE(rois[0].isContinuous());
   ASSERT_TRUE(packer.Pack(rois, &blob).ok());
   std::vector<cv::Mat> back;
@@ -52,14 +55,17 @@ TEST(FramePack, RefusesBadFramesAndDamagedBlobs) {
   EXPECT_EQ(packer.Pack({}, &blob).code(), StatusCode::kInvalidArgument);
   EXPECT_EQ(packer.Pack({cv::Mat(4, 4, CV_64F, 0.0)}, &blob).code(), StatusCode::kInvalidArgument);
   EXPECT_EQ(packer.Pack({cv::Mat(4, 4, CV_8SC1, 0.0)}, &blob).code(), StatusCode::kInvalidArgument);
-  EXPECT_EQ(packer.Pack({cv::Mat(4, 4, CV_8U, 0.0), cv::Mat(4, 5, CV_8U, 0.0)}, &blob).code(), StatusCode::kInvalidArgument);
+  EXPECT_EQ(packer.Pack({cv::Mat(4, 4, CV_8U, 0.0), cv::Mat(4, 5, CV_8U, 0.0)}, &blob).code(),
+            StatusCode::kInvalidArgument);
   EXPECT_THROW(FramePacker(0), std::invalid_argument);
 
   const std::vector<cv::Mat> frames = RandomFrames(4, 32, 32, CV_8UC1, 11);
   ASSERT_TRUE(packer.Pack(frames, &blob).ok());
   std::vector<cv::Mat> back;
   // Every cut is refused, and so is every flipped header byte that changes what the header says.
-  for (size_t n = 0; n < blob.size(); n += 97) EXPECT_EQ(UnpackFrames(std::string_view(blob).substr(0, n), &back).code(), StatusCode::kCorrupt) << n;
+  for (size_t n = 0; n < blob.size(); n += 97)
+    EXPECT_EQ(UnpackFrames(std::string_view(blob).substr(0, n), &back).code(), StatusCode::kCorrupt)
+        << n;
   for (size_t i = 0; i < 16; ++i) {
     std::string bad = blob;
     bad[i] = static_cast<char>(bad[i] ^ 0x40);
@@ -74,8 +80,10 @@ TEST(FramePack, RefusesBadFramesAndDamagedBlobs) {
     const size_t at = 16 + rng() % (bad.size() - 16);
     bad[at] = static_cast<char>(bad[at] ^ (1 << (rng() % 8)));
     const Status s = UnpackFrames(bad, &back);
-    if (s.ok()) EXPECT_EQ(back.size(), frames.size());
-    else EXPECT_EQ(s.code(), StatusCode::kCorrupt);
+    if (s.ok())
+      EXPECT_EQ(back.size(), frames.size());
+    else
+      EXPECT_EQ(s.code(), StatusCode::kCorrupt);
   }
 }
 

@@ -22,7 +22,9 @@ inline std::vector<cv::Mat> RandomFrames(int n, int rows, int cols, int type, ui
 inline bool Same(const std::vector<cv::Mat>& a, const std::vector<cv::Mat>& b) {
   if (a.size() != b.size()) return false;
   for (size_t i = 0; i < a.size(); ++i)
-    if (a[i].size() != b[i].size() || a[i].type() != b[i].type() || cv::norm(a[i], b[i], cv::NORM_INF) != 0) return false;
+    if (a[i].size() != b[i].size() || a[i].type() != b[i].type() ||
+        cv::norm(a[i], b[i], cv::NORM_INF) != 0)
+      return false;
   return true;
 }
 

@@ -28,7 +28,8 @@ constexpr size_t kIndexEntryBytes = 28;
 constexpr size_t kMaxHeaderJson = size_t{16} << 20;
 
 uint32_t Crc32(std::string_view b) {
-  return static_cast<uint32_t>(crc32(0L, reinterpret_cast<const Bytef*>(b.data()), static_cast<uInt>(b.size())));
+  return static_cast<uint32_t>(
+      crc32(0L, reinterpret_cast<const Bytef*>(b.data()), static_cast<uInt>(b.size())));
 }
 template <typename T>
 void Put(std::string* s, T v) {
@@ -87,12 +88,15 @@ const RecordingChannel* RecordingHeader::FindTopic(std::string_view topic) const
 }
 
 void RecordingWriterOptions::Check() const {
-  D3D_CHECK_MSG(chunk_bytes >= 256 && chunk_bytes <= kMaxChunkBytes, "chunk_bytes must be in [256 B, 64 MiB], got " << chunk_bytes);
+  D3D_CHECK_MSG(chunk_bytes >= 256 && chunk_bytes <= kMaxChunkBytes,
+                "chunk_bytes must be in [256 B, 64 MiB], got " << chunk_bytes);
   D3D_CHECK_MSG(chunk_span_ns > 0, "chunk_span_ns must be positive");
-  D3D_CHECK_MSG(zstd_level >= 1 && zstd_level <= 19, "zstd_level must be in 1..19, got " << zstd_level);
+  D3D_CHECK_MSG(zstd_level >= 1 && zstd_level <= 19,
+                "zstd_level must be in 1..19, got " << zstd_level);
 }
 
-// ---------------------------------------------------------------------------------------------- writer
+// ----------------------------------------------------------------------------------------------
+// writer
 
 RecordingWriter::~RecordingWriter() {
   if (fd_ >= 0) (void)Close();
@@ -110,7 +114,8 @@ Status RecordingWriter::WriteAll(std::string_view bytes) {
   return Status::Ok();
 }
 
-Status RecordingWriter::Open(const std::string& path, const RecordingHeader& header, const RecordingWriterOptions& options) {
+Status RecordingWriter::Open(const std::string& path, const RecordingHeader& header,
+                             const RecordingWriterOptions& options) {
   options.Check();
   D3D_CHECK_MSG(fd_ < 0, "RecordingWriter is already open");
   options_ = options;
@@ -147,9 +152,12 @@ Status RecordingWriter::Open(const std::string& path, const RecordingHeader& hea
 
 Status RecordingWriter::Add(uint16_t channel, int64_t log_time_ns, std::string_view data) {
   D3D_CHECK_MSG(fd_ >= 0, "RecordingWriter is not open");
-  if (!known_channel_[channel]) return InvalidArgument("recording: message on undeclared channel " + std::to_string(channel));
-  if (data.size() + kMessageHeaderBytes > kMaxChunkBytes) return InvalidArgument("recording: message of " + Hex(data.size()) + " bytes exceeds 64 MiB");
-  if (pending_count_ > 0 && (pending_.size() + data.size() + kMessageHeaderBytes > kMaxChunkBytes)) D3D_RETURN_IF_ERROR(Flush());
+  if (!known_channel_[channel])
+    return InvalidArgument("recording: message on undeclared channel " + std::to_string(channel));
+  if (data.size() + kMessageHeaderBytes > kMaxChunkBytes)
+    return InvalidArgument("recording: message of " + Hex(data.size()) + " bytes exceeds 64 MiB");
+  if (pending_count_ > 0 && (pending_.size() + data.size() + kMessageHeaderBytes > kMaxChunkBytes))
+    D3D_RETURN_IF_ERROR(Flush());
   if (pending_count_ == 0) first_ns_ = log_time_ns;
   last_ns_ = log_time_ns;
   Put<uint16_t>(&pending_, channel);
@@ -158,14 +166,16 @@ Status RecordingWriter::Add(uint16_t channel, int64_t log_time_ns, std::string_v
   pending_.append(data);
   ++pending_count_;
   ++messages_;
-  if (pending_.size() >= options_.chunk_bytes || last_ns_ - first_ns_ >= options_.chunk_span_ns) return Flush();
+  if (pending_.size() >= options_.chunk_bytes || last_ns_ - first_ns_ >= options_.chunk_span_ns)
+    return Flush();
   return Status::Ok();
 }
 
 Status RecordingWriter::Flush() {
   if (fd_ < 0 || pending_count_ == 0) return Status::Ok();
   compressed_.resize(ZSTD_compressBound(pending_.size()));
-  const size_t c = ZSTD_compress(compressed_.data(), compressed_.size(), pending_.data(), pending_.size(), options_.zstd_level);
+  const size_t c = ZSTD_compress(compressed_.data(), compressed_.size(), pending_.data(),
+                                 pending_.size(), options_.zstd_level);
   if (ZSTD_isError(c)) return {StatusCode::kInternal, std::string("zstd: ") + ZSTD_getErrorName(c)};
   compressed_.resize(c);
   std::string h("CHNK");
@@ -204,12 +214,14 @@ Status RecordingWriter::Close() {
     ix.append(f);
     s = WriteAll(ix);
   }
-  if (::close(fd_) != 0 && s.ok()) s = IoError(std::string("recording close: ") + std::strerror(errno));
+  if (::close(fd_) != 0 && s.ok())
+    s = IoError(std::string("recording close: ") + std::strerror(errno));
   fd_ = -1;
   return s;
 }
 
-// ---------------------------------------------------------------------------------------------- reader
+// ----------------------------------------------------------------------------------------------
+// reader
 
 Status OpenFileSource(const std::string& path, std::unique_ptr<ByteSource>* out) {
   const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
@@ -217,7 +229,7 @@ Status OpenFileSource(const std::string& path, std::unique_ptr<ByteSource>* out)
     if (errno == ENOENT) return NotFound("no such recording: '" + path + "'");
     return IoError("cannot open recording '" + path + "': " + std::strerror(errno));
   }
-  struct stat st{};
+  struct stat st {};
   if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
     ::close(fd);
     return IoError("'" + path + "' is not a regular file");
@@ -226,7 +238,9 @@ Status OpenFileSource(const std::string& path, std::unique_ptr<ByteSource>* out)
   return Status::Ok();
 }
 
-std::unique_ptr<ByteSource> MemorySource(std::string bytes) { return std::make_unique<MemSource>(std::move(bytes)); }
+std::unique_ptr<ByteSource> MemorySource(std::string bytes) {
+  return std::make_unique<MemSource>(std::move(bytes));
+}
 
 Status RecordingReader::OpenFile(const std::string& path, std::unique_ptr<RecordingReader>* out) {
   std::unique_ptr<ByteSource> src;
@@ -234,7 +248,8 @@ Status RecordingReader::OpenFile(const std::string& path, std::unique_ptr<Record
   return Open(std::move(src), out);
 }
 
-Status RecordingReader::Open(std::unique_ptr<ByteSource> source, std::unique_ptr<RecordingReader>* out) {
+Status RecordingReader::Open(std::unique_ptr<ByteSource> source,
+                             std::unique_ptr<RecordingReader>* out) {
   std::unique_ptr<RecordingReader> r(new RecordingReader());
   r->source_ = std::move(source);
   D3D_RETURN_IF_ERROR(r->ParseHeader());
@@ -247,26 +262,36 @@ Status RecordingReader::Open(std::unique_ptr<ByteSource> source, std::unique_ptr
 
 Status RecordingReader::ParseHeader() {
   std::string b;
-  if (!source_->Read(0, 16, &b)) return ParseError("not a d3d recording: shorter than its 16-byte header");
+  if (!source_->Read(0, 16, &b))
+    return ParseError("not a d3d recording: shorter than its 16-byte header");
   if (std::memcmp(b.data(), kMagic, 8) != 0) return ParseError("not a d3d recording: wrong magic");
   header_.format_major = Get<uint16_t>(b, 8);
   header_.format_minor = Get<uint16_t>(b, 10);
-  // The CRC first: the version fields of a damaged header (or random bytes after the magic) say nothing.
+  // The CRC first: the version fields of a damaged header (or random bytes after the magic) say
+  // nothing.
   const uint32_t json_len = Get<uint32_t>(b, 12);
   if (json_len > kMaxHeaderJson)
-    return Corrupt("recording header damaged: its length field says " + Hex(json_len) + " bytes (at most " + Hex(kMaxHeaderJson) + ")");
+    return Corrupt("recording header damaged: its length field says " + Hex(json_len) +
+                   " bytes (at most " + Hex(kMaxHeaderJson) + ")");
   std::string all;
   if (!source_->Read(0, 16 + size_t{json_len} + 4, &all))
-    return Corrupt("recording header damaged or cut off: the file ends within the " + Hex(16 + uint64_t{json_len} + 4) +
-                   " bytes its length field says");
+    return Corrupt("recording header damaged or cut off: the file ends within the " +
+                   Hex(16 + uint64_t{json_len} + 4) + " bytes its length field says");
   if (Crc32(std::string_view(all).substr(0, 16 + json_len)) != Get<uint32_t>(all, 16 + json_len))
-    return Corrupt("recording header damaged: CRC mismatch (its fields, the format version among them, cannot be trusted)");
+    return Corrupt(
+        "recording header damaged: CRC mismatch (its fields, the format version among them, cannot "
+        "be trusted)");
   if (header_.format_major > kRecordingMajor)
-    return Unsupported("recording format " + std::to_string(header_.format_major) + "." + std::to_string(header_.format_minor) +
-                       " is newer than this reader (" + std::to_string(kRecordingMajor) + ".x): update d3dscan");
-  if (header_.format_major == 0) return Corrupt("recording header: format field 0." + std::to_string(header_.format_minor) + " is no format version");
-  const nlohmann::json j = nlohmann::json::parse(all.begin() + 16, all.begin() + 16 + json_len, nullptr, false);
-  if (j.is_discarded() || !j.is_object()) return Corrupt("recording header: its JSON does not parse");
+    return Unsupported("recording format " + std::to_string(header_.format_major) + "." +
+                       std::to_string(header_.format_minor) + " is newer than this reader (" +
+                       std::to_string(kRecordingMajor) + ".x): update d3dscan");
+  if (header_.format_major == 0)
+    return Corrupt("recording header: format field 0." + std::to_string(header_.format_minor) +
+                   " is no format version");
+  const nlohmann::json j =
+      nlohmann::json::parse(all.begin() + 16, all.begin() + 16 + json_len, nullptr, false);
+  if (j.is_discarded() || !j.is_object())
+    return Corrupt("recording header: its JSON does not parse");
   const char* field = "";
   try {
     field = "protocol_version";
@@ -279,12 +304,14 @@ Status RecordingReader::ParseHeader() {
     header_.calibration_json = j.at(field).get<std::string>();
     field = "channels";
     for (const auto& c : j.at(field)) {
-      header_.channels.push_back({c.at("id").get<uint16_t>(), c.at("topic").get<std::string>(), c.at("schema").get<std::string>()});
+      header_.channels.push_back({c.at("id").get<uint16_t>(), c.at("topic").get<std::string>(),
+                                  c.at("schema").get<std::string>()});
     }
     field = "metadata";
     if (j.contains(field)) header_.metadata = j.at(field).get<std::map<std::string, std::string>>();
   } catch (const nlohmann::json::exception&) {
-    return Corrupt(std::string("recording header: field '") + field + "' is missing or not of its type");
+    return Corrupt(std::string("recording header: field '") + field +
+                   "' is missing or not of its type");
   }
   data_start_ = 16 + uint64_t{json_len} + 4;
   return Status::Ok();
@@ -306,48 +333,58 @@ bool RecordingReader::ReadChunkHeader(uint64_t offset, ChunkInfo* info) const {
   return offset + kChunkHeaderBytes + info->compressed_size <= source_->size();
 }
 
-bool RecordingReader::ReadIndex(uint64_t offset, std::vector<IndexEntry>* entries, uint64_t* length) const {
+bool RecordingReader::ReadIndex(uint64_t offset, std::vector<IndexEntry>* entries,
+                                uint64_t* length) const {
   std::string h;
   if (!source_->Read(offset, 8, &h) || std::memcmp(h.data(), "INDX", 4) != 0) return false;
   const uint64_t n = Get<uint32_t>(h, 4);
   const uint64_t len = 8 + n * kIndexEntryBytes + 4;
   if (len > source_->size() - offset) return false;
   std::string ix;
-  if (!source_->Read(offset, len, &ix) || Crc32(std::string_view(ix).substr(0, len - 4)) != Get<uint32_t>(ix, len - 4)) return false;
+  if (!source_->Read(offset, len, &ix) ||
+      Crc32(std::string_view(ix).substr(0, len - 4)) != Get<uint32_t>(ix, len - 4))
+    return false;
   entries->clear();
   for (uint64_t i = 0; i < n; ++i) {
     const size_t at = 8 + i * kIndexEntryBytes;
-    entries->push_back({Get<uint64_t>(ix, at), Get<int64_t>(ix, at + 8), Get<int64_t>(ix, at + 16), Get<uint32_t>(ix, at + 24)});
+    entries->push_back({Get<uint64_t>(ix, at), Get<int64_t>(ix, at + 8), Get<int64_t>(ix, at + 16),
+                        Get<uint32_t>(ix, at + 24)});
   }
   *length = len;
   return true;
 }
 
-void RecordingReader::AddLostChunk(size_t before, const std::string& where, uint64_t messages, const std::string& why) {
+void RecordingReader::AddLostChunk(size_t before, const std::string& where, uint64_t messages,
+                                   const std::string& why) {
   ++diagnostics_.corrupt_chunks;
   diagnostics_.messages_lost += messages;
   gaps_[before].messages += messages;
-  diagnostics_.problems.push_back(where + ": " + why + ": its " + Hex(messages) + " messages are lost");
+  diagnostics_.problems.push_back(where + ": " + why + ": its " + Hex(messages) +
+                                  " messages are lost");
 }
 
 bool RecordingReader::LoadIndex() {
   const uint64_t size = source_->size();
   std::string f;
-  if (size < data_start_ + kFooterBytes || !source_->Read(size - kFooterBytes, kFooterBytes, &f)) return false;
+  if (size < data_start_ + kFooterBytes || !source_->Read(size - kFooterBytes, kFooterBytes, &f))
+    return false;
   if (std::memcmp(f.data(), "FOOT", 4) != 0 || std::memcmp(f.data() + 16, kEndMagic, 8) != 0 ||
       Crc32(std::string_view(f).substr(0, 12)) != Get<uint32_t>(f, 12))
     return false;
   const uint64_t ix_off = Get<uint64_t>(f, 4);
   std::vector<IndexEntry> entries;
   uint64_t ix_len = 0;
-  if (ix_off < data_start_ || ix_off > size - kFooterBytes || !ReadIndex(ix_off, &entries, &ix_len) || ix_off + ix_len != size - kFooterBytes)
+  if (ix_off < data_start_ || ix_off > size - kFooterBytes ||
+      !ReadIndex(ix_off, &entries, &ix_len) || ix_off + ix_len != size - kFooterBytes)
     return false;
   gaps_.assign(1, RecordingGap{});
   for (size_t i = 0; i < entries.size(); ++i) {
     const IndexEntry& e = entries[i];
     ChunkInfo c;
     if (e.offset < data_start_ || e.offset >= ix_off || !ReadChunkHeader(e.offset, &c)) {
-      AddLostChunk(chunks_.size(), "chunk " + std::to_string(i) + " of the index at offset " + Hex(e.offset), e.count, "header damaged");
+      AddLostChunk(chunks_.size(),
+                   "chunk " + std::to_string(i) + " of the index at offset " + Hex(e.offset),
+                   e.count, "header damaged");
       continue;
     }
     chunks_.push_back(c);
@@ -358,13 +395,15 @@ bool RecordingReader::LoadIndex() {
 }
 
 void RecordingReader::CountFromIndex(const std::vector<IndexEntry>& entries) {
-  for (RecordingGap& g : gaps_) g.uncounted = false;  // the index lists every chunk: skipped bytes held no other
-  size_t scanned = 0;                                 // chunks_ and entries are both in file order
+  for (RecordingGap& g : gaps_)
+    g.uncounted = false;  // the index lists every chunk: skipped bytes held no other
+  size_t scanned = 0;     // chunks_ and entries are both in file order
   for (size_t i = 0; i < entries.size(); ++i) {
     const IndexEntry& e = entries[i];
     while (scanned < chunks_.size() && chunks_[scanned].offset < e.offset) ++scanned;
     if (scanned < chunks_.size() && chunks_[scanned].offset == e.offset) continue;
-    AddLostChunk(scanned, "chunk " + std::to_string(i) + " of the index at offset " + Hex(e.offset), e.count, "not found intact");
+    AddLostChunk(scanned, "chunk " + std::to_string(i) + " of the index at offset " + Hex(e.offset),
+                 e.count, "not found intact");
   }
 }
 
@@ -377,7 +416,8 @@ void RecordingReader::ScanChunks() {
   auto end_bad = [&](uint64_t at) {
     if (!in_bad) return;
     diagnostics_.skipped_bytes += at - bad_from;
-    diagnostics_.problems.push_back("skipped " + Hex(at - bad_from) + " bytes at offset " + Hex(bad_from) + " that are no intact chunk");
+    diagnostics_.problems.push_back("skipped " + Hex(at - bad_from) + " bytes at offset " +
+                                    Hex(bad_from) + " that are no intact chunk");
     gaps_.back().uncounted = true;  // unless an index tells (CountFromIndex)
     in_bad = false;
   };
@@ -394,8 +434,8 @@ void RecordingReader::ScanChunks() {
       pos += kChunkHeaderBytes + c.compressed_size;
       continue;
     }
-    // The index ends the chunks: right after the last intact chunk (even when it is damaged itself),
-    // or after damage when it checks out.
+    // The index ends the chunks: right after the last intact chunk (even when it is damaged
+    // itself), or after damage when it checks out.
     std::string m;
     if (source_->Read(pos, 4, &m) && m == "INDX") {
       index_valid = ReadIndex(pos, &entries, &ix_len);
@@ -418,9 +458,11 @@ void RecordingReader::ScanChunks() {
     }
     pos = next;
   }
-  if (!index_reached && pos < size && !in_bad) {  // fewer than 4 bytes after the last chunk: the index's start?
+  if (!index_reached && pos < size &&
+      !in_bad) {  // fewer than 4 bytes after the last chunk: the index's start?
     std::string tail;
-    index_reached = source_->Read(pos, size - pos, &tail) && std::string_view("INDX").substr(0, tail.size()) == tail;
+    index_reached = source_->Read(pos, size - pos, &tail) &&
+                    std::string_view("INDX").substr(0, tail.size()) == tail;
     in_bad = !index_reached;
     bad_from = pos;
   }
@@ -429,28 +471,38 @@ void RecordingReader::ScanChunks() {
     diagnostics_.ends_before_index = true;
     gaps_.back().uncounted = true;
     diagnostics_.problems.push_back(
-        "the file ends before its index: the recording was not closed (a killed recorder) or was cut off; what it held after offset " +
-        Hex(chunks_.empty() ? data_start_ : chunks_.back().offset + kChunkHeaderBytes + chunks_.back().compressed_size) + " is unknown");
+        "the file ends before its index: the recording was not closed (a killed recorder) or was "
+        "cut off; what it held after offset " +
+        Hex(chunks_.empty()
+                ? data_start_
+                : chunks_.back().offset + kChunkHeaderBytes + chunks_.back().compressed_size) +
+        " is unknown");
     return;
   }
   if (!index_valid) {
     diagnostics_.problems.push_back(
         "index at offset " + Hex(pos) + " damaged or cut off" +
-        (diagnostics_.skipped_bytes == 0 ? std::string(": the chunks before it follow each other without a gap, none is lost") : ""));
+        (diagnostics_.skipped_bytes == 0
+             ? std::string(": the chunks before it follow each other without a gap, none is lost")
+             : ""));
     return;
   }
   CountFromIndex(entries);
   // After the index: its footer, and nothing else.
   const uint64_t end = pos + ix_len;
   std::string f;
-  const bool footer = end + kFooterBytes <= size && source_->Read(end, kFooterBytes, &f) && std::memcmp(f.data(), "FOOT", 4) == 0 &&
-                      Get<uint64_t>(f, 4) == pos && Crc32(std::string_view(f).substr(0, 12)) == Get<uint32_t>(f, 12) &&
+  const bool footer = end + kFooterBytes <= size && source_->Read(end, kFooterBytes, &f) &&
+                      std::memcmp(f.data(), "FOOT", 4) == 0 && Get<uint64_t>(f, 4) == pos &&
+                      Crc32(std::string_view(f).substr(0, 12)) == Get<uint32_t>(f, 12) &&
                       std::memcmp(f.data() + 16, kEndMagic, 8) == 0;
   if (!footer) {
-    diagnostics_.problems.push_back("footer at offset " + Hex(end) + " damaged or missing (the index before it checks out)");
+    diagnostics_.problems.push_back("footer at offset " + Hex(end) +
+                                    " damaged or missing (the index before it checks out)");
   } else if (size > end + kFooterBytes) {
-    diagnostics_.problems.push_back(Hex(size - end - kFooterBytes) + " bytes after the end of the recording (its footer ends at offset " +
-                                    Hex(end + kFooterBytes) + "): not part of it");
+    diagnostics_.problems.push_back(
+        Hex(size - end - kFooterBytes) +
+        " bytes after the end of the recording (its footer ends at offset " +
+        Hex(end + kFooterBytes) + "): not part of it");
   }
 }
 
@@ -492,7 +544,8 @@ Status RecordingReader::ReadChunk(size_t i, std::vector<RecordedMessage>* messag
     at += n;
   }
   messages->resize(count);
-  if (messages->size() != c.message_count) return fail("message count differs from the chunk header");
+  if (messages->size() != c.message_count)
+    return fail("message count differs from the chunk header");
   return Status::Ok();
 }
 
@@ -505,14 +558,18 @@ void RecordingReader::ForEach(const std::function<bool(const RecordedMessage&)>&
   }
 }
 
-// ------------------------------------------------------------------------------------------- losses
+// -------------------------------------------------------------------------------------------
+// losses
 
 std::string RecordingDiagnostics::LossSummary() const {
   std::string s;
   if (corrupt_chunks > 0)
-    s = Hex(corrupt_chunks) + (corrupt_chunks == 1 ? " chunk, " : " chunks, ") + Hex(messages_lost) + (messages_lost == 1 ? " message" : " messages");
+    s = Hex(corrupt_chunks) + (corrupt_chunks == 1 ? " chunk, " : " chunks, ") +
+        Hex(messages_lost) + (messages_lost == 1 ? " message" : " messages");
   if (uncounted_losses > 0) {
-    const std::string why = ends_before_index ? "the file ends before its index" : "bytes were skipped with no index to count their messages";
+    const std::string why = ends_before_index
+                                ? "the file ends before its index"
+                                : "bytes were skipped with no index to count their messages";
     s = s.empty() ? "unknown: " + why : s + ", and an unknown number more: " + why;
   }
   return s.empty() ? "nothing" : s;
@@ -521,7 +578,9 @@ std::string RecordingDiagnostics::LossSummary() const {
 uint64_t SequenceLossCounter::PendingBound() const {
   uint64_t n = 0;
   for (const Lost& l : pending_)
-    n += l.bytes > 0 && smallest_ > 0 ? std::min<uint64_t>(l.messages, l.bytes / (kMessageHeaderBytes + smallest_)) : l.messages;
+    n += l.bytes > 0 && smallest_ > 0
+             ? std::min<uint64_t>(l.messages, l.bytes / (kMessageHeaderBytes + smallest_))
+             : l.messages;
   return n;
 }
 
@@ -536,12 +595,16 @@ void SequenceLossCounter::Pass(size_t i, bool chunk_lost) {
   const RecordingGap& g = reader_->gap_before(i);
   if (g.messages > 0) pending_.push_back({g.messages, 0});
   pending_uncounted_ = pending_uncounted_ || g.uncounted;
-  if (chunk_lost) pending_.push_back({reader_->chunks()[i].message_count, reader_->chunks()[i].uncompressed_size});
+  if (chunk_lost)
+    pending_.push_back(
+        {reader_->chunks()[i].message_count, reader_->chunks()[i].uncompressed_size});
 }
 
 void SequenceLossCounter::Chunk(size_t i, bool read_ok) {
-  D3D_CHECK_MSG(i >= next_chunk_ && i < reader_->chunks().size(), "SequenceLossCounter: chunk " << i << " out of order");
-  while (next_chunk_ < i) Pass(next_chunk_++, true);  // a chunk the caller did not read is lost to it
+  D3D_CHECK_MSG(i >= next_chunk_ && i < reader_->chunks().size(),
+                "SequenceLossCounter: chunk " << i << " out of order");
+  while (next_chunk_ < i)
+    Pass(next_chunk_++, true);  // a chunk the caller did not read is lost to it
   Pass(next_chunk_++, !read_ok);
 }
 
@@ -552,7 +615,8 @@ void SequenceLossCounter::Message(uint64_t seq, size_t bytes) {
   } else {
     const uint64_t jump = seq - last_seq_ - 1;
     uint64_t in_file = 0;
-    if (!pending_.empty() || pending_uncounted_) in_file = pending_uncounted_ ? jump : std::min(jump, PendingBound());
+    if (!pending_.empty() || pending_uncounted_)
+      in_file = pending_uncounted_ ? jump : std::min(jump, PendingBound());
     lost_ += in_file;
     upstream_ += jump - in_file;
     upstream_gaps_ += jump > in_file;
@@ -576,8 +640,9 @@ std::optional<uint64_t> SequenceLossCounter::lost_max() const {
 
 std::string SequenceLossCounter::Describe() const {
   if (unknown_) {
-    const std::string why =
-        reader_->diagnostics().ends_before_index ? "the file ends before its index" : "bytes were skipped with no index to count them";
+    const std::string why = reader_->diagnostics().ends_before_index
+                                ? "the file ends before its index"
+                                : "bytes were skipped with no index to count them";
     return lost_ == 0 ? "unknown: " + why : "at least " + Hex(lost_) + ", unknown beyond: " + why;
   }
   return range_ == 0 ? Hex(lost_) : Hex(lost_) + " to " + Hex(lost_ + range_);

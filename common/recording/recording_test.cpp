@@ -24,7 +24,8 @@ RecordingHeader TestHeader() {
   return h;
 }
 
-// Message k: channel k % 2, time 1e9 + k·33 ms, `size` seeded pseudo-random bytes (k in the first 4).
+// Message k: channel k % 2, time 1e9 + k·33 ms, `size` seeded pseudo-random bytes (k in the first
+// 4).
 std::string Payload(int k, size_t size) {
   std::mt19937 rng(static_cast<uint32_t>(k) * 7919u + 1u);
   std::string s(size, '\0');
@@ -44,7 +45,10 @@ fs::path WriteTestRecording(const std::string& name, int n, size_t size, bool cl
   RecordingWriterOptions o;
   o.chunk_bytes = 3 * size;  // a chunk every ~3 messages
   EXPECT_TRUE(w.Open(p.string(), TestHeader(), o).ok());
-  for (int k = 0; k < n; ++k) EXPECT_TRUE(w.Add(static_cast<uint16_t>(k % 2), 1'000'000'000 + k * 33'000'000LL, Payload(k, size)).ok());
+  for (int k = 0; k < n; ++k)
+    EXPECT_TRUE(
+        w.Add(static_cast<uint16_t>(k % 2), 1'000'000'000 + k * 33'000'000LL, Payload(k, size))
+            .ok());
   if (close) {
     EXPECT_TRUE(w.Close().ok());
   } else {
@@ -83,7 +87,10 @@ uint32_t Get32(const std::string& b, size_t at) {
   return v;
 }
 void Put32(std::string* b, size_t at, uint32_t v) { std::memcpy(b->data() + at, &v, 4); }
-uint32_t Crc(const std::string& b) { return static_cast<uint32_t>(crc32(0L, reinterpret_cast<const Bytef*>(b.data()), static_cast<uInt>(b.size()))); }
+uint32_t Crc(const std::string& b) {
+  return static_cast<uint32_t>(
+      crc32(0L, reinterpret_cast<const Bytef*>(b.data()), static_cast<uInt>(b.size())));
+}
 
 // A header of the current layout around `json`, with a valid CRC.
 std::string HeaderWithJson(const std::string& json) {
@@ -184,10 +191,13 @@ TEST(Recording, BitFlipsLoseOnlyTheDamagedChunk) {
     const size_t got = Recovered(r.get(), 5000).size();
     EXPECT_GE(got, expect) << "flip at " << pos;
     // Every flip is found, and what it lost is counted to the message: a chunk header or data has a
-    // CRC, the index has one and the footer has one; without a usable footer the scan meets the index.
+    // CRC, the index has one and the footer has one; without a usable footer the scan meets the
+    // index.
     EXPECT_TRUE(r->diagnostics().damaged()) << "flip at " << pos;
-    EXPECT_EQ(r->diagnostics().uncounted_losses, 0u) << "flip at " << pos << ": " << r->diagnostics().LossSummary();
-    EXPECT_EQ(got + r->diagnostics().messages_lost, 30u) << "flip at " << pos << ": " << r->diagnostics().LossSummary();
+    EXPECT_EQ(r->diagnostics().uncounted_losses, 0u)
+        << "flip at " << pos << ": " << r->diagnostics().LossSummary();
+    EXPECT_EQ(got + r->diagnostics().messages_lost, 30u)
+        << "flip at " << pos << ": " << r->diagnostics().LossSummary();
   }
 }
 
@@ -231,17 +241,24 @@ TEST(Recording, RandomBytesAfterTheMagicAreADamagedHeaderNotANewerFormat) {
     for (size_t i = 0; i < n; ++i) b.push_back(static_cast<char>(rng()));
     Status s;
     OpenBytes(b, &s);
-    EXPECT_TRUE(s.code() == StatusCode::kCorrupt || s.code() == StatusCode::kParseError) << s.ToString();
+    EXPECT_TRUE(s.code() == StatusCode::kCorrupt || s.code() == StatusCode::kParseError)
+        << s.ToString();
     EXPECT_EQ(s.message().find("newer"), std::string::npos) << s.message();
   }
 }
 
 TEST(Recording, AHeaderFieldOfTheWrongTypeIsNamed) {
   Status s;
-  OpenBytes(HeaderWithJson(R"({"protocol_version": 101, "created_ns": 1, "probe_serial": 7, "calibration_json": "", "channels": []})"), &s);
+  OpenBytes(
+      HeaderWithJson(
+          R"({"protocol_version": 101, "created_ns": 1, "probe_serial": 7, "calibration_json": "", "channels": []})"),
+      &s);
   EXPECT_EQ(s.code(), StatusCode::kCorrupt);
   EXPECT_EQ(s.message(), "recording header: field 'probe_serial' is missing or not of its type");
-  OpenBytes(HeaderWithJson(R"({"protocol_version": 101, "created_ns": 1, "probe_serial": "", "calibration_json": ""})"), &s);
+  OpenBytes(
+      HeaderWithJson(
+          R"({"protocol_version": 101, "created_ns": 1, "probe_serial": "", "calibration_json": ""})"),
+      &s);
   EXPECT_EQ(s.message(), "recording header: field 'channels' is missing or not of its type");
 }
 
@@ -264,7 +281,9 @@ TEST(Recording, ACutAtAChunkBoundaryEndsBeforeItsIndex) {
   Status s;
   const auto chunks = OpenBytes(closed, &s)->chunks();
   for (size_t i = 0; i <= chunks.size(); ++i) {
-    const size_t cut = i < chunks.size() ? chunks[i].offset : chunks.back().offset + 40 + chunks.back().compressed_size;
+    const size_t cut = i < chunks.size()
+                           ? chunks[i].offset
+                           : chunks.back().offset + 40 + chunks.back().compressed_size;
     auto r = OpenBytes(closed.substr(0, cut), &s);
     ASSERT_TRUE(s.ok());
     EXPECT_EQ(r->chunks().size(), i < chunks.size() ? i : chunks.size());
@@ -296,14 +315,16 @@ TEST(Recording, AFlippedChunkHeaderIsCountedFromTheIndex) {
   EXPECT_EQ(r->diagnostics().messages_lost, chunks[2].message_count);
   EXPECT_EQ(r->gap_before(2).messages, chunks[2].message_count);
   EXPECT_EQ(Recovered(r.get(), 5000).size(), 30u - chunks[2].message_count);
-  // ... and with the footer flipped too: the scan meets the index after the last chunk and counts the same.
+  // ... and with the footer flipped too: the scan meets the index after the last chunk and counts
+  // the same.
   b[b.size() - 3] ^= 0x40;
   r = OpenBytes(b, &s);
   ASSERT_TRUE(s.ok());
   EXPECT_FALSE(r->diagnostics().index_used);
   EXPECT_EQ(r->diagnostics().messages_lost, chunks[2].message_count);
   EXPECT_EQ(r->diagnostics().uncounted_losses, 0u);
-  EXPECT_EQ(r->diagnostics().LossSummary(), "1 chunk, " + std::to_string(chunks[2].message_count) + " messages");
+  EXPECT_EQ(r->diagnostics().LossSummary(),
+            "1 chunk, " + std::to_string(chunks[2].message_count) + " messages");
   // Channel 0's numbers jump across the lost chunk: exactly its channel-0 messages are lost.
   std::unique_ptr<RecordingReader> clean = OpenBytes(closed, &s);
   std::vector<RecordedMessage> msgs;
@@ -327,8 +348,8 @@ TEST(Recording, ACutIndexAFlippedFooterAndAppendedBytesLoseNothing) {
   std::mt19937 rng(11);
   std::string appended = closed;
   for (int i = 0; i < 100; ++i) appended.push_back(static_cast<char>(rng()));
-  for (const std::string& b :
-       {closed.substr(0, index_at + 3), closed.substr(0, index_at + 37), flipped_footer, appended, closed.substr(0, closed.size() - 1)}) {
+  for (const std::string& b : {closed.substr(0, index_at + 3), closed.substr(0, index_at + 37),
+                               flipped_footer, appended, closed.substr(0, closed.size() - 1)}) {
     auto r = OpenBytes(b, &s);
     ASSERT_TRUE(s.ok());
     EXPECT_EQ(Recovered(r.get(), 5000).size(), 20u);
@@ -339,7 +360,9 @@ TEST(Recording, ACutIndexAFlippedFooterAndAppendedBytesLoseNothing) {
   }
   auto r = OpenBytes(appended, &s);
   ASSERT_EQ(r->diagnostics().problems.size(), 1u);
-  EXPECT_NE(r->diagnostics().problems[0].find("100 bytes after the end of the recording"), std::string::npos) << r->diagnostics().problems[0];
+  EXPECT_NE(r->diagnostics().problems[0].find("100 bytes after the end of the recording"),
+            std::string::npos)
+      << r->diagnostics().problems[0];
 }
 
 // Channel 0 across damage: a lost first chunk gives a range (how many of its messages were channel
@@ -383,7 +406,8 @@ TEST(Recording, SequenceLossCounterRangesAndCounts) {
 
 TEST(Recording, RejectsUndeclaredChannel) {
   RecordingWriter w;
-  ASSERT_TRUE(w.Open((fs::temp_directory_path() / "d3d_rec_ch.d3drec").string(), TestHeader()).ok());
+  ASSERT_TRUE(
+      w.Open((fs::temp_directory_path() / "d3d_rec_ch.d3drec").string(), TestHeader()).ok());
   EXPECT_EQ(w.Add(7, 0, "x").code(), StatusCode::kInvalidArgument);
   EXPECT_TRUE(w.Close().ok());
 }
@@ -402,8 +426,10 @@ TEST(Recording, GoldenFileReads) {
   std::vector<int> expect(7);
   for (int k = 0; k < 7; ++k) expect[k] = k;
   EXPECT_EQ(Recovered(r.get(), 300), expect);
-  // The current writer produces the same bytes from the same input (zstd level 1 of Debian 12's zstd).
-  EXPECT_EQ(ReadAll(fresh), ReadAll(golden)) << "format drift: bump kRecordingMinor/Major and add a new golden file";
+  // The current writer produces the same bytes from the same input (zstd level 1 of Debian 12's
+  // zstd).
+  EXPECT_EQ(ReadAll(fresh), ReadAll(golden))
+      << "format drift: bump kRecordingMinor/Major and add a new golden file";
 }
 
 }  // namespace

@@ -3,11 +3,14 @@
 namespace d3d {
 
 void CaptureOptions::Check() const {
-  D3D_CHECK_MSG(rate_hz > 0 && rate_hz <= 1000, "burst rate must be in (0, 1000] Hz, got " << rate_hz);
+  D3D_CHECK_MSG(rate_hz > 0 && rate_hz <= 1000,
+                "burst rate must be in (0, 1000] Hz, got " << rate_hz);
   D3D_CHECK_MSG(sim_cycle >= 1, "sim_cycle must be ≥ 1, got " << sim_cycle);
   D3D_CHECK_MSG(max_bursts >= 0, "max_bursts must be ≥ 0");
-  D3D_CHECK_MSG(sim_fault_rate >= 0 && sim_fault_rate <= 1, "sim_fault_rate must be in [0, 1], got " << sim_fault_rate);
-  D3D_CHECK_MSG((width == 640 && height == 480) || (width == 1280 && height == 1024), "camera must be 640x480 or 1280x1024");
+  D3D_CHECK_MSG(sim_fault_rate >= 0 && sim_fault_rate <= 1,
+                "sim_fault_rate must be in [0, 1], got " << sim_fault_rate);
+  D3D_CHECK_MSG((width == 640 && height == 480) || (width == 1280 && height == 1024),
+                "camera must be 640x480 or 1280x1024");
 }
 
 void CaptureBackendRegistry::Register(const std::string& name, Factory factory, bool real_camera) {
@@ -19,7 +22,8 @@ void CaptureBackendRegistry::Register(const std::string& name, Factory factory, 
 
 std::vector<std::string> CaptureBackendRegistry::Names() const { return order_; }
 
-Status CaptureBackendRegistry::CreateAndOpen(const std::string& name, const CaptureOptions& options, std::unique_ptr<CaptureBackend>* out) const {
+Status CaptureBackendRegistry::CreateAndOpen(const std::string& name, const CaptureOptions& options,
+                                             std::unique_ptr<CaptureBackend>* out) const {
   options.Check();
   if (name == "auto") {
     std::string tried;
@@ -34,7 +38,8 @@ Status CaptureBackendRegistry::CreateAndOpen(const std::string& name, const Capt
       }
       tried.append(tried.empty() ? "" : "; ").append(n).append(": ").append(s.message());
     }
-    return Unavailable("no camera found (" + (tried.empty() ? std::string("no real-camera backend built in") : tried) +
+    return Unavailable("no camera found (" +
+                       (tried.empty() ? std::string("no real-camera backend built in") : tried) +
                        "); use --sim typodont|MESH for the virtual probe");
   }
   const auto it = entries_.find(name);

@@ -5,7 +5,8 @@
 namespace d3d {
 
 void FrameSyncOptions::Check() const {
-  D3D_CHECK_MSG(patterns_per_burst >= 1 && patterns_per_burst <= 8, "patterns_per_burst must be in 1..8, got " << patterns_per_burst);
+  D3D_CHECK_MSG(patterns_per_burst >= 1 && patterns_per_burst <= 8,
+                "patterns_per_burst must be in 1..8, got " << patterns_per_burst);
   D3D_CHECK_MSG(tolerance_ns > 0, "tolerance_ns must be positive");
 }
 
@@ -25,9 +26,15 @@ void FrameSync::DropPartial(Drop why) {
   // Count a burst once: not again for the remaining frames of a burst already dropped.
   if (!skip_until_pattern0_ || !partial_.empty()) {
     switch (why) {
-      case Drop::kIncomplete: ++counters_.dropped_incomplete; break;
-      case Drop::kTorn: ++counters_.dropped_torn; break;
-      case Drop::kOutOfOrder: ++counters_.dropped_out_of_order; break;
+      case Drop::kIncomplete:
+        ++counters_.dropped_incomplete;
+        break;
+      case Drop::kTorn:
+        ++counters_.dropped_torn;
+        break;
+      case Drop::kOutOfOrder:
+        ++counters_.dropped_out_of_order;
+        break;
     }
   }
   partial_.clear();
@@ -37,7 +44,8 @@ void FrameSync::DropPartial(Drop why) {
 bool FrameSync::OnFrame(const CapturedFrame& frame, std::vector<CapturedFrame>* burst) {
   // Camera frame counter: a gap means the sensor lost frames in between.
   const bool camera_gap = have_camera_seq_ && frame.camera_frame_seq != last_camera_seq_ + 1;
-  if (have_camera_seq_ && frame.camera_frame_seq > last_camera_seq_ + 1) counters_.frames_lost += frame.camera_frame_seq - last_camera_seq_ - 1;
+  if (have_camera_seq_ && frame.camera_frame_seq > last_camera_seq_ + 1)
+    counters_.frames_lost += frame.camera_frame_seq - last_camera_seq_ - 1;
   last_camera_seq_ = frame.camera_frame_seq;
   have_camera_seq_ = true;
   if (camera_gap && !partial_.empty()) DropPartial(Drop::kIncomplete);
@@ -54,7 +62,8 @@ bool FrameSync::OnFrame(const CapturedFrame& frame, std::vector<CapturedFrame>* 
   }
   if (skip_until_pattern0_) {
     return false;  // the rest of a burst already dropped and counted
-  } else if (trig.pattern_index != static_cast<int>(partial_.size()) || (!partial_.empty() && trig.seq != partial_.back().trigger_seq + 1)) {
+  } else if (trig.pattern_index != static_cast<int>(partial_.size()) ||
+             (!partial_.empty() && trig.seq != partial_.back().trigger_seq + 1)) {
     DropPartial(Drop::kIncomplete);  // frames of this burst went missing before this one
     return false;
   }

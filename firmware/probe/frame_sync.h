@@ -1,10 +1,10 @@
 // Frame ↔ pattern synchronisation: pairs each camera frame with the projector trigger that lit it
 // and assembles bursts of patterns 0..N−1. A frame is paired by the trigger counter it latched
-// (CapturedFrame::trigger_seq) and must lie within `tolerance_ns` of that trigger's time; the frames
-// of a burst must be consecutive in both the trigger and the camera frame counters. A burst that is
-// incomplete (a frame missing: counter gap, or a new pattern 0 before the end), torn (a frame
-// exposed away from its trigger) or out of order (a frame latched a trigger that is not the next
-// one) is dropped whole and counted; it is never published.
+// (CapturedFrame::trigger_seq) and must lie within `tolerance_ns` of that trigger's time; the
+// frames of a burst must be consecutive in both the trigger and the camera frame counters. A burst
+// that is incomplete (a frame missing: counter gap, or a new pattern 0 before the end), torn (a
+// frame exposed away from its trigger) or out of order (a frame latched a trigger that is not the
+// next one) is dropped whole and counted; it is never published.
 //
 // Threads: one thread (the capture loop) calls OnTrigger/OnFrame; counters() may be read from any
 // thread (atomics).
@@ -31,7 +31,9 @@ struct FrameSyncCounters {
   std::atomic<uint64_t> dropped_torn{0};
   std::atomic<uint64_t> dropped_out_of_order{0};
   std::atomic<uint64_t> frames_lost{0};  // camera frame counter gaps (frames the sensor dropped)
-  uint64_t dropped_total() const { return dropped_incomplete + dropped_torn + dropped_out_of_order; }
+  uint64_t dropped_total() const {
+    return dropped_incomplete + dropped_torn + dropped_out_of_order;
+  }
 };
 
 class FrameSync {
@@ -55,7 +57,8 @@ class FrameSync {
   std::vector<CapturedFrame> partial_;
   uint64_t last_camera_seq_ = 0;
   bool have_camera_seq_ = false;
-  bool skip_until_pattern0_ = false;  // the current burst was dropped: ignore frames until pattern 0
+  bool skip_until_pattern0_ =
+      false;  // the current burst was dropped: ignore frames until pattern 0
   FrameSyncCounters counters_;
 };
 

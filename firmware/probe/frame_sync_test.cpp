@@ -5,8 +5,8 @@
 namespace d3d {
 namespace {
 
-// A camera + projector pair driven through bursts; `fault(burst, pattern, &frame)` may damage a frame
-// or return false to lose it.
+// A camera + projector pair driven through bursts; `fault(burst, pattern, &frame)` may damage a
+// frame or return false to lose it.
 struct Rig {
   FrameSync sync{FrameSyncOptions{}};
   uint64_t trigger_seq = 0, camera_seq = 0;
@@ -110,7 +110,8 @@ TEST(FrameSync, ManyFaultsNeverEmitADamagedBurst) {
   for (const auto& b : rig.bursts) ExpectIntact(b);
   EXPECT_GT(damaged_bursts, 20);
   EXPECT_EQ(rig.bursts.size(), 400u - static_cast<size_t>(damaged_bursts));
-  // Each burst is delivered or counted once (a damaged last burst is never closed: at most one less).
+  // Each burst is delivered or counted once (a damaged last burst is never closed: at most one
+  // less).
   EXPECT_GE(rig.bursts.size() + rig.sync.counters().dropped_total(), 399u);
   EXPECT_LE(rig.bursts.size() + rig.sync.counters().dropped_total(), 400u);
 }

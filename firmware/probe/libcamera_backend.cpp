@@ -21,17 +21,23 @@ class LibcameraCaptureBackend final : public CaptureBackend {
 
   Status Open() override {
     manager_ = std::make_unique<libcamera::CameraManager>();
-    if (const int rc = manager_->start(); rc != 0) return Unavailable("libcamera: camera manager failed to start (" + std::to_string(rc) + ")");
+    if (const int rc = manager_->start(); rc != 0)
+      return Unavailable("libcamera: camera manager failed to start (" + std::to_string(rc) + ")");
     const auto cameras = manager_->cameras();
     if (cameras.empty()) return Unavailable("libcamera lists no cameras on this machine");
     camera_ = options_.camera_id.empty() ? cameras.front() : manager_->get(options_.camera_id);
     if (!camera_) return Unavailable("libcamera: no camera with id '" + options_.camera_id + "'");
-    if (camera_->acquire() != 0) return Unavailable("libcamera: camera '" + camera_->id() + "' is in use");
+    if (camera_->acquire() != 0)
+      return Unavailable("libcamera: camera '" + camera_->id() + "' is in use");
     acquired_ = true;
-    std::unique_ptr<libcamera::CameraConfiguration> config = camera_->generateConfiguration({libcamera::StreamRole::Raw});
-    if (!config || config->empty()) return Unavailable("libcamera: camera '" + camera_->id() + "' offers no raw stream");
-    config->at(0).size = libcamera::Size(static_cast<unsigned>(options_.width), static_cast<unsigned>(options_.height));
-    if (config->validate() == libcamera::CameraConfiguration::Invalid) return Unavailable("libcamera: raw stream configuration invalid");
+    std::unique_ptr<libcamera::CameraConfiguration> config =
+        camera_->generateConfiguration({libcamera::StreamRole::Raw});
+    if (!config || config->empty())
+      return Unavailable("libcamera: camera '" + camera_->id() + "' offers no raw stream");
+    config->at(0).size = libcamera::Size(static_cast<unsigned>(options_.width),
+                                         static_cast<unsigned>(options_.height));
+    if (config->validate() == libcamera::CameraConfiguration::Invalid)
+      return Unavailable("libcamera: raw stream configuration invalid");
     if (camera_->configure(config.get()) != 0) return Unavailable("libcamera: configure failed");
     info_.backend = "libcamera";
     info_.sensor_model = camera_->id();
@@ -40,9 +46,12 @@ class LibcameraCaptureBackend final : public CaptureBackend {
     return Status::Ok();
   }
   const CaptureInfo& info() const override { return info_; }
-  Status SetExposure(int64_t) override { return Unsupported("libcamera backend: exposure control not implemented"); }
+  Status SetExposure(int64_t) override {
+    return Unsupported("libcamera backend: exposure control not implemented");
+  }
   Status Capture(int, uint64_t, int64_t, CapturedFrame*) override {
-    return Unsupported("libcamera backend: frame capture not implemented (no camera to develop against)");
+    return Unsupported(
+        "libcamera backend: frame capture not implemented (no camera to develop against)");
   }
   void Close() override {
     if (camera_ && acquired_) camera_->release();

@@ -12,15 +12,21 @@ namespace d3d {
 namespace {
 
 int64_t NowNs() {
-  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch()).count();
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(
+             std::chrono::system_clock::now().time_since_epoch())
+      .count();
 }
 
 proto::ProbeStateKind ToProto(ProbeState s) {
   switch (s) {
-    case ProbeState::kIdle: return proto::ProbeStateKind::kIdle;
-    case ProbeState::kStreaming: return proto::ProbeStateKind::kStreaming;
-    case ProbeState::kError: return proto::ProbeStateKind::kError;
-    case ProbeState::kRecovering: return proto::ProbeStateKind::kRecovering;
+    case ProbeState::kIdle:
+      return proto::ProbeStateKind::kIdle;
+    case ProbeState::kStreaming:
+      return proto::ProbeStateKind::kStreaming;
+    case ProbeState::kError:
+      return proto::ProbeStateKind::kError;
+    case ProbeState::kRecovering:
+      return proto::ProbeStateKind::kRecovering;
   }
   return proto::ProbeStateKind::kError;
 }
@@ -35,8 +41,8 @@ void ProbeAppOptions::Check() const {
   D3D_CHECK_MSG(status_period_ns > 0 && ack_timeout_ns >= 0, "periods must be positive");
 }
 
-ProbeApp::ProbeApp(const ProbeAppOptions& options, std::unique_ptr<CaptureBackend> backend, std::unique_ptr<ProjectorDriver> projector,
-                   proto::DdsParticipant* participant)
+ProbeApp::ProbeApp(const ProbeAppOptions& options, std::unique_ptr<CaptureBackend> backend,
+                   std::unique_ptr<ProjectorDriver> projector, proto::DdsParticipant* participant)
     : options_(options),
       backend_(std::move(backend)),
       projector_(std::move(projector)),
@@ -44,8 +50,10 @@ ProbeApp::ProbeApp(const ProbeAppOptions& options, std::unique_ptr<CaptureBacken
       sync_(FrameSyncOptions{backend_->info().patterns_per_burst, 500'000}),
       firmware_version_(options.firmware_version) {
   options.Check();
-  D3D_CHECK_MSG(backend_->info().frame_interval_ns * backend_->info().patterns_per_burst < static_cast<int64_t>(1e9 / options.rate_hz),
-                "a burst (" << backend_->info().patterns_per_burst << " frames) does not fit in 1/rate");
+  D3D_CHECK_MSG(
+      backend_->info().frame_interval_ns * backend_->info().patterns_per_burst <
+          static_cast<int64_t>(1e9 / options.rate_hz),
+      "a burst (" << backend_->info().patterns_per_burst << " frames) does not fit in 1/rate");
   state_.AddObserver([this](ProbeState, ProbeState, const std::string&) {
     std::lock_guard<std::mutex> lock(status_mu_);
     status_now_ = true;
@@ -65,33 +73,45 @@ ProbeApp::~ProbeApp() {
 Status ProbeApp::Start() {
   const dds_entity_t pp = participant_->participant();
   Status s;
-  const dds_entity_t t_burst = participant_->Topic(&d3d_proto_PhaseBurst_desc, proto::kTopicPhaseBurst, &s);
+  const dds_entity_t t_burst =
+      participant_->Topic(&d3d_proto_PhaseBurst_desc, proto::kTopicPhaseBurst, &s);
   D3D_RETURN_IF_ERROR(s);
-  const dds_entity_t t_info = participant_->Topic(&d3d_proto_ProbeInfo_desc, proto::kTopicProbeInfo, &s);
+  const dds_entity_t t_info =
+      participant_->Topic(&d3d_proto_ProbeInfo_desc, proto::kTopicProbeInfo, &s);
   D3D_RETURN_IF_ERROR(s);
-  const dds_entity_t t_status = participant_->Topic(&d3d_proto_ProbeStatus_desc, proto::kTopicProbeStatus, &s);
+  const dds_entity_t t_status =
+      participant_->Topic(&d3d_proto_ProbeStatus_desc, proto::kTopicProbeStatus, &s);
   D3D_RETURN_IF_ERROR(s);
-  const dds_entity_t t_cmd = participant_->Topic(&d3d_proto_ProbeCommand_desc, proto::kTopicProbeCommand, &s);
+  const dds_entity_t t_cmd =
+      participant_->Topic(&d3d_proto_ProbeCommand_desc, proto::kTopicProbeCommand, &s);
   D3D_RETURN_IF_ERROR(s);
-  const dds_entity_t t_ack = participant_->Topic(&d3d_proto_ProbeCommandAck_desc, proto::kTopicProbeCommandAck, &s);
+  const dds_entity_t t_ack =
+      participant_->Topic(&d3d_proto_ProbeCommandAck_desc, proto::kTopicProbeCommandAck, &s);
   D3D_RETURN_IF_ERROR(s);
   using Q = std::unique_ptr<dds_qos_t, proto::QosDeleter>;
-  burst_writer_ = dds_create_writer(pp, t_burst, Q(proto::MakeQos(proto::QosProfile::kBurstWriter)).get(), nullptr);
-  info_writer_ = dds_create_writer(pp, t_info, Q(proto::MakeQos(proto::QosProfile::kInfoWriter)).get(), nullptr);
-  status_writer_ = dds_create_writer(pp, t_status, Q(proto::MakeQos(proto::QosProfile::kStatusWriter)).get(), nullptr);
-  ack_writer_ = dds_create_writer(pp, t_ack, Q(proto::MakeQos(proto::QosProfile::kCommandWriter)).get(), nullptr);
-  command_reader_ = dds_create_reader(pp, t_cmd, Q(proto::MakeQos(proto::QosProfile::kCommandReader)).get(), nullptr);
+  burst_writer_ = dds_create_writer(
+      pp, t_burst, Q(proto::MakeQos(proto::QosProfile::kBurstWriter)).get(), nullptr);
+  info_writer_ = dds_create_writer(
+      pp, t_info, Q(proto::MakeQos(proto::QosProfile::kInfoWriter)).get(), nullptr);
+  status_writer_ = dds_create_writer(
+      pp, t_status, Q(proto::MakeQos(proto::QosProfile::kStatusWriter)).get(), nullptr);
+  ack_writer_ = dds_create_writer(
+      pp, t_ack, Q(proto::MakeQos(proto::QosProfile::kCommandWriter)).get(), nullptr);
+  command_reader_ = dds_create_reader(
+      pp, t_cmd, Q(proto::MakeQos(proto::QosProfile::kCommandReader)).get(), nullptr);
   for (dds_entity_t e : {burst_writer_, info_writer_, status_writer_, ack_writer_, command_reader_})
     if (e < 0) return proto::DdsError("probe: creating DDS endpoints", e);
   {
     std::lock_guard<std::mutex> lock(projector_mu_);
-    D3D_RETURN_IF_ERROR(projector_->Configure(backend_->info().calibration.pattern, backend_->info().patterns_per_burst));
+    D3D_RETURN_IF_ERROR(projector_->Configure(backend_->info().calibration.pattern,
+                                              backend_->info().patterns_per_burst));
   }
   D3D_RETURN_IF_ERROR(PublishInfo());
   threads_.emplace_back([this] { PublishLoop(); });
   threads_.emplace_back([this] { StatusLoop(); });
   threads_.emplace_back([this] { CommandLoop(); });
-  if (options_.start_streaming) D3D_RETURN_IF_ERROR(state_.Transition(ProbeState::kStreaming, "start-up"));
+  if (options_.start_streaming)
+    D3D_RETURN_IF_ERROR(state_.Transition(ProbeState::kStreaming, "start-up"));
   return Status::Ok();
 }
 
@@ -170,11 +190,13 @@ bool ProbeApp::Recover(const Status& cause) {
   std::fprintf(stderr, "d3d-probe: error: %s\n", cause.ToString().c_str());
   for (int attempt = 1; attempt <= options_.max_recoveries && !stop_; ++attempt) {
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
-    if (!state_.Transition(ProbeState::kRecovering, "attempt " + std::to_string(attempt)).ok()) return false;
+    if (!state_.Transition(ProbeState::kRecovering, "attempt " + std::to_string(attempt)).ok())
+      return false;
     Status s;
     {
       std::lock_guard<std::mutex> lock(projector_mu_);
-      s = projector_->Configure(backend_->info().calibration.pattern, backend_->info().patterns_per_burst);
+      s = projector_->Configure(backend_->info().calibration.pattern,
+                                backend_->info().patterns_per_burst);
     }
     if (s.ok()) {
       (void)state_.Transition(ProbeState::kIdle, "recovered");
@@ -192,15 +214,19 @@ Status ProbeApp::Run() {
     dds_publication_matched_status_t m{};
     dds_get_publication_matched_status(burst_writer_, &m);
     if (static_cast<int>(m.current_count) >= options_.wait_readers) break;
-    if (waited >= options_.wait_readers_timeout_ns) return Unavailable("no PhaseBurst reader appeared within the wait timeout");
+    if (waited >= options_.wait_readers_timeout_ns)
+      return Unavailable("no PhaseBurst reader appeared within the wait timeout");
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
   }
   int64_t next = NowNs() + 20'000'000;
   Status last_error;
   while (!stop_) {
-    if (options_.max_bursts > 0 && static_cast<int64_t>(sync_.counters().bursts_complete.load()) >= options_.max_bursts) break;
+    if (options_.max_bursts > 0 &&
+        static_cast<int64_t>(sync_.counters().bursts_complete.load()) >= options_.max_bursts)
+      break;
     if (!state_.IsStreaming()) {
-      if (state_.state() == ProbeState::kError) return Status(StatusCode::kUnavailable, "probe stayed in error: " + state_.last_error());
+      if (state_.state() == ProbeState::kError)
+        return Status(StatusCode::kUnavailable, "probe stayed in error: " + state_.last_error());
       std::this_thread::sleep_for(std::chrono::milliseconds(10));
       next = NowNs() + 20'000'000;
       continue;
@@ -228,7 +254,8 @@ Status ProbeApp::Run() {
   if (options_.max_bursts > 0 && !stop_) {
     const dds_return_t rc = dds_wait_for_acks(burst_writer_, options_.ack_timeout_ns);
     (void)dds_wait_for_acks(status_writer_, DDS_SECS(2));
-    if (rc != DDS_RETCODE_OK) return Unavailable("readers did not acknowledge all bursts within the ack timeout");
+    if (rc != DDS_RETCODE_OK)
+      return Unavailable("readers did not acknowledge all bursts within the ack timeout");
   }
   return Status::Ok();
 }
@@ -305,7 +332,8 @@ void ProbeApp::PublishStatus() {
 void ProbeApp::StatusLoop() {
   std::unique_lock<std::mutex> lock(status_mu_);
   while (!threads_stop_) {
-    status_cv_.wait_for(lock, std::chrono::nanoseconds(options_.status_period_ns), [&] { return status_now_ || threads_stop_.load(); });
+    status_cv_.wait_for(lock, std::chrono::nanoseconds(options_.status_period_ns),
+                        [&] { return status_now_ || threads_stop_.load(); });
     if (threads_stop_) return;
     status_now_ = false;
     lock.unlock();
@@ -333,7 +361,9 @@ std::string ProbeApp::HandleCommand(int kind, double value, bool* accepted) {
     case d3d_proto_CMD_SET_PATTERN_PERIOD:
       // The calibration (and the sim's pre-rendered bursts) are for one pattern set; a new period
       // needs a pattern-set upload and re-calibration of the phase origin, not built yet.
-      s = Unsupported("pattern period change not supported by this firmware (pattern set fixed by the calibration)");
+      s = Unsupported(
+          "pattern period change not supported by this firmware (pattern set fixed by the "
+          "calibration)");
       break;
     default:
       s = InvalidArgument("unknown command kind " + std::to_string(kind));
@@ -363,7 +393,8 @@ void ProbeApp::CommandLoop() {
       bool accepted = false;
       const std::string msg = proto::ProtocolCompatible(c->protocol_version)
                                   ? HandleCommand(static_cast<int>(c->kind), c->value, &accepted)
-                                  : "refused: protocol version " + std::to_string(c->protocol_version) + " incompatible";
+                                  : "refused: protocol version " +
+                                        std::to_string(c->protocol_version) + " incompatible";
       ack.accepted = accepted;
       proto::CopyBounded(ack.message, msg);
       ++counters_.commands;

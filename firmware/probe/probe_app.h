@@ -42,13 +42,13 @@ struct ProbeAppOptions {
   bool start_streaming = true;              // false: start idle, wait for CMD_START_STREAMING
   int publish_queue = 8;                    // bursts waiting for the publish thread
   int64_t ack_timeout_ns = 15'000'000'000;  // at the end: how long reliable readers may take
-  int64_t status_period_ns = 1'000'000'000; // ProbeStatus period (1 Hz)
-  int max_recoveries = 3;                   // error → recovering attempts before giving up
-  int wait_readers = 0;                     // Run(): first wait for this many PhaseBurst readers ...
+  int64_t status_period_ns = 1'000'000'000;  // ProbeStatus period (1 Hz)
+  int max_recoveries = 3;                    // error → recovering attempts before giving up
+  int wait_readers = 0;  // Run(): first wait for this many PhaseBurst readers ...
   int64_t wait_readers_timeout_ns = 60'000'000'000;  // ... at most this long (then UNAVAILABLE)
   // Called on the publish thread after each successful PhaseBurst write (tests, manifests).
   std::function<void(uint64_t burst_seq, const std::vector<CapturedFrame>& frames)> on_published;
-  void Check() const;                       // throws std::invalid_argument
+  void Check() const;  // throws std::invalid_argument
 };
 
 struct ProbeCounters {
@@ -62,8 +62,8 @@ struct ProbeCounters {
 class ProbeApp {
  public:
   // Takes the opened backend and the projector; `participant` is borrowed and must outlive the app.
-  ProbeApp(const ProbeAppOptions& options, std::unique_ptr<CaptureBackend> backend, std::unique_ptr<ProjectorDriver> projector,
-           proto::DdsParticipant* participant);
+  ProbeApp(const ProbeAppOptions& options, std::unique_ptr<CaptureBackend> backend,
+           std::unique_ptr<ProjectorDriver> projector, proto::DdsParticipant* participant);
   ~ProbeApp();
 
   // Creates the DDS entities, configures the projector, publishes ProbeInfo, starts the threads.
@@ -110,15 +110,16 @@ class ProbeApp {
   std::atomic<bool> stop_{false};
   std::atomic<bool> threads_stop_{false};
   std::mutex info_mu_;
-  std::string firmware_version_;       // guarded by info_mu_
-  std::string streaming_inhibit_;      // guarded by info_mu_
+  std::string firmware_version_;   // guarded by info_mu_
+  std::string streaming_inhibit_;  // guarded by info_mu_
 
-  dds_entity_t burst_writer_ = 0, info_writer_ = 0, status_writer_ = 0, ack_writer_ = 0, command_reader_ = 0;
+  dds_entity_t burst_writer_ = 0, info_writer_ = 0, status_writer_ = 0, ack_writer_ = 0,
+               command_reader_ = 0;
 
   std::mutex queue_mu_;
   std::condition_variable queue_cv_;
   std::deque<PendingBurst> queue_;
-  bool publishing_ = false;  // the publish thread holds a burst (guarded by queue_mu_)
+  bool publishing_ = false;      // the publish thread holds a burst (guarded by queue_mu_)
   uint64_t next_burst_seq_ = 0;  // publish thread only
 
   std::mutex status_mu_;

@@ -56,7 +56,9 @@ TEST(ProbeApp, FaultyBurstsAreDroppedNeverPublished) {
       for (int k = 0; k < 4; ++k) {
         EXPECT_EQ(b->frames[k].pattern_index, k);
         if (k > 0) {
-          EXPECT_EQ(b->frames[k].timestamp_ns - b->frames[k - 1].timestamp_ns, info.frame_interval_ns) << "an intact burst";
+          EXPECT_EQ(b->frames[k].timestamp_ns - b->frames[k - 1].timestamp_ns,
+                    info.frame_interval_ns)
+              << "an intact burst";
           EXPECT_EQ(b->frames[k].camera_frame_seq, b->frames[k - 1].camera_frame_seq + 1);
         }
       }
@@ -88,14 +90,18 @@ TEST(ProbeApp, CommandsAreObeyedAndAcknowledged) {
 
   Status st;
   const dds_entity_t tc = pp.Topic(&d3d_proto_ProbeCommand_desc, proto::kTopicProbeCommand, &st);
-  const dds_entity_t ta = pp.Topic(&d3d_proto_ProbeCommandAck_desc, proto::kTopicProbeCommandAck, &st);
-  std::unique_ptr<dds_qos_t, proto::QosDeleter> qw(proto::MakeQos(proto::QosProfile::kCommandWriter));
-  std::unique_ptr<dds_qos_t, proto::QosDeleter> qr(proto::MakeQos(proto::QosProfile::kCommandReader));
+  const dds_entity_t ta =
+      pp.Topic(&d3d_proto_ProbeCommandAck_desc, proto::kTopicProbeCommandAck, &st);
+  std::unique_ptr<dds_qos_t, proto::QosDeleter> qw(
+      proto::MakeQos(proto::QosProfile::kCommandWriter));
+  std::unique_ptr<dds_qos_t, proto::QosDeleter> qr(
+      proto::MakeQos(proto::QosProfile::kCommandReader));
   const dds_entity_t w = dds_create_writer(pp.participant(), tc, qw.get(), nullptr);
   const dds_entity_t r = dds_create_reader(pp.participant(), ta, qr.get(), nullptr);
   ASSERT_GT(w, 0);
   ASSERT_GT(r, 0);
-  auto send = [&](uint64_t id, d3d_proto_ProbeCommandKind kind, double value) -> std::pair<bool, std::string> {
+  auto send = [&](uint64_t id, d3d_proto_ProbeCommandKind kind,
+                  double value) -> std::pair<bool, std::string> {
     d3d_proto_ProbeCommand c{};
     proto::CopyBounded(c.serial, o.serial);
     c.protocol_version = proto::kProtocolVersion;

@@ -4,10 +4,14 @@ namespace d3d {
 
 const char* ProbeStateName(ProbeState s) {
   switch (s) {
-    case ProbeState::kIdle: return "idle";
-    case ProbeState::kStreaming: return "streaming";
-    case ProbeState::kError: return "error";
-    case ProbeState::kRecovering: return "recovering";
+    case ProbeState::kIdle:
+      return "idle";
+    case ProbeState::kStreaming:
+      return "streaming";
+    case ProbeState::kError:
+      return "error";
+    case ProbeState::kRecovering:
+      return "recovering";
   }
   return "unknown";
 }
@@ -15,10 +19,14 @@ const char* ProbeStateName(ProbeState s) {
 bool ProbeStateMachine::IsLegal(ProbeState from, ProbeState to) {
   using S = ProbeState;
   switch (from) {
-    case S::kIdle: return to == S::kStreaming || to == S::kError;
-    case S::kStreaming: return to == S::kIdle || to == S::kError;
-    case S::kError: return to == S::kRecovering;
-    case S::kRecovering: return to == S::kIdle || to == S::kError;
+    case S::kIdle:
+      return to == S::kStreaming || to == S::kError;
+    case S::kStreaming:
+      return to == S::kIdle || to == S::kError;
+    case S::kError:
+      return to == S::kRecovering;
+    case S::kRecovering:
+      return to == S::kIdle || to == S::kError;
   }
   return false;
 }

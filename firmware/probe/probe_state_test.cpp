@@ -5,7 +5,8 @@
 namespace d3d {
 namespace {
 
-constexpr ProbeState kAll[] = {ProbeState::kIdle, ProbeState::kStreaming, ProbeState::kError, ProbeState::kRecovering};
+constexpr ProbeState kAll[] = {ProbeState::kIdle, ProbeState::kStreaming, ProbeState::kError,
+                               ProbeState::kRecovering};
 
 TEST(ProbeStateMachine, LegalCycle) {
   ProbeStateMachine m;
@@ -22,8 +23,9 @@ TEST(ProbeStateMachine, LegalCycle) {
   ASSERT_TRUE(m.Transition(ProbeState::kIdle, "recovered").ok());
   ASSERT_TRUE(m.Transition(ProbeState::kStreaming, "start").ok());
   ASSERT_TRUE(m.Transition(ProbeState::kIdle, "stop").ok());
-  EXPECT_EQ(seen, (std::vector<std::string>{"idle>streaming", "streaming>error", "error>recovering", "recovering>idle",
-                                            "idle>streaming", "streaming>idle"}));
+  EXPECT_EQ(seen,
+            (std::vector<std::string>{"idle>streaming", "streaming>error", "error>recovering",
+                                      "recovering>idle", "idle>streaming", "streaming>idle"}));
 }
 
 TEST(ProbeStateMachine, ExactlyTheDocumentedTransitionsAreLegal) {

@@ -13,12 +13,14 @@ void ProbeUpdateHooks::OnDfuMode(bool entering) {
 void ProbeUpdateHooks::OnRunningFirmware(const dfu::FirmwareInfo& info) {
   app_->SetFirmwareVersion(info.VersionString());
   if (const Status s = app_->PublishInfo(); !s.ok())
-    std::fprintf(stderr, "d3d-probe: update agent: republishing ProbeInfo: %s\n", s.ToString().c_str());
+    std::fprintf(stderr, "d3d-probe: update agent: republishing ProbeInfo: %s\n",
+                 s.ToString().c_str());
 }
 
 fw::HealthResult ProbeUpdateHooks::HealthCheck(const fw::ImageHeader& running) {
   (void)running;
-  return app_->state().state() == ProbeState::kError ? fw::HealthResult::kUnhealthy : fw::HealthResult::kHealthy;
+  return app_->state().state() == ProbeState::kError ? fw::HealthResult::kUnhealthy
+                                                     : fw::HealthResult::kHealthy;
 }
 
 void ProbeUpdateOptions::Check() const {
@@ -43,9 +45,11 @@ Status ProbeUpdateService::Start() {
     fw::SimLinkServerOptions so;
     so.socket_path = options_.socket_path;
     so.on_reset = [this](const Status& s) {
-      if (!s.ok()) std::fprintf(stderr, "d3d-probe: update agent: reboot: %s\n", s.ToString().c_str());
+      if (!s.ok())
+        std::fprintf(stderr, "d3d-probe: update agent: reboot: %s\n", s.ToString().c_str());
       else if (!setup_.agent->boot_log().empty())
-        std::fprintf(stderr, "d3d-probe: update agent: reboot: %s\n", setup_.agent->boot_log().c_str());
+        std::fprintf(stderr, "d3d-probe: update agent: reboot: %s\n",
+                     setup_.agent->boot_log().c_str());
     };
     const Status s = fw::ServeSimLink(setup_.agent.get(), so, &stop_);
     if (!s.ok()) std::fprintf(stderr, "d3d-probe: update agent: %s\n", s.ToString().c_str());

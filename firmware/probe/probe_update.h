@@ -49,10 +49,10 @@ class ProbeUpdateHooks final : public fw::ProbeHooks {
 };
 
 struct ProbeUpdateOptions {
-  fw::AgentSetupOptions setup;      // flash directory, trusted key, factory image
-  fw::UpdateAgentOptions agent;     // slots (hw id, slot size), DFU, USB ids
-  std::string socket_path;          // the sim link's Unix socket
-  void Check() const;               // throws std::invalid_argument
+  fw::AgentSetupOptions setup;   // flash directory, trusted key, factory image
+  fw::UpdateAgentOptions agent;  // slots (hw id, slot size), DFU, USB ids
+  std::string socket_path;       // the sim link's Unix socket
+  void Check() const;            // throws std::invalid_argument
 };
 
 class ProbeUpdateService {
@@ -69,7 +69,8 @@ class ProbeUpdateService {
   void Stop();
   // What power-on did, e.g. "boot slot A (1.0.0, confirmed)". Valid after Start().
   const std::string& boot_log() const { return boot_log_; }
-  // The transport thread's final status (OK after Stop(); an error if it could not bind the socket).
+  // The transport thread's final status (OK after Stop(); an error if it could not bind the
+  // socket).
   Status serve_status() const;
 
  private:

@@ -1,7 +1,8 @@
 // The update agent hosted in the probe process (ProbeUpdateService), end to end in one process:
 // the sim backend streaming over DDS, the host's DFU layer flashing over the sim link, and the
 // host receiver reading ProbeInfo. Issue 8: "flash v1.1 over v1.0 on a simulated probe → it boots
-// v1.1, confirms, reports it over DDS ProbeInfo"; refusal while streaming; no streaming in DFU mode.
+// v1.1, confirms, reports it over DDS ProbeInfo"; refusal while streaming; no streaming in DFU
+// mode.
 #include "firmware/probe/probe_update.h"
 
 #include <gtest/gtest.h>
@@ -24,8 +25,9 @@ namespace fs = std::filesystem;
 class ProbeUpdateTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    dir_ = fs::temp_directory_path() / ("d3d_probe_update_" + std::to_string(::getpid()) + "_" +
-                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    dir_ = fs::temp_directory_path() /
+           ("d3d_probe_update_" + std::to_string(::getpid()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
     fs::remove_all(dir_);
     fs::create_directories(dir_);
     ASSERT_TRUE(fw::SavePublicKey((dir_ / "signing.pub").string(), key_.pk).ok());
@@ -57,7 +59,8 @@ class ProbeUpdateTest : public ::testing::Test {
     ProbeAppOptions ao;
     ao.start_streaming = streaming;
     ao.firmware_version = "0.0.0-unknown";
-    app_ = std::make_unique<ProbeApp>(ao, std::move(backend), std::make_unique<LoggingProjectorDriver>(nullptr), &pp_);
+    app_ = std::make_unique<ProbeApp>(ao, std::move(backend),
+                                      std::make_unique<LoggingProjectorDriver>(nullptr), &pp_);
     ASSERT_TRUE(app_->Start().ok());
     run_ = std::thread([this] { EXPECT_TRUE(app_->Run().ok()); });
     ProbeUpdateOptions uo;
@@ -107,13 +110,15 @@ class ProbeUpdateTest : public ::testing::Test {
 TEST_F(ProbeUpdateTest, FlashesANewVersionAndReportsItInProbeInfo) {
   StartProbe(81, /*streaming=*/false);
   EXPECT_NE(service_->boot_log().find("1.0.0"), std::string::npos) << service_->boot_log();
-  EXPECT_EQ(InfoVersion("1.0.0"), "1.0.0") << "the provisioned factory image, read from the flash at power-on";
+  EXPECT_EQ(InfoVersion("1.0.0"), "1.0.0")
+      << "the provisioned factory image, read from the flash at power-on";
   const std::vector<uint8_t> v11 = fw::testing::MakeImage(&key_, {1, 1, 0}, 2, 1, 35000, 2);
   const flash::FlashReport r = Flash(v11);
   EXPECT_EQ(r.outcome, flash::FlashOutcome::kUpdated) << r.reason;
   EXPECT_EQ(r.after.VersionString(), "1.1.0");
   EXPECT_EQ(r.after.boot_state, dfu::BootState::kConfirmed);
-  EXPECT_EQ(InfoVersion("1.1.0"), "1.1.0") << "ProbeInfo republished after the confirmed trial boot";
+  EXPECT_EQ(InfoVersion("1.1.0"), "1.1.0")
+      << "ProbeInfo republished after the confirmed trial boot";
   EXPECT_TRUE(app_->SetStreaming(true).ok()) << "streaming allowed again after the DFU session";
 }
 
@@ -126,7 +131,8 @@ TEST_F(ProbeUpdateTest, RefusesWhileStreamingAndStreamingGoesOn) {
   EXPECT_TRUE(app_->state().IsStreaming());
   const uint64_t before = app_->counters().bursts_published.load();
   std::this_thread::sleep_for(std::chrono::milliseconds(400));
-  EXPECT_GT(app_->counters().bursts_published.load(), before) << "the probe keeps streaming after refusing";
+  EXPECT_GT(app_->counters().bursts_published.load(), before)
+      << "the probe keeps streaming after refusing";
   // Stopped by the host, a tampered image is refused and the probe streams again on 1.0.0.
   ASSERT_TRUE(app_->SetStreaming(false).ok());
   std::vector<uint8_t> tampered = v11;
@@ -152,10 +158,12 @@ TEST_F(ProbeUpdateTest, NoStreamingInDfuMode) {
   ASSERT_TRUE(d.dfu_mode);
   const Status refused = app_->SetStreaming(true);
   EXPECT_EQ(refused.code(), StatusCode::kUnavailable);
-  EXPECT_NE(refused.message().find("firmware update in progress"), std::string::npos) << refused.ToString();
+  EXPECT_NE(refused.message().find("firmware update in progress"), std::string::npos)
+      << refused.ToString();
   // Leaving DFU mode (a reset without an image) reboots into 1.0.0; streaming is allowed again.
   ASSERT_TRUE(t->BusReset().ok());
-  for (int i = 0; i < 100 && !app_->SetStreaming(true).ok(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  for (int i = 0; i < 100 && !app_->SetStreaming(true).ok(); ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
   EXPECT_TRUE(app_->state().IsStreaming());
 }
 

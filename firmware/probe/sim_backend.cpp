@@ -2,9 +2,9 @@
 //
 // Rendering is far slower than the probe's burst rate (~3.5 bursts/s per core at 640 × 480), so the
 // backend renders a cycle of `sim_cycle` consecutive bursts of the scan path at start-up (Open) and
-// then, at capture time, returns frame k of burst (n mod cycle) for the n-th burst, stamped with the
-// real capture time. The bytes published are exactly the rendered images; only the timestamps are
-// live. With max_bursts ≤ sim_cycle every burst is distinct.
+// then, at capture time, returns frame k of burst (n mod cycle) for the n-th burst, stamped with
+// the real capture time. The bytes published are exactly the rendered images; only the timestamps
+// are live. With max_bursts ≤ sim_cycle every burst is distinct.
 //
 // Fault injection (sim_fault_rate p, seeded by `seed`): each frame, with probability p, is one of
 // (a) preceded by a frame the sensor lost (camera_frame_seq jumps), (b) torn: exposed across the
@@ -23,7 +23,8 @@ namespace {
 
 class SimCaptureBackend final : public CaptureBackend {
  public:
-  explicit SimCaptureBackend(const CaptureOptions& o) : options_(o), rng_(o.seed * 2654435761u + 17u) {}
+  explicit SimCaptureBackend(const CaptureOptions& o)
+      : options_(o), rng_(o.seed * 2654435761u + 17u) {}
 
   Status Open() override {
     SimSessionOptions so;
@@ -38,18 +39,22 @@ class SimCaptureBackend final : public CaptureBackend {
     D3D_RETURN_IF_ERROR(SimSession::Create(so, &session));
     int64_t n = std::min<int64_t>(options_.sim_cycle, session->NumBursts());
     if (options_.max_bursts > 0) n = std::min<int64_t>(n, options_.max_bursts);
-    if (n < 1) return InvalidArgument("sim: the trajectory holds no burst at " + std::to_string(options_.rate_hz) + " Hz");
+    if (n < 1)
+      return InvalidArgument("sim: the trajectory holds no burst at " +
+                             std::to_string(options_.rate_hz) + " Hz");
     cycle_.resize(static_cast<size_t>(n));
     for (int64_t b = 0; b < n; ++b) {
       const Burst burst = session->RenderBurst(b, /*with_truth=*/false);
       for (const BurstFrame& f : burst.frames) {
         const cv::Mat img = f.image.isContinuous() ? f.image : f.image.clone();
-        cycle_[b].push_back(std::make_shared<const std::vector<uint8_t>>(img.data, img.data + img.total() * img.elemSize()));
+        cycle_[b].push_back(std::make_shared<const std::vector<uint8_t>>(
+            img.data, img.data + img.total() * img.elemSize()));
       }
     }
     const ProbeDesign& d = session->probe().design();
     info_.backend = "sim";
-    info_.sensor_model = "virtual-probe " + std::to_string(options_.width) + "x" + std::to_string(options_.height);
+    info_.sensor_model =
+        "virtual-probe " + std::to_string(options_.width) + "x" + std::to_string(options_.height);
     info_.width = options_.width;
     info_.height = options_.height;
     info_.bit_depth = d.sensor.bits;
@@ -64,14 +69,18 @@ class SimCaptureBackend final : public CaptureBackend {
 
   Status SetExposure(int64_t exposure_ns) override {
     if (exposure_ns <= 0 || exposure_ns >= info_.frame_interval_ns)
-      return InvalidArgument("exposure must be in (0, frame interval " + std::to_string(info_.frame_interval_ns) + " ns)");
+      return InvalidArgument("exposure must be in (0, frame interval " +
+                             std::to_string(info_.frame_interval_ns) + " ns)");
     std::lock_guard<std::mutex> lock(mu_);
-    info_.exposure_ns = exposure_ns;  // metadata only: the cycle was rendered at the design exposure
+    info_.exposure_ns =
+        exposure_ns;  // metadata only: the cycle was rendered at the design exposure
     return Status::Ok();
   }
 
-  Status Capture(int pattern_index, uint64_t trigger_seq, int64_t t_ns, CapturedFrame* out) override {
-    if (pattern_index < 0 || pattern_index >= info_.patterns_per_burst) return InvalidArgument("sim: no pattern " + std::to_string(pattern_index));
+  Status Capture(int pattern_index, uint64_t trigger_seq, int64_t t_ns,
+                 CapturedFrame* out) override {
+    if (pattern_index < 0 || pattern_index >= info_.patterns_per_burst)
+      return InvalidArgument("sim: no pattern " + std::to_string(pattern_index));
     if (pattern_index == 0 && captured_ > 0) ++burst_;
     ++captured_;
     int64_t exposure_ns;
@@ -80,7 +89,8 @@ class SimCaptureBackend final : public CaptureBackend {
       exposure_ns = info_.exposure_ns;
     }
     // The exposure ends at t + exposure/2: wait for it (system clock, like the timestamps).
-    std::this_thread::sleep_until(std::chrono::system_clock::time_point(std::chrono::nanoseconds(t_ns + exposure_ns / 2)));
+    std::this_thread::sleep_until(
+        std::chrono::system_clock::time_point(std::chrono::nanoseconds(t_ns + exposure_ns / 2)));
     out->pattern_index = pattern_index;
     out->trigger_seq = trigger_seq;
     out->camera_frame_seq = ++camera_seq_;
@@ -88,9 +98,15 @@ class SimCaptureBackend final : public CaptureBackend {
     out->pixels = cycle_[burst_ % cycle_.size()][static_cast<size_t>(pattern_index)];
     if (options_.sim_fault_rate > 0 && uniform_(rng_) < options_.sim_fault_rate) {
       switch (rng_() % 3) {
-        case 0: out->camera_frame_seq = ++camera_seq_; break;                         // one frame lost before
-        case 1: out->timestamp_ns += info_.frame_interval_ns / 2; break;              // torn
-        default: out->trigger_seq = trigger_seq > 0 ? trigger_seq - 1 : 0; break;     // wrong trigger
+        case 0:
+          out->camera_frame_seq = ++camera_seq_;
+          break;  // one frame lost before
+        case 1:
+          out->timestamp_ns += info_.frame_interval_ns / 2;
+          break;  // torn
+        default:
+          out->trigger_seq = trigger_seq > 0 ? trigger_seq - 1 : 0;
+          break;  // wrong trigger
       }
     }
     return Status::Ok();

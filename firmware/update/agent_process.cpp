@@ -45,8 +45,9 @@ AgentProcess::~AgentProcess() {
   if (pid_ > 0) Kill();
 }
 
-Status AgentProcess::Start(const std::string& binary, const std::vector<std::string>& args, const std::string& socket_path,
-                           const std::string& log_path, int timeout_ms) {
+Status AgentProcess::Start(const std::string& binary, const std::vector<std::string>& args,
+                           const std::string& socket_path, const std::string& log_path,
+                           int timeout_ms) {
   if (pid_ > 0) return InvalidArgument("agent already running");
   ::unlink(socket_path.c_str());  // a stale socket of a killed agent must not look alive
   std::vector<std::string> argv_s = {binary};
@@ -70,7 +71,8 @@ Status AgentProcess::Start(const std::string& binary, const std::vector<std::str
     int status = 0;
     if (::waitpid(pid_, &status, WNOHANG) == pid_) {
       pid_ = -1;
-      return Unavailable(binary + " exited with code " + std::to_string(ExitCode(status)) + " before listening");
+      return Unavailable(binary + " exited with code " + std::to_string(ExitCode(status)) +
+                         " before listening");
     }
     if (CanConnect(socket_path)) return Status::Ok();
     std::this_thread::sleep_for(std::chrono::milliseconds(5));

@@ -20,8 +20,9 @@ class AgentProcess {
 
   // Runs `binary args...` (stderr to `log_path` if given, appended) and waits up to timeout_ms
   // until something accepts connections on `socket_path`. kUnavailable if it exits or times out.
-  Status Start(const std::string& binary, const std::vector<std::string>& args, const std::string& socket_path,
-               const std::string& log_path = "", int timeout_ms = 10000);
+  Status Start(const std::string& binary, const std::vector<std::string>& args,
+               const std::string& socket_path, const std::string& log_path = "",
+               int timeout_ms = 10000);
   // SIGKILL (a power cut) and reap. Returns the wait status.
   int Kill();
   // SIGTERM, then wait; returns the exit code (or 128 + signal).

@@ -13,12 +13,13 @@
 namespace d3d::fw {
 
 struct AgentSetupOptions {
-  std::string flash_dir;          // holds flash.bin (created erased when absent)
-  std::string pubkey_path;        // the public key the probe trusts (d3d-fwpack --keygen)
-  std::string provision_path;     // factory image written to slot A when the flash is blank ("" = none)
+  std::string flash_dir;    // holds flash.bin (created erased when absent)
+  std::string pubkey_path;  // the public key the probe trusts (d3d-fwpack --keygen)
+  std::string
+      provision_path;  // factory image written to slot A when the flash is blank ("" = none)
   uint32_t erase_bytes = 64 * 1024;  // flash erase block
   uint32_t page_bytes = 256;         // flash program page
-  void Check() const;             // throws std::invalid_argument
+  void Check() const;                // throws std::invalid_argument
 };
 
 // What a probe process keeps alive while it serves updates. Owned by the process's main thread;
@@ -33,7 +34,8 @@ struct AgentSetup {
 // and provisions a blank flash from `setup.provision_path`. Does not power on (call
 // agent->PowerOn()). NOT_FOUND / IO_ERROR / PARSE_ERROR for the key, flash or image files;
 // the slot manager's status when provisioning fails.
-[[nodiscard]] Status OpenUpdateAgent(const AgentSetupOptions& setup, const UpdateAgentOptions& options, ProbeHooks* hooks,
+[[nodiscard]] Status OpenUpdateAgent(const AgentSetupOptions& setup,
+                                     const UpdateAgentOptions& options, ProbeHooks* hooks,
                                      AgentSetup* out);
 
 }  // namespace d3d::fw

@@ -8,8 +8,13 @@ namespace d3d::fw {
 
 namespace {
 constexpr uint32_t kBootMagic = 0x43423344;  // "D3BC"
-void Put16(uint8_t* p, uint16_t x) { p[0] = static_cast<uint8_t>(x); p[1] = static_cast<uint8_t>(x >> 8); }
-void Put32(uint8_t* p, uint32_t x) { for (int i = 0; i < 4; ++i) p[i] = static_cast<uint8_t>(x >> (8 * i)); }
+void Put16(uint8_t* p, uint16_t x) {
+  p[0] = static_cast<uint8_t>(x);
+  p[1] = static_cast<uint8_t>(x >> 8);
+}
+void Put32(uint8_t* p, uint32_t x) {
+  for (int i = 0; i < 4; ++i) p[i] = static_cast<uint8_t>(x >> (8 * i));
+}
 uint16_t Get16(const uint8_t* p) { return static_cast<uint16_t>(p[0] | (p[1] << 8)); }
 uint32_t Get32(const uint8_t* p) {
   uint32_t x = 0;
@@ -23,9 +28,12 @@ uint32_t Crc(const uint8_t* p, size_t n) {
 
 const char* SlotStateName(SlotState s) {
   switch (s) {
-    case SlotState::kEmpty: return "empty";
-    case SlotState::kBootable: return "bootable";
-    case SlotState::kFailed: return "failed";
+    case SlotState::kEmpty:
+      return "empty";
+    case SlotState::kBootable:
+      return "bootable";
+    case SlotState::kFailed:
+      return "failed";
   }
   return "?";
 }
@@ -55,14 +63,16 @@ std::array<uint8_t, kBootRecordBytes> BootRecord::Serialize() const {
 
 std::optional<BootRecord> BootRecord::Parse(std::span<const uint8_t> b) {
   if (b.size() < kBootRecordBytes) return std::nullopt;
-  if (Get32(&b[0]) != kBootMagic || Get16(&b[4]) != 1 || Get16(&b[6]) != kBootRecordBytes) return std::nullopt;
+  if (Get32(&b[0]) != kBootMagic || Get16(&b[4]) != 1 || Get16(&b[6]) != kBootRecordBytes)
+    return std::nullopt;
   if (Get32(&b[60]) != Crc(b.data(), 60)) return std::nullopt;
   BootRecord r;
   r.sequence = Get32(&b[8]);
   r.active_slot = b[12];
   r.trial_slot = b[13];
   r.trial_boots_left = b[14];
-  if (r.active_slot > 1 || (r.trial_slot > 1 && r.trial_slot != kNoSlot) || b[15] > 4) return std::nullopt;
+  if (r.active_slot > 1 || (r.trial_slot > 1 && r.trial_slot != kNoSlot) || b[15] > 4)
+    return std::nullopt;
   r.last_event = static_cast<BootEvent>(b[15]);
   r.security_floor = Get32(&b[16]);
   for (int s = 0; s < 2; ++s) {
@@ -80,7 +90,8 @@ Status BootControlStore::Load(std::optional<BootRecord>* out) {
   newest_copy_ = -1;
   for (int c = 0; c < 2; ++c) {
     std::array<uint8_t, kBootRecordBytes> b;
-    D3D_RETURN_IF_ERROR(flash_->Read(static_cast<uint64_t>(c) * flash_->geometry().erase_block_bytes, b));
+    D3D_RETURN_IF_ERROR(
+        flash_->Read(static_cast<uint64_t>(c) * flash_->geometry().erase_block_bytes, b));
     auto r = BootRecord::Parse(b);
     if (r && (!best || r->sequence > best->sequence)) {
       best = r;

@@ -65,8 +65,8 @@ struct BootRecord {
 class BootControlStore {
  public:
   explicit BootControlStore(Flash* flash) : flash_(flash) {}
-  // The newest valid record, or nullopt if neither copy is valid (a blank part). kIoError/kUnavailable
-  // when the flash cannot be read.
+  // The newest valid record, or nullopt if neither copy is valid (a blank part).
+  // kIoError/kUnavailable when the flash cannot be read.
   Status Load(std::optional<BootRecord>* out);
   // Writes `record` with sequence = newest + 1 into the older copy; updates record->sequence.
   Status Write(BootRecord* record);

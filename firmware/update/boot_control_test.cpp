@@ -57,7 +57,8 @@ TEST(BootControlStore, AlternatesCopiesAndATornWriteKeepsThePreviousRecord) {
   ASSERT_TRUE(store.Load(&got).ok());
   ASSERT_TRUE(got);
   EXPECT_EQ(got->security_floor, 9u);
-  // Cut the power at each operation of the next write (erase, program): the newest complete record wins.
+  // Cut the power at each operation of the next write (erase, program): the newest complete record
+  // wins.
   for (int cut = 0; cut < 2; ++cut) {
     BootControlStore s2(f.get());
     ASSERT_TRUE(s2.Load(&got).ok());

@@ -28,12 +28,14 @@ class SimProbeHooks : public ProbeHooks {
 
   bool IsStreaming() const override { return streaming.load(); }
   void OnDfuMode(bool entering) override {
-    if (!quiet) std::fprintf(stderr, "d3d-update-agent: %s DFU mode\n", entering ? "entering" : "leaving");
+    if (!quiet)
+      std::fprintf(stderr, "d3d-update-agent: %s DFU mode\n", entering ? "entering" : "leaving");
   }
   void OnRunningFirmware(const dfu::FirmwareInfo& f) override {
     if (!quiet) {
-      std::fprintf(stderr, "d3d-update-agent: running %s (slot %c, %s), security floor %u\n", f.VersionString().c_str(),
-                   f.running_slot == 0 ? 'A' : 'B', dfu::BootStateName(f.boot_state), f.security_floor);
+      std::fprintf(stderr, "d3d-update-agent: running %s (slot %c, %s), security floor %u\n",
+                   f.VersionString().c_str(), f.running_slot == 0 ? 'A' : 'B',
+                   dfu::BootStateName(f.boot_state), f.security_floor);
     }
   }
   HealthResult HealthCheck(const ImageHeader& h) override {
@@ -44,7 +46,8 @@ class SimProbeHooks : public ProbeHooks {
   }
   bool SimSetStreaming(bool on) override {
     streaming.store(on);
-    if (!quiet) std::fprintf(stderr, "d3d-update-agent: streaming %s\n", on ? "started" : "stopped");
+    if (!quiet)
+      std::fprintf(stderr, "d3d-update-agent: streaming %s\n", on ? "started" : "stopped");
     return true;
   }
 };
@@ -52,7 +55,9 @@ class SimProbeHooks : public ProbeHooks {
 }  // namespace
 
 int main(int argc, char** argv) {
-  OptionRegistry options("d3d-update-agent: the simulated probe's firmware update agent (USB DFU 1.1 over a Unix socket)");
+  OptionRegistry options(
+      "d3d-update-agent: the simulated probe's firmware update agent (USB DFU 1.1 over a Unix "
+      "socket)");
   std::string socket_path, flash_dir, pubkey_path, provision, hw = "0x0001", serial = "SIM0001";
   SimProbeHooks hooks;
   uint64_t slot_mib = 20;
@@ -62,8 +67,10 @@ int main(int argc, char** argv) {
   int64_t power_cut_after = -1;
   bool streaming = false, sim_controls = false;
   options.Add("--socket", &socket_path, "Unix socket to serve the sim link on").Required();
-  options.Add("--flash", &flash_dir, "directory of the simulated flash (flash.bin, created erased)").Required();
-  options.Add("--pubkey", &pubkey_path, "the public key the probe trusts (d3d-fwpack --keygen)").Required();
+  options.Add("--flash", &flash_dir, "directory of the simulated flash (flash.bin, created erased)")
+      .Required();
+  options.Add("--pubkey", &pubkey_path, "the public key the probe trusts (d3d-fwpack --keygen)")
+      .Required();
   options.Add("--hw", &hw, "this probe's hardware compatibility id");
   options.Add("--serial", &serial, "USB serial number");
   options.Add("--provision", &provision, "factory image written to slot A when the flash is blank");
@@ -71,14 +78,19 @@ int main(int argc, char** argv) {
   options.Add("--erase-kib", &erase_kib, "flash erase block, KiB");
   options.Add("--page", &page_bytes, "flash program page, bytes");
   options.Add("--transfer-size", &transfer_size, "DFU wTransferSize, bytes").Range(0, 65535);
-  options.Add("--poll-ms", &poll_ms, "bwPollTimeout reported while busy (-1: the flash timing model)");
+  options.Add("--poll-ms", &poll_ms,
+              "bwPollTimeout reported while busy (-1: the flash timing model)");
   options.Add("--trial-boots", &trial_boots, "boots a new firmware gets to confirm itself");
   options.Flag("--streaming", &streaming, "the probe streams from the start (updates are refused)");
-  options.Flag("--sim-controls", &sim_controls, "accept the vendor request that starts/stops streaming");
-  options.Add("--unhealthy-version", &hooks.unhealthy_version, "a firmware version whose health check fails");
-  options.Add("--silent-version", &hooks.silent_version, "a firmware version that never confirms (hangs)");
+  options.Flag("--sim-controls", &sim_controls,
+               "accept the vendor request that starts/stops streaming");
+  options.Add("--unhealthy-version", &hooks.unhealthy_version,
+              "a firmware version whose health check fails");
+  options.Add("--silent-version", &hooks.silent_version,
+              "a firmware version that never confirms (hangs)");
   options.Add("--power-cut-after-ops", &power_cut_after,
-              "cut the power at flash operation N (erases + page programs since start); the agent exits 86");
+              "cut the power at flash operation N (erases + page programs since start); the agent "
+              "exits 86");
   options.Flag("--quiet", &hooks.quiet, "no log lines");
   if (int code = 0; !options.Parse(argc, argv, &code)) return code;
 
@@ -115,7 +127,8 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "d3d-update-agent: %s\n", s.ToString().c_str());
       return 3;
     }
-    if (!hooks.quiet) std::fprintf(stderr, "d3d-update-agent: power-on: %s\n", agent.boot_log().c_str());
+    if (!hooks.quiet)
+      std::fprintf(stderr, "d3d-update-agent: power-on: %s\n", agent.boot_log().c_str());
     SimLinkServerOptions so;
     so.socket_path = socket_path;
     so.on_power_cut = [] {
@@ -129,7 +142,8 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "d3d-update-agent: reboot: %s\n", agent.boot_log().c_str());
       }
     };
-    if (!hooks.quiet) std::fprintf(stderr, "d3d-update-agent: listening on %s\n", socket_path.c_str());
+    if (!hooks.quiet)
+      std::fprintf(stderr, "d3d-update-agent: listening on %s\n", socket_path.c_str());
     const Status s = ServeSimLink(&agent, so, &g_stop);
     if (!s.ok()) {
       std::fprintf(stderr, "d3d-update-agent: %s\n", s.ToString().c_str());

@@ -8,11 +8,13 @@ namespace d3d::dfu {
 
 void DfuDeviceOptions::Check() const {
   D3D_CHECK_MSG(transfer_size > 0, "wTransferSize must be positive");
-  D3D_CHECK_MSG((attributes & kAttrCanUpload) == 0, "DFU_UPLOAD is not supported (the probe never reads its firmware out)");
+  D3D_CHECK_MSG((attributes & kAttrCanUpload) == 0,
+                "DFU_UPLOAD is not supported (the probe never reads its firmware out)");
   D3D_CHECK_MSG((attributes & kAttrCanDnload) != 0, "the DFU interface must accept downloads");
 }
 
-DfuDevice::DfuDevice(DfuBackend* backend, DfuDeviceOptions options) : backend_(backend), options_(std::move(options)) {
+DfuDevice::DfuDevice(DfuBackend* backend, DfuDeviceOptions options)
+    : backend_(backend), options_(std::move(options)) {
   options_.Check();
   block_.reserve(options_.transfer_size);
 }
@@ -27,11 +29,14 @@ FunctionalDescriptor DfuDevice::functional_descriptor() const {
 
 int64_t DfuDevice::Now() const {
   if (options_.clock_ms) return options_.clock_ms();
-  return std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::steady_clock::now().time_since_epoch()).count();
+  return std::chrono::duration_cast<std::chrono::milliseconds>(
+             std::chrono::steady_clock::now().time_since_epoch())
+      .count();
 }
 
 uint32_t DfuDevice::Poll(uint32_t modelled) const {
-  const uint32_t p = options_.fixed_poll_ms >= 0 ? static_cast<uint32_t>(options_.fixed_poll_ms) : modelled;
+  const uint32_t p =
+      options_.fixed_poll_ms >= 0 ? static_cast<uint32_t>(options_.fixed_poll_ms) : modelled;
   return std::min<uint32_t>(p, 0xFFFFFF);
 }
 
@@ -39,7 +44,8 @@ void DfuDevice::ApplyTimedTransitions(int64_t now) {
   if (state_ == kAppDetach && now > deadline_ms_) state_ = kAppIdle;
   if (state_ == kDfuDnBusy && now >= deadline_ms_) state_ = kDfuDnloadSync;
   if (state_ == kDfuManifest && now >= deadline_ms_) {
-    state_ = (options_.attributes & kAttrManifestationTolerant) ? kDfuManifestSync : kDfuManifestWaitReset;
+    state_ = (options_.attributes & kAttrManifestationTolerant) ? kDfuManifestSync
+                                                                : kDfuManifestWaitReset;
   }
 }
 
@@ -61,14 +67,16 @@ ControlResponse DfuDevice::Report(uint32_t poll_ms) const {
 
 ControlResponse DfuDevice::StallError(const SetupPacket& setup) {
   std::string msg = "stalled-request: request ";
-  msg.append(std::to_string(setup.request)).append(" is not valid in state ").append(StateName(state_));
+  msg.append(std::to_string(setup.request))
+      .append(" is not valid in state ")
+      .append(StateName(state_));
   if (state_ == kAppIdle || state_ == kAppDetach) {
     // Run-time mode has no error state (A.2.1/A.2.2): stall, appDETACH falls back to appIDLE.
     if (state_ == kAppDetach) state_ = kAppIdle;
     return {true, {}};
   }
   if (state_ == kDfuManifestWaitReset) return {true, {}};  // only a reset is answered
-  if (state_ == kDfuError) return {true, {}};               // keep the original reason
+  if (state_ == kDfuError) return {true, {}};              // keep the original reason
   backend_->AbortDownload();
   Fail(kErrStalledPkt, std::move(msg));
   return {true, {}};
@@ -81,11 +89,13 @@ ControlResponse DfuDevice::Handle(const SetupPacket& setup, std::span<const uint
   // Direction must match the request (Table 3.2): IN for UPLOAD/GETSTATUS/GETSTATE, OUT otherwise.
   const bool want_in = req == kUpload || req == kGetStatus || req == kGetState;
   if (req > kAbort || in != want_in || (in && setup.request_type != kRequestTypeClassIn) ||
-      (!in && setup.request_type != kRequestTypeClassOut) || (!in && out_data.size() != setup.length)) {
+      (!in && setup.request_type != kRequestTypeClassOut) ||
+      (!in && out_data.size() != setup.length)) {
     return StallError(setup);
   }
   if (req == kGetState) {
-    if (state_ == kDfuDnBusy || state_ == kDfuManifest || state_ == kDfuManifestWaitReset) return StallError(setup);
+    if (state_ == kDfuDnBusy || state_ == kDfuManifest || state_ == kDfuManifestWaitReset)
+      return StallError(setup);
     return {false, {state_}};
   }
   if (req == kGetStatus && setup.length < 6) return StallError(setup);
@@ -177,8 +187,8 @@ ControlResponse DfuDevice::Handle(const SetupPacket& setup, std::span<const uint
         if (setup.length > options_.transfer_size) return StallError(setup);
         if (setup.value != next_block_) {
           backend_->AbortDownload();
-          Fail(kErrAddress, "block-sequence: got block " + std::to_string(setup.value) + ", expected " +
-                                std::to_string(next_block_));
+          Fail(kErrAddress, "block-sequence: got block " + std::to_string(setup.value) +
+                                ", expected " + std::to_string(next_block_));
           return {true, {}};
         }
         block_.assign(out_data.begin(), out_data.end());

@@ -66,8 +66,8 @@ struct DfuDeviceOptions {
   uint16_t transfer_size = 4096;      // wTransferSize (max DNLOAD data per request), bytes
   uint16_t detach_timeout_ms = 1000;  // wDetachTimeOut
   uint8_t attributes = kAttrCanDnload | kAttrManifestationTolerant;
-  bool report_busy = true;            // dfuDNBUSY after each block, as a device that programs flash does
-  int fixed_poll_ms = -1;             // ≥ 0: report this bwPollTimeout instead of the backend's model
+  bool report_busy = true;  // dfuDNBUSY after each block, as a device that programs flash does
+  int fixed_poll_ms = -1;   // ≥ 0: report this bwPollTimeout instead of the backend's model
   std::function<int64_t()> clock_ms;  // monotonic milliseconds; default std::chrono::steady_clock
   // Throws std::invalid_argument when transfer_size is 0 or upload is requested (not supported).
   void Check() const;
@@ -109,11 +109,12 @@ class DfuDevice {
   uint8_t state_ = kAppIdle;
   uint8_t status_ = kOk;
   std::string error_;
-  int64_t deadline_ms_ = 0;        // appDETACH timeout / end of dfuDNBUSY or dfuMANIFEST
+  int64_t deadline_ms_ = 0;  // appDETACH timeout / end of dfuDNBUSY or dfuMANIFEST
   uint16_t next_block_ = 0;
   bool block_written_ = false;
   bool manifest_done_ = false;
-  std::vector<uint8_t> block_;     // the block between DNLOAD and its GETSTATUS (wTransferSize bytes reserved)
+  std::vector<uint8_t>
+      block_;  // the block between DNLOAD and its GETSTATUS (wTransferSize bytes reserved)
 };
 
 }  // namespace d3d::dfu

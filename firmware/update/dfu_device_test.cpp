@@ -121,7 +121,7 @@ TEST_F(DfuDeviceTest, BlockFailureIsReportedByGetStatusWithTheReason) {
   EXPECT_EQ(s.state, kDfuError);
   EXPECT_EQ(s.status, kErrVerify);
   EXPECT_EQ(dev.last_error(), "payload-hash: bad");
-  EXPECT_TRUE(Out(kAbort, 0).stall);  // only CLRSTATUS leaves dfuERROR
+  EXPECT_TRUE(Out(kAbort, 0).stall);    // only CLRSTATUS leaves dfuERROR
   EXPECT_EQ(dev.status(), kErrVerify);  // the original reason is kept
 }
 
@@ -203,7 +203,8 @@ TEST_F(DfuDeviceTest, WrongDirectionAndUnknownRequestsStall) {
   EXPECT_TRUE(dev.Handle({kRequestTypeClassOut, kGetStatus, 0, 0, 0}, {}).stall);
   EXPECT_EQ(dev.state(), kDfuError);
   ASSERT_FALSE(Out(kClrStatus, 0).stall);
-  EXPECT_TRUE(dev.Handle({kRequestTypeClassIn, kUpload, 0, 0, 64}, {}).stall);  // upload not supported
+  EXPECT_TRUE(
+      dev.Handle({kRequestTypeClassIn, kUpload, 0, 0, 64}, {}).stall);  // upload not supported
   ASSERT_FALSE(Out(kClrStatus, 0).stall);
   EXPECT_TRUE(Out(9, 0).stall);
   EXPECT_EQ(dev.state(), kDfuError);

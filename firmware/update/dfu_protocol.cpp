@@ -6,79 +6,132 @@ namespace d3d::dfu {
 
 const char* StateName(uint8_t state) {
   switch (state) {
-    case kAppIdle: return "appIDLE";
-    case kAppDetach: return "appDETACH";
-    case kDfuIdle: return "dfuIDLE";
-    case kDfuDnloadSync: return "dfuDNLOAD-SYNC";
-    case kDfuDnBusy: return "dfuDNBUSY";
-    case kDfuDnloadIdle: return "dfuDNLOAD-IDLE";
-    case kDfuManifestSync: return "dfuMANIFEST-SYNC";
-    case kDfuManifest: return "dfuMANIFEST";
-    case kDfuManifestWaitReset: return "dfuMANIFEST-WAIT-RESET";
-    case kDfuUploadIdle: return "dfuUPLOAD-IDLE";
-    case kDfuError: return "dfuERROR";
+    case kAppIdle:
+      return "appIDLE";
+    case kAppDetach:
+      return "appDETACH";
+    case kDfuIdle:
+      return "dfuIDLE";
+    case kDfuDnloadSync:
+      return "dfuDNLOAD-SYNC";
+    case kDfuDnBusy:
+      return "dfuDNBUSY";
+    case kDfuDnloadIdle:
+      return "dfuDNLOAD-IDLE";
+    case kDfuManifestSync:
+      return "dfuMANIFEST-SYNC";
+    case kDfuManifest:
+      return "dfuMANIFEST";
+    case kDfuManifestWaitReset:
+      return "dfuMANIFEST-WAIT-RESET";
+    case kDfuUploadIdle:
+      return "dfuUPLOAD-IDLE";
+    case kDfuError:
+      return "dfuERROR";
   }
   return "state?";
 }
 
 const char* StatusName(uint8_t status) {
   switch (status) {
-    case kOk: return "OK";
-    case kErrTarget: return "errTARGET";
-    case kErrFile: return "errFILE";
-    case kErrWrite: return "errWRITE";
-    case kErrErase: return "errERASE";
-    case kErrCheckErased: return "errCHECK_ERASED";
-    case kErrProg: return "errPROG";
-    case kErrVerify: return "errVERIFY";
-    case kErrAddress: return "errADDRESS";
-    case kErrNotDone: return "errNOTDONE";
-    case kErrFirmware: return "errFIRMWARE";
-    case kErrVendor: return "errVENDOR";
-    case kErrUsbr: return "errUSBR";
-    case kErrPor: return "errPOR";
-    case kErrUnknown: return "errUNKNOWN";
-    case kErrStalledPkt: return "errSTALLEDPKT";
+    case kOk:
+      return "OK";
+    case kErrTarget:
+      return "errTARGET";
+    case kErrFile:
+      return "errFILE";
+    case kErrWrite:
+      return "errWRITE";
+    case kErrErase:
+      return "errERASE";
+    case kErrCheckErased:
+      return "errCHECK_ERASED";
+    case kErrProg:
+      return "errPROG";
+    case kErrVerify:
+      return "errVERIFY";
+    case kErrAddress:
+      return "errADDRESS";
+    case kErrNotDone:
+      return "errNOTDONE";
+    case kErrFirmware:
+      return "errFIRMWARE";
+    case kErrVendor:
+      return "errVENDOR";
+    case kErrUsbr:
+      return "errUSBR";
+    case kErrPor:
+      return "errPOR";
+    case kErrUnknown:
+      return "errUNKNOWN";
+    case kErrStalledPkt:
+      return "errSTALLEDPKT";
   }
   return "err?";
 }
 
 const char* StatusMeaning(uint8_t status) {
   switch (status) {
-    case kOk: return "no error";
-    case kErrTarget: return "file is not targeted for use by this device";
-    case kErrFile: return "file is for this device but fails a verification test";
-    case kErrWrite: return "device is unable to write memory";
-    case kErrErase: return "memory erase function failed";
-    case kErrCheckErased: return "memory erase check failed";
-    case kErrProg: return "program memory function failed";
-    case kErrVerify: return "programmed memory failed verification";
-    case kErrAddress: return "address out of range";
-    case kErrNotDone: return "device does not have all of the data yet";
-    case kErrFirmware: return "device firmware is corrupt";
-    case kErrVendor: return "vendor-specific error (see iString)";
-    case kErrUsbr: return "unexpected USB reset";
-    case kErrPor: return "unexpected power-on reset";
-    case kErrUnknown: return "unknown error";
-    case kErrStalledPkt: return "device stalled an unexpected request";
+    case kOk:
+      return "no error";
+    case kErrTarget:
+      return "file is not targeted for use by this device";
+    case kErrFile:
+      return "file is for this device but fails a verification test";
+    case kErrWrite:
+      return "device is unable to write memory";
+    case kErrErase:
+      return "memory erase function failed";
+    case kErrCheckErased:
+      return "memory erase check failed";
+    case kErrProg:
+      return "program memory function failed";
+    case kErrVerify:
+      return "programmed memory failed verification";
+    case kErrAddress:
+      return "address out of range";
+    case kErrNotDone:
+      return "device does not have all of the data yet";
+    case kErrFirmware:
+      return "device firmware is corrupt";
+    case kErrVendor:
+      return "vendor-specific error (see iString)";
+    case kErrUsbr:
+      return "unexpected USB reset";
+    case kErrPor:
+      return "unexpected power-on reset";
+    case kErrUnknown:
+      return "unknown error";
+    case kErrStalledPkt:
+      return "device stalled an unexpected request";
   }
   return "unknown status";
 }
 
 const char* BootStateName(BootState s) {
   switch (s) {
-    case BootState::kUnknown: return "unknown";
-    case BootState::kConfirmed: return "confirmed";
-    case BootState::kTrial: return "trial";
-    case BootState::kRolledBack: return "rolled back";
-    case BootState::kFallback: return "fallback";
+    case BootState::kUnknown:
+      return "unknown";
+    case BootState::kConfirmed:
+      return "confirmed";
+    case BootState::kTrial:
+      return "trial";
+    case BootState::kRolledBack:
+      return "rolled back";
+    case BootState::kFallback:
+      return "fallback";
   }
   return "unknown";
 }
 
 std::array<uint8_t, 8> SetupPacket::Encode() const {
-  return {request_type, request, static_cast<uint8_t>(value), static_cast<uint8_t>(value >> 8),
-          static_cast<uint8_t>(index), static_cast<uint8_t>(index >> 8), static_cast<uint8_t>(length),
+  return {request_type,
+          request,
+          static_cast<uint8_t>(value),
+          static_cast<uint8_t>(value >> 8),
+          static_cast<uint8_t>(index),
+          static_cast<uint8_t>(index >> 8),
+          static_cast<uint8_t>(length),
           static_cast<uint8_t>(length >> 8)};
 }
 
@@ -93,8 +146,12 @@ SetupPacket SetupPacket::Decode(std::span<const uint8_t, 8> b) {
 }
 
 std::array<uint8_t, 6> StatusReport::Encode() const {
-  return {status, static_cast<uint8_t>(poll_timeout_ms), static_cast<uint8_t>(poll_timeout_ms >> 8),
-          static_cast<uint8_t>(poll_timeout_ms >> 16), state, string_index};
+  return {status,
+          static_cast<uint8_t>(poll_timeout_ms),
+          static_cast<uint8_t>(poll_timeout_ms >> 8),
+          static_cast<uint8_t>(poll_timeout_ms >> 16),
+          state,
+          string_index};
 }
 
 StatusReport StatusReport::Decode(std::span<const uint8_t, 6> b) {
@@ -115,7 +172,9 @@ void Put16(std::vector<uint8_t>& v, size_t at, uint16_t x) {
 void Put32(std::vector<uint8_t>& v, size_t at, uint32_t x) {
   for (int i = 0; i < 4; ++i) v[at + i] = static_cast<uint8_t>(x >> (8 * i));
 }
-uint16_t Get16(std::span<const uint8_t> v, size_t at) { return static_cast<uint16_t>(v[at] | (v[at + 1] << 8)); }
+uint16_t Get16(std::span<const uint8_t> v, size_t at) {
+  return static_cast<uint16_t>(v[at] | (v[at + 1] << 8));
+}
 uint32_t Get32(std::span<const uint8_t> v, size_t at) {
   uint32_t x = 0;
   for (int i = 0; i < 4; ++i) x |= static_cast<uint32_t>(v[at + i]) << (8 * i);
@@ -179,7 +238,8 @@ std::vector<uint8_t> EncodeStringDescriptor(const std::string& ascii) {
 }
 
 bool DecodeStringDescriptor(std::span<const uint8_t> d, std::string* out) {
-  if (d.size() < 2 || d[1] != kDescString || d[0] < 2 || d[0] > d.size() || d[0] % 2 != 0) return false;
+  if (d.size() < 2 || d[1] != kDescString || d[0] < 2 || d[0] > d.size() || d[0] % 2 != 0)
+    return false;
   out->clear();
   for (size_t i = 2; i + 1 < d[0]; i += 2) {
     const uint16_t u = static_cast<uint16_t>(d[i] | (d[i + 1] << 8));

@@ -1,8 +1,8 @@
-// USB Device Firmware Upgrade 1.1 constants shared by the probe's DFU device (firmware/update) and the
-// host's DFU layer (host/flash), plus the d3dscan vendor requests and the sim link's wire format.
-// Source: USB Device Class Specification for Device Firmware Upgrade, Version 1.1 (USB-IF, 2004):
-// §3 Table 3.2 (requests), §4.1.3 / §4.2.4 Table 4.2 (functional descriptor), §6.1.2 (GETSTATUS
-// layout, status codes), Appendix A (state transition diagram and tables A.2.x).
+// USB Device Firmware Upgrade 1.1 constants shared by the probe's DFU device (firmware/update) and
+// the host's DFU layer (host/flash), plus the d3dscan vendor requests and the sim link's wire
+// format. Source: USB Device Class Specification for Device Firmware Upgrade, Version 1.1 (USB-IF,
+// 2004): §3 Table 3.2 (requests), §4.1.3 / §4.2.4 Table 4.2 (functional descriptor), §6.1.2
+// (GETSTATUS layout, status codes), Appendix A (state transition diagram and tables A.2.x).
 #pragma once
 
 #include <array>
@@ -14,11 +14,11 @@
 namespace d3d::dfu {
 
 // bmRequestType values used by DFU (class request to an interface) and by our vendor requests.
-inline constexpr uint8_t kRequestTypeClassOut = 0x21;   // host→device, class, interface
-inline constexpr uint8_t kRequestTypeClassIn = 0xA1;    // device→host, class, interface
-inline constexpr uint8_t kRequestTypeVendorOut = 0x41;  // host→device, vendor, interface
-inline constexpr uint8_t kRequestTypeVendorIn = 0xC1;   // device→host, vendor, interface
-inline constexpr uint8_t kRequestTypeStandardIn = 0x80; // device→host, standard, device
+inline constexpr uint8_t kRequestTypeClassOut = 0x21;    // host→device, class, interface
+inline constexpr uint8_t kRequestTypeClassIn = 0xA1;     // device→host, class, interface
+inline constexpr uint8_t kRequestTypeVendorOut = 0x41;   // host→device, vendor, interface
+inline constexpr uint8_t kRequestTypeVendorIn = 0xC1;    // device→host, vendor, interface
+inline constexpr uint8_t kRequestTypeStandardIn = 0x80;  // device→host, standard, device
 inline constexpr uint8_t kDirectionIn = 0x80;
 
 // DFU class requests (Table 3.2).
@@ -67,8 +67,8 @@ enum DfuStatus : uint8_t {
   kErrStalledPkt = 0x0F,   // device stalled an unexpected request
 };
 
-const char* StateName(uint8_t state);    // "dfuDNLOAD-IDLE"
-const char* StatusName(uint8_t status);  // "errVERIFY"
+const char* StateName(uint8_t state);       // "dfuDNLOAD-IDLE"
+const char* StatusName(uint8_t status);     // "errVERIFY"
 const char* StatusMeaning(uint8_t status);  // the spec's one-line description
 
 // DFU functional descriptor (Table 4.2), bDescriptorType 0x21, 9 bytes.
@@ -77,7 +77,7 @@ inline constexpr uint8_t kAttrCanDnload = 1 << 0;
 inline constexpr uint8_t kAttrCanUpload = 1 << 1;
 inline constexpr uint8_t kAttrManifestationTolerant = 1 << 2;
 inline constexpr uint8_t kAttrWillDetach = 1 << 3;
-inline constexpr uint8_t kInterfaceClassApp = 0xFE;   // application specific
+inline constexpr uint8_t kInterfaceClassApp = 0xFE;  // application specific
 inline constexpr uint8_t kInterfaceSubclassDfu = 0x01;
 inline constexpr uint8_t kProtocolRuntime = 0x01;
 inline constexpr uint8_t kProtocolDfuMode = 0x02;
@@ -139,13 +139,13 @@ const char* BootStateName(BootState s);
 
 struct FirmwareInfo {
   uint16_t major = 0, minor = 0, patch = 0;
-  uint8_t running_slot = 0;        // 0 = A, 1 = B
+  uint8_t running_slot = 0;  // 0 = A, 1 = B
   BootState boot_state = BootState::kUnknown;
   bool streaming = false;
   bool dfu_mode = false;
   uint32_t hw_id = 0;
-  uint32_t security_counter = 0;   // of the running image
-  uint32_t security_floor = 0;     // the probe refuses images with a lower counter
+  uint32_t security_counter = 0;  // of the running image
+  uint32_t security_floor = 0;    // the probe refuses images with a lower counter
   uint64_t slot_capacity_bytes = 0;
   std::string VersionString() const;
   std::vector<uint8_t> Encode() const;

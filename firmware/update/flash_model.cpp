@@ -13,13 +13,17 @@
 namespace d3d::fw {
 
 void FlashGeometry::Check() const {
-  D3D_CHECK_MSG(page_bytes > 0 && erase_block_bytes > 0 && size_bytes > 0, "flash geometry must be positive");
-  D3D_CHECK_MSG(erase_block_bytes % page_bytes == 0, "erase block " << erase_block_bytes << " not a multiple of page " << page_bytes);
-  D3D_CHECK_MSG(size_bytes % erase_block_bytes == 0, "flash size " << size_bytes << " not a multiple of the erase block");
+  D3D_CHECK_MSG(page_bytes > 0 && erase_block_bytes > 0 && size_bytes > 0,
+                "flash geometry must be positive");
+  D3D_CHECK_MSG(erase_block_bytes % page_bytes == 0,
+                "erase block " << erase_block_bytes << " not a multiple of page " << page_bytes);
+  D3D_CHECK_MSG(size_bytes % erase_block_bytes == 0,
+                "flash size " << size_bytes << " not a multiple of the erase block");
   D3D_CHECK_MSG(block_erase_ms >= 0 && page_program_ms >= 0, "flash timings must be non-negative");
 }
 
-Status Flash::OpenFile(const std::string& path, const FlashGeometry& g, std::unique_ptr<Flash>* out) {
+Status Flash::OpenFile(const std::string& path, const FlashGeometry& g,
+                       std::unique_ptr<Flash>* out) {
   g.Check();
   const int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
   if (fd < 0) return IoError("flash: cannot open " + path + ": " + std::strerror(errno));
@@ -33,10 +37,11 @@ Status Flash::OpenFile(const std::string& path, const FlashGeometry& g, std::uni
   if (st.st_size == 0) {
     // A new part: every byte erased.
     std::vector<uint8_t> ff(g.erase_block_bytes, 0xFF);
-    for (uint64_t a = 0; a < g.size_bytes; a += g.erase_block_bytes) D3D_RETURN_IF_ERROR(f->RawWrite(a, ff));
+    for (uint64_t a = 0; a < g.size_bytes; a += g.erase_block_bytes)
+      D3D_RETURN_IF_ERROR(f->RawWrite(a, ff));
   } else if (static_cast<uint64_t>(st.st_size) != g.size_bytes) {
-    return InvalidArgument("flash: " + path + " holds " + std::to_string(st.st_size) + " bytes, the geometry says " +
-                           std::to_string(g.size_bytes));
+    return InvalidArgument("flash: " + path + " holds " + std::to_string(st.st_size) +
+                           " bytes, the geometry says " + std::to_string(g.size_bytes));
   }
   *out = std::move(f);
   return Status::Ok();
@@ -83,8 +88,8 @@ bool Flash::TearNow() {
 Status Flash::Read(uint64_t addr, std::span<uint8_t> out) const {
   if (dead_) return Unavailable("flash: power cut");
   if (addr > geometry_.size_bytes || out.size() > geometry_.size_bytes - addr) {
-    return InvalidArgument("flash: read of " + std::to_string(out.size()) + " bytes at " + std::to_string(addr) +
-                           " is out of range");
+    return InvalidArgument("flash: read of " + std::to_string(out.size()) + " bytes at " +
+                           std::to_string(addr) + " is out of range");
   }
   return RawRead(addr, out);
 }
@@ -92,7 +97,8 @@ Status Flash::Read(uint64_t addr, std::span<uint8_t> out) const {
 Status Flash::EraseBlock(uint64_t addr) {
   if (dead_) return Unavailable("flash: power cut");
   if (addr % geometry_.erase_block_bytes != 0 || addr >= geometry_.size_bytes) {
-    return InvalidArgument("flash: erase at " + std::to_string(addr) + " is misaligned or out of range");
+    return InvalidArgument("flash: erase at " + std::to_string(addr) +
+                           " is misaligned or out of range");
   }
   std::vector<uint8_t> ff(geometry_.erase_block_bytes, 0xFF);
   if (TearNow()) {
@@ -106,9 +112,10 @@ Status Flash::EraseBlock(uint64_t addr) {
 Status Flash::Program(uint64_t addr, std::span<const uint8_t> data) {
   if (dead_) return Unavailable("flash: power cut");
   const uint32_t page = geometry_.page_bytes;
-  if (addr % page != 0 || addr > geometry_.size_bytes || data.size() > geometry_.size_bytes - addr) {
-    return InvalidArgument("flash: program of " + std::to_string(data.size()) + " bytes at " + std::to_string(addr) +
-                           " is misaligned or out of range");
+  if (addr % page != 0 || addr > geometry_.size_bytes ||
+      data.size() > geometry_.size_bytes - addr) {
+    return InvalidArgument("flash: program of " + std::to_string(data.size()) + " bytes at " +
+                           std::to_string(addr) + " is misaligned or out of range");
   }
   std::vector<uint8_t> current(data.size());
   D3D_RETURN_IF_ERROR(RawRead(addr, current));

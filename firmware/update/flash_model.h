@@ -38,7 +38,8 @@ struct FlashStats {
   int64_t block_erases = 0;
   int64_t page_programs = 0;
   double ModelledBusyMs(const FlashGeometry& g) const {
-    return static_cast<double>(block_erases) * g.block_erase_ms + static_cast<double>(page_programs) * g.page_program_ms;
+    return static_cast<double>(block_erases) * g.block_erase_ms +
+           static_cast<double>(page_programs) * g.page_program_ms;
   }
 };
 
@@ -46,7 +47,8 @@ class Flash {
  public:
   // Opens (or creates, fully erased) a file-backed flash of exactly geometry.size_bytes bytes.
   // Errors: kIoError if the file cannot be created/opened, kInvalidArgument if its size differs.
-  static Status OpenFile(const std::string& path, const FlashGeometry& geometry, std::unique_ptr<Flash>* out);
+  static Status OpenFile(const std::string& path, const FlashGeometry& geometry,
+                         std::unique_ptr<Flash>* out);
   // A fully erased flash in memory.
   static std::unique_ptr<Flash> InMemory(const FlashGeometry& geometry);
   ~Flash();
@@ -58,7 +60,8 @@ class Flash {
 
   // Reads out.size() bytes at addr. kInvalidArgument when out of range.
   Status Read(uint64_t addr, std::span<uint8_t> out) const;
-  // Erases the block starting at addr (block-aligned). kInvalidArgument when misaligned/out of range.
+  // Erases the block starting at addr (block-aligned). kInvalidArgument when misaligned/out of
+  // range.
   Status EraseBlock(uint64_t addr);
   // Programs data at addr (page-aligned; the last page may be partial). Every byte written must be
   // erased (0xFF) first: kCorrupt "not erased" otherwise (DFU errCHECK_ERASED).
@@ -68,7 +71,10 @@ class Flash {
   void CutPowerAfterOps(int64_t ops) { cut_after_ops_ = ops; }
   bool power_cut() const { return dead_; }
   // Power comes back (in-memory tests; a file-backed probe restarts as a new process instead).
-  void PowerCycle() { dead_ = false; cut_after_ops_ = -1; }
+  void PowerCycle() {
+    dead_ = false;
+    cut_after_ops_ = -1;
+  }
   int64_t ops() const { return ops_; }
 
  private:
@@ -79,8 +85,8 @@ class Flash {
   bool TearNow();
 
   FlashGeometry geometry_;
-  int fd_ = -1;                 // file-backed when >= 0
-  std::vector<uint8_t> mem_;    // memory-backed otherwise
+  int fd_ = -1;               // file-backed when >= 0
+  std::vector<uint8_t> mem_;  // memory-backed otherwise
   FlashStats stats_;
   int64_t ops_ = 0;
   int64_t cut_after_ops_ = -1;

@@ -62,7 +62,9 @@ TEST(Flash, PowerCutTearsTheOperationAndKillsTheRest) {
 }
 
 TEST(Flash, FileBackedContentSurvivesReopening) {
-  const std::string path = (std::filesystem::temp_directory_path() / ("d3d_flash_" + std::to_string(::getpid()))).string();
+  const std::string path =
+      (std::filesystem::temp_directory_path() / ("d3d_flash_" + std::to_string(::getpid())))
+          .string();
   std::filesystem::remove(path);
   {
     std::unique_ptr<Flash> f;

@@ -1,7 +1,7 @@
 #include "firmware/update/image_format.h"
 
-#include <sodium.h>
 #include <fcntl.h>
+#include <sodium.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -17,9 +17,16 @@ namespace d3d::fw {
 
 namespace {
 
-void Put16(uint8_t* p, uint16_t x) { p[0] = static_cast<uint8_t>(x); p[1] = static_cast<uint8_t>(x >> 8); }
-void Put32(uint8_t* p, uint32_t x) { for (int i = 0; i < 4; ++i) p[i] = static_cast<uint8_t>(x >> (8 * i)); }
-void Put64(uint8_t* p, uint64_t x) { for (int i = 0; i < 8; ++i) p[i] = static_cast<uint8_t>(x >> (8 * i)); }
+void Put16(uint8_t* p, uint16_t x) {
+  p[0] = static_cast<uint8_t>(x);
+  p[1] = static_cast<uint8_t>(x >> 8);
+}
+void Put32(uint8_t* p, uint32_t x) {
+  for (int i = 0; i < 4; ++i) p[i] = static_cast<uint8_t>(x >> (8 * i));
+}
+void Put64(uint8_t* p, uint64_t x) {
+  for (int i = 0; i < 8; ++i) p[i] = static_cast<uint8_t>(x >> (8 * i));
+}
 uint16_t Get16(const uint8_t* p) { return static_cast<uint16_t>(p[0] | (p[1] << 8)); }
 uint32_t Get32(const uint8_t* p) {
   uint32_t x = 0;
@@ -98,20 +105,34 @@ uint64_t ImageHeader::ImageSize() const {
 
 const char* RejectToken(Reject r) {
   switch (r) {
-    case Reject::kNone: return "ok";
-    case Reject::kTooShort: return "too-short";
-    case Reject::kBadMagic: return "bad-magic";
-    case Reject::kUnsupportedFormat: return "unsupported-format";
-    case Reject::kBadHeader: return "bad-header";
-    case Reject::kWrongHardware: return "wrong-hardware";
-    case Reject::kOversize: return "oversize";
-    case Reject::kDowngrade: return "downgrade";
-    case Reject::kTruncated: return "truncated";
-    case Reject::kTrailingData: return "trailing-data";
-    case Reject::kPayloadHash: return "payload-hash";
-    case Reject::kUnsigned: return "unsigned";
-    case Reject::kUnknownKey: return "unknown-key";
-    case Reject::kBadSignature: return "bad-signature";
+    case Reject::kNone:
+      return "ok";
+    case Reject::kTooShort:
+      return "too-short";
+    case Reject::kBadMagic:
+      return "bad-magic";
+    case Reject::kUnsupportedFormat:
+      return "unsupported-format";
+    case Reject::kBadHeader:
+      return "bad-header";
+    case Reject::kWrongHardware:
+      return "wrong-hardware";
+    case Reject::kOversize:
+      return "oversize";
+    case Reject::kDowngrade:
+      return "downgrade";
+    case Reject::kTruncated:
+      return "truncated";
+    case Reject::kTrailingData:
+      return "trailing-data";
+    case Reject::kPayloadHash:
+      return "payload-hash";
+    case Reject::kUnsigned:
+      return "unsigned";
+    case Reject::kUnknownKey:
+      return "unknown-key";
+    case Reject::kBadSignature:
+      return "bad-signature";
   }
   return "unknown";
 }
@@ -119,20 +140,34 @@ const char* RejectToken(Reject r) {
 uint8_t DfuStatusFor(Reject r) {
   // Values of dfu::DfuStatus (dfu_protocol.h); kept numeric so this library needs no DFU header.
   switch (r) {
-    case Reject::kNone: return 0x00;                // OK
-    case Reject::kTooShort: return 0x09;            // errNOTDONE
-    case Reject::kBadMagic: return 0x01;            // errTARGET
-    case Reject::kUnsupportedFormat: return 0x01;   // errTARGET
-    case Reject::kBadHeader: return 0x02;           // errFILE
-    case Reject::kWrongHardware: return 0x01;       // errTARGET
-    case Reject::kOversize: return 0x08;            // errADDRESS
-    case Reject::kDowngrade: return 0x02;           // errFILE
-    case Reject::kTruncated: return 0x09;           // errNOTDONE
-    case Reject::kTrailingData: return 0x08;        // errADDRESS
-    case Reject::kPayloadHash: return 0x07;         // errVERIFY
-    case Reject::kUnsigned: return 0x02;            // errFILE
-    case Reject::kUnknownKey: return 0x02;          // errFILE
-    case Reject::kBadSignature: return 0x02;        // errFILE
+    case Reject::kNone:
+      return 0x00;  // OK
+    case Reject::kTooShort:
+      return 0x09;  // errNOTDONE
+    case Reject::kBadMagic:
+      return 0x01;  // errTARGET
+    case Reject::kUnsupportedFormat:
+      return 0x01;  // errTARGET
+    case Reject::kBadHeader:
+      return 0x02;  // errFILE
+    case Reject::kWrongHardware:
+      return 0x01;  // errTARGET
+    case Reject::kOversize:
+      return 0x08;  // errADDRESS
+    case Reject::kDowngrade:
+      return 0x02;  // errFILE
+    case Reject::kTruncated:
+      return 0x09;  // errNOTDONE
+    case Reject::kTrailingData:
+      return 0x08;  // errADDRESS
+    case Reject::kPayloadHash:
+      return 0x07;  // errVERIFY
+    case Reject::kUnsigned:
+      return 0x02;  // errFILE
+    case Reject::kUnknownKey:
+      return 0x02;  // errFILE
+    case Reject::kBadSignature:
+      return 0x02;  // errFILE
   }
   return 0x0E;  // errUNKNOWN
 }
@@ -147,7 +182,8 @@ Verdict Verdict::Fail(Reject r, const std::string& details) {
 
 Verdict ParseHeader(std::span<const uint8_t> b, ImageHeader* out) {
   if (b.size() < kHeaderBytes) {
-    return Verdict::Fail(Reject::kTooShort, std::to_string(b.size()) + " bytes, a header needs 128");
+    return Verdict::Fail(Reject::kTooShort,
+                         std::to_string(b.size()) + " bytes, a header needs 128");
   }
   if (!std::equal(kImageMagic.begin(), kImageMagic.end(), b.begin())) {
     return Verdict::Fail(Reject::kBadMagic, "not a d3dscan firmware image (no D3DFWIMG magic)");
@@ -155,11 +191,14 @@ Verdict ParseHeader(std::span<const uint8_t> b, ImageHeader* out) {
   ImageHeader h;
   h.format_version = Get16(&b[8]);
   if (h.format_version != kImageFormatVersion) {
-    return Verdict::Fail(Reject::kUnsupportedFormat,
-                         "format version " + std::to_string(h.format_version) + ", this probe reads 1");
+    return Verdict::Fail(
+        Reject::kUnsupportedFormat,
+        "format version " + std::to_string(h.format_version) + ", this probe reads 1");
   }
-  if (Get16(&b[10]) != kHeaderBytes || !AllZero(&b[22], 2) || !AllZero(&b[28], 4) || !AllZero(&b[80], 48)) {
-    return Verdict::Fail(Reject::kBadHeader, "header size field or reserved bytes are not as format 1 defines");
+  if (Get16(&b[10]) != kHeaderBytes || !AllZero(&b[22], 2) || !AllZero(&b[28], 4) ||
+      !AllZero(&b[80], 48)) {
+    return Verdict::Fail(Reject::kBadHeader,
+                         "header size field or reserved bytes are not as format 1 defines");
   }
   h.hw_id = Get32(&b[12]);
   h.version = SemVer{Get16(&b[16]), Get16(&b[18]), Get16(&b[20])};
@@ -173,15 +212,17 @@ Verdict ParseHeader(std::span<const uint8_t> b, ImageHeader* out) {
 
 Verdict CheckPolicy(const ImageHeader& h, const ImagePolicy& p) {
   if (p.check_hw_id && h.hw_id != p.hw_id) {
-    return Verdict::Fail(Reject::kWrongHardware,
-                         "image is for hardware " + HwHex(h.hw_id) + ", this probe is " + HwHex(p.hw_id));
+    return Verdict::Fail(Reject::kWrongHardware, "image is for hardware " + HwHex(h.hw_id) +
+                                                     ", this probe is " + HwHex(p.hw_id));
   }
   if (h.ImageSize() > p.max_image_bytes) {
     return Verdict::Fail(Reject::kOversize, "image needs " + std::to_string(h.ImageSize()) +
-                                                " bytes, the slot holds " + std::to_string(p.max_image_bytes));
+                                                " bytes, the slot holds " +
+                                                std::to_string(p.max_image_bytes));
   }
   if (h.security_counter < p.min_security_counter) {
-    return Verdict::Fail(Reject::kDowngrade, "security counter " + std::to_string(h.security_counter) +
+    return Verdict::Fail(Reject::kDowngrade, "security counter " +
+                                                 std::to_string(h.security_counter) +
                                                  " is below the probe's floor " +
                                                  std::to_string(p.min_security_counter));
   }
@@ -221,7 +262,8 @@ Verdict VerifyImage(const ImageReader& read, uint64_t available, const PublicKey
   for (uint64_t off = 0; off < h.payload_size;) {
     const size_t n = static_cast<size_t>(std::min<uint64_t>(kChunkBytes, h.payload_size - off));
     if (!read(kHeaderBytes + off, std::span<uint8_t>(chunk.data(), n))) {
-      return Verdict::Fail(Reject::kTruncated, "could not read the payload at " + std::to_string(off));
+      return Verdict::Fail(Reject::kTruncated,
+                           "could not read the payload at " + std::to_string(off));
     }
     crypto_hash_sha256_update(&sha, chunk.data(), n);
     crypto_sign_update(&sig_state, chunk.data(), n);
@@ -230,7 +272,8 @@ Verdict VerifyImage(const ImageReader& read, uint64_t available, const PublicKey
   Sha256 digest;
   crypto_hash_sha256_final(&sha, digest.data());
   if (digest != h.payload_sha256) {
-    return Verdict::Fail(Reject::kPayloadHash, "payload SHA-256 " + Hex(std::span(digest).first(8)) +
+    return Verdict::Fail(Reject::kPayloadHash, "payload SHA-256 " +
+                                                   Hex(std::span(digest).first(8)) +
                                                    "… differs from the header's " +
                                                    Hex(std::span(h.payload_sha256).first(8)) + "…");
   }
@@ -238,20 +281,22 @@ Verdict VerifyImage(const ImageReader& read, uint64_t available, const PublicKey
   if (!read(kHeaderBytes + h.payload_size, sig)) {
     return Verdict::Fail(Reject::kTruncated, "could not read the signature");
   }
-  if (AllZero(sig.data(), sig.size())) return Verdict::Fail(Reject::kUnsigned, "the image carries no signature");
+  if (AllZero(sig.data(), sig.size()))
+    return Verdict::Fail(Reject::kUnsigned, "the image carries no signature");
   const KeyId trusted_id = KeyIdOf(trusted_key);
   if (h.key_id != trusted_id) {
-    return Verdict::Fail(Reject::kUnknownKey, "signed with key " + Hex(h.key_id) + ", the probe trusts " +
-                                                  Hex(trusted_id));
+    return Verdict::Fail(Reject::kUnknownKey, "signed with key " + Hex(h.key_id) +
+                                                  ", the probe trusts " + Hex(trusted_id));
   }
   if (crypto_sign_final_verify(&sig_state, sig.data(), trusted_key.data()) != 0) {
-    return Verdict::Fail(Reject::kBadSignature, "Ed25519 signature does not verify: image modified");
+    return Verdict::Fail(Reject::kBadSignature,
+                         "Ed25519 signature does not verify: image modified");
   }
   return {};
 }
 
-Verdict VerifyImageBytes(std::span<const uint8_t> image, const PublicKey& trusted_key, const ImagePolicy& policy,
-                         ImageHeader* header_out) {
+Verdict VerifyImageBytes(std::span<const uint8_t> image, const PublicKey& trusted_key,
+                         const ImagePolicy& policy, ImageHeader* header_out) {
   auto read = [image](uint64_t off, std::span<uint8_t> out) {
     if (off > image.size() || out.size() > image.size() - off) return false;
     std::memcpy(out.data(), image.data() + off, out.size());
@@ -260,7 +305,8 @@ Verdict VerifyImageBytes(std::span<const uint8_t> image, const PublicKey& truste
   return VerifyImage(read, image.size(), trusted_key, policy, header_out);
 }
 
-std::vector<uint8_t> BuildImage(ImageHeader h, std::span<const uint8_t> payload, const SecretKey* sk) {
+std::vector<uint8_t> BuildImage(ImageHeader h, std::span<const uint8_t> payload,
+                                const SecretKey* sk) {
   EnsureSodium();
   h.format_version = kImageFormatVersion;
   h.payload_size = payload.size();
@@ -321,9 +367,11 @@ namespace {
 constexpr const char* kSecretKind = "d3dscan ed25519 secret key v1";
 constexpr const char* kPublicKind = "d3dscan ed25519 public key v1";
 
-Status SaveKey(const std::string& path, const char* kind, std::span<const uint8_t> key, bool secret) {
+Status SaveKey(const std::string& path, const char* kind, std::span<const uint8_t> key,
+               bool secret) {
   // Created with its final mode, so a secret key is never readable by others, not even briefly.
-  const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, secret ? 0600 : 0644);
+  const int fd =
+      ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, secret ? 0600 : 0644);
   if (fd < 0) return IoError("cannot write " + path);
   std::string text = kind;
   text.append("\n").append(Hex(key)).append("\n");
@@ -353,9 +401,17 @@ Status LoadKey(const std::string& path, const char* kind, std::span<uint8_t> key
 
 }  // namespace
 
-Status SaveSecretKey(const std::string& path, const SecretKey& sk) { return SaveKey(path, kSecretKind, sk, true); }
-Status SavePublicKey(const std::string& path, const PublicKey& pk) { return SaveKey(path, kPublicKind, pk, false); }
-Status LoadSecretKey(const std::string& path, SecretKey* sk) { return LoadKey(path, kSecretKind, *sk); }
-Status LoadPublicKey(const std::string& path, PublicKey* pk) { return LoadKey(path, kPublicKind, *pk); }
+Status SaveSecretKey(const std::string& path, const SecretKey& sk) {
+  return SaveKey(path, kSecretKind, sk, true);
+}
+Status SavePublicKey(const std::string& path, const PublicKey& pk) {
+  return SaveKey(path, kPublicKind, pk, false);
+}
+Status LoadSecretKey(const std::string& path, SecretKey* sk) {
+  return LoadKey(path, kSecretKind, *sk);
+}
+Status LoadPublicKey(const std::string& path, PublicKey* pk) {
+  return LoadKey(path, kPublicKind, *pk);
+}
 
 }  // namespace d3d::fw

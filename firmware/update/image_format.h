@@ -41,8 +41,8 @@ inline constexpr size_t kSignatureBytes = 64;
 inline constexpr size_t kKeyIdBytes = 8;
 inline constexpr size_t kImageOverheadBytes = kHeaderBytes + kSignatureBytes;
 
-using PublicKey = std::array<uint8_t, 32>;   // Ed25519 public key
-using SecretKey = std::array<uint8_t, 64>;   // libsodium Ed25519 secret key (seed ‖ public key)
+using PublicKey = std::array<uint8_t, 32>;  // Ed25519 public key
+using SecretKey = std::array<uint8_t, 64>;  // libsodium Ed25519 secret key (seed ‖ public key)
 using KeyId = std::array<uint8_t, kKeyIdBytes>;
 using Sha256 = std::array<uint8_t, 32>;
 
@@ -71,19 +71,19 @@ struct ImageHeader {
 // Why a probe refuses an image. Order = order of the checks.
 enum class Reject : uint8_t {
   kNone = 0,
-  kTooShort,          // fewer than 128 bytes: no complete header
-  kBadMagic,          // not a d3dscan firmware image
-  kUnsupportedFormat, // format version this probe does not know
-  kBadHeader,         // header size field or reserved bytes wrong
-  kWrongHardware,     // hardware compatibility id differs from the probe's
-  kOversize,          // image larger than the probe's slot
-  kDowngrade,         // security counter below the probe's anti-rollback floor
-  kTruncated,         // fewer bytes than the header announces
-  kTrailingData,      // more bytes than the header announces
-  kPayloadHash,       // payload SHA-256 differs from the header's
-  kUnsigned,          // the signature block is all zero
-  kUnknownKey,        // signed with a key this probe does not trust (key id differs)
-  kBadSignature,      // key id matches but the signature does not verify (modified image)
+  kTooShort,           // fewer than 128 bytes: no complete header
+  kBadMagic,           // not a d3dscan firmware image
+  kUnsupportedFormat,  // format version this probe does not know
+  kBadHeader,          // header size field or reserved bytes wrong
+  kWrongHardware,      // hardware compatibility id differs from the probe's
+  kOversize,           // image larger than the probe's slot
+  kDowngrade,          // security counter below the probe's anti-rollback floor
+  kTruncated,          // fewer bytes than the header announces
+  kTrailingData,       // more bytes than the header announces
+  kPayloadHash,        // payload SHA-256 differs from the header's
+  kUnsigned,           // the signature block is all zero
+  kUnknownKey,         // signed with a key this probe does not trust (key id differs)
+  kBadSignature,       // key id matches but the signature does not verify (modified image)
 };
 // Stable token naming the reason ("bad-signature"); used in messages and by tests.
 const char* RejectToken(Reject r);
@@ -134,7 +134,7 @@ std::string Hex(std::span<const uint8_t> bytes);
 // Key generation and key files. Files are text: a first line naming the kind
 // ("d3dscan ed25519 secret key v1" / "d3dscan ed25519 public key v1") and a hex line.
 // The secret key file is written with mode 0600.
-void GenerateKeyPair(PublicKey* pk, SecretKey* sk);                          // OS randomness
+void GenerateKeyPair(PublicKey* pk, SecretKey* sk);  // OS randomness
 void KeyPairFromSeed(std::span<const uint8_t, 32> seed, PublicKey* pk, SecretKey* sk);  // tests
 Status SaveSecretKey(const std::string& path, const SecretKey& sk);
 Status SavePublicKey(const std::string& path, const PublicKey& pk);

@@ -133,7 +133,8 @@ TEST(ImageFormat, SemVerParsing) {
 }
 
 TEST(ImageFormat, KeyFilesRoundTripAndTheSecretKeyIsPrivate) {
-  const auto dir = std::filesystem::temp_directory_path() / ("d3d_keys_" + std::to_string(::getpid()));
+  const auto dir =
+      std::filesystem::temp_directory_path() / ("d3d_keys_" + std::to_string(::getpid()));
   std::filesystem::create_directories(dir);
   const auto k = MakeTestKey(3);
   const PublicKey& pk = k.pk;

@@ -16,7 +16,9 @@ namespace {
 
 struct Fd {
   int fd = -1;
-  ~Fd() { if (fd >= 0) ::close(fd); }
+  ~Fd() {
+    if (fd >= 0) ::close(fd);
+  }
 };
 
 // Serves one connected host until it disconnects or resets the bus. Returns false when the flash
@@ -27,7 +29,8 @@ bool ServeClient(int fd, UpdateAgent* agent, const SimLinkServerOptions& o) {
   for (;;) {
     std::array<uint8_t, 9> head;
     if (!dfu::ReadFull(fd, head).ok()) return true;
-    const dfu::SetupPacket setup = dfu::SetupPacket::Decode(std::span<const uint8_t, 8>(head.data() + 1, 8));
+    const dfu::SetupPacket setup =
+        dfu::SetupPacket::Decode(std::span<const uint8_t, 8>(head.data() + 1, 8));
     if (head[0] == dfu::kKindBusReset) {
       (void)dfu::WriteFull(fd, dfu::EncodeResponse(false, {}));
       ::shutdown(fd, SHUT_RDWR);
@@ -47,18 +50,21 @@ bool ServeClient(int fd, UpdateAgent* agent, const SimLinkServerOptions& o) {
 
 }  // namespace
 
-Status ServeSimLink(UpdateAgent* agent, const SimLinkServerOptions& o, const std::atomic<bool>* stop) {
+Status ServeSimLink(UpdateAgent* agent, const SimLinkServerOptions& o,
+                    const std::atomic<bool>* stop) {
   sockaddr_un addr{};
   addr.sun_family = AF_UNIX;
   if (o.socket_path.empty() || o.socket_path.size() >= sizeof(addr.sun_path)) {
-    return InvalidArgument("sim link: socket path empty or longer than " + std::to_string(sizeof(addr.sun_path) - 1));
+    return InvalidArgument("sim link: socket path empty or longer than " +
+                           std::to_string(sizeof(addr.sun_path) - 1));
   }
   std::memcpy(addr.sun_path, o.socket_path.c_str(), o.socket_path.size() + 1);
   Fd listener;
   listener.fd = ::socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
   if (listener.fd < 0) return IoError(std::string("sim link: socket: ") + std::strerror(errno));
   ::unlink(o.socket_path.c_str());
-  if (::bind(listener.fd, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)) != 0 || ::listen(listener.fd, 4) != 0) {
+  if (::bind(listener.fd, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)) != 0 ||
+      ::listen(listener.fd, 4) != 0) {
     return IoError("sim link: cannot listen on " + o.socket_path + ": " + std::strerror(errno));
   }
   while (!stop->load()) {

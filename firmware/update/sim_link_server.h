@@ -23,6 +23,7 @@ struct SimLinkServerOptions {
 };
 
 // Serves until *stop becomes true (checked every 100 ms). kIoError when the socket cannot be bound.
-Status ServeSimLink(UpdateAgent* agent, const SimLinkServerOptions& options, const std::atomic<bool>* stop);
+Status ServeSimLink(UpdateAgent* agent, const SimLinkServerOptions& options,
+                    const std::atomic<bool>* stop);
 
 }  // namespace d3d::fw

@@ -15,7 +15,8 @@ Status ReadFull(int fd, std::span<uint8_t> buf) {
     if (n == 0) return Unavailable("peer closed the link");
     if (n < 0) {
       if (errno == EINTR) continue;
-      if (errno == EAGAIN || errno == EWOULDBLOCK) return Unavailable("timed out waiting for the peer");
+      if (errno == EAGAIN || errno == EWOULDBLOCK)
+        return Unavailable("timed out waiting for the peer");
       if (errno == ECONNRESET) return Unavailable("peer reset the link");
       return IoError(std::string("recv: ") + std::strerror(errno));
     }
@@ -38,7 +39,8 @@ Status WriteFull(int fd, std::span<const uint8_t> buf) {
   return Status::Ok();
 }
 
-std::vector<uint8_t> EncodeRequest(uint8_t kind, const SetupPacket& setup, std::span<const uint8_t> out_data) {
+std::vector<uint8_t> EncodeRequest(uint8_t kind, const SetupPacket& setup,
+                                   std::span<const uint8_t> out_data) {
   std::vector<uint8_t> f;
   f.reserve(9 + out_data.size());
   f.push_back(kind);

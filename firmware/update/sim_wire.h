@@ -20,7 +20,8 @@ Status ReadFull(int fd, std::span<uint8_t> buf);
 Status WriteFull(int fd, std::span<const uint8_t> buf);
 
 // One request frame: kind, SETUP, OUT data.
-std::vector<uint8_t> EncodeRequest(uint8_t kind, const SetupPacket& setup, std::span<const uint8_t> out_data);
+std::vector<uint8_t> EncodeRequest(uint8_t kind, const SetupPacket& setup,
+                                   std::span<const uint8_t> out_data);
 // One response frame: result, length, IN data.
 std::vector<uint8_t> EncodeResponse(bool stall, std::span<const uint8_t> in_data);
 

@@ -13,8 +13,10 @@ const char* SlotName(int s) { return s == 0 ? "A" : "B"; }
 
 void SlotManagerOptions::Check(const FlashGeometry& g) const {
   D3D_CHECK_MSG(slot_bytes > 0 && slot_bytes % g.erase_block_bytes == 0,
-                "slot size " << slot_bytes << " must be a positive multiple of the erase block " << g.erase_block_bytes);
-  D3D_CHECK_MSG(slot_bytes > kImageOverheadBytes, "slot size " << slot_bytes << " cannot hold an image");
+                "slot size " << slot_bytes << " must be a positive multiple of the erase block "
+                             << g.erase_block_bytes);
+  D3D_CHECK_MSG(slot_bytes > kImageOverheadBytes,
+                "slot size " << slot_bytes << " cannot hold an image");
   D3D_CHECK_MSG(trial_boots >= 1, "a new slot needs at least one trial boot");
 }
 
@@ -24,17 +26,22 @@ FlashGeometry SlotFlashGeometry(FlashGeometry base, uint64_t slot_bytes) {
 }
 
 UpdateResult UpdateResult::Reject(const Verdict& v) { return {DfuStatusFor(v.reason), v.message}; }
-UpdateResult UpdateResult::Error(uint8_t dfu_status, std::string message) { return {dfu_status, std::move(message)}; }
+UpdateResult UpdateResult::Error(uint8_t dfu_status, std::string message) {
+  return {dfu_status, std::move(message)};
+}
 
-SlotManager::SlotManager(Flash* flash, const PublicKey& trusted_key, const SlotManagerOptions& options)
+SlotManager::SlotManager(Flash* flash, const PublicKey& trusted_key,
+                         const SlotManagerOptions& options)
     : flash_(flash), key_(trusted_key), options_(options), store_(flash) {
   options_.Check(flash->geometry());
   D3D_CHECK_MSG(flash->geometry().size_bytes >= SlotOffset(1) + options_.slot_bytes,
-                "flash of " << flash->geometry().size_bytes << " bytes cannot hold two slots of " << options_.slot_bytes);
+                "flash of " << flash->geometry().size_bytes << " bytes cannot hold two slots of "
+                            << options_.slot_bytes);
 }
 
 uint64_t SlotManager::SlotOffset(int slot) const {
-  return BootControlStore::RegionBytes(flash_->geometry()) + static_cast<uint64_t>(slot) * options_.slot_bytes;
+  return BootControlStore::RegionBytes(flash_->geometry()) +
+         static_cast<uint64_t>(slot) * options_.slot_bytes;
 }
 
 Status SlotManager::LoadRecord() { return store_.Load(&record_); }
@@ -66,7 +73,8 @@ Status SlotManager::Provision(std::span<const uint8_t> image) {
   if (!v.ok()) return InvalidArgument("provisioning image refused: " + v.message);
   D3D_RETURN_IF_ERROR(LoadRecord());
   const uint32_t eb = flash_->geometry().erase_block_bytes;
-  for (uint64_t a = 0; a < image.size(); a += eb) D3D_RETURN_IF_ERROR(flash_->EraseBlock(SlotOffset(0) + a));
+  for (uint64_t a = 0; a < image.size(); a += eb)
+    D3D_RETURN_IF_ERROR(flash_->EraseBlock(SlotOffset(0) + a));
   D3D_RETURN_IF_ERROR(flash_->Program(SlotOffset(0), image));
   BootRecord r;
   r.active_slot = 0;
@@ -79,7 +87,8 @@ Status SlotManager::Provision(std::span<const uint8_t> image) {
 
 Verdict SlotManager::VerifySlot(int slot, ImageHeader* header) {
   std::array<uint8_t, kHeaderBytes> hb;
-  if (!flash_->Read(SlotOffset(slot), hb).ok()) return Verdict::Fail(Reject::kTruncated, "cannot read the slot");
+  if (!flash_->Read(SlotOffset(slot), hb).ok())
+    return Verdict::Fail(Reject::kTruncated, "cannot read the slot");
   ImageHeader h;
   Verdict v = ParseHeader(hb, &h);
   if (!v.ok()) return v;
@@ -92,7 +101,8 @@ Verdict SlotManager::VerifySlot(int slot, ImageHeader* header) {
 }
 
 bool SlotManager::on_trial() const {
-  return running_.booted && running_.event == BootEvent::kUpdated && record_ && record_->trial_slot == running_.slot;
+  return running_.booted && running_.event == BootEvent::kUpdated && record_ &&
+         record_->trial_slot == running_.slot;
 }
 
 Status SlotManager::Boot(BootOutcome* out) {
@@ -111,17 +121,19 @@ Status SlotManager::Boot(BootOutcome* out) {
     ImageHeader h;
     Verdict v;
     v.message = "slot is not marked bootable";
-    if (r.trial_boots_left > 0 && r.slots[t].state == SlotState::kBootable && (v = VerifySlot(t, &h)).ok()) {
+    if (r.trial_boots_left > 0 && r.slots[t].state == SlotState::kBootable &&
+        (v = VerifySlot(t, &h)).ok()) {
       --r.trial_boots_left;  // counted before running it: a crash during the trial uses it up
       D3D_RETURN_IF_ERROR(WriteRecord());
       running_ = {true, static_cast<uint8_t>(t), h, BootEvent::kUpdated,
-                  std::string("trial boot of slot ") + SlotName(t) + " (" + h.version.ToString() + ", " +
-                      std::to_string(r.trial_boots_left) + " trial boots left)"};
+                  std::string("trial boot of slot ") + SlotName(t) + " (" + h.version.ToString() +
+                      ", " + std::to_string(r.trial_boots_left) + " trial boots left)"};
       *out = running_;
       return Status::Ok();
     }
     log = std::string("slot ") + SlotName(t) + " did not confirm its trial (" +
-          (r.trial_boots_left == 0 ? std::string("no trial boots left") : v.message) + "): rolled back; ";
+          (r.trial_boots_left == 0 ? std::string("no trial boots left") : v.message) +
+          "): rolled back; ";
     r.slots[t].state = SlotState::kFailed;
     r.trial_slot = kNoSlot;
     r.trial_boots_left = 0;
@@ -134,7 +146,11 @@ Status SlotManager::Boot(BootOutcome* out) {
     ImageHeader h;
     const Verdict v = VerifySlot(s, &h);
     if (!v.ok()) {
-      log.append("slot ").append(SlotName(s)).append(" fails verification (").append(v.message).append("); ");
+      log.append("slot ")
+          .append(SlotName(s))
+          .append(" fails verification (")
+          .append(v.message)
+          .append("); ");
       continue;
     }
     if (s != first) {
@@ -142,8 +158,9 @@ Status SlotManager::Boot(BootOutcome* out) {
       r.last_event = BootEvent::kFallback;
       D3D_RETURN_IF_ERROR(WriteRecord());
     }
-    const BootEvent ev = r.last_event == BootEvent::kNone || r.last_event == BootEvent::kUpdated ? BootEvent::kConfirmed
-                                                                                               : r.last_event;
+    const BootEvent ev = r.last_event == BootEvent::kNone || r.last_event == BootEvent::kUpdated
+                             ? BootEvent::kConfirmed
+                             : r.last_event;
     running_ = {true, static_cast<uint8_t>(s), h, ev,
                 log + "boot of slot " + SlotName(s) + " (" + h.version.ToString() + ")"};
     *out = running_;
@@ -164,7 +181,8 @@ Status SlotManager::Confirm() {
   r.last_event = BootEvent::kConfirmed;
   r.security_floor = std::max(r.security_floor, running_.header.security_counter);
   SlotRecord& other = r.slots[1 - s];
-  if (other.state == SlotState::kBootable && other.security_counter < r.security_floor) other.state = SlotState::kEmpty;
+  if (other.state == SlotState::kBootable && other.security_counter < r.security_floor)
+    other.state = SlotState::kEmpty;
   D3D_RETURN_IF_ERROR(WriteRecord());
   running_.event = BootEvent::kConfirmed;
   return Status::Ok();
@@ -189,7 +207,8 @@ UpdateResult SlotManager::FlashError(const Status& s, uint8_t dfu_status) const 
 UpdateResult SlotManager::BeginUpdate() {
   if (!running_.booted) return UpdateResult::Error(kErrFirmware, "no running firmware");
   if (on_trial()) {
-    return UpdateResult::Error(kErrVendor, "busy: the running firmware " + running_.header.version.ToString() +
+    return UpdateResult::Error(kErrVendor, "busy: the running firmware " +
+                                               running_.header.version.ToString() +
                                                " has not confirmed its trial boot yet");
   }
   target_ = 1 - running_.slot;
@@ -211,10 +230,13 @@ UpdateResult SlotManager::BeginUpdate() {
 double SlotManager::ModelledWriteMs(uint64_t len) const {
   const FlashGeometry& g = flash_->geometry();
   const uint64_t end = received_ + len;
-  const uint64_t blocks_end = (end + g.erase_block_bytes - 1) / g.erase_block_bytes * g.erase_block_bytes;
-  const uint64_t new_blocks = blocks_end > erased_end_ ? (blocks_end - erased_end_) / g.erase_block_bytes : 0;
+  const uint64_t blocks_end =
+      (end + g.erase_block_bytes - 1) / g.erase_block_bytes * g.erase_block_bytes;
+  const uint64_t new_blocks =
+      blocks_end > erased_end_ ? (blocks_end - erased_end_) / g.erase_block_bytes : 0;
   const uint64_t pages = (pending_.size() + len) / g.page_bytes;
-  return static_cast<double>(new_blocks) * g.block_erase_ms + static_cast<double>(pages) * g.page_program_ms;
+  return static_cast<double>(new_blocks) * g.block_erase_ms +
+         static_cast<double>(pages) * g.page_program_ms;
 }
 
 UpdateResult SlotManager::ProgramPages(std::span<const uint8_t> data) {
@@ -232,7 +254,8 @@ UpdateResult SlotManager::ProgramPages(std::span<const uint8_t> data) {
     erased_end_ += g.erase_block_bytes;
   }
   if (n > 0) {
-    const Status s = flash_->Program(SlotOffset(target_) + programmed_, std::span<const uint8_t>(buf).first(n));
+    const Status s =
+        flash_->Program(SlotOffset(target_) + programmed_, std::span<const uint8_t>(buf).first(n));
     if (!s.ok()) return FlashError(s, kErrProg);
   }
   programmed_ += n;
@@ -248,7 +271,8 @@ UpdateResult SlotManager::WriteChunk(std::span<const uint8_t> data) {
   };
   if (data.size() > options_.slot_bytes - received_) {
     return fail(UpdateResult::Reject(Verdict::Fail(
-        Reject::kOversize, "more than the slot's " + std::to_string(options_.slot_bytes) + " bytes received")));
+        Reject::kOversize,
+        "more than the slot's " + std::to_string(options_.slot_bytes) + " bytes received")));
   }
   if (!header_) {
     const size_t take = std::min(data.size(), kHeaderBytes - header_bytes_.size());
@@ -303,6 +327,5 @@ void SlotManager::AbortUpdate() {
   updating_ = false;
   pending_.clear();
 }
-
 
 }  // namespace d3d::fw

@@ -31,9 +31,9 @@
 namespace d3d::fw {
 
 struct SlotManagerOptions {
-  uint32_t hw_id = 0x0001;                 // this probe's hardware compatibility id
-  uint64_t slot_bytes = 20ull << 20;       // capacity of each slot (≥ the largest image), bytes
-  uint8_t trial_boots = 2;                 // boots a new slot gets to confirm itself
+  uint32_t hw_id = 0x0001;            // this probe's hardware compatibility id
+  uint64_t slot_bytes = 20ull << 20;  // capacity of each slot (≥ the largest image), bytes
+  uint8_t trial_boots = 2;            // boots a new slot gets to confirm itself
   // Throws std::invalid_argument unless slot_bytes is a positive multiple of the erase block.
   void Check(const FlashGeometry& g) const;
 };
@@ -43,19 +43,19 @@ FlashGeometry SlotFlashGeometry(FlashGeometry base, uint64_t slot_bytes);
 
 // Outcome of an update step: DFU bStatus (0 = ok) and the exact reason.
 struct UpdateResult {
-  uint8_t dfu_status = 0;   // dfu::DfuStatus value
-  std::string message;      // "<token>: <details>"
+  uint8_t dfu_status = 0;  // dfu::DfuStatus value
+  std::string message;     // "<token>: <details>"
   bool ok() const { return dfu_status == 0; }
   static UpdateResult Reject(const Verdict& v);
   static UpdateResult Error(uint8_t dfu_status, std::string message);
 };
 
 struct BootOutcome {
-  bool booted = false;            // false: no slot holds a good image (must never happen once provisioned)
+  bool booted = false;  // false: no slot holds a good image (must never happen once provisioned)
   uint8_t slot = 0;
-  ImageHeader header;             // of the running image
+  ImageHeader header;                  // of the running image
   BootEvent event = BootEvent::kNone;  // kUpdated = trial boot, kRolledBack, kFallback, kConfirmed
-  std::string message;            // what the bootloader did, for logs
+  std::string message;                 // what the bootloader did, for logs
 };
 
 class SlotManager {
@@ -123,9 +123,9 @@ class SlotManager {
   bool updating_ = false;
   int target_ = 1;
   uint64_t received_ = 0;
-  uint64_t programmed_ = 0;        // bytes programmed into the slot (page-aligned until the end)
-  uint64_t erased_end_ = 0;        // slot-relative end of the erased region
-  std::vector<uint8_t> pending_;   // partial page not yet programmed (< page_bytes)
+  uint64_t programmed_ = 0;       // bytes programmed into the slot (page-aligned until the end)
+  uint64_t erased_end_ = 0;       // slot-relative end of the erased region
+  std::vector<uint8_t> pending_;  // partial page not yet programmed (< page_bytes)
   std::vector<uint8_t> header_bytes_;
   std::optional<ImageHeader> header_;
 };

@@ -75,7 +75,8 @@ TEST_F(SlotManagerTest, UpdateTrialBootConfirm) {
   EXPECT_EQ(b.slot, 1);
   EXPECT_EQ(b.header.version, (SemVer{1, 1, 0}));
   EXPECT_EQ(b.event, BootEvent::kConfirmed);
-  EXPECT_EQ(mgr->record()->slots[0].state, SlotState::kBootable);  // same counter: v1.0 stays as fallback
+  EXPECT_EQ(mgr->record()->slots[0].state,
+            SlotState::kBootable);  // same counter: v1.0 stays as fallback
 }
 
 TEST_F(SlotManagerTest, UnhealthyTrialRollsBack) {

@@ -31,8 +31,8 @@ inline std::vector<uint8_t> MakePayload(size_t bytes, uint32_t seed) {
   return p;
 }
 
-inline std::vector<uint8_t> MakeImage(const TestKey* key, SemVer version, uint32_t counter, uint32_t hw_id,
-                                      size_t payload_bytes, uint32_t seed = 7) {
+inline std::vector<uint8_t> MakeImage(const TestKey* key, SemVer version, uint32_t counter,
+                                      uint32_t hw_id, size_t payload_bytes, uint32_t seed = 7) {
   ImageHeader h;
   h.hw_id = hw_id;
   h.version = version;

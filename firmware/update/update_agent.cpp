@@ -16,7 +16,8 @@ void Put16(std::vector<uint8_t>& v, uint16_t x) {
 const char* SlotLetter(int s) { return s == 0 ? "A" : "B"; }
 }  // namespace
 
-UpdateAgent::UpdateAgent(Flash* flash, const PublicKey& trusted_key, UpdateAgentOptions options, ProbeHooks* hooks)
+UpdateAgent::UpdateAgent(Flash* flash, const PublicKey& trusted_key, UpdateAgentOptions options,
+                         ProbeHooks* hooks)
     : flash_(flash),
       options_(std::move(options)),
       hooks_(hooks),
@@ -63,11 +64,19 @@ dfu::FirmwareInfo UpdateAgent::Info() const {
   f.patch = b.header.version.patch;
   f.running_slot = b.slot;
   switch (b.event) {
-    case BootEvent::kUpdated: f.boot_state = dfu::BootState::kTrial; break;
-    case BootEvent::kRolledBack: f.boot_state = dfu::BootState::kRolledBack; break;
-    case BootEvent::kFallback: f.boot_state = dfu::BootState::kFallback; break;
+    case BootEvent::kUpdated:
+      f.boot_state = dfu::BootState::kTrial;
+      break;
+    case BootEvent::kRolledBack:
+      f.boot_state = dfu::BootState::kRolledBack;
+      break;
+    case BootEvent::kFallback:
+      f.boot_state = dfu::BootState::kFallback;
+      break;
     case BootEvent::kConfirmed:
-    case BootEvent::kNone: f.boot_state = b.booted ? dfu::BootState::kConfirmed : dfu::BootState::kUnknown; break;
+    case BootEvent::kNone:
+      f.boot_state = b.booted ? dfu::BootState::kConfirmed : dfu::BootState::kUnknown;
+      break;
   }
   f.streaming = hooks_->IsStreaming();
   f.dfu_mode = dfu_.dfu_mode();
@@ -80,7 +89,7 @@ dfu::FirmwareInfo UpdateAgent::Info() const {
 
 std::vector<uint8_t> UpdateAgent::DeviceDescriptor() const {
   std::vector<uint8_t> d = {18, dfu::kDescDevice};
-  Put16(d, 0x0200);          // bcdUSB 2.0
+  Put16(d, 0x0200);                  // bcdUSB 2.0
   d.insert(d.end(), {0, 0, 0, 64});  // class/subclass/protocol per interface, EP0 max packet 64
   Put16(d, options_.vendor_id);
   Put16(d, options_.product_id);
@@ -94,8 +103,9 @@ std::vector<uint8_t> UpdateAgent::ConfigurationDescriptor() const {
   std::vector<uint8_t> d = {9, dfu::kDescConfiguration};
   Put16(d, 27);
   d.insert(d.end(), {1, 1, 0, 0x80, 250});  // 1 interface, value 1, bus powered, 500 mA
-  d.insert(d.end(), {9, dfu::kDescInterface, 0, 0, 0, dfu::kInterfaceClassApp, dfu::kInterfaceSubclassDfu,
-                     dfu_.dfu_mode() ? dfu::kProtocolDfuMode : dfu::kProtocolRuntime, dfu::kStrInterface});
+  d.insert(d.end(),
+           {9, dfu::kDescInterface, 0, 0, 0, dfu::kInterfaceClassApp, dfu::kInterfaceSubclassDfu,
+            dfu_.dfu_mode() ? dfu::kProtocolDfuMode : dfu::kProtocolRuntime, dfu::kStrInterface});
   const dfu::FunctionalDescriptor f = dfu_.functional_descriptor();
   d.insert(d.end(), {9, dfu::kFunctionalDescriptorType, f.attributes});
   Put16(d, f.detach_timeout_ms);
@@ -107,24 +117,31 @@ std::vector<uint8_t> UpdateAgent::ConfigurationDescriptor() const {
 std::string UpdateAgent::StringDescriptorText(uint8_t index) const {
   const BootOutcome& b = slots_.running();
   switch (index) {
-    case dfu::kStrManufacturer: return "d3dscan";
-    case dfu::kStrProduct: return "d3dscan intraoral probe";
-    case dfu::kStrSerial: return options_.serial;
+    case dfu::kStrManufacturer:
+      return "d3dscan";
+    case dfu::kStrProduct:
+      return "d3dscan intraoral probe";
+    case dfu::kStrSerial:
+      return options_.serial;
     case dfu::kStrInterface: {
       std::string s = dfu_.dfu_mode() ? "d3dscan DFU, writing slot " : "d3dscan firmware ";
       if (dfu_.dfu_mode()) return s.append(SlotLetter(1 - b.slot));
       return s.append(b.header.version.ToString()).append(" slot ").append(SlotLetter(b.slot));
     }
-    case dfu::kStrLastError: return dfu_.last_error();
-    default: return {};
+    case dfu::kStrLastError:
+      return dfu_.last_error();
+    default:
+      return {};
   }
 }
 
-ControlResponse UpdateAgent::HandleControl(const SetupPacket& setup, std::span<const uint8_t> out_data) {
+ControlResponse UpdateAgent::HandleControl(const SetupPacket& setup,
+                                           std::span<const uint8_t> out_data) {
   ControlResponse r;
   const uint8_t type = setup.request_type;
   if (type == dfu::kRequestTypeStandardIn && setup.request == dfu::kGetDescriptor) {
-    const uint8_t dtype = static_cast<uint8_t>(setup.value >> 8), index = static_cast<uint8_t>(setup.value);
+    const uint8_t dtype = static_cast<uint8_t>(setup.value >> 8),
+                  index = static_cast<uint8_t>(setup.value);
     if (dtype == dfu::kDescDevice) {
       r.data = DeviceDescriptor();
     } else if (dtype == dfu::kDescConfiguration && index == 0) {
@@ -145,13 +162,15 @@ ControlResponse UpdateAgent::HandleControl(const SetupPacket& setup, std::span<c
   } else if ((type == 0x80 || type == 0x81) && setup.request == 0x00) {
     r.data = {0, 0};  // GET_STATUS: bus powered, no remote wake-up
   } else if (type == 0x80 && setup.request == 0x08) {
-    r.data = {1};     // GET_CONFIGURATION
-  } else if ((type == dfu::kRequestTypeClassIn || type == dfu::kRequestTypeClassOut) && setup.index == 0) {
+    r.data = {1};  // GET_CONFIGURATION
+  } else if ((type == dfu::kRequestTypeClassIn || type == dfu::kRequestTypeClassOut) &&
+             setup.index == 0) {
     r = dfu_.Handle(setup, out_data);
   } else if (type == dfu::kRequestTypeVendorIn && setup.request == dfu::kVendorGetFirmwareInfo) {
     r.data = Info().Encode();
   } else if (type == dfu::kRequestTypeVendorOut && setup.request == dfu::kVendorSimSetStreaming) {
-    if (!options_.sim_controls || dfu_.dfu_mode() || !hooks_->SimSetStreaming(setup.value != 0)) return {true, {}};
+    if (!options_.sim_controls || dfu_.dfu_mode() || !hooks_->SimSetStreaming(setup.value != 0))
+      return {true, {}};
     return {};
   } else {
     return {true, {}};
@@ -163,9 +182,14 @@ ControlResponse UpdateAgent::HandleControl(const SetupPacket& setup, std::span<c
 Status UpdateAgent::BusReset() {
   boot_log_.clear();
   switch (dfu_.OnBusReset()) {
-    case dfu::DfuDevice::ResetAction::kNone: return Status::Ok();
-    case dfu::DfuDevice::ResetAction::kEnterDfuMode: hooks_->OnDfuMode(true); return Status::Ok();
-    case dfu::DfuDevice::ResetAction::kReboot: hooks_->OnDfuMode(false); return PowerOn();
+    case dfu::DfuDevice::ResetAction::kNone:
+      return Status::Ok();
+    case dfu::DfuDevice::ResetAction::kEnterDfuMode:
+      hooks_->OnDfuMode(true);
+      return Status::Ok();
+    case dfu::DfuDevice::ResetAction::kReboot:
+      hooks_->OnDfuMode(false);
+      return PowerOn();
   }
   return Status::Ok();
 }
@@ -174,7 +198,8 @@ BackendReply UpdateAgent::FromUpdate(const UpdateResult& r) { return {r.dfu_stat
 
 BackendReply UpdateAgent::Detach() {
   if (hooks_->IsStreaming()) {
-    return {dfu::kErrVendor, "streaming: the probe is streaming a scan; stop the scan, then update", 0};
+    return {dfu::kErrVendor, "streaming: the probe is streaming a scan; stop the scan, then update",
+            0};
   }
   if (slots_.on_trial()) {
     return {dfu::kErrVendor, "busy: the running firmware has not confirmed its trial boot yet", 0};
@@ -195,7 +220,8 @@ bool UpdateAgent::DownloadComplete(std::string* why_not) {
   if (slots_.UpdateComplete()) return true;
   const uint64_t got = slots_.received_bytes(), want = slots_.expected_bytes();
   if (want == 0) {
-    *why_not = std::string(RejectToken(Reject::kTooShort)) + ": " + std::to_string(got) + " bytes, a header needs 128";
+    *why_not = std::string(RejectToken(Reject::kTooShort)) + ": " + std::to_string(got) +
+               " bytes, a header needs 128";
   } else {
     *why_not = std::string(RejectToken(Reject::kTruncated)) + ": " + std::to_string(got) + " of " +
                std::to_string(want) + " bytes";

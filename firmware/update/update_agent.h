@@ -7,8 +7,9 @@
 //   ProbeUpdateHooks hooks{...};                       // implements ProbeHooks below
 //   std::unique_ptr<fw::Flash> flash; fw::Flash::OpenFile(dir + "/flash.bin", geometry, &flash);
 //   fw::UpdateAgent agent(flash.get(), pubkey, options, &hooks);
-//   agent.PowerOn();                                   // bootloader + health check → OnRunningFirmware
-//   ProbeInfo.firmware_version = agent.Info().VersionString();   // and again in OnRunningFirmware
+//   agent.PowerOn();                                   // bootloader + health check →
+//   OnRunningFirmware ProbeInfo.firmware_version = agent.Info().VersionString();   // and again in
+//   OnRunningFirmware
 //   // on the USB/sim thread: agent.HandleControl(setup, data) / agent.BusReset()
 //
 // Thread safety: every method runs on one thread (the transport's). Hooks are called on that
@@ -49,9 +50,15 @@ class ProbeHooks {
   // DDS ProbeInfo.
   virtual void OnRunningFirmware(const dfu::FirmwareInfo& info) { (void)info; }
   // Health check of a new firmware on its trial boot.
-  virtual HealthResult HealthCheck(const ImageHeader& running) { (void)running; return HealthResult::kHealthy; }
+  virtual HealthResult HealthCheck(const ImageHeader& running) {
+    (void)running;
+    return HealthResult::kHealthy;
+  }
   // Simulation only (vendor request kVendorSimSetStreaming): start/stop streaming. False = refused.
-  virtual bool SimSetStreaming(bool on) { (void)on; return false; }
+  virtual bool SimSetStreaming(bool on) {
+    (void)on;
+    return false;
+  }
 };
 
 struct UpdateAgentOptions {
@@ -66,7 +73,8 @@ struct UpdateAgentOptions {
 
 class UpdateAgent : private dfu::DfuBackend {
  public:
-  UpdateAgent(Flash* flash, const PublicKey& trusted_key, UpdateAgentOptions options, ProbeHooks* hooks);
+  UpdateAgent(Flash* flash, const PublicKey& trusted_key, UpdateAgentOptions options,
+              ProbeHooks* hooks);
 
   // Power-on / reboot: bootloader, then the new firmware's health check (confirm, or rollback and
   // reboot). kUnavailable/kIoError on flash failure (a power cut); kNotFound when no slot boots.
@@ -82,7 +90,8 @@ class UpdateAgent : private dfu::DfuBackend {
   bool flash_dead() const { return flash_->power_cut(); }
 
   // One USB control transfer (standard GET_DESCRIPTOR, DFU class requests, vendor requests).
-  dfu::ControlResponse HandleControl(const dfu::SetupPacket& setup, std::span<const uint8_t> out_data);
+  dfu::ControlResponse HandleControl(const dfu::SetupPacket& setup,
+                                     std::span<const uint8_t> out_data);
   // USB bus reset: enter DFU mode after DETACH, or reboot (PowerOn) from DFU mode.
   Status BusReset();
 

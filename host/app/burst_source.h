@@ -41,12 +41,20 @@ class BurstSource {
   virtual ~BurstSource() = default;
   // Ingest thread: the next burst into *out. May wait a little (≤ ~50 ms) for one.
   virtual Result Next(IngestedBurst* out) = 0;
-  uint64_t received() const { return received_.load(std::memory_order_relaxed); }    // bursts that reached the host
-  uint64_t malformed() const { return malformed_.load(std::memory_order_relaxed); }  // dropped by the checks / undecodable
-  uint64_t dropped() const { return dropped_.load(std::memory_order_relaxed); }      // dropped before the graph (receiver queue full)
+  uint64_t received() const {
+    return received_.load(std::memory_order_relaxed);
+  }  // bursts that reached the host
+  uint64_t malformed() const {
+    return malformed_.load(std::memory_order_relaxed);
+  }  // dropped by the checks / undecodable
+  uint64_t dropped() const {
+    return dropped_.load(std::memory_order_relaxed);
+  }  // dropped before the graph (receiver queue full)
   bool probe_lost() const { return probe_lost_.load(std::memory_order_relaxed); }
   uint64_t probe_returns() const { return probe_returns_.load(std::memory_order_relaxed); }
-  uint64_t missing() const { return missing_.load(std::memory_order_relaxed); }  // sequence gaps: lost before the host
+  uint64_t missing() const {
+    return missing_.load(std::memory_order_relaxed);
+  }  // sequence gaps: lost before the host
 
  protected:
   std::atomic<uint64_t> received_{0}, malformed_{0}, dropped_{0}, probe_returns_{0}, missing_{0};
@@ -54,7 +62,8 @@ class BurstSource {
 };
 
 struct RecordingSourceOptions {
-  double rate = 0;         // 0: as fast as the graph takes them (lossless replay); > 0: paced by the recorded times × rate
+  double rate = 0;  // 0: as fast as the graph takes them (lossless replay); > 0: paced by the
+                    // recorded times × rate
   int64_t max_bursts = 0;  // > 0: end after this many bursts
   // Non-empty: only the bursts whose capture time (IngestedBurst::capture_ns, ns) lies within
   // select_tolerance_ns of one of these times are delivered, the rest are skipped (skipped(), not
@@ -70,7 +79,8 @@ class RecordingBurstSource final : public BurstSource {
  public:
   // NOT_FOUND / PARSE_ERROR / CORRUPT / UNSUPPORTED as RecordingReader::OpenFile; INVALID_ARGUMENT
   // for a recording without a PhaseBurst channel or without a calibration (header or ProbeInfo).
-  [[nodiscard]] static Status Open(const std::string& path, const RecordingSourceOptions& options, std::unique_ptr<RecordingBurstSource>* out);
+  [[nodiscard]] static Status Open(const std::string& path, const RecordingSourceOptions& options,
+                                   std::unique_ptr<RecordingBurstSource>* out);
   const ProbeCalibration& calibration() const { return calibration_; }
   const RecordingHeader& header() const { return reader_->header(); }
   const RecordingDiagnostics& diagnostics() const { return reader_->diagnostics(); }
@@ -99,10 +109,10 @@ class RecordingBurstSource final : public BurstSource {
 
 struct DdsSourceOptions {
   double probe_timeout_s = 1.0;  // no burst for this long after some: "probe lost"
-  double idle_exit_s = 0;        // > 0: end the scan after this long without a burst (after the first)
+  double idle_exit_s = 0;  // > 0: end the scan after this long without a burst (after the first)
   // > 0 (live): a burst that waited longer than this in the receiver's queue is dropped (counted in
-  // dropped()) rather than ingested: at start-up the graph would otherwise begin with the bursts that
-  // queued while it was being set up, seconds older than the next one it takes.
+  // dropped()) rather than ingested: at start-up the graph would otherwise begin with the bursts
+  // that queued while it was being set up, seconds older than the next one it takes.
   double max_age_s = 0;
   void Check() const;
 };
@@ -114,7 +124,8 @@ class DdsBurstSource final : public BurstSource {
   // Waits (up to timeout_s, or until *stop) for the probe's ProbeInfo and its calibration, calling
   // `while_waiting` (if set) between its looks, every 20 ms (e.g. a preview frame).
   // UNAVAILABLE without one (or when stopped first).
-  [[nodiscard]] Status WaitForCalibration(double timeout_s, const std::atomic<bool>* stop, ProbeCalibration* calibration, proto::InfoMsg* info,
+  [[nodiscard]] Status WaitForCalibration(double timeout_s, const std::atomic<bool>* stop,
+                                          ProbeCalibration* calibration, proto::InfoMsg* info,
                                           const std::function<void()>& while_waiting = {});
   Result Next(IngestedBurst* out) override;
 

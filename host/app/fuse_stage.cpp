@@ -7,7 +7,8 @@
 
 namespace d3d {
 
-FuseStage::FuseStage(const ProbeCalibration& view_calibration, const FuseStageOptions& options, const UndoLog* undo)
+FuseStage::FuseStage(const ProbeCalibration& view_calibration, const FuseStageOptions& options,
+                     const UndoLog* undo)
     : calibration_(view_calibration), o_(options), undo_(undo) {
   fuser_ = MakeFuser();
   if (o_.keep_views && !o_.views_spill_dir.empty()) {
@@ -15,7 +16,9 @@ FuseStage::FuseStage(const ProbeCalibration& view_calibration, const FuseStageOp
   }
 }
 
-std::unique_ptr<ScanFuser> FuseStage::MakeFuser() const { return std::make_unique<ScanFuser>(calibration_.camera, o_.live_tsdf, o_.free_space); }
+std::unique_ptr<ScanFuser> FuseStage::MakeFuser() const {
+  return std::make_unique<ScanFuser>(calibration_.camera, o_.live_tsdf, o_.free_space);
+}
 
 bool FuseStage::Run(ScanItem& item) {
   std::lock_guard<std::mutex> lock(model_mu_);
@@ -36,7 +39,8 @@ bool FuseStage::Run(ScanItem& item) {
     }
     undo_gen_ = item.undo_gen;
   }
-  if (item.undo_requests > undo_requests_) {  // those undos are applied up to here (Save waits for it)
+  if (item.undo_requests >
+      undo_requests_) {  // those undos are applied up to here (Save waits for it)
     undo_requests_ = item.undo_requests;
     model_cv_.notify_all();
   }
@@ -52,14 +56,19 @@ bool FuseStage::Run(ScanItem& item) {
     const bool keep = item.fused || !item.track.in_main;
     item.packed_ok = keep && o_.keep_views && packer_.Pack(item.kept_frames, &item.packed).ok();
     if (keep && item.packed_ok) {
-      if (const Status s = archive_.Add(item.burst.burst_seq, item.packed); !s.ok() && spill_failures_++ == 0) spill_failure_ = s.ToString();
-      if (item.fused) fused_views_.push_back({item.view_index, item.burst.burst_seq, item.track.world_from_cam});
+      if (const Status s = archive_.Add(item.burst.burst_seq, item.packed);
+          !s.ok() && spill_failures_++ == 0)
+        spill_failure_ = s.ToString();
+      if (item.fused)
+        fused_views_.push_back({item.view_index, item.burst.burst_seq, item.track.world_from_cam});
     }
     if (item.fused && ++memory_views_ >= kScanMemoryEvery) {
       memory_views_ = 0;
       constexpr double kMiB = 1.0 / (1024.0 * 1024.0);
-      mem_tsdf_mib_.store(static_cast<double>(fuser_->volume().MemoryBytes()) * kMiB, std::memory_order_relaxed);
-      mem_views_kept_mib_.store(static_cast<double>(archive_.memory_bytes()) * kMiB, std::memory_order_relaxed);
+      mem_tsdf_mib_.store(static_cast<double>(fuser_->volume().MemoryBytes()) * kMiB,
+                          std::memory_order_relaxed);
+      mem_views_kept_mib_.store(static_cast<double>(archive_.memory_bytes()) * kMiB,
+                                std::memory_order_relaxed);
     }
   }
   return true;
@@ -73,10 +82,12 @@ Status FuseStage::Save(uint64_t requested, const std::string& dir) {
   TriangleMesh mesh;
   {
     std::unique_lock<std::mutex> lock(model_mu_);
-    if (!model_cv_.wait_for(lock, std::chrono::seconds(10), [&] { return undo_requests_ >= requested; }))
+    if (!model_cv_.wait_for(lock, std::chrono::seconds(10),
+                            [&] { return undo_requests_ >= requested; }))
       return Unavailable("save: the last undo has not reached the model yet (graph stalled?)");
     if (volume_has_undone_) {
-      // The kept views again, at their tracked poses, into a volume that then replaces the live one.
+      // The kept views again, at their tracked poses, into a volume that then replaces the live
+      // one.
       const ScanViewProvider again = KeptViewProvider(archive_, calibration_, o_.recon);
       ScanFuser rebuilt(calibration_.camera, o_.live_tsdf, o_.free_space);
       ReconstructedView view;
@@ -91,7 +102,8 @@ Status FuseStage::Save(uint64_t requested, const std::string& dir) {
     }
     mesh = fuser_->volume().ExtractMesh();
   }
-  if (mesh.faces.empty()) return Status(StatusCode::kInternal, "the model is empty: nothing to save");
+  if (mesh.faces.empty())
+    return Status(StatusCode::kInternal, "the model is empty: nothing to save");
   mesh.ComputeVertexNormals();
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
@@ -99,7 +111,8 @@ Status FuseStage::Save(uint64_t requested, const std::string& dir) {
   return SaveStlBinary((std::filesystem::path(dir) / "scan.stl").string(), mesh);
 }
 
-Status FuseStage::Finish(const ScanOptions& scan, ScanTimes times, ScanRegistrar* registrar, const ScanViewProvider& provider, const ScanTruth& truth,
+Status FuseStage::Finish(const ScanOptions& scan, ScanTimes times, ScanRegistrar* registrar,
+                         const ScanViewProvider& provider, const ScanTruth& truth,
                          ScanResult* out) {
   times.ms_fuse = fuser_->ms_fuse();
   // Without a provider, the kept views: their frames again through a reconstructor of the binned

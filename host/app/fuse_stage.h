@@ -34,7 +34,8 @@ struct FuseStageOptions {
 class FuseStage {
  public:
   // view_calibration: the views' (binned); `undo` is borrowed.
-  FuseStage(const ProbeCalibration& view_calibration, const FuseStageOptions& options, const UndoLog* undo);
+  FuseStage(const ProbeCalibration& view_calibration, const FuseStageOptions& options,
+            const UndoLog* undo);
 
   bool Run(ScanItem& item);
   // The current model (the live volume; the kept views fused again first when it holds undone
@@ -43,8 +44,9 @@ class FuseStage {
   [[nodiscard]] Status Save(uint64_t undo_requests, const std::string& dir);
   // After Join: FinishScan on the live volume with `registrar`; without a provider the kept views
   // are fused again (keep_views). times.ms_fuse is set here.
-  [[nodiscard]] Status Finish(const ScanOptions& scan, ScanTimes times, ScanRegistrar* registrar, const ScanViewProvider& provider,
-                              const ScanTruth& truth, ScanResult* out);
+  [[nodiscard]] Status Finish(const ScanOptions& scan, ScanTimes times, ScanRegistrar* registrar,
+                              const ScanViewProvider& provider, const ScanTruth& truth,
+                              ScanResult* out);
   // The kept views' figures (views_kept, views_kept_mib, views_spilled, spill errors).
   void Report(nlohmann::json* host) const;
 

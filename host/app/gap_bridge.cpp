@@ -10,8 +10,11 @@
 namespace d3d {
 
 BurstRing::BurstRing(size_t capacity, int width, int height, int frames, int bin) : bin_(bin) {
-  if (capacity < 1 || width < 1 || height < 1 || frames < 1 || bin < 1 || width % bin != 0 || height % bin != 0)
-    throw std::invalid_argument("BurstRing: capacity, width, height, frames and bin must be >= 1, the size divisible by bin");
+  if (capacity < 1 || width < 1 || height < 1 || frames < 1 || bin < 1 || width % bin != 0 ||
+      height % bin != 0)
+    throw std::invalid_argument(
+        "BurstRing: capacity, width, height, frames and bin must be >= 1, the size divisible by "
+        "bin");
   slots_.resize(capacity);
   for (IngestedBurst& s : slots_) {
     s.frames.resize(static_cast<size_t>(frames));
@@ -25,7 +28,8 @@ void BurstRing::Put(const IngestedBurst& b) {
   s.frames.resize(b.frames.size());
   for (size_t i = 0; i < b.frames.size(); ++i) {
     // Same size and type as the slot's: no allocation.
-    const bool ok = bin_ == 1 ? (b.frames[i].copyTo(s.frames[i]), true) : BinFrame(b.frames[i], bin_, &s.frames[i]).ok();
+    const bool ok = bin_ == 1 ? (b.frames[i].copyTo(s.frames[i]), true)
+                              : BinFrame(b.frames[i], bin_, &s.frames[i]).ok();
     if (!ok) {
       // Not kept; the slot (the oldest burst, now overwritten in part) is no burst any more.
       s.capture_ns = std::numeric_limits<int64_t>::min();
@@ -39,7 +43,8 @@ void BurstRing::Put(const IngestedBurst& b) {
   size_ = std::min(size_ + 1, slots_.size());
 }
 
-bool BurstRing::TakeNearest(int64_t after_ns, int64_t before_ns, int64_t target_ns, const std::vector<uint64_t>& exclude, IngestedBurst* out) const {
+bool BurstRing::TakeNearest(int64_t after_ns, int64_t before_ns, int64_t target_ns,
+                            const std::vector<uint64_t>& exclude, IngestedBurst* out) const {
   std::lock_guard<std::mutex> lock(mu_);
   const IngestedBurst* best = nullptr;
   int64_t best_d = std::numeric_limits<int64_t>::max();
@@ -47,7 +52,8 @@ bool BurstRing::TakeNearest(int64_t after_ns, int64_t before_ns, int64_t target_
     const IngestedBurst& s = slots_[i];
     if (s.capture_ns <= after_ns || s.capture_ns >= before_ns) continue;
     if (std::find(exclude.begin(), exclude.end(), s.burst_seq) != exclude.end()) continue;
-    const int64_t d = s.capture_ns > target_ns ? s.capture_ns - target_ns : target_ns - s.capture_ns;
+    const int64_t d =
+        s.capture_ns > target_ns ? s.capture_ns - target_ns : target_ns - s.capture_ns;
     if (d < best_d || (d == best_d && best != nullptr && s.capture_ns > best->capture_ns)) {
       best = &s;
       best_d = d;
@@ -69,11 +75,12 @@ size_t BurstRing::size() const {
 
 void GapBridgeOptions::Check() const {
   if (ring_bursts < 0 || max_attempts < 1 || max_bursts < max_attempts || min_gap_ns < 0)
-    throw std::invalid_argument("GapBridgeOptions: ring_bursts >= 0, 1 <= max_attempts <= max_bursts, min_gap_ns >= 0");
+    throw std::invalid_argument(
+        "GapBridgeOptions: ring_bursts >= 0, 1 <= max_attempts <= max_bursts, min_gap_ns >= 0");
 }
 
-GapBridge::GapBridge(const GapBridgeOptions& options, const BurstRing* ring, const ProbeCalibration& view_calibration,
-                     const ReconstructOptions& recon)
+GapBridge::GapBridge(const GapBridgeOptions& options, const BurstRing* ring,
+                     const ProbeCalibration& view_calibration, const ReconstructOptions& recon)
     : o_(options), ring_(ring), recon_(view_calibration, recon, 1) {
   o_.Check();
   if (ring_ == nullptr) throw std::invalid_argument("GapBridge: no burst ring");
@@ -87,14 +94,16 @@ void GapBridge::WarmUp() {
   (void)recon_.Reconstruct(burst_.frames, &view_);  // dark: no points, every map allocated
 }
 
-bool BridgeApplies(const GapBridgeOptions& o, TrackingState state_before, const TrackResult& refused, int64_t view_capture_ns,
-                   int64_t last_placed_ns) {
-  const bool held = state_before == TrackingState::kTracking || state_before == TrackingState::kRelocalised;
-  return o.ring_bursts > 0 && held && !refused.accepted && !refused.too_few_points && last_placed_ns > 0 &&
-         view_capture_ns - last_placed_ns >= o.min_gap_ns;
+bool BridgeApplies(const GapBridgeOptions& o, TrackingState state_before,
+                   const TrackResult& refused, int64_t view_capture_ns, int64_t last_placed_ns) {
+  const bool held =
+      state_before == TrackingState::kTracking || state_before == TrackingState::kRelocalised;
+  return o.ring_bursts > 0 && held && !refused.accepted && !refused.too_few_points &&
+         last_placed_ns > 0 && view_capture_ns - last_placed_ns >= o.min_gap_ns;
 }
 
-bool GapBridge::Bridge(ScanRegistrar* registrar, int64_t last_placed_ns, int64_t view_capture_ns, int64_t* placed_ns) {
+bool GapBridge::Bridge(ScanRegistrar* registrar, int64_t last_placed_ns, int64_t view_capture_ns,
+                       int64_t* placed_ns) {
   // The refused view's loss taken back: a burst from before it is tracked as if it had come first
   // (not for a view the tracker coasted: nothing to take back, no bridge).
   if (!registrar->RetractLoss()) return false;

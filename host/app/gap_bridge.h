@@ -40,10 +40,11 @@ class BurstRing {
   // cannot be binned: the reconstruct stage refuses it too).
   void Put(const IngestedBurst& b);
   int bin() const { return bin_; }
-  // Register thread: copies into *out (binned) the kept burst whose capture time lies strictly between
-  // after_ns and before_ns and is nearest to `target_ns` (ties: the later one), skipping those in
-  // `exclude` (burst_seq). False when there is none.
-  bool TakeNearest(int64_t after_ns, int64_t before_ns, int64_t target_ns, const std::vector<uint64_t>& exclude, IngestedBurst* out) const;
+  // Register thread: copies into *out (binned) the kept burst whose capture time lies strictly
+  // between after_ns and before_ns and is nearest to `target_ns` (ties: the later one), skipping
+  // those in `exclude` (burst_seq). False when there is none.
+  bool TakeNearest(int64_t after_ns, int64_t before_ns, int64_t target_ns,
+                   const std::vector<uint64_t>& exclude, IngestedBurst* out) const;
   size_t size() const;
 
  private:
@@ -54,7 +55,8 @@ class BurstRing {
 };
 
 struct GapBridgeOptions {
-  int ring_bursts = 96;  // bursts kept for bridging (3.2 s at 30 Hz; 29 MB at 640 × 480, bin 2); 0 = off
+  int ring_bursts =
+      96;  // bursts kept for bridging (3.2 s at 30 Hz; 29 MB at 640 × 480, bin 2); 0 = off
   int max_attempts = 2;  // bridging bursts registered per refused view (a fit tried)
   int max_bursts = 4;    // ... and reconstructed (one with too few points costs only that)
   // Bridged only when the refused view came at least this long after the last placed one (ns):
@@ -66,8 +68,8 @@ struct GapBridgeOptions {
 // Whether a view refused in `state_before` (the tracker's state before it), captured at
 // view_capture_ns, the last placed view at last_placed_ns, is one to bridge: bridging is on, the
 // track was held until it, it had points, and the gap is at least min_gap_ns.
-bool BridgeApplies(const GapBridgeOptions& options, TrackingState state_before, const TrackResult& refused, int64_t view_capture_ns,
-                   int64_t last_placed_ns);
+bool BridgeApplies(const GapBridgeOptions& options, TrackingState state_before,
+                   const TrackResult& refused, int64_t view_capture_ns, int64_t last_placed_ns);
 
 class GapBridge {
  public:
@@ -78,9 +80,11 @@ class GapBridge {
   };
   // `ring` is borrowed (outlives this). view_calibration: the views' (the probe's binned by the
   // ring's bin); recon: the reconstruct stage's options.
-  GapBridge(const GapBridgeOptions& options, const BurstRing* ring, const ProbeCalibration& view_calibration, const ReconstructOptions& recon);
+  GapBridge(const GapBridgeOptions& options, const BurstRing* ring,
+            const ProbeCalibration& view_calibration, const ReconstructOptions& recon);
   // BridgeApplies with this bridge's options.
-  bool Applies(TrackingState state_before, const TrackResult& refused, int64_t view_capture_ns, int64_t last_placed_ns) const {
+  bool Applies(TrackingState state_before, const TrackResult& refused, int64_t view_capture_ns,
+               int64_t last_placed_ns) const {
     return BridgeApplies(o_, state_before, refused, view_capture_ns, last_placed_ns);
   }
   // Registers bridging bursts with `registrar` (each a view of its own: it is not fused nor kept,
@@ -89,7 +93,8 @@ class GapBridge {
   // gap; after one with too few points, its later neighbour; after one refused otherwise, the one
   // nearest a third of the gap (closer to the model). Returns whether one was placed, and its
   // capture time in *placed_ns.
-  bool Bridge(ScanRegistrar* registrar, int64_t last_placed_ns, int64_t view_capture_ns, int64_t* placed_ns);
+  bool Bridge(ScanRegistrar* registrar, int64_t last_placed_ns, int64_t view_capture_ns,
+              int64_t* placed_ns);
   // Warms the reconstructor and view buffer up (one blank burst), so that the first bridge does not
   // allocate its maps.
   void WarmUp();

@@ -18,7 +18,8 @@ IngestedBurst BurstAt(uint64_t seq, int w = 8, int h = 6) {
   IngestedBurst b;
   b.burst_seq = seq;
   b.capture_ns = static_cast<int64_t>(seq) * kPeriodNs;
-  for (int k = 0; k < 4; ++k) b.frames.push_back(cv::Mat(h, w, CV_8U, cv::Scalar(static_cast<int>(seq % 200) + k)));
+  for (int k = 0; k < 4; ++k)
+    b.frames.push_back(cv::Mat(h, w, CV_8U, cv::Scalar(static_cast<int>(seq % 200) + k)));
   return b;
 }
 
@@ -50,7 +51,8 @@ TEST(BurstRing, KeepsBurstsBinnedAsTheReconstructionBinsThem) {
   EXPECT_EQ(out.frames[0].rows, 3);
   cv::Mat binned;
   ASSERT_TRUE(BinFrame(b.frames[0], 2, &binned).ok());
-  EXPECT_EQ(cv::norm(out.frames[0], binned, cv::NORM_INF), 0.0) << "the reconstruct stage's binning, bit for bit";
+  EXPECT_EQ(cv::norm(out.frames[0], binned, cv::NORM_INF), 0.0)
+      << "the reconstruct stage's binning, bit for bit";
   EXPECT_EQ(out.frames[0].at<uint8_t>(0, 0), binned.at<uint8_t>(0, 0));
   // A burst of another size cannot be binned into the ring's slots: not kept.
   IngestedBurst odd = BurstAt(6, 9, 6);
@@ -82,12 +84,16 @@ TEST(GapBridge, AppliesOnlyToAViewRefusedWhileTheTrackWasHeldAfterAGap) {
   const int64_t last = 1'000'000'000, view = last + 4 * kPeriodNs;
   EXPECT_TRUE(BridgeApplies(o, TrackingState::kTracking, refused, view, last));
   EXPECT_TRUE(BridgeApplies(o, TrackingState::kRelocalised, refused, view, last));
-  EXPECT_FALSE(BridgeApplies(o, TrackingState::kLost, refused, view, last)) << "already lost: the relocaliser's case";
-  EXPECT_FALSE(BridgeApplies(o, TrackingState::kTracking, refused, last + kPeriodNs, last)) << "no burst between";
-  EXPECT_FALSE(BridgeApplies(o, TrackingState::kTracking, refused, view, 0)) << "nothing placed yet";
+  EXPECT_FALSE(BridgeApplies(o, TrackingState::kLost, refused, view, last))
+      << "already lost: the relocaliser's case";
+  EXPECT_FALSE(BridgeApplies(o, TrackingState::kTracking, refused, last + kPeriodNs, last))
+      << "no burst between";
+  EXPECT_FALSE(BridgeApplies(o, TrackingState::kTracking, refused, view, 0))
+      << "nothing placed yet";
   TrackResult lifted = refused;
   lifted.too_few_points = true;
-  EXPECT_FALSE(BridgeApplies(o, TrackingState::kTracking, lifted, view, last)) << "a lifted probe: no gap to bridge";
+  EXPECT_FALSE(BridgeApplies(o, TrackingState::kTracking, lifted, view, last))
+      << "a lifted probe: no gap to bridge";
   TrackResult placed = refused;
   placed.accepted = true;
   EXPECT_FALSE(BridgeApplies(o, TrackingState::kTracking, placed, view, last));
@@ -119,7 +125,8 @@ TEST(GapBridge, PlacesABurstFromTheGapAndThenTheRefusedViewAtATurn) {
   o.tracker.motion.view_period_ns = 6 * kPeriodNs;
   ScanReconstructor recon(session->calibration(), o.recon, kBin);
   ScanRegistrar registrar(recon.calibration(), o.tracker, o.anchor, o.recon.normal_max_gap_mm);
-  BurstRing ring(16, session->calibration().camera.width, session->calibration().camera.height, 4, kBin);
+  BurstRing ring(16, session->calibration().camera.width, session->calibration().camera.height, 4,
+                 kBin);
   auto ingest = [&](int64_t i, IngestedBurst* b) {
     const Burst burst = session->RenderBurst(i, false);
     b->burst_seq = static_cast<uint64_t>(i);
@@ -147,7 +154,8 @@ TEST(GapBridge, PlacesABurstFromTheGapAndThenTheRefusedViewAtATurn) {
   ASSERT_TRUE(recon.Reconstruct(b.frames, &view).ok());
   const TrackingState before = registrar.tracker().state();
   const TrackResult first = registrar.Register(view, b.burst_seq, b.capture_ns);
-  ASSERT_FALSE(first.accepted) << "the premise: 8 bursts after the last view, at this turn, the view is lost";
+  ASSERT_FALSE(first.accepted)
+      << "the premise: 8 bursts after the last view, at this turn, the view is lost";
   GapBridgeOptions go;
   ASSERT_TRUE(BridgeApplies(go, before, first, b.capture_ns, capture.back()));
   GapBridge bridge(go, &ring, recon.calibration(), o.recon);
@@ -163,10 +171,13 @@ TEST(GapBridge, PlacesABurstFromTheGapAndThenTheRefusedViewAtATurn) {
   ASSERT_TRUE(again.accepted) << again.reason;
   // At its true pose relative to the first view (the tracker's world is that view's camera).
   const Trajectory& truth = session->trajectory();
-  const Rigid3d true_rel = truth.WorldFromProbe(capture.front()).inverse() * truth.WorldFromProbe(b.capture_ns);
+  const Rigid3d true_rel =
+      truth.WorldFromProbe(capture.front()).inverse() * truth.WorldFromProbe(b.capture_ns);
   const Rigid3d rel = tracked.front().inverse() * again.world_from_cam;
   EXPECT_LT((rel.translation() - true_rel.translation()).norm(), 0.2) << "mm";
-  EXPECT_LT(Eigen::AngleAxisd((rel.linear().transpose() * true_rel.linear())).angle() * 180 / M_PI, 1.0) << "deg";
+  EXPECT_LT(Eigen::AngleAxisd((rel.linear().transpose() * true_rel.linear())).angle() * 180 / M_PI,
+            1.0)
+      << "deg";
 }
 
 }  // namespace

@@ -4,7 +4,8 @@
 
 namespace d3d {
 
-IngestStage::IngestStage(BurstSource* source, UndoLog* undo, BurstRing* ring, std::vector<uint64_t> undo_after_bursts)
+IngestStage::IngestStage(BurstSource* source, UndoLog* undo, BurstRing* ring,
+                         std::vector<uint64_t> undo_after_bursts)
     : source_(source), undo_(undo), ring_(ring), undo_after_bursts_(std::move(undo_after_bursts)) {}
 
 StageGraph<ScanItem>::SourceResult IngestStage::Run(ScanItem& item, ItemMeta* meta) {
@@ -39,10 +40,12 @@ StageGraph<ScanItem>::SourceResult IngestStage::Run(ScanItem& item, ItemMeta* me
   // Latency origin: the capture time when the probe's clock agrees with ours (live), else the
   // time the host received the burst (a replayed recording carries its old capture times).
   const int64_t now = GraphNowNs();
-  if (item.burst.capture_ns > 0 && item.burst.capture_ns <= now && now - item.burst.capture_ns < 2'000'000'000) {
+  if (item.burst.capture_ns > 0 && item.burst.capture_ns <= now &&
+      now - item.burst.capture_ns < 2'000'000'000) {
     meta->origin_ns = item.burst.capture_ns;
     latency_origin_capture_.fetch_add(1, std::memory_order_relaxed);
-  } else if (item.burst.receive_ns > 0 && item.burst.receive_ns <= now && now - item.burst.receive_ns < 2'000'000'000) {
+  } else if (item.burst.receive_ns > 0 && item.burst.receive_ns <= now &&
+             now - item.burst.receive_ns < 2'000'000'000) {
     meta->origin_ns = item.burst.receive_ns;
     latency_origin_receive_.fetch_add(1, std::memory_order_relaxed);
   }  // else: the ingest time (set by the graph)
@@ -50,7 +53,8 @@ StageGraph<ScanItem>::SourceResult IngestStage::Run(ScanItem& item, ItemMeta* me
 }
 
 std::string IngestStage::LatencyOrigin() const {
-  const bool capture = latency_origin_capture_.load() > 0, receive = latency_origin_receive_.load() > 0;
+  const bool capture = latency_origin_capture_.load() > 0,
+             receive = latency_origin_receive_.load() > 0;
   return capture ? (receive ? "capture+receive" : "capture") : (receive ? "receive" : "ingest");
 }
 

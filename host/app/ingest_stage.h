@@ -22,7 +22,8 @@ class IngestStage {
  public:
   // `source`, `undo` and `ring` (null: no bridging) are borrowed and outlive the stage.
   // undo_after_bursts: a scripted undo request right after each of these bursts (counted from 1).
-  IngestStage(BurstSource* source, UndoLog* undo, BurstRing* ring, std::vector<uint64_t> undo_after_bursts);
+  IngestStage(BurstSource* source, UndoLog* undo, BurstRing* ring,
+              std::vector<uint64_t> undo_after_bursts);
 
   // Ingest thread: the graph's source function.
   StageGraph<ScanItem>::SourceResult Run(ScanItem& item, ItemMeta* meta);

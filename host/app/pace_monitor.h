@@ -33,10 +33,11 @@ struct PaceOptions {
   // ... and the median step between tracked views exceeds this: half the live tracker's coarse ICP
   // gate (TrackerOptionsForStep at d3d-scan's live step 6: 0.8·√6 = 1.96 mm).
   double min_step_mm = 1.0;
-  double hold_s = 1.0;     // an advice stays this long after the rule last held
-  int min_views = 4;       // views in the window before an advice by the step
-  int min_lost_views = 2;  // views the tracker could not place, in the window, before an advice by them
-  void Check() const;      // throws std::invalid_argument
+  double hold_s = 1.0;  // an advice stays this long after the rule last held
+  int min_views = 4;    // views in the window before an advice by the step
+  int min_lost_views =
+      2;               // views the tracker could not place, in the window, before an advice by them
+  void Check() const;  // throws std::invalid_argument
 };
 
 class PaceMonitor {
@@ -46,12 +47,17 @@ class PaceMonitor {
   // when it was tracked (accepted while tracking; else nullptr: the view only counts as kept);
   // lost: the view had points the tracker could not place (refused while lost, not for too few
   // points). Returns whether the dentist should slow down now.
-  bool Add(uint64_t burst_seq, int64_t capture_ns, const Rigid3d* world_from_cam, bool lost = false);
+  bool Add(uint64_t burst_seq, int64_t capture_ns, const Rigid3d* world_from_cam,
+           bool lost = false);
   int64_t advices() const { return advices_; }       // times the advice came on
   double kept_share() const { return kept_share_; }  // over the window, at the last Add
-  double step_mm() const { return step_mm_; }        // median step over the window, at the last Add (0: too few)
-  int lost_views() const { return lost_views_; }     // views of the window the tracker could not place, at the last Add
-  void Reset();                                      // a new scan (a reset graph): no history
+  double step_mm() const {
+    return step_mm_;
+  }  // median step over the window, at the last Add (0: too few)
+  int lost_views() const {
+    return lost_views_;
+  }              // views of the window the tracker could not place, at the last Add
+  void Reset();  // a new scan (a reset graph): no history
 
  private:
   struct View {

@@ -25,7 +25,8 @@ bool Probe(PaceMonitor* m, double speed_mm_s, int keep, double seconds, uint64_t
 TEST(PaceMonitor, AHostThatKeepsUpNeverAdvises) {
   PaceMonitor m;
   EXPECT_FALSE(Probe(&m, 10.0, 1, 3.0)) << "every burst kept at 10 mm/s: 0.33 mm steps";
-  EXPECT_FALSE(Probe(&m, 40.0, 1, 3.0, 90)) << "fast hands, but the host keeps every burst: not the host's advice";
+  EXPECT_FALSE(Probe(&m, 40.0, 1, 3.0, 90))
+      << "fast hands, but the host keeps every burst: not the host's advice";
   EXPECT_EQ(m.advices(), 0);
   EXPECT_NEAR(m.kept_share(), 1.0, 1e-9);
 }
@@ -36,7 +37,8 @@ TEST(PaceMonitor, AHostThatKeepsFewBurstsOfAFastProbeAdvisesThenClearsAfterTheHo
   EXPECT_NEAR(m.kept_share(), 0.2, 0.03);
   EXPECT_NEAR(m.step_mm(), 1.667, 0.01);
   EXPECT_EQ(m.advices(), 1);
-  // The hand slows to 2 mm/s (0.33 mm steps): the advice stays for hold_s after the rule last held, then goes.
+  // The hand slows to 2 mm/s (0.33 mm steps): the advice stays for hold_s after the rule last held,
+  // then goes.
   bool advice = true;
   int views_until_clear = 0;
   const uint64_t seq0 = 60;
@@ -48,7 +50,8 @@ TEST(PaceMonitor, AHostThatKeepsFewBurstsOfAFastProbeAdvisesThenClearsAfterTheHo
     advice = m.Add(seq, static_cast<int64_t>(seq) * kBurstNs, &pose);
   }
   EXPECT_FALSE(advice);
-  // The window (1 s) must forget the fast steps, then the hold (1 s) run out: ~2 s of views at 6 Hz.
+  // The window (1 s) must forget the fast steps, then the hold (1 s) run out: ~2 s of views at 6
+  // Hz.
   EXPECT_GE(views_until_clear, 6);
   EXPECT_LE(views_until_clear, 14);
   EXPECT_EQ(m.advices(), 1) << "one episode, no flicker";
@@ -62,7 +65,8 @@ TEST(PaceMonitor, FewBurstsKeptOfAProbeHeldStillIsNoReasonToSlowDown) {
 
 TEST(PaceMonitor, ViewsThatWereNotTrackedGiveNoStepAndARestartedProbeStartsAgain) {
   PaceMonitor m;
-  for (uint64_t seq = 0; seq < 60; seq += 5) EXPECT_FALSE(m.Add(seq, static_cast<int64_t>(seq) * kBurstNs, nullptr));
+  for (uint64_t seq = 0; seq < 60; seq += 5)
+    EXPECT_FALSE(m.Add(seq, static_cast<int64_t>(seq) * kBurstNs, nullptr));
   EXPECT_DOUBLE_EQ(m.step_mm(), 0.0);
   EXPECT_TRUE(Probe(&m, 10.0, 5, 2.0, 100));
   // The probe restarts its numbering: the window starts again, no advice from the old views.
@@ -79,16 +83,19 @@ TEST(PaceMonitor, ViewsThatWereNotTrackedGiveNoStepAndARestartedProbeStartsAgain
 TEST(PaceMonitor, AHostSoFarBehindThatTheTrackFailsAdvises) {
   PaceMonitor behind;
   bool advice = false;
-  for (uint64_t seq = 0; seq < 90; seq += 15) advice = behind.Add(seq, static_cast<int64_t>(seq) * kBurstNs, nullptr, true);
+  for (uint64_t seq = 0; seq < 90; seq += 15)
+    advice = behind.Add(seq, static_cast<int64_t>(seq) * kBurstNs, nullptr, true);
   EXPECT_TRUE(advice) << "lost views 15 bursts apart";
   EXPECT_GE(behind.lost_views(), 2);
   EXPECT_EQ(behind.advices(), 1);
 
   PaceMonitor lifted;
-  for (uint64_t seq = 0; seq < 90; seq += 15) EXPECT_FALSE(lifted.Add(seq, static_cast<int64_t>(seq) * kBurstNs, nullptr, false));
+  for (uint64_t seq = 0; seq < 90; seq += 15)
+    EXPECT_FALSE(lifted.Add(seq, static_cast<int64_t>(seq) * kBurstNs, nullptr, false));
 
   PaceMonitor keeping_up;
-  for (uint64_t seq = 0; seq < 90; ++seq) EXPECT_FALSE(keeping_up.Add(seq, static_cast<int64_t>(seq) * kBurstNs, nullptr, true));
+  for (uint64_t seq = 0; seq < 90; ++seq)
+    EXPECT_FALSE(keeping_up.Add(seq, static_cast<int64_t>(seq) * kBurstNs, nullptr, true));
   EXPECT_EQ(keeping_up.advices(), 0);
 
   // Lost now and then among tracked views of a slow hand: fewer than half lost, no advice.
@@ -97,7 +104,9 @@ TEST(PaceMonitor, AHostSoFarBehindThatTheTrackFailsAdvises) {
   for (uint64_t seq = 0; seq < 90; seq += 5) {
     const bool lost = seq % 15 == 0;
     pose.translation().x() = 2.0 * static_cast<double>(seq) * kBurstNs * 1e-9;
-    EXPECT_FALSE(mostly_tracked.Add(seq, static_cast<int64_t>(seq) * kBurstNs, lost ? nullptr : &pose, lost)) << seq;
+    EXPECT_FALSE(
+        mostly_tracked.Add(seq, static_cast<int64_t>(seq) * kBurstNs, lost ? nullptr : &pose, lost))
+        << seq;
   }
   EXPECT_THROW(PaceMonitor(PaceOptions{.min_lost_views = 0}), std::invalid_argument);
 }

@@ -11,7 +11,8 @@ struct PlaneView {
   PlaneView() {
     for (int y = 0; y < 30; ++y)
       for (int x = 0; x < 30; ++x) {
-        points.at<cv::Vec3f>(y, x) = cv::Vec3f(0.5f * static_cast<float>(x), 0.5f * static_cast<float>(y), 50);
+        points.at<cv::Vec3f>(y, x) =
+            cv::Vec3f(0.5f * static_cast<float>(x), 0.5f * static_cast<float>(y), 50);
         normals.at<cv::Vec3f>(y, x) = cv::Vec3f(0, 0, -1);
       }
   }
@@ -57,7 +58,8 @@ TEST(PreviewModel, ASegmentApartIsDrawnBesideTheModelAndJoinsIt) {
   PreviewSnapshot s;
   m.CopyTo(&s);
   ASSERT_FALSE(s.segment_points.empty());
-  EXPECT_GE(s.segment_points.front().x(), 39.9f);  // at display_from_cam, not at the segment's own frame
+  EXPECT_GE(s.segment_points.front().x(),
+            39.9f);  // at display_from_cam, not at the segment's own frame
   EXPECT_EQ(s.points.size(), model);
   // A refused view adds nothing.
   TrackResult refused;

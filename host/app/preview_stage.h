@@ -24,7 +24,8 @@ class PreviewStage {
  public:
   // view_calibration: the views' (binned; outlives the stage). view_stride_px: pixels sampled for
   // the highlighted current view. `undo` is borrowed.
-  PreviewStage(const ProbeCalibration& view_calibration, const PreviewModelOptions& model, int view_stride_px, const UndoLog* undo);
+  PreviewStage(const ProbeCalibration& view_calibration, const PreviewModelOptions& model,
+               int view_stride_px, const UndoLog* undo);
 
   bool Run(ScanItem& item);
   // The graph's latency of the last burst (ms): into the status line's rolling window of 64.
@@ -33,8 +34,10 @@ class PreviewStage {
   const PreviewSnapshot* Latest() { return snapshots_.Latest(); }  // nullptr before the first
   double latency_ms_p50() const { return recent_p50_.load(std::memory_order_relaxed); }
   double latency_ms_p95() const { return recent_p95_.load(std::memory_order_relaxed); }
-  int64_t slow_down_cues() const { return pace_advices_.load(); }  // times it told the dentist to slow down
-  void Memory(ScanMemory* m) const;                                // preview_points
+  int64_t slow_down_cues() const {
+    return pace_advices_.load();
+  }                                  // times it told the dentist to slow down
+  void Memory(ScanMemory* m) const;  // preview_points
 
  private:
   const ProbeCalibration& calibration_;

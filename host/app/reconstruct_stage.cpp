@@ -2,7 +2,8 @@
 
 namespace d3d {
 
-ReconstructStage::ReconstructStage(const ProbeCalibration& probe_calibration, const ReconstructOptions& options, int bin, bool keep_views)
+ReconstructStage::ReconstructStage(const ProbeCalibration& probe_calibration,
+                                   const ReconstructOptions& options, int bin, bool keep_views)
     : recon_(probe_calibration, options, bin), keep_views_(keep_views) {}
 
 bool ReconstructStage::Run(ScanItem& item) {
@@ -25,7 +26,8 @@ bool ReconstructStage::Run(ScanItem& item) {
 
 void ReconstructStage::WarmUp(ScanItem& item) {
   for (cv::Mat& f : item.burst.frames) f.setTo(0);
-  (void)recon_.Reconstruct(item.burst.frames, &item.view);  // dark burst: no points, every map allocated
+  (void)recon_.Reconstruct(item.burst.frames,
+                           &item.view);  // dark burst: no points, every map allocated
 }
 
 }  // namespace d3d

@@ -16,7 +16,8 @@ namespace d3d {
 class ReconstructStage {
  public:
   // `probe_calibration`: the probe's (unbinned); views come out binned by `bin`.
-  ReconstructStage(const ProbeCalibration& probe_calibration, const ReconstructOptions& options, int bin, bool keep_views);
+  ReconstructStage(const ProbeCalibration& probe_calibration, const ReconstructOptions& options,
+                   int bin, bool keep_views);
 
   bool Run(ScanItem& item);
   // One reconstruction of a dark burst into `item`: its maps are allocated and paged in now

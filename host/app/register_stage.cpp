@@ -4,14 +4,19 @@
 
 namespace d3d {
 
-RegisterStage::RegisterStage(const ProbeCalibration& view_calibration, const ScanOptions& scan, double undo_seconds, UndoLog* undo,
-                             std::unique_ptr<GapBridge> bridge)
-    : calibration_(view_calibration), scan_(scan), undo_seconds_(undo_seconds), undo_(undo), bridge_(std::move(bridge)) {
+RegisterStage::RegisterStage(const ProbeCalibration& view_calibration, const ScanOptions& scan,
+                             double undo_seconds, UndoLog* undo, std::unique_ptr<GapBridge> bridge)
+    : calibration_(view_calibration),
+      scan_(scan),
+      undo_seconds_(undo_seconds),
+      undo_(undo),
+      bridge_(std::move(bridge)) {
   registrar_ = MakeRegistrar();
 }
 
 std::unique_ptr<ScanRegistrar> RegisterStage::MakeRegistrar() const {
-  return std::make_unique<ScanRegistrar>(calibration_, scan_.tracker, scan_.anchor, scan_.recon.normal_max_gap_mm);
+  return std::make_unique<ScanRegistrar>(calibration_, scan_.tracker, scan_.anchor,
+                                         scan_.recon.normal_max_gap_mm);
 }
 
 bool RegisterStage::Run(ScanItem& item) {
@@ -35,7 +40,8 @@ bool RegisterStage::Run(ScanItem& item) {
   if (bridge_ && bridge_->Applies(before, item.track, item.burst.capture_ns, last_placed_ns_)) {
     // A gap the live policy left: a burst from between placed first, then this view again.
     int64_t placed_ns = 0;
-    const bool placed = bridge_->Bridge(registrar_.get(), last_placed_ns_, item.burst.capture_ns, &placed_ns);
+    const bool placed =
+        bridge_->Bridge(registrar_.get(), last_placed_ns_, item.burst.capture_ns, &placed_ns);
     bridge_views_.store(bridge_->stats().views, std::memory_order_relaxed);
     bridge_attempts_.store(bridge_->stats().attempts, std::memory_order_relaxed);
     bridge_placed_.store(bridge_->stats().placed, std::memory_order_relaxed);
@@ -62,16 +68,21 @@ void RegisterStage::After() {
     const Tracker& tracker = registrar_->tracker();
     mem_views_.store(registrar_->views().size(), std::memory_order_relaxed);
     mem_model_samples_.store(tracker.model().size(), std::memory_order_relaxed);
-    mem_model_mib_.store(static_cast<double>(tracker.model().memory_bytes()) * kMiB, std::memory_order_relaxed);
-    mem_undo_journal_mib_.store(static_cast<double>(tracker.model().journal_bytes()) * kMiB, std::memory_order_relaxed);
+    mem_model_mib_.store(static_cast<double>(tracker.model().memory_bytes()) * kMiB,
+                         std::memory_order_relaxed);
+    mem_undo_journal_mib_.store(static_cast<double>(tracker.model().journal_bytes()) * kMiB,
+                                std::memory_order_relaxed);
     mem_keyframes_.store(tracker.keyframes().size(), std::memory_order_relaxed);
-    mem_keyframes_mib_.store(static_cast<double>(tracker.keyframe_bytes()) * kMiB, std::memory_order_relaxed);
+    mem_keyframes_mib_.store(static_cast<double>(tracker.keyframe_bytes()) * kMiB,
+                             std::memory_order_relaxed);
   }
 }
 
 nlohmann::json RegisterStage::BridgeReport() const {
-  return {
-      {"views", bridge_views_.load()}, {"attempts", bridge_attempts_.load()}, {"placed", bridge_placed_.load()}, {"resumed", bridge_resumed_.load()}};
+  return {{"views", bridge_views_.load()},
+          {"attempts", bridge_attempts_.load()},
+          {"placed", bridge_placed_.load()},
+          {"resumed", bridge_resumed_.load()}};
 }
 
 void RegisterStage::Memory(ScanMemory* m) const {

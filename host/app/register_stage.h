@@ -22,8 +22,8 @@ class RegisterStage {
  public:
   // view_calibration: the views' (binned). `scan`: its tracker, anchor and recon options are the
   // registrar's (made again on a reset). `undo` is borrowed; `bridge` may be null (no bridging).
-  RegisterStage(const ProbeCalibration& view_calibration, const ScanOptions& scan, double undo_seconds, UndoLog* undo,
-                std::unique_ptr<GapBridge> bridge);
+  RegisterStage(const ProbeCalibration& view_calibration, const ScanOptions& scan,
+                double undo_seconds, UndoLog* undo, std::unique_ptr<GapBridge> bridge);
 
   bool Run(ScanItem& item);
   // The graph's after-hook: the tracker's model insert of the view just handed to the preview
@@ -51,7 +51,8 @@ class RegisterStage {
   bool view_pending_ = false;   // Run registered a view, After commits it
   int64_t last_placed_ns_ = 0;  // capture time of the last view the tracker placed (this epoch)
   std::atomic<uint64_t> refused_{0};
-  std::atomic<uint64_t> bridge_views_{0}, bridge_attempts_{0}, bridge_placed_{0}, bridge_resumed_{0};
+  std::atomic<uint64_t> bridge_views_{0}, bridge_attempts_{0}, bridge_placed_{0},
+      bridge_resumed_{0};
   std::atomic<uint64_t> mem_views_{0}, mem_model_samples_{0}, mem_keyframes_{0};
   std::atomic<double> mem_model_mib_{0}, mem_undo_journal_mib_{0}, mem_keyframes_mib_{0};
 };

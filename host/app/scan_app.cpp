@@ -9,11 +9,14 @@ namespace d3d {
 
 void ScanAppOptions::Check() const {
   scan.Check();
-  if (lossless_capacity < 1) throw std::invalid_argument("ScanAppOptions: lossless_capacity must be >= 1");
-  if (!(live_catch_up_max_s >= 0)) throw std::invalid_argument("ScanAppOptions: live_catch_up_max_s must be >= 0");
+  if (lossless_capacity < 1)
+    throw std::invalid_argument("ScanAppOptions: lossless_capacity must be >= 1");
+  if (!(live_catch_up_max_s >= 0))
+    throw std::invalid_argument("ScanAppOptions: live_catch_up_max_s must be >= 0");
   if (!(preview_cell_mm > 0) || preview_stride_px < 1 || view_stride_px < 1)
     throw std::invalid_argument("ScanAppOptions: preview cell > 0 and strides >= 1");
-  if (!(undo_seconds > 0) || undo_max_views < 0) throw std::invalid_argument("ScanAppOptions: undo_seconds > 0 and undo_max_views >= 0");
+  if (!(undo_seconds > 0) || undo_max_views < 0)
+    throw std::invalid_argument("ScanAppOptions: undo_seconds > 0 and undo_max_views >= 0");
   live.Check();
   bridge.Check();
   LiveTsdf().Check();  // e.g. a live voxel above the truncation
@@ -36,20 +39,25 @@ ScanAppOptions AppOptions(const ScanAppOptions& options) {
 
 }  // namespace
 
-ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& options, BurstSource* source)
-    : calibration_(options.scan.bin > 1 ? BinnedCalibration(calibration, options.scan.bin) : calibration),
+ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& options,
+                 BurstSource* source)
+    : calibration_(options.scan.bin > 1 ? BinnedCalibration(calibration, options.scan.bin)
+                                        : calibration),
       o_(AppOptions(options)),
       source_(source),
       undo_(o_.scan.tracker.odometry.map.undo_inserts > 0) {
-  reconstruct_ = std::make_unique<ReconstructStage>(calibration, o_.scan.recon, o_.scan.bin, o_.keep_views);
+  reconstruct_ =
+      std::make_unique<ReconstructStage>(calibration, o_.scan.recon, o_.scan.bin, o_.keep_views);
   std::unique_ptr<GapBridge> bridge;
   if (o_.policy == EdgePolicy::kLive && o_.bridge.ring_bursts > 0) {
-    ring_ =
-        std::make_unique<BurstRing>(static_cast<size_t>(o_.bridge.ring_bursts), calibration.camera.width, calibration.camera.height, 4, o_.scan.bin);
+    ring_ = std::make_unique<BurstRing>(static_cast<size_t>(o_.bridge.ring_bursts),
+                                        calibration.camera.width, calibration.camera.height, 4,
+                                        o_.scan.bin);
     bridge = std::make_unique<GapBridge>(o_.bridge, ring_.get(), calibration_, o_.scan.recon);
     bridge->WarmUp();
   }
-  register_ = std::make_unique<RegisterStage>(calibration_, o_.scan, o_.undo_seconds, &undo_, std::move(bridge));
+  register_ = std::make_unique<RegisterStage>(calibration_, o_.scan, o_.undo_seconds, &undo_,
+                                              std::move(bridge));
   FuseStageOptions fo;
   fo.live_tsdf = o_.LiveTsdf();
   fo.free_space = o_.scan.free_space;
@@ -57,13 +65,16 @@ ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& opti
   fo.keep_views = o_.keep_views;
   fo.views_spill_dir = o_.views_spill_dir;
   fuse_ = std::make_unique<FuseStage>(calibration_, fo, &undo_);
-  preview_ = std::make_unique<PreviewStage>(calibration_, PreviewModelOptions{o_.preview_cell_mm, o_.preview_max_points, o_.preview_stride_px},
-                                            o_.view_stride_px, &undo_);
+  preview_ = std::make_unique<PreviewStage>(
+      calibration_,
+      PreviewModelOptions{o_.preview_cell_mm, o_.preview_max_points, o_.preview_stride_px},
+      o_.view_stride_px, &undo_);
   ingest_ = std::make_unique<IngestStage>(source_, &undo_, ring_.get(), o_.undo_after_bursts);
   StageGraphOptions go;
   go.policy = o_.policy;
   go.lossless_capacity = o_.lossless_capacity;
-  go.latency_stage = 2;  // the preview: what the dentist sees (the fuse stage after it only feeds the saved model)
+  go.latency_stage =
+      2;  // the preview: what the dentist sees (the fuse stage after it only feeds the saved model)
   go.live_just_in_time = o_.live_just_in_time;
   go.live_catch_up_max_s = o_.live_catch_up_max_s;
   const int w = calibration.camera.width, h = calibration.camera.height;  // the probe's frames
@@ -76,24 +87,28 @@ ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& opti
         return it;
       },
       [this](ScanItem& it, ItemMeta* meta) { return ingest_->Run(it, meta); },
-      std::vector<Graph::Stage>{{"reconstruct", [this](ScanItem& it, const ItemMeta&) { return reconstruct_->Run(it); }},
-                                {"register", [this](ScanItem& it, const ItemMeta&) { return register_->Run(it); }, [this] { register_->After(); }},
-                                {"preview",
-                                 [this](ScanItem& it, const ItemMeta&) {
-                                   const bool ok = preview_->Run(it);
-                                   preview_->AddLatency(graph_->last_latency_ms());
-                                   return ok;
-                                 }},
-                                {"fuse", [this](ScanItem& it, const ItemMeta&) { return fuse_->Run(it); }}});
-  // Live warm-up (set-up, before Start): one reconstruction of a blank burst into every pool item, so
-  // that each item's reconstructed maps (~18 MB) are allocated and paged in now rather than by its
-  // first burst, which then took 3-5x its steady time and put the first views further apart than
-  // the tracker bridges without a motion prediction. Lossless runs drop nothing meanwhile and skip
-  // it: the pool is sized for full queues, and items a run never uses stay unallocated.
+      std::vector<Graph::Stage>{
+          {"reconstruct", [this](ScanItem& it, const ItemMeta&) { return reconstruct_->Run(it); }},
+          {"register", [this](ScanItem& it, const ItemMeta&) { return register_->Run(it); },
+           [this] { register_->After(); }},
+          {"preview",
+           [this](ScanItem& it, const ItemMeta&) {
+             const bool ok = preview_->Run(it);
+             preview_->AddLatency(graph_->last_latency_ms());
+             return ok;
+           }},
+          {"fuse", [this](ScanItem& it, const ItemMeta&) { return fuse_->Run(it); }}});
+  // Live warm-up (set-up, before Start): one reconstruction of a blank burst into every pool item,
+  // so that each item's reconstructed maps (~18 MB) are allocated and paged in now rather than by
+  // its first burst, which then took 3-5x its steady time and put the first views further apart
+  // than the tracker bridges without a motion prediction. Lossless runs drop nothing meanwhile and
+  // skip it: the pool is sized for full queues, and items a run never uses stay unallocated.
   if (o_.policy == EdgePolicy::kLive) {
     const auto t_warm = std::chrono::steady_clock::now();
     graph_->ForEachItem([this](ScanItem& it) { reconstruct_->WarmUp(it); });
-    ms_warm_up_ = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_warm).count();
+    ms_warm_up_ =
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_warm)
+            .count();
   }
 }
 
@@ -107,7 +122,8 @@ void ScanApp::RequestStop() { graph_->RequestStop(); }
 void ScanApp::Join() { graph_->Join(); }
 
 uint64_t ScanApp::BurstsCompleted() const {
-  const uint64_t control = fuse_->control_done();  // before completed(): the graph counts an item after its last stage
+  const uint64_t control =
+      fuse_->control_done();  // before completed(): the graph counts an item after its last stage
   const uint64_t all = graph_->completed();
   return all > control ? all - control : 0;
 }
@@ -120,7 +136,9 @@ PreviewStatus ScanApp::CurrentStatus() const {
   st.bursts_dropped = graph_->dropped() + source_->dropped();
   st.bursts_rejected = register_->refused() + reconstruct_->failed();
   const int64_t span = graph_->last_done_ns() - graph_->first_done_ns();
-  st.bursts_per_s = span > 0 ? static_cast<double>(st.bursts_processed - 1) / (static_cast<double>(span) * 1e-9) : 0.0;
+  st.bursts_per_s =
+      span > 0 ? static_cast<double>(st.bursts_processed - 1) / (static_cast<double>(span) * 1e-9)
+               : 0.0;
   st.latency_ms_p50 = preview_->latency_ms_p50();
   st.latency_ms_p95 = preview_->latency_ms_p95();
   if (ingest_->paused()) {
@@ -147,7 +165,8 @@ ScanMemory ScanApp::Memory() const {
 nlohmann::json ScanApp::HostReport() const {
   nlohmann::json j;
   const uint64_t processed = BurstsCompleted();
-  const uint64_t fused = fuse_->fused(), failed = reconstruct_->failed(), paused = ingest_->paused_bursts();
+  const uint64_t fused = fuse_->fused(), failed = reconstruct_->failed(),
+                 paused = ingest_->paused_bursts();
   j["policy"] = EdgePolicyName(o_.policy);
   j["bursts_received"] = source_->received();
   j["bursts_malformed"] = source_->malformed();
@@ -170,10 +189,12 @@ nlohmann::json ScanApp::HostReport() const {
   j["bursts_dropped"] = source_->received() > accounted ? source_->received() - accounted : 0;
   nlohmann::json drops;
   drops["receiver_queue"] = source_->dropped();
-  for (size_t i = 0; i < graph_->num_stages(); ++i) drops["before_" + graph_->stage_name(i)] = graph_->dropped_at(i);
+  for (size_t i = 0; i < graph_->num_stages(); ++i)
+    drops["before_" + graph_->stage_name(i)] = graph_->dropped_at(i);
   j["drops"] = drops;
   const double span_s = static_cast<double>(graph_->last_done_ns() - graph_->start_ns()) * 1e-9;
-  const double active_s = static_cast<double>(graph_->last_done_ns() - graph_->first_done_ns()) * 1e-9;
+  const double active_s =
+      static_cast<double>(graph_->last_done_ns() - graph_->first_done_ns()) * 1e-9;
   j["bursts_per_s"] = active_s > 0 ? static_cast<double>(processed - 1) / active_s : 0.0;
   j["fused_per_s"] = active_s > 0 ? static_cast<double>(fused) / active_s : 0.0;
   j["wall_s"] = span_s;
@@ -188,7 +209,9 @@ nlohmann::json ScanApp::HostReport() const {
   for (size_t i = 0; i < graph_->num_stages(); ++i) {
     const StageCounters& c = graph_->stage(i);
     const uint64_t n = c.processed.load();
-    const auto ms_mean = [n](uint64_t ns) { return n > 0 ? static_cast<double>(ns) * 1e-6 / static_cast<double>(n) : 0.0; };
+    const auto ms_mean = [n](uint64_t ns) {
+      return n > 0 ? static_cast<double>(ns) * 1e-6 / static_cast<double>(n) : 0.0;
+    };
     stages[graph_->stage_name(i)] = {{"items", n},
                                      {"ms_mean", ms_mean(c.busy_ns.load())},
                                      {"ms_max", static_cast<double>(c.max_ns.load()) * 1e-6},
@@ -198,10 +221,13 @@ nlohmann::json ScanApp::HostReport() const {
   }
   j["stages"] = stages;
   j["probe_returns"] = source_->probe_returns();
-  j["live_voxel_mm"] = o_.LiveTsdf().voxel_mm;  // the live volume's (SaveNow); the final model's is voxel_mm
+  j["live_voxel_mm"] =
+      o_.LiveTsdf().voxel_mm;  // the live volume's (SaveNow); the final model's is voxel_mm
   j["warm_up_ms"] = ms_warm_up_;
-  j["bursts_caught_up"] = graph_->catch_up_items();    // live: processed in order at the start (live_catch_up_max_s)
-  j["catch_up_thinned"] = graph_->catch_up_thinned();  // ... the graph fell behind and kept 1 burst of 3 meanwhile
+  j["bursts_caught_up"] =
+      graph_->catch_up_items();  // live: processed in order at the start (live_catch_up_max_s)
+  j["catch_up_thinned"] =
+      graph_->catch_up_thinned();  // ... the graph fell behind and kept 1 burst of 3 meanwhile
   j["warm_up_items"] = o_.policy == EdgePolicy::kLive ? graph_->pool_size() : 0;
   rusage u{};
   getrusage(RUSAGE_SELF, &u);

@@ -6,26 +6,29 @@
 // preview_stage.h, fuse_stage.h; the undo bookkeeping they share: undo_log.h); ScanApp wires them
 // into the graph, takes the control calls and gathers the figures.
 // running the scan chain's pieces (pipeline/chain), with a live preview handed to the render thread
-// through a triple buffer, control from any thread (pause, reset, undo, save) and the host's figures
-// (bursts received / processed / dropped, bursts/s, latency percentiles, per-stage timing).
+// through a triple buffer, control from any thread (pause, reset, undo, save) and the host's
+// figures (bursts received / processed / dropped, bursts/s, latency percentiles, per-stage timing).
 // The preview is built from the registered views' points (a decimated point model), not from the
 // TSDF, so it comes before the fuse stage: a burst is on screen once it is registered, and the
 // latency (capture to preview) does not include its fusion, which only the saved model waits for
-// (the report gives both: latency_ms_* and latency_fused_ms_*). A burst processed = fused or refused.
+// (the report gives both: latency_ms_* and latency_fused_ms_*). A burst processed = fused or
+// refused.
 //
 // Buffers and threads (who owns what):
-//   ScanItem (pool of the graph): frames (ingest writes), view (reconstruct writes; register, fuse and
-//     preview read), track (register writes; fuse and preview read), kept_frames (reconstruct writes,
-//     fuse reads), packed (fuse). One thread at a time, handed over by the graph's edges.
+//   ScanItem (pool of the graph): frames (ingest writes), view (reconstruct writes; register, fuse
+//   and
+//     preview read), track (register writes; fuse and preview read), kept_frames (reconstruct
+//     writes, fuse reads), packed (fuse). One thread at a time, handed over by the graph's edges.
 //   ScanReconstructor: reconstruct thread.   ScanRegistrar (Tracker): register thread (with
 //     d3d-scan's keyframe features on demand, their SIFT too, when a relocalisation needs them);
-//     with KeyframeGraphOptions::FeatureTiming::kWorker, the tracker's keyframe-feature worker thread
-//     touches only the copies of a keyframe's points and texture it is handed and its own job and
-//     result lists (tracker.cpp).
+//     with KeyframeGraphOptions::FeatureTiming::kWorker, the tracker's keyframe-feature worker
+//     thread touches only the copies of a keyframe's points and texture it is handed and its own
+//     job and result lists (tracker.cpp).
 //   BurstRing (live, ScanAppOptions::bridge): the ingest thread puts every burst, the register
 //     thread's GapBridge (its own reconstructor and view) takes one, under the ring's mutex.
 //   ScanFuser (the live TSDF, at ScanAppOptions::live) and the ViewArchive: fuse thread,
-//     then Finish(), under the fuse stage's model lock, which SaveNow() (a saver thread) also takes.
+//     then Finish(), under the fuse stage's model lock, which SaveNow() (a saver thread) also
+//     takes.
 //   FramePacker: fuse thread.
 //   Preview grid (the decimated model) and the TripleBuffer's back copy: preview thread.
 //   The TripleBuffer's front copy: the render thread (LatestSnapshot()).
@@ -76,20 +79,21 @@ struct ScanAppOptions {
   // long (StageGraphOptions::live_catch_up_max_s; 0 = start on the newest burst, dropping them).
   // The source must hold them: d3d-scan's DDS receiver keeps up to 1 s of bursts live.
   double live_catch_up_max_s = 1.0;
-  double preview_cell_mm = 0.2;        // one preview point per cell of this size
-  size_t preview_max_points = 150000;  // the preview stops adding points beyond this (draw cost; docs/decisions/0015)
-  int preview_stride_px = 3;           // pixels sampled per view for the preview model
-  int view_stride_px = 8;              // pixels sampled for the highlighted current view
-  // Keep the frames of every fused view (zstd: pipeline/chain/view_archive.h) so that Finish can fuse
-  // them again at the pose graph's poses when it is given no view provider (with
+  double preview_cell_mm = 0.2;  // one preview point per cell of this size
+  size_t preview_max_points =
+      150000;  // the preview stops adding points beyond this (draw cost; docs/decisions/0015)
+  int preview_stride_px = 3;  // pixels sampled per view for the preview model
+  int view_stride_px = 8;     // pixels sampled for the highlighted current view
+  // Keep the frames of every fused view (zstd: pipeline/chain/view_archive.h) so that Finish can
+  // fuse them again at the pose graph's poses when it is given no view provider (with
   // ScanOptions::refuse_min_correction_mm >= 0). In memory they grow with the scan (sizes:
   // docs/decisions/0015); see views_spill_dir.
   bool keep_views = true;
   // keep_views: a directory for the kept frames (an unnamed temporary file there, ViewArchive::
-  // SpillTo; gone when the scan app is), so that memory holds only their index (tens of bytes a view)
-  // and stays flat however long the scan. Empty = in memory. When no file can be made there the
-  // frames stay in memory and the report says why (views_spill_error); a write that fails later keeps
-  // that view's frames in memory (views_spill_failures).
+  // SpillTo; gone when the scan app is), so that memory holds only their index (tens of bytes a
+  // view) and stays flat however long the scan. Empty = in memory. When no file can be made there
+  // the frames stay in memory and the report says why (views_spill_error); a write that fails later
+  // keeps that view's frames in memory (views_spill_failures).
   std::string views_spill_dir;
   // The live TSDF the fuse stage fuses every burst into, when keep_views is on (else the scan's:
   // the live volume is then the result). It is what SaveNow saves mid-scan; Finish always fuses the
@@ -114,8 +118,8 @@ struct ScanAppOptions {
 class ScanApp {
  public:
   // `source` is borrowed and must outlive Join(). Throws std::invalid_argument for bad options or
-  // calibration. Live policy: the constructor also warms up every pool item (one reconstruction of a
-  // blank burst each), so that the first views are not slowed by allocating their maps; the time
+  // calibration. Live policy: the constructor also warms up every pool item (one reconstruction of
+  // a blank burst each), so that the first views are not slowed by allocating their maps; the time
   // is reported as warm_up_ms.
   ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& options, BurstSource* source);
   ~ScanApp();
@@ -124,8 +128,8 @@ class ScanApp {
   void RequestStop();  // any thread: the source ends; lossless edges drain
   void Join();
   bool finished() const { return graph_->finished(); }
-  // Why the kept frames stay in memory although views_spill_dir was given (empty: they spill, or were
-  // not to). Set by the constructor.
+  // Why the kept frames stay in memory although views_spill_dir was given (empty: they spill, or
+  // were not to). Set by the constructor.
   const std::string& views_spill_error() const { return fuse_->spill_error(); }
 
   // Control, any thread.
@@ -149,7 +153,9 @@ class ScanApp {
   // tracked poses (the fuse stage waits; without the register thread's model anchoring, which
   // Finish's refusion adds back), which then replaces the live one. INTERNAL for an empty model;
   // a kept view that cannot be read back: its error.
-  [[nodiscard]] Status SaveNow(const std::string& dir) { return fuse_->Save(undo_.requests(), dir); }
+  [[nodiscard]] Status SaveNow(const std::string& dir) {
+    return fuse_->Save(undo_.requests(), dir);
+  }
 
   // Render thread only: the newest snapshot (nullptr before the first).
   const PreviewSnapshot* LatestSnapshot() { return preview_->Latest(); }
@@ -162,7 +168,8 @@ class ScanApp {
 
   // After Join(): pose graph, mesh, evaluation (FinishScan) with the host's figures added to the
   // report. `provider` may be empty: the kept views are then fused again (keep_views), if any.
-  [[nodiscard]] Status Finish(const ScanTruth& truth, const ScanViewProvider& provider, ScanResult* out);
+  [[nodiscard]] Status Finish(const ScanTruth& truth, const ScanViewProvider& provider,
+                              ScanResult* out);
   // The host's figures (any time; percentiles only after Join()).
   nlohmann::json HostReport() const;
   // The views' calibration: the probe's, binned when options.scan.bin > 1.
@@ -174,10 +181,11 @@ class ScanApp {
   uint64_t BurstsCompleted() const;  // items the graph completed that carried a burst
 
   ProbeCalibration calibration_;  // the views' (binned with o_.scan.bin)
-  ScanAppOptions o_;              // as given, with the undo journal and the deferred model insert set
+  ScanAppOptions o_;  // as given, with the undo journal and the deferred model insert set
   BurstSource* source_;
   UndoLog undo_;
-  std::unique_ptr<BurstRing> ring_;  // live bridging: the ingest stage puts, the register stage's bridge takes
+  std::unique_ptr<BurstRing>
+      ring_;  // live bridging: the ingest stage puts, the register stage's bridge takes
   std::unique_ptr<IngestStage> ingest_;
   std::unique_ptr<ReconstructStage> reconstruct_;
   std::unique_ptr<RegisterStage> register_;

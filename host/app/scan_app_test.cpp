@@ -129,7 +129,8 @@ TEST(ScanAppUndo, UndoneViewsLeaveThePreviewTheSavedModelAndTheReport) {
   for (int64_t i = 41; i <= 59; i += 2) seqs.push_back(i);
   std::vector<Burst> bursts;
   for (const int64_t i : seqs) bursts.push_back(session->RenderBurst(i, false));
-  const std::filesystem::path dir = std::filesystem::temp_directory_path() / "d3d_scan_app_undo_test";
+  const std::filesystem::path dir =
+      std::filesystem::temp_directory_path() / "d3d_scan_app_undo_test";
   std::filesystem::remove_all(dir);
 
   // The scan that never had views 9-11: its first 9 bursts only, saved.
@@ -137,7 +138,9 @@ TEST(ScanAppUndo, UndoneViewsLeaveThePreviewTheSavedModelAndTheReport) {
     HeldSource nine(std::vector<Burst>(bursts.begin(), bursts.begin() + 9), seqs, 9);
     ScanApp app(session->calibration(), Options(), &nine);
     app.Start();
-    ASSERT_TRUE(WaitFor([&] { return app.CurrentStatus().bursts_fused + app.CurrentStatus().bursts_rejected >= 9; }));
+    ASSERT_TRUE(WaitFor([&] {
+      return app.CurrentStatus().bursts_fused + app.CurrentStatus().bursts_rejected >= 9;
+    }));
     ASSERT_TRUE(app.SaveNow((dir / "nine").string()).ok());
     nine.Release();
     app.RequestStop();
@@ -162,7 +165,8 @@ TEST(ScanAppUndo, UndoneViewsLeaveThePreviewTheSavedModelAndTheReport) {
   ASSERT_TRUE(app.SaveNow((dir / "undone").string()).ok());
   const std::string nine_ply = ReadAll(dir / "nine" / "scan.ply");
   ASSERT_FALSE(nine_ply.empty());
-  EXPECT_TRUE(ReadAll(dir / "undone" / "scan.ply") == nine_ply) << "the save after the undo is not the model without the undone views";
+  EXPECT_TRUE(ReadAll(dir / "undone" / "scan.ply") == nine_ply)
+      << "the save after the undo is not the model without the undone views";
   EXPECT_EQ(app.undos_done(), 1u);
   EXPECT_NE(app.LastUndoMessage().find("3 views"), std::string::npos) << app.LastUndoMessage();
   ASSERT_TRUE(WaitFor([&] {
@@ -203,7 +207,8 @@ TEST(ScanAppUndo, UndoneViewsLeaveThePreviewTheSavedModelAndTheReport) {
   EXPECT_GE(m.views, ScanApp::kMemoryEvery);
   EXPECT_GT(m.model_samples, 1000u);
   EXPECT_LE(m.model_samples, j["model_samples"].get<uint64_t>() * 2);
-  EXPECT_GE(m.model_mib * 1024 * 1024, static_cast<double>(m.model_samples) * 28);  // two Vector3f and a weight each, at least
+  EXPECT_GE(m.model_mib * 1024 * 1024,
+            static_cast<double>(m.model_samples) * 28);  // two Vector3f and a weight each, at least
   EXPECT_GT(m.undo_journal_mib, 0.0);
   EXPECT_GE(m.keyframes, 1u);
   EXPECT_GT(m.keyframes_mib, 0.0);

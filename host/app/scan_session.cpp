@@ -17,7 +17,8 @@ double RssMiB() {
   std::ifstream f("/proc/self/statm");
   long pages = 0, resident = 0;
   f >> pages >> resident;
-  return static_cast<double>(resident) * static_cast<double>(sysconf(_SC_PAGESIZE)) / (1024.0 * 1024.0);
+  return static_cast<double>(resident) * static_cast<double>(sysconf(_SC_PAGESIZE)) /
+         (1024.0 * 1024.0);
 }
 
 // Bytes malloc has handed out and not had back (all arenas: in use in the heaps, plus mmapped
@@ -27,20 +28,26 @@ double HeapInUseMiB() {
   return static_cast<double>(mi.uordblks + mi.hblkhd) / (1024.0 * 1024.0);
 }
 
-double SteadyS() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
+double SteadyS() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
 
 }  // namespace
 
 void ScanSessionOptions::Check() const {
-  if (!(duration_s >= 0)) throw std::invalid_argument("ScanSessionOptions: duration_s must be >= 0");
-  if (!(preview_fps > 0)) throw std::invalid_argument("ScanSessionOptions: preview_fps must be > 0");
+  if (!(duration_s >= 0))
+    throw std::invalid_argument("ScanSessionOptions: duration_s must be >= 0");
+  if (!(preview_fps > 0))
+    throw std::invalid_argument("ScanSessionOptions: preview_fps must be > 0");
 }
 
-ScanSession::ScanSession(ScanApp* app, Viewer* viewer, const ScanSessionOptions& options, ScanSessionRequests requests)
+ScanSession::ScanSession(ScanApp* app, Viewer* viewer, const ScanSessionOptions& options,
+                         ScanSessionRequests requests)
     : app_(app), viewer_(viewer), o_(options), requests_(requests) {
   o_.Check();
   if (app_ == nullptr || !requests_.stop || !requests_.save || !requests_.undo)
-    throw std::invalid_argument("ScanSession: an app and the stop, save and undo requests are needed");
+    throw std::invalid_argument(
+        "ScanSession: an app and the stop, save and undo requests are needed");
 }
 
 ScanSession::~ScanSession() {
@@ -64,7 +71,8 @@ void ScanSession::StartSave(bool print) {
   saver_ = std::thread([this, print] {
     const Status s = app_->SaveNow(o_.out_dir);
     const std::string saved = "saved " + o_.out_dir + "/scan.ply";
-    if (print) std::fprintf(stderr, "\nd3d-scan: %s\n", s.ok() ? saved.c_str() : s.ToString().c_str());
+    if (print)
+      std::fprintf(stderr, "\nd3d-scan: %s\n", s.ok() ? saved.c_str() : s.ToString().c_str());
     SetMessage(s.ok() ? saved : "save failed: " + s.ToString(), SteadyS() + 4);
     saving_.store(false);
   });
@@ -78,9 +86,13 @@ void ScanSession::SampleMemory() {
 
 void ScanSession::PrintStatusLine(double elapsed_s) const {
   const PreviewStatus st = app_->CurrentStatus();
-  std::fprintf(stderr, "\rd3d-scan: %5.0f s  received %llu  processed %llu  fused %llu  dropped %llu  %.1f bursts/s  latency p95 %.0f ms  %s   ",
-               elapsed_s, static_cast<unsigned long long>(st.bursts_received), static_cast<unsigned long long>(st.bursts_processed),
-               static_cast<unsigned long long>(st.bursts_fused), static_cast<unsigned long long>(st.bursts_dropped), st.bursts_per_s,
+  std::fprintf(stderr,
+               "\rd3d-scan: %5.0f s  received %llu  processed %llu  fused %llu  dropped %llu  %.1f "
+               "bursts/s  latency p95 %.0f ms  %s   ",
+               elapsed_s, static_cast<unsigned long long>(st.bursts_received),
+               static_cast<unsigned long long>(st.bursts_processed),
+               static_cast<unsigned long long>(st.bursts_fused),
+               static_cast<unsigned long long>(st.bursts_dropped), st.bursts_per_s,
                st.latency_ms_p95, st.override_cue ? PreviewCueText(st.cue_override) : "");
 }
 
@@ -149,7 +161,8 @@ void ScanSession::Report(nlohmann::json* report) const {
   nlohmann::json& r = *report;
   r["preview_fps"] = viewer_ && preview_s_ > 0 ? static_cast<double>(frames_) / preview_s_ : 0.0;
   // Of those frames, the ones drawn: the others showed the same picture (Viewer::Render).
-  r["preview_draws_per_s"] = viewer_ && preview_s_ > 0 ? static_cast<double>(viewer_->frames_drawn()) / preview_s_ : 0.0;
+  r["preview_draws_per_s"] =
+      viewer_ && preview_s_ > 0 ? static_cast<double>(viewer_->frames_drawn()) / preview_s_ : 0.0;
   r["preview"] = viewer_ ? (viewer_->headless() ? "offscreen" : "window") : "none";
   r["rss_mb_per_s"] = rss_timeline_;
   nlohmann::json mem;  // one array per figure, aligned with rss_mb_per_s
@@ -177,7 +190,8 @@ cv::Mat ScanSession::FinalPicture() {
   // The last snapshot (the whole model), the status as at the end.
   PreviewStatus st = app_->CurrentStatus();
   st.message = "scan finished";
-  st.override_cue = st.override_cue && st.cue_override != PreviewCue::kProbeLost;  // the model's own state
+  st.override_cue =
+      st.override_cue && st.cue_override != PreviewCue::kProbeLost;  // the model's own state
   viewer_->Render(app_->LatestSnapshot(), st, fps_, &picture);
   return picture;
 }

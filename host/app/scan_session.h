@@ -24,9 +24,9 @@
 namespace d3d {
 
 struct ScanSessionOptions {
-  double duration_s = 0;             // stop after this many seconds (0 = until the scan ends or a stop)
-  double preview_fps = 20;           // the preview's frame-rate cap (> 0)
-  bool quiet = false;                // no status line on stderr
+  double duration_s = 0;    // stop after this many seconds (0 = until the scan ends or a stop)
+  double preview_fps = 20;  // the preview's frame-rate cap (> 0)
+  bool quiet = false;       // no status line on stderr
   std::string out_dir = "scan_out";  // where a save mid-scan writes scan.ply
   void Check() const;                // throws std::invalid_argument
 };
@@ -43,7 +43,8 @@ class ScanSession {
  public:
   // `app` (started by Run) and `viewer` (null: no preview) are borrowed and must outlive the
   // session. Throws std::invalid_argument for bad options or a missing request.
-  ScanSession(ScanApp* app, Viewer* viewer, const ScanSessionOptions& options, ScanSessionRequests requests);
+  ScanSession(ScanApp* app, Viewer* viewer, const ScanSessionOptions& options,
+              ScanSessionRequests requests);
   ~ScanSession();  // joins a save still running
   ScanSession(const ScanSession&) = delete;
   ScanSession& operator=(const ScanSession&) = delete;
@@ -77,9 +78,10 @@ class ScanSession {
   uint64_t undos_seen_ = 0;
   double fps_ = 0, preview_s_ = 0;
   int64_t frames_ = 0;
-  std::vector<double> rss_timeline_;         // MiB, once a second: memory must stay flat after warm-up
-  std::vector<ScanMemory> memory_timeline_;  // what the scan's growing parts hold, at the same seconds
-  std::vector<double> heap_timeline_;        // MiB malloc has handed out, at the same seconds
+  std::vector<double> rss_timeline_;  // MiB, once a second: memory must stay flat after warm-up
+  std::vector<ScanMemory>
+      memory_timeline_;                // what the scan's growing parts hold, at the same seconds
+  std::vector<double> heap_timeline_;  // MiB malloc has handed out, at the same seconds
 };
 
 }  // namespace d3d

@@ -15,7 +15,8 @@ bool UndoLog::Request() {
 bool UndoLog::Record(const ScanRegistrar::UndoResult& u) {
   char text[160];
   if (u.ok)
-    std::snprintf(text, sizeof text, "undid %.1f s: %lld views%s", u.seconds_undone, static_cast<long long>(u.views_undone),
+    std::snprintf(text, sizeof text, "undid %.1f s: %lld views%s", u.seconds_undone,
+                  static_cast<long long>(u.views_undone),
                   u.clamped ? " (as far back as undo reaches)" : "");
   else
     std::snprintf(text, sizeof text, "nothing undone: %s", u.reason.c_str());

@@ -1,5 +1,6 @@
 // The host's USB DFU 1.1 layer: one implementation of the request sequence (DFU 1.1 spec §6–7,
-// Appendix A) over any DfuTransport, so the simulated link exercises exactly what a real probe gets.
+// Appendix A) over any DfuTransport, so the simulated link exercises exactly what a real probe
+// gets.
 //
 // Flash sequence (FlashImage):
 //   1. GET_DESCRIPTOR (device, configuration with the DFU functional descriptor: wTransferSize,
@@ -68,7 +69,8 @@ class DfuHost {
   double poll_wait_ms() const { return poll_wait_ms_; }
 
  private:
-  ControlResult In(uint8_t type, uint8_t request, uint16_t value, uint16_t length, std::vector<uint8_t>* out);
+  ControlResult In(uint8_t type, uint8_t request, uint16_t value, uint16_t length,
+                   std::vector<uint8_t>* out);
   ControlResult Out(uint8_t type, uint8_t request, uint16_t value, std::span<const uint8_t> data);
   static Status Check(const ControlResult& r, const char* what);
 
@@ -103,20 +105,21 @@ struct FlashOptions {
 
 struct FlashReport {
   FlashOutcome outcome = FlashOutcome::kError;
-  std::string reason;           // the probe's exact reason, or what failed on the host
-  uint8_t dfu_status = 0;       // bStatus of a refusal
+  std::string reason;      // the probe's exact reason, or what failed on the host
+  uint8_t dfu_status = 0;  // bStatus of a refusal
   DfuDeviceInfo device;
   dfu::FirmwareInfo before, after;
   bool have_after = false;
   uint64_t bytes = 0;
   int64_t blocks = 0;
-  int64_t control_transfers = 0;  // all of them, descriptors to final info
-  int64_t download_transfers = 0; // DNLOAD + GETSTATUS of the blocks
+  int64_t control_transfers = 0;   // all of them, descriptors to final info
+  int64_t download_transfers = 0;  // DNLOAD + GETSTATUS of the blocks
   double download_s = 0, manifest_s = 0, reboot_s = 0, total_s = 0;
-  double poll_wait_ms = 0;        // time spent honouring bwPollTimeout
+  double poll_wait_ms = 0;  // time spent honouring bwPollTimeout
 };
 
 // Runs the whole sequence above. Never throws; the report says what happened.
-FlashReport FlashImage(DfuTransport* transport, std::span<const uint8_t> image, const FlashOptions& options);
+FlashReport FlashImage(DfuTransport* transport, std::span<const uint8_t> image,
+                       const FlashOptions& options);
 
 }  // namespace d3d::flash

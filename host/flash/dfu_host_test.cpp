@@ -2,7 +2,6 @@
 // with every request checked against the DFU 1.1 state diagram (spec Appendix A) — written here
 // independently of the device's implementation.
 #include "host/flash/dfu_host.h"
-#include "host/flash/usb_transport.h"
 
 #include <gtest/gtest.h>
 
@@ -12,6 +11,7 @@
 
 #include "firmware/update/test_images.h"
 #include "firmware/update/update_agent.h"
+#include "host/flash/usb_transport.h"
 
 namespace d3d::flash {
 namespace {
@@ -27,7 +27,8 @@ struct Hooks : fw::ProbeHooks {
   fw::HealthResult HealthCheck(const fw::ImageHeader&) override { return health; }
 };
 
-// DFU 1.1 Appendix A: the class requests a host may send in each state, and the states each may lead to.
+// DFU 1.1 Appendix A: the class requests a host may send in each state, and the states each may
+// lead to.
 const std::map<uint8_t, std::set<uint8_t>>& AllowedRequests() {
   static const std::map<uint8_t, std::set<uint8_t>> m = {
       {kAppIdle, {kDetach, kGetStatus, kGetState}},
@@ -44,13 +45,23 @@ const std::map<uint8_t, std::set<uint8_t>>& AllowedRequests() {
   };
   return m;
 }
-const std::set<std::pair<uint8_t, uint8_t>>& AllowedTransitions() {  // (from, to) caused by a request
+const std::set<std::pair<uint8_t, uint8_t>>&
+AllowedTransitions() {  // (from, to) caused by a request
   static const std::set<std::pair<uint8_t, uint8_t>> t = {
-      {kAppIdle, kAppDetach},        {kDfuIdle, kDfuDnloadSync},         {kDfuDnloadSync, kDfuDnBusy},
-      {kDfuDnloadSync, kDfuDnloadIdle}, {kDfuDnloadSync, kDfuError},      {kDfuDnloadIdle, kDfuDnloadSync},
-      {kDfuDnloadIdle, kDfuManifestSync}, {kDfuDnloadIdle, kDfuIdle},     {kDfuDnloadIdle, kDfuError},
-      {kDfuManifestSync, kDfuManifest}, {kDfuManifestSync, kDfuIdle},     {kDfuManifestSync, kDfuError},
-      {kDfuError, kDfuIdle},         {kDfuIdle, kDfuError},
+      {kAppIdle, kAppDetach},
+      {kDfuIdle, kDfuDnloadSync},
+      {kDfuDnloadSync, kDfuDnBusy},
+      {kDfuDnloadSync, kDfuDnloadIdle},
+      {kDfuDnloadSync, kDfuError},
+      {kDfuDnloadIdle, kDfuDnloadSync},
+      {kDfuDnloadIdle, kDfuManifestSync},
+      {kDfuDnloadIdle, kDfuIdle},
+      {kDfuDnloadIdle, kDfuError},
+      {kDfuManifestSync, kDfuManifest},
+      {kDfuManifestSync, kDfuIdle},
+      {kDfuManifestSync, kDfuError},
+      {kDfuError, kDfuIdle},
+      {kDfuIdle, kDfuError},
   };
   return t;
 }
@@ -59,7 +70,8 @@ class CheckingLoopback : public DfuTransport {
  public:
   explicit CheckingLoopback(fw::UpdateAgent* a) : agent_(a) {}
   ControlResult Control(const SetupPacket& s, std::span<uint8_t> data) override {
-    const bool dfu_request = (s.request_type == kRequestTypeClassIn || s.request_type == kRequestTypeClassOut);
+    const bool dfu_request =
+        (s.request_type == kRequestTypeClassIn || s.request_type == kRequestTypeClassOut);
     const auto now = std::chrono::steady_clock::now();
     uint8_t before = agent_->dfu().state();
     // Timed transitions the device makes on its own once bwPollTimeout elapsed.
@@ -71,10 +83,12 @@ class CheckingLoopback : public DfuTransport {
         violations.push_back("request " + std::to_string(s.request) + " in " + StateName(before));
       }
     }
-    const ControlResponse r = agent_->HandleControl(s, std::span<const uint8_t>(data.data(), s.is_in() ? 0 : s.length));
+    const ControlResponse r =
+        agent_->HandleControl(s, std::span<const uint8_t>(data.data(), s.is_in() ? 0 : s.length));
     const uint8_t after = agent_->dfu().state();
     if (dfu_request && after != before && !AllowedTransitions().count({before, after})) {
-      violations.push_back(std::string("transition ") + StateName(before) + " -> " + StateName(after));
+      violations.push_back(std::string("transition ") + StateName(before) + " -> " +
+                           StateName(after));
     }
     if (dfu_request && s.request == kGetStatus && r.data.size() == 6) {
       const StatusReport rep = StatusReport::Decode(std::span<const uint8_t, 6>(r.data.data(), 6));
@@ -88,7 +102,8 @@ class CheckingLoopback : public DfuTransport {
   }
   Status BusReset() override {
     const uint8_t before = agent_->dfu().state();
-    if (before != kAppDetach && before < kDfuIdle) violations.push_back("reset in run-time mode without DETACH");
+    if (before != kAppDetach && before < kDfuIdle)
+      violations.push_back("reset in run-time mode without DETACH");
     ++resets;
     return agent_->BusReset();
   }
@@ -145,8 +160,10 @@ TEST_F(DfuHostTest, HappyPathFollowsTheDfuStateDiagram) {
   EXPECT_EQ(r.after.running_slot, 1);
   EXPECT_EQ(last, img.size());
   EXPECT_EQ(r.blocks, static_cast<int64_t>((img.size() + 1023) / 1024));
-  EXPECT_EQ(r.download_transfers, 3 * r.blocks);  // DNLOAD, GETSTATUS (dfuDNBUSY), GETSTATUS (dfuDNLOAD-IDLE)
-  EXPECT_GE(r.poll_wait_ms, static_cast<double>(r.blocks));  // waited bwPollTimeout = 1 ms per block
+  EXPECT_EQ(r.download_transfers,
+            3 * r.blocks);  // DNLOAD, GETSTATUS (dfuDNBUSY), GETSTATUS (dfuDNLOAD-IDLE)
+  EXPECT_GE(r.poll_wait_ms,
+            static_cast<double>(r.blocks));  // waited bwPollTimeout = 1 ms per block
   EXPECT_TRUE(link->violations.empty()) << link->violations.front();
   EXPECT_EQ(link->resets, 2);  // after DETACH, after manifestation
   // The request sequence, compressed: DETACH, first block, ..., manifestation.

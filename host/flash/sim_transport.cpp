@@ -14,10 +14,12 @@
 namespace d3d::flash {
 
 namespace {
-constexpr int kControlTimeoutMs = 10000;  // a control transfer's timeout (manifestation verifies 16 MiB)
+constexpr int kControlTimeoutMs =
+    10000;  // a control transfer's timeout (manifestation verifies 16 MiB)
 }
 
-Status SimTransport::Open(const std::string& socket_path, int timeout_ms, std::unique_ptr<SimTransport>* out) {
+Status SimTransport::Open(const std::string& socket_path, int timeout_ms,
+                          std::unique_ptr<SimTransport>* out) {
   std::unique_ptr<SimTransport> t(new SimTransport(socket_path));
   D3D_RETURN_IF_ERROR(t->Connect(timeout_ms));
   *out = std::move(t);
@@ -35,7 +37,8 @@ Status SimTransport::Connect(int timeout_ms) {
   Close();
   sockaddr_un addr{};
   addr.sun_family = AF_UNIX;
-  if (path_.size() >= sizeof(addr.sun_path)) return InvalidArgument("sim: socket path too long: " + path_);
+  if (path_.size() >= sizeof(addr.sun_path))
+    return InvalidArgument("sim: socket path too long: " + path_);
   std::memcpy(addr.sun_path, path_.c_str(), path_.size() + 1);
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(timeout_ms);
   for (;;) {
@@ -49,7 +52,8 @@ Status SimTransport::Connect(int timeout_ms) {
     }
     ::close(fd);
     if (std::chrono::steady_clock::now() >= deadline) {
-      return Unavailable("sim: no simulated probe listens on " + path_ + " (is d3d-update-agent running?)");
+      return Unavailable("sim: no simulated probe listens on " + path_ +
+                         " (is d3d-update-agent running?)");
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(5));
   }
@@ -61,8 +65,9 @@ ControlResult SimTransport::Control(const dfu::SetupPacket& setup, std::span<uin
     r.status = Unavailable("sim: not connected");
     return r;
   }
-  const std::span<const uint8_t> out =
-      setup.is_in() ? std::span<const uint8_t>() : std::span<const uint8_t>(data.data(), setup.length);
+  const std::span<const uint8_t> out = setup.is_in()
+                                           ? std::span<const uint8_t>()
+                                           : std::span<const uint8_t>(data.data(), setup.length);
   frame_ = dfu::EncodeRequest(dfu::kKindControl, setup, out);
   if (r.status = dfu::WriteFull(fd_, frame_); !r.status.ok()) {
     r.status = Unavailable("sim: probe link lost (" + r.status.message() + ")");

@@ -12,7 +12,8 @@ namespace d3d::flash {
 class SimTransport : public DfuTransport {
  public:
   // Connects to the agent's socket, retrying up to timeout_ms. kUnavailable when nothing listens.
-  static Status Open(const std::string& socket_path, int timeout_ms, std::unique_ptr<SimTransport>* out);
+  static Status Open(const std::string& socket_path, int timeout_ms,
+                     std::unique_ptr<SimTransport>* out);
   ~SimTransport() override;
 
   ControlResult Control(const dfu::SetupPacket& setup, std::span<uint8_t> data) override;

@@ -17,14 +17,16 @@ std::string UsbError(int rc) { return libusb_error_name(rc); }
 // The DFU interface of a device's active (or first) configuration; false when it has none.
 bool FindDfuInterface(libusb_device* dev, uint8_t* number, bool* dfu_mode) {
   libusb_config_descriptor* cfg = nullptr;
-  if (libusb_get_active_config_descriptor(dev, &cfg) != 0 && libusb_get_config_descriptor(dev, 0, &cfg) != 0) {
+  if (libusb_get_active_config_descriptor(dev, &cfg) != 0 &&
+      libusb_get_config_descriptor(dev, 0, &cfg) != 0) {
     return false;
   }
   bool found = false;
   for (int i = 0; i < cfg->bNumInterfaces && !found; ++i) {
     for (int a = 0; a < cfg->interface[i].num_altsetting; ++a) {
       const libusb_interface_descriptor& d = cfg->interface[i].altsetting[a];
-      if (d.bInterfaceClass == dfu::kInterfaceClassApp && d.bInterfaceSubClass == dfu::kInterfaceSubclassDfu) {
+      if (d.bInterfaceClass == dfu::kInterfaceClassApp &&
+          d.bInterfaceSubClass == dfu::kInterfaceSubclassDfu) {
         *number = d.bInterfaceNumber;
         *dfu_mode = d.bInterfaceProtocol == dfu::kProtocolDfuMode;
         found = true;
@@ -45,7 +47,9 @@ std::string ReadStringDescriptor(libusb_device_handle* h, uint8_t index) {
 
 Status Init(libusb_context** ctx) {
   const int rc = libusb_init(ctx);
-  if (rc != 0) return Unavailable("libusb cannot be initialised (" + UsbError(rc) + "): no USB access on this machine");
+  if (rc != 0)
+    return Unavailable("libusb cannot be initialised (" + UsbError(rc) +
+                       "): no USB access on this machine");
   return Status::Ok();
 }
 
@@ -54,7 +58,9 @@ Status Init(libusb_context** ctx) {
 bool UsbDeviceId::Parse(const std::string& text, UsbDeviceId* out) {
   unsigned vid = 0, pid = 0;
   int consumed = 0;
-  if (std::sscanf(text.c_str(), "%x:%x%n", &vid, &pid, &consumed) != 2 || vid > 0xFFFF || pid > 0xFFFF) return false;
+  if (std::sscanf(text.c_str(), "%x:%x%n", &vid, &pid, &consumed) != 2 || vid > 0xFFFF ||
+      pid > 0xFFFF)
+    return false;
   UsbDeviceId id;
   id.vendor_id = static_cast<uint16_t>(vid);
   id.product_id = static_cast<uint16_t>(pid);
@@ -132,7 +138,8 @@ Status UsbTransport::OpenMatching() {
     if (!FindDfuInterface(list[i], &number, &dfu_mode)) continue;
     libusb_device_handle* h = nullptr;
     if (const int rc = libusb_open(list[i], &h); rc != 0) {
-      result = Unavailable("cannot open " + Describe() + ": " + UsbError(rc) + " (permissions? see the udev rule in firmware/update/README.md)");
+      result = Unavailable("cannot open " + Describe() + ": " + UsbError(rc) +
+                           " (permissions? see the udev rule in firmware/update/README.md)");
       continue;
     }
     if (!id_.serial.empty() && ReadStringDescriptor(h, dd.iSerialNumber) != id_.serial) {
@@ -159,8 +166,8 @@ ControlResult UsbTransport::Control(const dfu::SetupPacket& s, std::span<uint8_t
     r.status = Unavailable("usb: device not open");
     return r;
   }
-  const int rc = libusb_control_transfer(handle_, s.request_type, s.request, s.value, s.index, data.data(), s.length,
-                                         kControlTimeoutMs);
+  const int rc = libusb_control_transfer(handle_, s.request_type, s.request, s.value, s.index,
+                                         data.data(), s.length, kControlTimeoutMs);
   if (rc == LIBUSB_ERROR_PIPE) {
     r.stalled = true;
   } else if (rc < 0) {
@@ -175,7 +182,8 @@ Status UsbTransport::BusReset() {
   if (!handle_) return Unavailable("usb: device not open");
   const int rc = libusb_reset_device(handle_);
   CloseHandle();  // after a reset the device may re-enumerate with new descriptors
-  if (rc != 0 && rc != LIBUSB_ERROR_NOT_FOUND) return Unavailable("usb: reset failed: " + UsbError(rc));
+  if (rc != 0 && rc != LIBUSB_ERROR_NOT_FOUND)
+    return Unavailable("usb: reset failed: " + UsbError(rc));
   return Status::Ok();
 }
 

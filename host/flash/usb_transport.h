@@ -28,7 +28,7 @@ struct UsbDfuDevice {
   UsbDeviceId id;
   uint8_t bus = 0, address = 0;
   uint8_t interface_number = 0;
-  bool dfu_mode = false;    // interface protocol 2 (DFU mode) rather than 1 (run-time)
+  bool dfu_mode = false;  // interface protocol 2 (DFU mode) rather than 1 (run-time)
   std::string product;
 };
 

@@ -24,17 +24,20 @@
 // the edge and afterwards false. Close() also wakes a waiting consumer.
 #pragma once
 
+#include <readerwriterqueue/readerwritercircularbuffer.h>
+
 #include <atomic>
 #include <chrono>
 #include <cstdint>
 #include <memory>
-#include <readerwriterqueue/readerwritercircularbuffer.h>
 
 namespace d3d {
 
 // Steady clock (ns): the edges' take times and the graph's just-in-time start.
 inline int64_t SteadyNowNs() {
-  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now().time_since_epoch()).count();
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(
+             std::chrono::steady_clock::now().time_since_epoch())
+      .count();
 }
 
 enum class EdgePolicy { kLive, kLossless };
@@ -114,7 +117,7 @@ class LatestEdge final : public Edge<T> {
   }
   std::atomic<T*> slot_{nullptr};
   std::atomic<uint32_t> version_{0};
-  std::atomic<uint32_t> taken_{0};  // bumped by the consumer after each take (AwaitTaken)
+  std::atomic<uint32_t> taken_{0};    // bumped by the consumer after each take (AwaitTaken)
   std::atomic<int64_t> taken_ns_{0};  // steady clock of the last take (last_taken_ns)
   std::atomic<bool> closed_{false};
 };
@@ -129,7 +132,8 @@ class LosslessEdge final : public Edge<T> {
   }
   bool Pop(T** item) override {
     for (;;) {
-      if (ring_.wait_dequeue_timed(*item, std::int64_t{20000})) return true;  // 20 ms: re-check closed
+      if (ring_.wait_dequeue_timed(*item, std::int64_t{20000}))
+        return true;  // 20 ms: re-check closed
       if (closed_.load(std::memory_order_acquire)) return ring_.try_dequeue(*item);
     }
   }
@@ -154,8 +158,9 @@ template <class T>
 class TripleBuffer {
  public:
   T& Back() { return buffers_[back_]; }  // writer thread
-  void Publish() {                        // writer thread
-    const uint8_t prev = middle_.exchange(static_cast<uint8_t>(back_ | kFresh), std::memory_order_acq_rel);
+  void Publish() {                       // writer thread
+    const uint8_t prev =
+        middle_.exchange(static_cast<uint8_t>(back_ | kFresh), std::memory_order_acq_rel);
     back_ = prev & kIndex;
   }
   const T* Latest() {  // reader thread

@@ -57,8 +57,9 @@
 // whether a stage rejected it. A stage function returns false to reject an item: it is not passed
 // on (counted per stage). Latency = wall clock (Unix epoch) when the latency stage finished −
 // origin_ns: by default the last stage; a graph whose user sees an item before its last stage ends
-// (d3d-scan: the preview, before the fuse stage) names that stage (StageGraphOptions::latency_stage),
-// and the latency to the last stage's end is kept as well (DoneLatencyPercentileMs).
+// (d3d-scan: the preview, before the fuse stage) names that stage
+// (StageGraphOptions::latency_stage), and the latency to the last stage's end is kept as well
+// (DoneLatencyPercentileMs).
 //
 // Threads: Start() spawns the source thread and one thread per stage; RequestStop() (any thread)
 // makes the source end at its next call; every edge is then closed in order and drained (lossless:
@@ -67,6 +68,8 @@
 // the latency stage's and the last stage's threads and read by LatencyPercentileMs() and
 // DoneLatencyPercentileMs() only after Join().
 #pragma once
+
+#include <pthread.h>
 
 #include <algorithm>
 #include <array>
@@ -77,7 +80,6 @@
 #include <functional>
 #include <memory>
 #include <mutex>
-#include <pthread.h>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -88,44 +90,62 @@
 namespace d3d {
 
 inline int64_t GraphNowNs() {
-  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch()).count();
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(
+             std::chrono::system_clock::now().time_since_epoch())
+      .count();
 }
 
 struct StageGraphOptions {
   EdgePolicy policy = EdgePolicy::kLossless;
-  size_t lossless_capacity = 4;            // items per lossless edge
-  size_t extra_items = 1;                  // pool items beyond the minimum
-  size_t latency_samples = 1 << 16;        // kept for the percentiles (the latest ones, ring)
-  bool live_demand_driven = true;          // live: see the file comment (false: every edge latest-wins)
-  int latency_stage = -1;                  // the stage whose end is an item's latency (-1: the last)
-  bool live_just_in_time = false;          // live, demand-driven: the first stage starts just in time (file comment)
-  double just_in_time_margin_ms = 3;       // ... finishing this much before the second stage is expected free
-  double live_catch_up_max_s = 0;          // live: catch-up start, every item for at most this long after the first (file comment; 0 = off)
-  double live_caught_up_wait_ms = 5;       // ... caught up once the source waited this long for an item, stage 0 free
-  double live_caught_up_age_ms = 50;       // ... or an item's origin is at most this old when the source hands it over
-  int live_caught_up_items = 3;            // ... for this many items in a row
-  int live_catch_up_window = 6;            // ... not gaining: over this many items (0 = never; ≤ 64) ...
-  double live_catch_up_min_gain_ms = 8;    // ... the items' age fell less than this per item ingested
-  int live_catch_up_thin = 2;              // ... then it keeps 1 of every thin + 1 items (dropping the others) until caught up (0 = latest wins)
-  int live_catch_up_max_thin = 5;          // ... one more dropped each time it still does not gain, up to this; then latest wins
+  size_t lossless_capacity = 4;      // items per lossless edge
+  size_t extra_items = 1;            // pool items beyond the minimum
+  size_t latency_samples = 1 << 16;  // kept for the percentiles (the latest ones, ring)
+  bool live_demand_driven = true;    // live: see the file comment (false: every edge latest-wins)
+  int latency_stage = -1;            // the stage whose end is an item's latency (-1: the last)
+  bool live_just_in_time =
+      false;  // live, demand-driven: the first stage starts just in time (file comment)
+  double just_in_time_margin_ms =
+      3;  // ... finishing this much before the second stage is expected free
+  double live_catch_up_max_s = 0;  // live: catch-up start, every item for at most this long after
+                                   // the first (file comment; 0 = off)
+  double live_caught_up_wait_ms =
+      5;  // ... caught up once the source waited this long for an item, stage 0 free
+  double live_caught_up_age_ms =
+      50;  // ... or an item's origin is at most this old when the source hands it over
+  int live_caught_up_items = 3;  // ... for this many items in a row
+  int live_catch_up_window = 6;  // ... not gaining: over this many items (0 = never; ≤ 64) ...
+  double live_catch_up_min_gain_ms = 8;  // ... the items' age fell less than this per item ingested
+  int live_catch_up_thin = 2;  // ... then it keeps 1 of every thin + 1 items (dropping the others)
+                               // until caught up (0 = latest wins)
+  int live_catch_up_max_thin =
+      5;  // ... one more dropped each time it still does not gain, up to this; then latest wins
   double live_catch_up_thinned_max_s = 5;  // ... thinned for at most this long (then latest wins)
   void Check() const {
-    if (lossless_capacity < 1 || latency_samples < 1) throw std::invalid_argument("StageGraphOptions: capacities must be >= 1");
-    if (!(just_in_time_margin_ms >= 0)) throw std::invalid_argument("StageGraphOptions: just_in_time_margin_ms must be >= 0");
-    if (!(live_catch_up_max_s >= 0) || !(live_caught_up_wait_ms > 0) || !(live_caught_up_age_ms >= 0) || live_caught_up_items < 1 ||
-        live_catch_up_window < 0 || live_catch_up_window > 64 || live_catch_up_thin < 0 || live_catch_up_max_thin < live_catch_up_thin ||
-        !(live_catch_up_min_gain_ms >= 0) || !(live_catch_up_thinned_max_s >= 0))
+    if (lossless_capacity < 1 || latency_samples < 1)
+      throw std::invalid_argument("StageGraphOptions: capacities must be >= 1");
+    if (!(just_in_time_margin_ms >= 0))
+      throw std::invalid_argument("StageGraphOptions: just_in_time_margin_ms must be >= 0");
+    if (!(live_catch_up_max_s >= 0) || !(live_caught_up_wait_ms > 0) ||
+        !(live_caught_up_age_ms >= 0) || live_caught_up_items < 1 || live_catch_up_window < 0 ||
+        live_catch_up_window > 64 || live_catch_up_thin < 0 ||
+        live_catch_up_max_thin < live_catch_up_thin || !(live_catch_up_min_gain_ms >= 0) ||
+        !(live_catch_up_thinned_max_s >= 0))
       throw std::invalid_argument(
-          "StageGraphOptions: live_catch_up_max_s >= 0, live_caught_up_wait_ms > 0, live_caught_up_age_ms >= 0, live_caught_up_items >= 1, "
-          "live_catch_up_window in [0, 64], 0 <= live_catch_up_thin <= live_catch_up_max_thin, live_catch_up_min_gain_ms >= 0, "
+          "StageGraphOptions: live_catch_up_max_s >= 0, live_caught_up_wait_ms > 0, "
+          "live_caught_up_age_ms >= 0, live_caught_up_items >= 1, "
+          "live_catch_up_window in [0, 64], 0 <= live_catch_up_thin <= live_catch_up_max_thin, "
+          "live_catch_up_min_gain_ms >= 0, "
           "live_catch_up_thinned_max_s >= 0");
-    if (latency_stage < -1) throw std::invalid_argument("StageGraphOptions: latency_stage must be -1 (the last) or a stage index");
+    if (latency_stage < -1)
+      throw std::invalid_argument(
+          "StageGraphOptions: latency_stage must be -1 (the last) or a stage index");
   }
 };
 
 struct ItemMeta {
-  uint64_t seq = 0;       // ingest order
-  int64_t origin_ns = 0;  // latency origin (Unix epoch ns), set by the source (default: ingest time)
+  uint64_t seq = 0;  // ingest order
+  int64_t origin_ns =
+      0;  // latency origin (Unix epoch ns), set by the source (default: ingest time)
 };
 
 struct StageCounters {
@@ -138,7 +158,7 @@ struct StageCounters {
   std::atomic<uint64_t> cpu_ns{0};
   std::atomic<uint64_t> max_ns{0};
   std::atomic<uint64_t> order_violations{0};  // seq not above the previous one (must stay 0)
-  std::atomic<uint64_t> held_ns{0};           // time held back before taking an item (just-in-time start)
+  std::atomic<uint64_t> held_ns{0};  // time held back before taking an item (just-in-time start)
 };
 
 // CPU time of the calling thread (ns, CLOCK_THREAD_CPUTIME_ID).
@@ -166,14 +186,23 @@ class StageGraph {
     AfterFn after = {};
   };
 
-  StageGraph(const StageGraphOptions& options, const std::function<std::unique_ptr<Item>()>& factory, SourceFn source, std::vector<Stage> stages)
-      : o_(options), source_(std::move(source)), stages_(std::move(stages)), counters_(stages_.size()) {
+  StageGraph(const StageGraphOptions& options,
+             const std::function<std::unique_ptr<Item>()>& factory, SourceFn source,
+             std::vector<Stage> stages)
+      : o_(options),
+        source_(std::move(source)),
+        stages_(std::move(stages)),
+        counters_(stages_.size()) {
     o_.Check();
     if (stages_.empty()) throw std::invalid_argument("StageGraph: no stage");
-    just_in_time_ = o_.policy == EdgePolicy::kLive && o_.live_demand_driven && o_.live_just_in_time && stages_.size() >= 2;
-    catching_up_.store(o_.policy == EdgePolicy::kLive && o_.live_catch_up_max_s > 0, std::memory_order_relaxed);
-    if (o_.latency_stage >= static_cast<int>(stages_.size())) throw std::invalid_argument("StageGraph: latency_stage beyond the stages");
-    latency_stage_ = o_.latency_stage < 0 ? stages_.size() - 1 : static_cast<size_t>(o_.latency_stage);
+    just_in_time_ = o_.policy == EdgePolicy::kLive && o_.live_demand_driven &&
+                    o_.live_just_in_time && stages_.size() >= 2;
+    catching_up_.store(o_.policy == EdgePolicy::kLive && o_.live_catch_up_max_s > 0,
+                       std::memory_order_relaxed);
+    if (o_.latency_stage >= static_cast<int>(stages_.size()))
+      throw std::invalid_argument("StageGraph: latency_stage beyond the stages");
+    latency_stage_ =
+        o_.latency_stage < 0 ? stages_.size() - 1 : static_cast<size_t>(o_.latency_stage);
     const size_t per_edge = o_.policy == EdgePolicy::kLive ? 1 : o_.lossless_capacity;
     const size_t n_items = 1 + stages_.size() * (1 + per_edge) + o_.extra_items;
     for (size_t i = 0; i < n_items; ++i) {
@@ -181,7 +210,8 @@ class StageGraph {
       nodes_.back()->item = factory();
       free_.push_back(nodes_.back().get());
     }
-    for (size_t i = 0; i < stages_.size(); ++i) edges_.push_back(MakeEdge<Node>(o_.policy, o_.lossless_capacity));
+    for (size_t i = 0; i < stages_.size(); ++i)
+      edges_.push_back(MakeEdge<Node>(o_.policy, o_.lossless_capacity));
     latency_ms_.reserve(o_.latency_samples);
     done_latency_ms_.reserve(o_.latency_samples);
   }
@@ -217,14 +247,20 @@ class StageGraph {
 
   // Counters (any thread).
   uint64_t ingested() const { return ingested_.load(std::memory_order_relaxed); }
-  uint64_t completed() const { return completed_.load(std::memory_order_relaxed); }  // left the last stage
+  uint64_t completed() const {
+    return completed_.load(std::memory_order_relaxed);
+  }  // left the last stage
   uint64_t dropped() const {
     uint64_t d = source_dropped_.load(std::memory_order_relaxed);
     for (const auto& e : edges_) d += e->dropped();
     return d;
   }
-  // Edge i feeds stage i; edge 0's count includes the items the source dropped while catching up thinned.
-  uint64_t dropped_at(size_t edge) const { return edges_[edge]->dropped() + (edge == 0 ? source_dropped_.load(std::memory_order_relaxed) : 0); }
+  // Edge i feeds stage i; edge 0's count includes the items the source dropped while catching up
+  // thinned.
+  uint64_t dropped_at(size_t edge) const {
+    return edges_[edge]->dropped() +
+           (edge == 0 ? source_dropped_.load(std::memory_order_relaxed) : 0);
+  }
   const StageCounters& stage(size_t i) const { return counters_[i]; }
   const std::string& stage_name(size_t i) const { return stages_[i].name; }
   size_t num_stages() const { return stages_.size(); }
@@ -235,7 +271,9 @@ class StageGraph {
   // Catch-up start (file comment): items the source held back for, and whether it is still on.
   uint64_t catch_up_items() const { return catch_up_items_.load(std::memory_order_relaxed); }
   bool catching_up() const { return catching_up_.load(std::memory_order_relaxed); }
-  bool catch_up_thinned() const { return thinned_.load(std::memory_order_relaxed); }  // it fell behind and thinned out
+  bool catch_up_thinned() const {
+    return thinned_.load(std::memory_order_relaxed);
+  }  // it fell behind and thinned out
 
   // After Join(): latency percentile over the kept samples (ms): to the latency stage's end, and
   // to the last stage's end (the same unless latency_stage names an earlier stage).
@@ -268,7 +306,9 @@ class StageGraph {
 
   // Names the calling thread "g:<name>" (at most 15 characters, the kernel's limit), so that
   // top -H and perf show each stage's share of the cores.
-  static void NameThisThread(const std::string& name) { pthread_setname_np(pthread_self(), ("g:" + name).substr(0, 15).c_str()); }
+  static void NameThisThread(const std::string& name) {
+    pthread_setname_np(pthread_self(), ("g:" + name).substr(0, 15).c_str());
+  }
 
   void SourceLoop() {
     NameThisThread("source");
@@ -277,14 +317,16 @@ class StageGraph {
     // Catch-up start (file comment): every item, then (falling behind) one of every
     // live_catch_up_thin + 1, then latest wins.
     enum class CatchUp { kOff, kEvery, kThinned };
-    CatchUp catch_up = catching_up_.load(std::memory_order_relaxed) ? CatchUp::kEvery : CatchUp::kOff;
+    CatchUp catch_up =
+        catching_up_.load(std::memory_order_relaxed) ? CatchUp::kEvery : CatchUp::kOff;
     int64_t first_ns = 0;              // steady clock: the first catch-up item handed over
     int64_t thinned_ns = 0;            // steady clock: thinned since
     int caught_up_run = 0;             // consecutive items that found the graph caught up
     uint64_t kept = 0, thinned = 0;    // items handed over (catch_up_items_) / seen while thinned
     int thin = o_.live_catch_up_thin;  // thinned: items dropped after each one kept
-    uint64_t judged = 0;               // kept items the trend check has seen at the current thinning
-    // Ring: the ages (ns) of the latest catch-up items and the items ingested when they were handed over.
+    uint64_t judged = 0;  // kept items the trend check has seen at the current thinning
+    // Ring: the ages (ns) of the latest catch-up items and the items ingested when they were handed
+    // over.
     std::array<int64_t, kMaxCatchUpWindow> ages{};
     std::array<uint64_t, kMaxCatchUpWindow> ingested_at{};
     while (!stop_.load(std::memory_order_acquire)) {
@@ -297,7 +339,8 @@ class StageGraph {
       ++seq;
       ingested_.fetch_add(1, std::memory_order_relaxed);
       if (catch_up == CatchUp::kThinned && thinned++ % static_cast<uint64_t>(thin + 1) != 0) {
-        source_dropped_.fetch_add(1, std::memory_order_relaxed);  // counted with edge 0's drops; n is reused
+        source_dropped_.fetch_add(
+            1, std::memory_order_relaxed);  // counted with edge 0's drops; n is reused
         continue;
       }
       if (catch_up != CatchUp::kOff) {
@@ -307,11 +350,14 @@ class StageGraph {
         const int64_t taken_ns = SteadyNowNs();
         // Caught up: the source waited for this item and stage 0 had taken the previous one; or
         // the item is fresh once handed over.
-        const bool waited = got_ns - asked_ns >= static_cast<int64_t>(o_.live_caught_up_wait_ms * 1e6) &&
-                            taken_ns - got_ns < static_cast<int64_t>(o_.live_caught_up_wait_ms * 1e6);
+        const bool waited =
+            got_ns - asked_ns >= static_cast<int64_t>(o_.live_caught_up_wait_ms * 1e6) &&
+            taken_ns - got_ns < static_cast<int64_t>(o_.live_caught_up_wait_ms * 1e6);
         if (first_ns == 0) first_ns = taken_ns;
         const int64_t age = GraphNowNs() - n->meta.origin_ns;  // origin: Unix epoch
-        caught_up_run = waited || age <= static_cast<int64_t>(o_.live_caught_up_age_ms * 1e6) ? caught_up_run + 1 : 0;
+        caught_up_run = waited || age <= static_cast<int64_t>(o_.live_caught_up_age_ms * 1e6)
+                            ? caught_up_run + 1
+                            : 0;
         // Not gaining: an item handed over less than live_catch_up_min_gain_ms per item ingested
         // since younger than the one live_catch_up_window kept items before it (the first two, slow
         // while the stages warm up, are not compared; after a change of thinning, a whole window).
@@ -321,20 +367,26 @@ class StageGraph {
           const uint64_t first_judged = catch_up == CatchUp::kEvery ? 2 : 0;
           if (judged >= first_judged + w) {
             const double items = static_cast<double>(seq - ingested_at[judged % w]);
-            behind = age > ages[judged % w] - static_cast<int64_t>(items * o_.live_catch_up_min_gain_ms * 1e6);
+            behind = age > ages[judged % w] -
+                               static_cast<int64_t>(items * o_.live_catch_up_min_gain_ms * 1e6);
           }
           ages[judged % w] = age;
           ingested_at[judged % w] = seq;
           ++judged;
         }
         catch_up_items_.store(++kept, std::memory_order_relaxed);
-        const bool every_timed_out = catch_up == CatchUp::kEvery && taken_ns - first_ns >= static_cast<int64_t>(o_.live_catch_up_max_s * 1e9);
+        const bool every_timed_out =
+            catch_up == CatchUp::kEvery &&
+            taken_ns - first_ns >= static_cast<int64_t>(o_.live_catch_up_max_s * 1e9);
         const bool thinned_timed_out =
-            catch_up == CatchUp::kThinned && taken_ns - thinned_ns >= static_cast<int64_t>(o_.live_catch_up_thinned_max_s * 1e9);
+            catch_up == CatchUp::kThinned &&
+            taken_ns - thinned_ns >= static_cast<int64_t>(o_.live_catch_up_thinned_max_s * 1e9);
         const int next_thin = catch_up == CatchUp::kEvery ? o_.live_catch_up_thin : thin + 1;
         if (caught_up_run >= o_.live_caught_up_items || thinned_timed_out ||
-            ((behind || every_timed_out) && (next_thin < 1 || next_thin > o_.live_catch_up_max_thin))) {
-          catch_up = CatchUp::kOff;  // caught up, out of time, or too slow for any thinning: latest wins
+            ((behind || every_timed_out) &&
+             (next_thin < 1 || next_thin > o_.live_catch_up_max_thin))) {
+          catch_up =
+              CatchUp::kOff;  // caught up, out of time, or too slow for any thinning: latest wins
           catching_up_.store(false, std::memory_order_relaxed);
         } else if (behind || every_timed_out) {
           if (catch_up == CatchUp::kEvery) thinned_ns = taken_ns;
@@ -367,13 +419,16 @@ class StageGraph {
       if (await_taken) edges_[i + 1]->AwaitTaken();
       if (timed && i == 0) HoldUntilJustInTime(own.Median(), &c);
       if (!edges_[i]->Pop(&n)) break;
-      if (have_prev && n->meta.seq <= prev_seq) c.order_violations.fetch_add(1, std::memory_order_relaxed);
+      if (have_prev && n->meta.seq <= prev_seq)
+        c.order_violations.fetch_add(1, std::memory_order_relaxed);
       have_prev = true;
       prev_seq = n->meta.seq;
       const auto t0 = std::chrono::steady_clock::now();
       const uint64_t cpu0 = ThreadCpuNs();
       const bool ok = stages_[i].fn(*n->item, n->meta);
-      uint64_t ns = static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - t0).count());
+      uint64_t ns = static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                              std::chrono::steady_clock::now() - t0)
+                                              .count());
       uint64_t cpu = ThreadCpuNs() - cpu0;
       c.processed.fetch_add(1, std::memory_order_relaxed);
       if (!ok) {
@@ -387,8 +442,10 @@ class StageGraph {
         }
         if (last) {
           const int64_t now = GraphNowNs();
-          KeepLatency(static_cast<double>(now - n->meta.origin_ns) * 1e-6, &done_latency_ms_, &done_latency_next_);
-          if (completed_.fetch_add(1, std::memory_order_relaxed) == 0) first_done_ns_.store(now, std::memory_order_relaxed);
+          KeepLatency(static_cast<double>(now - n->meta.origin_ns) * 1e-6, &done_latency_ms_,
+                      &done_latency_next_);
+          if (completed_.fetch_add(1, std::memory_order_relaxed) == 0)
+            first_done_ns_.store(now, std::memory_order_relaxed);
           last_done_ns_.store(now, std::memory_order_relaxed);
           GiveBack(n);
         } else if (Node* dropped = edges_[i + 1]->Push(n); dropped != nullptr) {
@@ -400,12 +457,15 @@ class StageGraph {
         const auto a0 = std::chrono::steady_clock::now();
         const uint64_t acpu0 = ThreadCpuNs();
         stages_[i].after();
-        ns += static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - a0).count());
+        ns += static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                        std::chrono::steady_clock::now() - a0)
+                                        .count());
         cpu += ThreadCpuNs() - acpu0;
       }
       c.busy_ns.fetch_add(ns, std::memory_order_relaxed);
       c.cpu_ns.fetch_add(cpu, std::memory_order_relaxed);
-      if (ns > c.max_ns.load(std::memory_order_relaxed)) c.max_ns.store(ns, std::memory_order_relaxed);
+      if (ns > c.max_ns.load(std::memory_order_relaxed))
+        c.max_ns.store(ns, std::memory_order_relaxed);
       if (timed) {
         own.Add(static_cast<int64_t>(ns));
         if (i == 1) second_median_ns_.store(own.Median(), std::memory_order_relaxed);
@@ -428,7 +488,8 @@ class StageGraph {
       if (n < kMin) return 0;
       std::array<int64_t, kN> v = ring_;
       const size_t k = (n + 1) / 2 - 1;
-      std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.begin() + static_cast<std::ptrdiff_t>(n));
+      std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k),
+                       v.begin() + static_cast<std::ptrdiff_t>(n));
       return v[k];
     }
 
@@ -445,7 +506,8 @@ class StageGraph {
     const int64_t next_ns = second_median_ns_.load(std::memory_order_relaxed);
     const int64_t taken = edges_[1]->last_taken_ns();
     if (own_ns <= 0 || next_ns <= 0 || taken <= 0 || stop_.load(std::memory_order_acquire)) return;
-    const int64_t start = taken + next_ns - own_ns - static_cast<int64_t>(o_.just_in_time_margin_ms * 1e6);
+    const int64_t start =
+        taken + next_ns - own_ns - static_cast<int64_t>(o_.just_in_time_margin_ms * 1e6);
     const int64_t now = SteadyNowNs();
     if (start <= now) return;
     std::this_thread::sleep_for(std::chrono::nanoseconds(start - now));
@@ -456,8 +518,9 @@ class StageGraph {
   SourceFn source_;
   std::vector<Stage> stages_;
   std::vector<StageCounters> counters_;
-  bool just_in_time_ = false;                 // the options ask for it and the graph can do it (set-up)
-  std::atomic<int64_t> second_median_ns_{0};  // stage 1's recent median time per item (its thread writes)
+  bool just_in_time_ = false;  // the options ask for it and the graph can do it (set-up)
+  std::atomic<int64_t> second_median_ns_{
+      0};  // stage 1's recent median time per item (its thread writes)
   std::vector<std::unique_ptr<Node>> nodes_;
   std::vector<std::unique_ptr<Edge<Node>>> edges_;
   std::mutex pool_mu_;
@@ -467,8 +530,9 @@ class StageGraph {
   std::atomic<bool> stop_{false}, finished_{false};
   std::atomic<uint64_t> ingested_{0}, completed_{0};
   std::atomic<uint64_t> catch_up_items_{0};  // the source thread writes
-  std::atomic<bool> catching_up_{false};     // set up in the constructor; then the source thread writes
-  std::atomic<bool> thinned_{false};         // the source thread writes
+  std::atomic<bool> catching_up_{
+      false};                         // set up in the constructor; then the source thread writes
+  std::atomic<bool> thinned_{false};  // the source thread writes
   std::atomic<uint64_t> source_dropped_{0};  // the source thread writes (thinned catch-up)
   std::atomic<double> last_latency_ms_{0};
   std::atomic<int64_t> first_done_ns_{0}, last_done_ns_{0};

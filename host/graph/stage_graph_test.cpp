@@ -38,8 +38,8 @@ struct RunResult {
 };
 
 // n items through 3 stages; stage 1 rejects values ≡ 3 (mod 7).
-RunResult RunGraph(EdgePolicy policy, uint64_t n, uint32_t seed, int source_us, std::vector<int> stage_us,
-                   bool demand_driven = true) {
+RunResult RunGraph(EdgePolicy policy, uint64_t n, uint32_t seed, int source_us,
+                   std::vector<int> stage_us, bool demand_driven = true) {
   RunResult r;
   StageGraphOptions o;
   o.policy = policy;
@@ -48,7 +48,8 @@ RunResult RunGraph(EdgePolicy policy, uint64_t n, uint32_t seed, int source_us, 
   uint64_t next = 0;
   Delays src_delay(seed, source_us);
   std::vector<Delays> delays;
-  for (size_t i = 0; i < stage_us.size(); ++i) delays.emplace_back(seed * 31 + static_cast<uint32_t>(i) + 1, stage_us[i]);
+  for (size_t i = 0; i < stage_us.size(); ++i)
+    delays.emplace_back(seed * 31 + static_cast<uint32_t>(i) + 1, stage_us[i]);
   const size_t n_stages = stage_us.size();
   std::vector<StageGraph<TestItem>::Stage> stages;
   for (size_t i = 0; i < n_stages; ++i) {
@@ -56,7 +57,8 @@ RunResult RunGraph(EdgePolicy policy, uint64_t n, uint32_t seed, int source_us, 
     name.append(std::to_string(i));
     stages.push_back({name, [&, i](TestItem& it, const ItemMeta& meta) {
                         delays[i].Sleep();
-                        if (meta.seq != it.value) r.stamps_ok = false;  // each stage's own thread; read after Join
+                        if (meta.seq != it.value)
+                          r.stamps_ok = false;  // each stage's own thread; read after Join
                         it.stamp[i] = it.value;
                         for (size_t k = 0; k < i; ++k)
                           if (it.stamp[k] != it.value) r.stamps_ok = false;
@@ -116,37 +118,39 @@ TEST(StageGraph, LosslessKeepsEveryItemInOrderUnderRandomDelays) {
 
 TEST(StageGraph, LiveDropsOldestCountsEveryDropAndKeepsOrder) {
   for (bool demand_driven : {false, true})
-  for (uint32_t seed : {4u, 5u, 6u}) {
-    SCOPED_TRACE(demand_driven ? "demand-driven" : "every edge latest-wins");
-    const uint64_t n = 600;
-    // A fast source and a slow middle stage: drops are certain.
-    const RunResult r = RunGraph(EdgePolicy::kLive, n, seed, 40, {100, 800, 200}, demand_driven);
-    EXPECT_EQ(r.ingested, n);
-    if (demand_driven) {
-      // Stage 0 never runs ahead of the slow stage 1: every drop happens at the source's edge, so
-      // no stage spends time on an item that is dropped later.
-      EXPECT_EQ(r.dropped_at[1], 0u) << "seed " << seed;
-      EXPECT_EQ(r.dropped_at[2], 0u) << "seed " << seed;
-    } else {
-      EXPECT_GT(r.dropped_at[1], 0u) << "seed " << seed;  // stage 0 keeps pace with the source; stage 1 drops
+    for (uint32_t seed : {4u, 5u, 6u}) {
+      SCOPED_TRACE(demand_driven ? "demand-driven" : "every edge latest-wins");
+      const uint64_t n = 600;
+      // A fast source and a slow middle stage: drops are certain.
+      const RunResult r = RunGraph(EdgePolicy::kLive, n, seed, 40, {100, 800, 200}, demand_driven);
+      EXPECT_EQ(r.ingested, n);
+      if (demand_driven) {
+        // Stage 0 never runs ahead of the slow stage 1: every drop happens at the source's edge, so
+        // no stage spends time on an item that is dropped later.
+        EXPECT_EQ(r.dropped_at[1], 0u) << "seed " << seed;
+        EXPECT_EQ(r.dropped_at[2], 0u) << "seed " << seed;
+      } else {
+        EXPECT_GT(r.dropped_at[1], 0u)
+            << "seed " << seed;  // stage 0 keeps pace with the source; stage 1 drops
+      }
+      EXPECT_GT(r.dropped, 0u) << "seed " << seed;
+      EXPECT_EQ(r.order_violations, 0u);
+      EXPECT_TRUE(r.stamps_ok);
+      for (size_t i = 1; i < r.sunk.size(); ++i)
+        ASSERT_LT(r.sunk[i - 1], r.sunk[i]) << "seed " << seed;  // no duplicate, in order
+      // Conservation on every edge: pushed = popped + dropped.
+      const uint64_t rejected_at_1 = r.rejected;  // only stage 1 rejects
+      EXPECT_EQ(r.processed[0] + r.dropped_at[0], n);
+      EXPECT_EQ(r.processed[1] + r.dropped_at[1], r.processed[0]);
+      EXPECT_EQ(r.processed[2] + r.dropped_at[2], r.processed[1] - rejected_at_1);
+      EXPECT_EQ(r.completed, r.processed[2]);
+      EXPECT_EQ(r.completed + r.dropped + r.rejected, n);
+      // The newest item always makes it through: the last one ingested leaves the graph.
+      ASSERT_FALSE(r.sunk.empty());
+      if ((n - 1) % 7 != 3) {
+        EXPECT_EQ(r.sunk.back(), n - 1);
+      }
     }
-    EXPECT_GT(r.dropped, 0u) << "seed " << seed;
-    EXPECT_EQ(r.order_violations, 0u);
-    EXPECT_TRUE(r.stamps_ok);
-    for (size_t i = 1; i < r.sunk.size(); ++i) ASSERT_LT(r.sunk[i - 1], r.sunk[i]) << "seed " << seed;  // no duplicate, in order
-    // Conservation on every edge: pushed = popped + dropped.
-    const uint64_t rejected_at_1 = r.rejected;  // only stage 1 rejects
-    EXPECT_EQ(r.processed[0] + r.dropped_at[0], n);
-    EXPECT_EQ(r.processed[1] + r.dropped_at[1], r.processed[0]);
-    EXPECT_EQ(r.processed[2] + r.dropped_at[2], r.processed[1] - rejected_at_1);
-    EXPECT_EQ(r.completed, r.processed[2]);
-    EXPECT_EQ(r.completed + r.dropped + r.rejected, n);
-    // The newest item always makes it through: the last one ingested leaves the graph.
-    ASSERT_FALSE(r.sunk.empty());
-    if ((n - 1) % 7 != 3) {
-      EXPECT_EQ(r.sunk.back(), n - 1);
-    }
-  }
 }
 
 TEST(StageGraph, StopDrainsLosslessAndEndsLive) {
@@ -182,9 +186,9 @@ TEST(StageGraph, StopDrainsLosslessAndEndsLive) {
 
 // n items (values 0 … n−1), one per source_period, through `stages` with options `o`; returns the
 // graph after Join().
-std::unique_ptr<StageGraph<TestItem>> RunCounting(const StageGraphOptions& o, uint64_t n,
-                                                  const std::vector<StageGraph<TestItem>::Stage>& stages,
-                                                  std::chrono::microseconds source_period = {}) {
+std::unique_ptr<StageGraph<TestItem>> RunCounting(
+    const StageGraphOptions& o, uint64_t n, const std::vector<StageGraph<TestItem>::Stage>& stages,
+    std::chrono::microseconds source_period = {}) {
   uint64_t next = 0;
   auto g = std::make_unique<StageGraph<TestItem>>(
       o, [] { return std::make_unique<TestItem>(); },
@@ -211,7 +215,7 @@ TEST(StageGraph, AfterHookRunsOnceTheItemHasGoneOn) {
     o.policy = p;
     std::mutex mu;
     std::condition_variable cv;
-    int64_t started_1 = -1;  // the latest value stage 1 started on (under mu)
+    int64_t started_1 = -1;           // the latest value stage 1 started on (under mu)
     std::vector<std::string> events;  // stage 0's thread only; read after Join
     uint64_t current = 0, hooks_seeing_next_stage = 0;
     const std::vector<StageGraph<TestItem>::Stage> stages = {
@@ -228,7 +232,8 @@ TEST(StageGraph, AfterHookRunsOnceTheItemHasGoneOn) {
            while (std::chrono::steady_clock::now() < busy_until) {
            }
            std::unique_lock<std::mutex> lock(mu);
-           if (cv.wait_for(lock, std::chrono::seconds(5), [&] { return started_1 >= static_cast<int64_t>(current); }))
+           if (cv.wait_for(lock, std::chrono::seconds(5),
+                           [&] { return started_1 >= static_cast<int64_t>(current); }))
              ++hooks_seeing_next_stage;
          }},
         {"b", [&](TestItem& it, const ItemMeta&) {
@@ -250,11 +255,14 @@ TEST(StageGraph, AfterHookRunsOnceTheItemHasGoneOn) {
       ASSERT_EQ(events[e].rfind("fn ", 0), 0u) << e;
       EXPECT_EQ(events[e + 1], "after " + events[e].substr(3)) << e;
     }
-    EXPECT_EQ(hooks_seeing_next_stage, ran - g.stage(0).rejected.load());  // every accepted item had gone on
+    EXPECT_EQ(hooks_seeing_next_stage,
+              ran - g.stage(0).rejected.load());  // every accepted item had gone on
     EXPECT_GT(hooks_seeing_next_stage, 0u);
     EXPECT_GT(g.stage(0).rejected.load(), 0u);
-    EXPECT_GE(static_cast<double>(g.stage(0).busy_ns.load()), 2e6 * static_cast<double>(hooks_seeing_next_stage));
-    EXPECT_GE(static_cast<double>(g.stage(0).cpu_ns.load()), 1.5e6 * static_cast<double>(hooks_seeing_next_stage));
+    EXPECT_GE(static_cast<double>(g.stage(0).busy_ns.load()),
+              2e6 * static_cast<double>(hooks_seeing_next_stage));
+    EXPECT_GE(static_cast<double>(g.stage(0).cpu_ns.load()),
+              1.5e6 * static_cast<double>(hooks_seeing_next_stage));
     if (p == EdgePolicy::kLossless) {
       EXPECT_EQ(ran, n);
     }
@@ -284,9 +292,11 @@ TEST(StageGraph, LatencyEndsAtTheNamedStageAndTheLastStageIsKeptToo) {
   EXPECT_GE(g.DoneLatencyPercentileMs(50), g.LatencyPercentileMs(50) + 8.0);
   EXPECT_GE(g.DoneLatencyPercentileMs(0), 8.0);
   o.latency_stage = 3;
-  EXPECT_THROW(StageGraph<TestItem>(o, [] { return std::make_unique<TestItem>(); },
-                                    [](TestItem&, ItemMeta*) { return StageGraph<TestItem>::SourceResult::kEnd; }, stages),
-               std::invalid_argument);
+  EXPECT_THROW(
+      StageGraph<TestItem>(
+          o, [] { return std::make_unique<TestItem>(); },
+          [](TestItem&, ItemMeta*) { return StageGraph<TestItem>::SourceResult::kEnd; }, stages),
+      std::invalid_argument);
 }
 
 // Just-in-time start: a source every 1 ms, a 2 ms first stage, a 20 ms second stage. Demand-driven,
@@ -295,7 +305,8 @@ TEST(StageGraph, LatencyEndsAtTheNamedStageAndTheLastStageIsKeptToo) {
 // stage 1 starts on are ~15 ms younger. Same drop accounting; lossless edges never hold back.
 struct JustInTimeRun {
   double mean_age_ms = 0;  // item age (since ingest) when stage 1 starts on it
-  uint64_t held_ns = 0, processed0 = 0, processed1 = 0, dropped0 = 0, dropped1 = 0, order_violations = 0;
+  uint64_t held_ns = 0, processed0 = 0, processed1 = 0, dropped0 = 0, dropped1 = 0,
+           order_violations = 0;
 };
 JustInTimeRun RunJustInTime(EdgePolicy policy, bool just_in_time, uint64_t n = 700) {
   StageGraphOptions o;
@@ -304,7 +315,8 @@ JustInTimeRun RunJustInTime(EdgePolicy policy, bool just_in_time, uint64_t n = 7
   std::vector<double> ages;  // stage 1's thread; read after Join
   ages.reserve(n);
   std::vector<StageGraph<TestItem>::Stage> stages = {
-      {"fast", [](TestItem&, const ItemMeta&) {
+      {"fast",
+       [](TestItem&, const ItemMeta&) {
          std::this_thread::sleep_for(std::chrono::milliseconds(2));
          return true;
        }},
@@ -345,7 +357,8 @@ TEST(StageGraph, JustInTimeStartTakesNewerItems) {
   const JustInTimeRun jit = RunJustInTime(EdgePolicy::kLive, true);
   EXPECT_EQ(plain.held_ns, 0u);
   EXPECT_GT(jit.held_ns, 0u);
-  std::printf("mean age at stage 1's start: %.1f ms just in time, %.1f ms plain\n", jit.mean_age_ms, plain.mean_age_ms);
+  std::printf("mean age at stage 1's start: %.1f ms just in time, %.1f ms plain\n", jit.mean_age_ms,
+              plain.mean_age_ms);
   EXPECT_LT(jit.mean_age_ms, plain.mean_age_ms - 6.0);
   for (const JustInTimeRun* r : {&plain, &jit}) {
     EXPECT_EQ(r->processed0 + r->dropped0, 700u);  // every drop counted, at the source's edge only
@@ -365,19 +378,21 @@ struct CatchUpRun {
   uint64_t catch_up_items = 0, dropped = 0, ingested = 0;
   bool still_catching_up = true, thinned = false;
 };
-CatchUpRun RunCatchUp(double catch_up_max_s, uint64_t backlog, uint64_t n, int period_ms, int stage0_ms, int stage1_ms,
-                      int window = 6) {
+CatchUpRun RunCatchUp(double catch_up_max_s, uint64_t backlog, uint64_t n, int period_ms,
+                      int stage0_ms, int stage1_ms, int window = 6) {
   StageGraphOptions o;
   o.policy = EdgePolicy::kLive;
   o.live_catch_up_max_s = catch_up_max_s;
   o.live_catch_up_window = window;
   o.live_catch_up_min_gain_ms = 2;  // the fast graph gains ~6 ms per item
-  o.live_caught_up_age_ms = 0;   // by the wait alone: the source sleeps for every item after the backlog
+  o.live_caught_up_age_ms =
+      0;  // by the wait alone: the source sleeps for every item after the backlog
   o.live_caught_up_wait_ms = 1;
   CatchUpRun r;
   r.sunk.reserve(n);
   std::vector<StageGraph<TestItem>::Stage> stages = {
-      {"s0", [stage0_ms](TestItem&, const ItemMeta&) {
+      {"s0",
+       [stage0_ms](TestItem&, const ItemMeta&) {
          std::this_thread::sleep_for(std::chrono::milliseconds(stage0_ms));
          return true;
        }},
@@ -394,7 +409,8 @@ CatchUpRun RunCatchUp(double catch_up_max_s, uint64_t backlog, uint64_t n, int p
       [&](TestItem& it, ItemMeta* meta) {
         if (next == n) return StageGraph<TestItem>::SourceResult::kEnd;
         const int64_t capture = t0 + static_cast<int64_t>(next) * period_ns;
-        if (const int64_t wait = capture - GraphNowNs(); wait > 0) std::this_thread::sleep_for(std::chrono::nanoseconds(wait));
+        if (const int64_t wait = capture - GraphNowNs(); wait > 0)
+          std::this_thread::sleep_for(std::chrono::nanoseconds(wait));
         meta->origin_ns = capture;
         it.value = next++;
         return StageGraph<TestItem>::SourceResult::kItem;
@@ -414,10 +430,10 @@ CatchUpRun RunCatchUp(double catch_up_max_s, uint64_t backlog, uint64_t n, int p
 
 TEST(StageGraph, CatchUpStartProcessesTheBacklogThenLatestWins) {
   // 20 items queued before the start, then one per 10 ms; the stages take 2 and 4 ms: the graph
-  // works off the backlog in order and goes live once the source has to wait for an item (~the 35th).
-  // The trend check is off and the source runs 2 s: on a loaded machine (CTest -j2 beside the scan
-  // tests) the stages lose the 2 ms per item they must gain, the trend check then thins the backlog
-  // as it should (the next test), and catching up takes longer.
+  // works off the backlog in order and goes live once the source has to wait for an item (~the
+  // 35th). The trend check is off and the source runs 2 s: on a loaded machine (CTest -j2 beside
+  // the scan tests) the stages lose the 2 ms per item they must gain, the trend check then thins
+  // the backlog as it should (the next test), and catching up takes longer.
   const CatchUpRun on = RunCatchUp(2.0, 20, 200, 10, 2, 4, /*window=*/0);
   ASSERT_GE(on.sunk.size(), 20u);
   for (uint64_t k = 0; k < 20; ++k) EXPECT_EQ(on.sunk[k], k) << "backlog item " << k;
@@ -503,7 +519,8 @@ TEST(StageGraph, CpuTimeCountsWorkNotWaiting) {
   o.policy = EdgePolicy::kLossless;
   const uint64_t n = 10;
   std::vector<StageGraph<TestItem>::Stage> stages = {
-      {"sleep", [](TestItem&, const ItemMeta&) {
+      {"sleep",
+       [](TestItem&, const ItemMeta&) {
          std::this_thread::sleep_for(std::chrono::milliseconds(5));
          return true;
        }},

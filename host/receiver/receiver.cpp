@@ -7,10 +7,15 @@
 namespace d3d {
 namespace {
 
-int64_t NowNs() { return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch()).count(); }
+int64_t NowNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(
+             std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
 
 // Takes `reader`'s samples of type Sample until it has none left, kBatch at a time: per batch,
-// on_batch() once, then on_sample(sample) for each sample with valid data, then the loan is returned.
+// on_batch() once, then on_sample(sample) for each sample with valid data, then the loan is
+// returned.
 template <typename Sample, int kBatch, typename OnBatch, typename OnSample>
 void TakeAll(dds_entity_t reader, OnBatch&& on_batch, OnSample&& on_sample) {
   void* samples[kBatch] = {};
@@ -80,8 +85,10 @@ DropReason CheckBurst(const d3d_proto_PhaseBurst& s, std::string* detail) {
               std::to_string(proto::ProtocolMajor(proto::kProtocolVersion));
     return DropReason::kProtocolVersion;
   }
-  if (s.width < 1 || s.height < 1 || s.width > 8192 || s.height > 8192 || s.bit_depth < 1 || s.bit_depth > 16) {
-    *detail = std::to_string(s.width) + "x" + std::to_string(s.height) + " at " + std::to_string(s.bit_depth) + " bit";
+  if (s.width < 1 || s.height < 1 || s.width > 8192 || s.height > 8192 || s.bit_depth < 1 ||
+      s.bit_depth > 16) {
+    *detail = std::to_string(s.width) + "x" + std::to_string(s.height) + " at " +
+              std::to_string(s.bit_depth) + " bit";
     return DropReason::kGeometry;
   }
   if (s.frames._length < 3 || s.frames._length > 8) {
@@ -92,10 +99,12 @@ DropReason CheckBurst(const d3d_proto_PhaseBurst& s, std::string* detail) {
   for (uint32_t i = 0; i < s.frames._length; ++i) {
     const d3d_proto_ImageFrame& f = s.frames._buffer[i];
     if (f.pixels._length != bytes) {
-      *detail = "frame " + std::to_string(i) + " has " + std::to_string(f.pixels._length) + " bytes, expected " + std::to_string(bytes);
+      *detail = "frame " + std::to_string(i) + " has " + std::to_string(f.pixels._length) +
+                " bytes, expected " + std::to_string(bytes);
       return DropReason::kFrameSize;
     }
-    if (i > 0 && (f.timestamp_ns <= s.frames._buffer[i - 1].timestamp_ns || f.pattern_index <= s.frames._buffer[i - 1].pattern_index)) {
+    if (i > 0 && (f.timestamp_ns <= s.frames._buffer[i - 1].timestamp_ns ||
+                  f.pattern_index <= s.frames._buffer[i - 1].pattern_index)) {
       *detail = "frame " + std::to_string(i) + " not after frame " + std::to_string(i - 1);
       return DropReason::kFrameOrder;
     }
@@ -113,14 +122,18 @@ DropReason CheckInfo(const proto::InfoMsg& m, ProbeCalibration* calibration, std
     *detail = s.ToString();
     return DropReason::kCalibration;
   }
-  if (calibration->camera.width != static_cast<int>(m.width) || calibration->camera.height != static_cast<int>(m.height)) {
-    *detail = "calibration is for a " + std::to_string(calibration->camera.width) + "x" + std::to_string(calibration->camera.height) + " camera";
+  if (calibration->camera.width != static_cast<int>(m.width) ||
+      calibration->camera.height != static_cast<int>(m.height)) {
+    *detail = "calibration is for a " + std::to_string(calibration->camera.width) + "x" +
+              std::to_string(calibration->camera.height) + " camera";
     return DropReason::kCalibration;
   }
   return DropReason::kCount;
 }
 
-BurstReceiver::BurstReceiver(const ReceiverOptions& options) : options_(options) { options.Check(); }
+BurstReceiver::BurstReceiver(const ReceiverOptions& options) : options_(options) {
+  options.Check();
+}
 
 BurstReceiver::~BurstReceiver() { Stop(); }
 
@@ -133,23 +146,31 @@ void BurstReceiver::Stop() {
 
 Status BurstReceiver::Start(proto::DdsParticipant* participant) {
   Status s;
-  const dds_entity_t tb = participant->Topic(&d3d_proto_PhaseBurst_desc, proto::kTopicPhaseBurst, &s);
+  const dds_entity_t tb =
+      participant->Topic(&d3d_proto_PhaseBurst_desc, proto::kTopicPhaseBurst, &s);
   D3D_RETURN_IF_ERROR(s);
   const dds_entity_t ti = participant->Topic(&d3d_proto_ProbeInfo_desc, proto::kTopicProbeInfo, &s);
   D3D_RETURN_IF_ERROR(s);
-  const dds_entity_t ts = participant->Topic(&d3d_proto_ProbeStatus_desc, proto::kTopicProbeStatus, &s);
+  const dds_entity_t ts =
+      participant->Topic(&d3d_proto_ProbeStatus_desc, proto::kTopicProbeStatus, &s);
   D3D_RETURN_IF_ERROR(s);
   using Q = std::unique_ptr<dds_qos_t, proto::QosDeleter>;
-  auto reader = [&](dds_entity_t topic, proto::QosProfile profile, dds_on_data_available_fn fn, dds_entity_t* out) {
+  auto reader = [&](dds_entity_t topic, proto::QosProfile profile, dds_on_data_available_fn fn,
+                    dds_entity_t* out) {
     dds_listener_t* l = dds_create_listener(this);
     dds_lset_data_available(l, fn);
-    *out = dds_create_reader(participant->participant(), topic, Q(proto::MakeQos(profile)).get(), l);
+    *out =
+        dds_create_reader(participant->participant(), topic, Q(proto::MakeQos(profile)).get(), l);
     dds_delete_listener(l);
     return *out < 0 ? proto::DdsError("receiver: dds_create_reader", *out) : Status::Ok();
   };
-  D3D_RETURN_IF_ERROR(reader(ti, proto::QosProfile::kInfoReader, &BurstReceiver::OnInfo, &info_reader_));
-  D3D_RETURN_IF_ERROR(reader(ts, proto::QosProfile::kStatusReader, &BurstReceiver::OnStatus, &status_reader_));
-  D3D_RETURN_IF_ERROR(reader(tb, options_.preview ? proto::QosProfile::kBurstPreviewReader : proto::QosProfile::kBurstRecordReader,
+  D3D_RETURN_IF_ERROR(
+      reader(ti, proto::QosProfile::kInfoReader, &BurstReceiver::OnInfo, &info_reader_));
+  D3D_RETURN_IF_ERROR(
+      reader(ts, proto::QosProfile::kStatusReader, &BurstReceiver::OnStatus, &status_reader_));
+  D3D_RETURN_IF_ERROR(reader(tb,
+                             options_.preview ? proto::QosProfile::kBurstPreviewReader
+                                              : proto::QosProfile::kBurstRecordReader,
                              &BurstReceiver::OnBurst, &burst_reader_));
   return Status::Ok();
 }
@@ -205,7 +226,8 @@ void BurstReceiver::OnBurst(dds_entity_t reader, void* arg) {
             if (s.burst_seq == 0 && it->second > 0) {
               ++self->counters_.probe_restarts;
             } else if (s.burst_seq < it->second) {
-              detail = "burst " + std::to_string(s.burst_seq) + " after " + std::to_string(it->second - 1);
+              detail = "burst " + std::to_string(s.burst_seq) + " after " +
+                       std::to_string(it->second - 1);
             } else if (s.burst_seq > it->second) {
               ++self->counters_.sequence_gaps;
               self->counters_.bursts_missing += s.burst_seq - it->second;
@@ -266,11 +288,13 @@ void BurstReceiver::OnStatus(dds_entity_t reader, void* arg) {
       return;
     }
     if (!proto::ProtocolCompatible(s.protocol_version)) {
-      self->Drop(DropReason::kProtocolVersion, "ProbeStatus version " + std::to_string(s.protocol_version));
+      self->Drop(DropReason::kProtocolVersion,
+                 "ProbeStatus version " + std::to_string(s.protocol_version));
       return;
     }
     if (static_cast<int>(s.state) < 0 || static_cast<int>(s.state) > 3) {
-      self->Drop(DropReason::kBadEnum, "ProbeStatus state " + std::to_string(static_cast<int>(s.state)));
+      self->Drop(DropReason::kBadEnum,
+                 "ProbeStatus state " + std::to_string(static_cast<int>(s.state)));
       return;
     }
     proto::StatusMsg m;
@@ -285,7 +309,8 @@ void BurstReceiver::OnStatus(dds_entity_t reader, void* arg) {
 
 bool BurstReceiver::Pop(ReceivedSample* out, int64_t timeout_ns) {
   std::unique_lock<std::mutex> lock(mu_);
-  if (!cv_.wait_for(lock, std::chrono::nanoseconds(timeout_ns), [&] { return !queue_.empty(); })) return false;
+  if (!cv_.wait_for(lock, std::chrono::nanoseconds(timeout_ns), [&] { return !queue_.empty(); }))
+    return false;
   *out = std::move(queue_.front());
   queue_.pop_front();
   return true;

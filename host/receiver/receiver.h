@@ -1,14 +1,16 @@
 // The host's receiving end of the probe protocol: subscribes to PhaseBurst, ProbeInfo and
-// ProbeStatus, checks every sample, and hands accepted ones to the consumer through a bounded queue.
+// ProbeStatus, checks every sample, and hands accepted ones to the consumer through a bounded
+// queue.
 //
 // Checks (a failing sample is dropped, counted by reason and logged, rate-limited):
 //   all:        protocol major version (proto::ProtocolCompatible), serial filter
 //   PhaseBurst: 1 ≤ width, height ≤ 8192; bit depth 1..16; 3..8 frames; every frame exactly
 //               width × height × (1 or 2) bytes; frame timestamps and pattern indices increasing
-//   ProbeInfo:  the calibration JSON parses (calib/model) and its camera size matches width × height
-//   ProbeStatus: state within the enum
+//   ProbeInfo:  the calibration JSON parses (calib/model) and its camera size matches width ×
+//   height ProbeStatus: state within the enum
 // Sequence: per probe serial, a burst_seq above the next expected counts a gap (and the missing
-// bursts); one below counts a duplicate/reordering and is dropped; 0 after others is a probe restart.
+// bursts); one below counts a duplicate/reordering and is dropped; 0 after others is a probe
+// restart.
 //
 // Threads: the DDS listener thread (Cyclone's receive thread) takes samples, checks and copies them
 // into recycled message buffers and pushes them to the queue; it never waits for the consumer: when
@@ -38,13 +40,13 @@ namespace d3d {
 
 enum class DropReason : int {
   kProtocolVersion = 0,
-  kSerial,        // not the probe we listen to
-  kGeometry,      // width/height/bit depth out of range
+  kSerial,    // not the probe we listen to
+  kGeometry,  // width/height/bit depth out of range
   kFrameCount,
   kFrameSize,
-  kFrameOrder,    // timestamps or pattern indices not increasing
-  kDuplicate,     // burst_seq at or below one already delivered
-  kCalibration,   // ProbeInfo calibration does not parse or does not match the image size
+  kFrameOrder,   // timestamps or pattern indices not increasing
+  kDuplicate,    // burst_seq at or below one already delivered
+  kCalibration,  // ProbeInfo calibration does not parse or does not match the image size
   kBadEnum,
   kQueueFull,
   kCount
@@ -52,12 +54,12 @@ enum class DropReason : int {
 const char* DropReasonName(DropReason r);
 
 struct ReceiverOptions {
-  std::string serial;            // accept only this probe; "" = any
-  bool preview = false;          // QoS: preview (freshest burst, best effort) or every burst (reliable)
-  size_t queue_capacity = 32;    // samples waiting for the consumer
+  std::string serial;    // accept only this probe; "" = any
+  bool preview = false;  // QoS: preview (freshest burst, best effort) or every burst (reliable)
+  size_t queue_capacity = 32;  // samples waiting for the consumer
   // Where drop reasons are logged (first 5 of each reason, then every 100th); nullptr = silent.
   std::function<void(const std::string&)> log;
-  void Check() const;            // throws std::invalid_argument
+  void Check() const;  // throws std::invalid_argument
 };
 
 struct ReceivedSample {
@@ -67,14 +69,15 @@ struct ReceivedSample {
 
 struct ReceiverCounters {
   uint64_t bursts_accepted = 0, infos_accepted = 0, statuses_accepted = 0;
-  uint64_t sequence_gaps = 0;     // times a burst_seq jumped forward
-  uint64_t bursts_missing = 0;    // bursts skipped by those jumps
+  uint64_t sequence_gaps = 0;   // times a burst_seq jumped forward
+  uint64_t bursts_missing = 0;  // bursts skipped by those jumps
   uint64_t probe_restarts = 0;
   std::array<uint64_t, static_cast<size_t>(DropReason::kCount)> dropped{};
   uint64_t dropped_total() const;
 };
 
-// The pure checks, also used by tests and d3d-replay --info. "" when fine, else the reason's detail.
+// The pure checks, also used by tests and d3d-replay --info. "" when fine, else the reason's
+// detail.
 DropReason CheckBurst(const d3d_proto_PhaseBurst& s, std::string* detail);  // kCount = accepted
 DropReason CheckInfo(const proto::InfoMsg& m, ProbeCalibration* calibration, std::string* detail);
 
@@ -91,7 +94,8 @@ class BurstReceiver {
 
   // The next sample in arrival order; false after timeout_ns without one.
   bool Pop(ReceivedSample* out, int64_t timeout_ns);
-  // Gives a consumed sample's buffers back for reuse by the listener (optional; avoids allocations).
+  // Gives a consumed sample's buffers back for reuse by the listener (optional; avoids
+  // allocations).
   void Recycle(ReceivedSample&& sample);
   // The latest accepted ProbeInfo and its parsed calibration; false if none yet.
   bool LatestInfo(proto::InfoMsg* info, ProbeCalibration* calibration) const;

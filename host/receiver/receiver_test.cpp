@@ -96,7 +96,8 @@ TEST(BurstReceiver, ChecksSequenceAndDropsMalformed) {
   std::unique_ptr<dds_qos_t, proto::QosDeleter> q(proto::MakeQos(proto::QosProfile::kBurstWriter));
   const dds_entity_t w = dds_create_writer(pp.participant(), topic, q.get(), nullptr);
   ASSERT_GT(w, 0);
-  std::vector<BurstMsg> sent = {Burst(0), Burst(1), Burst(3), Burst(2) /*late*/, Burst(4, 300) /*version*/, Burst(4)};
+  std::vector<BurstMsg> sent = {
+      Burst(0), Burst(1), Burst(3), Burst(2) /*late*/, Burst(4, 300) /*version*/, Burst(4)};
   sent.push_back(Burst(5));
   sent.back().frames[3].pixels.resize(10);  // torn frame
   sent.push_back(Burst(5));

@@ -22,28 +22,35 @@ struct Group {
 }  // namespace
 
 void ModelAnchorOptions::Check() const {
-  D3D_CHECK_MSG(min_pixels >= 1 && max_samples >= 10, "ModelAnchorOptions: min_pixels >= 1 and max_samples >= 10");
-  D3D_CHECK_MSG(inlier_mm > 0 && inlier_mm <= gate_mm, "ModelAnchorOptions: need 0 < inlier_mm <= gate_mm");
-  D3D_CHECK_MSG(min_inlier_share > 0 && min_inlier_share <= 1 && max_rival_share >= 0 && max_rival_share < min_inlier_share,
+  D3D_CHECK_MSG(min_pixels >= 1 && max_samples >= 10,
+                "ModelAnchorOptions: min_pixels >= 1 and max_samples >= 10");
+  D3D_CHECK_MSG(inlier_mm > 0 && inlier_mm <= gate_mm,
+                "ModelAnchorOptions: need 0 < inlier_mm <= gate_mm");
+  D3D_CHECK_MSG(min_inlier_share > 0 && min_inlier_share <= 1 && max_rival_share >= 0 &&
+                    max_rival_share < min_inlier_share,
                 "ModelAnchorOptions: need 0 <= max_rival_share < min_inlier_share <= 1");
   D3D_CHECK_MSG(min_admit_share > 0 && min_admit_share <= 1 && model_margin_mm >= 0,
                 "ModelAnchorOptions: need 0 < min_admit_share <= 1 and model_margin_mm >= 0");
-  D3D_CHECK_MSG(max_incidence_deg > 0 && max_incidence_deg < 90, "ModelAnchorOptions: need 0 < max_incidence_deg < 90");
+  D3D_CHECK_MSG(max_incidence_deg > 0 && max_incidence_deg < 90,
+                "ModelAnchorOptions: need 0 < max_incidence_deg < 90");
 }
 
-ModelAnchorer::ModelAnchorer(const ProbeCalibration& calibration, const ModelAnchorOptions& options, double normal_max_gap_mm)
+ModelAnchorer::ModelAnchorer(const ProbeCalibration& calibration, const ModelAnchorOptions& options,
+                             double normal_max_gap_mm)
     : options_(options), normal_max_gap_mm_(normal_max_gap_mm), triangulator_(calibration) {
   options_.Check();
   D3D_CHECK_MSG(normal_max_gap_mm > 0, "ModelAnchorer: normal_max_gap_mm must be positive");
   triangulator_.PhaseRange(&phase_min_, &phase_max_);
 }
 
-int64_t ModelAnchorer::Anchor(const PointMap& model, const Rigid3d& world_from_cam, ReconstructedView* view, ModelAnchorStats* stats) {
+int64_t ModelAnchorer::Anchor(const PointMap& model, const Rigid3d& world_from_cam,
+                              ReconstructedView* view, ModelAnchorStats* stats) {
   const auto t0 = std::chrono::steady_clock::now();
   ModelAnchorStats st;
   auto finish = [&](int64_t anchored) {
     st.pixels_anchored = anchored;
-    st.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    st.ms =
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     if (stats != nullptr) *stats = st;
     return anchored;
   };
@@ -51,9 +58,10 @@ int64_t ModelAnchorer::Anchor(const PointMap& model, const Rigid3d& world_from_c
   UnwrapResult& u = view->unwrap;
   const cv::Size size = phase_min_.size();
   const cv::Mat& phi = view->phase.phi;
-  if (u.region.size() != size || u.relative.size() != size || u.order.size() != size || u.Phi.size() != size || phi.size() != size ||
-      view->points_in_cam.size() != size || view->quality.size() != size || u.region.type() != CV_32SC1 || u.relative.type() != CV_32SC1 ||
-      phi.type() != CV_32FC1)
+  if (u.region.size() != size || u.relative.size() != size || u.order.size() != size ||
+      u.Phi.size() != size || phi.size() != size || view->points_in_cam.size() != size ||
+      view->quality.size() != size || u.region.type() != CV_32SC1 ||
+      u.relative.type() != CV_32SC1 || phi.type() != CV_32FC1)
     return finish(0);
   const int w = size.width, h = size.height;
   const int n_regions = static_cast<int>(u.regions.size());
@@ -61,8 +69,9 @@ int64_t ModelAnchorer::Anchor(const PointMap& model, const Rigid3d& world_from_c
   // pixels of an anchored one (neck pruning, outside the volume).
   auto key_of = [&](int i) -> int {
     const int rid = u.region.ptr<int32_t>()[i];
-    if (rid < 0 || rid >= n_regions || u.order.ptr<int32_t>()[i] >= 0 || u.relative.ptr<int32_t>()[i] == INT32_MIN ||
-        !std::isfinite(phi.ptr<float>()[i]) || !(view->quality.ptr<float>()[i] > 0))
+    if (rid < 0 || rid >= n_regions || u.order.ptr<int32_t>()[i] >= 0 ||
+        u.relative.ptr<int32_t>()[i] == INT32_MIN || !std::isfinite(phi.ptr<float>()[i]) ||
+        !(view->quality.ptr<float>()[i] > 0))
       return -1;
     return IsAnchored(u.regions[static_cast<size_t>(rid)].anchor) ? n_regions + rid : rid;
   };
@@ -78,7 +87,8 @@ int64_t ModelAnchorer::Anchor(const PointMap& model, const Rigid3d& world_from_c
   {
     std::vector<int> next(count.begin(), count.end() - 1);
     for (int i = 0; i < w * h; ++i)
-      if (const int k = keys_[static_cast<size_t>(i)]; k >= 0) pixels[static_cast<size_t>(next[static_cast<size_t>(k)]++)] = i;
+      if (const int k = keys_[static_cast<size_t>(i)]; k >= 0)
+        pixels[static_cast<size_t>(next[static_cast<size_t>(k)]++)] = i;
   }
   const float* pmin = phase_min_.ptr<float>();
   const float* pmax = phase_max_.ptr<float>();
@@ -122,7 +132,8 @@ int64_t ModelAnchorer::Anchor(const PointMap& model, const Rigid3d& world_from_c
     if (g.candidates.empty()) continue;
     const int n = g.end - g.begin;
     const int step = std::max(1, n / options_.max_samples);
-    for (int j = g.begin; j < g.end && static_cast<int>(g.samples.size()) < options_.max_samples; j += step)
+    for (int j = g.begin; j < g.end && static_cast<int>(g.samples.size()) < options_.max_samples;
+         j += step)
       g.samples.push_back(pixels[static_cast<size_t>(j)]);
     g.points.resize(g.candidates.size() * g.samples.size());
     g.rays.assign(g.samples.size(), Eigen::Vector3f::Zero());
@@ -144,22 +155,26 @@ int64_t ModelAnchorer::Anchor(const PointMap& model, const Rigid3d& world_from_c
     groups.push_back(std::move(g));
   }
   if (groups.empty() || !(lo.x() <= hi.x())) return finish(0);
-  const Eigen::Vector3f margin = Eigen::Vector3f::Constant(static_cast<float>(options_.model_margin_mm));
+  const Eigen::Vector3f margin =
+      Eigen::Vector3f::Constant(static_cast<float>(options_.model_margin_mm));
   model.Gather(lo - margin, hi + margin, &near_samples_);
-  if (near_samples_.size() < 10 || near_samples_.normals.size() != near_samples_.points.size()) return finish(0);
+  if (near_samples_.size() < 10 || near_samples_.normals.size() != near_samples_.points.size())
+    return finish(0);
   near_.Build(near_samples_, {options_.gate_mm});
   const GridTarget& target = near_;
-  const float gate = static_cast<float>(options_.gate_mm), inlier = static_cast<float>(options_.inlier_mm);
+  const float gate = static_cast<float>(options_.gate_mm),
+              inlier = static_cast<float>(options_.inlier_mm);
   const float min_cos = static_cast<float>(std::cos(options_.max_incidence_deg * M_PI / 180.0));
   // A point the model confirms: a model sample within the gate whose tangent plane is within
   // inlier_mm, facing the camera at most max_incidence_deg from its ray (model normals face the
   // cameras that saw them). A wrong K moves the point along its ray by whole fringe orders: on a
-  // wall nearly parallel to the ray that move stays on the wall, and two or three orders back it can
-  // land on the far side of the tooth the ray went through (seen on the real arch, 4 mm behind);
-  // such matches cannot tell K apart and do not count.
+  // wall nearly parallel to the ray that move stays on the wall, and two or three orders back it
+  // can land on the far side of the tooth the ray went through (seen on the real arch, 4 mm
+  // behind); such matches cannot tell K apart and do not count.
   auto Verified = [&](const Eigen::Vector3f& p, const Eigen::Vector3f& ray_in_world) {
     Eigen::Vector3f q, nq;
-    return target.Find(p, gate, &q, &nq) && std::abs(nq.dot(p - q)) <= inlier && -nq.dot(ray_in_world) >= min_cos;
+    return target.Find(p, gate, &q, &nq) && std::abs(nq.dot(p - q)) <= inlier &&
+           -nq.dot(ray_in_world) >= min_cos;
   };
   // A pixel's own check at order k: its point confirmed by the model, and not also one order nearer
   // or farther (where the model holds two surfaces along the ray, the pixel cannot tell which one
@@ -168,7 +183,9 @@ int64_t ModelAnchorer::Anchor(const PointMap& model, const Rigid3d& world_from_c
   // The pixel's point at order k, within its admissible range and the measurement volume.
   auto point_at = [&](int i, int k, Eigen::Vector3d* p) {
     const double value = ph[i] + kTwoPi * k;
-    if (k < 0 || (std::isfinite(pmin[i]) && std::isfinite(pmax[i]) && (value < pmin[i] || value > pmax[i]))) return false;
+    if (k < 0 ||
+        (std::isfinite(pmin[i]) && std::isfinite(pmax[i]) && (value < pmin[i] || value > pmax[i])))
+      return false;
     *p = triangulator_.PointForPhase(i % w, i / w, value);
     return p->allFinite();
   };
@@ -177,7 +194,8 @@ int64_t ModelAnchorer::Anchor(const PointMap& model, const Rigid3d& world_from_c
     if (!Verified(R * p.cast<float>() + t, ray)) return false;
     for (const int dk : {-1, 1}) {
       if (k + dk < 0) continue;
-      const Eigen::Vector3d p2 = triangulator_.PointForPhase(i % w, i / w, ph[i] + kTwoPi * (k + dk));
+      const Eigen::Vector3d p2 =
+          triangulator_.PointForPhase(i % w, i / w, ph[i] + kTwoPi * (k + dk));
       if (p2.allFinite() && Verified(R * p2.cast<float>() + t, ray)) return false;
     }
     return true;
@@ -230,7 +248,8 @@ int64_t ModelAnchorer::Anchor(const PointMap& model, const Rigid3d& world_from_c
       }
       u.Phi.ptr<float>()[i] = static_cast<float>(ph[i] + kTwoPi * k);
       u.order.ptr<int32_t>()[i] = k;
-      view->points_in_cam.ptr<cv::Vec3f>()[i] = cv::Vec3f(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
+      view->points_in_cam.ptr<cv::Vec3f>()[i] = cv::Vec3f(
+          static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
       changed_.push_back(i);
       ++anchored;
     }

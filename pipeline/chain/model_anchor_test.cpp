@@ -28,7 +28,8 @@ Case MakeCase(int64_t index) {
   c.burst = c.session->RenderBurst(index, true);
   Reconstructor recon(c.session->calibration());
   std::vector<cv::Mat> frames;
-  for (int k = 0; k < c.session->calibration().pattern.steps; ++k) frames.push_back(c.burst.frames[static_cast<size_t>(k)].image);
+  for (int k = 0; k < c.session->calibration().pattern.steps; ++k)
+    frames.push_back(c.burst.frames[static_cast<size_t>(k)].image);
   EXPECT_TRUE(recon.Reconstruct(frames, &c.view).ok());
   return c;
 }
@@ -38,7 +39,8 @@ PointMap TruthModel(const Case& c, const Rigid3d& model_from_cam) {
   cv::Mat normals;
   OrganisedNormals(c.burst.reference_truth.points_in_cam, 0.15, &normals);
   PointMap model;
-  model.Insert(SampleOrganised(c.burst.reference_truth.points_in_cam, normals, cv::Mat(), 1), model_from_cam);
+  model.Insert(SampleOrganised(c.burst.reference_truth.points_in_cam, normals, cv::Mat(), 1),
+               model_from_cam);
   return model;
 }
 
@@ -65,16 +67,19 @@ Counts Compare(const Case& c, const cv::Mat& order_before, const ReconstructedVi
 }
 
 TEST(ModelAnchor, AnchorsWhatTheModelConfirmsAndOnlyWithTheTrueOrder) {
-  Case c = MakeCase(0);  // the first molar: much of its gingiva is in regions the marker cannot anchor
+  Case c =
+      MakeCase(0);  // the first molar: much of its gingiva is in regions the marker cannot anchor
   const cv::Mat before = c.view.unwrap.order.clone();
   const int64_t points_before = c.view.points;
   const uchar* points_data = c.view.points_in_cam.data;
   ModelAnchorer anchorer(c.session->calibration(), {}, 0.15);
   ModelAnchorStats st;
-  const int64_t n = anchorer.Anchor(TruthModel(c, Rigid3d::Identity()), Rigid3d::Identity(), &c.view, &st);
+  const int64_t n =
+      anchorer.Anchor(TruthModel(c, Rigid3d::Identity()), Rigid3d::Identity(), &c.view, &st);
   const Counts k = Compare(c, before, c.view);
-  std::printf("groups %d tested, %d anchored; %lld px anchored, %lld wrong; %.1f ms\n", st.groups_tested, st.groups_anchored,
-              static_cast<long long>(n), static_cast<long long>(k.wrong), st.ms);
+  std::printf("groups %d tested, %d anchored; %lld px anchored, %lld wrong; %.1f ms\n",
+              st.groups_tested, st.groups_anchored, static_cast<long long>(n),
+              static_cast<long long>(k.wrong), st.ms);
   EXPECT_GT(st.groups_anchored, 0);
   EXPECT_GT(n, 20000);  // 31266 px here: the neck-pruned gingiva and tooth neck
   EXPECT_EQ(k.gained, n);
@@ -82,7 +87,8 @@ TEST(ModelAnchor, AnchorsWhatTheModelConfirmsAndOnlyWithTheTrueOrder) {
   // no sample of the front surface, the wrong order lands on the gingiva behind it.
   EXPECT_LE(k.wrong, n / 2000);
   EXPECT_EQ(c.view.points, points_before + n);
-  EXPECT_EQ(c.view.points_in_cam.data, points_data);  // rewritten in place (the tracker holds the buffers)
+  EXPECT_EQ(c.view.points_in_cam.data,
+            points_data);  // rewritten in place (the tracker holds the buffers)
   EXPECT_EQ(st.pixels_anchored, n);
 }
 

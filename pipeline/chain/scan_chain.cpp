@@ -20,7 +20,9 @@
 namespace d3d {
 namespace {
 using Clock = std::chrono::steady_clock;
-double MsSince(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
+double MsSince(Clock::time_point t) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t).count();
+}
 }  // namespace
 
 ReconstructOptions HandHeldReconstructOptions() {
@@ -39,7 +41,8 @@ void ScanOptions::Check() const {
 
 TrackerOptions TrackerOptionsForStep(TrackerOptions options, double every) {
   if (!(every >= 1)) throw std::invalid_argument("TrackerOptionsForStep: every must be >= 1");
-  if (!options.odometry.icp.levels.empty()) options.odometry.icp.levels[0].max_distance_mm = std::min(3.0, 0.8 * std::sqrt(every));
+  if (!options.odometry.icp.levels.empty())
+    options.odometry.icp.levels[0].max_distance_mm = std::min(3.0, 0.8 * std::sqrt(every));
   options.motion.max_step_mm *= every;
   options.motion.max_step_deg *= every;
   return options;
@@ -57,8 +60,10 @@ TsdfOptions LiveVolumeOptions::Of(const TsdfOptions& scan) const {
 }
 
 void LiveVolumeOptions::Check() const {
-  if (!(voxel_mm >= 0)) throw std::invalid_argument("LiveVolumeOptions: voxel_mm >= 0 (0 = the scan's voxel)");
-  if (occlusion_stride < 1 || pixel_stride < 1) throw std::invalid_argument("LiveVolumeOptions: occlusion_stride and pixel_stride >= 1");
+  if (!(voxel_mm >= 0))
+    throw std::invalid_argument("LiveVolumeOptions: voxel_mm >= 0 (0 = the scan's voxel)");
+  if (occlusion_stride < 1 || pixel_stride < 1)
+    throw std::invalid_argument("LiveVolumeOptions: occlusion_stride and pixel_stride >= 1");
 }
 
 ScanOptions LiveScanProfile(ScanOptions options) {
@@ -67,7 +72,8 @@ ScanOptions LiveScanProfile(ScanOptions options) {
   t.keyframes.defer_edges = true;
   t.keyframes.reuse_radius_mm = 2.0;
   for (auto [level, cap] : {std::pair{0, 1600}, std::pair{1, 4000}, std::pair{2, 8000}})
-    if (level < static_cast<int>(t.odometry.icp.levels.size())) t.odometry.icp.levels[static_cast<size_t>(level)].max_samples = cap;
+    if (level < static_cast<int>(t.odometry.icp.levels.size()))
+      t.odometry.icp.levels[static_cast<size_t>(level)].max_samples = cap;
   return options;
 }
 
@@ -77,20 +83,25 @@ ScanOptions ScanOptionsForBin(ScanOptions options, int bin) {
   if (bin == 1) return options;
   TrackerOptions& t = options.tracker;
   const int old_stride = t.odometry.sample_stride;
-  const auto lattice = [bin](int stride) { return std::max(1, static_cast<int>(std::lround(static_cast<double>(stride) / bin))); };
+  const auto lattice = [bin](int stride) {
+    return std::max(1, static_cast<int>(std::lround(static_cast<double>(stride) / bin)));
+  };
   t.odometry.sample_stride = lattice(t.odometry.sample_stride);
   t.odometry.map_stride = lattice(t.odometry.map_stride);
   t.keyframes.stride = lattice(t.keyframes.stride);
   // A view of the same share of the image gives (old_stride / (bin · stride))² times the samples.
   const double share = static_cast<double>(old_stride) / (bin * t.odometry.sample_stride);
-  t.odometry.min_view_samples = std::max(1, static_cast<int>(std::lround(t.odometry.min_view_samples * share * share)));
+  t.odometry.min_view_samples =
+      std::max(1, static_cast<int>(std::lround(t.odometry.min_view_samples * share * share)));
   t.keyframes.features.image_scale = std::min(1.0, t.keyframes.features.image_scale * bin);
   t.odometry.target_scale = std::min(2.0, t.odometry.target_scale * bin);
-  // The occlusion test keeps its lattice in binned pixels (blocks of 2k × 2k camera pixels at bin 2).
+  // The occlusion test keeps its lattice in binned pixels (blocks of 2k × 2k camera pixels at bin
+  // 2).
   return options;
 }
 
-ScanReconstructor::ScanReconstructor(const ProbeCalibration& calibration, const ReconstructOptions& options, int bin)
+ScanReconstructor::ScanReconstructor(const ProbeCalibration& calibration,
+                                     const ReconstructOptions& options, int bin)
     : bin_(bin), recon_(bin > 1 ? BinnedCalibration(calibration, bin) : calibration, options) {
   if (bin < 1) throw std::invalid_argument("ScanReconstructor: bin must be >= 1");
 }
@@ -98,7 +109,8 @@ ScanReconstructor::ScanReconstructor(const ProbeCalibration& calibration, const 
 Status ScanReconstructor::Reconstruct(const std::vector<cv::Mat>& frames, ReconstructedView* out) {
   const size_t steps = static_cast<size_t>(recon_.calibration().pattern.steps);
   if (frames.size() < steps)
-    return InvalidArgument("burst has " + std::to_string(frames.size()) + " frames, the pattern needs " + std::to_string(steps));
+    return InvalidArgument("burst has " + std::to_string(frames.size()) +
+                           " frames, the pattern needs " + std::to_string(steps));
   phase_frames_.resize(steps);
   if (bin_ == 1) {
     for (size_t i = 0; i < steps; ++i) phase_frames_[i] = frames[i];  // headers only
@@ -107,8 +119,10 @@ Status ScanReconstructor::Reconstruct(const std::vector<cv::Mat>& frames, Recons
     const PinholeBrownConrady& cam = recon_.calibration().camera;
     for (size_t i = 0; i < steps; ++i) {
       if (frames[i].cols != cam.width * bin_ || frames[i].rows != cam.height * bin_)
-        return InvalidArgument("reconstruct: a frame is " + std::to_string(frames[i].cols) + "x" + std::to_string(frames[i].rows) +
-                               " but the calibration's camera is " + std::to_string(cam.width * bin_) + "x" + std::to_string(cam.height * bin_));
+        return InvalidArgument(
+            "reconstruct: a frame is " + std::to_string(frames[i].cols) + "x" +
+            std::to_string(frames[i].rows) + " but the calibration's camera is " +
+            std::to_string(cam.width * bin_) + "x" + std::to_string(cam.height * bin_));
       D3D_RETURN_IF_ERROR(BinFrame(frames[i], bin_, &binned_frames_[i]));
       phase_frames_[i] = binned_frames_[i];
     }
@@ -116,10 +130,11 @@ Status ScanReconstructor::Reconstruct(const std::vector<cv::Mat>& frames, Recons
   return recon_.Reconstruct(phase_frames_, out);
 }
 
-ScanRegistrar::ScanRegistrar(const PinholeBrownConrady& camera, const TrackerOptions& options) : tracker_(camera, options) {}
+ScanRegistrar::ScanRegistrar(const PinholeBrownConrady& camera, const TrackerOptions& options)
+    : tracker_(camera, options) {}
 
-ScanRegistrar::ScanRegistrar(const ProbeCalibration& calibration, const TrackerOptions& options, const ModelAnchorOptions& anchor,
-                             double normal_max_gap_mm)
+ScanRegistrar::ScanRegistrar(const ProbeCalibration& calibration, const TrackerOptions& options,
+                             const ModelAnchorOptions& anchor, double normal_max_gap_mm)
     : tracker_(calibration.camera, options) {
   if (anchor.enabled) {
     // Pixel counts are set for the 640 × 480 probe's fringe period, as the reconstruction's are.
@@ -130,7 +145,8 @@ ScanRegistrar::ScanRegistrar(const ProbeCalibration& calibration, const TrackerO
   }
 }
 
-TrackResult ScanRegistrar::Register(ReconstructedView& view, uint64_t burst_seq, int64_t reference_ns) {
+TrackResult ScanRegistrar::Register(ReconstructedView& view, uint64_t burst_seq,
+                                    int64_t reference_ns) {
   D3D_CHECK_MSG(given_poses_.empty(), "ScanRegistrar: Register after RegisterAtPose");
   const auto t0 = Clock::now();
   const int64_t index = static_cast<int64_t>(views_.size());
@@ -150,8 +166,9 @@ TrackResult ScanRegistrar::Register(ReconstructedView& view, uint64_t burst_seq,
       return n > 0;
     };
   }
-  TrackResult r = tracker_.Track(copy ? track_points_ : view.points_in_cam, copy ? track_normals_ : view.normals, view.quality, view.texture, augment,
-                                 reference_ns);
+  TrackResult r = tracker_.Track(copy ? track_points_ : view.points_in_cam,
+                                 copy ? track_normals_ : view.normals, view.quality, view.texture,
+                                 augment, reference_ns);
   ms_ += MsSince(t0);  // with OdometryOptions::defer_model_insert, Commit() adds the insert's
   if (r.accepted)
     ++accepted_;
@@ -160,8 +177,11 @@ TrackResult ScanRegistrar::Register(ReconstructedView& view, uint64_t burst_seq,
   if (r.state == TrackingState::kLost && prev_state_ != TrackingState::kLost) ++lost_events_;
   if (r.state == TrackingState::kRelocalised) ++relocalised_;
   if (r.state != TrackingState::kTracking || !r.accepted || r.new_segment)
-    events_.push_back(
-        {{"view", index}, {"burst", burst_seq}, {"state", TrackingStateName(r.state)}, {"fused", r.accepted && r.in_main}, {"reason", r.reason}});
+    events_.push_back({{"view", index},
+                       {"burst", burst_seq},
+                       {"state", TrackingStateName(r.state)},
+                       {"fused", r.accepted && r.in_main},
+                       {"reason", r.reason}});
   if (!r.join_attempt.empty())  // joined, or why not
     events_.push_back({{"view", index},
                        {"burst", burst_seq},
@@ -176,7 +196,8 @@ TrackResult ScanRegistrar::Register(ReconstructedView& view, uint64_t burst_seq,
 
 bool ScanRegistrar::RetractLoss() {
   if (!tracker_.RetractLoss()) return false;
-  retracted_counted_ = prev_state_ == TrackingState::kLost && state_before_last_ != TrackingState::kLost;
+  retracted_counted_ =
+      prev_state_ == TrackingState::kLost && state_before_last_ != TrackingState::kLost;
   if (retracted_counted_) --lost_events_;
   prev_state_ = tracker_.state();
   return true;
@@ -185,7 +206,8 @@ bool ScanRegistrar::RetractLoss() {
 bool ScanRegistrar::ReinstateLoss() {
   const TrackingState was = tracker_.state();
   if (!tracker_.ReinstateLoss()) return false;
-  if (was != TrackingState::kLost && tracker_.state() == TrackingState::kLost && retracted_counted_) ++lost_events_;
+  if (was != TrackingState::kLost && tracker_.state() == TrackingState::kLost && retracted_counted_)
+    ++lost_events_;
   prev_state_ = tracker_.state();
   return true;
 }
@@ -212,8 +234,10 @@ int64_t ScanRegistrar::AnchorAtPose(const Rigid3d& world_from_cam, Reconstructed
   return anchorer_ ? anchorer_->Anchor(tracker_.model(), world_from_cam, view) : 0;
 }
 
-void ScanRegistrar::RegisterAtPose(uint64_t burst_seq, int64_t reference_ns, const Rigid3d& world_from_cam) {
-  D3D_CHECK_MSG(given_poses_.size() == views_.size(), "ScanRegistrar: RegisterAtPose after Register");
+void ScanRegistrar::RegisterAtPose(uint64_t burst_seq, int64_t reference_ns,
+                                   const Rigid3d& world_from_cam) {
+  D3D_CHECK_MSG(given_poses_.size() == views_.size(),
+                "ScanRegistrar: RegisterAtPose after Register");
   given_poses_.push_back(world_from_cam);
   views_.push_back({burst_seq, reference_ns, true, TrackingState::kTracking});
   ++accepted_;
@@ -235,7 +259,8 @@ ScanRegistrar::UndoResult ScanRegistrar::UndoLastSeconds(double seconds) {
   const int64_t end_ns = views_[static_cast<size_t>(last)].reference_ns;
   int64_t first = last;
   if (end_ns > 0) {
-    const int64_t from_ns = end_ns - static_cast<int64_t>(std::llround(std::max(0.0, seconds) * 1e9));
+    const int64_t from_ns =
+        end_ns - static_cast<int64_t>(std::llround(std::max(0.0, seconds) * 1e9));
     while (first > 0 && views_[static_cast<size_t>(first - 1)].reference_ns >= from_ns) --first;
   }
   Commit();  // a pending insert counts in what the journal reaches
@@ -257,7 +282,8 @@ ScanRegistrar::UndoResult ScanRegistrar::UndoLastSeconds(double seconds) {
   r.ok = true;
   r.first_view = first;
   r.views_undone = t.views_undone;
-  r.seconds_undone = static_cast<double>(end_ns - views_[static_cast<size_t>(first)].reference_ns) * 1e-9;
+  r.seconds_undone =
+      static_cast<double>(end_ns - views_[static_cast<size_t>(first)].reference_ns) * 1e-9;
   accepted_ -= t.views_undone;
   views_undone_ += t.views_undone;
   prev_state_ = tracker_.state();  // the search that follows is not a tracking loss
@@ -272,7 +298,9 @@ ScanRegistrar::UndoResult ScanRegistrar::UndoLastSeconds(double seconds) {
 }
 
 int ScanRegistrar::ViewGroup(int64_t index) const {
-  if (index < 0 || index >= static_cast<int64_t>(views_.size()) || !views_[static_cast<size_t>(index)].accepted) return -1;
+  if (index < 0 || index >= static_cast<int64_t>(views_.size()) ||
+      !views_[static_cast<size_t>(index)].accepted)
+    return -1;
   if (!given_poses_.empty()) return 0;
   const int s = tracker_.ViewSegment(index);
   return s < 0 ? -1 : tracker_.SegmentInMain(s) ? 0 : s;
@@ -287,13 +315,17 @@ bool ScanRegistrar::ViewPose(int64_t index, Rigid3d* world_from_cam) const {
   return tracker_.ViewPose(index, world_from_cam);
 }
 
-ScanFuser::ScanFuser(const PinholeBrownConrady& camera, const TsdfOptions& options, const FreeSpaceOptions& free_space)
-    : camera_(camera), tsdf_(std::make_unique<TsdfVolume>(options)), free_space_(camera, free_space) {}
+ScanFuser::ScanFuser(const PinholeBrownConrady& camera, const TsdfOptions& options,
+                     const FreeSpaceOptions& free_space)
+    : camera_(camera),
+      tsdf_(std::make_unique<TsdfVolume>(options)),
+      free_space_(camera, free_space) {}
 
 Status ScanFuser::Fuse(const ReconstructedView& view, const Rigid3d& world_from_cam) {
   const auto t0 = Clock::now();
   const cv::Mat* points = &view.points_in_cam;
-  if (view.points_in_cam.type() == CV_32FC3 && view.points_in_cam.rows == camera_.height && view.points_in_cam.cols == camera_.width) {
+  if (view.points_in_cam.type() == CV_32FC3 && view.points_in_cam.rows == camera_.height &&
+      view.points_in_cam.cols == camera_.width) {
     const int64_t n = free_space_.TestAndRemember(view.points_in_cam, world_from_cam, &rejected_);
     if (n > 0) {
       view.points_in_cam.copyTo(masked_);
@@ -303,10 +335,14 @@ Status ScanFuser::Fuse(const ReconstructedView& view, const Rigid3d& world_from_
     }
   }  // else Integrate reports the mismatch
   // The edge fill's points (pipeline/unwrap/edge_fill.h) are the volume's secondary points.
-  const bool has_reason =
-      tsdf_->options().secondary_fade_weight > 0 && view.quality_reason.type() == CV_8U && view.quality_reason.size() == view.points_in_cam.size();
-  if (has_reason) cv::compare(view.quality_reason, static_cast<double>(QualityReason::kModulationEdge), secondary_, cv::CMP_EQ);
-  const Status s = tsdf_->Integrate(*points, view.normals, view.quality, camera_, world_from_cam, has_reason ? secondary_ : cv::Mat());
+  const bool has_reason = tsdf_->options().secondary_fade_weight > 0 &&
+                          view.quality_reason.type() == CV_8U &&
+                          view.quality_reason.size() == view.points_in_cam.size();
+  if (has_reason)
+    cv::compare(view.quality_reason, static_cast<double>(QualityReason::kModulationEdge),
+                secondary_, cv::CMP_EQ);
+  const Status s = tsdf_->Integrate(*points, view.normals, view.quality, camera_, world_from_cam,
+                                    has_reason ? secondary_ : cv::Mat());
   ms_ += MsSince(t0);
   if (s.ok()) ++fused_;
   return s;
@@ -318,15 +354,19 @@ void ScanFuser::AdoptVolume(ScanFuser&& other) {
   free_space_rejected_ = other.free_space_rejected_;  // the count of the volume's own views
 }
 
-ScanViewProvider KeptViewProvider(const ViewArchive& archive, const ProbeCalibration& view_calibration, const ReconstructOptions& options) {
+ScanViewProvider KeptViewProvider(const ViewArchive& archive,
+                                  const ProbeCalibration& view_calibration,
+                                  const ReconstructOptions& options) {
   struct State {
     std::unique_ptr<ScanReconstructor> recon;
     std::vector<cv::Mat> frames;
   };
   auto state = std::make_shared<State>();
-  return [&archive, view_calibration, options, state](int64_t, const ScanViewRecord& record, ReconstructedView* out) -> Status {
+  return [&archive, view_calibration, options, state](int64_t, const ScanViewRecord& record,
+                                                      ReconstructedView* out) -> Status {
     D3D_RETURN_IF_ERROR(archive.Get(record.burst_seq, &state->frames));
-    if (!state->recon) state->recon = std::make_unique<ScanReconstructor>(view_calibration, options, 1);
+    if (!state->recon)
+      state->recon = std::make_unique<ScanReconstructor>(view_calibration, options, 1);
     return state->recon->Reconstruct(state->frames, out);
   };
 }
@@ -334,8 +374,9 @@ ScanViewProvider KeptViewProvider(const ViewArchive& archive, const ProbeCalibra
 namespace {
 // Fuses views `todo` (indices into the registrar's views) again into *into at poses[k]: each view
 // got again from the provider and model-anchored at its tracked pose.
-Status FuseViewsAgain(const ScanViewProvider& provider, ScanRegistrar* registrar, const std::vector<Rigid3d>& tracked,
-                      const std::vector<int64_t>& todo, const std::vector<Rigid3d>& poses, ScanFuser* into) {
+Status FuseViewsAgain(const ScanViewProvider& provider, ScanRegistrar* registrar,
+                      const std::vector<Rigid3d>& tracked, const std::vector<int64_t>& todo,
+                      const std::vector<Rigid3d>& poses, ScanFuser* into) {
   const std::vector<ScanViewRecord>& views = registrar->views();
   // Two threads: a helper gets each view again (provider) and anchors it while this thread fuses
   // the one before, in the same order as one thread would (the same volume bit for bit); two
@@ -381,7 +422,8 @@ Status FuseViewsAgain(const ScanViewProvider& provider, ScanRegistrar* registrar
     }
     Slot& slot = slots[consumed % slots.size()];
     if (slot.status.code() != StatusCode::kNotFound) {
-      failed = slot.status.ok() ? into->Fuse(slot.view, poses[static_cast<size_t>(slot.k)]) : slot.status;
+      failed = slot.status.ok() ? into->Fuse(slot.view, poses[static_cast<size_t>(slot.k)])
+                                : slot.status;
     }
     {
       std::lock_guard<std::mutex> lock(mu);
@@ -395,8 +437,9 @@ Status FuseViewsAgain(const ScanViewProvider& provider, ScanRegistrar* registrar
 }
 }  // namespace
 
-Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegistrar* registrar, ScanFuser* fuser, const ScanViewProvider& provider,
-                  const ScanTruth& truth, ScanResult* out) {
+Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegistrar* registrar,
+                  ScanFuser* fuser, const ScanViewProvider& provider, const ScanTruth& truth,
+                  ScanResult* out) {
   *out = ScanResult{};
   Tracker& tracker = registrar->tracker();
   const std::vector<ScanViewRecord>& views = registrar->views();
@@ -427,7 +470,8 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
     for (int64_t k = 0; k < n_views; ++k) {
       Rigid3d p;
       if (in_main(k) && registrar->ViewPose(k, &p))
-        max_correction_mm = std::max(max_correction_mm, TranslationDistanceMm(p, tracked[static_cast<size_t>(k)]));
+        max_correction_mm =
+            std::max(max_correction_mm, TranslationDistanceMm(p, tracked[static_cast<size_t>(k)]));
     }
   }
   // Refusion at the optimised poses, when the views can be had again.
@@ -435,21 +479,29 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   double ms_refuse = 0;
   // Undone views are still in the fuser's volume: only the kept views fused again leave them out.
   const bool undone = registrar->views_undone() > 0;
-  if (undone && !provider) return Status(StatusCode::kInvalidArgument, "views were undone but there is no view provider to fuse the kept ones again");
-  // A live volume of another voxel than the scan's (a host's coarse live model) is never the result.
+  if (undone && !provider)
+    return Status(StatusCode::kInvalidArgument,
+                  "views were undone but there is no view provider to fuse the kept ones again");
+  // A live volume of another voxel than the scan's (a host's coarse live model) is never the
+  // result.
   const bool other_voxel = fuser->volume().options().voxel_mm != options.tsdf.voxel_mm;
   if (other_voxel && !provider)
-    return Status(StatusCode::kInvalidArgument, "the live volume's voxel (" + std::to_string(fuser->volume().options().voxel_mm) +
-                                                    " mm) is not the scan's (" + std::to_string(options.tsdf.voxel_mm) +
-                                                    " mm) and there is no view provider to fuse the views again");
+    return Status(StatusCode::kInvalidArgument,
+                  "the live volume's voxel (" + std::to_string(fuser->volume().options().voxel_mm) +
+                      " mm) is not the scan's (" + std::to_string(options.tsdf.voxel_mm) +
+                      " mm) and there is no view provider to fuse the views again");
   // A segment's views are fused live only once it is joined (TrackResult::in_main): a joined one
   // makes the live volume incomplete.
   const bool joined = tracker.segments_joined() > 0;
-  if (joined && !provider) return Status(StatusCode::kInvalidArgument, "segments were joined but there is no view provider to fuse their views");
+  if (joined && !provider)
+    return Status(StatusCode::kInvalidArgument,
+                  "segments were joined but there is no view provider to fuse their views");
   const bool must_refuse = undone || other_voxel || joined || model_group != 0;
-  if (provider && (must_refuse || (loops && options.refuse_min_correction_mm >= 0 && max_correction_mm > options.refuse_min_correction_mm))) {
+  if (provider && (must_refuse || (loops && options.refuse_min_correction_mm >= 0 &&
+                                   max_correction_mm > options.refuse_min_correction_mm))) {
     const auto t0 = Clock::now();
-    refused = std::make_unique<ScanFuser>(fuser->camera(), options.tsdf, fuser->free_space_options());
+    refused =
+        std::make_unique<ScanFuser>(fuser->camera(), options.tsdf, fuser->free_space_options());
     std::vector<Rigid3d> poses(views.size(), Rigid3d::Identity());
     std::vector<int64_t> todo;
     for (int64_t k = 0; k < n_views; ++k)
@@ -463,7 +515,9 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   // Both volumes are held only until the refusion is complete; on an error above, the live model
   // is untouched. The refused volume then becomes the model and the live one is freed.
   const double tsdf_memory_mib =
-      static_cast<double>(fuser->volume().MemoryBytes() + (refused ? refused->volume().MemoryBytes() : 0)) / (1024.0 * 1024.0);
+      static_cast<double>(fuser->volume().MemoryBytes() +
+                          (refused ? refused->volume().MemoryBytes() : 0)) /
+      (1024.0 * 1024.0);
   const bool refused_at_optimised_poses = refused != nullptr;
   if (refused) {
     fuser->AdoptVolume(std::move(*refused));
@@ -477,7 +531,8 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   const auto tm0 = Clock::now();
   out->mesh = model.ExtractMesh();
   const double ms_mesh = MsSince(tm0);
-  if (out->mesh.faces.empty()) return Status(StatusCode::kInternal, "the fused model is empty (no view was accepted)");
+  if (out->mesh.faces.empty())
+    return Status(StatusCode::kInternal, "the fused model is empty (no view was accepted)");
   out->mesh.ComputeVertexNormals();
   std::vector<Rigid3d> acc_truth;
   bool have_truth_poses = static_cast<bool>(truth.true_pose);
@@ -516,28 +571,35 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   }
   const double n = static_cast<double>(std::max<int64_t>(times.bursts, 1));
   j["bursts"] = n_views;
-  j["segments_started"] = tracker.segments() - 1;  // segments after the first (SegmentOptions::after_views)
+  j["segments_started"] =
+      tracker.segments() - 1;  // segments after the first (SegmentOptions::after_views)
   j["segments_joined"] = tracker.segments_joined();
   j["segments_joined_at_end"] = joined_at_end;
-  j["segments_apart"] = static_cast<int64_t>(group_views.size()) - (group_views.empty() ? 0 : 1);  // saved as segment_N.ply
+  j["segments_apart"] = static_cast<int64_t>(group_views.size()) -
+                        (group_views.empty() ? 0 : 1);  // saved as segment_N.ply
   j["views_apart"] = views_apart;
   j["model_segment"] = model_group;  // 0: the first segment (with those joined to it) is the model
   j["views_in_model"] = static_cast<int64_t>(out->poses.size());
   j["fused"] = fuser->fused();
   j["rejected"] = registrar->rejected();
   j["views_undone"] = registrar->views_undone();
-  j["undo_journal_mib"] = static_cast<double>(tracker.model().journal_bytes()) / (1024.0 * 1024.0);  // OdometryOptions::map.undo_inserts
-  j["keyframes_mib"] = static_cast<double>(tracker.keyframe_bytes()) / (1024.0 * 1024.0);            // samples, features, packed feature inputs
-  j["model_samples"] = tracker.model().size();  // the tracking model's samples (one per 0.08 mm voxel)
+  j["undo_journal_mib"] = static_cast<double>(tracker.model().journal_bytes()) /
+                          (1024.0 * 1024.0);  // OdometryOptions::map.undo_inserts
+  j["keyframes_mib"] = static_cast<double>(tracker.keyframe_bytes()) /
+                       (1024.0 * 1024.0);  // samples, features, packed feature inputs
+  j["model_samples"] =
+      tracker.model().size();  // the tracking model's samples (one per 0.08 mm voxel)
   j["tracking_lost"] = registrar->lost_events();
   j["relocalised"] = registrar->relocalised();
   j["views_model_anchored"] = registrar->views_model_anchored();
   j["pixels_model_anchored"] = registrar->pixels_model_anchored();
-  j["ms_model_anchor_per_burst"] = registrar->ms_model_anchor() / std::max<double>(1.0, static_cast<double>(n_views));
+  j["ms_model_anchor_per_burst"] =
+      registrar->ms_model_anchor() / std::max<double>(1.0, static_cast<double>(n_views));
   j["unrecovered"] = tracker.state() == TrackingState::kLost ? 1 : 0;
   j["final_state"] = TrackingStateName(tracker.state());
   j["keyframes"] = tracker.keyframes().size();
-  j["keyframes_reused"] = tracker.keyframes_reused();  // times an older keyframe became current again
+  j["keyframes_reused"] =
+      tracker.keyframes_reused();  // times an older keyframe became current again
   j["loop_edges"] = tracker.loop_edges();
   j["pose_graph_max_correction_mm"] = max_correction_mm;
   j["pose_graph_disagreeing_edges"] = pg.disagreeing_edges.size();
@@ -550,22 +612,29 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   j["refused_at_optimised_poses"] = refused_at_optimised_poses;
   j["ms_refuse_total"] = ms_refuse;
   j["tsdf_active_voxels"] = model.ActiveVoxels();
-  j["tsdf_secondary_leaves"] = model.SecondaryLeaves();            // where edge-filled points still shape the surface (tsdf.h)
-  j["points_occluded"] = model.occluded_points();                  // not fused: behind a known surface (tsdf.h)
-  j["points_free_space_rejected"] = fuser->free_space_rejected();  // not fused: in seen-through space (free_space.h)
-  j["tsdf_memory_mib"] = tsdf_memory_mib;                          // both volumes at the end of a refusion
+  j["tsdf_secondary_leaves"] =
+      model.SecondaryLeaves();  // where edge-filled points still shape the surface (tsdf.h)
+  j["points_occluded"] = model.occluded_points();  // not fused: behind a known surface (tsdf.h)
+  j["points_free_space_rejected"] =
+      fuser->free_space_rejected();        // not fused: in seen-through space (free_space.h)
+  j["tsdf_memory_mib"] = tsdf_memory_mib;  // both volumes at the end of a refusion
   j["mesh_vertices"] = out->mesh.vertices.size();
   j["mesh_faces"] = out->mesh.faces.size();
   j["events"] = registrar->events();
   if (truth.reference != nullptr && !truth.reference->faces.empty() && !out->poses.empty())
-    EvaluateScanAgainstScene(out->mesh, *truth.reference, out->poses, have_truth_poses ? acc_truth : std::vector<Rigid3d>{},
-                             ViewFootprint(fuser->camera(), options.eval.footprint_depth_mm), options.eval, &j, &out->heatmap);
+    EvaluateScanAgainstScene(out->mesh, *truth.reference, out->poses,
+                             have_truth_poses ? acc_truth : std::vector<Rigid3d>{},
+                             ViewFootprint(fuser->camera(), options.eval.footprint_depth_mm),
+                             options.eval, &j, &out->heatmap);
   return Status::Ok();
 }
 
-void EvaluateScanAgainstScene(const TriangleMesh& mesh, const TriangleMesh& scene, const std::vector<Rigid3d>& poses,
-                              const std::vector<Rigid3d>& true_poses, const std::vector<Eigen::Vector3d>& footprint_in_cam,
-                              const EvaluateOptions& options, nlohmann::json* report, cv::Mat* heatmap) {
+void EvaluateScanAgainstScene(const TriangleMesh& mesh, const TriangleMesh& scene,
+                              const std::vector<Rigid3d>& poses,
+                              const std::vector<Rigid3d>& true_poses,
+                              const std::vector<Eigen::Vector3d>& footprint_in_cam,
+                              const EvaluateOptions& options, nlohmann::json* report,
+                              cv::Mat* heatmap) {
   nlohmann::json& j = *report;
   const bool have_truth_poses = !true_poses.empty() && true_poses.size() == poses.size();
   const MeshClosestPoint ref(scene);
@@ -598,17 +667,20 @@ void EvaluateScanAgainstScene(const TriangleMesh& mesh, const TriangleMesh& scen
       wrong_by_centre += d > kWrongFusionMm || r > kWrongFusionDeg;
       if (f > kWrongFusionMm || r > kWrongFusionDeg) {
         ++wrong;
-        if (wrong_views.size() < 50) wrong_views.push_back({{"pose", k}, {"mm", f}, {"centre_mm", d}, {"deg", r}});
+        if (wrong_views.size() < 50)
+          wrong_views.push_back({{"pose", k}, {"mm", f}, {"centre_mm", d}, {"deg", r}});
       }
     }
     j["ate_mm"] = std::sqrt(s2 / static_cast<double>(poses.size()));
     j["ate_deg"] = sr / static_cast<double>(poses.size());
     j["ate_max_mm"] = smax;
     j["ate_max_deg"] = rmax;
-    j["footprint_max_mm"] = fmax;                           // the largest footprint error of any fused view
-    j["wrong_fusions"] = wrong;                             // fused views whose footprint is off by > 0.2 mm, or turned > 1 deg
+    j["footprint_max_mm"] = fmax;  // the largest footprint error of any fused view
+    j["wrong_fusions"] =
+        wrong;  // fused views whose footprint is off by > 0.2 mm, or turned > 1 deg
     j["wrong_fusions_by_camera_centre"] = wrong_by_centre;  // the same rule at the camera centre
-    j["wrong_fusion_views"] = wrong_views;                  // pose: line of poses.txt (0-based, after the header); mm: footprint
+    j["wrong_fusion_views"] =
+        wrong_views;  // pose: line of poses.txt (0-based, after the header); mm: footprint
     j["ate_trajectory_aligned_mm"] = ate_traj.rmse_mm;
     j["ate_trajectory_aligned_deg"] = ate_traj.mean_deg;
     // Where the trajectory jumped (views in poses.txt order, 0-based): see RelativePoseError.
@@ -628,13 +700,16 @@ void EvaluateScanAgainstScene(const TriangleMesh& mesh, const TriangleMesh& scen
   }
 }
 
-Status WriteTumPoses(const std::string& path, const std::vector<int64_t>& t_ns, const std::vector<Rigid3d>& poses) {
+Status WriteTumPoses(const std::string& path, const std::vector<int64_t>& t_ns,
+                     const std::vector<Rigid3d>& poses) {
   std::ofstream f(path);
   if (!f) return IoError("cannot write '" + path + "'");
-  f << "# timestamp_s tx ty tz qx qy qz qw (translation in mm; model_from_probe, model = first view's camera)\n";
+  f << "# timestamp_s tx ty tz qx qy qz qw (translation in mm; model_from_probe, model = first "
+       "view's camera)\n";
   char stamp[48];
   for (size_t i = 0; i < poses.size() && i < t_ns.size(); ++i) {
-    std::snprintf(stamp, sizeof stamp, "%lld.%09lld", static_cast<long long>(t_ns[i] / 1000000000), static_cast<long long>(t_ns[i] % 1000000000));
+    std::snprintf(stamp, sizeof stamp, "%lld.%09lld", static_cast<long long>(t_ns[i] / 1000000000),
+                  static_cast<long long>(t_ns[i] % 1000000000));
     f << stamp << ' ' << TumPoseFields(poses[i]) << '\n';
   }
   return f ? Status::Ok() : IoError("write failed: '" + path + "'");
@@ -647,11 +722,14 @@ Status WriteScanOutputs(const std::string& dir, const ScanResult& result) {
   if (ec) return IoError("cannot create '" + dir + "'");
   D3D_RETURN_IF_ERROR(SavePlyBinary((fs::path(dir) / "scan.ply").string(), result.mesh));
   D3D_RETURN_IF_ERROR(SaveStlBinary((fs::path(dir) / "scan.stl").string(), result.mesh));
-  D3D_RETURN_IF_ERROR(WriteTumPoses((fs::path(dir) / "poses.txt").string(), result.pose_t_ns, result.poses));
+  D3D_RETURN_IF_ERROR(
+      WriteTumPoses((fs::path(dir) / "poses.txt").string(), result.pose_t_ns, result.poses));
   for (const ScanSegmentMesh& m : result.apart)
     if (!m.mesh.faces.empty())
-      D3D_RETURN_IF_ERROR(SavePlyBinary((fs::path(dir) / ("segment_" + std::to_string(m.segment) + ".ply")).string(), m.mesh));
-  if (!result.heatmap.empty() && !cv::imwrite((fs::path(dir) / "heatmap.png").string(), result.heatmap))
+      D3D_RETURN_IF_ERROR(SavePlyBinary(
+          (fs::path(dir) / ("segment_" + std::to_string(m.segment) + ".ply")).string(), m.mesh));
+  if (!result.heatmap.empty() &&
+      !cv::imwrite((fs::path(dir) / "heatmap.png").string(), result.heatmap))
     return IoError("cannot write heatmap.png in '" + dir + "'");
   std::ofstream f(fs::path(dir) / "report.json");
   f << result.report.dump(2) << "\n";

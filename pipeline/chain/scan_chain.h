@@ -11,8 +11,9 @@
 //                      Tracker::Optimize (loop closures), optionally the accepted views fused again
 //                      at the optimised poses (that volume then replaces the fuser's, so no other
 //                      thread may read the fuser meanwhile; a helper thread of its own calls the
-//                      provider and the registrar's anchorer for the next views meanwhile), mesh extraction, evaluation against the scene
-//                      (pipeline/eval) when one is given, and the report (the fields of issue 5).
+//                      provider and the registrar's anchorer for the next views meanwhile), mesh
+//                      extraction, evaluation against the scene (pipeline/eval) when one is given,
+//                      and the report (the fields of issue 5).
 //   WriteScanOutputs   DIR/scan.ply, DIR/scan.stl (binary, mm), DIR/poses.txt (TUM, mm),
 //                      DIR/report.json, DIR/heatmap.png (with an evaluation).
 //
@@ -49,26 +50,26 @@ namespace d3d {
 // alike and frame-to-model ICP drifts on it. Typodont full arch, seed 3, --every 2: rendered with
 // no in-burst motion the first 200 views fuse to 6.3 µm RMS (6.1 at the true poses), with it to
 // 35.2 µm. Whole arch, RMS / p95 µm, ATE mm, without → with compensation: typodont s3 14.1 / 26.6 /
-// 0.090 → 10.1 / 18.3 / 0.061, s1 8.5 / 16.5 / 0.067 → 9.0 / 17.6 / 0.051; real arch s1 8.8 / 16.4 /
-// 0.057 → 7.3 / 14.4 / 0.057, s3 13.1 / 29.0 / 0.079 → 14.9 / 21.0 / 0.075 (a tail of border points).
-// Cost: ~8 ms more per burst in reconstruction.
+// 0.090 → 10.1 / 18.3 / 0.061, s1 8.5 / 16.5 / 0.067 → 9.0 / 17.6 / 0.051; real arch s1 8.8 / 16.4
+// / 0.057 → 7.3 / 14.4 / 0.057, s3 13.1 / 29.0 / 0.079 → 14.9 / 21.0 / 0.075 (a tail of border
+// points). Cost: ~8 ms more per burst in reconstruction.
 ReconstructOptions HandHeldReconstructOptions();
 
 // The live volume a scan fuses every view into as it goes when its views are kept and fused again
 // at the end at the scan's voxel (FinishScan's refusion): the final model does not depend on it (a
-// host saves it mid-scan), so it is coarser and its per-pixel work thinner; its band (truncation) is
-// at least 2 voxels. At 0.1 mm the band held 1/8 of the voxels of 0.05 mm: the fuse stage's CPU per
-// burst fell 17.9 -> 7.9 ms (lossless replay of 200 typodont bursts at bin 2), lossless throughput
-// rose 22.9 -> 26.9 bursts/s, a 0.1 mm model of the same views as true (9.4 vs 10.9 um RMS) with
-// 0.8 pp less coverage. At 0.2 mm (issue 51; 450-burst replay, two interleaved pairs) the fuse
-// stage's CPU is 8.06 / 7.34 -> 4.07 / 4.23 ms (the rest is the per-pixel passes, the occlusion and
-// free-space tests and the packing of the kept frames); a save 13 s into that replay: 14.4 -> 15.7
-// um RMS, coverage 44.4 -> 42.1 % of the typodont. The strides: the occlusion test on every
-// occlusion_stride-th pixel (TsdfOptions::occlusion_stride; the scan's is 2), the leaves allocated
-// from every pixel_stride-th pixel (TsdfOptions::pixel_stride; a binned pixel is ~0.06 mm on the
-// teeth, the band +-0.3 mm around it); on a 0.1 mm volume of the virtual probe's 1492-burst full
-// arch at bin 2: fuse 5.68 -> 3.86 ms per burst, trueness 7.58 -> 7.60 um RMS, coverage 94.25 ->
-// 94.24 %.
+// host saves it mid-scan), so it is coarser and its per-pixel work thinner; its band (truncation)
+// is at least 2 voxels. At 0.1 mm the band held 1/8 of the voxels of 0.05 mm: the fuse stage's CPU
+// per burst fell 17.9 -> 7.9 ms (lossless replay of 200 typodont bursts at bin 2), lossless
+// throughput rose 22.9 -> 26.9 bursts/s, a 0.1 mm model of the same views as true (9.4 vs 10.9 um
+// RMS) with 0.8 pp less coverage. At 0.2 mm (issue 51; 450-burst replay, two interleaved pairs) the
+// fuse stage's CPU is 8.06 / 7.34 -> 4.07 / 4.23 ms (the rest is the per-pixel passes, the
+// occlusion and free-space tests and the packing of the kept frames); a save 13 s into that
+// replay: 14.4 -> 15.7 um RMS, coverage 44.4 -> 42.1 % of the typodont. The strides: the occlusion
+// test on every occlusion_stride-th pixel (TsdfOptions::occlusion_stride; the scan's is 2), the
+// leaves allocated from every pixel_stride-th pixel (TsdfOptions::pixel_stride; a binned pixel is
+// ~0.06 mm on the teeth, the band +-0.3 mm around it); on a 0.1 mm volume of the virtual probe's
+// 1492-burst full arch at bin 2: fuse 5.68 -> 3.86 ms per burst, trueness 7.58 -> 7.60 um RMS,
+// coverage 94.25 -> 94.24 %.
 struct LiveVolumeOptions {
   double voxel_mm = 0.2;  // 0 = the scan's voxel (the live volume is then fused as the scan's)
   int occlusion_stride = 4;
@@ -81,14 +82,16 @@ struct LiveVolumeOptions {
 struct ScanOptions {
   // Camera pixels averaged over bin × bin blocks before reconstruction (BinFrame, pipeline/recon):
   // views, tracking and fusion then work on (H/bin) × (W/bin) maps with BinnedCalibration, about
-  // bin² less work per burst. Set it with ScanOptionsForBin, which also scales the pixel lattices of
-  // the tracker and the fusion. 1 = full resolution.
+  // bin² less work per burst. Set it with ScanOptionsForBin, which also scales the pixel lattices
+  // of the tracker and the fusion. 1 = full resolution.
   int bin = 1;
   ReconstructOptions recon = HandHeldReconstructOptions();
-  TrackerOptions tracker;     // tracker.keyframes.detect_loops: keyframe loop closures and the pose graph at the end
+  TrackerOptions tracker;     // tracker.keyframes.detect_loops: keyframe loop closures and the pose
+                              // graph at the end
   ModelAnchorOptions anchor;  // model-guided anchoring in the register stage (model_anchor.h)
   TsdfOptions tsdf;
-  FreeSpaceOptions free_space;  // ScanFuser: points in space earlier views saw through are not fused
+  FreeSpaceOptions
+      free_space;  // ScanFuser: points in space earlier views saw through are not fused
   // Fuse the accepted views again at the optimised poses when the pose graph moved a view by more
   // than this (mm) and FinishScan is given a view provider; < 0 never (unless views were undone, or
   // the live volume's voxel is not tsdf.voxel_mm: then always).
@@ -100,8 +103,9 @@ struct ScanOptions {
 // The live host's scan profile, one definition for d3d-scan and d3d-fuse (whose default it is), on
 // top of `options`:
 // - keyframe work off the register stage's critical path: a keyframe's SIFT features only when a
-//   relocalisation needs them (KeyframeGraphOptions::FeatureTiming::kOnDemand), the pose graph's edges
-//   (keyframe and loop-closure ICPs) at the end of the scan (defer_keyframe_edges); the same poses;
+//   relocalisation needs them (KeyframeGraphOptions::FeatureTiming::kOnDemand), the pose graph's
+//   edges (keyframe and loop-closure ICPs) at the end of the scan (defer_keyframe_edges); the same
+//   poses;
 // - keyframe_reuse_radius_mm 2: a probe that stays over one tooth returns to keyframes it made
 //   rather than making new ones (60 s circling one molar made 151 keyframes, 105 MiB, without; a
 //   full-arch sweep reuses none);
@@ -130,11 +134,12 @@ ScanOptions ScanOptionsForBin(ScanOptions options, int bin);
 
 class ScanReconstructor {
  public:
-  // `calibration` is the probe's (full resolution); with bin > 1 each frame is averaged over bin × bin
-  // blocks (BinFrame) and reconstructed with BinnedCalibration(calibration, bin). Throws
+  // `calibration` is the probe's (full resolution); with bin > 1 each frame is averaged over bin ×
+  // bin blocks (BinFrame) and reconstructed with BinnedCalibration(calibration, bin). Throws
   // std::invalid_argument for an invalid calibration or options, bin < 1 or a camera size not
   // divisible by bin.
-  ScanReconstructor(const ProbeCalibration& calibration, const ReconstructOptions& options, int bin = 1);
+  ScanReconstructor(const ProbeCalibration& calibration, const ReconstructOptions& options,
+                    int bin = 1);
   // frames: the burst's frames (at least calibration.pattern.steps; extra ones, e.g. a texture
   // frame, are ignored), H×W CV_8U/CV_16U of the probe's camera size. INVALID_ARGUMENT for too few
   // or mis-sized frames.
@@ -170,7 +175,8 @@ class ScanRegistrar {
   // its burst could not anchor are anchored against the model, added to the view and registered
   // with it. normal_max_gap_mm: ReconstructOptions::normal_max_gap_mm. Throws std::invalid_argument
   // for invalid options or calibration.
-  ScanRegistrar(const ProbeCalibration& calibration, const TrackerOptions& options, const ModelAnchorOptions& anchor, double normal_max_gap_mm);
+  ScanRegistrar(const ProbeCalibration& calibration, const TrackerOptions& options,
+                const ModelAnchorOptions& anchor, double normal_max_gap_mm);
   // Registers one reconstructed view (view index = the number of earlier calls). With model
   // anchoring, `view` gains the anchored points (its unwrap, points and normals are rewritten in
   // place); fuse it after this call. The points the edge fill gave the view (pipeline/unwrap/
@@ -226,11 +232,15 @@ class ScanRegistrar {
   int64_t rejected() const { return rejected_; }
   int64_t lost_events() const { return lost_events_; }  // transitions into kLost
   int64_t relocalised() const { return relocalised_; }
-  const nlohmann::json& events() const { return events_; }            // non-tracking states and refusals, with reasons
-  double ms_register() const { return ms_; }                          // total wall time in Register
-  int64_t pixels_model_anchored() const { return pixels_anchored_; }  // model anchoring, in Register
-  int64_t views_model_anchored() const { return views_anchored_; }    // views that gained points
-  double ms_model_anchor() const { return ms_anchor_; }               // of ms_register(): in the anchorer
+  const nlohmann::json& events() const {
+    return events_;
+  }                                           // non-tracking states and refusals, with reasons
+  double ms_register() const { return ms_; }  // total wall time in Register
+  int64_t pixels_model_anchored() const {
+    return pixels_anchored_;
+  }                                                                 // model anchoring, in Register
+  int64_t views_model_anchored() const { return views_anchored_; }  // views that gained points
+  double ms_model_anchor() const { return ms_anchor_; }  // of ms_register(): in the anchorer
 
  private:
   Tracker tracker_;
@@ -245,15 +255,17 @@ class ScanRegistrar {
   void CopyWithoutEdgeFill(const ReconstructedView& view);
   int64_t accepted_ = 0, rejected_ = 0, lost_events_ = 0, relocalised_ = 0, views_undone_ = 0;
   TrackingState prev_state_ = TrackingState::kInitialising;
-  TrackingState state_before_last_ = TrackingState::kInitialising;  // prev_state_ before the last Register
-  bool retracted_counted_ = false;                                  // the retracted loss had counted in lost_events_
+  TrackingState state_before_last_ =
+      TrackingState::kInitialising;  // prev_state_ before the last Register
+  bool retracted_counted_ = false;   // the retracted loss had counted in lost_events_
   nlohmann::json events_ = nlohmann::json::array();
   double ms_ = 0;
 };
 
 class ScanFuser {
  public:
-  ScanFuser(const PinholeBrownConrady& camera, const TsdfOptions& options, const FreeSpaceOptions& free_space = {});
+  ScanFuser(const PinholeBrownConrady& camera, const TsdfOptions& options,
+            const FreeSpaceOptions& free_space = {});
   // Fuses the view's points except those the free-space test rejects (pipeline/fuse/free_space.h);
   // the edge fill's points (quality reason kModulationEdge) as the volume's secondary points when
   // its options fade them (TsdfOptions::secondary_fade_weight).
@@ -275,8 +287,9 @@ class ScanFuser {
   PinholeBrownConrady camera_;
   std::unique_ptr<TsdfVolume> tsdf_;
   FreeSpaceTest free_space_;
-  cv::Mat rejected_, masked_;  // per view, reused: the free-space test's mask, the points without them
-  cv::Mat secondary_;          // per view, reused: CV_8U, 255 = an edge-filled point
+  cv::Mat rejected_,
+      masked_;         // per view, reused: the free-space test's mask, the points without them
+  cv::Mat secondary_;  // per view, reused: CV_8U, 255 = an edge-filled point
   int64_t free_space_rejected_ = 0;
   int64_t fused_ = 0;
   double ms_ = 0;
@@ -291,9 +304,10 @@ struct ScanTruth {
 };
 
 // Reconstructs view `view_index` (burst `record.burst_seq`) again for the refusion pass; a non-OK
-// status aborts FinishScan, NOT_FOUND skips the view. Called by FinishScan's helper thread, one view
-// at a time in view order (so it must not touch what the calling thread uses meanwhile).
-using ScanViewProvider = std::function<Status(int64_t view_index, const ScanViewRecord& record, ReconstructedView* out)>;
+// status aborts FinishScan, NOT_FOUND skips the view. Called by FinishScan's helper thread, one
+// view at a time in view order (so it must not touch what the calling thread uses meanwhile).
+using ScanViewProvider =
+    std::function<Status(int64_t view_index, const ScanViewRecord& record, ReconstructedView* out)>;
 
 // The provider of a scan's kept views (ViewArchive, pipeline/chain/view_archive.h): the frames kept
 // for record.burst_seq, reconstructed again by a ScanReconstructor of `view_calibration` at bin 1
@@ -302,7 +316,9 @@ using ScanViewProvider = std::function<Status(int64_t view_index, const ScanView
 // first call. `archive` must outlive the provider and not change while it is used; the provider is
 // one thread's at a time (it holds the reconstructor and a frame buffer). NOT_FOUND, IO_ERROR and
 // CORRUPT as ViewArchive::Get.
-ScanViewProvider KeptViewProvider(const ViewArchive& archive, const ProbeCalibration& view_calibration, const ReconstructOptions& options);
+ScanViewProvider KeptViewProvider(const ViewArchive& archive,
+                                  const ProbeCalibration& view_calibration,
+                                  const ReconstructOptions& options);
 
 struct ScanTimes {
   int64_t bursts = 0;  // bursts the chain ran on (the denominators of ms_per_burst)
@@ -328,21 +344,23 @@ struct ScanResult {
 };
 
 // After the stages stopped: see the file comment. When the registrar undid views
-// (ScanRegistrar::UndoLastSeconds) the fuser's volume still holds them, so the kept views are always
-// fused again (INVALID_ARGUMENT without a provider); so are they when the fuser's volume has another
-// voxel than options.tsdf (a coarse live volume, LiveVolumeOptions): the refusion
-// is always at options.tsdf. The report holds bursts, fused, rejected, views_undone,
-// tracking_lost, relocalised, unrecovered, final_state, keyframes, loop_edges,
-// pose_graph_max_correction_mm, ms_per_burst (+ per stage), ms_mesh, tsdf_* , mesh_*, events and,
-// with a reference: trueness_rms_um, trueness_mean_um, trueness_mean_abs_um, trueness_p95_um,
-// coverage_pct, best_fit_rmse_um, and ate_mm / ate_deg and rpe_mm / rpe_deg / rpe_max_mm /
-// rpe_max_pose (relative pose error between consecutive views; NaN-free: only when true poses are known),
-// wrong_fusions (views whose footprint, ViewFootprint at eval.footprint_depth_mm, is off by > 0.2 mm,
-// or turned > 1°), wrong_fusions_by_camera_centre (the same rule at the camera centre),
-// footprint_max_mm and wrong_fusion_views (the first 50: pose index, footprint mm, centre_mm, deg).
-// INTERNAL when the model is empty (no view accepted).
-[[nodiscard]] Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegistrar* registrar, ScanFuser* fuser,
-                                const ScanViewProvider& provider, const ScanTruth& truth, ScanResult* out);
+// (ScanRegistrar::UndoLastSeconds) the fuser's volume still holds them, so the kept views are
+// always fused again (INVALID_ARGUMENT without a provider); so are they when the fuser's volume has
+// another voxel than options.tsdf (a coarse live volume, LiveVolumeOptions): the refusion is always
+// at options.tsdf. The report holds bursts, fused, rejected, views_undone, tracking_lost,
+// relocalised, unrecovered, final_state, keyframes, loop_edges, pose_graph_max_correction_mm,
+// ms_per_burst (+ per stage), ms_mesh, tsdf_* , mesh_*, events and, with a reference:
+// trueness_rms_um, trueness_mean_um, trueness_mean_abs_um, trueness_p95_um, coverage_pct,
+// best_fit_rmse_um, and ate_mm / ate_deg and rpe_mm / rpe_deg / rpe_max_mm / rpe_max_pose (relative
+// pose error between consecutive views; NaN-free: only when true poses are known), wrong_fusions
+// (views whose footprint, ViewFootprint at eval.footprint_depth_mm, is off by > 0.2 mm, or turned >
+// 1°), wrong_fusions_by_camera_centre (the same rule at the camera centre), footprint_max_mm and
+// wrong_fusion_views (the first 50: pose index, footprint mm, centre_mm, deg). INTERNAL when the
+// model is empty (no view accepted).
+[[nodiscard]] Status FinishScan(const ScanOptions& options, const ScanTimes& times,
+                                ScanRegistrar* registrar, ScanFuser* fuser,
+                                const ScanViewProvider& provider, const ScanTruth& truth,
+                                ScanResult* out);
 
 // The evaluation part of FinishScan, for tools that run their own chain (d3d-fuse): best fit of
 // `mesh` (model frame, mm) to `scene` (world frame) — started from the trajectory alignment when
@@ -351,12 +369,16 @@ struct ScanResult {
 // `footprint_in_cam` (ViewFootprint; empty: the camera centre), added to `report` under the keys
 // listed at FinishScan; the deviation heat map (50 µm full scale) into `heatmap` if not null.
 // Source: pipeline/eval (EvaluateTrueness, AbsoluteTrajectoryError).
-void EvaluateScanAgainstScene(const TriangleMesh& mesh, const TriangleMesh& scene, const std::vector<Rigid3d>& poses,
-                              const std::vector<Rigid3d>& true_poses, const std::vector<Eigen::Vector3d>& footprint_in_cam,
-                              const EvaluateOptions& options, nlohmann::json* report, cv::Mat* heatmap);
+void EvaluateScanAgainstScene(const TriangleMesh& mesh, const TriangleMesh& scene,
+                              const std::vector<Rigid3d>& poses,
+                              const std::vector<Rigid3d>& true_poses,
+                              const std::vector<Eigen::Vector3d>& footprint_in_cam,
+                              const EvaluateOptions& options, nlohmann::json* report,
+                              cv::Mat* heatmap);
 
 // Writes scan.ply, scan.stl, poses.txt, report.json (and heatmap.png) into `dir` (created).
 [[nodiscard]] Status WriteScanOutputs(const std::string& dir, const ScanResult& result);
-[[nodiscard]] Status WriteTumPoses(const std::string& path, const std::vector<int64_t>& t_ns, const std::vector<Rigid3d>& poses);
+[[nodiscard]] Status WriteTumPoses(const std::string& path, const std::vector<int64_t>& t_ns,
+                                   const std::vector<Rigid3d>& poses);
 
 }  // namespace d3d

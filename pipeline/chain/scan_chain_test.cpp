@@ -41,8 +41,10 @@ std::unique_ptr<SimSession> QuadrantSession() {
 
 // undo_after > 0: after that many views, UndoLastSeconds(undo_seconds) (result in *undo), and
 // then the bursts `after_undo` (the probe went back over the model).
-void RunShortScan(SimSession& session, int bin, ShortScan* s, ViewArchive* kept = nullptr, int undo_after = 0, double undo_seconds = 0,
-                  ScanRegistrar::UndoResult* undo = nullptr, const std::vector<int64_t>& after_undo = {}) {
+void RunShortScan(SimSession& session, int bin, ShortScan* s, ViewArchive* kept = nullptr,
+                  int undo_after = 0, double undo_seconds = 0,
+                  ScanRegistrar::UndoResult* undo = nullptr,
+                  const std::vector<int64_t>& after_undo = {}) {
   ScanOptions o;
   o.tracker = TrackerOptionsForStep(o.tracker, 2);
   o.tracker.odometry.map.undo_inserts = undo_after > 0 ? 30 : 0;
@@ -76,7 +78,8 @@ void RunShortScan(SimSession& session, int bin, ShortScan* s, ViewArchive* kept 
     }
     s->times.ms_recon += view.ms_total;
     ++s->times.bursts;
-    if (undo_after > 0 && s->times.bursts == undo_after) *undo = s->reg->UndoLastSeconds(undo_seconds);
+    if (undo_after > 0 && s->times.bursts == undo_after)
+      *undo = s->reg->UndoLastSeconds(undo_seconds);
   }
   s->times.ms_register = s->reg->ms_register();
   s->times.ms_fuse = s->fuser->ms_fuse();
@@ -126,8 +129,9 @@ TEST(ScanChain, ShortScanThroughThePiecesGivesAReport) {
   ScanResult with_poses;
   ASSERT_TRUE(FinishScan(o, times, &reg, &fuser, {}, truth, &with_poses).ok());
   const nlohmann::json& j = with_poses.report;
-  for (const char* k : {"bursts", "fused", "rejected", "tracking_lost", "trueness_rms_um", "trueness_mean_um", "trueness_p95_um", "coverage_pct",
-                        "ate_mm", "ate_deg", "ms_per_burst"})
+  for (const char* k :
+       {"bursts", "fused", "rejected", "tracking_lost", "trueness_rms_um", "trueness_mean_um",
+        "trueness_p95_um", "coverage_pct", "ate_mm", "ate_deg", "ms_per_burst"})
     EXPECT_TRUE(j.contains(k)) << k;
   EXPECT_EQ(j["bursts"], 15);
   EXPECT_LT(j["trueness_rms_um"].get<double>(), 20.0);
@@ -171,10 +175,15 @@ TEST(ScanChain, ABinnedScanIsAsTrue) {
   EXPECT_DOUBLE_EQ(scan.view_calibration.camera.fx, session->calibration().camera.fx / 2);
   EXPECT_GE(scan.reg->accepted(), 12);
   ScanResult r;
-  ASSERT_TRUE(FinishScan(scan.o, scan.times, scan.reg.get(), scan.fuser.get(), {}, TruthOf(session.get()), &r).ok());
-  std::printf("[ binned   ] accepted %lld of 15, trueness %.2f um RMS, p95 %.2f, ATE %.3f mm, %.1f ms per burst\n",
-              static_cast<long long>(scan.reg->accepted()), r.report["trueness_rms_um"].get<double>(), r.report["trueness_p95_um"].get<double>(),
-              r.report["ate_mm"].get<double>(), r.report["ms_per_burst"].get<double>());
+  ASSERT_TRUE(FinishScan(scan.o, scan.times, scan.reg.get(), scan.fuser.get(), {},
+                         TruthOf(session.get()), &r)
+                  .ok());
+  std::printf(
+      "[ binned   ] accepted %lld of 15, trueness %.2f um RMS, p95 %.2f, ATE %.3f mm, %.1f ms per "
+      "burst\n",
+      static_cast<long long>(scan.reg->accepted()), r.report["trueness_rms_um"].get<double>(),
+      r.report["trueness_p95_um"].get<double>(), r.report["ate_mm"].get<double>(),
+      r.report["ms_per_burst"].get<double>());
   EXPECT_LT(r.report["trueness_rms_um"].get<double>(), 20.0);
   EXPECT_LT(r.report["trueness_p95_um"].get<double>(), 45.0);
   EXPECT_LT(r.report["ate_mm"].get<double>(), 0.1);
@@ -189,20 +198,25 @@ TEST(ScanChain, ScanOptionsForBinScaleThePixelLattices) {
   EXPECT_EQ(two.tracker.odometry.sample_stride, 1);  // 2 → 1
   EXPECT_EQ(two.tracker.odometry.map_stride, 2);     // 3 → 1.5, rounded
   EXPECT_EQ(two.tracker.keyframes.stride, 2);
-  EXPECT_EQ(two.tracker.odometry.min_view_samples, base.tracker.odometry.min_view_samples);  // the same share of the view
-  EXPECT_DOUBLE_EQ(two.tracker.keyframes.features.image_scale, std::min(1.0, 2 * base.tracker.keyframes.features.image_scale));
+  EXPECT_EQ(two.tracker.odometry.min_view_samples,
+            base.tracker.odometry.min_view_samples);  // the same share of the view
+  EXPECT_DOUBLE_EQ(two.tracker.keyframes.features.image_scale,
+                   std::min(1.0, 2 * base.tracker.keyframes.features.image_scale));
   EXPECT_DOUBLE_EQ(two.tracker.odometry.target_scale, 2 * base.tracker.odometry.target_scale);
-  EXPECT_EQ(two.tsdf.occlusion_stride, base.tsdf.occlusion_stride);  // kept in binned pixels (see ScanOptionsForBin)
+  EXPECT_EQ(two.tsdf.occlusion_stride,
+            base.tsdf.occlusion_stride);  // kept in binned pixels (see ScanOptionsForBin)
   EXPECT_DOUBLE_EQ(two.tsdf.voxel_mm, base.tsdf.voxel_mm);
   EXPECT_EQ(two.tracker.odometry.icp.levels.size(), base.tracker.odometry.icp.levels.size());
   const ScanOptions four = ScanOptionsForBin(base, 4);
-  EXPECT_EQ(four.tracker.odometry.sample_stride, 1);  // 2 / 4 → at least 1: samples of a quarter the share
+  EXPECT_EQ(four.tracker.odometry.sample_stride,
+            1);  // 2 / 4 → at least 1: samples of a quarter the share
   EXPECT_EQ(four.tracker.odometry.min_view_samples, base.tracker.odometry.min_view_samples / 4);
   const ScanOptions one = ScanOptionsForBin(base, 1);
   EXPECT_EQ(one.tracker.odometry.sample_stride, base.tracker.odometry.sample_stride);
   EXPECT_EQ(one.tsdf.occlusion_stride, base.tsdf.occlusion_stride);
   EXPECT_THROW(ScanOptionsForBin(base, 0), std::invalid_argument);
-  EXPECT_THROW(ScanReconstructor(MakeDefaultProbeDesign().calibration, base.recon, 7), std::invalid_argument);  // 640 % 7
+  EXPECT_THROW(ScanReconstructor(MakeDefaultProbeDesign().calibration, base.recon, 7),
+               std::invalid_argument);  // 640 % 7
 }
 
 TEST(ScanChain, AFuserAdoptsARefusedVolumeAndFreesItsOwn) {
@@ -220,7 +234,8 @@ TEST(ScanChain, AFuserAdoptsARefusedVolumeAndFreesItsOwn) {
   TsdfOptions t;
   ScanFuser live(camera, t), refused(camera, t);
   const auto [here, here_pose] = view_at(0);
-  const auto [there, there_pose] = view_at(4);  // the refusion sees the surface 4 mm further along x
+  const auto [there, there_pose] =
+      view_at(4);  // the refusion sees the surface 4 mm further along x
   for (int i = 0; i < 2; ++i) ASSERT_TRUE(live.Fuse(here, here_pose).ok());
   for (int i = 0; i < 3; ++i) ASSERT_TRUE(refused.Fuse(there, there_pose).ok());
   const double live_lo_x = live.volume().ExtractMesh().Bounds().first.x();
@@ -231,8 +246,9 @@ TEST(ScanChain, AFuserAdoptsARefusedVolumeAndFreesItsOwn) {
   EXPECT_EQ(live.fused(), 2);  // the live views are still counted
   const TriangleMesh mesh = live.volume().ExtractMesh();
   ASSERT_FALSE(mesh.faces.empty());
-  EXPECT_GT(mesh.Bounds().first.x(), live_lo_x + 3.0);                        // the refused model, not the live one
-  EXPECT_THROW(live.AdoptVolume(std::move(refused)), std::invalid_argument);  // nothing left to adopt
+  EXPECT_GT(mesh.Bounds().first.x(), live_lo_x + 3.0);  // the refused model, not the live one
+  EXPECT_THROW(live.AdoptVolume(std::move(refused)),
+               std::invalid_argument);  // nothing left to adopt
 }
 
 // The refusion at the pose graph's poses (FinishScan with a provider), from the frames a host keeps
@@ -250,15 +266,18 @@ TEST(ScanChain, RefusionFusesTheKeptViewsAtTheFinalPosesInOrder) {
   ScanReconstructor again(scan.view_calibration, scan.o.recon, 1);
   std::vector<cv::Mat> frames;
   int64_t asked = 0;
-  const ScanViewProvider provider = [&](int64_t k, const ScanViewRecord& v, ReconstructedView* out) -> Status {
+  const ScanViewProvider provider = [&](int64_t k, const ScanViewRecord& v,
+                                        ReconstructedView* out) -> Status {
     ++asked;
     if (k == 3) return NotFound("view 3 was not kept");
     D3D_RETURN_IF_ERROR(kept.Get(v.burst_seq, &frames));
     return again.Reconstruct(frames, out);
   };
   ScanResult result;
-  ASSERT_TRUE(FinishScan(scan.o, scan.times, scan.reg.get(), scan.fuser.get(), provider, {}, &result).ok());
-  ASSERT_TRUE(result.report["refused_at_optimised_poses"].get<bool>()) << "pose graph correction " << result.report["pose_graph_max_correction_mm"];
+  ASSERT_TRUE(
+      FinishScan(scan.o, scan.times, scan.reg.get(), scan.fuser.get(), provider, {}, &result).ok());
+  ASSERT_TRUE(result.report["refused_at_optimised_poses"].get<bool>())
+      << "pose graph correction " << result.report["pose_graph_max_correction_mm"];
   EXPECT_EQ(asked, scan.reg->accepted());
   // The same views, one thread, in order, at the final poses.
   TriangleMesh expected = FusedAtFinalPoses(scan, kept, 3);
@@ -266,19 +285,22 @@ TEST(ScanChain, RefusionFusesTheKeptViewsAtTheFinalPosesInOrder) {
   expected.ComputeVertexNormals();
   ASSERT_EQ(result.mesh.vertices.size(), expected.vertices.size());
   ASSERT_EQ(result.mesh.faces.size(), expected.faces.size());
-  for (size_t i = 0; i < expected.vertices.size(); ++i) ASSERT_EQ(result.mesh.vertices[i], expected.vertices[i]) << i;
+  for (size_t i = 0; i < expected.vertices.size(); ++i)
+    ASSERT_EQ(result.mesh.vertices[i], expected.vertices[i]) << i;
 
   // A provider that fails at the fifth view: that error, and the live model as it was.
   ShortScan other;
   RunShortScan(*session, 2, &other);
   other.o.refuse_min_correction_mm = 0;
   const int64_t live_voxels = other.fuser->volume().ActiveVoxels();
-  const ScanViewProvider failing = [&](int64_t k, const ScanViewRecord& v, ReconstructedView* out) -> Status {
+  const ScanViewProvider failing = [&](int64_t k, const ScanViewRecord& v,
+                                       ReconstructedView* out) -> Status {
     if (k == 4) return Corrupt("view 4 is damaged");
     D3D_RETURN_IF_ERROR(kept.Get(v.burst_seq, &frames));
     return again.Reconstruct(frames, out);
   };
-  const Status s = FinishScan(other.o, other.times, other.reg.get(), other.fuser.get(), failing, {}, &result);
+  const Status s =
+      FinishScan(other.o, other.times, other.reg.get(), other.fuser.get(), failing, {}, &result);
   EXPECT_EQ(s.code(), StatusCode::kCorrupt) << s.ToString();
   EXPECT_EQ(other.fuser->volume().ActiveVoxels(), live_voxels);
 }
@@ -314,18 +336,24 @@ TEST(ScanChain, UndoneViewsLeaveTheSavedModel) {
   ScanReconstructor again(scan.view_calibration, scan.o.recon, 1);
   std::vector<cv::Mat> frames;
   std::vector<uint64_t> asked;
-  const ScanViewProvider provider = [&](int64_t, const ScanViewRecord& v, ReconstructedView* out) -> Status {
+  const ScanViewProvider provider = [&](int64_t, const ScanViewRecord& v,
+                                        ReconstructedView* out) -> Status {
     asked.push_back(v.burst_seq);
     D3D_RETURN_IF_ERROR(kept.Get(v.burst_seq, &frames));
     return again.Reconstruct(frames, out);
   };
   ScanResult no_provider;
-  EXPECT_EQ(FinishScan(scan.o, scan.times, scan.reg.get(), scan.fuser.get(), {}, {}, &no_provider).code(), StatusCode::kInvalidArgument);
+  EXPECT_EQ(
+      FinishScan(scan.o, scan.times, scan.reg.get(), scan.fuser.get(), {}, {}, &no_provider).code(),
+      StatusCode::kInvalidArgument);
   ScanResult result;
-  ASSERT_TRUE(FinishScan(scan.o, scan.times, scan.reg.get(), scan.fuser.get(), provider, TruthOf(session.get()), &result).ok());
+  ASSERT_TRUE(FinishScan(scan.o, scan.times, scan.reg.get(), scan.fuser.get(), provider,
+                         TruthOf(session.get()), &result)
+                  .ok());
   EXPECT_TRUE(result.report["refused_at_optimised_poses"].get<bool>());
   EXPECT_EQ(result.report["views_undone"], 3);
-  for (const uint64_t seq : {44u, 46u, 48u}) EXPECT_EQ(std::count(asked.begin(), asked.end(), seq), 0) << "burst " << seq;
+  for (const uint64_t seq : {44u, 46u, 48u})
+    EXPECT_EQ(std::count(asked.begin(), asked.end(), seq), 0) << "burst " << seq;
   EXPECT_EQ(static_cast<int64_t>(asked.size()), reg.accepted());
   EXPECT_EQ(result.poses.size(), static_cast<size_t>(reg.accepted()));
   EXPECT_LT(result.report["trueness_rms_um"].get<double>(), 20.0);
@@ -333,7 +361,8 @@ TEST(ScanChain, UndoneViewsLeaveTheSavedModel) {
   const TriangleMesh expected = FusedAtFinalPoses(scan, kept);
   ASSERT_FALSE(HasFailure());
   ASSERT_EQ(result.mesh.vertices.size(), expected.vertices.size());
-  for (size_t i = 0; i < expected.vertices.size(); ++i) ASSERT_EQ(result.mesh.vertices[i], expected.vertices[i]) << i;
+  for (size_t i = 0; i < expected.vertices.size(); ++i)
+    ASSERT_EQ(result.mesh.vertices[i], expected.vertices[i]) << i;
 }
 
 // A host's live volume at a coarser voxel (ScanAppOptions::live_voxel_mm) is never the result:
@@ -351,24 +380,30 @@ TEST(ScanChain, ACoarseLiveVolumeIsAlwaysFusedAgainAtTheScansVoxel) {
   ASSERT_DOUBLE_EQ(scan.fuser->volume().options().voxel_mm, scan.live_voxel_mm);
   scan.o.refuse_min_correction_mm = -1;  // "never": the coarse live volume overrides it
   ScanResult no_provider;
-  const Status refused = FinishScan(scan.o, scan.times, scan.reg.get(), scan.fuser.get(), {}, {}, &no_provider);
+  const Status refused =
+      FinishScan(scan.o, scan.times, scan.reg.get(), scan.fuser.get(), {}, {}, &no_provider);
   EXPECT_EQ(refused.code(), StatusCode::kInvalidArgument) << refused.ToString();
   EXPECT_NE(refused.message().find("voxel"), std::string::npos) << refused.ToString();
   ScanReconstructor again(scan.view_calibration, scan.o.recon, 1);
   std::vector<cv::Mat> frames;
-  const ScanViewProvider provider = [&](int64_t, const ScanViewRecord& v, ReconstructedView* out) -> Status {
+  const ScanViewProvider provider = [&](int64_t, const ScanViewRecord& v,
+                                        ReconstructedView* out) -> Status {
     D3D_RETURN_IF_ERROR(kept.Get(v.burst_seq, &frames));
     return again.Reconstruct(frames, out);
   };
   ScanResult result;
-  ASSERT_TRUE(FinishScan(scan.o, scan.times, scan.reg.get(), scan.fuser.get(), provider, TruthOf(session.get()), &result).ok());
+  ASSERT_TRUE(FinishScan(scan.o, scan.times, scan.reg.get(), scan.fuser.get(), provider,
+                         TruthOf(session.get()), &result)
+                  .ok());
   EXPECT_TRUE(result.report["refused_at_optimised_poses"].get<bool>());
   EXPECT_DOUBLE_EQ(result.report["voxel_mm"].get<double>(), scan.o.tsdf.voxel_mm);
-  EXPECT_DOUBLE_EQ(scan.fuser->volume().options().voxel_mm, scan.o.tsdf.voxel_mm);  // the fuser adopted the refused volume
+  EXPECT_DOUBLE_EQ(scan.fuser->volume().options().voxel_mm,
+                   scan.o.tsdf.voxel_mm);  // the fuser adopted the refused volume
   const TriangleMesh expected = FusedAtFinalPoses(scan, kept);
   ASSERT_FALSE(HasFailure());
   ASSERT_EQ(result.mesh.vertices.size(), expected.vertices.size());
-  for (size_t i = 0; i < expected.vertices.size(); ++i) ASSERT_EQ(result.mesh.vertices[i], expected.vertices[i]) << i;
+  for (size_t i = 0; i < expected.vertices.size(); ++i)
+    ASSERT_EQ(result.mesh.vertices[i], expected.vertices[i]) << i;
   EXPECT_LT(result.report["trueness_rms_um"].get<double>(), 20.0);
 }
 
@@ -388,14 +423,16 @@ TEST(ScanChain, TheLargestGroupOfViewsIsTheModelAndTheOtherIsSavedApart) {
   std::vector<ReconstructedView> views;
   ScanTimes times;
   auto feed = [&](double x) {
-    const SyntheticView v = RenderHeightField(hf, cam, LookDown(x, 0, 30), 0.004, static_cast<uint32_t>(views.size() + 1));
+    const SyntheticView v = RenderHeightField(hf, cam, LookDown(x, 0, 30), 0.004,
+                                              static_cast<uint32_t>(views.size() + 1));
     ReconstructedView rv;
     rv.points_in_cam = v.points;
     rv.normals = v.normals;
     rv.quality = v.quality;
     rv.texture = v.texture;
     views.push_back(rv);
-    const TrackResult r = reg.Register(rv, views.size(), static_cast<int64_t>(views.size()) * 33'000'000);
+    const TrackResult r =
+        reg.Register(rv, views.size(), static_cast<int64_t>(views.size()) * 33'000'000);
     if (r.accepted && r.in_main) {
       ASSERT_TRUE(fuser.Fuse(rv, r.world_from_cam).ok());
     }
@@ -418,7 +455,8 @@ TEST(ScanChain, TheLargestGroupOfViewsIsTheModelAndTheOtherIsSavedApart) {
   EXPECT_EQ(result.apart[0].views, 4);
   EXPECT_FALSE(result.apart[0].mesh.faces.empty());
   EXPECT_FALSE(result.mesh.faces.empty());
-  for (const Rigid3d& p : result.poses) EXPECT_LT(std::abs(p.translation().x()), 100.0);  // not 2 m off
+  for (const Rigid3d& p : result.poses)
+    EXPECT_LT(std::abs(p.translation().x()), 100.0);  // not 2 m off
   for (const Eigen::Vector3d& v : result.mesh.vertices) ASSERT_LT(std::abs(v.x()), 100.0);
 }
 
@@ -436,7 +474,8 @@ TEST(ScanChain, EmptyModelIsAnError) {
 }
 
 // Bursts `every` apart: the motion check allows `every` times the per-view step (d3d-fuse --every
-// and a live host gate a view the same way), and the first ICP level gathers over min(3, 0.8·√every) mm.
+// and a live host gate a view the same way), and the first ICP level gathers over min(3,
+// 0.8·√every) mm.
 TEST(ScanChain, TrackerOptionsForStepScaleTheGates) {
   const TrackerOptions base;
   const TrackerOptions six = TrackerOptionsForStep(base, 6);

@@ -15,13 +15,13 @@ namespace d3d {
 // What the flags set that is not a ScanOptions field as it stands (ApplyScanFlags turns it into
 // ScanOptions). The other flags write the ScanOptions fields directly.
 struct ScanFlags {
-  std::string profile = "live";                         // live: LiveScanProfile (d3d-scan's); full: every ICP sample,
-                                                        // keyframe features and edges as they come
-  int bin = 2;                                          // camera pixels averaged over bin × bin (ScanOptionsForBin)
-  std::string association = "grid";                     // the tracker's ICP data association (ParseAssociation)
-  double max_rmse_um = 0;                               // the tracker's ICP residual gate (µm); the declared
-                                                        // options' value when declared
-  bool refuse = true;                                   // fuse the kept views again at the pose graph's poses
+  std::string profile = "live";      // live: LiveScanProfile (d3d-scan's); full: every ICP sample,
+                                     // keyframe features and edges as they come
+  int bin = 2;                       // camera pixels averaged over bin × bin (ScanOptionsForBin)
+  std::string association = "grid";  // the tracker's ICP data association (ParseAssociation)
+  double max_rmse_um = 0;            // the tracker's ICP residual gate (µm); the declared
+                                     // options' value when declared
+  bool refuse = true;                // fuse the kept views again at the pose graph's poses
   double live_voxel_mm = LiveVolumeOptions{}.voxel_mm;  // the live volume's voxel (0: the scan's)
 };
 

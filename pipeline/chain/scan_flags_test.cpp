@@ -32,11 +32,14 @@ TEST(ScanFlags, DefaultsAreTheLiveProfileAtBinTwo) {
                                              2);
   EXPECT_EQ(o.bin, 2);
   EXPECT_EQ(o.tracker.keyframes.reuse_radius_mm, want.tracker.keyframes.reuse_radius_mm);
-  EXPECT_EQ(o.tracker.odometry.icp.levels[0].max_samples, want.tracker.odometry.icp.levels[0].max_samples);
-  EXPECT_EQ(o.tracker.odometry.icp.levels[0].max_distance_mm, want.tracker.odometry.icp.levels[0].max_distance_mm);
+  EXPECT_EQ(o.tracker.odometry.icp.levels[0].max_samples,
+            want.tracker.odometry.icp.levels[0].max_samples);
+  EXPECT_EQ(o.tracker.odometry.icp.levels[0].max_distance_mm,
+            want.tracker.odometry.icp.levels[0].max_distance_mm);
   EXPECT_EQ(o.tracker.motion.max_step_mm, want.tracker.motion.max_step_mm);
   EXPECT_EQ(o.tracker.odometry.sample_stride, want.tracker.odometry.sample_stride);
-  EXPECT_EQ(o.tracker.odometry.icp.max_rmse_mm, ScanOptions{}.tracker.odometry.icp.max_rmse_mm);  // µm and back
+  EXPECT_EQ(o.tracker.odometry.icp.max_rmse_mm,
+            ScanOptions{}.tracker.odometry.icp.max_rmse_mm);  // µm and back
   EXPECT_EQ(o.refuse_min_correction_mm, 0.01);
   EXPECT_TRUE(o.tracker.keyframes.detect_loops);
   EXPECT_EQ(o.tsdf.voxel_mm, ScanOptions{}.tsdf.voxel_mm);
@@ -69,7 +72,8 @@ TEST(ScanFlags, EachFlagSetsItsField) {
             -1);
   ASSERT_TRUE(ApplyScanFlags(flags, 1, &o).ok());
   EXPECT_EQ(o.bin, 1);
-  EXPECT_EQ(o.tracker.keyframes.reuse_radius_mm, ScanOptions{}.tracker.keyframes.reuse_radius_mm);  // not live
+  EXPECT_EQ(o.tracker.keyframes.reuse_radius_mm,
+            ScanOptions{}.tracker.keyframes.reuse_radius_mm);  // not live
   EXPECT_EQ(o.tracker.odometry.association, Association::kKdTree);
   EXPECT_DOUBLE_EQ(o.tracker.odometry.icp.max_rmse_mm, 0.04);
   EXPECT_FALSE(o.tracker.keyframes.detect_loops);

@@ -50,9 +50,9 @@ class ViewArchive {
   bool spilling() const { return fd_ >= 0; }
   // Keeps a copy of `blob` under `burst_seq` (the probe's burst number). Bursts are added in the
   // order they were processed; a burst_seq not above the last one added (a probe that restarted its
-  // numbering) replaces nothing: Get finds the latest entry for it. Spilling, the blob is appended to
-  // the file; when that write fails (e.g. the disk is full) the blob is kept in memory instead, so
-  // nothing is lost, and the write's IO_ERROR is returned. OK otherwise.
+  // numbering) replaces nothing: Get finds the latest entry for it. Spilling, the blob is appended
+  // to the file; when that write fails (e.g. the disk is full) the blob is kept in memory instead,
+  // so nothing is lost, and the write's IO_ERROR is returned. OK otherwise.
   [[nodiscard]] Status Add(uint64_t burst_seq, std::string_view blob);
   // The frames kept for burst_seq. NOT_FOUND when it was never added; IO_ERROR when the spill file
   // cannot be read back; CORRUPT as UnpackFrames.
@@ -65,7 +65,9 @@ class ViewArchive {
   size_t size() const { return entries_.size(); }
   int64_t bytes() const { return bytes_; }  // compressed bytes kept (in memory and in the file)
   // Bytes of memory the entries hold: the blobs kept in memory and the index.
-  int64_t memory_bytes() const { return bytes_ - spilled_bytes_ + static_cast<int64_t>(entries_.capacity() * sizeof(Entry)); }
+  int64_t memory_bytes() const {
+    return bytes_ - spilled_bytes_ + static_cast<int64_t>(entries_.capacity() * sizeof(Entry));
+  }
   int64_t spilled_bytes() const { return spilled_bytes_; }  // of bytes(), in the file
 
  private:
@@ -76,12 +78,14 @@ class ViewArchive {
     std::string blob;  // in memory (not spilled)
   };
   std::vector<Entry> entries_;
-  bool sorted_ = true;  // entries_ in increasing burst_seq (binary search), else a linear search from the back
+  bool sorted_ =
+      true;  // entries_ in increasing burst_seq (binary search), else a linear search from the back
   int64_t bytes_ = 0;
   int64_t spilled_bytes_ = 0;
-  int fd_ = -1;               // the spill file, -1 = none
-  int64_t file_end_ = 0;      // where the next blob goes
-  mutable std::string read_;  // Get's buffer for a spilled blob (the archive is one thread's at a time)
+  int fd_ = -1;           // the spill file, -1 = none
+  int64_t file_end_ = 0;  // where the next blob goes
+  mutable std::string
+      read_;  // Get's buffer for a spilled blob (the archive is one thread's at a time)
 };
 
 }  // namespace d3d

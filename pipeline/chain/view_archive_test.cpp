@@ -81,7 +81,9 @@ TEST_P(ViewArchiveWhere, FindsEachBurstAndSaysWhichIsMissing) {
 }
 
 INSTANTIATE_TEST_SUITE_P(MemoryAndFile, ViewArchiveWhere, ::testing::Values(false, true),
-                         [](const ::testing::TestParamInfo<bool>& i) { return i.param ? "Spilled" : "InMemory"; });
+                         [](const ::testing::TestParamInfo<bool>& i) {
+                           return i.param ? "Spilled" : "InMemory";
+                         });
 
 TEST(ViewArchive, SpillFileHasNoNameAndNoDirectoryIsRefused) {
   ViewArchive archive;
@@ -119,9 +121,11 @@ TEST(ViewArchive, AFailedSpillWriteKeepsTheViewInMemory) {
   ASSERT_TRUE(archive.Add(1, blobs[0]).ok());
   struct rlimit old_limit;
   ASSERT_EQ(getrlimit(RLIMIT_FSIZE, &old_limit), 0);
-  const auto old_handler = std::signal(SIGXFSZ, SIG_IGN);  // else the write beyond the limit kills us
+  const auto old_handler =
+      std::signal(SIGXFSZ, SIG_IGN);  // else the write beyond the limit kills us
   struct rlimit small = old_limit;
-  small.rlim_cur = static_cast<rlim_t>(blobs[0].size());  // the file may not grow beyond its first blob
+  small.rlim_cur =
+      static_cast<rlim_t>(blobs[0].size());  // the file may not grow beyond its first blob
   ASSERT_EQ(setrlimit(RLIMIT_FSIZE, &small), 0);
   const Status failed = archive.Add(2, blobs[1]);
   ASSERT_EQ(setrlimit(RLIMIT_FSIZE, &old_limit), 0);

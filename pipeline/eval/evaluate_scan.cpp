@@ -46,7 +46,8 @@ struct MeshClosestPoint::Impl {
   std::vector<uint8_t> boundary_vertex;
 };
 
-MeshClosestPoint::MeshClosestPoint(const TriangleMesh& mesh, int candidates) : mesh_(mesh), candidates_(candidates), impl_(std::make_unique<Impl>()) {
+MeshClosestPoint::MeshClosestPoint(const TriangleMesh& mesh, int candidates)
+    : mesh_(mesh), candidates_(candidates), impl_(std::make_unique<Impl>()) {
   mesh_.Check();
   D3D_CHECK_MSG(!mesh_.faces.empty(), "MeshClosestPoint: mesh has no faces");
   D3D_CHECK_MSG(candidates >= 1, "MeshClosestPoint: candidates >= 1");
@@ -57,7 +58,9 @@ MeshClosestPoint::MeshClosestPoint(const TriangleMesh& mesh, int candidates) : m
   for (int i = 0; i < static_cast<int>(mesh_.faces.size()); ++i) {
     const auto& f = mesh_.faces[static_cast<size_t>(i)];
     impl_->centroids.push_back(
-        ((mesh_.vertices[static_cast<size_t>(f[0])] + mesh_.vertices[static_cast<size_t>(f[1])] + mesh_.vertices[static_cast<size_t>(f[2])]) / 3)
+        ((mesh_.vertices[static_cast<size_t>(f[0])] + mesh_.vertices[static_cast<size_t>(f[1])] +
+          mesh_.vertices[static_cast<size_t>(f[2])]) /
+         3)
             .cast<float>());
     impl_->normals.push_back(mesh_.FaceNormal(i));
     uint8_t b = 0;
@@ -84,7 +87,8 @@ MeshClosestPoint::Hit MeshClosestPoint::Closest(const Eigen::Vector3d& p) const 
     const int fi = idx[static_cast<size_t>(k)];
     const auto& f = mesh_.faces[static_cast<size_t>(fi)];
     int region = 0;
-    const Eigen::Vector3d q = ClosestOnTriangle(p, mesh_.vertices[static_cast<size_t>(f[0])], mesh_.vertices[static_cast<size_t>(f[1])],
+    const Eigen::Vector3d q = ClosestOnTriangle(p, mesh_.vertices[static_cast<size_t>(f[0])],
+                                                mesh_.vertices[static_cast<size_t>(f[1])],
                                                 mesh_.vertices[static_cast<size_t>(f[2])], &region);
     const double d = (p - q).norm();
     if (d < best.distance_mm) {
@@ -99,7 +103,8 @@ MeshClosestPoint::Hit MeshClosestPoint::Closest(const Eigen::Vector3d& p) const 
         case kTriangleVertexA:
         case kTriangleVertexB:
         case kTriangleVertexC:
-          best.on_boundary = impl_->boundary_vertex[static_cast<size_t>(f[region - kTriangleVertexA])];
+          best.on_boundary =
+              impl_->boundary_vertex[static_cast<size_t>(f[region - kTriangleVertexA])];
           break;
         default:
           best.on_boundary = (be >> (region - kTriangleEdgeAB)) & 1;
@@ -111,12 +116,15 @@ MeshClosestPoint::Hit MeshClosestPoint::Closest(const Eigen::Vector3d& p) const 
     const Eigen::Vector3d offset = p - best.point;
     const double s = impl_->normals[static_cast<size_t>(best.face)].dot(offset);
     best.signed_mm = s >= 0 ? best.distance_mm : -best.distance_mm;
-    best.past_border = best.on_boundary && (offset - s * impl_->normals[static_cast<size_t>(best.face)]).norm() > kPastBorderMm;
+    best.past_border =
+        best.on_boundary &&
+        (offset - s * impl_->normals[static_cast<size_t>(best.face)]).norm() > kPastBorderMm;
   }
   return best;
 }
 
-bool MeshClosestPoint::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* p, Eigen::Vector3f* n) const {
+bool MeshClosestPoint::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* p,
+                            Eigen::Vector3f* n) const {
   const Hit h = Closest(q.cast<double>());
   if (h.face < 0 || h.distance_mm > max_d || h.on_boundary) return false;
   *p = h.point.cast<float>();
@@ -125,9 +133,13 @@ bool MeshClosestPoint::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector
 }
 
 void EvaluateOptions::Check() const {
-  D3D_CHECK_MSG(max_distance_mm > 0 && coverage_distance_mm > 0 && coverage_sample_mm2 > 0 && max_scan_points > 0, "EvaluateOptions: invalid value");
-  D3D_CHECK_MSG(gap_mm >= 0 && gap_mm <= 10, "EvaluateOptions: gap_mm must be in [0, 10], got " << gap_mm);
-  D3D_CHECK_MSG(footprint_depth_mm > 0, "EvaluateOptions: footprint_depth_mm must be positive, got " << footprint_depth_mm);
+  D3D_CHECK_MSG(max_distance_mm > 0 && coverage_distance_mm > 0 && coverage_sample_mm2 > 0 &&
+                    max_scan_points > 0,
+                "EvaluateOptions: invalid value");
+  D3D_CHECK_MSG(gap_mm >= 0 && gap_mm <= 10,
+                "EvaluateOptions: gap_mm must be in [0, 10], got " << gap_mm);
+  D3D_CHECK_MSG(footprint_depth_mm > 0,
+                "EvaluateOptions: footprint_depth_mm must be positive, got " << footprint_depth_mm);
 }
 
 namespace {
@@ -155,7 +167,8 @@ bool HasToothFaces(const TriangleMesh& m) {
 // inside the ball of diameter gap_mm tangent to the face's centroid c on its front side (centre
 // c + (gap_mm/2 + ε)·n), with a normal facing back (n_q · n < −0.5). That ball holds the surfaces
 // within gap_mm in front of c and none of the face's own smooth neighbourhood.
-std::vector<uint8_t> FacesInGaps(const TriangleMesh& m, const std::vector<uint8_t>& counted, double gap_mm) {
+std::vector<uint8_t> FacesInGaps(const TriangleMesh& m, const std::vector<uint8_t>& counted,
+                                 double gap_mm) {
   const size_t nf = m.faces.size();
   std::vector<Eigen::Vector3f> centroids(nf), normals(nf);
   for (size_t f = 0; f < nf; ++f) {
@@ -197,7 +210,8 @@ IcpOptions BestFitIcp() {
 
 }  // namespace
 
-TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint& ref, const Rigid3d& initial, const EvaluateOptions& o) {
+TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint& ref,
+                                const Rigid3d& initial, const EvaluateOptions& o) {
   o.Check();
   TruenessReport r;
   r.reference_from_scan = initial;
@@ -212,19 +226,21 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
   const size_t nv = scan.vertices.size();
   const size_t step = std::max<size_t>(1, nv / static_cast<size_t>(o.max_scan_points));
   r.signed_um.assign(nv, std::nanf(""));
-  std::vector<uint8_t> state(nv, 0);  // 0 not evaluated, 1 in figures, 2 outlier, 3 in figures and on a tooth
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, nv), [&](const tbb::blocked_range<size_t>& range) {
-    for (size_t i = range.begin(); i < range.end(); ++i) {
-      if (i % step) continue;
-      const MeshClosestPoint::Hit h = ref.Closest(r.reference_from_scan * scan.vertices[i]);
-      if (h.face < 0 || h.distance_mm > o.max_distance_mm || h.past_border) {
-        state[i] = 2;
-        continue;
-      }
-      state[i] = ref.mesh().Label(h.face) == SurfaceLabel::kTooth ? 3 : 1;
-      r.signed_um[i] = static_cast<float>(h.signed_mm * 1000.0);
-    }
-  });
+  std::vector<uint8_t> state(
+      nv, 0);  // 0 not evaluated, 1 in figures, 2 outlier, 3 in figures and on a tooth
+  tbb::parallel_for(
+      tbb::blocked_range<size_t>(0, nv), [&](const tbb::blocked_range<size_t>& range) {
+        for (size_t i = range.begin(); i < range.end(); ++i) {
+          if (i % step) continue;
+          const MeshClosestPoint::Hit h = ref.Closest(r.reference_from_scan * scan.vertices[i]);
+          if (h.face < 0 || h.distance_mm > o.max_distance_mm || h.past_border) {
+            state[i] = 2;
+            continue;
+          }
+          state[i] = ref.mesh().Label(h.face) == SurfaceLabel::kTooth ? 3 : 1;
+          r.signed_um[i] = static_cast<float>(h.signed_mm * 1000.0);
+        }
+      });
   std::vector<double> absd, teeth_absd;
   double s = 0, s2 = 0, sa = 0, ts = 0, ts2 = 0;
   int64_t outliers = 0, evaluated = 0;
@@ -262,7 +278,8 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
     r.p95_um = Percentile(absd, 0.95);
     r.max_um = *std::max_element(absd.begin(), absd.end());
   }
-  r.outlier_pct = evaluated ? 100.0 * static_cast<double>(outliers) / static_cast<double>(evaluated) : 0;
+  r.outlier_pct =
+      evaluated ? 100.0 * static_cast<double>(outliers) / static_cast<double>(evaluated) : 0;
   // Coverage: area samples of the reference (tooth faces when labelled) near the scan.
   const TriangleMesh& R = ref.mesh();
   const bool has_teeth = o.teeth_only_coverage && HasToothFaces(R);
@@ -271,17 +288,20 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
   // A fused scan's vertices are dense enough (0.05 mm voxels) and its millions of faces would
   // make the surface search the evaluation's largest cost.
   std::vector<Eigen::Vector3f> scan_pts(nv);
-  for (size_t i = 0; i < nv; ++i) scan_pts[i] = (r.reference_from_scan * scan.vertices[i]).cast<float>();
+  for (size_t i = 0; i < nv; ++i)
+    scan_pts[i] = (r.reference_from_scan * scan.vertices[i]).cast<float>();
   PointKdTree tree(&scan_pts);
   std::unique_ptr<MeshClosestPoint> scan_surface;
   {
     double edge_sum = 0;
     const size_t faces = std::min<size_t>(scan.faces.size(), 100000);
-    for (size_t f = 0; f < faces; ++f) edge_sum += (scan.vertices[scan.faces[f][1]] - scan.vertices[scan.faces[f][0]]).norm();
+    for (size_t f = 0; f < faces; ++f)
+      edge_sum += (scan.vertices[scan.faces[f][1]] - scan.vertices[scan.faces[f][0]]).norm();
     if (faces > 0 && edge_sum / static_cast<double>(faces) > 0.5 * o.coverage_distance_mm) {
       TriangleMesh scan_in_ref;
       scan_in_ref.vertices.resize(nv);
-      for (size_t i = 0; i < nv; ++i) scan_in_ref.vertices[i] = r.reference_from_scan * scan.vertices[i];
+      for (size_t i = 0; i < nv; ++i)
+        scan_in_ref.vertices[i] = r.reference_from_scan * scan.vertices[i];
       scan_in_ref.faces = scan.faces;
       scan_surface = std::make_unique<MeshClosestPoint>(scan_in_ref);
     }
@@ -289,8 +309,10 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
   std::mt19937 rng(1);
   std::uniform_real_distribution<double> U(0, 1);
   std::vector<uint8_t> counted(R.faces.size(), 0);
-  for (int f = 0; f < static_cast<int>(R.faces.size()); ++f) counted[static_cast<size_t>(f)] = !has_teeth || R.Label(f) == SurfaceLabel::kTooth;
-  const std::vector<uint8_t> in_gap = o.gap_mm > 0 ? FacesInGaps(R, counted, o.gap_mm) : std::vector<uint8_t>();
+  for (int f = 0; f < static_cast<int>(R.faces.size()); ++f)
+    counted[static_cast<size_t>(f)] = !has_teeth || R.Label(f) == SurfaceLabel::kTooth;
+  const std::vector<uint8_t> in_gap =
+      o.gap_mm > 0 ? FacesInGaps(R, counted, o.gap_mm) : std::vector<uint8_t>();
   int64_t covered = 0, samples = 0;
   int64_t gap_covered = 0, gap_samples = 0;  // of those, on faces in gaps
   const float cov2 = static_cast<float>(o.coverage_distance_mm * o.coverage_distance_mm);
@@ -308,14 +330,16 @@ TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint
         a = 1 - a;
         b = 1 - b;
       }
-      const Eigen::Vector3d p = R.vertices[static_cast<size_t>(F[0])] +
-                                a * (R.vertices[static_cast<size_t>(F[1])] - R.vertices[static_cast<size_t>(F[0])]) +
-                                b * (R.vertices[static_cast<size_t>(F[2])] - R.vertices[static_cast<size_t>(F[0])]);
+      const Eigen::Vector3d p =
+          R.vertices[static_cast<size_t>(F[0])] +
+          a * (R.vertices[static_cast<size_t>(F[1])] - R.vertices[static_cast<size_t>(F[0])]) +
+          b * (R.vertices[static_cast<size_t>(F[2])] - R.vertices[static_cast<size_t>(F[0])]);
       float d2 = 0;
       ++samples;
       gap_samples += gap;
       const bool near =
-          tree.Nearest(p.cast<float>(), &d2, cov2) >= 0 || (scan_surface && scan_surface->Closest(p).distance_mm <= o.coverage_distance_mm);
+          tree.Nearest(p.cast<float>(), &d2, cov2) >= 0 ||
+          (scan_surface && scan_surface->Closest(p).distance_mm <= o.coverage_distance_mm);
       if (near) {
         ++covered;
         gap_covered += gap;
@@ -380,7 +404,8 @@ Rigid3d GlobalAlign(const TriangleMesh& scan, const MeshClosestPoint& ref) {
   // RANSAC on both surfaces (fpfh.h, at the scale of teeth) proposes another start.
   if (best_overlap < kGlobalAlignFpfhBelowOverlap || best_rmse_mm > kGlobalAlignFpfhAboveRmseMm) {
     const FpfhOptions fo = DentalFpfh();
-    const FpfhAlignResult a = AlignByFpfh(ComputeFpfh(s, fo), ComputeFpfh(ScanSamples(ref.mesh(), 400000), fo), fo);
+    const FpfhAlignResult a =
+        AlignByFpfh(ComputeFpfh(s, fo), ComputeFpfh(ScanSamples(ref.mesh(), 400000), fo), fo);
     if (a.ok) {
       const IcpResult r = RegisterIcp(s, ref, a.target_from_source, o);
       if (r.overlap - r.rmse_mm > best_score) best = r.target_from_source;
@@ -389,7 +414,9 @@ Rigid3d GlobalAlign(const TriangleMesh& scan, const MeshClosestPoint& ref) {
   return best;
 }
 
-PrecisionReport EvaluatePrecision(const TriangleMesh& a, const TriangleMesh& b, const Rigid3d& a_from_b, double max_d, double reciprocal_below_um) {
+PrecisionReport EvaluatePrecision(const TriangleMesh& a, const TriangleMesh& b,
+                                  const Rigid3d& a_from_b, double max_d,
+                                  double reciprocal_below_um) {
   D3D_CHECK_MSG(reciprocal_below_um >= 0, "EvaluatePrecision: reciprocal_below_um must be >= 0");
   const MeshClosestPoint ref(a);
   EvaluateOptions o;
@@ -409,19 +436,20 @@ PrecisionReport EvaluatePrecision(const TriangleMesh& a, const TriangleMesh& b, 
   const MeshClosestPoint bcp(b_in_a);
   const size_t nv = b_in_a.vertices.size();
   std::vector<uint8_t> kept(nv, 0);
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, nv), [&](const tbb::blocked_range<size_t>& range) {
-    for (size_t i = range.begin(); i < range.end(); ++i) {
-      const float d_um = t.signed_um[i];
-      if (!std::isfinite(d_um)) continue;
-      if (std::abs(d_um) <= reciprocal_below_um) {
-        kept[i] = 1;
-        continue;
-      }
-      const MeshClosestPoint::Hit q = ref.Closest(b_in_a.vertices[i]);
-      const MeshClosestPoint::Hit back = bcp.Closest(q.point);
-      kept[i] = back.distance_mm >= 0.5 * q.distance_mm ? 1 : 2;
-    }
-  });
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, nv),
+                    [&](const tbb::blocked_range<size_t>& range) {
+                      for (size_t i = range.begin(); i < range.end(); ++i) {
+                        const float d_um = t.signed_um[i];
+                        if (!std::isfinite(d_um)) continue;
+                        if (std::abs(d_um) <= reciprocal_below_um) {
+                          kept[i] = 1;
+                          continue;
+                        }
+                        const MeshClosestPoint::Hit q = ref.Closest(b_in_a.vertices[i]);
+                        const MeshClosestPoint::Hit back = bcp.Closest(q.point);
+                        kept[i] = back.distance_mm >= 0.5 * q.distance_mm ? 1 : 2;
+                      }
+                    });
   std::vector<double> absd;
   double s2 = 0;
   int64_t counted = 0;
@@ -434,7 +462,8 @@ PrecisionReport EvaluatePrecision(const TriangleMesh& a, const TriangleMesh& b, 
     absd.push_back(std::abs(d));
   }
   p.points = static_cast<int64_t>(absd.size());
-  p.not_reciprocal_pct = counted ? 100.0 * static_cast<double>(counted - p.points) / static_cast<double>(counted) : 0;
+  p.not_reciprocal_pct =
+      counted ? 100.0 * static_cast<double>(counted - p.points) / static_cast<double>(counted) : 0;
   if (p.points) {
     p.rms_um = std::sqrt(s2 / static_cast<double>(p.points));
     p.p95_um = Percentile(absd, 0.95);
@@ -442,11 +471,16 @@ PrecisionReport EvaluatePrecision(const TriangleMesh& a, const TriangleMesh& b, 
   return p;
 }
 
-SeenSurface::SeenSurface(const TriangleMesh& reference, double depth_min_mm, double depth_max_mm, double max_incidence_deg)
-    : depth_min_mm_(depth_min_mm), depth_max_mm_(depth_max_mm), cos_max_incidence_(std::cos(max_incidence_deg * M_PI / 180.0)) {
+SeenSurface::SeenSurface(const TriangleMesh& reference, double depth_min_mm, double depth_max_mm,
+                         double max_incidence_deg)
+    : depth_min_mm_(depth_min_mm),
+      depth_max_mm_(depth_max_mm),
+      cos_max_incidence_(std::cos(max_incidence_deg * M_PI / 180.0)) {
   D3D_CHECK_MSG(!reference.faces.empty(), "SeenSurface: empty reference");
-  D3D_CHECK_MSG(depth_min_mm >= 0 && depth_min_mm < depth_max_mm, "SeenSurface: depth limits out of order");
-  D3D_CHECK_MSG(max_incidence_deg > 0 && max_incidence_deg <= 90, "SeenSurface: max_incidence_deg must be in (0, 90]");
+  D3D_CHECK_MSG(depth_min_mm >= 0 && depth_min_mm < depth_max_mm,
+                "SeenSurface: depth limits out of order");
+  D3D_CHECK_MSG(max_incidence_deg > 0 && max_incidence_deg <= 90,
+                "SeenSurface: max_incidence_deg must be in (0, 90]");
   const bool has_teeth = HasToothFaces(reference);
   const size_t n = reference.faces.size();
   normals_.resize(n);
@@ -454,7 +488,8 @@ SeenSurface::SeenSurface(const TriangleMesh& reference, double depth_min_mm, dou
   for (size_t f = 0; f < n; ++f) {
     const int i = static_cast<int>(f);
     normals_[f] = reference.FaceNormal(i);
-    if (!has_teeth || reference.Label(i) == SurfaceLabel::kTooth) counted_area_[f] = reference.FaceArea(i);
+    if (!has_teeth || reference.Label(i) == SurfaceLabel::kTooth)
+      counted_area_[f] = reference.FaceArea(i);
   }
   seen_.assign(n, 0);
 }
@@ -489,13 +524,15 @@ double SeenSurface::SeenToothAreaPct() const {
   return total > 0 ? 100.0 * seen / total : 0;
 }
 
-AteReport AbsoluteTrajectoryError(const std::vector<Rigid3d>& est, const std::vector<Rigid3d>& truth, Rigid3d* out) {
+AteReport AbsoluteTrajectoryError(const std::vector<Rigid3d>& est,
+                                  const std::vector<Rigid3d>& truth, Rigid3d* out) {
   D3D_CHECK_MSG(est.size() == truth.size(), "AbsoluteTrajectoryError: sizes differ");
   AteReport r;
   r.poses = static_cast<int>(est.size());
   if (est.size() < 3) return r;
   std::vector<Correspondence3d> c;
-  for (size_t i = 0; i < est.size(); ++i) c.push_back({est[i].translation(), truth[i].translation(), 1.0});
+  for (size_t i = 0; i < est.size(); ++i)
+    c.push_back({est[i].translation(), truth[i].translation(), 1.0});
   Rigid3d T = FitRigid(c, 0).value_or(truth[0] * est[0].inverse());
   double s2 = 0, sr = 0;
   for (size_t i = 0; i < est.size(); ++i) {
@@ -516,17 +553,20 @@ std::vector<Eigen::Vector3d> ViewFootprint(const PinholeBrownConrady& camera, do
   const double w = camera.width - 1, h = camera.height - 1;
   std::vector<Eigen::Vector3d> footprint;
   for (const Eigen::Vector2d& px :
-       {Eigen::Vector2d(w / 2, h / 2), Eigen::Vector2d(0, 0), Eigen::Vector2d(w, 0), Eigen::Vector2d(0, h), Eigen::Vector2d(w, h)}) {
+       {Eigen::Vector2d(w / 2, h / 2), Eigen::Vector2d(0, 0), Eigen::Vector2d(w, 0),
+        Eigen::Vector2d(0, h), Eigen::Vector2d(w, h)}) {
     const std::optional<Eigen::Vector3d> ray = camera.PixelRay(px);  // (x, y, 1): z = depth
     if (ray) footprint.push_back(*ray * depth_mm);
   }
   return footprint;
 }
 
-double FootprintDistanceMm(const Rigid3d& estimate, const Rigid3d& truth, const std::vector<Eigen::Vector3d>& footprint_in_cam) {
+double FootprintDistanceMm(const Rigid3d& estimate, const Rigid3d& truth,
+                           const std::vector<Eigen::Vector3d>& footprint_in_cam) {
   if (footprint_in_cam.empty()) return TranslationDistanceMm(estimate, truth);
   double d = 0;
-  for (const Eigen::Vector3d& p : footprint_in_cam) d = std::max(d, (estimate * p - truth * p).norm());
+  for (const Eigen::Vector3d& p : footprint_in_cam)
+    d = std::max(d, (estimate * p - truth * p).norm());
   return d;
 }
 
@@ -535,7 +575,8 @@ RpeReport RelativePoseError(const std::vector<Rigid3d>& est, const std::vector<R
   RpeReport r;
   double s2 = 0, sr = 0;
   for (size_t k = 1; k < est.size(); ++k) {
-    const Rigid3d e = (truth[k - 1].inverse() * truth[k]).inverse() * (est[k - 1].inverse() * est[k]);
+    const Rigid3d e =
+        (truth[k - 1].inverse() * truth[k]).inverse() * (est[k - 1].inverse() * est[k]);
     const double d = e.translation().norm();
     s2 += d * d;
     sr += RotationAngleRad(e, Rigid3d::Identity()) * 180.0 / M_PI;
@@ -552,7 +593,8 @@ RpeReport RelativePoseError(const std::vector<Rigid3d>& est, const std::vector<R
   return r;
 }
 
-cv::Mat DeviationHeatMap(const TriangleMesh& scan, const std::vector<float>& signed_um, double range_um, int width_px) {
+cv::Mat DeviationHeatMap(const TriangleMesh& scan, const std::vector<float>& signed_um,
+                         double range_um, int width_px) {
   D3D_CHECK_MSG(signed_um.size() == scan.vertices.size(), "DeviationHeatMap: one value per vertex");
   cv::Mat img(10, 10, CV_8UC3, cv::Scalar(255, 255, 255));
   if (scan.vertices.empty()) return img;
@@ -562,7 +604,8 @@ cv::Mat DeviationHeatMap(const TriangleMesh& scan, const std::vector<float>& sig
   Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
   for (const auto& p : scan.vertices) C += (p - m) * (p - m).transpose();
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(C);
-  const Eigen::Vector3d ax = es.eigenvectors().col(2), ay = es.eigenvectors().col(1), az = es.eigenvectors().col(0);
+  const Eigen::Vector3d ax = es.eigenvectors().col(2), ay = es.eigenvectors().col(1),
+                        az = es.eigenvectors().col(0);
   // View from the side most normals face.
   TriangleMesh tmp = scan;
   tmp.ComputeVertexNormals();
@@ -580,13 +623,16 @@ cv::Mat DeviationHeatMap(const TriangleMesh& scan, const std::vector<float>& sig
   cv::Mat zbuf(h, width_px, CV_64F, cv::Scalar(-1e30));
   auto colour = [&](double d) {
     const double t = std::clamp((d / range_um + 1) / 2, 0.0, 1.0);  // 0 blue, 0.5 green, 1 red
-    const double r = std::clamp(2 * t - 1, 0.0, 1.0), b = std::clamp(1 - 2 * t, 0.0, 1.0), g = 1 - r - b;
-    return cv::Vec3b(static_cast<uint8_t>(255 * b), static_cast<uint8_t>(255 * g), static_cast<uint8_t>(255 * r));
+    const double r = std::clamp(2 * t - 1, 0.0, 1.0), b = std::clamp(1 - 2 * t, 0.0, 1.0),
+                 g = 1 - r - b;
+    return cv::Vec3b(static_cast<uint8_t>(255 * b), static_cast<uint8_t>(255 * g),
+                     static_cast<uint8_t>(255 * r));
   };
   const int splat = std::max(1, static_cast<int>(std::ceil(0.05 * scale / 2)));
   for (size_t i = 0; i < scan.vertices.size(); ++i) {
     const Eigen::Vector3d d = scan.vertices[i] - m;
-    const int u = static_cast<int>((d.dot(ax) - x0) * scale) + 10, v = static_cast<int>((y1 - d.dot(ay)) * scale) + 10;
+    const int u = static_cast<int>((d.dot(ax) - x0) * scale) + 10,
+              v = static_cast<int>((y1 - d.dot(ay)) * scale) + 10;
     const double z = sz * d.dot(az);
     if (!std::isfinite(signed_um[i])) continue;  // not evaluated (subsampled) or excluded
     const cv::Vec3b c = colour(signed_um[i]);
@@ -605,8 +651,10 @@ cv::Mat DeviationHeatMap(const TriangleMesh& scan, const std::vector<float>& sig
   }
   for (int k = 0; k <= 4; ++k) {
     const int x = bx0 + k * (bx1 - bx0) / 4;
-    const std::string label = std::to_string(static_cast<int>(std::lround((k / 2.0 - 1) * range_um))) + " um";
-    cv::putText(img, label, {x - 25, h + 58}, cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+    const std::string label =
+        std::to_string(static_cast<int>(std::lround((k / 2.0 - 1) * range_um))) + " um";
+    cv::putText(img, label, {x - 25, h + 58}, cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0), 1,
+                cv::LINE_AA);
   }
   return img;
 }

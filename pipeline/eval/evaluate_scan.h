@@ -32,9 +32,9 @@ class MeshClosestPoint final : public IcpTarget {
   struct Hit {
     int face = -1;
     Eigen::Vector3d point = Eigen::Vector3d::Zero();
-    double distance_mm = 0;   // unsigned
-    double signed_mm = 0;     // positive on the side the face normal points to
-    bool on_boundary = false; // the closest point lies on an open (boundary) edge of the mesh
+    double distance_mm = 0;    // unsigned
+    double signed_mm = 0;      // positive on the side the face normal points to
+    bool on_boundary = false;  // the closest point lies on an open (boundary) edge of the mesh
     // on_boundary and the point lies past that border: more than kPastBorderMm of its offset is
     // along the surface, not along the face normal (a point on the border itself is not past it).
     bool past_border = false;
@@ -54,9 +54,11 @@ class MeshClosestPoint final : public IcpTarget {
 };
 
 struct EvaluateOptions {
-  bool align = true;                  // best-fit ICP of the scan onto the reference
-  double max_distance_mm = 1.0;       // scan points farther from the reference are outliers (counted, not in the figures)
-  double coverage_distance_mm = 0.2;  // a reference point is covered when a scan point is this close
+  bool align = true;  // best-fit ICP of the scan onto the reference
+  double max_distance_mm =
+      1.0;  // scan points farther from the reference are outliers (counted, not in the figures)
+  double coverage_distance_mm =
+      0.2;  // a reference point is covered when a scan point is this close
   double coverage_sample_mm2 = 0.01;  // reference surface per coverage sample
   bool teeth_only_coverage = true;    // coverage of tooth faces when the reference is labelled
   // Coverage is also split into the reference surface in narrow gaps and the open rest: a face is
@@ -64,7 +66,7 @@ struct EvaluateOptions {
   // of it, as the walls of an interproximal gap or a deep fissure do (a probe sees into such a gap
   // only along it). 0 = no split.
   double gap_mm = 1.0;
-  int max_scan_points = 400000;       // scan vertices evaluated (evenly subsampled beyond)
+  int max_scan_points = 400000;  // scan vertices evaluated (evenly subsampled beyond)
   // The depth (mm) of a view's footprint (ViewFootprint) for its pose error: the probe's working
   // distance (the default probe's: 50 mm, the middle of its 42–58 mm measurement volume).
   double footprint_depth_mm = 50.0;
@@ -72,10 +74,12 @@ struct EvaluateOptions {
 };
 
 struct TruenessReport {
-  Rigid3d reference_from_scan = Rigid3d::Identity();  // the best fit applied (identity without align)
+  Rigid3d reference_from_scan =
+      Rigid3d::Identity();  // the best fit applied (identity without align)
   double alignment_rmse_mm = 0;
-  int64_t points = 0;                 // scan points in the figures
-  double outlier_pct = 0;             // scan points beyond max_distance_mm or past the reference's border (Hit::past_border)
+  int64_t points = 0;  // scan points in the figures
+  double outlier_pct =
+      0;  // scan points beyond max_distance_mm or past the reference's border (Hit::past_border)
   double rms_um = 0, mean_um = 0, mean_abs_um = 0, p95_um = 0, max_um = 0;  // p95 of |d|
   double coverage_pct = 0;
   // The coverage split (EvaluateOptions::gap_mm): of the counted surface, the area share (%) in
@@ -89,12 +93,12 @@ struct TruenessReport {
   // teeth report them (e.g. Ender & Mehl 2013); gingiva is noisier (darker, more translucent).
   int64_t teeth_points = 0;
   double teeth_rms_um = 0, teeth_mean_um = 0, teeth_p95_um = 0;
-  std::vector<float> signed_um;       // per scan vertex (NaN where excluded), for heat maps
+  std::vector<float> signed_um;  // per scan vertex (NaN where excluded), for heat maps
 };
 
 // Aligns (if asked) starting from `initial` (reference_from_scan) and evaluates.
-TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint& reference, const Rigid3d& initial,
-                                const EvaluateOptions& options = {});
+TruenessReport EvaluateTrueness(const TriangleMesh& scan, const MeshClosestPoint& reference,
+                                const Rigid3d& initial, const EvaluateOptions& options = {});
 
 // A coarse global alignment when no initial pose is known: principal axes of both vertex sets
 // (4 sign hypotheses) each refined by ICP; the best (overlap, then residual) wins. When that best
@@ -122,10 +126,11 @@ Rigid3d GlobalAlign(const TriangleMesh& scan, const MeshClosestPoint& reference)
 struct PrecisionReport {
   double rms_um = 0, p95_um = 0;
   int64_t points = 0;
-  double not_reciprocal_pct = 0;                 // of b's vertices within reach, off the border
+  double not_reciprocal_pct = 0;  // of b's vertices within reach, off the border
   double one_sided_rms_um = 0, one_sided_p95_um = 0;  // without the reciprocity test
 };
-PrecisionReport EvaluatePrecision(const TriangleMesh& a, const TriangleMesh& b, const Rigid3d& a_from_b = Rigid3d::Identity(),
+PrecisionReport EvaluatePrecision(const TriangleMesh& a, const TriangleMesh& b,
+                                  const Rigid3d& a_from_b = Rigid3d::Identity(),
                                   double max_distance_mm = 0.5, double reciprocal_below_um = 20.0);
 
 // Absolute trajectory error: estimated and true poses (same length, paired) are aligned by the
@@ -135,23 +140,25 @@ struct AteReport {
   double rmse_mm = 0, mean_deg = 0, max_mm = 0;
   int poses = 0;
 };
-AteReport AbsoluteTrajectoryError(const std::vector<Rigid3d>& estimate, const std::vector<Rigid3d>& truth,
+AteReport AbsoluteTrajectoryError(const std::vector<Rigid3d>& estimate,
+                                  const std::vector<Rigid3d>& truth,
                                   Rigid3d* truth_from_estimate = nullptr);
 
 // Relative pose error between consecutive poses (Sturm et al. 2012, "A benchmark for the
 // evaluation of RGB-D SLAM systems", IROS, eq. 1 with Δ = one pose): for k ≥ 1,
 //   E_k = (Q_{k−1}⁻¹ Q_k)⁻¹ (P_{k−1}⁻¹ P_k),  P estimate, Q truth (any frames: E_k is invariant),
-// RMS and largest |translation(E_k)| (mm) and the k of the largest, mean rotation angle (deg). Where
-// ATE says how far a trajectory wandered, this says where it jumped: a view registered off
+// RMS and largest |translation(E_k)| (mm) and the k of the largest, mean rotation angle (deg).
+// Where ATE says how far a trajectory wandered, this says where it jumped: a view registered off
 // (sliding along a weakly constrained direction, say) shows as one large step, and every later
-// view that followed it is unaffected. Throws std::invalid_argument for unpaired inputs; fewer than 2
-// poses: all zero.
+// view that followed it is unaffected. Throws std::invalid_argument for unpaired inputs; fewer than
+// 2 poses: all zero.
 struct RpeReport {
   double rmse_mm = 0, mean_deg = 0, max_mm = 0;
   int max_pose = 0;  // k of the largest step error (the pose that moved off its predecessor)
   int steps = 0;
 };
-RpeReport RelativePoseError(const std::vector<Rigid3d>& estimate, const std::vector<Rigid3d>& truth);
+RpeReport RelativePoseError(const std::vector<Rigid3d>& estimate,
+                            const std::vector<Rigid3d>& truth);
 
 // Where a fused view's pose error is judged (issue 50's wrong fusions): the view's footprint, the
 // points (camera frame, mm) at depth_mm along the rays of the image's centre and four corner
@@ -165,7 +172,8 @@ std::vector<Eigen::Vector3d> ViewFootprint(const PinholeBrownConrady& camera, do
 // The largest distance (mm) between estimate·p and truth·p over the points p of footprint_in_cam
 // (camera frame, mm; estimate and truth: world_from_cam); the camera centres' distance when the
 // footprint is empty.
-double FootprintDistanceMm(const Rigid3d& estimate, const Rigid3d& truth, const std::vector<Eigen::Vector3d>& footprint_in_cam);
+double FootprintDistanceMm(const Rigid3d& estimate, const Rigid3d& truth,
+                           const std::vector<Eigen::Vector3d>& footprint_in_cam);
 
 // A wrong fusion (issue 50): a fused view whose footprint (ViewFootprint) is off by more than
 // kWrongFusionMm, or whose rotation is off by more than kWrongFusionDeg, from the truth after the
@@ -178,10 +186,12 @@ constexpr double kWrongFusionMm = 0.2, kWrongFusionDeg = 1.0;
 // a view shows it lit and visible (FrameTruth visibility 2), within [depth_min_mm, depth_max_mm]
 // of the camera (z) and at an incidence (face normal vs the ray to the camera centre) below
 // max_incidence_deg (use the fusion's limit, TsdfOptions::max_incidence_deg). Keeps each face's
-// normal and counted area, not the mesh. Throws std::invalid_argument for an empty reference or limits out of order.
+// normal and counted area, not the mesh. Throws std::invalid_argument for an empty reference or
+// limits out of order.
 class SeenSurface {
  public:
-  SeenSurface(const TriangleMesh& reference, double depth_min_mm, double depth_max_mm, double max_incidence_deg);
+  SeenSurface(const TriangleMesh& reference, double depth_min_mm, double depth_max_mm,
+              double max_incidence_deg);
   // One view's truth maps (face_index into the reference, world_from_probe = the camera's pose).
   // Views without maps are ignored.
   void Add(const FrameTruth& truth);
@@ -200,8 +210,9 @@ class SeenSurface {
 
 // A deviation heat map: the scan's vertices seen along the smallest principal axis of the scan
 // (orthographic, z-buffered splats), coloured by signed deviation on a diverging blue–green–red
-// scale clipped at ±range_um (vertices without a value not drawn), with a colour bar and its labels.
-cv::Mat DeviationHeatMap(const TriangleMesh& scan_in_reference, const std::vector<float>& signed_um, double range_um = 50,
-                         int width_px = 1200);
+// scale clipped at ±range_um (vertices without a value not drawn), with a colour bar and its
+// labels.
+cv::Mat DeviationHeatMap(const TriangleMesh& scan_in_reference, const std::vector<float>& signed_um,
+                         double range_um = 50, int width_px = 1200);
 
 }  // namespace d3d

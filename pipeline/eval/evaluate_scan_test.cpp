@@ -11,13 +11,18 @@ namespace {
 
 // A bumpy 20 × 10 mm sheet z = h(x, y), triangulated on a 0.1 mm grid, faces toward +z; with
 // `relief`, h is its height field (bumps and blobs at the scale of cusps and fissures).
-TriangleMesh Sheet(double x0 = -10, double x1 = 10, double step = 0.1, const testing::HeightField* relief = nullptr) {
+TriangleMesh Sheet(double x0 = -10, double x1 = 10, double step = 0.1,
+                   const testing::HeightField* relief = nullptr) {
   TriangleMesh m;
-  const int nx = static_cast<int>(std::lround((x1 - x0) / step)) + 1, ny = static_cast<int>(std::lround(10 / step)) + 1;
+  const int nx = static_cast<int>(std::lround((x1 - x0) / step)) + 1,
+            ny = static_cast<int>(std::lround(10 / step)) + 1;
   for (int j = 0; j < ny; ++j)
     for (int i = 0; i < nx; ++i) {
       const double x = x0 + i * step, y = -5 + j * step;
-      m.vertices.emplace_back(x, y, relief ? relief->Height(x, y) : 0.8 * std::sin(0.7 * x) * std::cos(0.9 * y) + 0.3 * std::sin(2.3 * x + 1.1 * y));
+      m.vertices.emplace_back(
+          x, y,
+          relief ? relief->Height(x, y)
+                 : 0.8 * std::sin(0.7 * x) * std::cos(0.9 * y) + 0.3 * std::sin(2.3 * x + 1.1 * y));
     }
   for (int j = 0; j + 1 < ny; ++j)
     for (int i = 0; i + 1 < nx; ++i) {
@@ -60,7 +65,8 @@ TEST(EvaluateScan, AReferenceShiftedByAKnownAmount) {
   EXPECT_LT(TranslationDistanceMm(a.reference_from_scan, shift.inverse()), 0.002);
   // A scan placed far off is found by the global alignment.
   Rigid3d far = Rigid3d::Identity();
-  far.linear() = Eigen::AngleAxisd(2.5, Eigen::Vector3d(0.2, 0.5, 1).normalized()).toRotationMatrix();
+  far.linear() =
+      Eigen::AngleAxisd(2.5, Eigen::Vector3d(0.2, 0.5, 1).normalized()).toRotationMatrix();
   far.translation() = Eigen::Vector3d(40, -7, 12);
   TriangleMesh moved = Sheet(-8, 8);
   for (auto& v : moved.vertices) v = far * v;
@@ -99,7 +105,8 @@ TEST(EvaluateScan, GlobalAlignFindsAPartialScan) {
   const TriangleMesh ref = Sheet(-10, 10, 0.1, &relief);
   const MeshClosestPoint cp(ref);
   Rigid3d far = Rigid3d::Identity();
-  far.linear() = Eigen::AngleAxisd(2.0, Eigen::Vector3d(0.3, -0.4, 1).normalized()).toRotationMatrix();
+  far.linear() =
+      Eigen::AngleAxisd(2.0, Eigen::Vector3d(0.3, -0.4, 1).normalized()).toRotationMatrix();
   far.translation() = Eigen::Vector3d(-30, 12, 25);
   TriangleMesh part = Sheet(-10, -3.5, 0.1, &relief);
   for (auto& v : part.vertices) v = far * v;
@@ -116,8 +123,10 @@ TEST(EvaluateScan, TeethFiguresCountOnlyThePointsOnTeeth) {
   // the left and 60 µm on the right.
   TriangleMesh ref = Sheet();
   for (const auto& f : ref.faces) {
-    const double x = (ref.vertices[static_cast<size_t>(f[0])].x() + ref.vertices[static_cast<size_t>(f[1])].x() +
-                      ref.vertices[static_cast<size_t>(f[2])].x()) / 3;
+    const double x =
+        (ref.vertices[static_cast<size_t>(f[0])].x() + ref.vertices[static_cast<size_t>(f[1])].x() +
+         ref.vertices[static_cast<size_t>(f[2])].x()) /
+        3;
     ref.face_labels.push_back(x < 0 ? SurfaceLabel::kTooth : SurfaceLabel::kGingiva);
   }
   const MeshClosestPoint cp(ref);
@@ -132,7 +141,8 @@ TEST(EvaluateScan, TeethFiguresCountOnlyThePointsOnTeeth) {
   EXPECT_LE(r.teeth_p95_um, 21.0);   // none of the right half's 60 µm
   EXPECT_GT(r.rms_um, 30.0);         // all points
   // An unlabelled reference has no teeth figures.
-  const TruenessReport u = EvaluateTrueness(scan, MeshClosestPoint(Sheet()), Rigid3d::Identity(), o);
+  const TruenessReport u =
+      EvaluateTrueness(scan, MeshClosestPoint(Sheet()), Rigid3d::Identity(), o);
   EXPECT_EQ(u.teeth_points, 0);
 }
 
@@ -178,7 +188,7 @@ TEST(EvaluateScan, CoverageIsSplitIntoNarrowGapsAndTheOpenSurface) {
   o.align = false;
   const TruenessReport r = EvaluateTrueness(lower, cp, Rigid3d::Identity(), o);
   EXPECT_NEAR(r.coverage_pct, 66.7, 1.5);
-  EXPECT_NEAR(r.gap_area_pct, 66.7, 1.5);     // both walls of the gap
+  EXPECT_NEAR(r.gap_area_pct, 66.7, 1.5);      // both walls of the gap
   EXPECT_NEAR(r.coverage_gap_pct, 50.0, 1.5);  // the lower one
   EXPECT_NEAR(r.coverage_open_pct, 100.0, 0.5);
   // A gap wider than gap_mm is open surface; gap_mm 0 makes no split.
@@ -195,7 +205,8 @@ TEST(EvaluateScan, CoverageIsSplitIntoNarrowGapsAndTheOpenSurface) {
   TriangleMesh plate = Joined({Square(-10, 0, false), Square(-10, 0.4, true)});
   plate.face_labels.assign(plate.faces.size(), SurfaceLabel::kTooth);
   o.gap_mm = 1.0;
-  const TruenessReport back = EvaluateTrueness(plate, MeshClosestPoint(plate), Rigid3d::Identity(), o);
+  const TruenessReport back =
+      EvaluateTrueness(plate, MeshClosestPoint(plate), Rigid3d::Identity(), o);
   EXPECT_EQ(back.gap_area_pct, 0.0);
   o.gap_mm = -1;
   EXPECT_THROW(o.Check(), std::invalid_argument);
@@ -205,7 +216,8 @@ TEST(EvaluateScan, SeenSurfaceCountsTheToothFacesAViewShowed) {
   // Four unit right triangles 50 mm in front of the camera (camera frame = world): 0 and 1 face
   // the camera, 2 is tilted 85° (grazing), 3 faces it but is gingiva. All tooth but 3.
   TriangleMesh ref;
-  auto add = [&](const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c, SurfaceLabel l) {
+  auto add = [&](const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c,
+                 SurfaceLabel l) {
     const int i = static_cast<int>(ref.vertices.size());
     ref.vertices.insert(ref.vertices.end(), {a, b, c});
     ref.faces.emplace_back(i, i + 1, i + 2);
@@ -223,12 +235,14 @@ TEST(EvaluateScan, SeenSurfaceCountsTheToothFacesAViewShowed) {
   truth.points_in_cam = cv::Mat(1, 4, CV_32FC3);
   truth.face_index = (cv::Mat_<int32_t>(1, 4) << 0, 1, 2, 3);
   truth.visibility = (cv::Mat_<uint8_t>(1, 4) << 2, 1, 2, 2);  // face 1 in the projector's shadow
-  for (int x = 0; x < 4; ++x) truth.points_in_cam.at<cv::Vec3f>(0, x) = cv::Vec3f(0.3f + 2 * x, 0.3f, 50.0f);
+  for (int x = 0; x < 4; ++x)
+    truth.points_in_cam.at<cv::Vec3f>(0, x) = cv::Vec3f(0.3f + 2 * x, 0.3f, 50.0f);
   SeenSurface seen(ref, 42, 58, 80);
   seen.Add(truth);
   EXPECT_EQ(seen.views(), 1);
   const double tooth_area = ref.FaceArea(0) + ref.FaceArea(1) + ref.FaceArea(2);
-  EXPECT_NEAR(seen.SeenToothAreaPct(), 100 * ref.FaceArea(0) / tooth_area, 1e-9);  // 1 shadowed, 2 grazing
+  EXPECT_NEAR(seen.SeenToothAreaPct(), 100 * ref.FaceArea(0) / tooth_area,
+              1e-9);  // 1 shadowed, 2 grazing
   // Lit now, but beyond the measurement volume: still not seen.
   truth.visibility.at<uint8_t>(0, 1) = 2;
   truth.points_in_cam.at<cv::Vec3f>(0, 1)[2] = 60.0f;
@@ -308,7 +322,9 @@ TEST(EvaluateScan, RelativePoseErrorFindsTheJump) {
 TEST(EvaluateScan, PrecisionCountsOnlyTheSurfaceBothScansHave) {
   const TriangleMesh a = Sheet();
   TriangleMesh b = Sheet();
-  const auto h = [&](double x, double y) { return 0.8 * std::sin(0.7 * x) * std::cos(0.9 * y) + 0.3 * std::sin(2.3 * x + 1.1 * y); };
+  const auto h = [&](double x, double y) {
+    return 0.8 * std::sin(0.7 * x) * std::cos(0.9 * y) + 0.3 * std::sin(2.3 * x + 1.1 * y);
+  };
   const int base = static_cast<int>(b.vertices.size()), ny = 81, nz = 9;
   for (int j = 0; j < ny; ++j)
     for (int k = 0; k < nz; ++k) {
@@ -328,7 +344,8 @@ TEST(EvaluateScan, PrecisionCountsOnlyTheSurfaceBothScansHave) {
   EXPECT_GT(wall.points, 15000);
   // A 60 µm bump of radius ~1 mm that only b has: measured, not thinned.
   TriangleMesh bump = Sheet();
-  for (auto& v : bump.vertices) v.z() += 0.060 * std::exp(-(std::pow(v.x() - 3, 2) + std::pow(v.y(), 2)) / (2 * 0.5 * 0.5));
+  for (auto& v : bump.vertices)
+    v.z() += 0.060 * std::exp(-(std::pow(v.x() - 3, 2) + std::pow(v.y(), 2)) / (2 * 0.5 * 0.5));
   const PrecisionReport p = EvaluatePrecision(a, bump);
   EXPECT_EQ(p.not_reciprocal_pct, 0.0);
   EXPECT_DOUBLE_EQ(p.rms_um, p.one_sided_rms_um);
@@ -344,15 +361,16 @@ TEST(EvaluateScan, HeatMapHasTheScanAndABar) {
   ASSERT_EQ(img.type(), CV_8UC3);
   EXPECT_EQ(img.cols, 800);
   // One end blue (−50 µm), the other red (+50 µm) (the principal axis may point either way).
-  const cv::Vec3b left = img.at<cv::Vec3b>(img.rows / 3, 30), right = img.at<cv::Vec3b>(img.rows / 3, 770);
+  const cv::Vec3b left = img.at<cv::Vec3b>(img.rows / 3, 30),
+                  right = img.at<cv::Vec3b>(img.rows / 3, 770);
   const bool blue_left = left[0] > 200 && left[2] < 50 && right[2] > 200 && right[0] < 50;
   const bool red_left = left[2] > 200 && left[0] < 50 && right[0] > 200 && right[2] < 50;
   EXPECT_TRUE(blue_left || red_left) << left << " " << right;
 }
 
-// A view turned about its own surface: its camera centre moves by the lever of the working distance,
-// its footprint (the surface it sees) hardly; a view shifted moves both alike. The wrong-fusion rule
-// judges the footprint.
+// A view turned about its own surface: its camera centre moves by the lever of the working
+// distance, its footprint (the surface it sees) hardly; a view shifted moves both alike. The
+// wrong-fusion rule judges the footprint.
 TEST(ViewFootprint, MeasuresWhereTheViewsSurfaceMovesNotTheCameraCentre) {
   const PinholeBrownConrady cam{640, 480, 2000, 2000, 319.5, 239.5, 0, 0, 0, 0, 0};
   const std::vector<Eigen::Vector3d> foot = ViewFootprint(cam, 50.0);
@@ -371,12 +389,14 @@ TEST(ViewFootprint, MeasuresWhereTheViewsSurfaceMovesNotTheCameraCentre) {
   turn.translation() = pivot - turn.linear() * pivot;
   const Rigid3d turned = truth * turn;
   EXPECT_GT(TranslationDistanceMm(turned, truth), kWrongFusionMm);  // the camera centre: 0.2 mm
-  EXPECT_NEAR(FootprintDistanceMm(turned, truth, foot), 239.5 / 2000 * 50 * 2 * std::sin(0.23 * M_PI / 360), 1e-9);
+  EXPECT_NEAR(FootprintDistanceMm(turned, truth, foot),
+              239.5 / 2000 * 50 * 2 * std::sin(0.23 * M_PI / 360), 1e-9);
   // Shifted 0.3 mm: both.
   Rigid3d shift = Rigid3d::Identity();
   shift.translation() = Eigen::Vector3d(0.3, 0, 0);
   EXPECT_NEAR(FootprintDistanceMm(truth * shift, truth, foot), 0.3, 1e-9);
-  EXPECT_NEAR(FootprintDistanceMm(truth * shift, truth, {}), 0.3, 1e-9);  // no footprint: the centre
+  EXPECT_NEAR(FootprintDistanceMm(truth * shift, truth, {}), 0.3,
+              1e-9);  // no footprint: the centre
 }
 
 }  // namespace

@@ -12,8 +12,10 @@ namespace d3d {
 void FreeSpaceOptions::Check() const {
   D3D_CHECK_MSG(reference_every >= 1 && max_references >= 1 && nearest_references >= 1,
                 "FreeSpaceOptions: reference_every, max_references, nearest_references >= 1");
-  D3D_CHECK_MSG(max_centre_distance_mm > 0 && margin_mm > 0, "FreeSpaceOptions: max_centre_distance_mm, margin_mm > 0");
-  D3D_CHECK_MSG(min_votes >= 1 && min_votes <= nearest_references, "FreeSpaceOptions: min_votes in [1, nearest_references]");
+  D3D_CHECK_MSG(max_centre_distance_mm > 0 && margin_mm > 0,
+                "FreeSpaceOptions: max_centre_distance_mm, margin_mm > 0");
+  D3D_CHECK_MSG(min_votes >= 1 && min_votes <= nearest_references,
+                "FreeSpaceOptions: min_votes in [1, nearest_references]");
 }
 
 FreeSpaceTest::FreeSpaceTest(const PinholeBrownConrady& camera, const FreeSpaceOptions& options)
@@ -28,7 +30,8 @@ FreeSpaceTest::FreeSpaceTest(const PinholeBrownConrady& camera, const FreeSpaceO
   refs_.reserve(static_cast<size_t>(o_.max_references));
 }
 
-void FreeSpaceTest::Remember(const cv::Mat& points_in_cam, const Rigid3d& world_from_cam, const cv::Mat& rejected) {
+void FreeSpaceTest::Remember(const cv::Mat& points_in_cam, const Rigid3d& world_from_cam,
+                             const cv::Mat& rejected) {
   Reference* slot;
   if (refs_.size() < static_cast<size_t>(o_.max_references)) {
     slot = &refs_.emplace_back();
@@ -56,8 +59,10 @@ void FreeSpaceTest::Remember(const cv::Mat& points_in_cam, const Rigid3d& world_
   }
 }
 
-int64_t FreeSpaceTest::TestAndRemember(const cv::Mat& points_in_cam, const Rigid3d& world_from_cam, cv::Mat* rejected) {
-  D3D_CHECK_MSG(points_in_cam.type() == CV_32FC3 && points_in_cam.rows == camera_.height && points_in_cam.cols == camera_.width,
+int64_t FreeSpaceTest::TestAndRemember(const cv::Mat& points_in_cam, const Rigid3d& world_from_cam,
+                                       cv::Mat* rejected) {
+  D3D_CHECK_MSG(points_in_cam.type() == CV_32FC3 && points_in_cam.rows == camera_.height &&
+                    points_in_cam.cols == camera_.width,
                 "FreeSpaceTest: points_in_cam must be the camera's H×W CV_32FC3");
   rejected->create(points_in_cam.size(), CV_8U);
   rejected->setTo(0);
@@ -66,23 +71,28 @@ int64_t FreeSpaceTest::TestAndRemember(const cv::Mat& points_in_cam, const Rigid
     // The nearest references by camera centre.
     order_.clear();
     for (int k = 0; k < static_cast<int>(refs_.size()); ++k) {
-      const double d = (refs_[static_cast<size_t>(k)].centre_in_world - world_from_cam.translation()).norm();
+      const double d =
+          (refs_[static_cast<size_t>(k)].centre_in_world - world_from_cam.translation()).norm();
       if (d <= o_.max_centre_distance_mm) order_.emplace_back(d, k);
     }
     std::sort(order_.begin(), order_.end());
     near_.clear();
-    for (size_t i = 0; i < order_.size() && near_.size() < static_cast<size_t>(o_.nearest_references); ++i) near_.push_back(order_[i].second);
+    for (size_t i = 0;
+         i < order_.size() && near_.size() < static_cast<size_t>(o_.nearest_references); ++i)
+      near_.push_back(order_[i].second);
     if (static_cast<int>(near_.size()) >= o_.min_votes) {
       // ref_from_cam for each tested reference, as float for the per-point loop.
       rot_.resize(near_.size());
       trans_.resize(near_.size());
       for (size_t i = 0; i < near_.size(); ++i) {
-        const Rigid3d ref_from_cam = refs_[static_cast<size_t>(near_[i])].cam_from_world * world_from_cam;
+        const Rigid3d ref_from_cam =
+            refs_[static_cast<size_t>(near_[i])].cam_from_world * world_from_cam;
         rot_[i] = ref_from_cam.linear().cast<float>();
         trans_[i] = ref_from_cam.translation().cast<float>();
       }
       const float margin = static_cast<float>(o_.margin_mm);
-      const float fx = static_cast<float>(fx_), fy = static_cast<float>(fy_), cx = static_cast<float>(cx_), cy = static_cast<float>(cy_);
+      const float fx = static_cast<float>(fx_), fy = static_cast<float>(fy_),
+                  cx = static_cast<float>(cx_), cy = static_cast<float>(cy_);
       // Whether the references saw through q (camera frame).
       auto seen_through = [&](const cv::Vec3f& p) {
         const Eigen::Vector3f q(p[0], p[1], p[2]);
@@ -135,7 +145,8 @@ int64_t FreeSpaceTest::TestAndRemember(const cv::Mat& points_in_cam, const Rigid
       }
     }
   }
-  if (o_.enabled && calls_ % o_.reference_every == 0) Remember(points_in_cam, world_from_cam, *rejected);
+  if (o_.enabled && calls_ % o_.reference_every == 0)
+    Remember(points_in_cam, world_from_cam, *rejected);
   ++calls_;
   return n;
 }

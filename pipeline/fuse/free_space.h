@@ -19,19 +19,18 @@
 // smallest of those depths is more than `margin_mm` beyond p's depth in that reference (the
 // reference saw through p to a surface behind it; the 3 × 3 minimum keeps a ray that grazed an
 // edge next to p from voting). `min_votes` votes reject p. Points are tested on a 2 × 2 pixel
-// lattice, the first point of each block deciding for the block. A surface that newly occludes an old one
-// gets no vote: the references that saw the old one saw this surface too, or did not see p at all.
-// Points behind known surfaces are left to the TSDF's own occlusion test (tsdf.h).
+// lattice, the first point of each block deciding for the block. A surface that newly occludes an
+// old one gets no vote: the references that saw the old one saw this surface too, or did not see p
+// at all. Points behind known surfaces are left to the TSDF's own occlusion test (tsdf.h).
 //
 // Threads: one FreeSpaceTest per fuser, used by one thread at a time; references are kept in a
 // ring of preallocated grids (no allocation after max_references references).
 #pragma once
 
 #include <cstdint>
+#include <opencv2/core.hpp>
 #include <utility>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 #include "calib/model/camera_model.h"
 #include "common/core/rigid.h"
@@ -40,13 +39,14 @@ namespace d3d {
 
 struct FreeSpaceOptions {
   bool enabled = true;
-  int reference_every = 6;              // every this many tested views becomes a reference
-  int max_references = 32;              // ring of the newest references (~300 KB each at 640 × 480)
-  int nearest_references = 6;           // tested per view: the nearest by camera centre ...
-  double max_centre_distance_mm = 15;   // ... within this distance
-  double margin_mm = 1.0;               // depth beyond p (along the reference's axis) that counts as seen through
-  int min_votes = 2;                    // references that must have seen through p
-  void Check() const;                   // throws std::invalid_argument
+  int reference_every = 6;             // every this many tested views becomes a reference
+  int max_references = 32;             // ring of the newest references (~300 KB each at 640 × 480)
+  int nearest_references = 6;          // tested per view: the nearest by camera centre ...
+  double max_centre_distance_mm = 15;  // ... within this distance
+  double margin_mm =
+      1.0;             // depth beyond p (along the reference's axis) that counts as seen through
+  int min_votes = 2;   // references that must have seen through p
+  void Check() const;  // throws std::invalid_argument
 };
 
 class FreeSpaceTest {
@@ -61,7 +61,8 @@ class FreeSpaceTest {
   // call, keeps the view (its points not rejected) as a reference. Without references (or
   // disabled) nothing is rejected. Throws std::invalid_argument unless points_in_cam is the
   // camera's H×W CV_32FC3.
-  int64_t TestAndRemember(const cv::Mat& points_in_cam, const Rigid3d& world_from_cam, cv::Mat* rejected);
+  int64_t TestAndRemember(const cv::Mat& points_in_cam, const Rigid3d& world_from_cam,
+                          cv::Mat* rejected);
 
   int references() const { return static_cast<int>(refs_.size()); }
   const FreeSpaceOptions& options() const { return o_; }
@@ -72,13 +73,14 @@ class FreeSpaceTest {
     Eigen::Vector3d centre_in_world = Eigen::Vector3d::Zero();
     cv::Mat depth;  // (H/2)×(W/2) CV_32F, mm; +inf = no depth
   };
-  void Remember(const cv::Mat& points_in_cam, const Rigid3d& world_from_cam, const cv::Mat& rejected);
+  void Remember(const cv::Mat& points_in_cam, const Rigid3d& world_from_cam,
+                const cv::Mat& rejected);
 
   PinholeBrownConrady camera_;
   FreeSpaceOptions o_;
   double fx_, fy_, cx_, cy_;  // of the half-size pinhole grid
   std::vector<Reference> refs_;
-  size_t next_ = 0;        // ring position of the next reference
+  size_t next_ = 0;  // ring position of the next reference
   int64_t calls_ = 0;
   // Per call, reused: references by distance, those tested, and ref_from_cam of each.
   std::vector<std::pair<double, int>> order_;

@@ -13,7 +13,8 @@ namespace {
 
 PinholeBrownConrady Camera() { return testing::TestCamera(160, 120, 400); }  // 20 × 15 mm at 50 mm
 
-// A camera at (x, y, 0) in the world, turned by `tilt_rad` about the world y axis, looking along +z.
+// A camera at (x, y, 0) in the world, turned by `tilt_rad` about the world y axis, looking along
+// +z.
 Rigid3d WorldFromCam(double x, double y, double tilt_rad = 0) {
   Rigid3d p = Rigid3d::Identity();
   p.linear() = Eigen::AngleAxisd(tilt_rad, Eigen::Vector3d::UnitY()).toRotationMatrix();
@@ -33,7 +34,8 @@ cv::Mat Render(const PinholeBrownConrady& cam, const Rigid3d& world_from_cam, co
       const double t = scene(world_from_cam.translation(), dir);
       if (!std::isfinite(t)) continue;
       const Eigen::Vector3d p = ray_in_cam * t;
-      pts.at<cv::Vec3f>(v, u) = cv::Vec3f(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
+      pts.at<cv::Vec3f>(v, u) = cv::Vec3f(static_cast<float>(p.x()), static_cast<float>(p.y()),
+                                          static_cast<float>(p.z()));
     }
   return pts;
 }
@@ -63,12 +65,15 @@ double Step(const Eigen::Vector3d& o, const Eigen::Vector3d& d) {
 
 TEST(FreeSpace, APatchInFrontOfWhatEarlierViewsSawIsRejected) {
   // Six views of a plane at z = 50 mm; then a view of it in which a 30 × 20 px patch lies 2.5 mm
-  // nearer (a region unwrapped orders too near). The patch is rejected, the rest of that view is not.
+  // nearer (a region unwrapped orders too near). The patch is rejected, the rest of that view is
+  // not.
   const PinholeBrownConrady cam = Camera();
   FreeSpaceOptions o;
   o.reference_every = 1;
   FreeSpaceTest test(cam, o);
-  const Scene plane = [](const Eigen::Vector3d& origin, const Eigen::Vector3d& dir) { return (50 - origin.z()) / dir.z(); };
+  const Scene plane = [](const Eigen::Vector3d& origin, const Eigen::Vector3d& dir) {
+    return (50 - origin.z()) / dir.z();
+  };
   cv::Mat rejected;
   for (int i = 0; i < 6; ++i) {
     const Rigid3d pose = WorldFromCam(-2.5 + i, 0.3 * i);
@@ -104,7 +109,8 @@ TEST(FreeSpace, ASurfaceSeenAnewFromAnotherSideIsKept) {
   cv::Mat rejected;
   for (int i = 0; i < 8; ++i) {
     const Rigid3d pose = WorldFromCam(-4 + i, 0.2 * i);
-    EXPECT_EQ(test.TestAndRemember(Render(cam, pose, Step), pose, &rejected), 0) << "reference " << i;
+    EXPECT_EQ(test.TestAndRemember(Render(cam, pose, Step), pose, &rejected), 0)
+        << "reference " << i;
   }
   int wall_points = 0;
   for (const double tilt_deg : {-20.0, -35.0, 20.0, 35.0}) {
@@ -123,7 +129,8 @@ TEST(FreeSpace, ASurfaceSeenAnewFromAnotherSideIsKept) {
     for (const double dx : {-0.1, 0.1}) {
       Rigid3d off = pose;
       off.translation().x() += dx;
-      EXPECT_EQ(test.TestAndRemember(pts, off, &rejected), 0) << "tilt " << tilt_deg << ", " << dx << " mm off";
+      EXPECT_EQ(test.TestAndRemember(pts, off, &rejected), 0)
+          << "tilt " << tilt_deg << ", " << dx << " mm off";
     }
   }
   EXPECT_GT(wall_points, 200);  // the oblique views did see the wall
@@ -131,7 +138,9 @@ TEST(FreeSpace, ASurfaceSeenAnewFromAnotherSideIsKept) {
 
 TEST(FreeSpace, KeepsOnlyTheNewestReferencesAndCanBeTurnedOff) {
   const PinholeBrownConrady cam = Camera();
-  const Scene plane = [](const Eigen::Vector3d& origin, const Eigen::Vector3d& dir) { return (50 - origin.z()) / dir.z(); };
+  const Scene plane = [](const Eigen::Vector3d& origin, const Eigen::Vector3d& dir) {
+    return (50 - origin.z()) / dir.z();
+  };
   FreeSpaceOptions o;
   o.reference_every = 2;
   o.max_references = 3;
@@ -150,7 +159,8 @@ TEST(FreeSpace, KeepsOnlyTheNewestReferencesAndCanBeTurnedOff) {
   EXPECT_EQ(none.references(), 0);
   // On, the same patch is rejected.
   // (All but the border: a reference's 3 × 3 cells must lie inside its grid.)
-  EXPECT_GT(test.TestAndRemember(ghost, WorldFromCam(0, 0), &rejected), 0.9 * cam.width * cam.height);
+  EXPECT_GT(test.TestAndRemember(ghost, WorldFromCam(0, 0), &rejected),
+            0.9 * cam.width * cam.height);
   EXPECT_THROW(FreeSpaceTest(cam, FreeSpaceOptions{true, 0}), std::invalid_argument);
 }
 

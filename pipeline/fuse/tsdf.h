@@ -22,27 +22,28 @@
 // cell a distance field changes by at most the cell diagonal (√3·voxel); where two bands that
 // disagree meet (the back of the band behind a surface, at −truncation, next to voxels written
 // positive by views whose points lay deeper, within the occlusion margin), the sign flips in one
-// step by up to two truncations, and marching cubes puts a surface there, facing into the object. A vertex whose 8
-// voxels span more than max_cell_sdf_span diagonals is dropped. Real arch, seed 3, full arch: such
-// a layer 0.23–0.29 mm inside the teeth took the trueness RMS to 14.9 µm; at 3 diagonals (0.26 mm)
-// it is gone: 11.6 µm, coverage 95.6 → 95.4 % (at 2.5: 11.4 µm, 95.1 %; at 2: 11.4 µm, 94.7 %:
-// sharp edges, where views' tangent planes disagree, also span more than one diagonal).
-// Occlusion test (free-space consistency; the visibility reasoning of Merrell et al. 2007, "Real-
-// time visibility-based fusion of depth maps", ICCV, §4.2 "occlusion" conflicts): a camera cannot
-// see a point that lies behind a surface the model already knows well. Before a view is fused,
-// the model is sampled along each point's ray toward the camera, from occlusion_margin_mm to
-// occlusion_reach_mm in steps shorter than the band's back half (so the back of any surface the
+// step by up to two truncations, and marching cubes puts a surface there, facing into the object. A
+// vertex whose 8 voxels span more than max_cell_sdf_span diagonals is dropped. Real arch, seed 3,
+// full arch: such a layer 0.23–0.29 mm inside the teeth took the trueness RMS to 14.9 µm; at 3
+// diagonals (0.26 mm) it is gone: 11.6 µm, coverage 95.6 → 95.4 % (at 2.5: 11.4 µm, 95.1 %; at
+// 2: 11.4 µm, 94.7 %: sharp edges, where views' tangent planes disagree, also span more than one
+// diagonal). Occlusion test (free-space consistency; the visibility reasoning of Merrell et al.
+// 2007, "Real- time visibility-based fusion of depth maps", ICCV, §4.2 "occlusion" conflicts): a
+// camera cannot see a point that lies behind a surface the model already knows well. Before a view
+// is fused, the model is sampled along each point's ray toward the camera, from occlusion_margin_mm
+// to occlusion_reach_mm in steps shorter than the band's back half (so the back of any surface the
 // ray crosses there is hit): a sample behind a surface (D < −0.1·truncation, weight ≥
-// occlusion_min_weight) marks the point occluded, and it is not fused. Such points are measurement errors: a patch unwrapped
-// one fringe order off across a hidden depth step lands 1–2 mm behind the surface, where no other
-// view's band reaches to correct it, and several consecutive views repeat it (real arch, seed 2,
-// without the test: 0.1 % of the mesh lay 0.2–0.8 mm inside the teeth, RMS 26 µm instead of 9).
-// Secondary points (a two-channel field): a view may mark some points as secondary, measured but
-// less trusted (the edge fill's, pipeline/unwrap/edge_fill.h: 3–4× the phase error of the
-// anchored points beside them). They should make surface where nothing better was seen and not
-// pull the surface where primary points were. With the primary and secondary points' own running
-// averages D_p, W_p and D_s, W_s, a voxel holds
-//   D' = (W_p·D_p + λ·W_s·D_s) / (W_p + λ·W_s),  W = W_p + W_s,  λ = max(0, 1 − W_p / secondary_fade_weight),
+// occlusion_min_weight) marks the point occluded, and it is not fused. Such points are measurement
+// errors: a patch unwrapped one fringe order off across a hidden depth step lands 1–2 mm behind the
+// surface, where no other view's band reaches to correct it, and several consecutive views repeat
+// it (real arch, seed 2, without the test: 0.1 % of the mesh lay 0.2–0.8 mm inside the teeth, RMS
+// 26 µm instead of 9). Secondary points (a two-channel field): a view may mark some points as
+// secondary, measured but less trusted (the edge fill's, pipeline/unwrap/edge_fill.h: 3–4× the
+// phase error of the anchored points beside them). They should make surface where nothing better
+// was seen and not pull the surface where primary points were. With the primary and secondary
+// points' own running averages D_p, W_p and D_s, W_s, a voxel holds
+//   D' = (W_p·D_p + λ·W_s·D_s) / (W_p + λ·W_s),  W = W_p + W_s,  λ = max(0, 1 − W_p /
+//   secondary_fade_weight),
 // so secondary points count fully where no primary point was fused, fade out as primary weight
 // builds up, and count nothing beyond secondary_fade_weight; D' is continuous in W_p, so no seam
 // forms where the two meet. D' is what is meshed and what the occlusion test reads. The volume
@@ -83,9 +84,9 @@ struct TsdfOptions {
   float max_weight = 1e6f;         // cap of the accumulated weight (moving average beyond)
   float min_point_weight = 0.05f;  // points of lower quality are not fused
   double max_incidence_deg = 80;   // points seen more grazing than this are not fused
-  int pixel_stride = 1;            // leaf allocation samples every k-th pixel (integration uses all)
-  float min_mesh_weight = 0.5f;    // see ExtractMesh
-  float mesh_seed_weight = 2.0f;   // see ExtractMesh; <= min_mesh_weight: no hysteresis
+  int pixel_stride = 1;           // leaf allocation samples every k-th pixel (integration uses all)
+  float min_mesh_weight = 0.5f;   // see ExtractMesh
+  float mesh_seed_weight = 2.0f;  // see ExtractMesh; <= min_mesh_weight: no hysteresis
   // A mesh vertex is dropped when the signed distances of the 8 voxels around it span more than
   // this many cell diagonals (√3·voxel_mm); a distance field spans at most one (see the file
   // comment). 0 = no test, else ≥ 1.
@@ -98,7 +99,8 @@ struct TsdfOptions {
   int occlusion_stride = 2;
   // Secondary points (Integrate's `secondary` mask: edge-filled ones) enter the surface with their
   // weight times λ = max(0, 1 − W_p / secondary_fade_weight), W_p the voxel's weight from primary
-  // points (file comment). 0 (default) = secondary points count like the rest; 2 is the value measured.
+  // points (file comment). 0 (default) = secondary points count like the rest; 2 is the value
+  // measured.
   float secondary_fade_weight = 0.0f;
   void Check() const;  // throws std::invalid_argument
 };
@@ -117,13 +119,17 @@ class TsdfVolume {
   // measured with (H×W = its size); world_from_cam: the view's registered pose; secondary: H×W
   // CV_8U, nonzero = a secondary point (less trusted: see secondary_fade_weight), or empty (none).
   // INVALID_ARGUMENT for mismatched sizes or types.
-  [[nodiscard]] Status Integrate(const cv::Mat& points_in_cam, const cv::Mat& normals_in_cam, const cv::Mat& quality,
-                                 const PinholeBrownConrady& camera, const Rigid3d& world_from_cam, const cv::Mat& secondary = cv::Mat());
+  [[nodiscard]] Status Integrate(const cv::Mat& points_in_cam, const cv::Mat& normals_in_cam,
+                                 const cv::Mat& quality, const PinholeBrownConrady& camera,
+                                 const Rigid3d& world_from_cam,
+                                 const cv::Mat& secondary = cv::Mat());
 
   // Fuses an unorganised set of points with normals (world frame) by splatting each point's
   // tangent-plane distance into the voxels within truncation of it (used by tests and for clouds
   // without a camera): same averaging, weight per point.
-  void IntegratePoints(const std::vector<Eigen::Vector3f>& points, const std::vector<Eigen::Vector3f>& normals, const std::vector<float>& weights);
+  void IntegratePoints(const std::vector<Eigen::Vector3f>& points,
+                       const std::vector<Eigen::Vector3f>& normals,
+                       const std::vector<float>& weights);
 
   // The zero level as a mesh (world frame, mm, faces counter-clockwise seen from the front /
   // camera side), with polygons whose cell corners all have weight ≥ min_weight (< 0: the option)
@@ -166,13 +172,16 @@ class TsdfVolume {
   struct ViewLeaf;   // a leaf near the view's points, in each grid
   struct VoxelPass;  // the view as FuseLeaf needs it
   void TestOcclusion(const cv::Mat& points_in_cam, const Rigid3d& world_from_cam);
-  void PreparePixels(const cv::Mat& points_in_cam, const cv::Mat& normals_in_cam, const cv::Mat& quality, const cv::Mat& secondary,
-                     bool test_occlusion);
-  std::vector<ViewLeaf> AllocateLeaves(const cv::Mat& points_in_cam, const Rigid3d& world_from_cam, bool test_occlusion);
-  std::vector<uint8_t> FuseVoxels(const std::vector<ViewLeaf>& leaves, const PinholeBrownConrady& camera, const Rigid3d& world_from_cam, int cols,
-                                  int rows);
+  void PreparePixels(const cv::Mat& points_in_cam, const cv::Mat& normals_in_cam,
+                     const cv::Mat& quality, const cv::Mat& secondary, bool test_occlusion);
+  std::vector<ViewLeaf> AllocateLeaves(const cv::Mat& points_in_cam, const Rigid3d& world_from_cam,
+                                       bool test_occlusion);
+  std::vector<uint8_t> FuseVoxels(const std::vector<ViewLeaf>& leaves,
+                                  const PinholeBrownConrady& camera, const Rigid3d& world_from_cam,
+                                  int cols, int rows);
   static bool FuseLeaf(const ViewLeaf& leaf, const VoxelPass& view);
-  void FreeSecondaryLeaves(const std::vector<ViewLeaf>& leaves, const std::vector<uint8_t>& secondary_left);
+  void FreeSecondaryLeaves(const std::vector<ViewLeaf>& leaves,
+                           const std::vector<uint8_t>& secondary_left);
 };
 
 }  // namespace d3d

@@ -28,7 +28,8 @@ void PlaneView(double noise_mm, uint32_t seed, cv::Mat* P, cv::Mat* N) {
   for (int r = 0; r < c.height; ++r)
     for (int k = 0; k < c.width; ++k) {
       const float z = 50.0f + G(rng);
-      P->at<cv::Vec3f>(r, k) = cv::Vec3f(static_cast<float>((k - c.cx) / c.fx * z), static_cast<float>((r - c.cy) / c.fy * z), z);
+      P->at<cv::Vec3f>(r, k) = cv::Vec3f(static_cast<float>((k - c.cx) / c.fx * z),
+                                         static_cast<float>((r - c.cy) / c.fy * z), z);
       N->at<cv::Vec3f>(r, k) = cv::Vec3f(0, 0, -1);
     }
 }
@@ -49,7 +50,8 @@ double FusedNoise(int views) {
   for (double x = -1.0; x <= 1.0; x += 0.05)
     for (double y = -0.8; y <= 0.8; y += 0.05)
       for (double z = 49.9; z <= 50.1; z += 0.05) {
-        const Eigen::Vector3d p(std::round(x / 0.05) * 0.05, std::round(y / 0.05) * 0.05, std::round(z / 0.05) * 0.05);
+        const Eigen::Vector3d p(std::round(x / 0.05) * 0.05, std::round(y / 0.05) * 0.05,
+                                std::round(z / 0.05) * 0.05);
         const double truth = 50.0 - p.z();  // positive in front (toward the camera at z = 0)
         const double e = v.SignedDistance(p) - truth;
         s += e * e;
@@ -76,7 +78,8 @@ TEST(Tsdf, MeshHysteresisDropsAPatchOnlyOneWeakViewSawAndKeepsWeakBorders) {
   TsdfVolume v(o);
   cv::Mat P, N;
   PlaneView(0.0, 1, &P, &N);
-  cv::Mat strong(c.height, c.width, CV_32F, cv::Scalar(0)), weak(c.height, c.width, CV_32F, cv::Scalar(0));
+  cv::Mat strong(c.height, c.width, CV_32F, cv::Scalar(0)),
+      weak(c.height, c.width, CV_32F, cv::Scalar(0));
   strong.colRange(0, 2 * c.width / 3).setTo(1.0f);
   weak.colRange(2 * c.width / 3, c.width).setTo(0.7f);
   for (int i = 0; i < 3; ++i) ASSERT_TRUE(v.Integrate(P, N, strong, c, Rigid3d::Identity()).ok());
@@ -85,7 +88,8 @@ TEST(Tsdf, MeshHysteresisDropsAPatchOnlyOneWeakViewSawAndKeepsWeakBorders) {
   const cv::Rect patch(20, 20, 30, 30);
   ghost_quality(patch).setTo(0.7f);
   for (int r = patch.y; r < patch.y + patch.height; ++r)
-    for (int k = patch.x; k < patch.x + patch.width; ++k) ghost.at<cv::Vec3f>(r, k) *= 49.0f / 50.0f;
+    for (int k = patch.x; k < patch.x + patch.width; ++k)
+      ghost.at<cv::Vec3f>(r, k) *= 49.0f / 50.0f;
   ASSERT_TRUE(v.Integrate(ghost, N, ghost_quality, c, Rigid3d::Identity()).ok());
   auto count = [](const TriangleMesh& m, double z_mm, double min_x_mm) {
     int n = 0;
@@ -95,7 +99,8 @@ TEST(Tsdf, MeshHysteresisDropsAPatchOnlyOneWeakViewSawAndKeepsWeakBorders) {
   const double right_third_x = (2 * c.width / 3 + 5 - c.cx) / c.fx * 50;
   const TriangleMesh with = v.ExtractMesh();
   EXPECT_EQ(count(with, 49.0, -1e9), 0) << "the weak separate patch is meshed";
-  EXPECT_GT(count(with, 50.0, right_third_x), 100) << "the weak border joined to the plane is dropped";
+  EXPECT_GT(count(with, 50.0, right_third_x), 100)
+      << "the weak border joined to the plane is dropped";
   EXPECT_GT(count(with, 50.0, -1e9), 1000);
   o.mesh_seed_weight = 0;  // no hysteresis: the patch comes back
   TsdfVolume v2(o);
@@ -106,8 +111,8 @@ TEST(Tsdf, MeshHysteresisDropsAPatchOnlyOneWeakViewSawAndKeepsWeakBorders) {
 
 // The zero level between two bands that do not agree is no surface: the plane z = 0 fused with its
 // normal +z (band z ∈ [−0.2, 0.2] mm), and a surface at z = −0.45 whose band ends at z = −0.25,
-// where the plane's band (D = −0.2) meets it (D = +0.2). The sign changes there in one voxel step by
-// 0.4 mm, far more than a distance field changes across a cell; that crossing is not meshed, and
+// where the plane's band (D = −0.2) meets it (D = +0.2). The sign changes there in one voxel step
+// by 0.4 mm, far more than a distance field changes across a cell; that crossing is not meshed, and
 // both surfaces are.
 TEST(Tsdf, ACrossingBetweenTwoBandsThatDisagreeIsNotMeshed) {
   TsdfOptions o;
@@ -128,7 +133,8 @@ TEST(Tsdf, ACrossingBetweenTwoBandsThatDisagreeIsNotMeshed) {
   };
   auto count = [](const TriangleMesh& m, double z0, double z1) {
     int n = 0;
-    for (const auto& p : m.vertices) n += p.z() > z0 && p.z() < z1 && std::abs(p.x()) < 1.5 && std::abs(p.y()) < 1.5;
+    for (const auto& p : m.vertices)
+      n += p.z() > z0 && p.z() < z1 && std::abs(p.x()) < 1.5 && std::abs(p.y()) < 1.5;
     return n;
   };
   const TriangleMesh without = mesh(0), with = mesh(TsdfOptions{}.max_cell_sdf_span);
@@ -151,7 +157,8 @@ TEST(Tsdf, PointsBehindAKnownSurfaceAreNotFused) {
   cv::Mat ghost = P.clone();
   const cv::Rect patch(20, 20, 40, 40);
   for (int r = patch.y; r < patch.y + patch.height; ++r)
-    for (int k = patch.x; k < patch.x + patch.width; ++k) ghost.at<cv::Vec3f>(r, k) *= 51.5f / 50.0f;
+    for (int k = patch.x; k < patch.x + patch.width; ++k)
+      ghost.at<cv::Vec3f>(r, k) *= 51.5f / 50.0f;
   auto ghost_vertices = [](const TriangleMesh& m) {
     int n = 0;
     for (const auto& p : m.vertices) n += std::abs(p.z() - 51.5) < 0.1;
@@ -161,9 +168,11 @@ TEST(Tsdf, PointsBehindAKnownSurfaceAreNotFused) {
     TsdfOptions o;
     if (!test) o.occlusion_margin_mm = 0;
     TsdfVolume v(o);
-    for (int i = 0; i < 3; ++i) ASSERT_TRUE(v.Integrate(P, N, cv::Mat(), c, Rigid3d::Identity()).ok());
+    for (int i = 0; i < 3; ++i)
+      ASSERT_TRUE(v.Integrate(P, N, cv::Mat(), c, Rigid3d::Identity()).ok());
     EXPECT_EQ(v.occluded_points(), 0) << "the plane's own points";
-    for (int i = 0; i < 3; ++i) ASSERT_TRUE(v.Integrate(ghost, N, cv::Mat(), c, Rigid3d::Identity()).ok());
+    for (int i = 0; i < 3; ++i)
+      ASSERT_TRUE(v.Integrate(ghost, N, cv::Mat(), c, Rigid3d::Identity()).ok());
     const TriangleMesh m = v.ExtractMesh();
     if (test) {
       EXPECT_EQ(v.last_occluded_points(), patch.area());
@@ -186,12 +195,14 @@ TEST(Tsdf, TheOcclusionTestFindsTheSurfaceAtAnyOffset) {
   PlaneView(0.0, 1, &P, &N);
   const cv::Rect patch(20, 20, 40, 40);
   TsdfVolume v{TsdfOptions{}};
-  for (int i = 0; i < 3; ++i) ASSERT_TRUE(v.Integrate(P, N, cv::Mat(), c, Rigid3d::Identity()).ok());
+  for (int i = 0; i < 3; ++i)
+    ASSERT_TRUE(v.Integrate(P, N, cv::Mat(), c, Rigid3d::Identity()).ok());
   for (int step = 0; step <= 48; ++step) {
     const float z = 50.8f + 0.025f * static_cast<float>(step);
     cv::Mat ghost(P.size(), CV_32FC3, cv::Scalar::all(std::nanf("")));
     for (int r = patch.y; r < patch.y + patch.height; ++r)
-      for (int k = patch.x; k < patch.x + patch.width; ++k) ghost.at<cv::Vec3f>(r, k) = P.at<cv::Vec3f>(r, k) * (z / 50.0f);
+      for (int k = patch.x; k < patch.x + patch.width; ++k)
+        ghost.at<cv::Vec3f>(r, k) = P.at<cv::Vec3f>(r, k) * (z / 50.0f);
     ASSERT_TRUE(v.Integrate(ghost, N, cv::Mat(), c, Rigid3d::Identity()).ok());
     EXPECT_EQ(v.last_occluded_points(), patch.area()) << "patch at z = " << z << " mm";
   }
@@ -208,19 +219,23 @@ TEST(Tsdf, SphereMeshIsAccurateAndFacesOutward) {
   const double R = 3.0;
   for (int k = 0; k < 6; ++k) {
     Rigid3d world_from_cam = Rigid3d::Identity();
-    world_from_cam.linear() = Eigen::AngleAxisd(0.4 * k - 1.0, Eigen::Vector3d::UnitY()).toRotationMatrix();
+    world_from_cam.linear() =
+        Eigen::AngleAxisd(0.4 * k - 1.0, Eigen::Vector3d::UnitY()).toRotationMatrix();
     world_from_cam.translation() = centre - world_from_cam.linear() * Eigen::Vector3d(0, 0, 50);
     cv::Mat P(cam.height, cam.width, CV_32FC3, cv::Scalar::all(std::nanf(""))), N = P.clone();
     const Eigen::Vector3d c_cam = world_from_cam.inverse() * centre;
     for (int r = 0; r < cam.height; ++r)
       for (int u = 0; u < cam.width; ++u) {
-        const Eigen::Vector3d d = Eigen::Vector3d((u - cam.cx) / cam.fx, (r - cam.cy) / cam.fy, 1).normalized();
+        const Eigen::Vector3d d =
+            Eigen::Vector3d((u - cam.cx) / cam.fx, (r - cam.cy) / cam.fy, 1).normalized();
         const double b = d.dot(c_cam), disc = b * b - (c_cam.squaredNorm() - R * R);
         if (disc < 0) continue;
         const Eigen::Vector3d p = (b - std::sqrt(disc)) * d;
         const Eigen::Vector3d n = (p - c_cam).normalized();
-        P.at<cv::Vec3f>(r, u) = cv::Vec3f(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
-        N.at<cv::Vec3f>(r, u) = cv::Vec3f(static_cast<float>(n.x()), static_cast<float>(n.y()), static_cast<float>(n.z()));
+        P.at<cv::Vec3f>(r, u) = cv::Vec3f(static_cast<float>(p.x()), static_cast<float>(p.y()),
+                                          static_cast<float>(p.z()));
+        N.at<cv::Vec3f>(r, u) = cv::Vec3f(static_cast<float>(n.x()), static_cast<float>(n.y()),
+                                          static_cast<float>(n.z()));
       }
     ASSERT_TRUE(v.Integrate(P, N, cv::Mat(), cam, world_from_cam).ok());
   }
@@ -231,15 +246,18 @@ TEST(Tsdf, SphereMeshIsAccurateAndFacesOutward) {
   EXPECT_LT(std::sqrt(s / static_cast<double>(m.vertices.size())), 0.004);
   int outward = 0;
   for (int f = 0; f < static_cast<int>(m.faces.size()); ++f) {
-    const Eigen::Vector3d c = (m.vertices[static_cast<size_t>(m.faces[static_cast<size_t>(f)][0])] +
-                               m.vertices[static_cast<size_t>(m.faces[static_cast<size_t>(f)][1])] +
-                               m.vertices[static_cast<size_t>(m.faces[static_cast<size_t>(f)][2])]) / 3;
+    const Eigen::Vector3d c =
+        (m.vertices[static_cast<size_t>(m.faces[static_cast<size_t>(f)][0])] +
+         m.vertices[static_cast<size_t>(m.faces[static_cast<size_t>(f)][1])] +
+         m.vertices[static_cast<size_t>(m.faces[static_cast<size_t>(f)][2])]) /
+        3;
     outward += m.FaceNormal(f).dot(c - centre) > 0;
   }
   EXPECT_GT(outward, static_cast<int>(0.99 * static_cast<double>(m.faces.size())));
   EXPECT_GT(v.MemoryBytes(), 0);
   EXPECT_GT(v.ActiveVoxels(), 0);
-  EXPECT_EQ(v.occluded_points(), 0) << "every view sees its own side of the sphere; grazing rays at the rim too";
+  EXPECT_EQ(v.occluded_points(), 0)
+      << "every view sees its own side of the sphere; grazing rays at the rim too";
 }
 
 // The voxel loop projects voxels with its own single-precision, 8-wide copy of the camera model:
@@ -267,12 +285,17 @@ TEST(Tsdf, EachVoxelTakesTheDistanceOfThePixelItProjectsTo) {
       const double z = 50.0 + 0.4 * std::sin(0.9 * c) + 0.3 * std::cos(0.7 * r);
       const Eigen::Vector3d p = *ray * z;
       // Some pixels' normals face away from the camera: Integrate turns them around.
-      const Eigen::Vector3d n = Eigen::Vector3d(0.3 * std::sin(1.3 * c), 0.3 * std::cos(1.1 * r), (r + c) % 5 ? -1.0 : 1.0).normalized();
-      P.at<cv::Vec3f>(r, c) = cv::Vec3f(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
-      N.at<cv::Vec3f>(r, c) = cv::Vec3f(static_cast<float>(n.x()), static_cast<float>(n.y()), static_cast<float>(n.z()));
+      const Eigen::Vector3d n = Eigen::Vector3d(0.3 * std::sin(1.3 * c), 0.3 * std::cos(1.1 * r),
+                                                (r + c) % 5 ? -1.0 : 1.0)
+                                    .normalized();
+      P.at<cv::Vec3f>(r, c) = cv::Vec3f(static_cast<float>(p.x()), static_cast<float>(p.y()),
+                                        static_cast<float>(p.z()));
+      N.at<cv::Vec3f>(r, c) = cv::Vec3f(static_cast<float>(n.x()), static_cast<float>(n.y()),
+                                        static_cast<float>(n.z()));
     }
-  const Rigid3d world_from_cam = Rigid3d(Eigen::Translation3d(1.0, -2.0, 3.0) *
-                                         Eigen::AngleAxisd(0.3, Eigen::Vector3d(0.2, 1.0, -0.4).normalized()));
+  const Rigid3d world_from_cam =
+      Rigid3d(Eigen::Translation3d(1.0, -2.0, 3.0) *
+              Eigen::AngleAxisd(0.3, Eigen::Vector3d(0.2, 1.0, -0.4).normalized()));
   TsdfOptions o;
   o.occlusion_margin_mm = 0;
   TsdfVolume v(o);
@@ -287,18 +310,22 @@ TEST(Tsdf, EachVoxelTakesTheDistanceOfThePixelItProjectsTo) {
       for (double s : {-0.15, -0.05, 0.0, 0.05, 0.1, 0.15, 0.3}) {
         const cv::Vec3f pc = P.at<cv::Vec3f>(r, c);
         const Eigen::Vector3d p(pc[0], pc[1], pc[2]);
-        const Eigen::Vector3d x_world = world_from_cam * (p + s * p.normalized() + Eigen::Vector3d(lateral(rng), lateral(rng), 0));
+        const Eigen::Vector3d x_world =
+            world_from_cam *
+            (p + s * p.normalized() + Eigen::Vector3d(lateral(rng), lateral(rng), 0));
         const Eigen::Vector3d ijk = (x_world / voxel).array().round();
         const Eigen::Vector3d voxel_centre = ijk * voxel;
         const Eigen::Vector3d x = world_from_cam.inverse() * voxel_centre;
         const auto uv = cam.Project(x);
         if (!uv || !cam.InImage(*uv)) continue;
-        const int u = static_cast<int>(std::floor(uv->x() + 0.5)), w = static_cast<int>(std::floor(uv->y() + 0.5));
+        const int u = static_cast<int>(std::floor(uv->x() + 0.5)),
+                  w = static_cast<int>(std::floor(uv->y() + 0.5));
         const cv::Vec3f pm = P.at<cv::Vec3f>(w, u), nm = N.at<cv::Vec3f>(w, u);
         const Eigen::Vector3d q(pm[0], pm[1], pm[2]);
         Eigen::Vector3d n(nm[0], nm[1], nm[2]);
         if (n.dot(q) > 0) n = -n;  // toward the camera
-        if (-n.dot(q.normalized()) < std::cos(o.max_incidence_deg * M_PI / 180)) continue;  // not fused
+        if (-n.dot(q.normalized()) < std::cos(o.max_incidence_deg * M_PI / 180))
+          continue;  // not fused
         const double expected = std::min(trunc, n.dot(x - q));
         if (expected < -trunc) continue;  // not written
         ++compared;
@@ -315,8 +342,8 @@ TEST(Tsdf, EachVoxelTakesTheDistanceOfThePixelItProjectsTo) {
 // Secondary points (the edge fill's) shape the surface only where primary ones are weak: the plane
 // z = 50 mm seen by primary points three times at quality 1 on the left (columns < 60, W_p = 3),
 // three times at quality 1/3 in the middle (columns 60–119, W_p = 1), not at all on the right; and
-// secondary points 40 µm nearer (z = 49.96: as an edge fill's bias) three times everywhere (W_s = 3).
-// With secondary_fade_weight 2: λ = 0 on the left, the surface is the primary points' (z = 50);
+// secondary points 40 µm nearer (z = 49.96: as an edge fill's bias) three times everywhere (W_s =
+// 3). With secondary_fade_weight 2: λ = 0 on the left, the surface is the primary points' (z = 50);
 // λ = 0.5 in the middle, z = 50 − 0.04·1.5/2.5; on the right the secondary points alone make it
 // (z = 49.96). With fade 0 they count like the rest: the left is pulled half way.
 TEST(Tsdf, SecondaryPointsShapeTheSurfaceOnlyWherePrimaryOnesAreWeak) {
@@ -324,7 +351,8 @@ TEST(Tsdf, SecondaryPointsShapeTheSurfaceOnlyWherePrimaryOnesAreWeak) {
   cv::Mat P, N, S;
   PlaneView(0.0, 1, &P, &N);
   const cv::Mat S_points = P * (49.96 / 50.0);
-  cv::Mat primary_quality(c.height, c.width, CV_32F, cv::Scalar(0)), secondary_quality(c.height, c.width, CV_32F, cv::Scalar(1));
+  cv::Mat primary_quality(c.height, c.width, CV_32F, cv::Scalar(0)),
+      secondary_quality(c.height, c.width, CV_32F, cv::Scalar(1));
   primary_quality.colRange(0, 60).setTo(1.0f);
   primary_quality.colRange(60, 120).setTo(1.0f / 3.0f);
   const cv::Mat all_secondary(c.height, c.width, CV_8U, cv::Scalar(255));
@@ -348,7 +376,8 @@ TEST(Tsdf, SecondaryPointsShapeTheSurfaceOnlyWherePrimaryOnesAreWeak) {
     auto v = std::make_unique<TsdfVolume>(o);
     for (int i = 0; i < 3; ++i) {
       EXPECT_TRUE(v->Integrate(P, N, primary_quality, c, Rigid3d::Identity()).ok());
-      EXPECT_TRUE(v->Integrate(S_points, N, secondary_quality, c, Rigid3d::Identity(), all_secondary).ok());
+      EXPECT_TRUE(
+          v->Integrate(S_points, N, secondary_quality, c, Rigid3d::Identity(), all_secondary).ok());
     }
     return v;
   };
@@ -362,12 +391,15 @@ TEST(Tsdf, SecondaryPointsShapeTheSurfaceOnlyWherePrimaryOnesAreWeak) {
   EXPECT_NEAR(mean_z(alike, 70, 110), 50.0 - 0.04 * 3 / 4, 0.002);
   EXPECT_NEAR(mean_z(alike, 140, 190), 49.96, 0.002);
   // The secondary bookkeeping stays only where λ > 0: the middle and right (about 4.5 of 7.5 mm in
-  // x, 4 mm in y, 0.4 mm leaves: some 130 leaves in one or two layers in z); where the primary points
-  // are strong everywhere, none.
+  // x, 4 mm in y, 0.4 mm leaves: some 130 leaves in one or two layers in z); where the primary
+  // points are strong everywhere, none.
   TsdfVolume strong_everywhere(faded_volume->options());
   const cv::Mat strong(c.height, c.width, CV_32F, cv::Scalar(1));
-  for (int i = 0; i < 3; ++i) ASSERT_TRUE(strong_everywhere.Integrate(P, N, strong, c, Rigid3d::Identity()).ok());
-  ASSERT_TRUE(strong_everywhere.Integrate(S_points, N, secondary_quality, c, Rigid3d::Identity(), all_secondary).ok());
+  for (int i = 0; i < 3; ++i)
+    ASSERT_TRUE(strong_everywhere.Integrate(P, N, strong, c, Rigid3d::Identity()).ok());
+  ASSERT_TRUE(strong_everywhere
+                  .Integrate(S_points, N, secondary_quality, c, Rigid3d::Identity(), all_secondary)
+                  .ok());
   EXPECT_GT(faded_volume->SecondaryLeaves(), 100);
   EXPECT_LT(faded_volume->SecondaryLeaves(), 400);
   EXPECT_EQ(strong_everywhere.SecondaryLeaves(), 0);
@@ -377,8 +409,10 @@ TEST(Tsdf, RejectsMismatchedInput) {
   TsdfVolume v;
   cv::Mat P(10, 10, CV_32FC3), N(10, 11, CV_32FC3);
   EXPECT_FALSE(v.Integrate(P, N, cv::Mat(), Cam(), Rigid3d::Identity()).ok());
-  const cv::Mat P_cam(Cam().height, Cam().width, CV_32FC3, cv::Scalar::all(1)), wrong_secondary(Cam().height, Cam().width, CV_32F);
-  EXPECT_FALSE(v.Integrate(P_cam, P_cam, cv::Mat(), Cam(), Rigid3d::Identity(), wrong_secondary).ok());
+  const cv::Mat P_cam(Cam().height, Cam().width, CV_32FC3, cv::Scalar::all(1)),
+      wrong_secondary(Cam().height, Cam().width, CV_32F);
+  EXPECT_FALSE(
+      v.Integrate(P_cam, P_cam, cv::Mat(), Cam(), Rigid3d::Identity(), wrong_secondary).ok());
   EXPECT_THROW(TsdfVolume(TsdfOptions{.secondary_fade_weight = -1}), std::invalid_argument);
   EXPECT_THROW(TsdfVolume(TsdfOptions{.voxel_mm = -1}), std::invalid_argument);
   TsdfOptions span;

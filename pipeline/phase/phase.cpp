@@ -28,10 +28,11 @@ namespace {
 constexpr float kTwoPiF = 6.28318530717958647692f;
 constexpr float kMarkerEps = 0.01f;  // ε of the matched filter α = r·D/(D² + ε)
 constexpr int kKappaStride = 2;      // κ is fitted on every 2nd pixel of every 2nd row
-constexpr int kDriftRows = 16;       // κ rows of the motion-compensation tables over [0, kKappaMax]
+constexpr int kDriftRows = 16;  // κ rows of the motion-compensation tables over [0, kKappaMax]
 
 inline int DriftRow(float kappa) {
-  const int j = static_cast<int>(kappa * ((kDriftRows - 1) / static_cast<float>(phase_internal::kKappaMax)) + 0.5f);
+  const int j = static_cast<int>(
+      kappa * ((kDriftRows - 1) / static_cast<float>(phase_internal::kKappaMax)) + 0.5f);
   return j < 0 ? 0 : (j >= kDriftRows ? kDriftRows - 1 : j);
 }
 constexpr float kSuspect = 0.3f;  // |r| (B units) above which the N-step result is not trusted
@@ -63,25 +64,27 @@ inline int KappaRow(float kappa, float rows_per_kappa, int rows) {
 inline FullEntry ReadFullRow(const FullEntry* row, BinPos b) {
   const FullEntry& a = row[b.i];
   const FullEntry& c = row[b.i + 1];
-  return {a.corr + b.t * (c.corr - a.corr), a.ginv + b.t * (c.ginv - a.ginv), a.e + b.t * (c.e - a.e), a.e1 + b.t * (c.e1 - a.e1)};
+  return {a.corr + b.t * (c.corr - a.corr), a.ginv + b.t * (c.ginv - a.ginv),
+          a.e + b.t * (c.e - a.e), a.e1 + b.t * (c.e1 - a.e1)};
 }
 inline SubEntry ReadSubRow(const SubEntry* row, BinPos b) {
   const SubEntry& a = row[b.i];
   const SubEntry& c = row[b.i + 1];
-  return {a.corr + b.t * (c.corr - a.corr), a.ginv + b.t * (c.ginv - a.ginv), a.e + b.t * (c.e - a.e), a.d + b.t * (c.d - a.d),
-          a.off + b.t * (c.off - a.off)};
+  return {a.corr + b.t * (c.corr - a.corr), a.ginv + b.t * (c.ginv - a.ginv),
+          a.e + b.t * (c.e - a.e), a.d + b.t * (c.d - a.d), a.off + b.t * (c.off - a.off)};
 }
 
 std::string ModelKey(const FringePatternSpec& s, double gamma, bool marker, int bins, int rows) {
   std::ostringstream os;
   os.precision(17);
-  os << s.steps << '|' << s.fringe_period_px << '|' << (marker ? s.marker_frame : -1) << '|' << s.marker_width_periods << '|' << gamma << '|' << bins
-     << '|' << rows;
+  os << s.steps << '|' << s.fringe_period_px << '|' << (marker ? s.marker_frame : -1) << '|'
+     << s.marker_width_periods << '|' << gamma << '|' << bins << '|' << rows;
   return os.str();
 }
 
 // Models are immutable once built: share them between estimators (the last few keys).
-std::shared_ptr<const PhaseModel> CachedModel(const FringePatternSpec& spec, double gamma, bool marker, int bins, int rows) {
+std::shared_ptr<const PhaseModel> CachedModel(const FringePatternSpec& spec, double gamma,
+                                              bool marker, int bins, int rows) {
   static std::mutex mutex;
   static std::list<std::pair<std::string, std::shared_ptr<const PhaseModel>>> cache;
   const std::string key = ModelKey(spec, gamma, marker, bins, rows);
@@ -130,35 +133,48 @@ const char* PhaseAlgorithmName(PhaseAlgorithm algorithm) {
 }
 
 void PhaseOptions::Check() const {
-  D3D_CHECK_MSG(algorithm == PhaseAlgorithm::kStandard || algorithm == PhaseAlgorithm::kLutGamma || algorithm == PhaseAlgorithm::kAdaptiveHarmonic,
+  D3D_CHECK_MSG(algorithm == PhaseAlgorithm::kStandard || algorithm == PhaseAlgorithm::kLutGamma ||
+                    algorithm == PhaseAlgorithm::kAdaptiveHarmonic,
                 "unknown phase algorithm " << static_cast<int>(algorithm));
-  D3D_CHECK_MSG(std::isfinite(min_modulation_dn) && min_modulation_dn >= 0.0, "min_modulation_dn must be ≥ 0, got " << min_modulation_dn);
-  D3D_CHECK_MSG(std::isfinite(saturation_dn) && saturation_dn >= 0.0, "saturation_dn must be ≥ 0, got " << saturation_dn);
-  D3D_CHECK_MSG(marker_threshold > 0.0 && marker_threshold < 2.0, "marker_threshold must be in (0, 2), got " << marker_threshold);
-  D3D_CHECK_MSG(marker_guard_px >= 0 && marker_guard_px <= 32, "marker_guard_px must be in [0, 32], got " << marker_guard_px);
-  D3D_CHECK_MSG(marker_box_px >= 1 && marker_box_px <= 63 && marker_box_px % 2 == 1, "marker_box_px must be odd in [1, 63], got " << marker_box_px);
+  D3D_CHECK_MSG(std::isfinite(min_modulation_dn) && min_modulation_dn >= 0.0,
+                "min_modulation_dn must be ≥ 0, got " << min_modulation_dn);
+  D3D_CHECK_MSG(std::isfinite(saturation_dn) && saturation_dn >= 0.0,
+                "saturation_dn must be ≥ 0, got " << saturation_dn);
+  D3D_CHECK_MSG(marker_threshold > 0.0 && marker_threshold < 2.0,
+                "marker_threshold must be in (0, 2), got " << marker_threshold);
+  D3D_CHECK_MSG(marker_guard_px >= 0 && marker_guard_px <= 32,
+                "marker_guard_px must be in [0, 32], got " << marker_guard_px);
+  D3D_CHECK_MSG(marker_box_px >= 1 && marker_box_px <= 63 && marker_box_px % 2 == 1,
+                "marker_box_px must be odd in [1, 63], got " << marker_box_px);
   D3D_CHECK_MSG(marker_close_px >= 1 && marker_close_px <= 31 && marker_close_px % 2 == 1,
                 "marker_close_px must be odd in [1, 31], got " << marker_close_px);
   D3D_CHECK_MSG(marker_suspect_reach_px >= 0 && marker_suspect_reach_px <= 128,
                 "marker_suspect_reach_px must be in [0, 128], got " << marker_suspect_reach_px);
-  D3D_CHECK_MSG(kappa_prior >= 0.0 && kappa_prior <= phase_internal::kKappaMax,
-                "kappa_prior must be in [0, " << phase_internal::kKappaMax << "], got " << kappa_prior);
+  D3D_CHECK_MSG(
+      kappa_prior >= 0.0 && kappa_prior <= phase_internal::kKappaMax,
+      "kappa_prior must be in [0, " << phase_internal::kKappaMax << "], got " << kappa_prior);
   D3D_CHECK_MSG(kappa_exclusion > 0.0, "kappa_exclusion must be > 0, got " << kappa_exclusion);
-  D3D_CHECK_MSG(kappa_tile_px >= 2 && kappa_tile_px <= 256, "kappa_tile_px must be in [2, 256], got " << kappa_tile_px);
+  D3D_CHECK_MSG(kappa_tile_px >= 2 && kappa_tile_px <= 256,
+                "kappa_tile_px must be in [2, 256], got " << kappa_tile_px);
   D3D_CHECK_MSG(kappa_window_tiles >= 1 && kappa_window_tiles % 2 == 1 && kappa_window_tiles <= 63,
                 "kappa_window_tiles must be odd in [1, 63], got " << kappa_window_tiles);
-  D3D_CHECK_MSG(std::isfinite(max_phase_drift_rad) && max_phase_drift_rad >= 0.0 && max_phase_drift_rad <= 1.5,
+  D3D_CHECK_MSG(std::isfinite(max_phase_drift_rad) && max_phase_drift_rad >= 0.0 &&
+                    max_phase_drift_rad <= 1.5,
                 "max_phase_drift_rad must be in [0, 1.5], got " << max_phase_drift_rad);
-  D3D_CHECK_MSG(std::isfinite(drift_exclusion) && drift_exclusion > 0.0, "drift_exclusion must be > 0, got " << drift_exclusion);
-  D3D_CHECK_MSG(table_bins >= 64 && table_bins <= 65536, "table_bins must be in [64, 65536], got " << table_bins);
-  D3D_CHECK_MSG(table_rows >= 2 && table_rows <= 4096, "table_rows must be in [2, 4096], got " << table_rows);
+  D3D_CHECK_MSG(std::isfinite(drift_exclusion) && drift_exclusion > 0.0,
+                "drift_exclusion must be > 0, got " << drift_exclusion);
+  D3D_CHECK_MSG(table_bins >= 64 && table_bins <= 65536,
+                "table_bins must be in [64, 65536], got " << table_bins);
+  D3D_CHECK_MSG(table_rows >= 2 && table_rows <= 4096,
+                "table_rows must be in [2, 4096], got " << table_rows);
   D3D_CHECK_MSG(threads >= 1, "threads must be >= 1, got " << threads);
 }
 
 std::vector<int> MarkerOrders(const FringePatternSpec& spec, double projector_extent_px) {
   std::vector<int> orders;
   if (!spec.HasMarker()) return orders;
-  const double last_order = std::floor((projector_extent_px - spec.phase_origin_px) / spec.fringe_period_px);
+  const double last_order =
+      std::floor((projector_extent_px - spec.phase_origin_px) / spec.fringe_period_px);
   for (int k = spec.marker_first_order; k <= last_order; k += spec.marker_spacing_orders) {
     orders.push_back(k);
     if (spec.marker_spacing_orders == 0) break;
@@ -196,7 +212,8 @@ struct PhaseEstimator::Impl {
   Status Validate(const std::vector<cv::Mat>& frames, PhaseMaps* out) const;
   void EstimateKappa(const PhaseMaps& out, int H, int W, cv::Mat* kappa);
   void TileSums(const PhaseMaps& out, const cv::Mat* exclude_with, int H, int W);
-  cv::Mat SolveTiles(int TH, int TW, int window, const cv::Mat* fallback, double fallback_value) const;
+  cv::Mat SolveTiles(int TH, int TW, int window, const cv::Mat* fallback,
+                     double fallback_value) const;
 
   // Compute's per-call values, shared by its passes (below, in Compute's order).
   struct Call {
@@ -220,18 +237,24 @@ struct PhaseEstimator::Impl {
   void Finish(const Call& c, PhaseMaps* out);
 };
 
-PhaseEstimator::PhaseEstimator(const FringePatternSpec& spec, double projector_gamma, const PhaseOptions& options) : impl_(std::make_unique<Impl>()) {
+PhaseEstimator::PhaseEstimator(const FringePatternSpec& spec, double projector_gamma,
+                               const PhaseOptions& options)
+    : impl_(std::make_unique<Impl>()) {
   spec.Check();
   options.Check();
-  D3D_CHECK_MSG(projector_gamma > 0.1 && projector_gamma < 10.0, "projector gamma " << projector_gamma << " is implausible");
+  D3D_CHECK_MSG(projector_gamma > 0.1 && projector_gamma < 10.0,
+                "projector gamma " << projector_gamma << " is implausible");
   D3D_CHECK_MSG(!(spec.HasMarker() && options.detect_marker) || spec.steps >= 4,
-                "marker detection needs N ≥ 4 phase steps, the spec has " << spec.steps << " (set detect_marker = false or marker_frame = -1)");
+                "marker detection needs N ≥ 4 phase steps, the spec has "
+                    << spec.steps << " (set detect_marker = false or marker_frame = -1)");
   impl_->spec = spec;
   impl_->options = options;
   impl_->gamma = projector_gamma;
   impl_->marker = spec.HasMarker() && options.detect_marker;
-  impl_->model = CachedModel(spec, projector_gamma, impl_->marker, options.table_bins, options.table_rows);
-  if (options.motion_compensation && impl_->model->has_residual() && spec.steps >= 4) impl_->BuildDriftTables();
+  impl_->model =
+      CachedModel(spec, projector_gamma, impl_->marker, options.table_bins, options.table_rows);
+  if (options.motion_compensation && impl_->model->has_residual() && spec.steps >= 4)
+    impl_->BuildDriftTables();
 }
 
 // First-order drift tables (phase.h, "In-burst motion"), per κ row (kDriftRows over [0, kKappaMax])
@@ -296,8 +319,11 @@ void PhaseEstimator::Impl::BuildDriftTables() {
         }
         const size_t at = static_cast<size_t>(j) * bins + i;
         drift_g[k][at] = static_cast<float>((pm[1].e - pm[0].e) / (2 * h));
-        drift_h[k][at] = static_cast<float>(std::remainder(pm[1].phi - pm[0].phi, 2 * M_PI) / (2 * h));
-        if (marker) drift_hs[k][at] = static_cast<float>(std::remainder(pm[1].phi_sub - pm[0].phi_sub, 2 * M_PI) / (2 * h));
+        drift_h[k][at] =
+            static_cast<float>(std::remainder(pm[1].phi - pm[0].phi, 2 * M_PI) / (2 * h));
+        if (marker)
+          drift_hs[k][at] =
+              static_cast<float>(std::remainder(pm[1].phi_sub - pm[0].phi_sub, 2 * M_PI) / (2 * h));
         if (k == 0 && j == kDriftRows - 1) g_rms += drift_g[0][at] * drift_g[0][at];
       }
     }
@@ -330,13 +356,16 @@ void PhaseEstimator::Impl::EstimateDrift(const PhaseMaps& out, int H, int W) {
     const size_t row0 = static_cast<size_t>(y / t) * TW;
     for (int x = kKappaStride / 2; x < W; x += kKappaStride) {
       if (sat[x] || !(mod[x] >= min_mod)) continue;
-      const int row = KappaRow(kap ? kap[x] : static_cast<float>(options.kappa_prior), rows_per_kappa, m.rows());
+      const int row = KappaRow(kap ? kap[x] : static_cast<float>(options.kappa_prior),
+                               rows_per_kappa, m.rows());
       const FullEntry f = ReadFullRow(m.full_row(row), PhaseBin(phi[x], bins_per_rad, bins));
       const float Bc = mod[x] * f.ginv;
       const float r = e[x] - Bc * f.e;
       if (std::abs(r) > excl * Bc) continue;
-      const size_t i = static_cast<size_t>(DriftRow(kap ? kap[x] : static_cast<float>(options.kappa_prior))) * bins +
-                       PhaseBin(WrapPos(phi[x] + f.corr), bins_per_rad, bins).i;
+      const size_t i =
+          static_cast<size_t>(DriftRow(kap ? kap[x] : static_cast<float>(options.kappa_prior))) *
+              bins +
+          PhaseBin(WrapPos(phi[x] + f.corr), bins_per_rad, bins).i;
       const double g[3] = {Bc * drift_g[0][i], Bc * drift_g[1][i], Bc * drift_g[2][i]};
       const size_t ti = row0 + static_cast<size_t>(x / t);
       int q = 0;
@@ -349,9 +378,10 @@ void PhaseEstimator::Impl::EstimateDrift(const PhaseMaps& out, int H, int W) {
   const int window = options.kappa_window_tiles;
   cv::Mat sums[10];
   for (int q = 0; q < 10; ++q)
-    cv::boxFilter(cv::Mat(TH, TW, CV_64F, drift_sums[q].data()), sums[q], CV_64F, cv::Size(window, window), cv::Point(-1, -1), false,
-                  cv::BORDER_CONSTANT);
-  const double min_count = std::max(8.0, window * window * t * t / (kKappaStride * kKappaStride) / 8.0);
+    cv::boxFilter(cv::Mat(TH, TW, CV_64F, drift_sums[q].data()), sums[q], CV_64F,
+                  cv::Size(window, window), cv::Point(-1, -1), false, cv::BORDER_CONSTANT);
+  const double min_count =
+      std::max(8.0, window * window * t * t / (kKappaStride * kKappaStride) / 8.0);
   const double max_eps = options.max_phase_drift_rad;
   for (auto& d : drift_tiles) d.create(TH, TW, CV_32F);
   for (int ty = 0; ty < TH; ++ty)
@@ -369,7 +399,8 @@ void PhaseEstimator::Impl::EstimateDrift(const PhaseMaps& out, int H, int W) {
       }
       for (int k = 0; k < 3; ++k) drift_tiles[k].at<float>(ty, tx) = static_cast<float>(x[k]);
     }
-  for (int k = 0; k < 3; ++k) cv::resize(drift_tiles[k], drift_maps[k], cv::Size(W, H), 0, 0, cv::INTER_LINEAR);
+  for (int k = 0; k < 3; ++k)
+    cv::resize(drift_tiles[k], drift_maps[k], cv::Size(W, H), 0, 0, cv::INTER_LINEAR);
 }
 
 PhaseEstimator::~PhaseEstimator() = default;
@@ -379,33 +410,40 @@ PhaseEstimator& PhaseEstimator::operator=(PhaseEstimator&&) noexcept = default;
 const FringePatternSpec& PhaseEstimator::spec() const { return impl_->spec; }
 const PhaseOptions& PhaseEstimator::options() const { return impl_->options; }
 double PhaseEstimator::projector_gamma() const { return impl_->gamma; }
-const std::vector<double>& PhaseEstimator::harmonic_ratios() const { return impl_->model->harmonic_ratios(); }
+const std::vector<double>& PhaseEstimator::harmonic_ratios() const {
+  return impl_->model->harmonic_ratios();
+}
 
 Status PhaseEstimator::Impl::Validate(const std::vector<cv::Mat>& frames, PhaseMaps* out) const {
   if (out == nullptr) return InvalidArgument("phase: no output PhaseMaps given");
   if (frames.empty()) return InvalidArgument("phase: no frames given");
   if (static_cast<int>(frames.size()) != spec.steps)
-    return InvalidArgument("phase: got " + std::to_string(frames.size()) + " frames, the pattern '" + spec.name + "' has " +
+    return InvalidArgument("phase: got " + std::to_string(frames.size()) +
+                           " frames, the pattern '" + spec.name + "' has " +
                            std::to_string(spec.steps) + " steps");
   for (size_t n = 0; n < frames.size(); ++n) {
     const cv::Mat& f = frames[n];
     if (f.empty()) return InvalidArgument("phase: frame " + std::to_string(n) + " is empty");
     if (f.type() != CV_8UC1 && f.type() != CV_16UC1)
-      return InvalidArgument("phase: frame " + std::to_string(n) + " has type " + cv::typeToString(f.type()) + ", expected CV_8UC1 or CV_16UC1");
+      return InvalidArgument("phase: frame " + std::to_string(n) + " has type " +
+                             cv::typeToString(f.type()) + ", expected CV_8UC1 or CV_16UC1");
     if (f.size() != frames[0].size())
-      return InvalidArgument("phase: frame " + std::to_string(n) + " is " + std::to_string(f.cols) + "x" + std::to_string(f.rows) + ", frame 0 is " +
+      return InvalidArgument("phase: frame " + std::to_string(n) + " is " + std::to_string(f.cols) +
+                             "x" + std::to_string(f.rows) + ", frame 0 is " +
                              std::to_string(frames[0].cols) + "x" + std::to_string(frames[0].rows));
     if (f.type() != frames[0].type())
-      return InvalidArgument("phase: frame " + std::to_string(n) + " has type " + cv::typeToString(f.type()) + ", frame 0 has " +
+      return InvalidArgument("phase: frame " + std::to_string(n) + " has type " +
+                             cv::typeToString(f.type()) + ", frame 0 has " +
                              cv::typeToString(frames[0].type()));
   }
   return Status::Ok();
 }
 
-// Tile sums of the κ fit e ≈ κ·b, b = B'·E_1(φ') (B', φ' the raw N-step estimates), over valid pixels
-// (every kKappaStride-th), leaving out pixels with |e − κ_tile·b| > kappa_exclusion·B' when
+// Tile sums of the κ fit e ≈ κ·b, b = B'·E_1(φ') (B', φ' the raw N-step estimates), over valid
+// pixels (every kKappaStride-th), leaving out pixels with |e − κ_tile·b| > kappa_exclusion·B' when
 // `exclude_with` (tile κ) is given.
-void PhaseEstimator::Impl::TileSums(const PhaseMaps& out, const cv::Mat* exclude_with, int H, int W) {
+void PhaseEstimator::Impl::TileSums(const PhaseMaps& out, const cv::Mat* exclude_with, int H,
+                                    int W) {
   const int t = options.kappa_tile_px;
   const int TW = (W + t - 1) / t, TH = (H + t - 1) / t;
   num.assign(static_cast<size_t>(TW) * TH, 0.0);
@@ -430,7 +468,8 @@ void PhaseEstimator::Impl::TileSums(const PhaseMaps& out, const cv::Mat* exclude
       if (sat[x] || !(mod[x] >= min_mod)) continue;
       // Φ and B through the current κ (the N-step distortion depends on it), basis E(Φ; 1).
       const FullEntry f =
-          ReadFullRow(m.full_row(kt ? KappaRow(kt[x / t], rows_per_kappa, m.rows()) : prior_row), PhaseBin(phi[x], bins_per_rad, m.bins()));
+          ReadFullRow(m.full_row(kt ? KappaRow(kt[x / t], rows_per_kappa, m.rows()) : prior_row),
+                      PhaseBin(phi[x], bins_per_rad, m.bins()));
       const float b = mod[x] * f.ginv * f.e1;
       if (kt && std::abs(e[x] - mod[x] * f.ginv * f.e) > excl * mod[x] * f.ginv) continue;
       tn[x / t] += static_cast<double>(e[x]) * b;
@@ -442,26 +481,30 @@ void PhaseEstimator::Impl::TileSums(const PhaseMaps& out, const cv::Mat* exclude
 
 // κ per tile from the sums over a window of tiles; tiles without enough support get the fallback
 // tile map's value (or fallback_value).
-cv::Mat PhaseEstimator::Impl::SolveTiles(int TH, int TW, int window, const cv::Mat* fallback, double fallback_value) const {
+cv::Mat PhaseEstimator::Impl::SolveTiles(int TH, int TW, int window, const cv::Mat* fallback,
+                                         double fallback_value) const {
   const int half = window / 2;  // window = 2·half + 1
   const int t = options.kappa_tile_px;
-  const double min_count = std::max(8.0, (2.0 * half + 1) * (2.0 * half + 1) * t * t / (kKappaStride * kKappaStride) / 8.0);
+  const double min_count = std::max(
+      8.0, (2.0 * half + 1) * (2.0 * half + 1) * t * t / (kKappaStride * kKappaStride) / 8.0);
   // Window sums by separable box filters over the tile grids (zero outside).
   cv::Mat sums[3];
   const std::vector<double>* grids[3] = {&num, &den, &cnt};
   for (int g = 0; g < 3; ++g)
-    cv::boxFilter(cv::Mat(TH, TW, CV_64F, const_cast<double*>(grids[g]->data())), sums[g], CV_64F, cv::Size(window, window), cv::Point(-1, -1), false,
-                  cv::BORDER_CONSTANT);
+    cv::boxFilter(cv::Mat(TH, TW, CV_64F, const_cast<double*>(grids[g]->data())), sums[g], CV_64F,
+                  cv::Size(window, window), cv::Point(-1, -1), false, cv::BORDER_CONSTANT);
   cv::Mat k(TH, TW, CV_32F);
   for (int ty = 0; ty < TH; ++ty)
     for (int tx = 0; tx < TW; ++tx) {
-      const double n = sums[0].at<double>(ty, tx), d = sums[1].at<double>(ty, tx), c = sums[2].at<double>(ty, tx);
+      const double n = sums[0].at<double>(ty, tx), d = sums[1].at<double>(ty, tx),
+                   c = sums[2].at<double>(ty, tx);
       // Only fitted values are clamped: EstimateKappa's first pass marks tiles without support by
       // fallback_value −1, and its median must not count them (clamped, they read as κ = 0, and
       // an image more than half dark then seeded the robust fit with κ = 0).
-      const double kappa = c >= min_count && d > 0.0 ? std::clamp(n / d, 0.0, phase_internal::kKappaMax)
-                           : fallback                ? fallback->at<float>(ty, tx)
-                                                     : fallback_value;
+      const double kappa = c >= min_count && d > 0.0
+                               ? std::clamp(n / d, 0.0, phase_internal::kKappaMax)
+                           : fallback ? fallback->at<float>(ty, tx)
+                                      : fallback_value;
       k.at<float>(ty, tx) = static_cast<float>(kappa);
     }
   return k;
@@ -476,7 +519,8 @@ void PhaseEstimator::Impl::EstimateKappa(const PhaseMaps& out, int H, int W, cv:
   const cv::Mat first = SolveTiles(TH, TW, local, nullptr, -1.0);
   std::vector<float> supported;
   for (int i = 0; i < first.rows * first.cols; ++i)
-    if (first.ptr<float>()[i] >= 0.0f && first.ptr<float>()[i] < phase_internal::kKappaMax) supported.push_back(first.ptr<float>()[i]);
+    if (first.ptr<float>()[i] >= 0.0f && first.ptr<float>()[i] < phase_internal::kKappaMax)
+      supported.push_back(first.ptr<float>()[i]);
   double kappa0 = options.kappa_prior;
   if (!supported.empty()) {
     std::nth_element(supported.begin(), supported.begin() + supported.size() / 2, supported.end());
@@ -500,7 +544,8 @@ Status PhaseEstimator::Compute(const std::vector<cv::Mat>& frames, PhaseMaps* ou
   c.W = frames[0].cols;
   c.wide = frames[0].depth() == CV_16U;
   const PhaseAlgorithm alg = I.options.algorithm;
-  c.need_kappa = m.has_residual() && m.residual_informative() && (alg == PhaseAlgorithm::kAdaptiveHarmonic || I.marker);
+  c.need_kappa = m.has_residual() && m.residual_informative() &&
+                 (alg == PhaseAlgorithm::kAdaptiveHarmonic || I.marker);
   c.drift = alg == PhaseAlgorithm::kAdaptiveHarmonic && !I.drift_g[0].empty();
   c.bins_per_rad = static_cast<float>(m.bins() / (2.0 * M_PI));
   c.rows_per_kappa = static_cast<float>(1.0 / m.KappaStep());
@@ -546,11 +591,13 @@ void PhaseEstimator::Impl::CreateMaps(const Call& c, PhaseMaps* out) {
 
 // Pass 1: linear sums per pixel (vectorised row loops): raw N-step φ', B', mean, saturation,
 // residual e, and the N−1-frame fit.
-void PhaseEstimator::Impl::LinearSums(const std::vector<cv::Mat>& frames, const Call& c, PhaseMaps* out) {
+void PhaseEstimator::Impl::LinearSums(const std::vector<cv::Mat>& frames, const Call& c,
+                                      PhaseMaps* out) {
   const PhaseModel& m = *model;
   const int N = spec.steps, H = c.H, W = c.W;
   const bool wide = c.wide;
-  const float sat_dn = static_cast<float>(options.saturation_dn > 0 ? options.saturation_dn : (wide ? 65535.0 : 255.0));
+  const float sat_dn = static_cast<float>(options.saturation_dn > 0 ? options.saturation_dn
+                                                                    : (wide ? 65535.0 : 255.0));
   const std::vector<float> ones(N, 1.0f / N);
   const int threads = options.threads;
   ForRowBlocks(H, threads, [&](int y0, int y1) {
@@ -641,10 +688,12 @@ void PhaseEstimator::Impl::Compensate(const Call& c, PhaseMaps* out) {
     for (int y = y0; y < y1; ++y) {
       float* phi = out->phi.ptr<float>(y);
       float* mod = out->modulation.ptr<float>(y);
-      const float* kap = alg == PhaseAlgorithm::kAdaptiveHarmonic ? out->kappa.ptr<float>(y) : nullptr;
+      const float* kap =
+          alg == PhaseAlgorithm::kAdaptiveHarmonic ? out->kappa.ptr<float>(y) : nullptr;
       for (int x = 0; x < W; ++x) {
         const BinPos b = PhaseBin(phi[x], bins_per_rad, bins);
-        const FullEntry e = ReadFullRow(kap ? m.full_row(KappaRow(kap[x], rows_per_kappa, rows)) : lut_full, b);
+        const FullEntry e =
+            ReadFullRow(kap ? m.full_row(KappaRow(kap[x], rows_per_kappa, rows)) : lut_full, b);
         phi[x] = WrapPos(phi[x] + e.corr);
         mod[x] *= e.ginv;
       }
@@ -658,10 +707,12 @@ void PhaseEstimator::Impl::Compensate(const Call& c, PhaseMaps* out) {
         const size_t row0 = static_cast<size_t>(DriftRow(kap[x])) * bins;
         const size_t i = row0 + PhaseBin(phi[x], bins_per_rad, bins).i;
         res[x] -= mod[x] * (d0[x] * drift_g[0][i] + d1[x] * drift_g[1][i] + d2[x] * drift_g[2][i]);
-        phi[x] = WrapPos(phi[x] - (d0[x] * drift_h[0][i] + d1[x] * drift_h[1][i] + d2[x] * drift_h[2][i]));
+        phi[x] = WrapPos(phi[x] -
+                         (d0[x] * drift_h[0][i] + d1[x] * drift_h[1][i] + d2[x] * drift_h[2][i]));
         if (p3) {
           const size_t j = row0 + PhaseBin(p3[x], bins_per_rad, bins).i;
-          p3[x] = WrapPos(p3[x] - (d0[x] * drift_hs[0][j] + d1[x] * drift_hs[1][j] + d2[x] * drift_hs[2][j]));
+          p3[x] = WrapPos(
+              p3[x] - (d0[x] * drift_hs[0][j] + d1[x] * drift_hs[1][j] + d2[x] * drift_hs[2][j]));
         }
       }
     }
@@ -692,7 +743,9 @@ void PhaseEstimator::Impl::MarkerScores(const Call& c, PhaseMaps* out) {
       uint8_t* raw = marker_raw.ptr<uint8_t>(y);
       const float kappa_const = static_cast<float>(options.kappa_prior);
       for (int x = 0; x < W; ++x) {
-        const SubEntry s = ReadSubRow(m.sub_row(KappaRow(kap ? kap[x] : kappa_const, rows_per_kappa, rows)), PhaseBin(p3[x], bins_per_rad, bins));
+        const SubEntry s =
+            ReadSubRow(m.sub_row(KappaRow(kap ? kap[x] : kappa_const, rows_per_kappa, rows)),
+                       PhaseBin(p3[x], bins_per_rad, bins));
         const float B = m3[x] * s.ginv;
         float alpha = 0.0f;
         bool suspect = false;
@@ -715,7 +768,8 @@ void PhaseEstimator::Impl::MarkerMasks(PhaseMaps* out) {
   // thresholded, then a closing and an opening.
   const int box = options.marker_box_px, close = options.marker_close_px;
   const int reach = options.marker_suspect_reach_px;
-  cv::blur(out->marker_score, out->marker_score, cv::Size(box, box), cv::Point(-1, -1), cv::BORDER_REPLICATE);
+  cv::blur(out->marker_score, out->marker_score, cv::Size(box, box), cv::Point(-1, -1),
+           cv::BORDER_REPLICATE);
   cv::compare(out->marker_score, thr, out->marker, cv::CMP_GT);
   const cv::Mat k3 = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(close, close));
   cv::morphologyEx(out->marker, out->marker, cv::MORPH_CLOSE, k3);
@@ -723,14 +777,16 @@ void PhaseEstimator::Impl::MarkerMasks(PhaseMaps* out) {
   // The N−1-frame phase is used in the stripes dilated by the guard (transition pixels) and
   // wherever the N frames contradict the non-marker model (|r| > kSuspect: a stripe's fringe
   // missed by the detector, a partly marked pixel, a glint's edge).
-  // Only near detected stripes (marker_suspect_reach_px): elsewhere |r| > kSuspect is mostly noise of
-  // low-modulation pixels, for which the N-step phase is the better one.
+  // Only near detected stripes (marker_suspect_reach_px): elsewhere |r| > kSuspect is mostly noise
+  // of low-modulation pixels, for which the N-step phase is the better one.
   const int g = options.marker_guard_px;
   if (g > 0)
-    cv::dilate(out->marker, guard, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * g + 1, 2 * g + 1)));
+    cv::dilate(out->marker, guard,
+               cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * g + 1, 2 * g + 1)));
   else
     out->marker.copyTo(guard);
-  cv::dilate(out->marker, near, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * reach + 1, 2 * reach + 1)));
+  cv::dilate(out->marker, near,
+             cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * reach + 1, 2 * reach + 1)));
   cv::bitwise_and(marker_raw, near, marker_raw);
   cv::bitwise_or(guard, marker_raw, guard);
 }
@@ -762,7 +818,9 @@ void PhaseEstimator::Impl::UnmarkedPhaseInStripes(const Call& c, PhaseMaps* out)
         if (alg == PhaseAlgorithm::kLutGamma) {
           s = ReadSubRow(lut_sub, b);
         } else if (alg == PhaseAlgorithm::kAdaptiveHarmonic) {
-          s = ReadSubRow(m.sub_row(KappaRow(kap ? kap[x] : static_cast<float>(options.kappa_prior), rows_per_kappa, rows)), b);
+          s = ReadSubRow(m.sub_row(KappaRow(kap ? kap[x] : static_cast<float>(options.kappa_prior),
+                                            rows_per_kappa, rows)),
+                         b);
         }
         phi[x] = WrapPos(p3[x] + s.corr);
         mod[x] = m3[x] * s.ginv;
@@ -786,8 +844,8 @@ void PhaseEstimator::Impl::Finish(const Call& c, PhaseMaps* out) {
   out->num_marker = marker ? cv::countNonZero(out->marker) : 0;
 }
 
-Status ComputePhase(const std::vector<cv::Mat>& frames, const FringePatternSpec& spec, double projector_gamma, const PhaseOptions& options,
-                    PhaseMaps* out) {
+Status ComputePhase(const std::vector<cv::Mat>& frames, const FringePatternSpec& spec,
+                    double projector_gamma, const PhaseOptions& options, PhaseMaps* out) {
   PhaseEstimator estimator(spec, projector_gamma, options);
   return estimator.Compute(frames, out);
 }

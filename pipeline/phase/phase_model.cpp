@@ -11,8 +11,8 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 constexpr double kTwoPi = 2.0 * kPi;
-constexpr int kHarmonics = 16;      // waveform harmonics kept (ρ_k for k > 8 are < 1e-5 for γ ≤ 3)
-constexpr int kMarkerGrid = 512;    // samples of the marker signature over one stripe period
+constexpr int kHarmonics = 16;  // waveform harmonics kept (ρ_k for k > 8 are < 1e-5 for γ ≤ 3)
+constexpr int kMarkerGrid = 512;      // samples of the marker signature over one stripe period
 constexpr double kMaxSigmaRad = 1.2;  // blur cap for the marker signature (κ < 0.115)
 
 double Sinc(double z) { return z == 0.0 ? 1.0 : std::sin(kPi * z) / (kPi * z); }
@@ -46,7 +46,8 @@ class Inverter {
   double Find(double target) const {
     const double t = target + kTwoPi * std::ceil((u_[0] - target) / kTwoPi);
     const auto it = std::upper_bound(u_.begin(), u_.end(), t);
-    const size_t k = static_cast<size_t>(std::clamp<std::ptrdiff_t>(it - u_.begin(), 1, static_cast<std::ptrdiff_t>(u_.size()) - 1));
+    const size_t k = static_cast<size_t>(
+        std::clamp<std::ptrdiff_t>(it - u_.begin(), 1, static_cast<std::ptrdiff_t>(u_.size()) - 1));
     const double lo = u_[k - 1], hi = u_[k];
     const double frac = hi > lo ? std::clamp((t - lo) / (hi - lo), 0.0, 1.0) : 0.0;
     return std::fmod(static_cast<double>(k - 1) + frac, F_);
@@ -68,7 +69,8 @@ double Lerp(const std::vector<double>& a, double f) {
 
 }  // namespace
 
-PhaseModel::PhaseModel(const FringePatternSpec& spec, double gamma, bool with_marker, int bins, int rows)
+PhaseModel::PhaseModel(const FringePatternSpec& spec, double gamma, bool with_marker, int bins,
+                       int rows)
     : steps_(spec.steps),
       marker_frame_(with_marker && spec.HasMarker() ? spec.marker_frame : -1),
       bins_(bins),
@@ -78,7 +80,8 @@ PhaseModel::PhaseModel(const FringePatternSpec& spec, double gamma, bool with_ma
   spec.Check();
   D3D_CHECK_MSG(gamma > 0.1 && gamma < 10.0, "projector gamma " << gamma << " is implausible");
   D3D_CHECK_MSG(bins >= 64 && rows >= 2, "tables need ≥ 64 bins and ≥ 2 rows");
-  D3D_CHECK_MSG(marker_frame_ < 0 || steps_ >= 4, "a marker frame needs N ≥ 4 steps, got " << steps_);
+  D3D_CHECK_MSG(marker_frame_ < 0 || steps_ >= 4,
+                "a marker frame needs N ≥ 4 steps, got " << steps_);
   const int N = steps_;
 
   // Harmonic ratios of the DMD's radiance waveform (8-bit levels, power law, 1-px box).
@@ -110,7 +113,8 @@ PhaseModel::PhaseModel(const FringePatternSpec& spec, double gamma, bool with_ma
     sw_[n] = static_cast<float>(2.0 / N * std::sin(d));
   }
   if (marker_frame_ >= 0) {
-    // Least-squares fit of A + a cos δ + b sin δ to the N−1 frames n ≠ m, and the residual of frame m.
+    // Least-squares fit of A + a cos δ + b sin δ to the N−1 frames n ≠ m, and the residual of frame
+    // m.
     Eigen::MatrixXd X(N - 1, 3);
     for (int n = 0, r = 0; n < N; ++n) {
       if (n == marker_frame_) continue;
@@ -145,7 +149,8 @@ PhaseModel::PhaseModel(const FringePatternSpec& spec, double gamma, bool with_ma
       marker_delta_[i] = (std::pow(Dmd(pm), gamma) - std::pow(Dmd(p), gamma)) / c1_;
     }
   } else if (N >= 4) {
-    for (int n = 0; n < N; ++n) rw_[n] = static_cast<float>(2.0 / N * std::cos(2.0 * kTwoPi * n / N));
+    for (int n = 0; n < N; ++n)
+      rw_[n] = static_cast<float>(2.0 / N * std::cos(2.0 * kTwoPi * n / N));
     has_residual_ = true;
   }
 
@@ -165,15 +170,18 @@ int PhaseModel::RowOf(double kappa) const {
 double PhaseModel::Waveform(int frame, double Phi, double kappa) const {
   const double x = Phi - kTwoPi * frame / steps_;
   double w = 0;
-  for (int k = 1; k <= kHarmonics; ++k) w += rho_[k] * std::pow(kappa, (k * k - 1) / 3.0) * std::cos(k * x);
+  for (int k = 1; k <= kHarmonics; ++k)
+    w += rho_[k] * std::pow(kappa, (k * k - 1) / 3.0) * std::cos(k * x);
   return w;
 }
 
 std::vector<double> PhaseModel::BlurredMarkerSignature(double kappa) const {
   // Gaussian blur σ (rad) that attenuates harmonic k relative to the fundamental by κ^{(k²−1)/3},
   // plus the DMD pixel's box (variance (2π/T)²/12), whose harmonic attenuation is already in ρ_k.
-  const double sigma_k2 = kappa >= 1.0 ? 0.0 : kappa <= 0.0 ? kMaxSigmaRad * kMaxSigmaRad
-                                                            : std::min(-2.0 * std::log(kappa) / 3.0, kMaxSigmaRad * kMaxSigmaRad);
+  const double sigma_k2 = kappa >= 1.0 ? 0.0
+                          : kappa <= 0.0
+                              ? kMaxSigmaRad * kMaxSigmaRad
+                              : std::min(-2.0 * std::log(kappa) / 3.0, kMaxSigmaRad * kMaxSigmaRad);
   const double box = kTwoPi / period_px_;
   const double sigma2 = sigma_k2 + box * box / 12.0;
   const double sigma = std::sqrt(sigma2);
@@ -181,7 +189,8 @@ std::vector<double> PhaseModel::BlurredMarkerSignature(double kappa) const {
   const int half = static_cast<int>(std::ceil(4.0 * sigma / step));
   std::vector<double> kernel(2 * half + 1);
   double ksum = 0;
-  for (int i = -half; i <= half; ++i) ksum += kernel[i + half] = std::exp(-0.5 * (i * step) * (i * step) / sigma2);
+  for (int i = -half; i <= half; ++i)
+    ksum += kernel[i + half] = std::exp(-0.5 * (i * step) * (i * step) / sigma2);
   const double norm = 1.0 / (ksum * std::exp(-0.5 * sigma2));  // per unit blurred fundamental
   std::vector<double> out(kMarkerGrid, 0.0);
   for (int i = 0; i < kMarkerGrid; ++i) {
@@ -200,7 +209,8 @@ void PhaseModel::BuildRow(int j) {
   const double kappa = KappaStep() * j;
   const int F = 4 * bins_;
   std::vector<double> amp(kHarmonics + 1, 0.0);
-  for (int k = 1; k <= kHarmonics; ++k) amp[k] = rho_[k] * (k == 1 ? 1.0 : std::pow(kappa, (k * k - 1) / 3.0));
+  for (int k = 1; k <= kHarmonics; ++k)
+    amp[k] = rho_[k] * (k == 1 ? 1.0 : std::pow(kappa, (k * k - 1) / 3.0));
   // Waveform on the fine grid.
   std::vector<double> cos_table(F), wave(F, 0.0);
   for (int i = 0; i < F; ++i) cos_table[i] = std::cos(kTwoPi * i / F);
@@ -222,7 +232,8 @@ void PhaseModel::BuildRow(int j) {
   }
   std::vector<double> I(N);
   for (int i = 0; i < F; ++i) {
-    for (int n = 0; n < N; ++n) I[n] = Lerp(wave, std::fmod(i - static_cast<double>(F) * n / N + F, F));
+    for (int n = 0; n < N; ++n)
+      I[n] = Lerp(wave, std::fmod(i - static_cast<double>(F) * n / N + F, F));
     const double C = Dot(cw_, I), S = Dot(sw_, I);
     phi_full[i] = std::atan2(S, C);
     g_full[i] = std::hypot(C, S);
@@ -235,8 +246,11 @@ void PhaseModel::BuildRow(int j) {
       phi_sub[i] = std::atan2(b, a);
       g_sub[i] = std::hypot(a, b);
       off_at[i] = Dot(dw_, I) - mean_at[i];
-      const double pos = static_cast<double>(i) / F * kMarkerGrid - 0.5;  // signature sample centres
-      d_at[i] = pos <= 0 ? signature.front() : pos >= kMarkerGrid - 1 ? signature.back() : Lerp(signature, pos);
+      const double pos =
+          static_cast<double>(i) / F * kMarkerGrid - 0.5;  // signature sample centres
+      d_at[i] = pos <= 0                 ? signature.front()
+                : pos >= kMarkerGrid - 1 ? signature.back()
+                                         : Lerp(signature, pos);
     }
   }
   if (j == RowOf(1.0)) {

@@ -13,9 +13,9 @@
 //                 corr = Φ − φ' (true minus measured phase), ginv = 1/|C + iS| per unit B,
 //                 e = E(Φ; κ_j), the consistency residual per unit B at that Φ, e1 = E(Φ; 1).
 //   sub[j][i]   : the least-squares fit of the N−1 frames other than the marker frame (only with a
-//                 marker): corr, ginv, e = E(Φ; κ_j), d = D(Φ; κ_j) the marker's signature (change of
-//                 frame m inside a stripe per unit B, blurred with the κ's σ), off = DC of the fit
-//                 minus the mean of the N unmarked frames, per unit B.
+//                 marker): corr, ginv, e = E(Φ; κ_j), d = D(Φ; κ_j) the marker's signature (change
+//                 of frame m inside a stripe per unit B, blurred with the κ's σ), off = DC of the
+//                 fit minus the mean of the N unmarked frames, per unit B.
 #pragma once
 
 #include <vector>
@@ -49,7 +49,8 @@ class PhaseModel {
   int RowOf(double kappa) const;  // nearest row
 
   // Per-frame linear weights (size N): C = Σ c_n I_n, S = Σ s_n I_n (|C + iS| = B for a sinusoid),
-  // mean = Σ I_n / N, residual e = Σ r_n I_n; sub-fit (marker frame weight 0): dc, a (cos), b (sin).
+  // mean = Σ I_n / N, residual e = Σ r_n I_n; sub-fit (marker frame weight 0): dc, a (cos), b
+  // (sin).
   const std::vector<float>& cos_w() const { return cw_; }
   const std::vector<float>& sin_w() const { return sw_; }
   const std::vector<float>& res_w() const { return rw_; }
@@ -78,7 +79,8 @@ class PhaseModel {
   double c1_ = 0.5;  // fundamental amplitude of the unblurred radiance waveform
   std::vector<double> rho_;
   std::vector<double> marker_delta_;
-  std::vector<double> e1_at_;  // E(Φ; κ = 1) on the fine grid of BuildRow  // Δr(x) over one stripe period (kMarkerGrid samples), per c1
+  std::vector<double> e1_at_;  // E(Φ; κ = 1) on the fine grid of BuildRow  // Δr(x) over one stripe
+                               // period (kMarkerGrid samples), per c1
   std::vector<float> cw_, sw_, rw_, dw_, aw_, bw_;
   std::vector<FullEntry> full_;
   std::vector<SubEntry> sub_;

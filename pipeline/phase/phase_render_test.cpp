@@ -28,7 +28,10 @@ Evaluation RunScene(const std::string& scene, double gamma, bool noise) {
   const Burst burst = RenderScene(rs, &calibration);
   EXPECT_EQ(calibration.projector_gamma, gamma);
   const Evaluation e = Evaluate(burst, calibration);
-  std::cout << FormatRow(scene + (noise ? " noisy g=" : " clean g=") + std::to_string(gamma).substr(0, 3), e) << std::endl;
+  std::cout << FormatRow(
+                   scene + (noise ? " noisy g=" : " clean g=") + std::to_string(gamma).substr(0, 3),
+                   e)
+            << std::endl;
   return e;
 }
 
@@ -44,9 +47,10 @@ TEST(PhaseRender, GammaTableOnATiltedPlane) {
   for (const auto& [g, e] : noisy) {
     ASSERT_GT(e.algorithms[kOurs].n_outside, 100000);
     ASSERT_GT(e.algorithms[kOurs].n_inside, 10000);
-    std::cout << "  gamma " << g << ": ours/standard " << Out(e, kOurs) / Out(e, kStd) << ", ours/lut "
-              << Out(e, kOurs) / Out(e, kLut) << " (outside stripes); in stripes ours/standard "
-              << In(e, kOurs) / In(e, kStd) << ", ours/lut " << In(e, kOurs) / In(e, kLut) << std::endl;
+    std::cout << "  gamma " << g << ": ours/standard " << Out(e, kOurs) / Out(e, kStd)
+              << ", ours/lut " << Out(e, kOurs) / Out(e, kLut)
+              << " (outside stripes); in stripes ours/standard " << In(e, kOurs) / In(e, kStd)
+              << ", ours/lut " << In(e, kOurs) / In(e, kLut) << std::endl;
   }
   // A linear projector: ours is the standard estimator (κ cannot be measured, nothing to correct).
   EXPECT_LE(Out(noisy[1.0], kOurs), 1.02 * Out(noisy[1.0], kStd));
@@ -72,7 +76,8 @@ TEST(PhaseRender, GammaTableOnATiltedPlane) {
   EXPECT_LT(noisy[2.2].mean_kappa, 0.95);
 }
 
-// The marker with noise and gamma 2.2 on the plane, the sphere (shadow, curvature) and the typodont.
+// The marker with noise and gamma 2.2 on the plane, the sphere (shadow, curvature) and the
+// typodont.
 TEST(PhaseRender, MarkerRecallAndFalsePositivesAndPhaseInsideStripes) {
   for (const std::string scene : {"plane", "sphere", "typodont"}) {
     const Evaluation e = RunScene(scene, 2.2, true);
@@ -80,9 +85,10 @@ TEST(PhaseRender, MarkerRecallAndFalsePositivesAndPhaseInsideStripes) {
     ASSERT_GT(e.marker.n_core, 5000);
     EXPECT_GE(e.marker.recall, 0.95);
     EXPECT_LE(e.marker.false_positive, 0.001);
-    std::cout << "  " << scene << ": marker recall " << e.marker.recall << ", false positives " << e.marker.false_positive
-              << " of lit non-stripe pixels, transition band detected " << e.marker.edge_detected
-              << "; ours phase RMS inside stripes " << In(e, kOurs) << " vs outside " << Out(e, kOurs) << std::endl;
+    std::cout << "  " << scene << ": marker recall " << e.marker.recall << ", false positives "
+              << e.marker.false_positive << " of lit non-stripe pixels, transition band detected "
+              << e.marker.edge_detected << "; ours phase RMS inside stripes " << In(e, kOurs)
+              << " vs outside " << Out(e, kOurs) << std::endl;
     // φ inside the stripes comes from 3 frames whose phase response γ flattens (noise gain up to
     // 5× over part of the period): within 2× of the 4-frame phase outside.
     EXPECT_LT(In(e, kOurs), 2.0 * Out(e, kOurs));

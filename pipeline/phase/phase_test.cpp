@@ -32,7 +32,8 @@ struct Scene {
 };
 
 // I_n = A + B·w(Φ − δ_n; κ) with the model's own waveform (exact-model case), CV_16U.
-std::vector<cv::Mat> ModelFrames(const FringePatternSpec& spec, const phase_internal::PhaseModel& model, double kappa,
+std::vector<cv::Mat> ModelFrames(const FringePatternSpec& spec,
+                                 const phase_internal::PhaseModel& model, double kappa,
                                  const Scene& sc) {
   std::vector<cv::Mat> frames;
   for (int n = 0; n < spec.steps; ++n) {
@@ -40,7 +41,8 @@ std::vector<cv::Mat> ModelFrames(const FringePatternSpec& spec, const phase_inte
     for (int y = 0; y < sc.H; ++y)
       for (int x = 0; x < sc.W; ++x) {
         const double Phi = spec.AbsolutePhase(sc.coord(x, y));
-        f.at<uint16_t>(y, x) = cv::saturate_cast<uint16_t>(sc.A(x, y) + sc.B(x, y) * model.Waveform(n, Phi, kappa));
+        f.at<uint16_t>(y, x) =
+            cv::saturate_cast<uint16_t>(sc.A(x, y) + sc.B(x, y) * model.Waveform(n, Phi, kappa));
       }
     frames.push_back(f);
   }
@@ -48,8 +50,8 @@ std::vector<cv::Mat> ModelFrames(const FringePatternSpec& spec, const phase_inte
 }
 
 // Physical frames: A + K·(DMD level)^γ of the spec's pattern (marker included), CV_16U or CV_8U.
-std::vector<cv::Mat> PowerLawFrames(const FringePatternSpec& spec, double gamma, const Scene& sc, int type,
-                                    double K = 30000.0, double A = 3000.0) {
+std::vector<cv::Mat> PowerLawFrames(const FringePatternSpec& spec, double gamma, const Scene& sc,
+                                    int type, double K = 30000.0, double A = 3000.0) {
   std::vector<cv::Mat> frames;
   for (int n = 0; n < spec.steps; ++n) {
     cv::Mat f(sc.H, sc.W, type);
@@ -71,8 +73,9 @@ struct ErrStats {
   double max_abs = 0, rms = 0;
   int n = 0;
 };
-ErrStats PhaseError(const PhaseMaps& m, const FringePatternSpec& spec, const Scene& sc,
-                    const std::function<bool(double)>& use = [](double) { return true; }) {
+ErrStats PhaseError(
+    const PhaseMaps& m, const FringePatternSpec& spec, const Scene& sc,
+    const std::function<bool(double)>& use = [](double) { return true; }) {
   ErrStats s;
   double s2 = 0;
   for (int y = 0; y < sc.H; ++y)
@@ -104,7 +107,9 @@ TEST(FastAtan2, MatchesStdAtan2OverAllOctants) {
       const double got = phase_internal::FastAtan2Pos(y, x);
       ASSERT_GE(got, 0.0);
       ASSERT_LT(got, kTwoPi);
-      worst = std::max(worst, std::abs(WrapErr(got, std::atan2(static_cast<double>(y), static_cast<double>(x)))));
+      worst = std::max(
+          worst,
+          std::abs(WrapErr(got, std::atan2(static_cast<double>(y), static_cast<double>(x)))));
     }
   }
   EXPECT_LT(worst, 1e-6);
@@ -113,8 +118,8 @@ TEST(FastAtan2, MatchesStdAtan2OverAllOctants) {
 
 TEST(PhaseModel, HarmonicRatiosOfThePowerLaw) {
   const phase_internal::PhaseModel m(Spec(4, true), 2.2, true, 256, 13);
-  // (½ + ½ cos x)^2.2: ρ2 = 0.2857, ρ3 = 0.0110 (continuous); the 8-bit levels and the 1-px box shift
-  // them slightly.
+  // (½ + ½ cos x)^2.2: ρ2 = 0.2857, ρ3 = 0.0110 (continuous); the 8-bit levels and the 1-px box
+  // shift them slightly.
   EXPECT_NEAR(m.harmonic_ratios()[2], 0.2857, 0.003);
   EXPECT_NEAR(m.harmonic_ratios()[3], 0.0110, 0.001);
   const phase_internal::PhaseModel lin(Spec(4, true), 1.0, true, 256, 13);
@@ -136,10 +141,12 @@ TEST(PhaseAnalytic, SinusoidalFramesAllStepCountsAllAlgorithms) {
       for (int y = 0; y < sc.H; ++y)
         for (int x = 0; x < sc.W; ++x)
           f.at<uint16_t>(y, x) = cv::saturate_cast<uint16_t>(
-              sc.A(x, y) + sc.B(x, y) * std::cos(spec.AbsolutePhase(sc.coord(x, y)) - kTwoPi * n / N));
+              sc.A(x, y) +
+              sc.B(x, y) * std::cos(spec.AbsolutePhase(sc.coord(x, y)) - kTwoPi * n / N));
       frames.push_back(f);
     }
-    for (auto a : {PhaseAlgorithm::kStandard, PhaseAlgorithm::kLutGamma, PhaseAlgorithm::kAdaptiveHarmonic}) {
+    for (auto a : {PhaseAlgorithm::kStandard, PhaseAlgorithm::kLutGamma,
+                   PhaseAlgorithm::kAdaptiveHarmonic}) {
       PhaseMaps m;
       ASSERT_TRUE(ComputePhase(frames, spec, 1.0, Opt(a), &m).ok());
       const ErrStats e = PhaseError(m, spec, sc);
@@ -172,17 +179,21 @@ TEST(PhaseAnalytic, GammaWaveformExactModelCases) {
         PhaseMaps std_m, lut_m, ours_m;
         ASSERT_TRUE(ComputePhase(frames, spec, gamma, Opt(PhaseAlgorithm::kStandard), &std_m).ok());
         ASSERT_TRUE(ComputePhase(frames, spec, gamma, Opt(PhaseAlgorithm::kLutGamma), &lut_m).ok());
-        ASSERT_TRUE(ComputePhase(frames, spec, gamma, Opt(PhaseAlgorithm::kAdaptiveHarmonic), &ours_m).ok());
+        ASSERT_TRUE(
+            ComputePhase(frames, spec, gamma, Opt(PhaseAlgorithm::kAdaptiveHarmonic), &ours_m)
+                .ok());
         const ErrStats es = PhaseError(std_m, spec, sc), el = PhaseError(lut_m, spec, sc),
                        eo = PhaseError(ours_m, spec, sc);
-        SCOPED_TRACE(::testing::Message() << "N " << N << " gamma " << gamma << " kappa " << kappa << ": standard "
-                                          << es.max_abs << " lut " << el.max_abs << " ours " << eo.max_abs);
+        SCOPED_TRACE(::testing::Message()
+                     << "N " << N << " gamma " << gamma << " kappa " << kappa << ": standard "
+                     << es.max_abs << " lut " << el.max_abs << " ours " << eo.max_abs);
         EXPECT_LT(eo.max_abs, 1e-3);
         if (kappa == 1.0) {
           EXPECT_LT(el.max_abs, 1e-3);
         }
         if (N == 4 && gamma == 2.8) {
-          EXPECT_GT(es.max_abs, 0.04 * std::pow(kappa, 8.0 / 3.0));  // (ρ5 − ρ3)·κ^{8/3}, 0.05 at κ = 1
+          EXPECT_GT(es.max_abs,
+                    0.04 * std::pow(kappa, 8.0 / 3.0));  // (ρ5 − ρ3)·κ^{8/3}, 0.05 at κ = 1
           if (kappa == 0.6) {
             EXPECT_GT(el.max_abs, 3 * eo.max_abs);  // the fixed LUT over-corrects
           }
@@ -203,8 +214,10 @@ TEST(PhaseMotion, LinearDriftIsMeasuredAndRemoved) {
   Scene sc;
   sc.W = 384;
   const FringePatternSpec spec = Spec(4, false);
-  auto eps_at = [&](int x, int y) { return 0.06 + 0.08 * x / sc.W - 0.05 * y / sc.H; };  // rad per frame
-  auto b_at = [&](int x, int) { return 0.02 * (1.0 - 2.0 * x / sc.W); };                  // of B per frame
+  auto eps_at = [&](int x, int y) {
+    return 0.06 + 0.08 * x / sc.W - 0.05 * y / sc.H;
+  };                                                                      // rad per frame
+  auto b_at = [&](int x, int) { return 0.02 * (1.0 - 2.0 * x / sc.W); };  // of B per frame
   for (double gamma : {1.0, 2.2}) {
     const phase_internal::PhaseModel model(spec, gamma, false, 1024, 61);
     for (bool moving : {true, false}) {
@@ -214,9 +227,11 @@ TEST(PhaseMotion, LinearDriftIsMeasuredAndRemoved) {
         cv::Mat f(sc.H, sc.W, CV_16U);
         for (int y = 0; y < sc.H; ++y)
           for (int x = 0; x < sc.W; ++x) {
-            const double Phi = spec.AbsolutePhase(sc.coord(x, y)) + (moving ? s_n * eps_at(x, y) : 0.0);
+            const double Phi =
+                spec.AbsolutePhase(sc.coord(x, y)) + (moving ? s_n * eps_at(x, y) : 0.0);
             const double B = sc.B(x, y) * (1.0 + (moving ? s_n * b_at(x, y) : 0.0));
-            f.at<uint16_t>(y, x) = cv::saturate_cast<uint16_t>(sc.A(x, y) + B * model.Waveform(n, Phi, 1.0));
+            f.at<uint16_t>(y, x) =
+                cv::saturate_cast<uint16_t>(sc.A(x, y) + B * model.Waveform(n, Phi, 1.0));
           }
         frames.push_back(f);
       }
@@ -230,15 +245,19 @@ TEST(PhaseMotion, LinearDriftIsMeasuredAndRemoved) {
       double worst = 0;  // ε error away from the border (tiles there see fewer pixels)
       for (int y = 16; y < sc.H - 16; y += 4)
         for (int x = 16; x < sc.W - 16; x += 4)
-          worst = std::max(worst, std::abs(m_on.phase_drift.at<float>(y, x) - (moving ? eps_at(x, y) : 0.0)));
-      SCOPED_TRACE(::testing::Message() << "gamma " << gamma << (moving ? " moving" : " still") << ": rms with compensation "
-                                        << e_on.rms << " rad, without " << e_off.rms << "; worst ε error " << worst);
+          worst = std::max(
+              worst, std::abs(m_on.phase_drift.at<float>(y, x) - (moving ? eps_at(x, y) : 0.0)));
+      SCOPED_TRACE(::testing::Message()
+                   << "gamma " << gamma << (moving ? " moving" : " still")
+                   << ": rms with compensation " << e_on.rms << " rad, without " << e_off.rms
+                   << "; worst ε error " << worst);
       ASSERT_FALSE(m_on.phase_drift.empty());
       EXPECT_TRUE(m_off.phase_drift.empty());
       if (moving) {
         EXPECT_GT(e_off.rms, 0.025);  // (ε/2)·cos 2Φ (+ harmonics) with ε ≈ 0.04..0.14
         EXPECT_LT(e_on.rms, (gamma == 1.0 ? 0.15 : 0.5) * e_off.rms);
-        EXPECT_LT(worst, gamma == 1.0 ? 0.02 : 0.03) << "rad per frame (ε up to 0.14; the fit is ~5 % low at γ = 1)";
+        EXPECT_LT(worst, gamma == 1.0 ? 0.02 : 0.03)
+            << "rad per frame (ε up to 0.14; the fit is ~5 % low at γ = 1)";
       } else {
         EXPECT_LT(e_on.rms, 1e-3);
         EXPECT_LT(worst, 2e-3);
@@ -257,7 +276,8 @@ TEST(PhaseAnalytic, MarkerFoundAndPhaseExactInsideStripes) {
   const FringePatternSpec spec = Spec(4, true);
   for (double gamma : {1.0, 2.2}) {
     const auto frames = PowerLawFrames(spec, gamma, sc, CV_16U);
-    for (auto a : {PhaseAlgorithm::kStandard, PhaseAlgorithm::kLutGamma, PhaseAlgorithm::kAdaptiveHarmonic}) {
+    for (auto a : {PhaseAlgorithm::kStandard, PhaseAlgorithm::kLutGamma,
+                   PhaseAlgorithm::kAdaptiveHarmonic}) {
       PhaseMaps m;
       ASSERT_TRUE(ComputePhase(frames, spec, gamma, Opt(a), &m).ok());
       int core = 0, core_hit = 0, outside = 0, outside_hit = 0;
@@ -274,7 +294,8 @@ TEST(PhaseAnalytic, MarkerFoundAndPhaseExactInsideStripes) {
       EXPECT_EQ(outside_hit, 0);
       const auto in = [&](double c) { return spec.InMarker(c - 2) && spec.InMarker(c + 2); };
       const ErrStats e_in = PhaseError(m, spec, sc, in);
-      const ErrStats e_out = PhaseError(m, spec, sc, [&](double c) { return !spec.InMarker(c - 3) && !spec.InMarker(c + 3); });
+      const ErrStats e_out = PhaseError(
+          m, spec, sc, [&](double c) { return !spec.InMarker(c - 3) && !spec.InMarker(c + 3); });
       if (a != PhaseAlgorithm::kStandard || gamma == 1.0) {
         // Limited by the DMD's 8-bit levels (±0.5/255 of the range: ≈ 0.004 rad for the N-step; the
         // 3-frame fit amplifies it where γ flattens its phase response).
@@ -287,8 +308,10 @@ TEST(PhaseAnalytic, MarkerFoundAndPhaseExactInsideStripes) {
       double worst_tex = 0;
       for (int x = 0; x < sc.W; ++x)
         if (in(sc.coord(x, 20)) && a == PhaseAlgorithm::kAdaptiveHarmonic)
-          worst_tex = std::max(worst_tex, 
-                               static_cast<double>(std::abs(m.offset.at<float>(20, x) - m.offset.at<float>(20, x - 24 < 0 ? x + 24 : x - 24))));
+          worst_tex = std::max(
+              worst_tex,
+              static_cast<double>(std::abs(m.offset.at<float>(20, x) -
+                                           m.offset.at<float>(20, x - 24 < 0 ? x + 24 : x - 24))));
       EXPECT_LT(worst_tex, 600.0) << "DN of 30000";
     }
   }
@@ -297,14 +320,16 @@ TEST(PhaseAnalytic, MarkerFoundAndPhaseExactInsideStripes) {
 // A marker stripe two κ windows wide (a stripe along a tooth), camera noise, and (second case) most
 // of the image dark: κ beside and inside the stripe is the projector's own (no blur: κ = 1), and
 // the N−1-frame phase and modulation inside the stripe do not ripple. Before the fix, the median κ
-// that seeds the robust fit counted the dark tiles as κ = 0; the fit then kept only pixels that κ = 0
-// explains, which near a stripe are the stripe's own, κ there fell to ≈ 0, and the N−1-frame B
+// that seeds the robust fit counted the dark tiles as κ = 0; the fit then kept only pixels that κ =
+// 0 explains, which near a stripe are the stripe's own, κ there fell to ≈ 0, and the N−1-frame B
 // rippled by a factor 4 (typodont burst 190: κ 0.02 in the stripe, 0.75 beside it).
 TEST(PhaseAnalytic, WideMarkerStripeKeepsKappaAndTheThreeFramePhase) {
   Scene sc;
   sc.W = 400;
   sc.H = 64;
-  sc.coord = [](int x, int) { return 60.0 + 0.5 * x; };  // stripe of order 4: c ∈ [96, 120), x ∈ [72, 120)
+  sc.coord = [](int x, int) {
+    return 60.0 + 0.5 * x;
+  };  // stripe of order 4: c ∈ [96, 120), x ∈ [72, 120)
   const FringePatternSpec spec = Spec(4, true);
   const double gamma = 2.2;
   for (int lit_width : {400, 160}) {
@@ -315,7 +340,8 @@ TEST(PhaseAnalytic, WideMarkerStripeKeepsKappaAndTheThreeFramePhase) {
       for (int y = 0; y < sc.H; ++y)
         for (int x = 0; x < sc.W; ++x) {
           uint16_t& v = f.at<uint16_t>(y, x);
-          v = x < lit_width ? cv::saturate_cast<uint16_t>(v + noise(rng)) : 3000;  // dark: offset only
+          v = x < lit_width ? cv::saturate_cast<uint16_t>(v + noise(rng))
+                            : 3000;  // dark: offset only
         }
     PhaseMaps m;
     ASSERT_TRUE(ComputePhase(frames, spec, gamma, PhaseOptions(), &m).ok());
@@ -337,8 +363,10 @@ TEST(PhaseAnalytic, WideMarkerStripeKeepsKappaAndTheThreeFramePhase) {
     ASSERT_GT(n, 1000);
     const double rms_in = std::sqrt(e2 / n);
     EXPECT_LT(worst_kappa, 0.15) << "κ from the stripe's neighbourhood, not from the stripe";
-    EXPECT_LT(rms_in, 0.05) << "rad, N−1-frame phase inside the stripe (0.022 measured; 0.24 before)";
-    EXPECT_LT(b_max / b_min, 1.6) << "N−1-frame B inside the stripe (1.3 measured; 3.9 before): " << b_min << " .. " << b_max;
+    EXPECT_LT(rms_in, 0.05)
+        << "rad, N−1-frame phase inside the stripe (0.022 measured; 0.24 before)";
+    EXPECT_LT(b_max / b_min, 1.6) << "N−1-frame B inside the stripe (1.3 measured; 3.9 before): "
+                                  << b_min << " .. " << b_max;
   }
 }
 
@@ -384,11 +412,13 @@ TEST(PhaseBadInput, ClearStatusCodes) {
   auto empty = Flat(4, CV_8U, 100);
   empty[3] = cv::Mat();
   expect_invalid(empty, "an empty frame");
-  EXPECT_EQ(ComputePhase(Flat(4, CV_8U, 100), spec, 2.2, o, nullptr).code(), StatusCode::kInvalidArgument);
+  EXPECT_EQ(ComputePhase(Flat(4, CV_8U, 100), spec, 2.2, o, nullptr).code(),
+            StatusCode::kInvalidArgument);
 }
 
 TEST(PhaseBadInput, DarkAndSaturatedFramesGiveAnEmptyValidMask) {
-  for (auto a : {PhaseAlgorithm::kStandard, PhaseAlgorithm::kLutGamma, PhaseAlgorithm::kAdaptiveHarmonic}) {
+  for (auto a :
+       {PhaseAlgorithm::kStandard, PhaseAlgorithm::kLutGamma, PhaseAlgorithm::kAdaptiveHarmonic}) {
     for (int type : {CV_8U, CV_16U}) {
       const double full = type == CV_8U ? 255 : 65535;
       for (double level : {0.0, full, 100.0}) {  // dark, saturated, flat grey (no fringes)
@@ -412,7 +442,8 @@ TEST(PhaseBadInput, NoiseGivesNoNaNWhereValid) {
   auto frames = Flat(4, CV_8U, 0, {97, 61});  // odd size: partial κ tiles
   for (auto& f : frames)
     for (int i = 0; i < f.rows * f.cols; ++i) f.data[i] = static_cast<uint8_t>(u(rng));
-  for (auto a : {PhaseAlgorithm::kStandard, PhaseAlgorithm::kLutGamma, PhaseAlgorithm::kAdaptiveHarmonic}) {
+  for (auto a :
+       {PhaseAlgorithm::kStandard, PhaseAlgorithm::kLutGamma, PhaseAlgorithm::kAdaptiveHarmonic}) {
     PhaseMaps m;
     ASSERT_TRUE(ComputePhase(frames, Spec(4, true), 2.2, Opt(a), &m).ok());
     EXPECT_GT(m.num_valid, 0);
@@ -440,7 +471,8 @@ TEST(PhaseBadInput, SetUpContractViolationsThrow) {
   EXPECT_THROW(PhaseEstimator(Spec(4, true), 0.0, PhaseOptions()), std::invalid_argument);
   FringePatternSpec three = Spec(3, false);
   three.marker_frame = 2;
-  EXPECT_THROW(PhaseEstimator(three, 2.2, PhaseOptions()), std::invalid_argument);  // marker needs N ≥ 4
+  EXPECT_THROW(PhaseEstimator(three, 2.2, PhaseOptions()),
+               std::invalid_argument);  // marker needs N ≥ 4
   PhaseOptions no_marker;
   no_marker.detect_marker = false;
   EXPECT_NO_THROW(PhaseEstimator(three, 2.2, no_marker));

@@ -10,7 +10,8 @@
 namespace d3d {
 
 CloudErrors EvaluateCloud(const cv::Mat& points, const cv::Mat& Phi, const FrameTruth& truth,
-                          const TriangleMesh& scene, const FringePatternSpec& spec, cv::Mat* error_um) {
+                          const TriangleMesh& scene, const FringePatternSpec& spec,
+                          cv::Mat* error_um) {
   CloudErrors e;
   const Eigen::Matrix3d cam_from_world = truth.world_from_probe.rotation().transpose();
   if (error_um) error_um->create(points.size(), CV_32F), error_um->setTo(std::nanf(""));
@@ -21,7 +22,8 @@ CloudErrors EvaluateCloud(const cv::Mat& points, const cv::Mat& Phi, const Frame
       const cv::Vec3f& p = points.at<cv::Vec3f>(r, c);
       const bool has_point = std::isfinite(p[2]);
       const uint8_t vis = truth.visibility.at<uint8_t>(r, c);
-      const bool tooth = truth.label.at<uint8_t>(r, c) == static_cast<uint8_t>(SurfaceLabel::kTooth);
+      const bool tooth =
+          truth.label.at<uint8_t>(r, c) == static_cast<uint8_t>(SurfaceLabel::kTooth);
       if (vis == 2 && tooth) {
         ++e.tooth_lit;
         e.tooth_valid += has_point;
@@ -32,13 +34,15 @@ CloudErrors EvaluateCloud(const cv::Mat& points, const cv::Mat& Phi, const Frame
         continue;
       }
       const cv::Vec3f& t = truth.points_in_cam.at<cv::Vec3f>(r, c);
-      if (!std::isfinite(t[2])) continue;  // BinnedTruth: a block across a depth step, not evaluated
+      if (!std::isfinite(t[2]))
+        continue;  // BinnedTruth: a block across a depth step, not evaluated
       const Eigen::Vector3d delta(p[0] - t[0], p[1] - t[1], p[2] - t[2]);
       const int face = truth.face_index.at<int32_t>(r, c);
       double d;
       if (face >= 0 && face < static_cast<int>(scene.faces.size())) {
         Eigen::Vector3d n = cam_from_world * scene.FaceNormal(face);
-        if (n.dot(Eigen::Vector3d(t[0], t[1], t[2])) > 0) n = -n;  // toward the camera: + = in front
+        if (n.dot(Eigen::Vector3d(t[0], t[1], t[2])) > 0)
+          n = -n;  // toward the camera: + = in front
         d = n.dot(delta);
       } else {
         d = -delta.z();
@@ -49,8 +53,10 @@ CloudErrors EvaluateCloud(const cv::Mat& points, const cv::Mat& Phi, const Frame
       sum += um;
       sum2 += um * um;
       ++e.points;
-      if (!Phi.empty() && vis == 2 && std::isfinite(Phi.at<float>(r, c)) && std::isfinite(truth.projector_uv.at<cv::Vec2f>(r, c)[0])) {
-        const double true_phase = spec.AbsolutePhase(truth.projector_uv.at<cv::Vec2f>(r, c)[spec.axis == 'y' ? 1 : 0]);
+      if (!Phi.empty() && vis == 2 && std::isfinite(Phi.at<float>(r, c)) &&
+          std::isfinite(truth.projector_uv.at<cv::Vec2f>(r, c)[0])) {
+        const double true_phase =
+            spec.AbsolutePhase(truth.projector_uv.at<cv::Vec2f>(r, c)[spec.axis == 'y' ? 1 : 0]);
         ++e.order_checked;
         e.order_errors += std::abs(Phi.at<float>(r, c) - true_phase) > M_PI;
       }
@@ -66,15 +72,20 @@ CloudErrors EvaluateCloud(const cv::Mat& points, const cv::Mat& Phi, const Frame
     e.p95_um = abs_err[k95];
     e.max_um = *std::max_element(abs_err.begin(), abs_err.end());
   }
-  e.order_error_pct = e.order_checked ? 100.0 * static_cast<double>(e.order_errors) / static_cast<double>(e.order_checked) : 0.0;
-  e.tooth_valid_pct = e.tooth_lit ? 100.0 * static_cast<double>(e.tooth_valid) / static_cast<double>(e.tooth_lit) : 0.0;
+  e.order_error_pct = e.order_checked ? 100.0 * static_cast<double>(e.order_errors) /
+                                            static_cast<double>(e.order_checked)
+                                      : 0.0;
+  e.tooth_valid_pct =
+      e.tooth_lit ? 100.0 * static_cast<double>(e.tooth_valid) / static_cast<double>(e.tooth_lit)
+                  : 0.0;
   return e;
 }
 
 FrameTruth BinnedTruth(const FrameTruth& truth, int factor) {
   D3D_CHECK_MSG(truth.has_maps() && factor >= 1, "BinnedTruth: needs maps and factor >= 1");
   const int H = truth.depth_mm.rows, W = truth.depth_mm.cols;
-  D3D_CHECK_MSG(H % factor == 0 && W % factor == 0, "BinnedTruth: " << W << "x" << H << " is not divisible by " << factor);
+  D3D_CHECK_MSG(H % factor == 0 && W % factor == 0,
+                "BinnedTruth: " << W << "x" << H << " is not divisible by " << factor);
   const int h = H / factor, w = W / factor;
   const float nan = std::numeric_limits<float>::quiet_NaN();
   FrameTruth b;
@@ -106,15 +117,18 @@ FrameTruth BinnedTruth(const FrameTruth& truth, int factor) {
           zmin = std::min(zmin, z);
           zmax = std::max(zmax, z);
         }
-      // One smooth piece of surface: every pixel sees it and its depth spans at most a few pixel widths.
-      const bool surface = vis >= 1 && std::isfinite(p[2]) && std::isfinite(depth) && zmax - zmin <= 0.1;
+      // One smooth piece of surface: every pixel sees it and its depth spans at most a few pixel
+      // widths.
+      const bool surface =
+          vis >= 1 && std::isfinite(p[2]) && std::isfinite(depth) && zmax - zmin <= 0.1;
       const bool lit = surface && vis == 2 && std::isfinite(uv[0]) && std::isfinite(uv[1]);
       b.visibility.at<uint8_t>(y, x) = vis;
       b.label.at<uint8_t>(y, x) = surface && one_label ? label : 0;
       b.points_in_cam.at<cv::Vec3f>(y, x) = surface ? cv::Vec3f(p / n) : cv::Vec3f(nan, nan, nan);
       b.depth_mm.at<float>(y, x) = surface ? static_cast<float>(depth / n) : nan;
       b.projector_uv.at<cv::Vec2f>(y, x) = lit ? cv::Vec2f(uv / n) : cv::Vec2f(nan, nan);
-      b.face_index.at<int32_t>(y, x) = surface ? truth.face_index.at<int32_t>(y * factor, x * factor) : -1;
+      b.face_index.at<int32_t>(y, x) =
+          surface ? truth.face_index.at<int32_t>(y * factor, x * factor) : -1;
     }
   return b;
 }

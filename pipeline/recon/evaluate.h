@@ -16,15 +16,15 @@
 namespace d3d {
 
 struct CloudErrors {
-  int64_t points = 0;              // reconstructed points that see a true surface
-  int64_t spurious = 0;            // reconstructed points where the truth has no surface
+  int64_t points = 0;    // reconstructed points that see a true surface
+  int64_t spurious = 0;  // reconstructed points where the truth has no surface
   double rms_um = 0, mean_um = 0, mean_abs_um = 0, p95_um = 0, max_um = 0;  // |d| statistics, µm
-  int64_t order_checked = 0;       // points with a true projector coordinate
-  int64_t order_errors = 0;        // of those, |Φ − Φ_true| > π: a wrong fringe order (comparing
-                                   // k with floor(Φ_true/2π) would count noise across a wrap)
+  int64_t order_checked = 0;  // points with a true projector coordinate
+  int64_t order_errors = 0;   // of those, |Φ − Φ_true| > π: a wrong fringe order (comparing
+                              // k with floor(Φ_true/2π) would count noise across a wrap)
   double order_error_pct = 0;
-  int64_t tooth_lit = 0;           // truth: tooth pixels lit by the projector
-  int64_t tooth_valid = 0;         // of those, reconstructed
+  int64_t tooth_lit = 0;    // truth: tooth pixels lit by the projector
+  int64_t tooth_valid = 0;  // of those, reconstructed
   double tooth_valid_pct = 0;
 };
 
@@ -32,11 +32,12 @@ struct CloudErrors {
 // empty; truth: FrameTruth at the reference time with maps; scene: the mesh the truth refers to.
 // error_um (optional): H×W CV_32F signed distance in µm, NaN where not evaluated.
 CloudErrors EvaluateCloud(const cv::Mat& points_in_cam, const cv::Mat& Phi, const FrameTruth& truth,
-                          const TriangleMesh& scene, const FringePatternSpec& spec, cv::Mat* error_um = nullptr);
+                          const TriangleMesh& scene, const FringePatternSpec& spec,
+                          cv::Mat* error_um = nullptr);
 
-// The truth of `truth`'s frame as a camera binned factor × factor sees it (BinFrame, BinnedCamera), to
-// evaluate a binned reconstruction with EvaluateCloud: a binned pixel whose block
-// sees one smooth piece of surface (every pixel a surface, depth span ≤ 0.1 mm) gets the block's mean
+// The truth of `truth`'s frame as a camera binned factor × factor sees it (BinFrame, BinnedCamera),
+// to evaluate a binned reconstruction with EvaluateCloud: a binned pixel whose block sees one
+// smooth piece of surface (every pixel a surface, depth span ≤ 0.1 mm) gets the block's mean
 // surface point and depth (the surface point at the block's centre, to ~(25 µm)² × curvature / 2),
 // its top-left pixel's face (for the normal) and label (0 when the labels differ), and the mean
 // projector pixel when the whole block is lit; visibility is the block's least. A block across a

@@ -22,7 +22,8 @@ TEST(EvaluateCloud, KnownOffsetsAlongTheNormalAndWrongOrders) {
   // Move every lit truth point by +10 µm along the normal (toward the camera) and slide it
   // sideways by 30 µm within the plane (must not count), and give 1 in 1000 a wrong order.
   const auto& spec = probe.calibration().pattern;
-  cv::Mat points(t.depth_mm.size(), CV_32FC3, cv::Scalar::all(std::nan(""))), Phi(t.depth_mm.size(), CV_32F, cv::Scalar(std::nan("")));
+  cv::Mat points(t.depth_mm.size(), CV_32FC3, cv::Scalar::all(std::nan(""))),
+      Phi(t.depth_mm.size(), CV_32F, cv::Scalar(std::nan("")));
   const Eigen::Vector3d toward = n.dot(Eigen::Vector3d(0, 0, 50)) > 0 ? -n : n;
   int lit = 0;
   for (int r = 0; r < points.rows; ++r)
@@ -34,9 +35,11 @@ TEST(EvaluateCloud, KnownOffsetsAlongTheNormalAndWrongOrders) {
       // Noise of 0.2 rad everywhere (across wraps too: not an order error), and a whole period off
       // on 1 in 1000.
       const double true_phase = spec.AbsolutePhase(t.projector_uv.at<cv::Vec2f>(r, c)[0]);
-      Phi.at<float>(r, c) = static_cast<float>(true_phase + ((r + c) % 2 ? 0.2 : -0.2) + ((lit++ % 1000 == 0) ? 2 * M_PI : 0.0));
+      Phi.at<float>(r, c) = static_cast<float>(true_phase + ((r + c) % 2 ? 0.2 : -0.2) +
+                                               ((lit++ % 1000 == 0) ? 2 * M_PI : 0.0));
     }
-  points.at<cv::Vec3f>(0, 0) = cv::Vec3f(std::nanf(""), std::nanf(""), std::nanf(""));  // one pixel without a point
+  points.at<cv::Vec3f>(0, 0) =
+      cv::Vec3f(std::nanf(""), std::nanf(""), std::nanf(""));  // one pixel without a point
   --lit;
   cv::Mat err;
   const CloudErrors e = EvaluateCloud(points, Phi, t, plane, spec, &err);
@@ -61,9 +64,9 @@ TEST(EvaluateCloud, KnownOffsetsAlongTheNormalAndWrongOrders) {
 }
 
 TEST(EvaluateCloud, BinnedTruthSeesTheSurfaceAtTheBinnedPixel) {
-  // A tilted plane's truth binned 2×2: each binned pixel's point lies on the plane and on the ray of
-  // that pixel of the binned camera (BinnedCamera), its projector pixel is the block's mean, and a
-  // block with one unlit pixel is not lit.
+  // A tilted plane's truth binned 2×2: each binned pixel's point lies on the plane and on the ray
+  // of that pixel of the binned camera (BinnedCamera), its projector pixel is the block's mean, and
+  // a block with one unlit pixel is not lit.
   const Eigen::Vector3d n = Eigen::Vector3d(0.25, -0.1, -1).normalized(), p0(0, 0, 50);
   RenderOptions opt;
   opt.texture = false;
@@ -86,7 +89,8 @@ TEST(EvaluateCloud, BinnedTruthSeesTheSurfaceAtTheBinnedPixel) {
       const cv::Vec2f pu = b.projector_uv.at<cv::Vec2f>(y, x);
       cv::Vec2f mean(0, 0);
       for (int dy = 0; dy < 2; ++dy)
-        for (int dx = 0; dx < 2; ++dx) mean += t.projector_uv.at<cv::Vec2f>(2 * y + dy, 2 * x + dx) * 0.25f;
+        for (int dx = 0; dx < 2; ++dx)
+          mean += t.projector_uv.at<cv::Vec2f>(2 * y + dy, 2 * x + dx) * 0.25f;
       EXPECT_NEAR(pu[0], mean[0], 1e-3);
       ++checked;
     }

@@ -53,8 +53,10 @@ inline Status DecodeGray(const KaminoOptions& o, cv::Mat* cell_x, cv::Mat* cell_
   cv::Mat white, black;
   D3D_RETURN_IF_ERROR(ReadGrey(Pat(o.dir, 30), &white));
   D3D_RETURN_IF_ERROR(ReadGrey(Pat(o.dir, 31), &black));
-  cv::Ptr<cv::structured_light::GrayCodePattern> gray = cv::structured_light::GrayCodePattern::create(20, 11);
-  if (gray->getNumberOfPatternImages() != 18) return InvalidArgument("GrayCodePattern(20, 11): not 18 images");
+  cv::Ptr<cv::structured_light::GrayCodePattern> gray =
+      cv::structured_light::GrayCodePattern::create(20, 11);
+  if (gray->getNumberOfPatternImages() != 18)
+    return InvalidArgument("GrayCodePattern(20, 11): not 18 images");
   gray->setBlackThreshold(static_cast<size_t>(o.black_threshold));
   gray->setWhiteThreshold(static_cast<size_t>(o.white_threshold));
   cell_x->create(white.size(), CV_32S);
@@ -67,7 +69,8 @@ inline Status DecodeGray(const KaminoOptions& o, cv::Mat* cell_x, cv::Mat* cell_
     int* cx = cell_x->ptr<int>(y);
     int* cy = cell_y->ptr<int>(y);
     for (int x = 0; x < white.cols; ++x) {
-      // Shadow mask as in GrayCodePattern::decode (computeShadowMasks): |white − black| > black thr.
+      // Shadow mask as in GrayCodePattern::decode (computeShadowMasks): |white − black| > black
+      // thr.
       if (std::abs(static_cast<int>(w[x]) - static_cast<int>(b[x])) <= o.black_threshold) continue;
       cv::Point p;
       if (gray->getProjPixel(pats, x, y, p)) continue;  // true = error
@@ -94,9 +97,11 @@ inline double CircDistToInterval(double v, double a, double b) {
 }
 
 // Wrapped phase of the 3-step set pat(first), pat(first + 1), pat(first + 2) (period_px along x).
-// Frame n of our spec shows ½ + ½cos(Φ − 2πn/3); pat(first + phs − 1) shows ½ + ½cos(ωx + 2π(phs − 2)/3):
-// n = 0 ↔ pat(first + 1), n = 1 (−2π/3) ↔ pat(first), n = 2 (−4π/3 ≡ +2π/3) ↔ pat(first + 2).
-inline Status KaminoPhase(const KaminoOptions& o, int first, double period_px, PhaseAlgorithm algorithm, PhaseMaps* pm) {
+// Frame n of our spec shows ½ + ½cos(Φ − 2πn/3); pat(first + phs − 1) shows ½ + ½cos(ωx + 2π(phs −
+// 2)/3): n = 0 ↔ pat(first + 1), n = 1 (−2π/3) ↔ pat(first), n = 2 (−4π/3 ≡ +2π/3) ↔ pat(first +
+// 2).
+inline Status KaminoPhase(const KaminoOptions& o, int first, double period_px,
+                          PhaseAlgorithm algorithm, PhaseMaps* pm) {
   cv::Mat I1, I2, I3;
   D3D_RETURN_IF_ERROR(ReadGrey(Pat(o.dir, first), &I1));
   D3D_RETURN_IF_ERROR(ReadGrey(Pat(o.dir, first + 1), &I2));
@@ -115,8 +120,10 @@ inline Status KaminoPhase(const KaminoOptions& o, int first, double period_px, P
 }
 
 // Quality map and region-growing unwrap, each region anchored by the Gray-code bounds.
-inline Status KaminoUnwrap(const KaminoOptions& o, const PhaseMaps& pm, double period_px, const cv::Mat& cell_x, UnwrapResult* ur) {
-  cv::Mat phase_min(cell_x.size(), CV_32F, cv::Scalar(kNaN)), phase_max(cell_x.size(), CV_32F, cv::Scalar(kNaN));
+inline Status KaminoUnwrap(const KaminoOptions& o, const PhaseMaps& pm, double period_px,
+                           const cv::Mat& cell_x, UnwrapResult* ur) {
+  cv::Mat phase_min(cell_x.size(), CV_32F, cv::Scalar(kNaN)),
+      phase_max(cell_x.size(), CV_32F, cv::Scalar(kNaN));
   const double k = kTwoPi / period_px;
   for (int y = 0; y < cell_x.rows; ++y) {
     const int* cx = cell_x.ptr<int>(y);
@@ -141,7 +148,8 @@ inline Status KaminoUnwrap(const KaminoOptions& o, const PhaseMaps& pm, double p
 }
 
 // Median and RMS of |c_a − c_b| (projector columns from two unwrapped Φ maps of periods ta, tb).
-inline void CompareColumns(const cv::Mat& Phi_a, double ta, const cv::Mat& Phi_b, double tb, double* median, double* rms, int64_t* count,
+inline void CompareColumns(const cv::Mat& Phi_a, double ta, const cv::Mat& Phi_b, double tb,
+                           double* median, double* rms, int64_t* count,
                            double* signed_median = nullptr) {
   std::vector<float> d, sd;
   double sum2 = 0.0;
@@ -239,8 +247,9 @@ Status RunKamino(const KaminoOptions& o, KaminoReport* rep) {
   if (std::getenv("D3D_REAL_FRINGE_DEBUG")) {
     for (const RegionInfo& r : ur.regions) {
       if (r.pixels < o.min_region_pixels) continue;
-      std::fprintf(stderr, "  region %d px: %s K=%d bounded %d admitting %d cand %d viol %d\n", r.pixels, RegionAnchorName(r.anchor), r.offset,
-                   r.bounded_pixels, r.admitting_pixels, r.candidates, r.violations);
+      std::fprintf(stderr, "  region %d px: %s K=%d bounded %d admitting %d cand %d viol %d\n",
+                   r.pixels, RegionAnchorName(r.anchor), r.offset, r.bounded_pixels,
+                   r.admitting_pixels, r.candidates, r.violations);
     }
   }
 
@@ -251,12 +260,13 @@ Status RunKamino(const KaminoOptions& o, KaminoReport* rep) {
     UnwrapResult ur100;
     D3D_RETURN_IF_ERROR(KaminoPhase(o, 3, o.cell_px, o.algorithm, &pm100));
     D3D_RETURN_IF_ERROR(KaminoUnwrap(o, pm100, o.cell_px, cell_x, &ur100));
-    CompareColumns(ur.Phi, o.period_px, ur100.Phi, o.cell_px, &rep->cross_median_px, &rep->cross_rms_px, &rep->cross_count,
-                   &rep->cross_signed_median_px);
+    CompareColumns(ur.Phi, o.period_px, ur100.Phi, o.cell_px, &rep->cross_median_px,
+                   &rep->cross_rms_px, &rep->cross_count, &rep->cross_signed_median_px);
   }
 
   cv::Mat viz = cv::imread(o.dir + "/vizualized.png", cv::IMREAD_COLOR);
-  if (viz.empty() || viz.size() != pm.phi.size()) return InvalidArgument("cannot read vizualized.png of " + o.dir);
+  if (viz.empty() || viz.size() != pm.phi.size())
+    return InvalidArgument("cannot read vizualized.png of " + o.dir);
 
   rep->disagreement.create(H, W, CV_8UC3);
   rep->viz_diff.create(H, W, CV_8UC3);
@@ -291,8 +301,10 @@ Status RunKamino(const KaminoOptions& o, KaminoReport* rep) {
       }
       if (g && vv) {
         ++rep->gray_viz_both;
-        const double dx = CircDistToInterval(v[x][0], o.cell_px * cx[x] - tol, o.cell_px * (cx[x] + 1) + tol);
-        const double dy = CircDistToInterval(v[x][1], o.cell_px * cy[x] - tol, o.cell_px * (cy[x] + 1) + tol);
+        const double dx =
+            CircDistToInterval(v[x][0], o.cell_px * cx[x] - tol, o.cell_px * (cx[x] + 1) + tol);
+        const double dy =
+            CircDistToInterval(v[x][1], o.cell_px * cy[x] - tol, o.cell_px * (cy[x] + 1) + tol);
         rep->gray_viz_agree += dx == 0.0 && dy == 0.0;
       }
       if (u && vv) {
@@ -310,12 +322,17 @@ Status RunKamino(const KaminoOptions& o, KaminoReport* rep) {
       }
     }
   }
-  rep->agree_share = rep->both_valid ? static_cast<double>(rep->agree) / static_cast<double>(rep->both_valid) : 0.0;
+  rep->agree_share = rep->both_valid
+                         ? static_cast<double>(rep->agree) / static_cast<double>(rep->both_valid)
+                         : 0.0;
   rep->median_abs_err_px = Median(&outside);
-  rep->gray_viz_share = rep->gray_viz_both ? static_cast<double>(rep->gray_viz_agree) / static_cast<double>(rep->gray_viz_both) : 0.0;
+  rep->gray_viz_share = rep->gray_viz_both ? static_cast<double>(rep->gray_viz_agree) /
+                                                 static_cast<double>(rep->gray_viz_both)
+                                           : 0.0;
   rep->c_viz_median_px = Median(&cviz);
   rep->c_viz_signed_median_px = Median(&cviz_signed);
-  rep->c_viz_within2_share = rep->c_viz_both ? static_cast<double>(within2) / static_cast<double>(rep->c_viz_both) : 0.0;
+  rep->c_viz_within2_share =
+      rep->c_viz_both ? static_cast<double>(within2) / static_cast<double>(rep->c_viz_both) : 0.0;
   rep->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return Status::Ok();
 }
@@ -326,15 +343,17 @@ Status RunKamino(const KaminoOptions& o, KaminoReport* rep) {
 // The Unwrapper anchors a region only if exactly one offset K is admitted. Without any absolute
 // reference we make that so, with depth_fraction = 1 (K must be admitted by every bounded pixel of
 // the region, so the admitted K form exactly the interval [−W − r_min, W − 1 − r_max] for relative
-// orders r ∈ [r_min, r_max]): pass 1 gives every usable pixel the window [−2πW, 2πW] and reports per
-// region how many K it admits (RegionInfo::candidates); pass 2 (same φ and quality, so the same
-// regions) lowers phase_max by candidates − 1 orders for that region's pixels, which removes exactly
-// the top candidates − 1 offsets. (With depth_fraction < 1 the two tails of the order distribution
-// interact once the window is tight, and the count is not exact.) The resulting Φ is relative: any
-// constant multiple of 2π per region is as good.
-inline Status UnwrapRelative(const cv::Mat& phi, const cv::Mat& quality, UnwrapOptions uopt, int window_orders, UnwrapResult* out) {
+// orders r ∈ [r_min, r_max]): pass 1 gives every usable pixel the window [−2πW, 2πW] and reports
+// per region how many K it admits (RegionInfo::candidates); pass 2 (same φ and quality, so the same
+// regions) lowers phase_max by candidates − 1 orders for that region's pixels, which removes
+// exactly the top candidates − 1 offsets. (With depth_fraction < 1 the two tails of the order
+// distribution interact once the window is tight, and the count is not exact.) The resulting Φ is
+// relative: any constant multiple of 2π per region is as good.
+inline Status UnwrapRelative(const cv::Mat& phi, const cv::Mat& quality, UnwrapOptions uopt,
+                             int window_orders, UnwrapResult* out) {
   uopt.drop_outside_volume = false;
-  uopt.depth_fraction = 1.0;  // the admitted set is then exactly an interval that pass 2 can cut to one K
+  uopt.depth_fraction =
+      1.0;  // the admitted set is then exactly an interval that pass 2 can cut to one K
   const float lo = static_cast<float>(-kTwoPi * window_orders);
   const float hi = static_cast<float>(kTwoPi * window_orders);
   cv::Mat pmin(phi.size(), CV_32F, cv::Scalar(lo)), pmax(phi.size(), CV_32F, cv::Scalar(hi));
@@ -387,13 +406,16 @@ Status RunRelative(const RelativeOptions& o, RelativeReport* rep) {
   for (const RegionInfo& r : ur.regions) rep->regions_anchored += r.anchor == RegionAnchor::kDepth;
   rep->Phi = ur.Phi;
   if (std::getenv("D3D_REAL_FRINGE_DEBUG")) {
-    std::fprintf(stderr, "  usable %lld dropped: conflict %lld small %lld rejected %lld\n", static_cast<long long>(ur.stats.pixels_usable),
-                 static_cast<long long>(ur.stats.pixels_conflict), static_cast<long long>(ur.stats.pixels_small),
+    std::fprintf(stderr, "  usable %lld dropped: conflict %lld small %lld rejected %lld\n",
+                 static_cast<long long>(ur.stats.pixels_usable),
+                 static_cast<long long>(ur.stats.pixels_conflict),
+                 static_cast<long long>(ur.stats.pixels_small),
                  static_cast<long long>(ur.stats.pixels_rejected));
     for (const RegionInfo& r : ur.regions) {
       if (r.pixels < o.min_region_pixels) continue;
-      std::fprintf(stderr, "  region %d px: %s K=%d bounded %d admitting %d cand %d\n", r.pixels, RegionAnchorName(r.anchor), r.offset,
-                   r.bounded_pixels, r.admitting_pixels, r.candidates);
+      std::fprintf(stderr, "  region %d px: %s K=%d bounded %d admitting %d cand %d\n", r.pixels,
+                   RegionAnchorName(r.anchor), r.offset, r.bounded_pixels, r.admitting_pixels,
+                   r.candidates);
     }
   }
   for (int y = 0; y < P1.rows; ++y) {
@@ -414,8 +436,11 @@ Status RunRelative(const RelativeOptions& o, RelativeReport* rep) {
       }
     }
   }
-  rep->continuity_share = rep->pairs ? static_cast<double>(rep->continuous) / static_cast<double>(rep->pairs) : 0.0;
-  rep->coverage = rep->phase_valid ? static_cast<double>(rep->unwrapped_valid) / static_cast<double>(rep->phase_valid) : 0.0;
+  rep->continuity_share =
+      rep->pairs ? static_cast<double>(rep->continuous) / static_cast<double>(rep->pairs) : 0.0;
+  rep->coverage = rep->phase_valid ? static_cast<double>(rep->unwrapped_valid) /
+                                         static_cast<double>(rep->phase_valid)
+                                   : 0.0;
   rep->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return Status::Ok();
 }

@@ -4,13 +4,13 @@
 //  1. kamino410/object2: a real camera (1936 × 1216) watching a real projector (1920 × 1080). The
 //     3-step set of period 200/3 px along projector x (pat00–02) goes through ComputePhase,
 //     ComputeQualityMap and the Unwrapper; each region is anchored by per-pixel phase bounds taken
-//     from the OpenCV Gray-code frames (pat12–29, 100-px cells, pat30/31 white/black): a pixel whose
-//     decoded cell is j admits Φ ∈ 2π/T·[100 j − m, 100 (j+1) + m]. The projector column from our
-//     phase, c = Φ·T/2π, agrees when it lies in the decoded cell ± tolerance. The Gray decoding and c
-//     are also compared with the author's decoded map vizualized.png (B = x mod 256, G = y mod 256,
-//     R = 128 where valid), and with the column from the 100-px set pat03–05 (its 3rd-harmonic
-//     gamma error has another spatial period, so |c(66.67) − c(100)| measures the phase error).
-//     The results so far: docs/decisions/0017.
+//     from the OpenCV Gray-code frames (pat12–29, 100-px cells, pat30/31 white/black): a pixel
+//     whose decoded cell is j admits Φ ∈ 2π/T·[100 j − m, 100 (j+1) + m]. The projector column from
+//     our phase, c = Φ·T/2π, agrees when it lies in the decoded cell ± tolerance. The Gray decoding
+//     and c are also compared with the author's decoded map vizualized.png (B = x mod 256, G = y
+//     mod 256, R = 128 where valid), and with the column from the 100-px set pat03–05 (its
+//     3rd-harmonic gamma error has another spatial period, so |c(66.67) − c(100)| measures the
+//     phase error). The results so far: docs/decisions/0017.
 //  2. kylemcdonald/{zhang,kyle}: 3-step captures without calibration or Gray code; relative
 //     unwrapping (see UnwrapRelative) and a continuity check of the unwrapped Φ.
 //
@@ -77,12 +77,13 @@ struct KaminoReport {
 };
 
 struct RelativeOptions {
-  std::string dir;                                       // .../fringe/kylemcdonald/zhang or .../kyle
+  std::string dir;  // .../fringe/kylemcdonald/zhang or .../kyle
   PhaseAlgorithm algorithm = PhaseAlgorithm::kStandard;  // no calibration: no gamma to compensate
   double gamma = 1.0;
   int min_region_pixels = 400;
-  int window_orders = 200;             // half-width W of the bound window [−2πW, 2πW] (int16 orders inside)
-  double modulation_edge_ratio = 0.0;  // QualityOptions, pinned: off (no teeth here; see KaminoOptions)
+  int window_orders = 200;  // half-width W of the bound window [−2πW, 2πW] (int16 orders inside)
+  double modulation_edge_ratio =
+      0.0;  // QualityOptions, pinned: off (no teeth here; see KaminoOptions)
 };
 
 struct RelativeReport {

@@ -13,7 +13,6 @@
 namespace d3d {
 namespace {
 
-
 std::vector<cv::Mat> Frames(const Burst& b) {
   std::vector<cv::Mat> f;
   for (int k = 0; k < 4; ++k) f.push_back(b.frames[static_cast<size_t>(k)].image);
@@ -43,10 +42,13 @@ TEST(Reconstruct, TiltedPlaneEndToEnd) {
   Reconstructor recon(probe.calibration());
   ReconstructedView v;
   ASSERT_TRUE(recon.Reconstruct(Frames(b), &v).ok());
-  const CloudErrors e = EvaluateCloud(v.points_in_cam, v.unwrap.Phi, b.reference_truth, plane, probe.calibration().pattern);
-  std::printf("[ plane    ] points %lld, valid %.1f %%, rms %.2f um, p95 %.2f um, order errors %lld, %.1f ms\n",
-              static_cast<long long>(v.points), e.tooth_valid_pct, e.rms_um, e.p95_um, static_cast<long long>(e.order_errors),
-              v.ms_total);
+  const CloudErrors e = EvaluateCloud(v.points_in_cam, v.unwrap.Phi, b.reference_truth, plane,
+                                      probe.calibration().pattern);
+  std::printf(
+      "[ plane    ] points %lld, valid %.1f %%, rms %.2f um, p95 %.2f um, order errors %lld, %.1f "
+      "ms\n",
+      static_cast<long long>(v.points), e.tooth_valid_pct, e.rms_um, e.p95_um,
+      static_cast<long long>(e.order_errors), v.ms_total);
   EXPECT_GT(e.tooth_valid_pct, 90.0);
   EXPECT_EQ(e.order_errors, 0);
   EXPECT_LT(e.rms_um, 10.0);
@@ -75,7 +77,8 @@ TEST(Reconstruct, RowBlocksOnTwoThreadsGiveTheSameBits) {
   VirtualProbe probe(plane, MakeDefaultProbeDesign(), matte);
   const auto moving = [](int64_t t_ns) {
     Rigid3d pose = Rigid3d::Identity();
-    pose.translation() = Eigen::Vector3d(30.0, -10.0, 5.0) * (static_cast<double>(t_ns) * 1e-9);  // mm/s
+    pose.translation() =
+        Eigen::Vector3d(30.0, -10.0, 5.0) * (static_cast<double>(t_ns) * 1e-9);  // mm/s
     return pose;
   };
   ReconstructOptions one;
@@ -86,7 +89,8 @@ TEST(Reconstruct, RowBlocksOnTwoThreadsGiveTheSameBits) {
   Reconstructor r1(probe.calibration(), one), r2(probe.calibration(), two);
   EXPECT_EQ(r2.options().phase.threads, 2);
   for (uint64_t seq : {0u, 1u}) {
-    const Burst b = probe.RenderBurst(moving, static_cast<int64_t>(seq) * 33'000'000, seq, 7, false);
+    const Burst b =
+        probe.RenderBurst(moving, static_cast<int64_t>(seq) * 33'000'000, seq, 7, false);
     ReconstructedView v1, v2;
     ASSERT_TRUE(r1.Reconstruct(Frames(b), &v1).ok());
     ASSERT_TRUE(r2.Reconstruct(Frames(b), &v2).ok());
@@ -104,11 +108,12 @@ TEST(Reconstruct, RowBlocksOnTwoThreadsGiveTheSameBits) {
     EXPECT_TRUE(SameBits(v1.points_in_cam, v2.points_in_cam));
     EXPECT_TRUE(SameBits(v1.normals, v2.normals));
   }
-  EXPECT_THROW(Reconstructor(probe.calibration(), [] {
-                 ReconstructOptions o;
-                 o.threads = 0;
-                 return o;
-               }()),
+  EXPECT_THROW(Reconstructor(probe.calibration(),
+                             [] {
+                               ReconstructOptions o;
+                               o.threads = 0;
+                               return o;
+                             }()),
                std::invalid_argument);
 }
 
@@ -171,7 +176,8 @@ TEST(Reconstruct, BinFrameMatchesTheDefinitionForEveryFactor) {
 }
 
 // Signed distances (µm) of a view's finite points to the plane n·p = n·p0, n normalised.
-std::vector<double> PlaneDistancesUm(const cv::Mat& points, Eigen::Vector3d n, const Eigen::Vector3d& p0) {
+std::vector<double> PlaneDistancesUm(const cv::Mat& points, Eigen::Vector3d n,
+                                     const Eigen::Vector3d& p0) {
   n.normalize();
   std::vector<double> d;
   for (int r = 0; r < points.rows; ++r)
@@ -185,8 +191,8 @@ std::vector<double> PlaneDistancesUm(const cv::Mat& points, Eigen::Vector3d n, c
 TEST(Reconstruct, BinnedFramesWithTheBinnedCalibrationGiveTheSameSurface) {
   // The tilted plane of TiltedPlaneEndToEnd, reconstructed at full resolution and from 2×2-binned
   // frames with BinnedCalibration: the binned view has a quarter of the points, lies on the same
-  // plane and is not noisier. The principal point matters: cx / 2 instead of (cx − ½) / 2 (a quarter
-  // of a binned pixel along the baseline) moved the binned plane by 59 µm.
+  // plane and is not noisier. The principal point matters: cx / 2 instead of (cx − ½) / 2 (a
+  // quarter of a binned pixel along the baseline) moved the binned plane by 59 µm.
   const Eigen::Vector3d n(0.25, -0.1, -1), p0(0, 0, 50);
   const TriangleMesh plane = PlaneMesh(n, p0);
   RenderOptions matte;
@@ -197,7 +203,9 @@ TEST(Reconstruct, BinnedFramesWithTheBinnedCalibrationGiveTheSameSurface) {
   Reconstructor half(BinnedCalibration(probe.calibration(), 2));
   EXPECT_EQ(half.calibration().camera.width, 320);
   std::vector<cv::Mat> binned(4);
-  for (int k = 0; k < 4; ++k) ASSERT_TRUE(BinFrame(Frames(b)[static_cast<size_t>(k)], 2, &binned[static_cast<size_t>(k)]).ok());
+  for (int k = 0; k < 4; ++k)
+    ASSERT_TRUE(
+        BinFrame(Frames(b)[static_cast<size_t>(k)], 2, &binned[static_cast<size_t>(k)]).ok());
   ReconstructedView vf, vh;
   ASSERT_TRUE(full.Reconstruct(Frames(b), &vf).ok());
   ASSERT_TRUE(half.Reconstruct(binned, &vh).ok());
@@ -209,11 +217,14 @@ TEST(Reconstruct, BinnedFramesWithTheBinnedCalibrationGiveTheSameSurface) {
     *rms = std::sqrt(s2 / static_cast<double>(d.size()));
   };
   double mean_f, rms_f, mean_h, rms_h;
-  const std::vector<double> df = PlaneDistancesUm(vf.points_in_cam, n, p0), dh = PlaneDistancesUm(vh.points_in_cam, n, p0);
+  const std::vector<double> df = PlaneDistancesUm(vf.points_in_cam, n, p0),
+                            dh = PlaneDistancesUm(vh.points_in_cam, n, p0);
   stats(df, &mean_f, &rms_f);
   stats(dh, &mean_h, &rms_h);
-  std::printf("[ binned   ] full %zu points, mean %.2f rms %.2f um; binned %zu points, mean %.2f rms %.2f um; %.1f vs %.1f ms\n",
-              df.size(), mean_f, rms_f, dh.size(), mean_h, rms_h, vf.ms_total, vh.ms_total);
+  std::printf(
+      "[ binned   ] full %zu points, mean %.2f rms %.2f um; binned %zu points, mean %.2f rms %.2f "
+      "um; %.1f vs %.1f ms\n",
+      df.size(), mean_f, rms_f, dh.size(), mean_h, rms_h, vf.ms_total, vh.ms_total);
   EXPECT_GT(static_cast<double>(dh.size()), 0.23 * static_cast<double>(df.size()));
   EXPECT_LT(static_cast<double>(dh.size()), 0.27 * static_cast<double>(df.size()));
   EXPECT_LT(std::abs(mean_h - mean_f), 1.5);
@@ -281,7 +292,8 @@ TEST(Reconstruct, PixelSizesScaleWithTheFringePeriod) {
   EXPECT_EQ(Reconstructor(sxga).options().unwrap.min_region_pixels, 4 * o.unwrap.min_region_pixels);
   ReconstructOptions fixed;
   fixed.scale_to_fringe_period = false;
-  EXPECT_EQ(Reconstructor(sxga, fixed).options().unwrap.min_region_pixels, o.unwrap.min_region_pixels);
+  EXPECT_EQ(Reconstructor(sxga, fixed).options().unwrap.min_region_pixels,
+            o.unwrap.min_region_pixels);
 }
 
 }  // namespace

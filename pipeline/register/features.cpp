@@ -12,9 +12,11 @@ namespace d3d {
 
 void FeatureOptions::Check() const {
   D3D_CHECK_MSG(use_texture || use_range, "FeatureOptions: at least one of texture / range");
-  D3D_CHECK_MSG(max_features > 0 && ratio > 0 && ratio <= 1 && lift_window >= 0 && contrast_threshold > 0,
-                "FeatureOptions: invalid value");
-  D3D_CHECK_MSG(image_scale > 0 && image_scale <= 1, "FeatureOptions: image_scale must be in (0, 1]");
+  D3D_CHECK_MSG(
+      max_features > 0 && ratio > 0 && ratio <= 1 && lift_window >= 0 && contrast_threshold > 0,
+      "FeatureOptions: invalid value");
+  D3D_CHECK_MSG(image_scale > 0 && image_scale <= 1,
+                "FeatureOptions: image_scale must be in (0, 1]");
   ransac.Check();
 }
 
@@ -43,7 +45,8 @@ cv::Mat RangeImage(const cv::Mat& points, cv::Mat* mask) {
     uint8_t* m = mask->ptr<uint8_t>(r);
     for (int c = 0; c < points.cols; ++c) {
       if (!std::isfinite(p[c][2])) continue;
-      o[c] = static_cast<uint8_t>(std::clamp(1.0f + 254.0f * (p[c][2] - lo) / (hi - lo), 1.0f, 255.0f));
+      o[c] = static_cast<uint8_t>(
+          std::clamp(1.0f + 254.0f * (p[c][2] - lo) / (hi - lo), 1.0f, 255.0f));
       m[c] = 255;
     }
   }
@@ -71,8 +74,8 @@ cv::Mat ShadedRangeImage(const cv::Mat& points, double max_gap_mm, cv::Mat* mask
 
 namespace {
 
-void Detect(const cv::Mat& image, const cv::Mat& mask, const cv::Mat& points, const FeatureOptions& o,
-            std::vector<Eigen::Vector3f>* out_points, cv::Mat* out_desc) {
+void Detect(const cv::Mat& image, const cv::Mat& mask, const cv::Mat& points,
+            const FeatureOptions& o, std::vector<Eigen::Vector3f>* out_points, cv::Mat* out_desc) {
   out_points->clear();
   *out_desc = cv::Mat();
   if (image.empty()) return;
@@ -96,14 +99,18 @@ void Detect(const cv::Mat& image, const cv::Mat& mask, const cv::Mat& points, co
   }
   cv::Mat keep_desc;
   for (size_t i = 0; i < kps.size(); ++i) {
-    const int u0 = static_cast<int>(std::lround(kps[i].pt.x)), v0 = static_cast<int>(std::lround(kps[i].pt.y));
+    const int u0 = static_cast<int>(std::lround(kps[i].pt.x)),
+              v0 = static_cast<int>(std::lround(kps[i].pt.y));
     float best = 1e9f;
     Eigen::Vector3f pick;
-    for (int v = std::max(0, v0 - o.lift_window); v <= std::min(points.rows - 1, v0 + o.lift_window); ++v)
-      for (int u = std::max(0, u0 - o.lift_window); u <= std::min(points.cols - 1, u0 + o.lift_window); ++u) {
+    for (int v = std::max(0, v0 - o.lift_window);
+         v <= std::min(points.rows - 1, v0 + o.lift_window); ++v)
+      for (int u = std::max(0, u0 - o.lift_window);
+           u <= std::min(points.cols - 1, u0 + o.lift_window); ++u) {
         const cv::Vec3f& p = points.at<cv::Vec3f>(v, u);
         if (!std::isfinite(p[0]) || !std::isfinite(p[2])) continue;
-        const float d = static_cast<float>((u - kps[i].pt.x) * (u - kps[i].pt.x) + (v - kps[i].pt.y) * (v - kps[i].pt.y));
+        const float d = static_cast<float>((u - kps[i].pt.x) * (u - kps[i].pt.x) +
+                                           (v - kps[i].pt.y) * (v - kps[i].pt.y));
         if (d < best) {
           best = d;
           pick = Eigen::Vector3f(p[0], p[1], p[2]);
@@ -116,8 +123,9 @@ void Detect(const cv::Mat& image, const cv::Mat& mask, const cv::Mat& points, co
   *out_desc = keep_desc;
 }
 
-void Match(const std::vector<Eigen::Vector3f>& sp, const cv::Mat& sd, const std::vector<Eigen::Vector3f>& tp,
-           const cv::Mat& td, const FeatureOptions& o, std::vector<Correspondence3d>* out) {
+void Match(const std::vector<Eigen::Vector3f>& sp, const cv::Mat& sd,
+           const std::vector<Eigen::Vector3f>& tp, const cv::Mat& td, const FeatureOptions& o,
+           std::vector<Correspondence3d>* out) {
   if (sd.rows < 2 || td.rows < 2) return;
   cv::BFMatcher matcher(cv::NORM_L2);
   std::vector<std::vector<cv::DMatch>> fwd, bwd;
@@ -137,7 +145,8 @@ void Match(const std::vector<Eigen::Vector3f>& sp, const cv::Mat& sd, const std:
 
 }  // namespace
 
-ViewFeatures ExtractViewFeatures(const cv::Mat& points, const cv::Mat& texture, const FeatureOptions& o) {
+ViewFeatures ExtractViewFeatures(const cv::Mat& points, const cv::Mat& texture,
+                                 const FeatureOptions& o) {
   o.Check();
   D3D_CHECK_MSG(points.type() == CV_32FC3, "ExtractViewFeatures: points must be CV_32FC3");
   D3D_CHECK_MSG(texture.empty() || (texture.type() == CV_8U && texture.size() == points.size()),
@@ -145,8 +154,10 @@ ViewFeatures ExtractViewFeatures(const cv::Mat& points, const cv::Mat& texture, 
   ViewFeatures f;
   cv::Mat mask;
   const cv::Mat range = RangeImage(points, &mask);
-  if (o.use_texture && !texture.empty()) Detect(texture, mask, points, o, &f.texture_points, &f.texture_descriptors);
-  if (o.use_range && o.range_rendering != RangeRendering::kShaded) Detect(range, mask, points, o, &f.range_points, &f.range_descriptors);
+  if (o.use_texture && !texture.empty())
+    Detect(texture, mask, points, o, &f.texture_points, &f.texture_descriptors);
+  if (o.use_range && o.range_rendering != RangeRendering::kShaded)
+    Detect(range, mask, points, o, &f.range_points, &f.range_descriptors);
   if (o.use_range && o.range_rendering != RangeRendering::kDepth) {
     cv::Mat smask;
     const cv::Mat shaded = ShadedRangeImage(points, o.max_gap_mm, &smask);
@@ -155,13 +166,17 @@ ViewFeatures ExtractViewFeatures(const cv::Mat& points, const cv::Mat& texture, 
   return f;
 }
 
-FeatureAlignResult AlignByFeatures(const ViewFeatures& s, const ViewFeatures& t, const FeatureOptions& o) {
+FeatureAlignResult AlignByFeatures(const ViewFeatures& s, const ViewFeatures& t,
+                                   const FeatureOptions& o) {
   o.Check();
   FeatureAlignResult r;
   std::vector<Correspondence3d> c;
-  if (o.use_texture) Match(s.texture_points, s.texture_descriptors, t.texture_points, t.texture_descriptors, o, &c);
-  if (o.use_range) Match(s.range_points, s.range_descriptors, t.range_points, t.range_descriptors, o, &c);
-  if (o.use_range) Match(s.shaded_points, s.shaded_descriptors, t.shaded_points, t.shaded_descriptors, o, &c);
+  if (o.use_texture)
+    Match(s.texture_points, s.texture_descriptors, t.texture_points, t.texture_descriptors, o, &c);
+  if (o.use_range)
+    Match(s.range_points, s.range_descriptors, t.range_points, t.range_descriptors, o, &c);
+  if (o.use_range)
+    Match(s.shaded_points, s.shaded_descriptors, t.shaded_points, t.shaded_descriptors, o, &c);
   r.matches = static_cast<int>(c.size());
   const RansacResult rr = RansacRigid(c, o.ransac);
   r.inliers = static_cast<int>(rr.inliers.size());

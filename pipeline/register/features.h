@@ -24,23 +24,23 @@ enum class RangeRendering {
 };
 
 struct FeatureOptions {
-  bool use_texture = true;        // SIFT on the texture image
-  bool use_range = true;          // SIFT on the range image
+  bool use_texture = true;  // SIFT on the texture image
+  bool use_range = true;    // SIFT on the range image
   RangeRendering range_rendering = RangeRendering::kBoth;
-  double max_gap_mm = 0.3;        // grid normals of the shaded rendering (GridNormals)
-  int max_features = 1500;        // per image (strongest kept)
+  double max_gap_mm = 0.3;           // grid normals of the shaded rendering (GridNormals)
+  int max_features = 1500;           // per image (strongest kept)
   double contrast_threshold = 0.02;  // OpenCV SIFT contrastThreshold (lower: more keypoints)
   // SIFT runs on the images downsampled by this factor, (0, 1]; keypoints are mapped back to the
   // full-resolution grid. OpenCV's SIFT doubles its input before the first octave, so at 0.5 the
   // finest scale it searches is the camera's own pixel. The tracker's keyframes use 0.5 (see
-  // KeyframeGraphOptions::features); the Stanford bunny's range grids need 1.0 (bun045 → bun000 fails
-  // at 0.5).
+  // KeyframeGraphOptions::features); the Stanford bunny's range grids need 1.0 (bun045 → bun000
+  // fails at 0.5).
   double image_scale = 1.0;
-  double ratio = 0.8;             // Lowe's ratio test
-  bool mutual = true;             // keep a match only when it is the best in both directions
-  int lift_window = 1;            // keypoint → 3-D: nearest finite point within ±window px
-  RansacOptions ransac;           // inlier threshold etc. (mm)
-  void Check() const;             // throws std::invalid_argument
+  double ratio = 0.8;    // Lowe's ratio test
+  bool mutual = true;    // keep a match only when it is the best in both directions
+  int lift_window = 1;   // keypoint → 3-D: nearest finite point within ±window px
+  RansacOptions ransac;  // inlier threshold etc. (mm)
+  void Check() const;    // throws std::invalid_argument
 };
 
 // Features of one view, in that view's frame.
@@ -49,7 +49,7 @@ struct ViewFeatures {
   cv::Mat texture_descriptors;                  // N×128 CV_32F
   std::vector<Eigen::Vector3f> range_points;    // depth rendering
   cv::Mat range_descriptors;
-  std::vector<Eigen::Vector3f> shaded_points;   // shaded rendering
+  std::vector<Eigen::Vector3f> shaded_points;  // shaded rendering
   cv::Mat shaded_descriptors;
   size_t size() const { return texture_points.size() + range_points.size() + shaded_points.size(); }
 
@@ -66,11 +66,13 @@ struct ViewFeatures {
   ViewFeatures& operator=(ViewFeatures&&) noexcept = default;
   ~ViewFeatures() = default;
 };
-static_assert(std::is_nothrow_move_constructible_v<ViewFeatures>, "containers of ViewFeatures must move them, not copy");
+static_assert(std::is_nothrow_move_constructible_v<ViewFeatures>,
+              "containers of ViewFeatures must move them, not copy");
 
 // points: H×W CV_32FC3 (mm, NaN = none); texture: H×W CV_8U or empty (texture features skipped).
 // Keypoints without a finite point within lift_window are dropped.
-ViewFeatures ExtractViewFeatures(const cv::Mat& points, const cv::Mat& texture, const FeatureOptions& options = {});
+ViewFeatures ExtractViewFeatures(const cv::Mat& points, const cv::Mat& texture,
+                                 const FeatureOptions& options = {});
 
 // The range image of an organised cloud: z (mm) mapped linearly from its [1st, 99th] percentile
 // over the finite points onto 1..255, 0 where no point; *mask = 255 where a point is.
@@ -82,9 +84,9 @@ cv::Mat ShadedRangeImage(const cv::Mat& points, double max_gap_mm, cv::Mat* mask
 
 struct FeatureAlignResult {
   bool ok = false;
-  std::string reason;                 // why not ok
+  std::string reason;  // why not ok
   Rigid3d target_from_source = Rigid3d::Identity();
-  int matches = 0;                    // 3-D correspondences offered to RANSAC
+  int matches = 0;  // 3-D correspondences offered to RANSAC
   int inliers = 0;
   double inlier_rmse_mm = 0;
 };

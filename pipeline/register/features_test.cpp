@@ -13,8 +13,10 @@ TEST(Features, TextureAndRangeSiftRecoverAKnownMotion) {
   const HeightField hf(21);
   const auto cam = TestCamera(480, 360, 1500);
   const Rigid3d wa = LookDown(0, 0, 30), wb = LookDown(2.0, 0.8, 30.5, 0.08, -0.06, 0.35);
-  const auto va = RenderHeightField(hf, cam, wa, 0.003, 1), vb = RenderHeightField(hf, cam, wb, 0.003, 2);
-  const ViewFeatures fa = ExtractViewFeatures(va.points, va.texture), fb = ExtractViewFeatures(vb.points, vb.texture);
+  const auto va = RenderHeightField(hf, cam, wa, 0.003, 1),
+             vb = RenderHeightField(hf, cam, wb, 0.003, 2);
+  const ViewFeatures fa = ExtractViewFeatures(va.points, va.texture),
+                     fb = ExtractViewFeatures(vb.points, vb.texture);
   ASSERT_GT(fa.texture_points.size(), 20u);
   const FeatureAlignResult r = AlignByFeatures(fb, fa);
   ASSERT_TRUE(r.ok) << r.reason;
@@ -33,7 +35,8 @@ TEST(Features, HalfScaleKeypointsMapBackToTheirPixels) {
   FeatureOptions full, half;
   full.image_scale = 1.0;
   half.image_scale = 0.5;
-  const ViewFeatures ff = ExtractViewFeatures(v.points, v.texture, full), fh = ExtractViewFeatures(v.points, v.texture, half);
+  const ViewFeatures ff = ExtractViewFeatures(v.points, v.texture, full),
+                     fh = ExtractViewFeatures(v.points, v.texture, half);
   ASSERT_GT(fh.texture_points.size(), 20u);
   const FeatureAlignResult r = AlignByFeatures(fh, ff, half);
   ASSERT_TRUE(r.ok) << r.reason;
@@ -50,7 +53,8 @@ TEST(Features, DisjointViewsFailCleanly) {
   const auto cam = TestCamera(480, 360, 1500);
   const auto va = RenderHeightField(hf, cam, LookDown(-15, 0, 30), 0.003, 1);
   const auto vb = RenderHeightField(hf, cam, LookDown(15, 0, 30), 0.003, 2);
-  const FeatureAlignResult r = AlignByFeatures(ExtractViewFeatures(vb.points, vb.texture), ExtractViewFeatures(va.points, va.texture));
+  const FeatureAlignResult r = AlignByFeatures(ExtractViewFeatures(vb.points, vb.texture),
+                                               ExtractViewFeatures(va.points, va.texture));
   EXPECT_FALSE(r.ok);
   EXPECT_NE(r.reason.find("features:"), std::string::npos);
 }

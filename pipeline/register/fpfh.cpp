@@ -13,21 +13,30 @@
 namespace d3d {
 
 RansacOptions FpfhOptions::DefaultRansac() {
-  return RansacOptions{.inlier_threshold_mm = 3.75, .max_iterations = 50000, .confidence = 0.999, .min_inliers = 12,
-                       .min_inlier_ratio = 0.02, .min_sample_spread_mm = 10, .min_inlier_spread_mm = 2.5,
-                       .max_edge_ratio_error = 0.1, .seed = 1};
+  return RansacOptions{.inlier_threshold_mm = 3.75,
+                       .max_iterations = 50000,
+                       .confidence = 0.999,
+                       .min_inliers = 12,
+                       .min_inlier_ratio = 0.02,
+                       .min_sample_spread_mm = 10,
+                       .min_inlier_spread_mm = 2.5,
+                       .max_edge_ratio_error = 0.1,
+                       .seed = 1};
 }
 
 void FpfhOptions::Check() const {
   D3D_CHECK_MSG(voxel_mm > 0, "FpfhOptions: voxel_mm must be > 0, got " << voxel_mm);
   D3D_CHECK_MSG(normal_radius_mm >= 0, "FpfhOptions: normal_radius_mm must be >= 0");
   D3D_CHECK_MSG(feature_radius_mm > 0, "FpfhOptions: feature_radius_mm must be > 0");
-  D3D_CHECK_MSG(max_neighbours >= min_neighbours && min_neighbours >= 1, "FpfhOptions: need 1 <= min_neighbours <= max_neighbours");
+  D3D_CHECK_MSG(max_neighbours >= min_neighbours && min_neighbours >= 1,
+                "FpfhOptions: need 1 <= min_neighbours <= max_neighbours");
   D3D_CHECK_MSG(ratio > 0 && ratio <= 1, "FpfhOptions: ratio must be in (0, 1]");
   D3D_CHECK_MSG(verify_iterations >= 1, "FpfhOptions: verify_iterations must be >= 1");
-  D3D_CHECK_MSG(min_overlap >= 0 && min_overlap <= 1 && min_eigen_ratio >= 0, "FpfhOptions: acceptance thresholds invalid");
-  D3D_CHECK_MSG(ambiguity_ratio >= 0 && ambiguity_ratio <= 1 && ambiguity_deg > 0 && ambiguity_mm > 0,
-                "FpfhOptions: ambiguity thresholds invalid");
+  D3D_CHECK_MSG(min_overlap >= 0 && min_overlap <= 1 && min_eigen_ratio >= 0,
+                "FpfhOptions: acceptance thresholds invalid");
+  D3D_CHECK_MSG(
+      ambiguity_ratio >= 0 && ambiguity_ratio <= 1 && ambiguity_deg > 0 && ambiguity_mm > 0,
+      "FpfhOptions: ambiguity thresholds invalid");
   ransac.Check();
 }
 
@@ -59,13 +68,14 @@ SurfacePoints VoxelDownsample(const SurfacePoints& in, double voxel_mm) {
     out.points.push_back((psum[c] / count[c]).cast<float>());
     if (!has_n) continue;
     const double n = nsum[c].norm();
-    out.normals.push_back(n > 1e-9 ? Eigen::Vector3f((nsum[c] / n).cast<float>()) : Eigen::Vector3f::Constant(std::nanf("")));
+    out.normals.push_back(n > 1e-9 ? Eigen::Vector3f((nsum[c] / n).cast<float>())
+                                   : Eigen::Vector3f::Constant(std::nanf("")));
   }
   return out;
 }
 
-Eigen::Vector3f DarbouxPairFeature(const Eigen::Vector3f& p1, const Eigen::Vector3f& n1, const Eigen::Vector3f& p2,
-                                   const Eigen::Vector3f& n2) {
+Eigen::Vector3f DarbouxPairFeature(const Eigen::Vector3f& p1, const Eigen::Vector3f& n1,
+                                   const Eigen::Vector3f& p2, const Eigen::Vector3f& n2) {
   Eigen::Vector3f d = p2 - p1;
   const float dist = d.norm();
   if (!(dist > 0)) return Eigen::Vector3f::Zero();
@@ -104,7 +114,8 @@ void NormaliseBlocks(Histogram* h) {
 }
 
 // PCA normal of the keypoints within radius, oriented like `hint`; `hint` when under-determined.
-Eigen::Vector3f PcaNormal(const std::vector<Eigen::Vector3f>& pts, const std::vector<int>& nb, const Eigen::Vector3f& hint) {
+Eigen::Vector3f PcaNormal(const std::vector<Eigen::Vector3f>& pts, const std::vector<int>& nb,
+                          const Eigen::Vector3f& hint) {
   Eigen::Vector3f n;
   if (!PcaPlaneNormal(pts, nb.data(), nb.size(), &n)) return hint;
   return n.dot(hint) < 0 ? Eigen::Vector3f(-n) : n;
@@ -114,7 +125,8 @@ Eigen::Vector3f PcaNormal(const std::vector<Eigen::Vector3f>& pts, const std::ve
 
 FpfhFeatures ComputeFpfh(const SurfacePoints& surface, const FpfhOptions& o) {
   o.Check();
-  D3D_CHECK_MSG(surface.normals.size() == surface.points.size(), "ComputeFpfh: normals required (one per point)");
+  D3D_CHECK_MSG(surface.normals.size() == surface.points.size(),
+                "ComputeFpfh: normals required (one per point)");
   const SurfacePoints key = VoxelDownsample(surface, o.voxel_mm);
   std::vector<Eigen::Vector3f> pts, nrm;
   for (size_t i = 0; i < key.size(); ++i)
@@ -143,9 +155,11 @@ FpfhFeatures ComputeFpfh(const SurfacePoints& surface, const FpfhOptions& o) {
     tree.Radius(pts[i], static_cast<float>(o.feature_radius_mm), &nb);
     sorted.clear();
     for (int j : nb)
-      if (static_cast<size_t>(j) != i) sorted.emplace_back((pts[static_cast<size_t>(j)] - pts[i]).norm(), j);
+      if (static_cast<size_t>(j) != i)
+        sorted.emplace_back((pts[static_cast<size_t>(j)] - pts[i]).norm(), j);
     const size_t keep = std::min(sorted.size(), static_cast<size_t>(o.max_neighbours));
-    std::partial_sort(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(keep), sorted.end());
+    std::partial_sort(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(keep),
+                      sorted.end());
     for (size_t k = 0; k < keep; ++k) {
       nbs[i].push_back(sorted[k].second);
       dists[i].push_back(sorted[k].first);
@@ -156,7 +170,8 @@ FpfhFeatures ComputeFpfh(const SurfacePoints& surface, const FpfhOptions& o) {
   for (size_t i = 0; i < n; ++i) {
     Histogram& h = spfh[i];
     for (int j : nbs[i]) {
-      const Eigen::Vector3f a = DarbouxPairFeature(pts[i], nrm[i], pts[static_cast<size_t>(j)], nrm[static_cast<size_t>(j)]);
+      const Eigen::Vector3f a = DarbouxPairFeature(pts[i], nrm[i], pts[static_cast<size_t>(j)],
+                                                   nrm[static_cast<size_t>(j)]);
       h(Bin(a.x(), -1, 1)) += 1;
       h(kFpfhBins + Bin(a.y(), -1, 1)) += 1;
       h(2 * kFpfhBins + Bin(a.z(), static_cast<float>(-M_PI), static_cast<float>(M_PI))) += 1;
@@ -168,7 +183,8 @@ FpfhFeatures ComputeFpfh(const SurfacePoints& surface, const FpfhOptions& o) {
     const size_t k = nbs[i].size();
     if (static_cast<int>(k) < o.min_neighbours) continue;
     Histogram h = Histogram::Zero();
-    for (size_t m = 0; m < k; ++m) h += spfh[static_cast<size_t>(nbs[i][m])] / std::max(dists[i][m], 1e-6f);
+    for (size_t m = 0; m < k; ++m)
+      h += spfh[static_cast<size_t>(nbs[i][m])] / std::max(dists[i][m], 1e-6f);
     h = spfh[i] + h / static_cast<float>(k);
     NormaliseBlocks(&h);
     f.points.push_back(pts[i]);
@@ -188,7 +204,8 @@ struct NearestDescriptors {
   std::vector<int> bwd;                // target → nearest source
 };
 
-NearestDescriptors FindNearest(const std::vector<FpfhDescriptor>& s, const std::vector<FpfhDescriptor>& t) {
+NearestDescriptors FindNearest(const std::vector<FpfhDescriptor>& s,
+                               const std::vector<FpfhDescriptor>& t) {
   const auto ns = static_cast<Eigen::Index>(s.size()), nt = static_cast<Eigen::Index>(t.size());
   Eigen::MatrixXf Tt(nt, kFpfhSize);
   for (Eigen::Index j = 0; j < nt; ++j) Tt.row(j) = t[static_cast<size_t>(j)].transpose();
@@ -249,7 +266,8 @@ FpfhAlignResult AlignByFpfh(const FpfhFeatures& s, const FpfhFeatures& t, const 
     return r;
   };
   if (s.size() < 3 || t.size() < 3)
-    return fail("too few keypoints (" + std::to_string(s.size()) + " source, " + std::to_string(t.size()) + " target)");
+    return fail("too few keypoints (" + std::to_string(s.size()) + " source, " +
+                std::to_string(t.size()) + " target)");
   const NearestDescriptors nn = FindNearest(s.descriptors, t.descriptors);
   const float ratio2 = static_cast<float>(o.ratio * o.ratio);
   std::vector<Correspondence3d> c;
@@ -257,7 +275,8 @@ FpfhAlignResult AlignByFpfh(const FpfhFeatures& s, const FpfhFeatures& t, const 
     const int j = nn.fwd[i];
     if (j < 0) continue;
     if (o.mutual && nn.bwd[static_cast<size_t>(j)] != static_cast<int>(i)) continue;
-    if (o.ratio < 1 && !(std::max(nn.fwd_d2[i], 0.0f) <= ratio2 * std::max(nn.fwd_d2b[i], 0.0f))) continue;
+    if (o.ratio < 1 && !(std::max(nn.fwd_d2[i], 0.0f) <= ratio2 * std::max(nn.fwd_d2b[i], 0.0f)))
+      continue;
     c.push_back({s.points[i].cast<double>(), t.points[static_cast<size_t>(j)].cast<double>(), 1.0});
   }
   r.matches = static_cast<int>(c.size());
@@ -298,18 +317,23 @@ FpfhAlignResult AlignByFpfh(const FpfhFeatures& s, const FpfhFeatures& t, const 
     const RansacResult rival = RansacRigid(rest, ro);
     if (rival.ok) {
       const auto elsewhere = [&](const Rigid3d& a, const Rigid3d& b) {
-        return RotationAngleRad(a, b) * 180 / M_PI > o.ambiguity_deg || TranslationDistanceMm(a, b) > o.ambiguity_mm;
+        return RotationAngleRad(a, b) * 180 / M_PI > o.ambiguity_deg ||
+               TranslationDistanceMm(a, b) > o.ambiguity_mm;
       };
       r.rival_inliers = static_cast<int>(rival.inliers.size());
-      r.rival_deg = RotationAngleRad(rival.target_from_source, best.target_from_source) * 180 / M_PI;
+      r.rival_deg =
+          RotationAngleRad(rival.target_from_source, best.target_from_source) * 180 / M_PI;
       r.rival_mm = TranslationDistanceMm(rival.target_from_source, best.target_from_source);
-      if (r.rival_inliers >= o.ambiguity_ratio * r.inliers && elsewhere(rival.target_from_source, best.target_from_source)) {
+      if (r.rival_inliers >= o.ambiguity_ratio * r.inliers &&
+          elsewhere(rival.target_from_source, best.target_from_source)) {
         // Verified, and still elsewhere once refined (not the winner reached from a worse start).
         const IcpResult rv = RegisterIcp(src, target, rival.target_from_source, icp);
         r.rival_verified = rv.ok && elsewhere(rv.target_from_source, v.target_from_source);
         if (r.rival_verified)
-          return fail("ambiguous (a second consensus of " + std::to_string(r.rival_inliers) + " vs " + std::to_string(r.inliers) +
-                      " inliers, " + std::to_string(r.rival_deg) + " deg / " + std::to_string(r.rival_mm) + " mm away)");
+          return fail("ambiguous (a second consensus of " + std::to_string(r.rival_inliers) +
+                      " vs " + std::to_string(r.inliers) + " inliers, " +
+                      std::to_string(r.rival_deg) + " deg / " + std::to_string(r.rival_mm) +
+                      " mm away)");
       }
     }
   }

@@ -1,11 +1,11 @@
 // Initial alignment by 3-D local descriptors, for views whose 2-D images give no feature consensus
 // (range scans from widely different viewpoints): Fast Point Feature Histograms (Rusu, Blodow &
 // Beetz, "Fast Point Feature Histograms (FPFH) for 3D registration", ICRA 2009) on voxel keypoints,
-// correspondences by nearest descriptor (mutual and/or Lowe's ratio), RANSAC rigid fit (rigid_fit.h:
-// Umeyama per 3-sample with the edge-length pre-test), then a check of the hypothesis: a short
-// point-to-plane ICP on the keypoints (icp.h) must find overlap and a well-conditioned geometry, and
-// no second, disjoint consensus of a different pose may be nearly as large (symmetric scenes).
-// Units: mm, rad. Transforms are target_from_source.
+// correspondences by nearest descriptor (mutual and/or Lowe's ratio), RANSAC rigid fit
+// (rigid_fit.h: Umeyama per 3-sample with the edge-length pre-test), then a check of the
+// hypothesis: a short point-to-plane ICP on the keypoints (icp.h) must find overlap and a
+// well-conditioned geometry, and no second, disjoint consensus of a different pose may be nearly as
+// large (symmetric scenes). Units: mm, rad. Transforms are target_from_source.
 #pragma once
 
 #include <Eigen/Core>
@@ -19,9 +19,10 @@
 
 namespace d3d {
 
-constexpr int kFpfhBins = 11;                  // per angular feature (α, φ, θ), as in the paper
-constexpr int kFpfhSize = 3 * kFpfhBins;       // 33
-using FpfhDescriptor = Eigen::Matrix<float, kFpfhSize, 1>;  // [α bins | φ bins | θ bins], each block sums to 100
+constexpr int kFpfhBins = 11;             // per angular feature (α, φ, θ), as in the paper
+constexpr int kFpfhSize = 3 * kFpfhBins;  // 33
+using FpfhDescriptor =
+    Eigen::Matrix<float, kFpfhSize, 1>;  // [α bins | φ bins | θ bins], each block sums to 100
 
 struct FpfhOptions {
   // Keypoints: the centroid of the samples in each occupied cubic voxel of this edge (mm). 2.5 mm
@@ -63,8 +64,8 @@ struct FpfhOptions {
 
 // Keypoints of one view with their normals and descriptors (same length), in that view's frame.
 struct FpfhFeatures {
-  std::vector<Eigen::Vector3f> points;        // mm
-  std::vector<Eigen::Vector3f> normals;       // unit
+  std::vector<Eigen::Vector3f> points;   // mm
+  std::vector<Eigen::Vector3f> normals;  // unit
   std::vector<FpfhDescriptor> descriptors;
   size_t size() const { return points.size(); }
 };
@@ -79,30 +80,32 @@ SurfacePoints VoxelDownsample(const SurfacePoints& in, double voxel_mm);
 // them; with d = (p_t − p_s)/‖p_t − p_s‖: u = n_s, v = u × d, w = u × v and
 //   α = v · n_t,  φ = u · d,  θ = atan2(w · n_t, u · n_t).
 // Returns (α, φ, θ); α, φ ∈ [−1, 1], θ ∈ [−π, π]. Zeros when the points coincide or d ∥ n_s.
-Eigen::Vector3f DarbouxPairFeature(const Eigen::Vector3f& p1, const Eigen::Vector3f& n1, const Eigen::Vector3f& p2,
-                                   const Eigen::Vector3f& n2);
+Eigen::Vector3f DarbouxPairFeature(const Eigen::Vector3f& p1, const Eigen::Vector3f& n1,
+                                   const Eigen::Vector3f& p2, const Eigen::Vector3f& n2);
 
 // FPFH of the voxel keypoints of `surface` (points mm; normals required, unit, used for the
 // orientation of the keypoint normals). SPFH(p): 11-bin histograms of α, φ, θ over p's neighbours
-// within feature_radius_mm, each normalised to sum 100; FPFH(p) = SPFH(p) + (1/k) Σ_k SPFH(p_k) / ω_k
-// with ω_k = ‖p − p_k‖ in mm (paper eq. 3), each 11-bin block normalised again to sum 100.
+// within feature_radius_mm, each normalised to sum 100; FPFH(p) = SPFH(p) + (1/k) Σ_k SPFH(p_k) /
+// ω_k with ω_k = ‖p − p_k‖ in mm (paper eq. 3), each 11-bin block normalised again to sum 100.
 // Keypoints without a valid normal or with fewer than min_neighbours neighbours are dropped.
 // Throws std::invalid_argument when the options are invalid or normals are missing.
 FpfhFeatures ComputeFpfh(const SurfacePoints& surface, const FpfhOptions& options = {});
 
 struct FpfhAlignResult : FeatureAlignResult {  // matches: correspondences offered to RANSAC
   int source_keypoints = 0, target_keypoints = 0;
-  double overlap = 0;        // verification ICP: associated fraction of source keypoints
-  double eigen_ratio = 0;    // verification ICP: Hessian conditioning
-  int rival_inliers = 0;     // the second, disjoint consensus (0: none)
+  double overlap = 0;                  // verification ICP: associated fraction of source keypoints
+  double eigen_ratio = 0;              // verification ICP: Hessian conditioning
+  int rival_inliers = 0;               // the second, disjoint consensus (0: none)
   double rival_deg = 0, rival_mm = 0;  // its pose difference to the winner
-  bool rival_verified = false;         // it passed the verification too, elsewhere (and so refused the alignment)
+  bool rival_verified =
+      false;  // it passed the verification too, elsewhere (and so refused the alignment)
 };
 
 // Correspondences by descriptor, RANSAC, verification (see FpfhOptions). target_from_source is the
 // verification ICP's pose on the keypoints (accuracy about a tenth of the voxel). Expected failures
 // (too few keypoints or correspondences, no consensus, low overlap, degenerate geometry, ambiguous)
 // come back with ok = false and a reason starting with "fpfh: ". Deterministic (ransac.seed).
-FpfhAlignResult AlignByFpfh(const FpfhFeatures& source, const FpfhFeatures& target, const FpfhOptions& options = {});
+FpfhAlignResult AlignByFpfh(const FpfhFeatures& source, const FpfhFeatures& target,
+                            const FpfhOptions& options = {});
 
 }  // namespace d3d

@@ -23,8 +23,9 @@ using Height = std::function<double(double, double)>;
 // [x0, x1] × [y0, y1], offset by `phase` (so two views do not share samples), with Gaussian noise
 // of noise_mm along z, expressed in a view frame: p_view = view_from_world · p_world. Normals from
 // central differences of h.
-SurfacePoints SampleSurface(const Height& h, double x0, double x1, double y0, double y1, double step, double phase,
-                            double noise_mm, uint32_t seed, const Rigid3d& view_from_world) {
+SurfacePoints SampleSurface(const Height& h, double x0, double x1, double y0, double y1,
+                            double step, double phase, double noise_mm, uint32_t seed,
+                            const Rigid3d& view_from_world) {
   std::mt19937 rng(seed);
   std::normal_distribution<double> N(0, 1);
   SurfacePoints s;
@@ -32,8 +33,9 @@ SurfacePoints SampleSurface(const Height& h, double x0, double x1, double y0, do
   for (double x = x0 + phase; x <= x1; x += step)
     for (double y = y0 + phase; y <= y1; y += step) {
       const Eigen::Vector3d p(x, y, h(x, y) + noise_mm * N(rng));
-      const Eigen::Vector3d n =
-          Eigen::Vector3d(-(h(x + e, y) - h(x - e, y)) / (2 * e), -(h(x, y + e) - h(x, y - e)) / (2 * e), 1).normalized();
+      const Eigen::Vector3d n = Eigen::Vector3d(-(h(x + e, y) - h(x - e, y)) / (2 * e),
+                                                -(h(x, y + e) - h(x, y - e)) / (2 * e), 1)
+                                    .normalized();
       s.points.push_back((view_from_world * p).cast<float>());
       s.normals.push_back((view_from_world.linear() * n).cast<float>());
     }
@@ -59,12 +61,16 @@ struct Case {
 };
 
 // Source and target views of the same world surface, each over its own x range, 0.25 mm lattice.
-Case Align(const Height& h, double sx0, double sx1, double tx0, double tx1, double y_half, const FpfhOptions& o) {
+Case Align(const Height& h, double sx0, double sx1, double tx0, double tx1, double y_half,
+           const FpfhOptions& o) {
   const Rigid3d source_from_world = Pose(20, {0.3, -0.5, 1}, {2, -1, 40});
   const Rigid3d target_from_world = Pose(-35, {-0.2, 1, 0.4}, {-3, 4, 38});
-  const SurfacePoints s = SampleSurface(h, sx0, sx1, -y_half, y_half, 0.25, 0.0, 0.01, 1, source_from_world);
-  const SurfacePoints t = SampleSurface(h, tx0, tx1, -y_half, y_half, 0.25, 0.11, 0.01, 2, target_from_world);
-  return {AlignByFpfh(ComputeFpfh(s, o), ComputeFpfh(t, o), o), target_from_world * source_from_world.inverse()};
+  const SurfacePoints s =
+      SampleSurface(h, sx0, sx1, -y_half, y_half, 0.25, 0.0, 0.01, 1, source_from_world);
+  const SurfacePoints t =
+      SampleSurface(h, tx0, tx1, -y_half, y_half, 0.25, 0.11, 0.01, 2, target_from_world);
+  return {AlignByFpfh(ComputeFpfh(s, o), ComputeFpfh(t, o), o),
+          target_from_world * source_from_world.inverse()};
 }
 
 TEST(DarbouxPairFeature, ZeroOnAPlaneAndInvariantToRigidMotionAndOrder) {
@@ -74,18 +80,22 @@ TEST(DarbouxPairFeature, ZeroOnAPlaneAndInvariantToRigidMotionAndOrder) {
   std::uniform_real_distribution<float> U(-1, 1);
   for (int k = 0; k < 20; ++k) {
     const Eigen::Vector3f p1(U(rng), U(rng), U(rng)), p2(U(rng), U(rng), U(rng));
-    const Eigen::Vector3f n1 = Eigen::Vector3f(U(rng), U(rng), U(rng)).normalized(), n2 = Eigen::Vector3f(U(rng), U(rng), U(rng)).normalized();
+    const Eigen::Vector3f n1 = Eigen::Vector3f(U(rng), U(rng), U(rng)).normalized(),
+                          n2 = Eigen::Vector3f(U(rng), U(rng), U(rng)).normalized();
     const Eigen::Vector3f f = DarbouxPairFeature(p1, n1, p2, n2);
     const Eigen::Isometry3f T = Pose(70, {1, -2, 0.5}, {5, 1, -3}).cast<float>();
-    EXPECT_LT((DarbouxPairFeature(T * p1, T.linear() * n1, T * p2, T.linear() * n2) - f).norm(), 1e-4f);
-    EXPECT_LT((DarbouxPairFeature(p2, n2, p1, n1) - f).norm(), 1e-5f);  // the source is chosen, not given
+    EXPECT_LT((DarbouxPairFeature(T * p1, T.linear() * n1, T * p2, T.linear() * n2) - f).norm(),
+              1e-4f);
+    EXPECT_LT((DarbouxPairFeature(p2, n2, p1, n1) - f).norm(),
+              1e-5f);  // the source is chosen, not given
     EXPECT_LE(std::abs(f.x()), 1.0f);
     EXPECT_LE(std::abs(f.y()), 1.0f);
     EXPECT_LE(std::abs(f.z()), static_cast<float>(M_PI));
   }
   // Two normals tilted towards each other by the same angle: φ = u·d, θ = the angle between them.
   const float a = 0.3f;
-  const Eigen::Vector3f f = DarbouxPairFeature({0, 0, 0}, {std::sin(a), 0, std::cos(a)}, {1, 0, 0}, {-std::sin(a), 0, std::cos(a)});
+  const Eigen::Vector3f f = DarbouxPairFeature({0, 0, 0}, {std::sin(a), 0, std::cos(a)}, {1, 0, 0},
+                                               {-std::sin(a), 0, std::cos(a)});
   EXPECT_NEAR(std::abs(f.y()), std::sin(a), 1e-6);
   EXPECT_NEAR(std::abs(f.z()), 2 * a, 1e-5);
   EXPECT_NEAR(f.x(), 0, 1e-6);
@@ -105,13 +115,14 @@ TEST(VoxelDownsample, CentroidsAndMeanNormalsPerVoxel) {
 
 TEST(ComputeFpfh, BlocksSumToOneHundredAndNormalsAreRequired) {
   const testing::HeightField hf(5, 30);
-  const SurfacePoints s =
-      SampleSurface([&](double x, double y) { return hf.Height(x, y); }, -10, 10, -8, 8, 0.25, 0, 0.0, 1, Rigid3d::Identity());
+  const SurfacePoints s = SampleSurface([&](double x, double y) { return hf.Height(x, y); }, -10,
+                                        10, -8, 8, 0.25, 0, 0.0, 1, Rigid3d::Identity());
   const FpfhFeatures f = ComputeFpfh(s, SmallScaleOptions());
   ASSERT_GT(f.size(), 500u);
   ASSERT_EQ(f.descriptors.size(), f.size());
   for (const FpfhDescriptor& d : f.descriptors) {
-    for (int b = 0; b < 3; ++b) EXPECT_NEAR(d.segment<kFpfhBins>(b * kFpfhBins).sum(), 100.0f, 1e-3f);
+    for (int b = 0; b < 3; ++b)
+      EXPECT_NEAR(d.segment<kFpfhBins>(b * kFpfhBins).sum(), 100.0f, 1e-3f);
     EXPECT_GE(d.minCoeff(), 0.0f);
   }
   SurfacePoints no_normals = s;
@@ -132,9 +143,11 @@ TEST(AlignByFpfh, RecoversAKnownTransformWithPartialOverlap) {
   EXPECT_LT(TranslationDistanceMm(c.result.target_from_source, c.truth), 0.1);
   EXPECT_GT(c.result.overlap, 0.4);
   EXPECT_GE(c.result.inliers, 30);
-  std::printf("partial overlap: %d/%d inliers, %.3f deg, %.3f mm, overlap %.2f, rival %d\n", c.result.inliers, c.result.matches,
+  std::printf("partial overlap: %d/%d inliers, %.3f deg, %.3f mm, overlap %.2f, rival %d\n",
+              c.result.inliers, c.result.matches,
               RotationAngleRad(c.result.target_from_source, c.truth) * 180 / M_PI,
-              TranslationDistanceMm(c.result.target_from_source, c.truth), c.result.overlap, c.result.rival_inliers);
+              TranslationDistanceMm(c.result.target_from_source, c.truth), c.result.overlap,
+              c.result.rival_inliers);
 }
 
 TEST(AlignByFpfh, FailsCleanlyOnAPlane) {
@@ -161,7 +174,9 @@ TEST(AlignByFpfh, FailsCleanlyOnASurfaceOfRevolution) {
 // square: the true pose and the one turned 180° about z explain the data equally well.
 TEST(AlignByFpfh, FailsAsAmbiguousOnASymmetricScene) {
   const testing::HeightField hf(9, 40);
-  const Height sym = [&](double x, double y) { return 0.5 * (hf.Height(x, y) + hf.Height(-x, -y)); };
+  const Height sym = [&](double x, double y) {
+    return 0.5 * (hf.Height(x, y) + hf.Height(-x, -y));
+  };
   const Case c = Align(sym, -10, 10, -10, 10, 10, SmallScaleOptions());
   EXPECT_FALSE(c.result.ok);
   EXPECT_NE(c.result.reason.find("ambiguous"), std::string::npos) << c.result.reason;
@@ -181,8 +196,9 @@ TEST(AlignByFpfh, FailsAsAmbiguousOnASymmetricScene) {
 // cannot hold it, so it is no rival and the true pose comes back.
 FpfhAlignResult AlignWithARivalCopy(bool rival_inside_out, Rigid3d* truth) {
   const testing::HeightField hf(9, 40);
-  const SurfacePoints surface = SampleSurface([&](double x, double y) { return hf.Height(x, y); }, -10, 10, -10, 10, 1.0,
-                                              0.0, 0.0, 1, Rigid3d::Identity());
+  const SurfacePoints surface =
+      SampleSurface([&](double x, double y) { return hf.Height(x, y); }, -10, 10, -10, 10, 1.0, 0.0,
+                    0.0, 1, Rigid3d::Identity());
   std::mt19937 rng(7);
   std::uniform_real_distribution<float> U(0, 100);
   const auto random_descriptor = [&] {
@@ -206,8 +222,11 @@ FpfhAlignResult AlignWithARivalCopy(bool rival_inside_out, Rigid3d* truth) {
     const float normal_sign = pass == 1 && rival_inside_out ? -1.0f : 1.0f;
     for (int i = 0; i < n; ++i) {
       const bool kept = pass == 0 ? i % 7 == 0 && i / 7 < 30 : i % 7 == 3 && i / 7 < 25;
-      target.points.push_back((pose * surface.points[static_cast<size_t>(i)].cast<double>()).cast<float>());
-      target.normals.push_back(normal_sign * (pose.linear() * surface.normals[static_cast<size_t>(i)].cast<double>()).cast<float>());
+      target.points.push_back(
+          (pose * surface.points[static_cast<size_t>(i)].cast<double>()).cast<float>());
+      target.normals.push_back(
+          normal_sign *
+          (pose.linear() * surface.normals[static_cast<size_t>(i)].cast<double>()).cast<float>());
       target.descriptors.push_back(kept ? own[static_cast<size_t>(i)] : random_descriptor());
     }
   }
@@ -222,7 +241,8 @@ TEST(AlignByFpfh, ARivalConsensusCountsOnlyIfTheVerificationHoldsIt) {
   EXPECT_TRUE(symmetric.rival_verified);
   const FpfhAlignResult inside_out = AlignWithARivalCopy(true, &truth);
   ASSERT_TRUE(inside_out.ok) << inside_out.reason;
-  EXPECT_GE(inside_out.rival_inliers, 0.6 * inside_out.inliers);  // large enough to have refused before
+  EXPECT_GE(inside_out.rival_inliers,
+            0.6 * inside_out.inliers);  // large enough to have refused before
   EXPECT_FALSE(inside_out.rival_verified);
   EXPECT_LT(TranslationDistanceMm(inside_out.target_from_source, truth), 0.05);
   EXPECT_LT(RotationAngleRad(inside_out.target_from_source, truth) * 180 / M_PI, 0.1);

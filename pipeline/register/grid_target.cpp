@@ -13,7 +13,9 @@ constexpr uint32_t kNoSlot = std::numeric_limits<uint32_t>::max();
 // coordinates of tens of mm: ulp ~4e-6 mm) never skips a sample the exact test would take.
 constexpr float kBoxSlackMm = 1e-4f;
 
-bool Finite(const Eigen::Vector3f& p) { return std::isfinite(p.x()) && std::isfinite(p.y()) && std::isfinite(p.z()); }
+bool Finite(const Eigen::Vector3f& p) {
+  return std::isfinite(p.x()) && std::isfinite(p.y()) && std::isfinite(p.z());
+}
 
 // Squared distance from v to the interval [a, a + c] (widened by kBoxSlackMm) along one axis.
 inline float AxisGap2(float v, float a, float c) {
@@ -25,18 +27,24 @@ inline float AxisGap2(float v, float a, float c) {
 inline int Clamp(int v, int n) { return std::min(std::max(v, 0), n - 1); }
 }  // namespace
 
-void GridTarget::Build(const SurfacePoints& target, const std::vector<double>& gates_mm, double decimate_min_gate_mm) {
-  D3D_CHECK_MSG(target.normals.size() == target.points.size(), "GridTarget needs a normal per point");
+void GridTarget::Build(const SurfacePoints& target, const std::vector<double>& gates_mm,
+                       double decimate_min_gate_mm) {
+  D3D_CHECK_MSG(target.normals.size() == target.points.size(),
+                "GridTarget needs a normal per point");
   std::vector<double> gates = gates_mm;
   for (double g : gates) D3D_CHECK_MSG(g > 0 && std::isfinite(g), "GridTarget: gates must be > 0");
   std::sort(gates.begin(), gates.end());
   gates.erase(std::unique(gates.begin(), gates.end()), gates.end());
   // A gate within kShareGateRatio of the next one up is served by that one's grid, unless that grid
   // is decimated (GridFor takes the first grid whose gate is at least the query's).
-  const auto decimated = [&](double g) { return decimate_min_gate_mm > 0 && g >= decimate_min_gate_mm; };
+  const auto decimated = [&](double g) {
+    return decimate_min_gate_mm > 0 && g >= decimate_min_gate_mm;
+  };
   size_t kept = 0;
   for (size_t i = 0; i < gates.size(); ++i)
-    if (i + 1 == gates.size() || gates[i + 1] > kShareGateRatio * gates[i] || decimated(gates[i + 1])) gates[kept++] = gates[i];
+    if (i + 1 == gates.size() || gates[i + 1] > kShareGateRatio * gates[i] ||
+        decimated(gates[i + 1]))
+      gates[kept++] = gates[i];
   gates.resize(kept);
 
   size_ = target.points.size();
@@ -70,15 +78,17 @@ void GridTarget::BuildGrid(Grid* g, const SurfacePoints& target, bool decimate) 
     g->ny = static_cast<int>(std::floor(extent.y() / cell)) + 1;
     g->nz = static_cast<int>(std::floor(extent.z() / cell)) + 1;
     if (int64_t{g->nx} * g->ny * g->nz * sub * sub * sub <= kMaxCells) break;
-    if (sub > 1) --sub;
-    else cell *= 1.25f;
+    if (sub > 1)
+      --sub;
+    else
+      cell *= 1.25f;
   }
   g->cell = cell;
   g->sub = sub;
   g->sub_cell = cell / static_cast<float>(sub);
   g->origin = lo_;
-  const size_t slots = static_cast<size_t>(g->nx) * static_cast<size_t>(g->ny) * static_cast<size_t>(g->nz) *
-                       static_cast<size_t>(sub * sub * sub);
+  const size_t slots = static_cast<size_t>(g->nx) * static_cast<size_t>(g->ny) *
+                       static_cast<size_t>(g->nz) * static_cast<size_t>(sub * sub * sub);
   const size_t n = target.points.size();
   // Counting sort of the samples by slot: cell-major (x fastest), then sub-cell (x fastest).
   g->start.assign(slots + 1, 0);
@@ -97,20 +107,25 @@ void GridTarget::BuildGrid(Grid* g, const SurfacePoints& target, bool decimate) 
       continue;
     }
     const Eigen::Vector3f rel = p - lo_;
-    const int x = Clamp(static_cast<int>(rel.x() * inv), g->nx), y = Clamp(static_cast<int>(rel.y() * inv), g->ny),
+    const int x = Clamp(static_cast<int>(rel.x() * inv), g->nx),
+              y = Clamp(static_cast<int>(rel.y() * inv), g->ny),
               z = Clamp(static_cast<int>(rel.z() * inv), g->nz);
     const int a = Clamp(static_cast<int>((rel.x() - static_cast<float>(x) * cell) * inv_sub), sub),
               b = Clamp(static_cast<int>((rel.y() - static_cast<float>(y) * cell) * inv_sub), sub),
               d = Clamp(static_cast<int>((rel.z() - static_cast<float>(z) * cell) * inv_sub), sub);
     const size_t c = (static_cast<size_t>(z) * g->ny + y) * g->nx + x;
-    if (decimate) {  // the first sample of each voxel only, one with a normal (Find refuses the others)
+    if (decimate) {  // the first sample of each voxel only, one with a normal (Find refuses the
+                     // others)
       if (!Finite(target.normals[i])) {
         slot_of_[i] = kNoSlot;
         continue;
       }
-      const int vx = Clamp(static_cast<int>((rel.x() - static_cast<float>(x) * cell) * inv_voxel), kV),
-                vy = Clamp(static_cast<int>((rel.y() - static_cast<float>(y) * cell) * inv_voxel), kV),
-                vz = Clamp(static_cast<int>((rel.z() - static_cast<float>(z) * cell) * inv_voxel), kV);
+      const int vx = Clamp(static_cast<int>((rel.x() - static_cast<float>(x) * cell) * inv_voxel),
+                           kV),
+                vy = Clamp(static_cast<int>((rel.y() - static_cast<float>(y) * cell) * inv_voxel),
+                           kV),
+                vz = Clamp(static_cast<int>((rel.z() - static_cast<float>(z) * cell) * inv_voxel),
+                           kV);
       const uint64_t bit = uint64_t{1} << ((vz * kV + vy) * kV + vx);
       if (voxel_taken_[c] & bit) {
         slot_of_[i] = kNoSlot;
@@ -118,7 +133,8 @@ void GridTarget::BuildGrid(Grid* g, const SurfacePoints& target, bool decimate) 
       }
       voxel_taken_[c] |= bit;
     }
-    const uint32_t s = static_cast<uint32_t>(c * static_cast<size_t>(sub * sub * sub) + static_cast<size_t>((d * sub + b) * sub + a));
+    const uint32_t s = static_cast<uint32_t>(c * static_cast<size_t>(sub * sub * sub) +
+                                             static_cast<size_t>((d * sub + b) * sub + a));
     slot_of_[i] = s;
     ++g->start[s + 1];
   }
@@ -150,7 +166,8 @@ size_t GridTarget::samples(float max_distance_mm) const {
   return g == nullptr ? 0 : g->points.size();
 }
 
-bool GridTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* point, Eigen::Vector3f* normal) const {
+bool GridTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* point,
+                      Eigen::Vector3f* normal) const {
   Hit hit;  // a sample found lies within the gate: Find's search starts at best = gate²
   if (!Search<false>(q, max_d, 0.0f, &hit)) return false;
   const Grid& g = *GridFor(max_d);
@@ -159,9 +176,11 @@ bool GridTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* po
   return std::isfinite((*normal)[0]);
 }
 
-bool GridTarget::FindCertified(const Eigen::Vector3f& q, float max_d, float margin_mm, CertifiedNearest* out) const {
+bool GridTarget::FindCertified(const Eigen::Vector3f& q, float max_d, float margin_mm,
+                               CertifiedNearest* out) const {
   *out = CertifiedNearest{};
-  if (!Finite(q) || !(max_d > 0) || !(margin_mm >= 0)) return false;  // not certified: the caller searches each time
+  if (!Finite(q) || !(max_d > 0) || !(margin_mm >= 0))
+    return false;  // not certified: the caller searches each time
   Hit hit;
   hit.reach = max_d + margin_mm;  // an empty target holds nothing anywhere
   Search<true>(q, max_d, margin_mm, &hit);
@@ -174,7 +193,8 @@ bool GridTarget::FindCertified(const Eigen::Vector3f& q, float max_d, float marg
     out->distance_mm = std::sqrt(hit.best);
     out->clearance_mm = std::sqrt(std::min(hit.second, hit.bound));
   } else {
-    out->clearance_mm = hit.reach;  // nothing within reach (a query beyond the grid: nothing near it at all)
+    out->clearance_mm =
+        hit.reach;  // nothing within reach (a query beyond the grid: nothing near it at all)
   }
   return true;
 }
@@ -192,7 +212,8 @@ bool GridTarget::Search(const Eigen::Vector3f& q, float max_d, float margin, Hit
   // sample skipped lies farther than the final bound.
   hit->reach = kCertify ? std::min(max_d + margin, static_cast<float>(ring) * c) : max_d;
   const Eigen::Vector3f rel = q - g->origin;
-  // The cells within the ring, clamped to the grid (in float first, so far queries do not overflow int).
+  // The cells within the ring, clamped to the grid (in float first, so far queries do not overflow
+  // int).
   const auto range = [ring](float v, int n, int* a, int* b) {
     if (v < -ring || v >= static_cast<float>(n + ring)) return false;
     const int i = static_cast<int>(std::floor(v));
@@ -201,7 +222,8 @@ bool GridTarget::Search(const Eigen::Vector3f& q, float max_d, float margin, Hit
     return *a <= *b;
   };
   int x0, x1, y0, y1, z0, z1;
-  if (!range(rel.x() / c, g->nx, &x0, &x1) || !range(rel.y() / c, g->ny, &y0, &y1) || !range(rel.z() / c, g->nz, &z0, &z1))
+  if (!range(rel.x() / c, g->nx, &x0, &x1) || !range(rel.y() / c, g->ny, &y0, &y1) ||
+      !range(rel.z() / c, g->nz, &z0, &z1))
     return false;
   // Find: `best` starts at the gate² and is also the skip bound (a sample is taken when its
   // distance² is below it). Certified: best starts unbounded, `bound` is the skip bound.
@@ -226,18 +248,22 @@ bool GridTarget::Search(const Eigen::Vector3f& q, float max_d, float margin, Hit
       }
     }
   };
-  const auto cell_index = [g](int x, int y, int z) { return (static_cast<size_t>(z) * g->ny + y) * g->nx + x; };
+  const auto cell_index = [g](int x, int y, int z) {
+    return (static_cast<size_t>(z) * g->ny + y) * g->nx + x;
+  };
   // The query's own sub-cell first: its nearest sample bounds the search, and every cell or
   // sub-cell whose box lies farther than the best match so far is skipped.
   size_t own = std::numeric_limits<size_t>::max();
   {
-    const int cx = static_cast<int>(std::floor(rel.x() / c)), cy = static_cast<int>(std::floor(rel.y() / c)),
+    const int cx = static_cast<int>(std::floor(rel.x() / c)),
+              cy = static_cast<int>(std::floor(rel.y() / c)),
               cz = static_cast<int>(std::floor(rel.z() / c));
     if (cx >= 0 && cx < g->nx && cy >= 0 && cy < g->ny && cz >= 0 && cz < g->nz) {
       const int a = Clamp(static_cast<int>((rel.x() - static_cast<float>(cx) * c) / f), sub),
                 b = Clamp(static_cast<int>((rel.y() - static_cast<float>(cy) * c) / f), sub),
                 d = Clamp(static_cast<int>((rel.z() - static_cast<float>(cz) * c) / f), sub);
-      own = cell_index(cx, cy, cz) * static_cast<size_t>(sub3) + static_cast<size_t>((d * sub + b) * sub + a);
+      own = cell_index(cx, cy, cz) * static_cast<size_t>(sub3) +
+            static_cast<size_t>((d * sub + b) * sub + a);
       scan_slot(own);
     }
   }
@@ -258,7 +284,8 @@ bool GridTarget::Search(const Eigen::Vector3f& q, float max_d, float margin, Hit
           if (base != own) scan_slot(base);
           continue;
         }
-        if (g->start[base] == g->start[base + static_cast<size_t>(sub3)]) continue;  // an empty cell
+        if (g->start[base] == g->start[base + static_cast<size_t>(sub3)])
+          continue;  // an empty cell
         for (int d = 0; d < sub; ++d) {
           const float hz = AxisGap2(rel.z(), oz + static_cast<float>(d) * f, f);
           if (beyond(hz)) continue;
@@ -267,7 +294,8 @@ bool GridTarget::Search(const Eigen::Vector3f& q, float max_d, float margin, Hit
             if (beyond(hyz)) continue;
             for (int a = 0; a < sub; ++a) {
               const size_t slot = base + static_cast<size_t>((d * sub + b) * sub + a);
-              if (slot == own || beyond(hyz + AxisGap2(rel.x(), ox + static_cast<float>(a) * f, f))) continue;
+              if (slot == own || beyond(hyz + AxisGap2(rel.x(), ox + static_cast<float>(a) * f, f)))
+                continue;
               scan_slot(slot);
             }
           }

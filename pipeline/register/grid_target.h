@@ -18,8 +18,8 @@
 // sparse targets with wide gates (the bunny scans: 5 mm) are 3–4× faster with the k-d tree.
 //
 // Same result as KdTreeTarget: the sample with the smallest squared distance strictly below r²
-// (distances summed in float in nanoflann's order, so both pick the same sample but for exact ties),
-// refused when its normal is not finite.
+// (distances summed in float in nanoflann's order, so both pick the same sample but for exact
+// ties), refused when its normal is not finite.
 //
 // Threads: Build() by one thread (the owner, e.g. the tracker's); Find() is const and may run on
 // any number of threads at once between builds (RegisterIcp with threads > 1). The buffers are
@@ -59,15 +59,15 @@ class GridTarget final : public IcpTarget {
   static constexpr int kDecimateVoxels = 4;
 
   // (Re)builds over `target` (normals required, same size as points; samples with a non-finite
-  // coordinate are left out) with one grid per distinct gate of `gates_mm` (each > 0), but for gates
-  // that share the next one's (kShareGateRatio). Throws
-  // std::invalid_argument for missing normals or a gate ≤ 0.
-  // decimate_min_gate_mm > 0: the grids of gates at least this large hold one sample per voxel of
-  // a quarter of their cell (the first in `target`'s order with a finite normal; voxel downsampling as KISS-ICP's
-  // map, Vizzo et al. 2023, Sec. III-B), so that Find there is exact for the decimated samples
-  // only. For a coarse ICP level: its wide gate puts ~150 samples of a 0.08 mm model in each
-  // 1 mm cell, which Find reads; decimated, ~16.
-  void Build(const SurfacePoints& target, const std::vector<double>& gates_mm, double decimate_min_gate_mm = 0);
+  // coordinate are left out) with one grid per distinct gate of `gates_mm` (each > 0), but for
+  // gates that share the next one's (kShareGateRatio). Throws std::invalid_argument for missing
+  // normals or a gate ≤ 0. decimate_min_gate_mm > 0: the grids of gates at least this large hold
+  // one sample per voxel of a quarter of their cell (the first in `target`'s order with a finite
+  // normal; voxel downsampling as KISS-ICP's map, Vizzo et al. 2023, Sec. III-B), so that Find
+  // there is exact for the decimated samples only. For a coarse ICP level: its wide gate puts ~150
+  // samples of a 0.08 mm model in each 1 mm cell, which Find reads; decimated, ~16.
+  void Build(const SurfacePoints& target, const std::vector<double>& gates_mm,
+             double decimate_min_gate_mm = 0);
   // Nearest sample strictly within max_distance_mm of `query`: see the file comment.
   bool Find(const Eigen::Vector3f& query, float max_distance_mm, Eigen::Vector3f* point,
             Eigen::Vector3f* normal) const override;
@@ -79,24 +79,26 @@ class GridTarget final : public IcpTarget {
   bool FindCertified(const Eigen::Vector3f& query, float max_distance_mm, float margin_mm,
                      CertifiedNearest* out) const override;
   size_t size() const { return size_; }
-  size_t grids() const { return used_grids_; }  // grids the last Build made (gates shared: kShareGateRatio)
+  size_t grids() const {
+    return used_grids_;
+  }  // grids the last Build made (gates shared: kShareGateRatio)
   // Samples held by the grid that serves max_distance_mm (fewer than size() when decimated).
   size_t samples(float max_distance_mm) const;
 
  private:
   struct Grid {
-    float gate = 0;       // the gate this grid serves (mm)
-    float cell = 0;       // cell edge (mm), ≥ gate unless the grid was capped
-    int sub = 1;          // sub-cells per cell edge
-    float sub_cell = 0;   // cell / sub
+    float gate = 0;      // the gate this grid serves (mm)
+    float cell = 0;      // cell edge (mm), ≥ gate unless the grid was capped
+    int sub = 1;         // sub-cells per cell edge
+    float sub_cell = 0;  // cell / sub
     Eigen::Vector3f origin = Eigen::Vector3f::Zero();
     int nx = 0, ny = 0, nz = 0;
-    std::vector<uint32_t> start;            // nx·ny·nz·sub³ + 1: first sample of each slot in `points`
-    std::vector<Eigen::Vector3f> points;    // the samples in cell order
-    std::vector<Eigen::Vector3f> normals;   // ... and their normals, in the same order (a match's
-                                            // normal then lies beside the samples just read: looked
-                                            // up by the target's order it missed the cache, ~17 % of
-                                            // Find's time)
+    std::vector<uint32_t> start;  // nx·ny·nz·sub³ + 1: first sample of each slot in `points`
+    std::vector<Eigen::Vector3f> points;   // the samples in cell order
+    std::vector<Eigen::Vector3f> normals;  // ... and their normals, in the same order (a match's
+                                           // normal then lies beside the samples just read: looked
+                                           // up by the target's order it missed the cache, ~17 % of
+                                           // Find's time)
   };
   void BuildGrid(Grid* g, const SurfacePoints& target, bool decimate);
   // One search (Find's, or FindCertified's with kCertify): the nearest sample's index in the grid
@@ -110,12 +112,13 @@ class GridTarget final : public IcpTarget {
   bool Search(const Eigen::Vector3f& query, float max_distance_mm, float margin_mm, Hit* hit) const;
   const Grid* GridFor(float max_distance_mm) const;
 
-  Eigen::Vector3f lo_ = Eigen::Vector3f::Zero(), hi_ = Eigen::Vector3f::Zero();  // finite samples' bounds
-  size_t size_ = 0;                       // samples of the current build
-  std::vector<Grid> grids_;               // by increasing gate
-  size_t used_grids_ = 0;                 // grids_[0, used_grids_) belong to the current build
-  std::vector<uint32_t> slot_of_;         // per sample, scratch of BuildGrid
-  std::vector<uint64_t> voxel_taken_;     // per cell, its 4³ voxels taken (decimated grids), scratch
+  Eigen::Vector3f lo_ = Eigen::Vector3f::Zero(),
+                  hi_ = Eigen::Vector3f::Zero();  // finite samples' bounds
+  size_t size_ = 0;                               // samples of the current build
+  std::vector<Grid> grids_;                       // by increasing gate
+  size_t used_grids_ = 0;              // grids_[0, used_grids_) belong to the current build
+  std::vector<uint32_t> slot_of_;      // per sample, scratch of BuildGrid
+  std::vector<uint64_t> voxel_taken_;  // per cell, its 4³ voxels taken (decimated grids), scratch
 };
 
 }  // namespace d3d

@@ -44,17 +44,19 @@ std::vector<Eigen::Vector3f> Queries(const SurfacePoints& s, float spread, int n
 
 // The grid's answer to q within `gate` is the k-d tree's: the same refusal, or the same sample with
 // the same normal. *found: whether there is a match.
-::testing::AssertionResult SameAsKdTree(const KdTreeTarget& tree, const GridTarget& grid, const Eigen::Vector3f& q, float gate,
-                                        bool* found) {
+::testing::AssertionResult SameAsKdTree(const KdTreeTarget& tree, const GridTarget& grid,
+                                        const Eigen::Vector3f& q, float gate, bool* found) {
   Eigen::Vector3f pt, nt, pg, ng;
   *found = tree.Find(q, gate, &pt, &nt);
   const bool g = grid.Find(q, gate, &pg, &ng);
   if (*found != g)
-    return ::testing::AssertionFailure() << "gate " << gate << " query " << q.transpose() << ": k-d tree " << *found << ", grid " << g;
+    return ::testing::AssertionFailure() << "gate " << gate << " query " << q.transpose()
+                                         << ": k-d tree " << *found << ", grid " << g;
   if (*found && (pt != pg || nt != ng))
-    return ::testing::AssertionFailure() << "gate " << gate << " query " << q.transpose() << ": k-d tree " << pt.transpose()
-                                         << " (normal " << nt.transpose() << "), grid " << pg.transpose() << " (normal "
-                                         << ng.transpose() << ")";
+    return ::testing::AssertionFailure()
+           << "gate " << gate << " query " << q.transpose() << ": k-d tree " << pt.transpose()
+           << " (normal " << nt.transpose() << "), grid " << pg.transpose() << " (normal "
+           << ng.transpose() << ")";
   return ::testing::AssertionSuccess();
 }
 
@@ -173,7 +175,8 @@ TEST(GridTarget, RebuildsAndRefusesBadInput) {
   EXPECT_TRUE(grid.Find(Eigen::Vector3f(0.1f, 0, 0), 0.5f, &p, &n));
   SurfacePoints b;
   const float nan = std::numeric_limits<float>::quiet_NaN();
-  b.points = {Eigen::Vector3f(10, 0, 0), Eigen::Vector3f(nan, 0, 0)};  // a non-finite sample is left out
+  b.points = {Eigen::Vector3f(10, 0, 0),
+              Eigen::Vector3f(nan, 0, 0)};  // a non-finite sample is left out
   b.normals = {Eigen::Vector3f(1, 0, 0), Eigen::Vector3f(0, 1, 0)};
   grid.Build(b, {0.5});
   EXPECT_FALSE(grid.Find(Eigen::Vector3f(0.1f, 0, 0), 0.5f, &p, &n));
@@ -224,7 +227,8 @@ TEST(GridTarget, ACertifiedAnswerIsFindsAndHoldsWhereItSaysItDoes) {
         for (size_t i = 0; i < s.size(); ++i) {
           if (c.found && s.points[i] == c.point) continue;
           const float d = (q - s.points[i]).norm();
-          ASSERT_GE(d, c.clearance_mm - 1e-5f) << "sample " << i << " inside the clearance of " << q.transpose();
+          ASSERT_GE(d, c.clearance_mm - 1e-5f)
+              << "sample " << i << " inside the clearance of " << q.transpose();
           if (c.found) {
             ASSERT_GE(d, c.distance_mm - 1e-6f);
           }
@@ -236,7 +240,8 @@ TEST(GridTarget, ACertifiedAnswerIsFindsAndHoldsWhereItSaysItDoes) {
         const bool find2 = grid.Find(q2, gate, &p, &n);
         if (c.found && (q2 - c.point).norm() + delta.norm() < c.clearance_mm) {
           ++reusable_found;
-          const bool hit = (q2 - c.point).squaredNorm() < gate * gate && std::isfinite(c.normal.x());
+          const bool hit =
+              (q2 - c.point).squaredNorm() < gate * gate && std::isfinite(c.normal.x());
           ASSERT_EQ(find2, hit) << q2.transpose();
           if (hit) {
             EXPECT_EQ(p, c.point);
@@ -248,11 +253,13 @@ TEST(GridTarget, ACertifiedAnswerIsFindsAndHoldsWhereItSaysItDoes) {
         checked += margin > 0;
       }
     }
-  // With a margin, many answers stay reusable for moves within half of it (and this test is not vacuous).
+  // With a margin, many answers stay reusable for moves within half of it (and this test is not
+  // vacuous).
   EXPECT_GT(reusable_found, checked / 4);
   EXPECT_GT(reusable_none, 0);
   CertifiedNearest c;
-  EXPECT_FALSE(grid.FindCertified(Eigen::Vector3f(std::numeric_limits<float>::quiet_NaN(), 0, 0), 0.3f, 0.03f, &c));
+  EXPECT_FALSE(grid.FindCertified(Eigen::Vector3f(std::numeric_limits<float>::quiet_NaN(), 0, 0),
+                                  0.3f, 0.03f, &c));
   EXPECT_FALSE(c.certified);
 }
 
@@ -261,7 +268,8 @@ TEST(GridTarget, IcpGivesTheKdTreesPose) {
   const HeightField hf(11);
   const auto cam = TestCamera();
   const Rigid3d wa = LookDown(0, 0, 30), wb = LookDown(1.5, 0.3, 30.2, 0.03, -0.04, 0.05);
-  const auto va = RenderHeightField(hf, cam, wa, 0.005, 1), vb = RenderHeightField(hf, cam, wb, 0.005, 2);
+  const auto va = RenderHeightField(hf, cam, wa, 0.005, 1),
+             vb = RenderHeightField(hf, cam, wb, 0.005, 2);
   const SurfacePoints target = SampleOrganised(va.points, va.normals, va.quality, 1);
   const SurfacePoints source = SampleOrganised(vb.points, vb.normals, vb.quality, 2);
   Rigid3d init = wa.inverse() * wb;

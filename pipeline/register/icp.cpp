@@ -1,13 +1,14 @@
 #include "pipeline/register/icp.h"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
+
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
-#include <tbb/parallel_reduce.h>
 
 #include "calib/model/camera_model.h"
 #include "common/core/status.h"
@@ -15,11 +16,13 @@
 namespace d3d {
 
 KdTreeTarget::KdTreeTarget(SurfacePoints target) : target_(std::move(target)) {
-  D3D_CHECK_MSG(target_.normals.size() == target_.points.size(), "KdTreeTarget needs a normal per point");
+  D3D_CHECK_MSG(target_.normals.size() == target_.points.size(),
+                "KdTreeTarget needs a normal per point");
   tree_ = std::make_unique<PointKdTree>(&target_.points);
 }
 
-bool KdTreeTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* p, Eigen::Vector3f* n) const {
+bool KdTreeTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* p,
+                        Eigen::Vector3f* n) const {
   float d2 = 0;
   const int i = tree_->Nearest(q, &d2, max_d * max_d);
   if (i < 0) return false;
@@ -53,15 +56,18 @@ PinholeIntrinsics PinholeIntrinsics::Scaled(double s) const {
 ProjectiveTarget::ProjectiveTarget(cv::Mat points, cv::Mat normals, const PinholeIntrinsics& k,
                                    const Rigid3d& cam_from_target, int window)
     : points_(std::move(points)), normals_(std::move(normals)), k_(k), window_(window) {
-  D3D_CHECK_MSG(points_.type() == CV_32FC3 && normals_.type() == CV_32FC3 && points_.size() == normals_.size(),
+  D3D_CHECK_MSG(points_.type() == CV_32FC3 && normals_.type() == CV_32FC3 &&
+                    points_.size() == normals_.size(),
                 "ProjectiveTarget: points and normals must be CV_32FC3 of one size");
-  D3D_CHECK_MSG(points_.cols == k.width && points_.rows == k.height, "ProjectiveTarget: image size != intrinsics");
+  D3D_CHECK_MSG(points_.cols == k.width && points_.rows == k.height,
+                "ProjectiveTarget: image size != intrinsics");
   D3D_CHECK_MSG(window >= 0, "window must be >= 0");
   R_ = cam_from_target.linear().cast<float>();
   t_ = cam_from_target.translation().cast<float>();
 }
 
-bool ProjectiveTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* p, Eigen::Vector3f* n) const {
+bool ProjectiveTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector3f* p,
+                            Eigen::Vector3f* n) const {
   const Eigen::Vector3f c = R_ * q + t_;
   if (c.z() <= 0) return false;
   const int u = static_cast<int>(std::lround(k_.fx * c.x() / c.z() + k_.cx));
@@ -88,18 +94,25 @@ bool ProjectiveTarget::Find(const Eigen::Vector3f& q, float max_d, Eigen::Vector
 
 void IcpOptions::Check() const {
   D3D_CHECK_MSG(!levels.empty(), "IcpOptions: at least one level");
-  D3D_CHECK_MSG(remap_min_eigen_ratio >= 0 && remap_min_eigen_ratio < 1, "IcpOptions: remap_min_eigen_ratio must be in [0, 1)");
+  D3D_CHECK_MSG(remap_min_eigen_ratio >= 0 && remap_min_eigen_ratio < 1,
+                "IcpOptions: remap_min_eigen_ratio must be in [0, 1)");
   for (const auto& l : levels) {
-    D3D_CHECK_MSG(l.stride >= 1 && l.max_iterations >= 1 && l.max_distance_mm > 0 && l.max_samples >= 0,
-                  "IcpOptions: level needs stride >= 1, max_iterations >= 1, max_distance_mm > 0, max_samples >= 0");
+    D3D_CHECK_MSG(
+        l.stride >= 1 && l.max_iterations >= 1 && l.max_distance_mm > 0 && l.max_samples >= 0,
+        "IcpOptions: level needs stride >= 1, max_iterations >= 1, max_distance_mm > 0, "
+        "max_samples >= 0");
     D3D_CHECK_MSG(l.min_delta_rotation_rad >= 0 && l.min_delta_translation_mm >= 0,
-                  "IcpOptions: a level's min_delta_rotation_rad and min_delta_translation_mm >= 0 (0 = IcpOptions')");
-    D3D_CHECK_MSG(l.point_to_plane_weight >= 0 && l.point_to_plane_weight <= 1, "point_to_plane_weight must be in [0, 1]");
+                  "IcpOptions: a level's min_delta_rotation_rad and min_delta_translation_mm >= 0 "
+                  "(0 = IcpOptions')");
+    D3D_CHECK_MSG(l.point_to_plane_weight >= 0 && l.point_to_plane_weight <= 1,
+                  "point_to_plane_weight must be in [0, 1]");
   }
-  D3D_CHECK_MSG(max_normal_angle_deg > 0 && max_normal_angle_deg <= 180, "max_normal_angle_deg must be in (0, 180]");
+  D3D_CHECK_MSG(max_normal_angle_deg > 0 && max_normal_angle_deg <= 180,
+                "max_normal_angle_deg must be in (0, 180]");
   D3D_CHECK_MSG(min_sigma_mm > 0, "min_sigma_mm must be > 0");
   D3D_CHECK_MSG(min_overlap >= 0 && min_overlap <= 1, "min_overlap must be in [0, 1]");
-  D3D_CHECK_MSG(max_rmse_mm > 0 && min_correspondences >= 6 && min_eigen_ratio >= 0, "acceptance thresholds invalid");
+  D3D_CHECK_MSG(max_rmse_mm > 0 && min_correspondences >= 6 && min_eigen_ratio >= 0,
+                "acceptance thresholds invalid");
   D3D_CHECK_MSG(threads >= 1, "threads must be >= 1");
   D3D_CHECK_MSG(association_reuse_margin >= 0 && std::isfinite(association_reuse_margin),
                 "association_reuse_margin must be >= 0");
@@ -113,9 +126,11 @@ namespace {
 struct NormalisedInformation {
   Eigen::Matrix<double, 6, 6> to_x;
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> eigen;
-  NormalisedInformation(const Eigen::Matrix<double, 6, 6>& information, const Eigen::Vector3d& c, double radius) {
+  NormalisedInformation(const Eigen::Matrix<double, 6, 6>& information, const Eigen::Vector3d& c,
+                        double radius) {
     Eigen::Matrix<double, 6, 6> A = Eigen::Matrix<double, 6, 6>::Identity();
-    A.block<3, 3>(3, 0) << 0, -c.z(), c.y(), c.z(), 0, -c.x(), -c.y(), c.x(), 0;  // t = t_c + [c]× ω
+    A.block<3, 3>(3, 0) << 0, -c.z(), c.y(), c.z(), 0, -c.x(), -c.y(), c.x(),
+        0;  // t = t_c + [c]× ω
     Eigen::Matrix<double, 6, 6> D = Eigen::Matrix<double, 6, 6>::Identity();
     D.topLeftCorner<3, 3>() *= 1.0 / radius;
     to_x = A * D;
@@ -144,8 +159,9 @@ constexpr float kReuseSlackMm = 1e-5f;
 // Find(query, gate) through a reusable answer: reused when the moved query provably has the same
 // answer (CertifiedNearest's tests), else searched and certified again. *searched: whether the
 // target was searched.
-bool FindReusing(const IcpTarget& target, const Eigen::Vector3f& query, float gate, float margin, ReusableMatch* r,
-                 Eigen::Vector3f* point, Eigen::Vector3f* normal, bool* searched) {
+bool FindReusing(const IcpTarget& target, const Eigen::Vector3f& query, float gate, float margin,
+                 ReusableMatch* r, Eigen::Vector3f* point, Eigen::Vector3f* normal,
+                 bool* searched) {
   bool holds = false;
   if (r->valid) {
     const CertifiedNearest& c = r->nearest;
@@ -178,9 +194,10 @@ double Median(std::vector<float>* v) {
 // term's Σ w J Jᵀ (upper triangle), Σ w r J, Σ w r², and the point term's moments, from which its
 // sums follow in closed form (Finish).
 struct NormalEquations {
-  Eigen::Matrix<double, 6, 6> P = Eigen::Matrix<double, 6, 6>::Zero();  // Σ w J Jᵀ, upper triangle until Finish
+  Eigen::Matrix<double, 6, 6> P =
+      Eigen::Matrix<double, 6, 6>::Zero();  // Σ w J Jᵀ, upper triangle until Finish
   Eigen::Matrix<double, 6, 1> gp = Eigen::Matrix<double, 6, 1>::Zero();  // Σ w r J
-  double errp = 0;                                                      // Σ w r²
+  double errp = 0;                                                       // Σ w r²
   // Point term (α < 1), with d = p − q: Σ w p, Σ w p pᵀ (upper triangle; its trace is Σ w |p|²),
   // Σ w p × d, Σ w d, Σ w |d|².
   Eigen::Vector3d sp = Eigen::Vector3d::Zero();
@@ -200,11 +217,12 @@ struct NormalEquations {
     wsum += o.wsum;
     r2sum += o.r2sum;
   }
-  // The combined system α·plane + (1 − α)·point: H, g, err, and the plane term's H alone (*H_plane).
-  // Point term, J = [−[p]×, I] (so Jᵀ J = [|p|² I − p pᵀ, [p]×; −[p]×, I] and Jᵀ d = [p × d; d]):
-  // Σ w Jᵀ J = [Σw|p|² I − Σw p pᵀ, [Σw p]×; −[Σw p]×, Σw I], Σ w Jᵀ d = [Σ w p × d; Σ w d].
-  void Finish(double alpha, Eigen::Matrix<double, 6, 6>* H, Eigen::Matrix<double, 6, 1>* g, double* err,
-              Eigen::Matrix<double, 6, 6>* H_plane) {
+  // The combined system α·plane + (1 − α)·point: H, g, err, and the plane term's H alone
+  // (*H_plane). Point term, J = [−[p]×, I] (so Jᵀ J = [|p|² I − p pᵀ, [p]×; −[p]×, I] and Jᵀ d = [p
+  // × d; d]): Σ w Jᵀ J = [Σw|p|² I − Σw p pᵀ, [Σw p]×; −[Σw p]×, Σw I], Σ w Jᵀ d = [Σ w p × d; Σ w
+  // d].
+  void Finish(double alpha, Eigen::Matrix<double, 6, 6>* H, Eigen::Matrix<double, 6, 1>* g,
+              double* err, Eigen::Matrix<double, 6, 6>* H_plane) {
     P.triangularView<Eigen::StrictlyLower>() = P.transpose();
     *H_plane = P;
     *H = alpha * P;
@@ -232,7 +250,8 @@ constexpr size_t kAccumulateChunk = 4096;  // matches per chunk of the parallel 
 // J = [p × n; n] (left perturbation [ω, t]) with weight α, point-to-point J = [−[p]×, I] with 1 − α
 // (Low 2004 for the linearised plane term; the combined metric of the dissertation's ICP). With
 // α = 1 the point term's moments are not summed.
-void Accumulate(const std::vector<Match>& matches, size_t b, size_t e, double alpha, double c, NormalEquations* ne) {
+void Accumulate(const std::vector<Match>& matches, size_t b, size_t e, double alpha, double c,
+                NormalEquations* ne) {
   for (size_t k = b; k < e; ++k) {
     const Match& m = matches[k];
     const double r = m.r;
@@ -275,7 +294,8 @@ Rigid3d ExpSe3(const Eigen::Matrix<double, 6, 1>& x) {
 
 }  // namespace
 
-IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, const Rigid3d& initial, const IcpOptions& o) {
+IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, const Rigid3d& initial,
+                      const IcpOptions& o) {
   o.Check();
   IcpResult res;
   res.target_from_source = initial;
@@ -298,11 +318,14 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
     const IcpLevel& L = o.levels[li];
     const float gate = static_cast<float>(L.max_distance_mm);
     const double alpha = L.point_to_plane_weight;
-    const double min_delta_rotation_rad = L.min_delta_rotation_rad > 0 ? L.min_delta_rotation_rad : o.min_delta_rotation_rad;
+    const double min_delta_rotation_rad =
+        L.min_delta_rotation_rad > 0 ? L.min_delta_rotation_rad : o.min_delta_rotation_rad;
     const double min_delta_translation_mm =
         L.min_delta_translation_mm > 0 ? L.min_delta_translation_mm : o.min_delta_translation_mm;
     size_t stride = static_cast<size_t>(L.stride);
-    if (L.max_samples > 0) stride = std::max(stride, (source.points.size() + L.max_samples - 1) / static_cast<size_t>(L.max_samples));
+    if (L.max_samples > 0)
+      stride = std::max(
+          stride, (source.points.size() + L.max_samples - 1) / static_cast<size_t>(L.max_samples));
     std::vector<size_t> idx;
     for (size_t i = 0; i < source.points.size(); i += stride) idx.push_back(i);
     scratch.resize(idx.size());
@@ -342,8 +365,9 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
         }
       };
       if (o.threads > 1) {
-        tbb::parallel_for(tbb::blocked_range<size_t>(0, idx.size(), 512),
-                          [&](const tbb::blocked_range<size_t>& r) { associate(r.begin(), r.end()); });
+        tbb::parallel_for(
+            tbb::blocked_range<size_t>(0, idx.size(), 512),
+            [&](const tbb::blocked_range<size_t>& r) { associate(r.begin(), r.end()); });
       } else {
         associate(0, idx.size());
       }
@@ -357,14 +381,16 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
       samples_last = static_cast<int>(idx.size());
       associated_last = nm;
       if (nm < o.min_correspondences) {
-        res.reason = "too few correspondences (" + std::to_string(nm) + " at level " + std::to_string(li) + ")";
+        res.reason = "too few correspondences (" + std::to_string(nm) + " at level " +
+                     std::to_string(li) + ")";
         res.target_from_source = T;
         res.correspondences = nm;
         res.overlap = idx.empty() ? 0 : static_cast<double>(nm) / static_cast<double>(idx.size());
         return res;
       }
       absr.resize(static_cast<size_t>(nm));
-      for (int k = 0; k < nm; ++k) absr[static_cast<size_t>(k)] = std::abs(matches[static_cast<size_t>(k)].r);
+      for (int k = 0; k < nm; ++k)
+        absr[static_cast<size_t>(k)] = std::abs(matches[static_cast<size_t>(k)].r);
       const double sigma = std::max(o.min_sigma_mm, 1.4826 * Median(&absr));
       const double c = 4.685 * sigma;
       NormalEquations ne;
@@ -398,7 +424,8 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
       int inl = 0;
       for (const Match& m : matches) inl += std::abs(m.r) < c;
       rmse_last = std::sqrt(r2sum / std::max(inl, 1));
-      // Solve with the Hessian about the source centroid for conditioning (ω, t in the target frame).
+      // Solve with the Hessian about the source centroid for conditioning (ω, t in the target
+      // frame).
       H.diagonal().array() += 1e-9 * H.trace() + 1e-12;
       Eigen::Matrix<double, 6, 1> x = -H.ldlt().solve(g);
       if (o.remap_min_eigen_ratio > 0) {
@@ -418,8 +445,10 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
       }
       T = ExpSe3(x) * T;
       err /= wsum;
-      const bool small = x.head<3>().norm() < min_delta_rotation_rad && x.tail<3>().norm() < min_delta_translation_mm;
-      const bool flat = prev_err > 0 && std::abs(prev_err - err) <= o.min_relative_error_change * prev_err;
+      const bool small = x.head<3>().norm() < min_delta_rotation_rad &&
+                         x.tail<3>().norm() < min_delta_translation_mm;
+      const bool flat =
+          prev_err > 0 && std::abs(prev_err - err) <= o.min_relative_error_change * prev_err;
       prev_err = err;
       if (small || flat) break;
     }
@@ -438,7 +467,8 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
   }
   (void)sigma_last;
   if (res.overlap < o.min_overlap) {
-    res.reason = "low overlap (" + std::to_string(res.overlap) + " < " + std::to_string(o.min_overlap) + ")";
+    res.reason =
+        "low overlap (" + std::to_string(res.overlap) + " < " + std::to_string(o.min_overlap) + ")";
     return res;
   }
   if (res.rmse_mm > o.max_rmse_mm) {

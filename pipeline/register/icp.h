@@ -1,16 +1,16 @@
 // Iterative closest point with the combined point-to-point / point-to-plane metric, robust
 // weights and coarse-to-fine termination. Units: mm, rad. Transforms are target_from_source.
 //
-// Metric (the dissertation's combination, weighted per level; Chen & Medioni 1992 point-to-plane, Besl & McKay 1992
-// point-to-point): for source sample p (moved by the current estimate, p' = T p) and its associated
-// target sample q with unit normal n,
+// Metric (the dissertation's combination, weighted per level; Chen & Medioni 1992 point-to-plane,
+// Besl & McKay 1992 point-to-point): for source sample p (moved by the current estimate, p' = T p)
+// and its associated target sample q with unit normal n,
 //   E(T) = Σ wᵢ [ α (nᵢ·(p'ᵢ − qᵢ))² + (1 − α) ‖p'ᵢ − qᵢ‖² ],
 // minimised by Gauss–Newton on the small-motion linearisation T ← Exp([ω, t]) T (left update,
-// p' + ω × p' + t), with a Levenberg damping of 1e-9 · trace(H). α = IcpLevel::point_to_plane_weight:
-// point-to-plane converges fast on smooth surfaces; point-to-point widens the basin early on.
-// Robust weights: Tukey's biweight on the point-to-plane residual, w = (1 − (r/c)²)², c = 4.685 σ,
-// σ = 1.4826 · median |r| (floored at min_sigma_mm) re-estimated every iteration (Zhang 1994;
-// Holland & Welsch 1977), times the source sample's own weight (quality).
+// p' + ω × p' + t), with a Levenberg damping of 1e-9 · trace(H). α =
+// IcpLevel::point_to_plane_weight: point-to-plane converges fast on smooth surfaces; point-to-point
+// widens the basin early on. Robust weights: Tukey's biweight on the point-to-plane residual, w =
+// (1 − (r/c)²)², c = 4.685 σ, σ = 1.4826 · median |r| (floored at min_sigma_mm) re-estimated every
+// iteration (Zhang 1994; Holland & Welsch 1977), times the source sample's own weight (quality).
 // Hierarchy: levels from coarse (few samples, large association distance) to fine; a level ends
 // when the pose update is below (min_delta_rotation_rad, min_delta_translation_mm) or the weighted
 // error changes by less than min_relative_error_change, or after its max_iterations.
@@ -31,7 +31,8 @@
 namespace d3d {
 
 // Squared distance summed in nanoflann's L2_Simple_Adaptor order, ((0 + dx²) + dy²) + dz² in float:
-// the k-d tree's, so that GridTarget and RegisterIcp's reused associations compare distances as it does.
+// the k-d tree's, so that GridTarget and RegisterIcp's reused associations compare distances as it
+// does.
 inline float L2SimpleDistance2(const Eigen::Vector3f& q, const Eigen::Vector3f& p) {
   float d2 = 0.0f;
   const float dx = q.x() - p.x(), dy = q.y() - p.y(), dz = q.z() - p.z();
@@ -46,15 +47,17 @@ inline float L2SimpleDistance2(const Eigen::Vector3f& q, const Eigen::Vector3f& 
 // target sample within the search's reach (≥ the gate), and how far around the query no other
 // sample lies. For the query moved by Δ (|Δ| = distance between the two queries):
 //   found, |q' − point| + |Δ| < clearance_mm → `point` is still q''s unique nearest sample (any
-//     other lies ≥ clearance − |Δ| from q'), so Find(q', r) is `point` when |q' − point| < r, else none;
+//     other lies ≥ clearance − |Δ| from q'), so Find(q', r) is `point` when |q' − point| < r, else
+//     none;
 //   not found, r + |Δ| < clearance_mm → nothing lies within r of q': Find(q', r) finds none.
 struct CertifiedNearest {
   bool certified = false;  // false: no answer to reuse (the caller searches every time)
   bool found = false;      // a sample lies within the search's reach
   // The nearest sample (target frame).
   Eigen::Vector3f point = Eigen::Vector3f::Zero(), normal = Eigen::Vector3f::Zero();
-  float distance_mm = 0;   // |query − point|
-  float clearance_mm = 0;  // found: no other sample is nearer the query than this; else none within it
+  float distance_mm = 0;  // |query − point|
+  float clearance_mm =
+      0;  // found: no other sample is nearer the query than this; else none within it
 };
 
 // Associates a query point (target frame, mm) with a target sample: returns true and writes the
@@ -63,11 +66,13 @@ struct CertifiedNearest {
 class IcpTarget {
  public:
   virtual ~IcpTarget() = default;
-  virtual bool Find(const Eigen::Vector3f& query, float max_distance_mm, Eigen::Vector3f* point, Eigen::Vector3f* normal) const = 0;
+  virtual bool Find(const Eigen::Vector3f& query, float max_distance_mm, Eigen::Vector3f* point,
+                    Eigen::Vector3f* normal) const = 0;
   // The nearest sample with a clearance (CertifiedNearest) for a search with gate max_distance_mm,
   // certifying up to margin_mm beyond the nearest. Returns out->certified; targets that cannot
   // certify leave it false (the default).
-  virtual bool FindCertified(const Eigen::Vector3f& query, float max_distance_mm, float margin_mm, CertifiedNearest* out) const {
+  virtual bool FindCertified(const Eigen::Vector3f& query, float max_distance_mm, float margin_mm,
+                             CertifiedNearest* out) const {
     (void)query;
     (void)max_distance_mm;
     (void)margin_mm;
@@ -80,7 +85,8 @@ class IcpTarget {
 class KdTreeTarget final : public IcpTarget {
  public:
   explicit KdTreeTarget(SurfacePoints target);  // normals required (same size as points)
-  bool Find(const Eigen::Vector3f& query, float max_distance_mm, Eigen::Vector3f* point, Eigen::Vector3f* normal) const override;
+  bool Find(const Eigen::Vector3f& query, float max_distance_mm, Eigen::Vector3f* point,
+            Eigen::Vector3f* normal) const override;
   const SurfacePoints& samples() const { return target_; }
 
  private:
@@ -95,8 +101,9 @@ struct PinholeBrownConrady;  // calib/model/camera_model.h
 struct PinholeIntrinsics {
   double fx = 0, fy = 0, cx = 0, cy = 0;
   int width = 0, height = 0;
-  PinholeIntrinsics Scaled(double s) const;                        // for an image s times the size
-  static PinholeIntrinsics Of(const PinholeBrownConrady& camera);  // its pinhole part (distortion dropped)
+  PinholeIntrinsics Scaled(double s) const;  // for an image s times the size
+  static PinholeIntrinsics Of(
+      const PinholeBrownConrady& camera);  // its pinhole part (distortion dropped)
 };
 
 // Projective data association (Blais & Levine 1995; KinectFusion, Newcombe et al. 2011): the query
@@ -105,8 +112,10 @@ struct PinholeIntrinsics {
 // (NaN = empty), H×W = intrinsics' size.
 class ProjectiveTarget final : public IcpTarget {
  public:
-  ProjectiveTarget(cv::Mat points, cv::Mat normals, const PinholeIntrinsics& intrinsics, const Rigid3d& cam_from_target, int window = 1);
-  bool Find(const Eigen::Vector3f& query, float max_distance_mm, Eigen::Vector3f* point, Eigen::Vector3f* normal) const override;
+  ProjectiveTarget(cv::Mat points, cv::Mat normals, const PinholeIntrinsics& intrinsics,
+                   const Rigid3d& cam_from_target, int window = 1);
+  bool Find(const Eigen::Vector3f& query, float max_distance_mm, Eigen::Vector3f* point,
+            Eigen::Vector3f* normal) const override;
 
  private:
   cv::Mat points_, normals_;
@@ -189,6 +198,7 @@ struct IcpResult {
 // Registers `source` (its own frame; normals used for the compatibility test and the source
 // weights as per-sample confidence) to `target`, starting from `initial` (target_from_source).
 // Throws std::invalid_argument for invalid options; expected failures are returned.
-IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, const Rigid3d& initial, const IcpOptions& options = {});
+IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, const Rigid3d& initial,
+                      const IcpOptions& options = {});
 
 }  // namespace d3d

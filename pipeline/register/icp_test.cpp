@@ -17,7 +17,8 @@ using testing::TestCamera;
 
 Rigid3d Perturbation(double deg, double mm) {
   Rigid3d T = Rigid3d::Identity();
-  T.linear() = Eigen::AngleAxisd(deg * M_PI / 180, Eigen::Vector3d(0.3, -1, 0.4).normalized()).toRotationMatrix();
+  T.linear() = Eigen::AngleAxisd(deg * M_PI / 180, Eigen::Vector3d(0.3, -1, 0.4).normalized())
+                   .toRotationMatrix();
   T.translation() = Eigen::Vector3d(0.6, -0.8, 0.3).normalized() * mm;
   return T;
 }
@@ -33,7 +34,8 @@ struct Pair {
 Pair MakePair(const HeightField& hf, double shift_mm, double noise_mm) {
   const auto cam = TestCamera();
   const Rigid3d wa = LookDown(0, 0, 30), wb = LookDown(shift_mm, 0.3, 30.2, 0.03, -0.04, 0.05);
-  const auto va = RenderHeightField(hf, cam, wa, noise_mm, 1), vb = RenderHeightField(hf, cam, wb, noise_mm, 2);
+  const auto va = RenderHeightField(hf, cam, wa, noise_mm, 1),
+             vb = RenderHeightField(hf, cam, wb, noise_mm, 2);
   Pair p;
   p.target = SampleOrganised(va.points, va.normals, va.quality, 1);
   p.source = SampleOrganised(vb.points, vb.normals, vb.quality, 2);
@@ -63,7 +65,8 @@ TEST(Icp, RecoversAKnownTransformWithBothAssociations) {
   const IcpResult a = RegisterIcp(p.source, kd, init, o);
   ASSERT_TRUE(a.ok) << a.reason;
   EXPECT_LT(RotationAngleRad(a.target_from_source, p.target_from_source) * 180 / M_PI, 0.01);
-  EXPECT_LT(TranslationDistanceMm(a.target_from_source, p.target_from_source), 0.004);  // at the camera, 30 mm away
+  EXPECT_LT(TranslationDistanceMm(a.target_from_source, p.target_from_source),
+            0.004);  // at the camera, 30 mm away
   EXPECT_GT(a.overlap, 0.5);
   EXPECT_LT(a.rmse_mm, 0.012);
   // Projective association in the target's own image (the target frame is its camera frame).
@@ -108,20 +111,24 @@ TEST(Icp, ALevelsOwnTerminationEndsItSoonerAndTheNextLevelKeepsThePose) {
   ASSERT_TRUE(a.ok) << a.reason;
   ASSERT_TRUE(b.ok) << b.reason;
   EXPECT_LT(b.iterations, a.iterations);  // 10 against 14
-  EXPECT_LT(RotationAngleRad(b.target_from_source, p.target_from_source) * 180 / M_PI, 0.015);  // 0.011°, as strict
-  EXPECT_LT(TranslationDistanceMm(b.target_from_source, p.target_from_source), 0.006);  // 4.8 µm, as strict
+  EXPECT_LT(RotationAngleRad(b.target_from_source, p.target_from_source) * 180 / M_PI,
+            0.015);  // 0.011°, as strict
+  EXPECT_LT(TranslationDistanceMm(b.target_from_source, p.target_from_source),
+            0.006);  // 4.8 µm, as strict
   EXPECT_LT(TranslationDistanceMm(a.target_from_source, b.target_from_source), 0.001);  // 0.03 µm
   loose.levels[1].min_delta_rotation_rad = -1;
   EXPECT_THROW(loose.Check(), std::invalid_argument);
 }
 
 // threads > 1 forms the normal equations in fixed chunks summed in a fixed order: the same pose as
-// one thread up to rounding, and bit for bit the same from run to run (lossless replay must repeat).
+// one thread up to rounding, and bit for bit the same from run to run (lossless replay must
+// repeat).
 TEST(Icp, TwoThreadsAgreeWithOneAndRepeatExactly) {
   const auto [p, init] = StandardPair();
   KdTreeTarget kd(p.target);
   IcpOptions o;
-  o.levels = {{4, 12, 1.0, 0.7}, {1, 10, 0.3, 0.9}};  // both metrics (α < 1) and enough matches for several chunks
+  o.levels = {{4, 12, 1.0, 0.7},
+              {1, 10, 0.3, 0.9}};  // both metrics (α < 1) and enough matches for several chunks
   const IcpResult one = RegisterIcp(p.source, kd, init, o);
   o.threads = 2;
   const IcpResult two = RegisterIcp(p.source, kd, init, o);
@@ -133,7 +140,8 @@ TEST(Icp, TwoThreadsAgreeWithOneAndRepeatExactly) {
   EXPECT_NEAR(one.rmse_mm, two.rmse_mm, 1e-12);
   for (int run = 0; run < 3; ++run) {
     const IcpResult again = RegisterIcp(p.source, kd, init, o);
-    EXPECT_TRUE(again.target_from_source.matrix() == two.target_from_source.matrix()) << "run " << run;
+    EXPECT_TRUE(again.target_from_source.matrix() == two.target_from_source.matrix())
+        << "run " << run;
     EXPECT_TRUE(again.information == two.information) << "run " << run;
   }
 }
@@ -144,7 +152,8 @@ TEST(Icp, ReusedAssociationsGiveTheSamePoseBitForBit) {
   const HeightField hf(13);
   const auto cam = TestCamera();
   const Rigid3d wa = LookDown(0, 0, 30), wb = LookDown(1.2, -0.4, 30.3, 0.02, 0.03, -0.04);
-  const auto va = RenderHeightField(hf, cam, wa, 0.005, 3), vb = RenderHeightField(hf, cam, wb, 0.005, 4);
+  const auto va = RenderHeightField(hf, cam, wa, 0.005, 3),
+             vb = RenderHeightField(hf, cam, wb, 0.005, 4);
   const SurfacePoints target = SampleOrganised(va.points, va.normals, va.quality, 1);
   const SurfacePoints source = SampleOrganised(vb.points, vb.normals, vb.quality, 2);
   Rigid3d init = wa.inverse() * wb;
@@ -250,10 +259,12 @@ TEST(Icp, RemappedOnAPlaneOnlyTheConstrainedMotionIsTaken) {
     const IcpResult r = RegisterIcp(p.source, kd, init, remapped ? remap : IcpOptions{});
     EXPECT_FALSE(r.ok);  // still degenerate
     EXPECT_NE(r.reason.find("degenerate"), std::string::npos) << r.reason;
-    const Rigid3d e = r.target_from_source * p.target_from_source.inverse();  // its error, target frame
-    const Eigen::Vector3d moved = e * c - c;  // where the view's centre went
-    EXPECT_NEAR(moved.z(), 0.0, 0.01);        // back onto the plane either way
-    EXPECT_LT(std::acos(std::min(1.0, (e.linear() * Eigen::Vector3d::UnitZ()).z())) * 180 / M_PI, 0.02);  // tilt fixed
+    const Rigid3d e =
+        r.target_from_source * p.target_from_source.inverse();  // its error, target frame
+    const Eigen::Vector3d moved = e * c - c;                    // where the view's centre went
+    EXPECT_NEAR(moved.z(), 0.0, 0.01);                          // back onto the plane either way
+    EXPECT_LT(std::acos(std::min(1.0, (e.linear() * Eigen::Vector3d::UnitZ()).z())) * 180 / M_PI,
+              0.02);                                            // tilt fixed
     const double slid_mm = (moved - started).head<2>().norm();  // in the plane, from the start
     if (remapped) {
       EXPECT_LT(slid_mm, 0.02);
@@ -264,7 +275,8 @@ TEST(Icp, RemappedOnAPlaneOnlyTheConstrainedMotionIsTaken) {
   // A well-constrained fit is the same with remapping.
   const auto [q, qinit] = StandardPair();
   KdTreeTarget kq(q.target);
-  const IcpResult plain = RegisterIcp(q.source, kq, qinit, IcpOptions{}), mapped = RegisterIcp(q.source, kq, qinit, remap);
+  const IcpResult plain = RegisterIcp(q.source, kq, qinit, IcpOptions{}),
+                  mapped = RegisterIcp(q.source, kq, qinit, remap);
   ASSERT_TRUE(plain.ok && mapped.ok) << plain.reason << " / " << mapped.reason;
   EXPECT_LT(TranslationDistanceMm(plain.target_from_source, mapped.target_from_source), 1e-3);
   remap.remap_min_eigen_ratio = 1;
@@ -295,7 +307,8 @@ TEST(Icp, LowOverlapFailsCleanly) {
   KdTreeTarget kd(p.target);
   const IcpResult r = RegisterIcp(p.source, kd, p.target_from_source, IcpOptions{});
   EXPECT_FALSE(r.ok);
-  EXPECT_TRUE(r.reason.find("overlap") != std::string::npos || r.reason.find("correspondences") != std::string::npos)
+  EXPECT_TRUE(r.reason.find("overlap") != std::string::npos ||
+              r.reason.find("correspondences") != std::string::npos)
       << r.reason;
 }
 

@@ -10,16 +10,20 @@ struct Adaptor {
   size_t kdtree_get_point_count() const { return pts->size(); }
   float kdtree_get_pt(size_t i, size_t d) const { return (*pts)[i][static_cast<Eigen::Index>(d)]; }
   template <class BBOX>
-  bool kdtree_get_bbox(BBOX&) const { return false; }
+  bool kdtree_get_bbox(BBOX&) const {
+    return false;
+  }
 };
-using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, Adaptor>, Adaptor, 3, uint32_t>;
+using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, Adaptor>,
+                                                 Adaptor, 3, uint32_t>;
 }  // namespace
 
 struct PointKdTree::Impl {
   Adaptor adaptor;
   Tree tree;
   Impl(const std::vector<Eigen::Vector3f>* p, int leaf)
-      : adaptor{p}, tree(3, adaptor, nanoflann::KDTreeSingleIndexAdaptorParams(static_cast<size_t>(leaf))) {
+      : adaptor{p},
+        tree(3, adaptor, nanoflann::KDTreeSingleIndexAdaptorParams(static_cast<size_t>(leaf))) {
     tree.buildIndex();
   }
 };
@@ -52,7 +56,8 @@ int PointKdTree::Knn(const Eigen::Vector3f& q, int k, int* indices, float* dist2
   return n;
 }
 
-void PointKdTree::Radius(const Eigen::Vector3f& q, float radius_mm, std::vector<int>* indices) const {
+void PointKdTree::Radius(const Eigen::Vector3f& q, float radius_mm,
+                         std::vector<int>* indices) const {
   indices->clear();
   if (points_->empty()) return;
   std::vector<std::pair<uint32_t, float>> m;

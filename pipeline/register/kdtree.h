@@ -16,7 +16,8 @@ class PointKdTree {
   PointKdTree& operator=(const PointKdTree&) = delete;
   // Index of the nearest point and its squared distance (mm²); -1 for an empty tree or when no
   // point is closer than √max_dist2 (a bound prunes the search: ICP's association gate).
-  int Nearest(const Eigen::Vector3f& q, float* dist2, float max_dist2 = std::numeric_limits<float>::max()) const;
+  int Nearest(const Eigen::Vector3f& q, float* dist2,
+              float max_dist2 = std::numeric_limits<float>::max()) const;
   // Up to k nearest (sorted by distance); returns the count found.
   int Knn(const Eigen::Vector3f& q, int k, int* indices, float* dist2) const;
   // Indices within radius (mm), unsorted.

@@ -20,16 +20,22 @@ void KeyframeGraphOptions::Check() const {
   features.Check();
   D3D_CHECK_MSG(stride >= 1, "KeyframeGraphOptions: stride >= 1");
   D3D_CHECK_MSG(overlap > 0 && overlap <= 1, "KeyframeGraphOptions: overlap in (0, 1]");
-  D3D_CHECK_MSG(max_rotation_deg >= 0 && max_views >= 0, "KeyframeGraphOptions: max_rotation_deg and max_views >= 0 (0 = off)");
-  D3D_CHECK_MSG(jump_mm >= 0 && jump_deg >= 0, "KeyframeGraphOptions: jump_mm and jump_deg >= 0 (0 = off)");
+  D3D_CHECK_MSG(max_rotation_deg >= 0 && max_views >= 0,
+                "KeyframeGraphOptions: max_rotation_deg and max_views >= 0 (0 = off)");
+  D3D_CHECK_MSG(jump_mm >= 0 && jump_deg >= 0,
+                "KeyframeGraphOptions: jump_mm and jump_deg >= 0 (0 = off)");
   D3D_CHECK_MSG(reuse_radius_mm >= 0 && reuse_candidates >= 1,
                 "KeyframeGraphOptions: reuse_radius_mm >= 0 (0 = off) and reuse_candidates >= 1");
-  D3D_CHECK_MSG(loop_min_separation >= 1 && max_loop_candidates >= 0 && near_loop_candidates >= 0, "KeyframeGraphOptions: counts");
+  D3D_CHECK_MSG(loop_min_separation >= 1 && max_loop_candidates >= 0 && near_loop_candidates >= 0,
+                "KeyframeGraphOptions: counts");
   D3D_CHECK_MSG(edge_information_scale > 0, "KeyframeGraphOptions: edge_information_scale > 0");
-  D3D_CHECK_MSG(tracked_edge_information_factor >= 0, "KeyframeGraphOptions: tracked_edge_information_factor >= 0 (0 = none)");
+  D3D_CHECK_MSG(tracked_edge_information_factor >= 0,
+                "KeyframeGraphOptions: tracked_edge_information_factor >= 0 (0 = none)");
   D3D_CHECK_MSG(near_loop_information_factor > 0 && near_loop_information_factor <= 1,
                 "KeyframeGraphOptions: near_loop_information_factor in (0, 1]");
-  D3D_CHECK_MSG(odometry_sigma_mm > 0 && odometry_sigma_rad > 0 && loop_sigma_mm > 0 && loop_sigma_rad > 0, "KeyframeGraphOptions: sigmas");
+  D3D_CHECK_MSG(
+      odometry_sigma_mm > 0 && odometry_sigma_rad > 0 && loop_sigma_mm > 0 && loop_sigma_rad > 0,
+      "KeyframeGraphOptions: sigmas");
 }
 
 // Keyframe features on a thread of their own (FeatureTiming::kWorker). Track()'s thread submits a
@@ -124,7 +130,8 @@ std::unique_ptr<PointMap> OccupancyMap(const SurfacePoints& b, double voxel_mm) 
 }
 
 // Fraction of `a` (frame A) that lies in occupied voxels of `b` (frame B) given B_from_A.
-double OverlapIndex(const SurfacePoints& a, const SurfacePoints& b, const Rigid3d& b_from_a, double voxel_mm) {
+double OverlapIndex(const SurfacePoints& a, const SurfacePoints& b, const Rigid3d& b_from_a,
+                    double voxel_mm) {
   return OccupancyMap(b, voxel_mm)->Overlap(a, b_from_a);
 }
 
@@ -137,7 +144,8 @@ void ScaleInformation(double factor, PoseGraphEdge* e) {
 }
 }  // namespace
 
-KeyframeGraph::KeyframeGraph(const KeyframeGraphOptions& options, const IcpOptions& tracking_icp, bool with_features)
+KeyframeGraph::KeyframeGraph(const KeyframeGraphOptions& options, const IcpOptions& tracking_icp,
+                             bool with_features)
     : o_(options), keyframe_icp_(KeyframeIcp(tracking_icp)), with_features_(with_features) {
   o_.Check();
   if (o_.feature_timing == KeyframeGraphOptions::FeatureTiming::kWorker && with_features_)
@@ -153,29 +161,35 @@ void KeyframeGraph::CollectFeatures() {
 
 const ViewFeatures& KeyframeGraph::Features(int k) {
   Keyframe* kf = &keyframes_[static_cast<size_t>(k)];
-  if (!kf->features_pending()) return kf->features;  // kOnDemand: the first relocalisation or join that needs them
+  if (!kf->features_pending())
+    return kf->features;  // kOnDemand: the first relocalisation or join that needs them
   std::vector<cv::Mat> points, texture;
   // Packed by this graph: unpacking fails only on damaged memory, and then no features are better
   // than wrong ones (the keyframe is simply not matched).
   if (UnpackFrames(kf->packed_feature_points, &points).ok() &&
-      (kf->packed_feature_texture.empty() || UnpackFrames(kf->packed_feature_texture, &texture).ok()))
-    kf->features = ExtractViewFeatures(points[0], texture.empty() ? cv::Mat() : texture[0], o_.features);
+      (kf->packed_feature_texture.empty() ||
+       UnpackFrames(kf->packed_feature_texture, &texture).ok()))
+    kf->features =
+        ExtractViewFeatures(points[0], texture.empty() ? cv::Mat() : texture[0], o_.features);
   std::string().swap(kf->packed_feature_points);
   std::string().swap(kf->packed_feature_texture);
   return kf->features;
 }
 
-void KeyframeGraph::Update(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& texture, const Rigid3d& pose, int64_t view,
-                           int segment, TrackResult* out) {
+void KeyframeGraph::Update(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& texture,
+                           const Rigid3d& pose, int64_t view, int segment, TrackResult* out) {
   SurfacePoints kfs = SampleOrganised(points, normals, cv::Mat(), o_.stride);
-  const bool jumped =
-      (o_.jump_mm > 0 && out->prediction_offset_mm > o_.jump_mm) || (o_.jump_deg > 0 && out->prediction_offset_deg > o_.jump_deg);
+  const bool jumped = (o_.jump_mm > 0 && out->prediction_offset_mm > o_.jump_mm) ||
+                      (o_.jump_deg > 0 && out->prediction_offset_deg > o_.jump_deg);
   if (current_kf_ >= 0 && !jumped) {
     const Keyframe& current = keyframes_[static_cast<size_t>(current_kf_)];
     const Rigid3d current_from_cam = graph_.pose(current.node).inverse() * pose;
-    const bool turned = o_.max_rotation_deg > 0 && RotationAngleRad(graph_.pose(current.node), pose) * 180.0 / M_PI > o_.max_rotation_deg;
+    const bool turned =
+        o_.max_rotation_deg > 0 &&
+        RotationAngleRad(graph_.pose(current.node), pose) * 180.0 / M_PI > o_.max_rotation_deg;
     const bool aged = o_.max_views > 0 && view - current_since_ >= o_.max_views;
-    if (!turned && !aged && current_occupancy_->Overlap(kfs, current_from_cam) >= o_.overlap) return;
+    if (!turned && !aged && current_occupancy_->Overlap(kfs, current_from_cam) >= o_.overlap)
+      return;
     if (o_.reuse_radius_mm > 0 && Reuse(kfs, pose, view)) {
       out->keyframe_reused = true;
       return;
@@ -193,8 +207,12 @@ void KeyframeGraph::Update(const cv::Mat& points, const cv::Mat& normals, const 
   current_occupancy_ = OccupancyMap(kf.samples, kOverlapVoxelMm);
   if (with_features_) {
     switch (o_.feature_timing) {
-      case KeyframeGraphOptions::FeatureTiming::kInTrack: kf.features = ExtractViewFeatures(points, texture, o_.features); break;
-      case KeyframeGraphOptions::FeatureTiming::kWorker: feature_worker_->Submit(keyframes_.size(), points, texture); break;
+      case KeyframeGraphOptions::FeatureTiming::kInTrack:
+        kf.features = ExtractViewFeatures(points, texture, o_.features);
+        break;
+      case KeyframeGraphOptions::FeatureTiming::kWorker:
+        feature_worker_->Submit(keyframes_.size(), points, texture);
+        break;
       case KeyframeGraphOptions::FeatureTiming::kOnDemand:
         // zstd fails only on exhausted memory: the features are then extracted now (kInTrack).
         if (!packer_.Pack({points}, &kf.packed_feature_points).ok() ||
@@ -213,21 +231,25 @@ void KeyframeGraph::Update(const cv::Mat& points, const cv::Mat& normals, const 
   const int k = static_cast<int>(keyframes_.size()) - 1;
   current_kf_ = k;
   current_since_ = view;
-  if (o_.defer_edges) deferred_edges_.push_back({-1, k});
-  else out->loops_added = AddKeyframeEdges(k);
+  if (o_.defer_edges)
+    deferred_edges_.push_back({-1, k});
+  else
+    out->loops_added = AddKeyframeEdges(k);
 }
 
 bool KeyframeGraph::Reuse(const SurfacePoints& kfs, const Rigid3d& pose, int64_t view) {
   if (kfs.empty()) return false;
   const Eigen::Vector3d centre = pose * kfs.Centroid();
-  const double max_turn_rad = o_.max_rotation_deg > 0 ? 0.5 * o_.max_rotation_deg * M_PI / 180.0 : M_PI;
+  const double max_turn_rad =
+      o_.max_rotation_deg > 0 ? 0.5 * o_.max_rotation_deg * M_PI / 180.0 : M_PI;
   std::vector<std::pair<double, int>> near;
   for (int j = 0; j < static_cast<int>(keyframes_.size()); ++j) {
     if (j == current_kf_) continue;
     const Keyframe& kf = keyframes_[static_cast<size_t>(j)];
     const Rigid3d& world_from_kf = graph_.pose(kf.node);
     const double d = (world_from_kf * kf.centre_in_cam - centre).norm();
-    if (d <= o_.reuse_radius_mm && RotationAngleRad(world_from_kf, pose) <= max_turn_rad) near.emplace_back(d, j);
+    if (d <= o_.reuse_radius_mm && RotationAngleRad(world_from_kf, pose) <= max_turn_rad)
+      near.emplace_back(d, j);
   }
   const size_t n = std::min(near.size(), static_cast<size_t>(o_.reuse_candidates));
   std::partial_sort(near.begin(), near.begin() + static_cast<std::ptrdiff_t>(n), near.end());
@@ -246,8 +268,10 @@ bool KeyframeGraph::Reuse(const SurfacePoints& kfs, const Rigid3d& pose, int64_t
     ++keyframes_reused_;
     if (left >= 0) {
       const DeferredEdge d{std::min(left, j), std::max(left, j)};
-      if (o_.defer_edges) deferred_edges_.push_back(d);
-      else AddReuseEdge(d.from, d.to);
+      if (o_.defer_edges)
+        deferred_edges_.push_back(d);
+      else
+        AddReuseEdge(d.from, d.to);
     }
     return true;
   }
@@ -257,7 +281,9 @@ bool KeyframeGraph::Reuse(const SurfacePoints& kfs, const Rigid3d& pose, int64_t
 void KeyframeGraph::AddReuseEdge(int from, int to) {
   // Checked here rather than when the reuse happened: deferred, the keyframes' own edges (odometry,
   // DetectLoops) are added just before, in Track()'s order, and one pair may be reused many times.
-  if (graph_.HasEdge(keyframes_[static_cast<size_t>(from)].node, keyframes_[static_cast<size_t>(to)].node)) return;
+  if (graph_.HasEdge(keyframes_[static_cast<size_t>(from)].node,
+                     keyframes_[static_cast<size_t>(to)].node))
+    return;
   PoseGraphEdge e;
   if (!MeasureEdge(from, to, &e)) return;
   e.loop = true;
@@ -267,11 +293,15 @@ void KeyframeGraph::AddReuseEdge(int from, int to) {
 
 int64_t Keyframe::bytes() const {
   const auto mat = [](const cv::Mat& m) { return static_cast<int64_t>(m.total() * m.elemSize()); };
-  const auto points = [](const std::vector<Eigen::Vector3f>& v) { return static_cast<int64_t>(v.capacity() * sizeof(Eigen::Vector3f)); };
+  const auto points = [](const std::vector<Eigen::Vector3f>& v) {
+    return static_cast<int64_t>(v.capacity() * sizeof(Eigen::Vector3f));
+  };
   return points(samples.points) + points(samples.normals) +
-         static_cast<int64_t>(samples.weights.capacity() * sizeof(float)) + points(features.texture_points) + points(features.range_points) +
-         points(features.shaded_points) + mat(features.texture_descriptors) + mat(features.range_descriptors) +
-         mat(features.shaded_descriptors) + static_cast<int64_t>(packed_feature_points.capacity() + packed_feature_texture.capacity());
+         static_cast<int64_t>(samples.weights.capacity() * sizeof(float)) +
+         points(features.texture_points) + points(features.range_points) +
+         points(features.shaded_points) + mat(features.texture_descriptors) +
+         mat(features.range_descriptors) + mat(features.shaded_descriptors) +
+         static_cast<int64_t>(packed_feature_points.capacity() + packed_feature_texture.capacity());
 }
 
 int64_t KeyframeGraph::bytes() const {
@@ -316,8 +346,9 @@ IcpOptions KeyframeIcp(const IcpOptions& base) {
   return icp;
 }
 
-bool MeasureKeyframeEdge(const SurfacePoints& from_samples, const SurfacePoints& to_samples, const Rigid3d& guess,
-                         const IcpOptions& icp, double information_scale, PoseGraphEdge* e, IcpResult* result) {
+bool MeasureKeyframeEdge(const SurfacePoints& from_samples, const SurfacePoints& to_samples,
+                         const Rigid3d& guess, const IcpOptions& icp, double information_scale,
+                         PoseGraphEdge* e, IcpResult* result) {
   D3D_CHECK_MSG(information_scale > 0, "MeasureKeyframeEdge: information_scale must be > 0");
   const KdTreeTarget target(from_samples);
   const IcpResult r = RegisterIcp(to_samples, target, guess, icp);
@@ -337,7 +368,9 @@ bool KeyframeGraph::MeasureEdge(int from, int to, PoseGraphEdge* e) const {
   m.to = a.node;
   m.sigma_translation_mm = o_.loop_sigma_mm;
   m.sigma_rotation_rad = o_.loop_sigma_rad;
-  if (!MeasureKeyframeEdge(b.samples, a.samples, b_from_a, keyframe_icp_, o_.edge_information_scale, &m)) return false;
+  if (!MeasureKeyframeEdge(b.samples, a.samples, b_from_a, keyframe_icp_, o_.edge_information_scale,
+                           &m))
+    return false;
   if (!o_.icp_edges) m.information.setZero();  // the σs
   *e = m;
   return true;
@@ -349,7 +382,8 @@ int KeyframeGraph::DetectLoops(int k) {
   const Eigen::Vector3d ca = wa * a.centre_in_cam;
   std::vector<std::pair<double, int>> far, near;
   for (int j = 0; j + 2 <= k; ++j) {
-    if (j == a.parent) continue;  // joined by the odometry edge (a reused keyframe: older than k − 1)
+    if (j == a.parent)
+      continue;  // joined by the odometry edge (a reused keyframe: older than k − 1)
     const Keyframe& b = keyframes_[static_cast<size_t>(j)];
     const double d = (graph_.pose(b.node) * b.centre_in_cam - ca).norm();
     if (d >= o_.loop_radius_mm) continue;
@@ -358,12 +392,14 @@ int KeyframeGraph::DetectLoops(int k) {
   std::sort(far.begin(), far.end());
   std::sort(near.begin(), near.end());
   int added = 0;
-  for (const auto& [cand, budget] : {std::pair{&far, o_.max_loop_candidates}, std::pair{&near, o_.near_loop_candidates}}) {
+  for (const auto& [cand, budget] :
+       {std::pair{&far, o_.max_loop_candidates}, std::pair{&near, o_.near_loop_candidates}}) {
     int here = 0;
     for (size_t i = 0; i < cand->size() && here < budget; ++i) {
       const Keyframe& b = keyframes_[static_cast<size_t>((*cand)[i].second)];
       const Rigid3d b_from_a = graph_.pose(b.node).inverse() * wa;
-      if (OverlapIndex(a.samples, b.samples, b_from_a, kOverlapVoxelMm) < o_.loop_min_overlap) continue;
+      if (OverlapIndex(a.samples, b.samples, b_from_a, kOverlapVoxelMm) < o_.loop_min_overlap)
+        continue;
       PoseGraphEdge e;
       if (!MeasureEdge((*cand)[i].second, k, &e)) continue;
       e.loop = true;
@@ -397,20 +433,24 @@ Status KeyframeGraph::Optimize(const PoseGraphOptions& options, PoseGraphSummary
   // Deferred edges first, in keyframe order: the graph's poses have not moved since the keyframes
   // were made (nothing but Optimize moves them), so these are the edges Track() would have added.
   for (const DeferredEdge& d : deferred_edges_) {
-    if (d.from < 0) AddKeyframeEdges(d.to);
-    else AddReuseEdge(d.from, d.to);
+    if (d.from < 0)
+      AddKeyframeEdges(d.to);
+    else
+      AddReuseEdge(d.from, d.to);
   }
   deferred_edges_.clear();
   return graph_.Optimize(options, summary);
 }
 
-int KeyframeGraph::DropFrom(int64_t first_view, bool truncate_edges, size_t edges_before, size_t deferred_before) {
+int KeyframeGraph::DropFrom(int64_t first_view, bool truncate_edges, size_t edges_before,
+                            size_t deferred_before) {
   CollectFeatures();  // no job of the feature worker may name a keyframe that goes
   size_t keep = 0;
   while (keep < keyframes_.size() && keyframes_[keep].view < first_view) ++keep;
   const int dropped = static_cast<int>(keyframes_.size() - keep);
   keyframes_.resize(keep);
-  D3D_CHECK_MSG(keep == 0 || keyframes_.back().node == static_cast<int>(keep) - 1, "KeyframeGraph::DropFrom: keyframe nodes out of order");
+  D3D_CHECK_MSG(keep == 0 || keyframes_.back().node == static_cast<int>(keep) - 1,
+                "KeyframeGraph::DropFrom: keyframe nodes out of order");
   // Edges (and deferred ones) are appended in Track()'s order until Optimize: those added since the
   // counts were taken go, including reuse edges between two kept keyframes.
   if (truncate_edges) {
@@ -424,7 +464,8 @@ void KeyframeGraph::SetCurrent(int k, int64_t since) {
   D3D_CHECK_MSG(k < size(), "KeyframeGraph::SetCurrent: keyframe " << k << " of " << size());
   current_kf_ = k;
   current_since_ = since;
-  current_occupancy_ = k >= 0 ? OccupancyMap(keyframes_[static_cast<size_t>(k)].samples, kOverlapVoxelMm) : nullptr;
+  current_occupancy_ =
+      k >= 0 ? OccupancyMap(keyframes_[static_cast<size_t>(k)].samples, kOverlapVoxelMm) : nullptr;
 }
 
 }  // namespace d3d

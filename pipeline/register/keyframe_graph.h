@@ -13,11 +13,10 @@
 
 #include <cstdint>
 #include <memory>
+#include <opencv2/core.hpp>
 #include <string>
 #include <type_traits>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 #include "common/core/status.h"
 #include "common/pack/frame_pack.h"
@@ -49,15 +48,16 @@ struct KeyframeGraphOptions {
   double jump_mm = 0.7;
   double jump_deg = 1.2;
   // Reuse: a view that would become a keyframe makes an older one current again instead when that
-  // one's centre lies within reuse_radius_mm of the view's, turned at most max_rotation_deg / 2, and
-  // it overlaps the view by `overlap` (of the reuse_candidates nearest, the first that passes). Why:
-  // a probe circling one tooth kept making keyframes, each holding memory (docs/decisions/0008).
-  // 0 = never reuse; d3d-scan: 2 mm.
+  // one's centre lies within reuse_radius_mm of the view's, turned at most max_rotation_deg / 2,
+  // and it overlaps the view by `overlap` (of the reuse_candidates nearest, the first that passes).
+  // Why: a probe circling one tooth kept making keyframes, each holding memory
+  // (docs/decisions/0008). 0 = never reuse; d3d-scan: 2 mm.
   double reuse_radius_mm = 0;
   int reuse_candidates = 3;
   int stride = 4;                                 // px lattice of a keyframe's samples
   FeatureOptions features = HalfScaleFeatures();  // keyframe and relocalisation features
-  // When a keyframe's features (SIFT on three images) are extracted; the same features in every mode.
+  // When a keyframe's features (SIFT on three images) are extracted; the same features in every
+  // mode.
   //  kInTrack:  in Track(), when the keyframe is made.
   //  kWorker:   on a worker thread (Track() pays a copy of the points and texture); a
   //             relocalisation first waits for every keyframe's features.
@@ -77,8 +77,9 @@ struct KeyframeGraphOptions {
   // Per new keyframe, edges to recent keyframes too (2 .. loop_min_separation − 1 back), nearest
   // first: several overlapping neighbours constrain a keyframe whose own registration was weak.
   int near_loop_candidates = 3;
-  // The information of those near loops times this (0 < f ≤ 1): their errors are correlated with the
-  // odometry edge beside them, which the graph would otherwise count twice (docs/decisions/0008).
+  // The information of those near loops times this (0 < f ≤ 1): their errors are correlated with
+  // the odometry edge beside them, which the graph would otherwise count twice
+  // (docs/decisions/0008).
   double near_loop_information_factor = 0.25;
   // Odometry edges measured by ICP between the keyframes' own samples with ICP's information
   // (× edge_information_scale); loop edges use that information too. false: the tracked relative
@@ -89,10 +90,10 @@ struct KeyframeGraphOptions {
   // tracker's drift into the loop-closing full arch (docs/decisions/0008). d3d-fuse / d3d-scan
   // --tracked-edge-factor.
   double tracked_edge_information_factor = 0.0;
-  double edge_information_scale = 1e-3;                         // ICP information × this on ICP edges (icp_edges)
+  double edge_information_scale = 1e-3;  // ICP information × this on ICP edges (icp_edges)
   double odometry_sigma_mm = 0.005, odometry_sigma_rad = 1e-4;  // edge σ (without ICP information)
-  double loop_sigma_mm = 0.005, loop_sigma_rad = 1e-4;          // loop edge σ (without ICP information)
-  void Check() const;                                           // throws std::invalid_argument
+  double loop_sigma_mm = 0.005, loop_sigma_rad = 1e-4;  // loop edge σ (without ICP information)
+  void Check() const;                                   // throws std::invalid_argument
 };
 
 // ICP levels of keyframe-to-keyframe registration (gates 0.5 → 0.1 mm), acceptance from `base`.
@@ -103,8 +104,9 @@ IcpOptions KeyframeIcp(const IcpOptions& base = DefaultTrackerIcp());
 // `guess` (from_from_to). On success *edge gets from_from_to and ICP's information matrix times
 // information_scale (pose_graph.h EdgeInformationFromIcp); its nodes and `loop` are left to the
 // caller. Returns false (edge untouched) when the ICP is not ok; *result (optional) gets the ICP.
-bool MeasureKeyframeEdge(const SurfacePoints& from_samples, const SurfacePoints& to_samples, const Rigid3d& guess, const IcpOptions& icp,
-                         double information_scale, PoseGraphEdge* edge, IcpResult* result = nullptr);
+bool MeasureKeyframeEdge(const SurfacePoints& from_samples, const SurfacePoints& to_samples,
+                         const Rigid3d& guess, const IcpOptions& icp, double information_scale,
+                         PoseGraphEdge* edge, IcpResult* result = nullptr);
 
 struct Keyframe {
   int64_t view = 0;       // index of the view (Track call) it was made from
@@ -113,7 +115,8 @@ struct Keyframe {
   ViewFeatures features;  // camera frame (kWorker: once collected; kOnDemand: once extracted)
   // kOnDemand: the inputs of its features (points H×W CV_32FC3, texture H×W CV_8U or empty), packed
   // losslessly (common/pack/frame_pack.h; texture: empty when there is none) until a relocalisation
-  // extracts them (both released then; sizes: docs/decisions/0008). A keyframe's points are never empty.
+  // extracts them (both released then; sizes: docs/decisions/0008). A keyframe's points are never
+  // empty.
   std::string packed_feature_points, packed_feature_texture;
   int segment = 0;  // the scan segment it was made in (segments.h)
   bool features_pending() const { return !packed_feature_points.empty(); }
@@ -126,13 +129,15 @@ struct Keyframe {
 };
 // Its members move without throwing (ViewFeatures declares so for its cv::Mats), so
 // std::vector<Keyframe> moves keyframes when it grows rather than copying them (see ViewFeatures).
-static_assert(std::is_nothrow_move_constructible_v<Keyframe>, "std::vector<Keyframe> must move keyframes when it grows, not copy them");
+static_assert(std::is_nothrow_move_constructible_v<Keyframe>,
+              "std::vector<Keyframe> must move keyframes when it grows, not copy them");
 
 class KeyframeGraph {
  public:
   // tracking_icp: the frame-to-model ICP, whose acceptance KeyframeIcp keeps; with_features: the
   // keyframes carry relocalisation features. Throws for invalid options.
-  KeyframeGraph(const KeyframeGraphOptions& options, const IcpOptions& tracking_icp, bool with_features);
+  KeyframeGraph(const KeyframeGraphOptions& options, const IcpOptions& tracking_icp,
+                bool with_features);
   ~KeyframeGraph();
   const KeyframeGraphOptions& options() const { return o_; }
 
@@ -141,31 +146,34 @@ class KeyframeGraph {
   bool empty() const { return keyframes_.empty(); }
   int size() const { return static_cast<int>(keyframes_.size()); }
   const PoseGraph& graph() const { return graph_; }
-  const Rigid3d& world_from_keyframe(int k) const { return graph_.pose(keyframes_[static_cast<size_t>(k)].node); }
-  Eigen::Vector3d CentreInWorld(int k) const {  // keyframe k's surface centre at its graph pose (mm)
+  const Rigid3d& world_from_keyframe(int k) const {
+    return graph_.pose(keyframes_[static_cast<size_t>(k)].node);
+  }
+  Eigen::Vector3d CentreInWorld(
+      int k) const {  // keyframe k's surface centre at its graph pose (mm)
     const Keyframe& kf = keyframes_[static_cast<size_t>(k)];
     return graph_.pose(kf.node) * kf.centre_in_cam;
   }
-  int current() const { return current_kf_; }               // the keyframe views anchor to now (−1: none yet)
+  int current() const { return current_kf_; }  // the keyframe views anchor to now (−1: none yet)
   int64_t current_since() const { return current_since_; }  // the view that made it current
-  int reused() const { return keyframes_reused_; }          // times an older keyframe became current again
-  int64_t bytes() const;                                    // the keyframes' Keyframe::bytes(), summed
+  int reused() const { return keyframes_reused_; }  // times an older keyframe became current again
+  int64_t bytes() const;                            // the keyframes' Keyframe::bytes(), summed
   int loop_edges() const;
 
   // The keyframe step of an accepted view `view` (points, normals H×W CV_32FC3 camera frame,
   // texture H×W CV_8U or empty) at `pose` (world_from_cam) in segment `segment`: it becomes a
   // keyframe, reuses an older one, or anchors to the current one. Reads out->prediction_offset_mm /
   // _deg; sets out->new_keyframe, keyframe_reused, loops_added.
-  void Update(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& texture, const Rigid3d& pose, int64_t view, int segment,
-              TrackResult* out);
+  void Update(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& texture,
+              const Rigid3d& pose, int64_t view, int segment, TrackResult* out);
 
   // Keyframe k's features, extracted first when kOnDemand left them pending.
   const ViewFeatures& Features(int k);
   // Waits for the feature worker's pending keyframes and moves their features into the keyframes.
   void CollectFeatures();
 
-  // The ICP edge of keyframe `to`'s samples onto keyframe `from`'s from their current relative pose,
-  // on the loop σs (false when the ICP fails).
+  // The ICP edge of keyframe `to`'s samples onto keyframe `from`'s from their current relative
+  // pose, on the loop σs (false when the ICP fails).
   bool MeasureEdge(int from, int to, PoseGraphEdge* edge) const;
   void AddEdge(const PoseGraphEdge& edge) { graph_.AddEdge(edge); }
   // Moves the graph poses of segment s's keyframes by T (a join: main_from_segment).
@@ -181,7 +189,8 @@ class KeyframeGraph {
   // Returns how many keyframes went.
   size_t edges() const { return graph_.edges().size(); }
   size_t deferred_edges() const { return deferred_edges_.size(); }
-  int DropFrom(int64_t first_view, bool truncate_edges, size_t edges_before, size_t deferred_before);
+  int DropFrom(int64_t first_view, bool truncate_edges, size_t edges_before,
+               size_t deferred_before);
   // Makes keyframe k (< size(); −1: none) current since view `since`.
   void SetCurrent(int k, int64_t since);
 
@@ -203,7 +212,7 @@ class KeyframeGraph {
   IcpOptions keyframe_icp_;  // KeyframeIcp of the tracking ICP
   bool with_features_;
   std::unique_ptr<FeatureWorker> feature_worker_;  // null unless feature_timing is kWorker
-  FramePacker packer_;                             // kOnDemand: packs a new keyframe's feature inputs
+  FramePacker packer_;  // kOnDemand: packs a new keyframe's feature inputs
   PoseGraph graph_;
   std::vector<Keyframe> keyframes_;
   // Edges that wait for Optimize (defer_edges), in the order Track() would have added them:

@@ -14,7 +14,8 @@ class KeyframeGraphTest : public ::testing::Test {
   KeyframeGraphTest() : hf_(31), cam_(TestCamera(160, 120, 500)) {}
   // Feeds view `view` at `pose` (its true pose: no tracking here); returns its TrackResult.
   TrackResult Feed(KeyframeGraph* g, const Rigid3d& pose, int64_t view, int segment = 0) const {
-    const SyntheticView v = RenderHeightField(hf_, cam_, pose, 0.004, static_cast<uint32_t>(view + 1));
+    const SyntheticView v =
+        RenderHeightField(hf_, cam_, pose, 0.004, static_cast<uint32_t>(view + 1));
     TrackResult out;
     g->Update(v.points, v.normals, v.texture, pose, view, segment, &out);
     return out;
@@ -50,7 +51,8 @@ TEST_F(KeyframeGraphTest, MakesKeyframesByOverlapAndAgeWithOdometryEdges) {
   KeyframeGraph g(Plain(), DefaultTrackerIcp(), false);
   std::vector<int64_t> made;
   for (int64_t i = 0; i <= 20; ++i)
-    if (Feed(&g, LookDown(-5 + 0.5 * static_cast<double>(i), 0, 30), i).new_keyframe) made.push_back(i);
+    if (Feed(&g, LookDown(-5 + 0.5 * static_cast<double>(i), 0, 30), i).new_keyframe)
+      made.push_back(i);
   ASSERT_GE(made.size(), 3u);
   EXPECT_EQ(made.front(), 0);
   for (size_t k = 1; k < made.size(); ++k) {
@@ -126,7 +128,8 @@ TEST_F(KeyframeGraphTest, DeferredEdgesAreTheSameEdges) {
   for (size_t i = 0; i < now.edges(); ++i) {
     EXPECT_EQ(now.graph().edges()[i].from, later.graph().edges()[i].from);
     EXPECT_EQ(now.graph().edges()[i].to, later.graph().edges()[i].to);
-    EXPECT_TRUE(now.graph().edges()[i].from_from_to.isApprox(later.graph().edges()[i].from_from_to, 1e-12));
+    EXPECT_TRUE(
+        now.graph().edges()[i].from_from_to.isApprox(later.graph().edges()[i].from_from_to, 1e-12));
   }
 }
 
@@ -137,7 +140,8 @@ TEST_F(KeyframeGraphTest, DropFromTakesBackKeyframesAndTheirEdges) {
   std::vector<int64_t> made;
   for (int64_t i = 0; i <= 20; ++i) {
     edges_before.push_back(g.edges());
-    if (Feed(&g, LookDown(-5 + 0.5 * static_cast<double>(i), 0, 30), i).new_keyframe) made.push_back(i);
+    if (Feed(&g, LookDown(-5 + 0.5 * static_cast<double>(i), 0, 30), i).new_keyframe)
+      made.push_back(i);
   }
   ASSERT_GE(made.size(), 3u);
   const int64_t from = made[2];
@@ -149,7 +153,8 @@ TEST_F(KeyframeGraphTest, DropFromTakesBackKeyframesAndTheirEdges) {
   g.SetCurrent(1, made[1]);
   EXPECT_EQ(g.current(), 1);
   // The scan goes on from there as if the dropped views had never come.
-  EXPECT_FALSE(Feed(&g, LookDown(-5 + 0.5 * static_cast<double>(from - 1), 0, 30), from).new_keyframe);
+  EXPECT_FALSE(
+      Feed(&g, LookDown(-5 + 0.5 * static_cast<double>(from - 1), 0, 30), from).new_keyframe);
   EXPECT_THROW(g.SetCurrent(2, 0), std::invalid_argument);
 }
 

@@ -7,8 +7,10 @@
 namespace d3d {
 
 void MotionModelOptions::Check() const {
-  D3D_CHECK_MSG(max_step_mm > 0 && max_step_deg > 0, "MotionModelOptions: max_step_mm and max_step_deg must be > 0");
-  D3D_CHECK_MSG(view_period_ns >= 0, "MotionModelOptions: view_period_ns must be >= 0 (0 = evenly spaced views)");
+  D3D_CHECK_MSG(max_step_mm > 0 && max_step_deg > 0,
+                "MotionModelOptions: max_step_mm and max_step_deg must be > 0");
+  D3D_CHECK_MSG(view_period_ns >= 0,
+                "MotionModelOptions: view_period_ns must be >= 0 (0 = evenly spaced views)");
 }
 
 MotionModel::MotionModel(const MotionModelOptions& options) : o_(options) { o_.Check(); }
@@ -23,7 +25,8 @@ bool MotionModel::TimedSince(int64_t capture_ns) const {
 }
 
 double MotionModel::ViewsSince(int64_t view, int64_t capture_ns) const {
-  if (TimedSince(capture_ns)) return static_cast<double>(capture_ns_ - capture_ns) / static_cast<double>(o_.view_period_ns);
+  if (TimedSince(capture_ns))
+    return static_cast<double>(capture_ns_ - capture_ns) / static_cast<double>(o_.view_period_ns);
   return static_cast<double>(view_ - view);
 }
 
@@ -36,17 +39,22 @@ Rigid3d MotionModel::Predict() const {
   return k <= 8 ? Rigid3d(last_pose_ * InterpolateRigid(Rigid3d::Identity(), step, k)) : last_pose_;
 }
 
-bool MotionModel::ConsistentFrom(const Rigid3d& from, double views, const Rigid3d& pose, std::string* why) const {
+bool MotionModel::ConsistentFrom(const Rigid3d& from, double views, const Rigid3d& pose,
+                                 std::string* why) const {
   const double step_mm = TranslationDistanceMm(pose, from);
   const double step_deg = RotationAngleRad(pose, from) * 180 / M_PI;
   if (step_mm > o_.max_step_mm * views || step_deg > o_.max_step_deg * views) {
-    if (why) *why = "inconsistent motion (" + std::to_string(step_mm) + " mm, " + std::to_string(step_deg) + " deg)";
+    if (why)
+      *why = "inconsistent motion (" + std::to_string(step_mm) + " mm, " +
+             std::to_string(step_deg) + " deg)";
     return false;
   }
   return true;
 }
 
-void MotionModel::Advance(const Rigid3d& pose, bool restart) { AdvanceAt(view_, pose, capture_ns_, restart); }
+void MotionModel::Advance(const Rigid3d& pose, bool restart) {
+  AdvanceAt(view_, pose, capture_ns_, restart);
+}
 
 void MotionModel::AdvanceAt(int64_t view, const Rigid3d& pose, int64_t capture_ns, bool restart) {
   prev_pose_ = last_pose_;

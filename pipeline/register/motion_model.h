@@ -42,9 +42,12 @@ class MotionModel {
   double ViewsSince(int64_t view, int64_t capture_ns) const;
   // `pose` is a motion from `from` within max_step_mm / max_step_deg × views; else false and
   // *why (if not null) says by how much.
-  bool ConsistentFrom(const Rigid3d& from, double views, const Rigid3d& pose, std::string* why) const;
+  bool ConsistentFrom(const Rigid3d& from, double views, const Rigid3d& pose,
+                      std::string* why) const;
   // The same from the last placed pose over ViewsElapsed().
-  bool Consistent(const Rigid3d& pose, std::string* why) const { return ConsistentFrom(last_pose_, ViewsElapsed(), pose, why); }
+  bool Consistent(const Rigid3d& pose, std::string* why) const {
+    return ConsistentFrom(last_pose_, ViewsElapsed(), pose, why);
+  }
 
   // The current view was placed at `pose`; `restart`: no velocity across it (a re-entry).
   void Advance(const Rigid3d& pose, bool restart);

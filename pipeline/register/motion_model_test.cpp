@@ -59,7 +59,7 @@ TEST(MotionModel, ByCaptureTimeWithAViewPeriod) {
   m.BeginView(2, 1'132'000'000);
   EXPECT_NEAR(m.ViewsElapsed(), 3.0, 1e-9);
   EXPECT_NEAR(m.ViewsSince(0, 1'000'000'000), 4.0, 1e-9);  // since an earlier view, by time too
-  EXPECT_DOUBLE_EQ(m.ViewsSince(0, 0), 2.0);                // its capture time unknown: views counted
+  EXPECT_DOUBLE_EQ(m.ViewsSince(0, 0), 2.0);  // its capture time unknown: views counted
   EXPECT_LT(TranslationDistanceMm(m.Predict(), At(4, 0)), 1e-9);
 }
 
@@ -69,12 +69,12 @@ TEST(MotionModel, TheMotionCheckScalesWithTheViewsElapsed) {
   m.Advance(At(0, 0), false);
   m.BeginView(1, 0);
   std::string why;
-  EXPECT_TRUE(m.Consistent(At(2, 0), &why));           // 2.2 mm
-  EXPECT_FALSE(m.Consistent(At(3, 0), &why));          // 3.4 mm
+  EXPECT_TRUE(m.Consistent(At(2, 0), &why));   // 2.2 mm
+  EXPECT_FALSE(m.Consistent(At(3, 0), &why));  // 3.4 mm
   EXPECT_NE(why.find("inconsistent motion"), std::string::npos);
-  EXPECT_FALSE(m.Consistent(At(0, 12), nullptr));      // 12 deg
+  EXPECT_FALSE(m.Consistent(At(0, 12), nullptr));  // 12 deg
   m.BeginView(2, 0);
-  EXPECT_TRUE(m.Consistent(At(3, 0), nullptr));        // two views: 5 mm allowed
+  EXPECT_TRUE(m.Consistent(At(3, 0), nullptr));  // two views: 5 mm allowed
   EXPECT_TRUE(m.ConsistentFrom(At(3, 0), 1, At(4, 0), nullptr));
   // A frame moved (a segment joined): the last pose with it.
   Rigid3d shift = Rigid3d::Identity();

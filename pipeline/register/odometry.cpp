@@ -10,9 +10,12 @@ namespace d3d {
 
 const char* AssociationName(Association a) {
   switch (a) {
-    case Association::kProjective: return "projective";
-    case Association::kKdTree: return "kdtree";
-    case Association::kGrid: return "grid";
+    case Association::kProjective:
+      return "projective";
+    case Association::kKdTree:
+      return "kdtree";
+    case Association::kGrid:
+      return "grid";
   }
   return "?";
 }
@@ -42,30 +45,39 @@ IcpOptions DefaultTrackerIcp() {
   return o;
 }
 
-int SegmentOfPoint(const Eigen::Vector3f& p) { return static_cast<int>(std::lround(p.x() / kSegmentSpacingMm)); }
+int SegmentOfPoint(const Eigen::Vector3f& p) {
+  return static_cast<int>(std::lround(p.x() / kSegmentSpacingMm));
+}
 
 void OdometryOptions::Check() const {
   icp.Check();
   map.Check();
-  D3D_CHECK_MSG(grid_decimate_min_gate_mm >= 0, "OdometryOptions: grid_decimate_min_gate_mm >= 0 (0 = off)");
+  D3D_CHECK_MSG(grid_decimate_min_gate_mm >= 0,
+                "OdometryOptions: grid_decimate_min_gate_mm >= 0 (0 = off)");
   D3D_CHECK_MSG(sample_stride >= 1 && map_stride >= 1, "OdometryOptions: strides >= 1");
-  D3D_CHECK_MSG(target_scale > 0 && target_scale <= 2 && target_splat >= 0 && target_window >= 0, "OdometryOptions: target");
+  D3D_CHECK_MSG(target_scale > 0 && target_scale <= 2 && target_splat >= 0 && target_window >= 0,
+                "OdometryOptions: target");
   D3D_CHECK_MSG(max_coast_views >= 0, "OdometryOptions: max_coast_views >= 0 (0 = off)");
-  D3D_CHECK_MSG(coast_min_eigen_ratio > 0 && coast_min_eigen_ratio < 1, "OdometryOptions: coast_min_eigen_ratio must be in (0, 1)");
+  D3D_CHECK_MSG(coast_min_eigen_ratio > 0 && coast_min_eigen_ratio < 1,
+                "OdometryOptions: coast_min_eigen_ratio must be in (0, 1)");
   D3D_CHECK_MSG(reregister_min_gain >= 0, "OdometryOptions: reregister_min_gain >= 0");
-  D3D_CHECK_MSG(reregister_first_level >= 0 && reregister_first_level < static_cast<int>(icp.levels.size()),
-                "OdometryOptions: reregister_first_level must index icp.levels");
-  D3D_CHECK_MSG(map_max_rmse_ratio == 0 || map_max_rmse_ratio >= 1, "OdometryOptions: map_max_rmse_ratio 0 (off) or >= 1");
+  D3D_CHECK_MSG(
+      reregister_first_level >= 0 && reregister_first_level < static_cast<int>(icp.levels.size()),
+      "OdometryOptions: reregister_first_level must index icp.levels");
+  D3D_CHECK_MSG(map_max_rmse_ratio == 0 || map_max_rmse_ratio >= 1,
+                "OdometryOptions: map_max_rmse_ratio 0 (off) or >= 1");
   D3D_CHECK_MSG(map_gate_min_overlap >= 0 && map_gate_min_overlap <= 1 && map_gate_max_run >= 0,
                 "OdometryOptions: map_gate_min_overlap in [0, 1], map_gate_max_run >= 0");
 }
 
-Odometry::Odometry(const PinholeBrownConrady& camera, const OdometryOptions& options) : o_(options), map_(options.map) {
+Odometry::Odometry(const PinholeBrownConrady& camera, const OdometryOptions& options)
+    : o_(options), map_(options.map) {
   o_.Check();
   pinhole_ = PinholeIntrinsics::Of(camera).Scaled(o_.target_scale);
 }
 
-IcpResult Odometry::Register(const SurfacePoints& source, const Rigid3d& initial, const IcpOptions& icp) const {
+IcpResult Odometry::Register(const SurfacePoints& source, const Rigid3d& initial,
+                             const IcpOptions& icp) const {
   if (o_.association == Association::kProjective) {
     cv::Mat P, N;
     map_.Render(initial, pinhole_, o_.target_splat, &P, &N);
@@ -85,7 +97,8 @@ IcpResult Odometry::Register(const SurfacePoints& source, const Rigid3d& initial
   // ICP linearises about the target's origin, in float: a segment's frame, kSegmentSpacingMm · s
   // from the main one, is moved back near the origin for it (its normal equations lost their
   // precision there: views 0.3 mm off after two steps), and the pose moved back after.
-  const double shift_x = -kSegmentSpacingMm * std::round(initial.translation().x() / kSegmentSpacingMm);
+  const double shift_x =
+      -kSegmentSpacingMm * std::round(initial.translation().x() / kSegmentSpacingMm);
   Rigid3d local = initial;
   if (shift_x != 0) {
     for (Eigen::Vector3f& p : gathered_.points) p.x() += static_cast<float>(shift_x);
@@ -123,10 +136,12 @@ bool Odometry::AdmitToModel(const IcpResult& icp, double* rmse_pushed_mm) {
   // The first view (no ICP) always enters.
   bool in_model = true;
   if (icp.ok && icp.rmse_mm > 0) {
-    if (o_.map_max_rmse_ratio > 0 && recent_rmse_mm_.size() >= 8 && icp.overlap >= o_.map_gate_min_overlap &&
-        gated_run_ < o_.map_gate_max_run) {
+    if (o_.map_max_rmse_ratio > 0 && recent_rmse_mm_.size() >= 8 &&
+        icp.overlap >= o_.map_gate_min_overlap && gated_run_ < o_.map_gate_max_run) {
       std::vector<double> sorted = recent_rmse_mm_;
-      std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() / 2), sorted.end());
+      std::nth_element(sorted.begin(),
+                       sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() / 2),
+                       sorted.end());
       in_model = icp.rmse_mm <= o_.map_max_rmse_ratio * sorted[sorted.size() / 2];
     }
     PushResidual(icp.rmse_mm);
@@ -148,17 +163,20 @@ void Odometry::ForgetResiduals() {
 }
 
 void Odometry::PushResidual(double rmse_mm) {
-  if (recent_rmse_mm_.size() < kRecentResiduals) recent_rmse_mm_.push_back(rmse_mm);
-  else recent_rmse_mm_[recent_rmse_next_++ % kRecentResiduals] = rmse_mm;
+  if (recent_rmse_mm_.size() < kRecentResiduals)
+    recent_rmse_mm_.push_back(rmse_mm);
+  else
+    recent_rmse_mm_[recent_rmse_next_++ % kRecentResiduals] = rmse_mm;
 }
 
-bool Odometry::Coast(const SurfacePoints& samples, const IcpResult& failed, const Rigid3d& prediction, const MotionModel& motion,
-                     IcpResult* fit) {
+bool Odometry::Coast(const SurfacePoints& samples, const IcpResult& failed,
+                     const Rigid3d& prediction, const MotionModel& motion, IcpResult* fit) {
   const IcpOptions& icp = o_.icp;
   if (o_.max_coast_views <= 0 || coast_run_ >= o_.max_coast_views) return false;
   // Refused for its degeneracy alone: it fits the model where it overlaps it.
   auto fits = [&](const IcpResult& r) {
-    return r.correspondences >= icp.min_correspondences && r.overlap >= icp.min_overlap && r.rmse_mm <= icp.max_rmse_mm;
+    return r.correspondences >= icp.min_correspondences && r.overlap >= icp.min_overlap &&
+           r.rmse_mm <= icp.max_rmse_mm;
   };
   if (!fits(failed) || failed.eigen_ratio >= icp.min_eigen_ratio) return false;
   // ICP again from the prediction, stepping only along the well-constrained directions.

@@ -8,10 +8,9 @@
 #pragma once
 
 #include <cstddef>
+#include <opencv2/core.hpp>
 #include <string>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 #include "calib/model/camera_model.h"
 #include "pipeline/register/grid_target.h"
@@ -53,33 +52,36 @@ struct OdometryOptions {
   int map_stride = 3;     // px lattice of the samples added to the model
   // true: Track() leaves the accepted view's model insert pending and the caller runs it with
   // CommitView() once it has passed the view on (d3d-scan: after handing it to the preview); the
-  // next Track() or UndoFrom() runs a pending one first. Nothing between reads the model: the same bits.
+  // next Track() or UndoFrom() runs a pending one first. Nothing between reads the model: the same
+  // bits.
   bool defer_model_insert = false;
   double target_scale = 0.5;      // projective: model image size / camera size
   int target_splat = 1;           // projective: splat half-size (px of the model image)
   int target_window = 1;          // projective: search half-window (px)
   double gather_margin_mm = 1.0;  // grid, k-d tree: model samples within the view's box ± this
-  // grid: ICP levels whose gate is at least this (mm) search a decimated model, one sample per voxel
-  // of a quarter of the gate (GridTarget::Build): the coarse level (and the local search's 4 mm)
-  // only, the finer levels still find the exact nearest sample. 0 = every level exact.
+  // grid: ICP levels whose gate is at least this (mm) search a decimated model, one sample per
+  // voxel of a quarter of the gate (GridTarget::Build): the coarse level (and the local search's 4
+  // mm) only, the finer levels still find the exact nearest sample. 0 = every level exact.
   double grid_decimate_min_gate_mm = 0.5;
-  int min_view_samples = 5000;  // fewer samples (a fragment, ~6 % of the image): skipped, state unchanged
+  int min_view_samples =
+      5000;  // fewer samples (a fragment, ~6 % of the image): skipped, state unchanged
   // A view that a Track() augmenter enlarged is registered again when its samples grew by at least
-  // this share; that ICP runs icp's levels from reregister_first_level on (it starts at the pose found).
+  // this share; that ICP runs icp's levels from reregister_first_level on (it starts at the pose
+  // found).
   double reregister_min_gain = 0.25;
   int reregister_first_level = 1;
   // Map gate: an accepted view whose ICP residual is above map_max_rmse_ratio × the median of the
   // last 16 accepted views' is fused but kept out of the tracking model (a view straddling two
   // drifted layers would grow a third at a wrong pose), only when it lies mostly on the model
-  // (overlap ≥ map_gate_min_overlap) and for at most map_gate_max_run views in a row (the model must
-  // keep growing where the probe goes). 0 = every accepted view enters the model.
+  // (overlap ≥ map_gate_min_overlap) and for at most map_gate_max_run views in a row (the model
+  // must keep growing where the probe goes). 0 = every accepted view enters the model.
   double map_max_rmse_ratio = 1.4;
   double map_gate_min_overlap = 0.8;
   int map_gate_max_run = 2;
   // Coasting: a view whose ICP from the prediction fits but is degenerate (a smooth stretch) is not
   // fused but, while tracking, keeps the track: ICP again stepping only along directions with an
-  // eigenvalue ratio ≥ coast_min_eigen_ratio, and that pose feeds the motion and tracking models. At
-  // most max_coast_views in a row; 0 = off, the default (it placed a view off on the zoo:
+  // eigenvalue ratio ≥ coast_min_eigen_ratio, and that pose feeds the motion and tracking models.
+  // At most max_coast_views in a row; 0 = off, the default (it placed a view off on the zoo:
   // docs/decisions/0003).
   int max_coast_views = 0;
   double coast_min_eigen_ratio = 0.02;
@@ -93,7 +95,8 @@ class Odometry {
   const OdometryOptions& options() const { return o_; }
 
   // ICP of `source` (camera frame) against the tracking model from `initial` (world_from_cam).
-  IcpResult Register(const SurfacePoints& source, const Rigid3d& initial, const IcpOptions& icp) const;
+  IcpResult Register(const SurfacePoints& source, const Rigid3d& initial,
+                     const IcpOptions& icp) const;
 
   const PointMap& model() const { return map_; }  // without a pending insert (see Commit)
   // The view's samples (map_stride) into the model at `pose` (world_from_cam): now, or left pending
@@ -111,8 +114,8 @@ class Odometry {
   // The map gate of an accepted view with ICP result `icp`: whether it enters the model. Its
   // residual joins the history when ICP ran (*rmse_pushed_mm gets it; untouched otherwise).
   bool AdmitToModel(const IcpResult& icp, double* rmse_pushed_mm);
-  // The same bookkeeping replayed from a view's log (UndoFrom): residual pushed (< 0: none), whether
-  // it entered the model.
+  // The same bookkeeping replayed from a view's log (UndoFrom): residual pushed (< 0: none),
+  // whether it entered the model.
   void ReplayAdmission(double rmse_pushed_mm, bool in_model);
   // The gate's residual history starts again (a new segment's views are compared with each other).
   void ForgetResiduals();
@@ -120,7 +123,8 @@ class Odometry {
   // Coasting (max_coast_views): `failed` is ICP's result from `prediction`. When it fits the model
   // but is degenerate, ICP again along the constrained directions; true with *fit when that fits
   // and is a consistent motion (the coast run grows), false otherwise.
-  bool Coast(const SurfacePoints& samples, const IcpResult& failed, const Rigid3d& prediction, const MotionModel& motion, IcpResult* fit);
+  bool Coast(const SurfacePoints& samples, const IcpResult& failed, const Rigid3d& prediction,
+             const MotionModel& motion, IcpResult* fit);
   int coast_run() const { return coast_run_; }  // views coasted in a row
   void set_coast_run(int views) { coast_run_ = views; }
 

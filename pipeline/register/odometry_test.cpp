@@ -12,7 +12,9 @@ using namespace d3d::testing;
 class OdometryTest : public ::testing::Test {
  protected:
   OdometryTest() : hf_(31), cam_(TestCamera()) {}
-  SyntheticView View(const Rigid3d& pose, uint32_t seed) const { return RenderHeightField(hf_, cam_, pose, 0.004, seed); }
+  SyntheticView View(const Rigid3d& pose, uint32_t seed) const {
+    return RenderHeightField(hf_, cam_, pose, 0.004, seed);
+  }
   SurfacePoints Samples(const SyntheticView& v, int stride = 2) const {
     SurfacePoints s;
     SampleOrganised(v.points, v.normals, v.quality, stride, &s);
@@ -44,9 +46,11 @@ TEST(Odometry, SegmentOfAPointIsItsFrameAlongX) {
 // A view registered from a start 0.4 mm and 1° off lands on its true pose, with every association,
 // and in a segment's frame 2 m away as well as near the origin.
 TEST_F(OdometryTest, RegistersAViewOntoTheModelFromAnOffsetStart) {
-  for (const Association association : {Association::kGrid, Association::kKdTree, Association::kProjective}) {
+  for (const Association association :
+       {Association::kGrid, Association::kKdTree, Association::kProjective}) {
     for (const double frame_x_mm : {0.0, 2 * kSegmentSpacingMm}) {
-      if (association == Association::kProjective && frame_x_mm != 0) continue;  // rendered in float: near the origin only
+      if (association == Association::kProjective && frame_x_mm != 0)
+        continue;  // rendered in float: near the origin only
       OdometryOptions o;
       o.association = association;
       Odometry odometry(cam_, o);
@@ -59,12 +63,16 @@ TEST_F(OdometryTest, RegistersAViewOntoTheModelFromAnOffsetStart) {
       const Rigid3d truth = frame * LookDown(0.5, 0.3, 30);
       Rigid3d start = truth;
       start.translation() += Eigen::Vector3d(0.3, -0.25, 0.1);
-      start.linear() = start.linear() * Eigen::AngleAxisd(M_PI / 180, Eigen::Vector3d::UnitZ()).toRotationMatrix();
-      const IcpResult r = odometry.Register(Samples(View(LookDown(0.5, 0.3, 30), 99)), start, o.icp);
+      start.linear() = start.linear() *
+                       Eigen::AngleAxisd(M_PI / 180, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+      const IcpResult r =
+          odometry.Register(Samples(View(LookDown(0.5, 0.3, 30), 99)), start, o.icp);
       ASSERT_TRUE(r.ok) << AssociationName(association) << ": " << r.reason;
       const double tolerance_mm = association == Association::kProjective ? 0.02 : 0.005;
-      EXPECT_LT(TranslationDistanceMm(r.target_from_source, truth), tolerance_mm) << AssociationName(association) << " x " << frame_x_mm;
-      EXPECT_LT(RotationAngleRad(r.target_from_source, truth) * 180 / M_PI, 0.02) << AssociationName(association);
+      EXPECT_LT(TranslationDistanceMm(r.target_from_source, truth), tolerance_mm)
+          << AssociationName(association) << " x " << frame_x_mm;
+      EXPECT_LT(RotationAngleRad(r.target_from_source, truth) * 180 / M_PI, 0.02)
+          << AssociationName(association);
     }
   }
 }
@@ -107,7 +115,8 @@ TEST(OdometryGate, KeepsAnOutlyingResidualOutForAShortRunOnly) {
   EXPECT_TRUE(odometry.AdmitToModel(fit(0.030, 0.9), &pushed));  // 7 residuals: no gate yet
   EXPECT_DOUBLE_EQ(pushed, 0.030);
   for (int i = 0; i < 8; ++i) EXPECT_TRUE(odometry.AdmitToModel(fit(U(rng), 0.9), &pushed));
-  EXPECT_TRUE(odometry.AdmitToModel(fit(0.030, 0.5), &pushed));  // off the model: it must grow there
+  EXPECT_TRUE(
+      odometry.AdmitToModel(fit(0.030, 0.5), &pushed));  // off the model: it must grow there
   EXPECT_FALSE(odometry.AdmitToModel(fit(0.030, 0.9), &pushed));
   EXPECT_FALSE(odometry.AdmitToModel(fit(0.030, 0.9), &pushed));
   EXPECT_TRUE(odometry.AdmitToModel(fit(0.030, 0.9), &pushed));  // the third in a row enters

@@ -11,9 +11,12 @@ namespace d3d {
 
 const char* ToString(InitialAlignment a) {
   switch (a) {
-    case InitialAlignment::kSift: return "sift";
-    case InitialAlignment::kFpfh: return "fpfh";
-    case InitialAlignment::kSiftThenFpfh: return "sift-then-fpfh";
+    case InitialAlignment::kSift:
+      return "sift";
+    case InitialAlignment::kFpfh:
+      return "fpfh";
+    case InitialAlignment::kSiftThenFpfh:
+      return "sift-then-fpfh";
   }
   return "?";
 }
@@ -51,10 +54,12 @@ double MsSince(std::chrono::steady_clock::time_point t0) {
 }
 }  // namespace
 
-PairwiseResult RegisterPair(const cv::Mat& sp, const cv::Mat& st, const cv::Mat& tp, const cv::Mat& tt, const PairwiseOptions& o) {
+PairwiseResult RegisterPair(const cv::Mat& sp, const cv::Mat& st, const cv::Mat& tp,
+                            const cv::Mat& tt, const PairwiseOptions& o) {
   o.Check();
   PairwiseResult r;
-  const SurfacePoints source = SampleOrganised(sp, GridNormals(sp, o.max_gap_mm), cv::Mat(), o.source_stride);
+  const SurfacePoints source =
+      SampleOrganised(sp, GridNormals(sp, o.max_gap_mm), cv::Mat(), o.source_stride);
   SurfacePoints target_samples = SampleOrganised(tp, GridNormals(tp, o.max_gap_mm), cv::Mat(), 1);
   // Initial alignment by `method`, then ICP from its pose; false (and r.reason) when either fails.
   std::unique_ptr<KdTreeTarget> target;
@@ -62,10 +67,12 @@ PairwiseResult RegisterPair(const cv::Mat& sp, const cv::Mat& st, const cv::Mat&
     r.initial_method = method;
     auto t0 = std::chrono::steady_clock::now();
     if (method == InitialAlignment::kFpfh) {
-      r.fpfh = AlignByFpfh(ComputeFpfh(source, o.fpfh), ComputeFpfh(target_samples, o.fpfh), o.fpfh);
+      r.fpfh =
+          AlignByFpfh(ComputeFpfh(source, o.fpfh), ComputeFpfh(target_samples, o.fpfh), o.fpfh);
       r.initial = r.fpfh;
     } else {
-      const ViewFeatures fs = ExtractViewFeatures(sp, st, o.features), ft = ExtractViewFeatures(tp, tt, o.features);
+      const ViewFeatures fs = ExtractViewFeatures(sp, st, o.features),
+                         ft = ExtractViewFeatures(tp, tt, o.features);
       r.initial = AlignByFeatures(fs, ft, o.features);
     }
     r.ms_features += MsSince(t0);
@@ -85,8 +92,12 @@ PairwiseResult RegisterPair(const cv::Mat& sp, const cv::Mat& st, const cv::Mat&
   };
   bool ok = false;
   switch (o.initial) {
-    case InitialAlignment::kSift: ok = attempt(InitialAlignment::kSift); break;
-    case InitialAlignment::kFpfh: ok = attempt(InitialAlignment::kFpfh); break;
+    case InitialAlignment::kSift:
+      ok = attempt(InitialAlignment::kSift);
+      break;
+    case InitialAlignment::kFpfh:
+      ok = attempt(InitialAlignment::kFpfh);
+      break;
     case InitialAlignment::kSiftThenFpfh:
       ok = attempt(InitialAlignment::kSift);
       if (!ok) {

@@ -8,7 +8,8 @@
 namespace d3d {
 
 void PointMapOptions::Check() const {
-  D3D_CHECK_MSG(voxel_mm > 0 && block_mm >= voxel_mm, "PointMapOptions: need 0 < voxel_mm <= block_mm");
+  D3D_CHECK_MSG(voxel_mm > 0 && block_mm >= voxel_mm,
+                "PointMapOptions: need 0 < voxel_mm <= block_mm");
   D3D_CHECK_MSG(max_weight >= 1, "PointMapOptions: max_weight must be >= 1");
   D3D_CHECK_MSG(undo_inserts >= 0, "PointMapOptions: undo_inserts must be >= 0");
 }
@@ -19,11 +20,13 @@ void PointMap::Insert(const SurfacePoints& s, const Rigid3d& world_from_source) 
   D3D_CHECK_MSG(s.normals.size() == s.points.size(), "PointMap::Insert needs normals");
   const Eigen::Matrix3f R = world_from_source.linear().cast<float>();
   const Eigen::Vector3f t = world_from_source.translation().cast<float>();
-  const float inv = static_cast<float>(1.0 / o_.voxel_mm), binv = static_cast<float>(1.0 / o_.block_mm);
+  const float inv = static_cast<float>(1.0 / o_.voxel_mm),
+              binv = static_cast<float>(1.0 / o_.block_mm);
   ++inserts_;
   Entry* entry = nullptr;
   if (o_.undo_inserts > 0) {
-    if (static_cast<int>(journal_.size()) == o_.undo_inserts) {  // the oldest can no longer be undone
+    if (static_cast<int>(journal_.size()) ==
+        o_.undo_inserts) {  // the oldest can no longer be undone
       spare_.push_back(std::move(journal_.front()));
       journal_.pop_front();
     }
@@ -92,7 +95,8 @@ bool PointMap::RollBackTo(int64_t insert) {
 
 int64_t PointMap::journal_bytes() const {
   const auto of = [](const Entry& e) {
-    return static_cast<int64_t>(e.updates.capacity() * sizeof(Update) + e.created.capacity() * sizeof(Created));
+    return static_cast<int64_t>(e.updates.capacity() * sizeof(Update) +
+                                e.created.capacity() * sizeof(Created));
   };
   int64_t bytes = 0;
   for (const Entry& e : journal_) bytes += of(e);
@@ -101,14 +105,19 @@ int64_t PointMap::journal_bytes() const {
 }
 
 int64_t PointMap::memory_bytes() const {
-  const auto chunk = [](size_t bytes) { return static_cast<int64_t>((bytes + 8 + 15) / 16 * 16); };  // + malloc's header
-  int64_t bytes = static_cast<int64_t>((points_.capacity() + normals_.capacity()) * sizeof(Eigen::Vector3f) +
-                                       weights_.capacity() * sizeof(float));
+  const auto chunk = [](size_t bytes) {
+    return static_cast<int64_t>((bytes + 8 + 15) / 16 * 16);
+  };  // + malloc's header
+  int64_t bytes =
+      static_cast<int64_t>((points_.capacity() + normals_.capacity()) * sizeof(Eigen::Vector3f) +
+                           weights_.capacity() * sizeof(float));
   // The voxel table: one slot (key, index) and one control byte per slot of its capacity.
-  bytes += static_cast<int64_t>(voxel_.capacity() * (sizeof(std::pair<const uint64_t, uint32_t>) + 1));
+  bytes +=
+      static_cast<int64_t>(voxel_.capacity() * (sizeof(std::pair<const uint64_t, uint32_t>) + 1));
   // A node of the block table: the next pointer and the value (std::hash<uint64_t> is not cached).
   bytes += static_cast<int64_t>(blocks_.bucket_count() * sizeof(void*)) +
-           static_cast<int64_t>(blocks_.size()) * chunk(sizeof(void*) + sizeof(std::pair<const uint64_t, std::vector<uint32_t>>));
+           static_cast<int64_t>(blocks_.size()) *
+               chunk(sizeof(void*) + sizeof(std::pair<const uint64_t, std::vector<uint32_t>>));
   for (const auto& [key, list] : blocks_) bytes += chunk(list.capacity() * sizeof(uint32_t));
   return bytes;
 }
@@ -119,12 +128,16 @@ SurfacePoints PointMap::Gather(const Eigen::Vector3f& lo, const Eigen::Vector3f&
   return out;
 }
 
-void PointMap::Gather(const Eigen::Vector3f& lo, const Eigen::Vector3f& hi, SurfacePoints* out) const {
+void PointMap::Gather(const Eigen::Vector3f& lo, const Eigen::Vector3f& hi,
+                      SurfacePoints* out) const {
   out->clear();
   const double binv = 1.0 / o_.block_mm;
-  const int64_t x0 = static_cast<int64_t>(std::floor(lo.x() * binv)), x1 = static_cast<int64_t>(std::floor(hi.x() * binv));
-  const int64_t y0 = static_cast<int64_t>(std::floor(lo.y() * binv)), y1 = static_cast<int64_t>(std::floor(hi.y() * binv));
-  const int64_t z0 = static_cast<int64_t>(std::floor(lo.z() * binv)), z1 = static_cast<int64_t>(std::floor(hi.z() * binv));
+  const int64_t x0 = static_cast<int64_t>(std::floor(lo.x() * binv)),
+                x1 = static_cast<int64_t>(std::floor(hi.x() * binv));
+  const int64_t y0 = static_cast<int64_t>(std::floor(lo.y() * binv)),
+                y1 = static_cast<int64_t>(std::floor(hi.y() * binv));
+  const int64_t z0 = static_cast<int64_t>(std::floor(lo.z() * binv)),
+                z1 = static_cast<int64_t>(std::floor(hi.z() * binv));
   if ((x1 - x0 + 1) * (y1 - y0 + 1) * (z1 - z0 + 1) > static_cast<int64_t>(blocks_.size())) {
     // A box of more blocks than the map has: the map's blocks, each sample tested. Blocks more than
     // one block outside the box's range hold none of its samples (one block of slack covers the
@@ -135,7 +148,8 @@ void PointMap::Gather(const Eigen::Vector3f& lo, const Eigen::Vector3f& hi, Surf
     for (const auto& [k, v] : blocks_) {
       int64_t bx, by, bz;
       VoxelOfKey(k, &bx, &by, &bz);
-      if (bx < x0 - 1 || bx > x1 + 1 || by < y0 - 1 || by > y1 + 1 || bz < z0 - 1 || bz > z1 + 1) continue;
+      if (bx < x0 - 1 || bx > x1 + 1 || by < y0 - 1 || by > y1 + 1 || bz < z0 - 1 || bz > z1 + 1)
+        continue;
       for (uint32_t i : v) {
         const Eigen::Vector3f& p = points_[i];
         if ((p.array() >= lo.array()).all() && (p.array() <= hi.array()).all()) {
@@ -158,7 +172,8 @@ void PointMap::Gather(const Eigen::Vector3f& lo, const Eigen::Vector3f& hi, Surf
       }
 }
 
-int PointMap::Render(const Rigid3d& world_from_cam, const PinholeIntrinsics& k, int splat, cv::Mat* P, cv::Mat* N) const {
+int PointMap::Render(const Rigid3d& world_from_cam, const PinholeIntrinsics& k, int splat,
+                     cv::Mat* P, cv::Mat* N) const {
   const float nan = std::numeric_limits<float>::quiet_NaN();
   P->create(k.height, k.width, CV_32FC3);
   N->create(k.height, k.width, CV_32FC3);
@@ -211,14 +226,16 @@ double PointMap::Overlap(const SurfacePoints& s, const Rigid3d& world_from_sourc
   int hit = 0;
   for (const auto& q : s.points) {
     const Eigen::Vector3f p = R * q + t;
-    const int64_t x = static_cast<int64_t>(std::floor(p.x() * inv)), y = static_cast<int64_t>(std::floor(p.y() * inv)),
+    const int64_t x = static_cast<int64_t>(std::floor(p.x() * inv)),
+                  y = static_cast<int64_t>(std::floor(p.y() * inv)),
                   z = static_cast<int64_t>(std::floor(p.z() * inv));
     // The sample's own voxel first: most samples of an overlapping view hit there, one lookup
     // instead of the 14 the plain −1…1 order took to reach it (the same answer either way).
     bool any = voxel_.count(VoxelKey(x, y, z)) > 0;
     for (int dx = -1; dx <= 1 && !any; ++dx)
       for (int dy = -1; dy <= 1 && !any; ++dy)
-        for (int dz = -1; dz <= 1 && !any; ++dz) any = (dx | dy | dz) != 0 && voxel_.count(VoxelKey(x + dx, y + dy, z + dz)) > 0;
+        for (int dz = -1; dz <= 1 && !any; ++dz)
+          any = (dx | dy | dz) != 0 && voxel_.count(VoxelKey(x + dx, y + dy, z + dz)) > 0;
     hit += any;
   }
   return static_cast<double>(hit) / static_cast<double>(s.size());

@@ -8,13 +8,13 @@
 // Not thread-safe; owned by the tracker's thread.
 #pragma once
 
+#include <absl/container/flat_hash_map.h>
+
 #include <Eigen/Core>
 #include <cstdint>
 #include <deque>
 #include <opencv2/core.hpp>
 #include <unordered_map>
-
-#include <absl/container/flat_hash_map.h>
 #include <vector>
 
 #include "common/core/rigid.h"
@@ -24,9 +24,9 @@
 namespace d3d {
 
 struct PointMapOptions {
-  double voxel_mm = 0.08;        // one sample per voxel
-  double block_mm = 2.0;         // spatial index cell for region queries
-  float max_weight = 50.0f;      // running mean becomes a moving average beyond this count
+  double voxel_mm = 0.08;    // one sample per voxel
+  double block_mm = 2.0;     // spatial index cell for region queries
+  float max_weight = 50.0f;  // running mean becomes a moving average beyond this count
   // Inserts that RollBackTo can undo (the newest ones); 0 = no journal. Memory: ~32 bytes per
   // sample an Insert updates and 16 per sample it creates (a binned 320 × 240 view on the
   // tracker's map lattice: ~10-20k samples, ~0.3-0.6 MB per Insert).
@@ -45,14 +45,16 @@ class PointMap {
   // normals; cleared first, weights left empty). *out keeps its capacity: a caller that passes the
   // same buffer every view allocates only while the boxes' contents grow past their high-water mark
   // (the tracker's and the model anchoring's gathers reach ~180k samples, 4 MB, for one view;
-  // allocated afresh they were ~200 MB/s of malloc/free with page faults while dwelling on a tooth).
+  // allocated afresh they were ~200 MB/s of malloc/free with page faults while dwelling on a
+  // tooth).
   void Gather(const Eigen::Vector3f& lo, const Eigen::Vector3f& hi, SurfacePoints* out) const;
-  SurfacePoints Gather(const Eigen::Vector3f& lo, const Eigen::Vector3f& hi) const;  // the same, a new set
+  SurfacePoints Gather(const Eigen::Vector3f& lo,
+                       const Eigen::Vector3f& hi) const;  // the same, a new set
   // Renders the samples seen from world_from_cam into an organised image (z-buffer, each sample
   // splatted to a (2·splat+1)² footprint): points and normals in the WORLD frame, NaN where empty.
   // Returns the count of filled pixels.
-  int Render(const Rigid3d& world_from_cam, const PinholeIntrinsics& k, int splat, cv::Mat* points_in_world,
-             cv::Mat* normals_in_world) const;
+  int Render(const Rigid3d& world_from_cam, const PinholeIntrinsics& k, int splat,
+             cv::Mat* points_in_world, cv::Mat* normals_in_world) const;
   // Fraction of `samples` (moved by world_from_source) that fall in an occupied voxel or one of
   // its 26 neighbours: the overlap index of a view with the model.
   double Overlap(const SurfacePoints& samples_in_source, const Rigid3d& world_from_source) const;
@@ -65,7 +67,9 @@ class PointMap {
   // Undo journal. inserts(): Insert calls so far. oldest_undoable_insert(): the first Insert that
   // RollBackTo can still undo (inserts() when there is none: no journal, or none yet).
   int64_t inserts() const { return inserts_; }
-  int64_t oldest_undoable_insert() const { return inserts_ - static_cast<int64_t>(journal_.size()); }
+  int64_t oldest_undoable_insert() const {
+    return inserts_ - static_cast<int64_t>(journal_.size());
+  }
   // Undoes Inserts insert, insert+1, …, inserts()−1 (newest first): the map is then what it was
   // before Insert number `insert` (the same samples in the same order with the same values; hash
   // tables hold the same keys). false (map untouched) when insert < oldest_undoable_insert() or
@@ -94,8 +98,8 @@ class PointMap {
     std::vector<Created> created;  // in sample order (samples_before, samples_before + 1, …)
   };
   PointMapOptions o_;
-  std::deque<Entry> journal_;   // the newest undo_inserts Inserts, oldest first
-  std::vector<Entry> spare_;    // entries dropped from the journal, reused (their capacity)
+  std::deque<Entry> journal_;  // the newest undo_inserts Inserts, oldest first
+  std::vector<Entry> spare_;   // entries dropped from the journal, reused (their capacity)
   int64_t inserts_ = 0;
   std::vector<Eigen::Vector3f> points_, normals_;
   std::vector<float> weights_;

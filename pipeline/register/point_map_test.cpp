@@ -22,7 +22,8 @@ SurfacePoints Patch(std::mt19937* rng, const Eigen::Vector3f& centre, int n) {
 
 Rigid3d Pose(double angle, double x) {
   Rigid3d T = Rigid3d::Identity();
-  T.linear() = Eigen::AngleAxisd(angle, Eigen::Vector3d(0.2, 0.3, 1).normalized()).toRotationMatrix();
+  T.linear() =
+      Eigen::AngleAxisd(angle, Eigen::Vector3d(0.2, 0.3, 1).normalized()).toRotationMatrix();
   T.translation() = Eigen::Vector3d(x, 0.3 * x, 0.1);
   return T;
 }
@@ -30,7 +31,8 @@ Rigid3d Pose(double angle, double x) {
 std::vector<std::array<float, 6>> Sorted(const SurfacePoints& s) {
   std::vector<std::array<float, 6>> v;
   for (size_t i = 0; i < s.size(); ++i)
-    v.push_back({s.points[i].x(), s.points[i].y(), s.points[i].z(), s.normals[i].x(), s.normals[i].y(), s.normals[i].z()});
+    v.push_back({s.points[i].x(), s.points[i].y(), s.points[i].z(), s.normals[i].x(),
+                 s.normals[i].y(), s.normals[i].z()});
   std::sort(v.begin(), v.end());
   return v;
 }
@@ -58,11 +60,14 @@ TEST(PointMap, GatherFindsEverySampleInTheBox) {
   PointMap map(o);
   std::mt19937 rng(3);
   for (int i = 0; i < 40; ++i)  // patches spread over ~60 × 20 mm: many blocks
-    map.Insert(Patch(&rng, Eigen::Vector3f(1.5f * i - 30, 8.0f * std::sin(0.3f * i), 0.5f * (i % 5)), 600), Rigid3d::Identity());
+    map.Insert(
+        Patch(&rng, Eigen::Vector3f(1.5f * i - 30, 8.0f * std::sin(0.3f * i), 0.5f * (i % 5)), 600),
+        Rigid3d::Identity());
   const auto inside = [&](const Eigen::Vector3f& lo, const Eigen::Vector3f& hi) {
     SurfacePoints s;
     for (size_t i = 0; i < map.size(); ++i)
-      if ((map.points()[i].array() >= lo.array()).all() && (map.points()[i].array() <= hi.array()).all()) {
+      if ((map.points()[i].array() >= lo.array()).all() &&
+          (map.points()[i].array() <= hi.array()).all()) {
         s.points.push_back(map.points()[i]);
         s.normals.push_back(map.normals()[i]);
       }
@@ -71,27 +76,33 @@ TEST(PointMap, GatherFindsEverySampleInTheBox) {
   // Small boxes (≤ 5³ blocks, far fewer than the map's ~500-1300) take the block path; large ones
   // (≥ 30 × 20 × 8 blocks) the path that tests each sample.
   std::uniform_real_distribution<float> at(-35, 35), small_size(0.3f, 4.0f), unit(0, 1);
-  SurfacePoints reused;  // one buffer for every box, as the tracker passes it: the last box's samples must go
+  SurfacePoints
+      reused;  // one buffer for every box, as the tracker passes it: the last box's samples must go
   for (int q = 0; q < 200; ++q) {
     const bool large = q % 2 == 1;
     const Eigen::Vector3f lo(at(rng), 0.4f * at(rng), large ? -6 + 4 * unit(rng) : 0.1f * at(rng));
-    const Eigen::Vector3f extent = large ? Eigen::Vector3f(30 + 40 * unit(rng), 20 + 20 * unit(rng), 8 + 4 * unit(rng))
-                                         : Eigen::Vector3f(small_size(rng), small_size(rng), small_size(rng));
+    const Eigen::Vector3f extent =
+        large ? Eigen::Vector3f(30 + 40 * unit(rng), 20 + 20 * unit(rng), 8 + 4 * unit(rng))
+              : Eigen::Vector3f(small_size(rng), small_size(rng), small_size(rng));
     const Eigen::Vector3f hi = lo + extent;
     const SurfacePoints got = map.Gather(lo, hi), want = inside(lo, hi);
     map.Gather(lo, hi, &reused);
     EXPECT_EQ(reused.points, got.points) << "box " << q;
     EXPECT_EQ(reused.normals, got.normals) << "box " << q;
     const auto g = Sorted(got), w = Sorted(want);
-    EXPECT_TRUE(std::includes(g.begin(), g.end(), w.begin(), w.end())) << "box " << q;  // everything inside is found
+    EXPECT_TRUE(std::includes(g.begin(), g.end(), w.begin(), w.end()))
+        << "box " << q;  // everything inside is found
     if (large) {
       EXPECT_EQ(g, w) << "box " << q;  // exactly the samples inside
     } else {
       for (const auto& p : got.points)  // the samples of the touched blocks: none beyond them
-        EXPECT_TRUE((p.array() >= lo.array() - 1.0f).all() && (p.array() <= hi.array() + 1.0f).all()) << "box " << q;
+        EXPECT_TRUE((p.array() >= lo.array() - 1.0f).all() &&
+                    (p.array() <= hi.array() + 1.0f).all())
+            << "box " << q;
     }
   }
-  EXPECT_EQ(map.Gather(Eigen::Vector3f::Constant(-1e3f), Eigen::Vector3f::Constant(1e3f)).size(), map.size());
+  EXPECT_EQ(map.Gather(Eigen::Vector3f::Constant(-1e3f), Eigen::Vector3f::Constant(1e3f)).size(),
+            map.size());
 }
 
 // Overlap = the share of samples with an occupied voxel among their own and its 26 neighbours:
@@ -106,7 +117,8 @@ TEST(PointMap, OverlapCountsSamplesNextToAnOccupiedVoxel) {
   map.Insert(inserted, Rigid3d::Identity());
   const float inv = static_cast<float>(1.0 / o.voxel_mm);  // as the map computes a voxel
   const auto voxel_of = [&](const Eigen::Vector3f& p) {
-    return Eigen::Vector3i(static_cast<int>(std::floor(p.x() * inv)), static_cast<int>(std::floor(p.y() * inv)),
+    return Eigen::Vector3i(static_cast<int>(std::floor(p.x() * inv)),
+                           static_cast<int>(std::floor(p.y() * inv)),
                            static_cast<int>(std::floor(p.z() * inv)));
   };
   std::vector<Eigen::Vector3i> occupied;  // the voxels the inserted samples fell in
@@ -118,7 +130,9 @@ TEST(PointMap, OverlapCountsSamplesNextToAnOccupiedVoxel) {
     for (const Eigen::Vector3f& q : probe.points) {
       const Eigen::Vector3f p = R * q + t;
       const Eigen::Vector3i v = voxel_of(p);
-      hit += std::any_of(occupied.begin(), occupied.end(), [&](const Eigen::Vector3i& o) { return (o - v).cwiseAbs().maxCoeff() <= 1; });
+      hit += std::any_of(occupied.begin(), occupied.end(), [&](const Eigen::Vector3i& o) {
+        return (o - v).cwiseAbs().maxCoeff() <= 1;
+      });
     }
     return static_cast<double>(hit) / static_cast<double>(probe.size());
   };
@@ -139,7 +153,8 @@ TEST(PointMap, OverlapCountsSamplesNextToAnOccupiedVoxel) {
 }
 
 TEST(SurfacePoints, VoxelOfKeyInvertsVoxelKey) {
-  for (const int64_t x : {-(int64_t{1} << 20), int64_t{-7}, int64_t{0}, int64_t{5}, (int64_t{1} << 20) - 1})
+  for (const int64_t x :
+       {-(int64_t{1} << 20), int64_t{-7}, int64_t{0}, int64_t{5}, (int64_t{1} << 20) - 1})
     for (const int64_t y : {int64_t{-3}, int64_t{0}, (int64_t{1} << 20) - 1})
       for (const int64_t z : {-(int64_t{1} << 20), int64_t{0}, int64_t{11}}) {
         int64_t a, b, c;
@@ -156,7 +171,9 @@ TEST(PointMapJournal, RollingBackInsertsGivesTheMapThatNeverHadThem) {
   o.max_weight = 3;  // the moving-average branch too
   std::mt19937 rng(7);
   std::vector<std::pair<SurfacePoints, Rigid3d>> inserts;
-  for (int i = 0; i < 7; ++i) inserts.emplace_back(Patch(&rng, Eigen::Vector3f(0.4f * i, 0, 0), 3000), Pose(0.02 * i, 0.3 * i));
+  for (int i = 0; i < 7; ++i)
+    inserts.emplace_back(Patch(&rng, Eigen::Vector3f(0.4f * i, 0, 0), 3000),
+                         Pose(0.02 * i, 0.3 * i));
   PointMap journaled(o);
   for (const auto& [s, T] : inserts) journaled.Insert(s, T);
   EXPECT_EQ(journaled.inserts(), 7);
@@ -172,14 +189,16 @@ TEST(PointMapJournal, RollingBackInsertsGivesTheMapThatNeverHadThem) {
     ASSERT_TRUE(journaled.RollBackTo(keep));
     EXPECT_EQ(journaled.inserts(), keep);
     PointMap plain(PointMapOptions{o.voxel_mm, o.block_mm, o.max_weight, 0});
-    for (int i = 0; i < keep; ++i) plain.Insert(inserts[static_cast<size_t>(i)].first, inserts[static_cast<size_t>(i)].second);
+    for (int i = 0; i < keep; ++i)
+      plain.Insert(inserts[static_cast<size_t>(i)].first, inserts[static_cast<size_t>(i)].second);
     ExpectSameMap(journaled, plain);
   }
   EXPECT_FALSE(journaled.RollBackTo(2));  // the journal ended at insert 3
   // Inserting again after a roll back continues as a fresh map would.
   journaled.Insert(inserts[6].first, inserts[6].second);
   PointMap plain(PointMapOptions{o.voxel_mm, o.block_mm, o.max_weight, 0});
-  for (int i : {0, 1, 2, 6}) plain.Insert(inserts[static_cast<size_t>(i)].first, inserts[static_cast<size_t>(i)].second);
+  for (int i : {0, 1, 2, 6})
+    plain.Insert(inserts[static_cast<size_t>(i)].first, inserts[static_cast<size_t>(i)].second);
   ExpectSameMap(journaled, plain);
   // Without a journal nothing can be rolled back.
   EXPECT_EQ(plain.oldest_undoable_insert(), plain.inserts());
@@ -196,7 +215,8 @@ TEST(PointMap, MemoryGrowsWithNewSurfaceOnly) {
   const SurfacePoints s = Patch(&rng, Eigen::Vector3f::Zero(), 20000);
   map.Insert(s, Pose(0, 0));
   const int64_t one = map.memory_bytes();
-  EXPECT_GE(one, static_cast<int64_t>(map.size() * (2 * sizeof(Eigen::Vector3f) + sizeof(float) + 16)));
+  EXPECT_GE(one,
+            static_cast<int64_t>(map.size() * (2 * sizeof(Eigen::Vector3f) + sizeof(float) + 16)));
   EXPECT_LT(one, static_cast<int64_t>(map.size() * 200));
   for (int i = 0; i < 5; ++i) map.Insert(s, Pose(0, 0));  // the same surface again: no new sample
   EXPECT_EQ(map.memory_bytes(), one);

@@ -20,7 +20,8 @@ namespace {
 Eigen::Matrix<double, 6, 6> SqrtInformation(const PoseGraphEdge& e) {
   Eigen::Matrix<double, 6, 6> S = Eigen::Matrix<double, 6, 6>::Zero();
   if (e.information.isZero(0)) {
-    S.diagonal() << Eigen::Vector3d::Constant(1.0 / e.sigma_translation_mm), Eigen::Vector3d::Constant(1.0 / e.sigma_rotation_rad);
+    S.diagonal() << Eigen::Vector3d::Constant(1.0 / e.sigma_translation_mm),
+        Eigen::Vector3d::Constant(1.0 / e.sigma_rotation_rad);
     return S;
   }
   const Eigen::Matrix<double, 6, 6> L = 0.5 * (e.information + e.information.transpose());
@@ -62,16 +63,16 @@ struct RelativePoseCost {
 
 }  // namespace
 
-Eigen::Matrix<double, 6, 6> EdgeInformationFromIcp(const Eigen::Matrix<double, 6, 6>& icp_information, const Rigid3d& m,
-                                                   double scale) {
+Eigen::Matrix<double, 6, 6> EdgeInformationFromIcp(
+    const Eigen::Matrix<double, 6, 6>& icp_information, const Rigid3d& m, double scale) {
   const Eigen::Matrix3d R = m.linear();
   const Eigen::Vector3d t = m.translation();
   Eigen::Matrix3d tx;
   tx << 0, -t.z(), t.y(), t.z(), 0, -t.x(), -t.y(), t.x(), 0;
   Eigen::Matrix<double, 6, 6> J = Eigen::Matrix<double, 6, 6>::Zero();
-  J.block<3, 3>(0, 3) = R;                       // ω = R_m θ
+  J.block<3, 3>(0, 3) = R;  // ω = R_m θ
   J.block<3, 3>(3, 0) = Eigen::Matrix3d::Identity();
-  J.block<3, 3>(3, 3) = tx * R;                  // δ = r_t + [t_m]× R_m θ
+  J.block<3, 3>(3, 3) = tx * R;  // δ = r_t + [t_m]× R_m θ
   const Eigen::Matrix<double, 6, 6> L = scale * J.transpose() * icp_information * J;
   return 0.5 * (L + L.transpose());
 }
@@ -82,23 +83,29 @@ int PoseGraph::AddNode(const Rigid3d& p) {
 }
 
 void PoseGraph::Truncate(int n, size_t max_edges) {
-  D3D_CHECK_MSG(n >= 0 && n <= num_nodes(), "PoseGraph::Truncate: " << n << " nodes of " << num_nodes());
+  D3D_CHECK_MSG(n >= 0 && n <= num_nodes(),
+                "PoseGraph::Truncate: " << n << " nodes of " << num_nodes());
   poses_.resize(static_cast<size_t>(n));
   if (edges_.size() > max_edges) edges_.resize(max_edges);
-  edges_.erase(std::remove_if(edges_.begin(), edges_.end(), [n](const PoseGraphEdge& e) { return e.from >= n || e.to >= n; }),
+  edges_.erase(std::remove_if(edges_.begin(), edges_.end(),
+                              [n](const PoseGraphEdge& e) { return e.from >= n || e.to >= n; }),
                edges_.end());
 }
 
 bool PoseGraph::HasEdge(int a, int b) const {
-  return std::any_of(edges_.begin(), edges_.end(),
-                     [a, b](const PoseGraphEdge& e) { return (e.from == a && e.to == b) || (e.from == b && e.to == a); });
+  return std::any_of(edges_.begin(), edges_.end(), [a, b](const PoseGraphEdge& e) {
+    return (e.from == a && e.to == b) || (e.from == b && e.to == a);
+  });
 }
 
 void PoseGraph::AddEdge(const PoseGraphEdge& e) {
-  D3D_CHECK_MSG(e.from >= 0 && e.to >= 0 && e.from < num_nodes() && e.to < num_nodes() && e.from != e.to,
-                "PoseGraph::AddEdge: bad nodes " << e.from << " → " << e.to);
-  D3D_CHECK_MSG(e.sigma_translation_mm > 0 && e.sigma_rotation_rad > 0, "PoseGraph::AddEdge: sigmas must be > 0");
-  D3D_CHECK_MSG(e.information.allFinite() && e.information.trace() >= 0, "PoseGraph::AddEdge: information must be finite, PSD");
+  D3D_CHECK_MSG(
+      e.from >= 0 && e.to >= 0 && e.from < num_nodes() && e.to < num_nodes() && e.from != e.to,
+      "PoseGraph::AddEdge: bad nodes " << e.from << " → " << e.to);
+  D3D_CHECK_MSG(e.sigma_translation_mm > 0 && e.sigma_rotation_rad > 0,
+                "PoseGraph::AddEdge: sigmas must be > 0");
+  D3D_CHECK_MSG(e.information.allFinite() && e.information.trace() >= 0,
+                "PoseGraph::AddEdge: information must be finite, PSD");
   edges_.push_back(e);
 }
 
@@ -130,7 +137,8 @@ Status PoseGraph::Optimize(const PoseGraphOptions& o, PoseGraphSummary* s) {
         new RelativePoseCost(e.from_from_to, SqrtInformation(e)));
     ceres::LossFunction* loss = e.loop ? new ceres::HuberLoss(o.loop_huber_sigmas) : nullptr;
     const auto a = static_cast<size_t>(e.from), b = static_cast<size_t>(e.to);
-    problem.AddResidualBlock(cost, loss, t[a].data(), q[a].coeffs().data(), t[b].data(), q[b].coeffs().data());
+    problem.AddResidualBlock(cost, loss, t[a].data(), q[a].coeffs().data(), t[b].data(),
+                             q[b].coeffs().data());
   }
   bool manifold_used = false;
   for (size_t i = 0; i < poses_.size(); ++i) {
@@ -144,7 +152,8 @@ Status PoseGraph::Optimize(const PoseGraphOptions& o, PoseGraphSummary* s) {
   std::vector<int> part(poses_.size());
   for (size_t i = 0; i < part.size(); ++i) part[i] = static_cast<int>(i);
   auto root = [&](int i) {
-    while (part[static_cast<size_t>(i)] != i) i = part[static_cast<size_t>(i)] = part[static_cast<size_t>(part[static_cast<size_t>(i)])];
+    while (part[static_cast<size_t>(i)] != i)
+      i = part[static_cast<size_t>(i)] = part[static_cast<size_t>(part[static_cast<size_t>(i)])];
     return i;
   };
   for (const PoseGraphEdge& e : edges_) {
@@ -152,7 +161,8 @@ Status PoseGraph::Optimize(const PoseGraphOptions& o, PoseGraphSummary* s) {
     part[static_cast<size_t>(std::max(a, b))] = std::min(a, b);  // the smaller node stays the root
   }
   for (size_t i = 0; i < poses_.size(); ++i) {
-    if (root(static_cast<int>(i)) != static_cast<int>(i) || !problem.HasParameterBlock(t[i].data())) continue;
+    if (root(static_cast<int>(i)) != static_cast<int>(i) || !problem.HasParameterBlock(t[i].data()))
+      continue;
     problem.SetParameterBlockConstant(t[i].data());
     problem.SetParameterBlockConstant(q[i].coeffs().data());
   }

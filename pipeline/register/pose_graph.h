@@ -7,8 +7,8 @@
 // the quaternion product is taken with w ≥ 0: q and −q are the same rotation, but only that sign
 // gives r_θ = θ, and a full information couples the sign of r_θ with r_t. Each node's pose
 // world_from_node is (t, unit quaternion on Ceres' EigenQuaternionManifold), the first node (of
-// each connected part) is held fixed, and loop-closure edges have a Huber loss so that one false closure cannot bend the whole
-// arch. Units: mm, rad.
+// each connected part) is held fixed, and loop-closure edges have a Huber loss so that one false
+// closure cannot bend the whole arch. Units: mm, rad.
 #pragma once
 
 #include <cstdint>
@@ -30,7 +30,7 @@ struct PoseGraphEdge {
   // are used. Symmetric positive semi-definite; directions with (almost) no information are
   // floored at 1e-9 of the largest eigenvalue. See EdgeInformationFromIcp.
   Eigen::Matrix<double, 6, 6> information = Eigen::Matrix<double, 6, 6>::Zero();
-  bool loop = false;                           // loop closure (robust loss) or odometry
+  bool loop = false;  // loop closure (robust loss) or odometry
 };
 
 // Converts an ICP information matrix (icp.h IcpResult::information: left perturbation [ω (rad),
@@ -39,8 +39,8 @@ struct PoseGraphEdge {
 // as independent; scale < 1 accounts for correlated errors). With T = Exp([ω; δ]) · T_m and
 // T = T_m · Exp(θ) (rotation) the residual is r_θ = θ, r_t = ω × t_m + δ, so
 // [ω; δ] = J [r_t; r_θ], J = [[0, R_m], [I, [t_m]× R_m]] and Λ_r = scale · Jᵀ Λ_icp J.
-Eigen::Matrix<double, 6, 6> EdgeInformationFromIcp(const Eigen::Matrix<double, 6, 6>& icp_information,
-                                                   const Rigid3d& from_from_to, double scale);
+Eigen::Matrix<double, 6, 6> EdgeInformationFromIcp(
+    const Eigen::Matrix<double, 6, 6>& icp_information, const Rigid3d& from_from_to, double scale);
 
 struct PoseGraphOptions {
   int max_iterations = 100;
@@ -50,7 +50,7 @@ struct PoseGraphOptions {
 
 struct PoseGraphSummary {
   bool converged = false;
-  std::string message;       // Ceres' brief report
+  std::string message;  // Ceres' brief report
   double initial_cost = 0, final_cost = 0;
   int iterations = 0;
   // Edges whose normalised residual stays above 3 σ after optimisation ("disagreeing views").

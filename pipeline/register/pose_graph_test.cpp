@@ -11,7 +11,8 @@ Rigid3d CirclePose(int i, int n, double radius) {
   const double a = 2 * M_PI * i / n;
   Rigid3d T = Rigid3d::Identity();
   T.linear() = Eigen::AngleAxisd(a, Eigen::Vector3d::UnitZ()).toRotationMatrix();
-  T.translation() = Eigen::Vector3d(radius * std::cos(a), radius * std::sin(a), 0.2 * std::sin(3 * a));
+  T.translation() =
+      Eigen::Vector3d(radius * std::cos(a), radius * std::sin(a), 0.2 * std::sin(3 * a));
   return T;
 }
 
@@ -21,13 +22,15 @@ TEST(PoseGraph, LoopClosureRemovesAnInjectedDrift) {
   for (int i = 0; i < n; ++i) truth.push_back(CirclePose(i, n, 25));
   // Odometry with a systematic bias: every step turns 0.02° too far and advances 5 µm too far.
   Rigid3d bias = Rigid3d::Identity();
-  bias.linear() = Eigen::AngleAxisd(0.02 * M_PI / 180, Eigen::Vector3d(0.2, 0.3, 1).normalized()).toRotationMatrix();
+  bias.linear() = Eigen::AngleAxisd(0.02 * M_PI / 180, Eigen::Vector3d(0.2, 0.3, 1).normalized())
+                      .toRotationMatrix();
   bias.translation() = Eigen::Vector3d(0.005, 0.002, -0.001);
   PoseGraph g;
   Rigid3d pose = truth[0];
   g.AddNode(pose);
   for (int i = 1; i < n; ++i) {
-    const Rigid3d step = truth[static_cast<size_t>(i - 1)].inverse() * truth[static_cast<size_t>(i)] * bias;
+    const Rigid3d step =
+        truth[static_cast<size_t>(i - 1)].inverse() * truth[static_cast<size_t>(i)] * bias;
     pose = pose * step;
     g.AddNode(pose);
     PoseGraphEdge e;
@@ -36,7 +39,8 @@ TEST(PoseGraph, LoopClosureRemovesAnInjectedDrift) {
     e.from_from_to = step;
     g.AddEdge(e);
   }
-  const double drift_before = TranslationDistanceMm(g.pose(n - 1), truth[static_cast<size_t>(n - 1)]);
+  const double drift_before =
+      TranslationDistanceMm(g.pose(n - 1), truth[static_cast<size_t>(n - 1)]);
   ASSERT_GT(drift_before, 0.3);
   // Loop closure: the last pose seen from the first, exact (and one from node 5 to node 35).
   for (auto [a, b] : {std::pair{0, n - 1}, std::pair{5, 35}}) {
@@ -52,7 +56,8 @@ TEST(PoseGraph, LoopClosureRemovesAnInjectedDrift) {
   EXPECT_TRUE(s.converged) << s.message;
   EXPECT_LT(s.final_cost, s.initial_cost);
   double worst = 0;
-  for (int i = 0; i < n; ++i) worst = std::max(worst, TranslationDistanceMm(g.pose(i), truth[static_cast<size_t>(i)]));
+  for (int i = 0; i < n; ++i)
+    worst = std::max(worst, TranslationDistanceMm(g.pose(i), truth[static_cast<size_t>(i)]));
   EXPECT_LT(worst, drift_before / 5) << "drift before " << drift_before;
   // End meets start: the relative pose of the loop edge now holds.
   const Rigid3d end_from_start = g.pose(n - 1).inverse() * g.pose(0);
@@ -85,18 +90,19 @@ TEST(PoseGraph, FlagsADisagreeingLoopEdge) {
   EXPECT_LT(TranslationDistanceMm(g.pose(9), CirclePose(9, 40, 25)), 0.5);
 }
 
-
 // The edge information converted from ICP's convention gives the same quadratic form as ICP's
 // information on the left perturbation: ‖S r‖² ≈ ξᵀ Λ_icp ξ for T = Exp(ξ) · T_m (small ξ).
 TEST(PoseGraph, EdgeInformationFromIcpMatchesTheLeftPerturbation) {
   std::mt19937 rng(7);
   std::normal_distribution<double> N(0, 1);
   Rigid3d m = Rigid3d::Identity();
-  m.linear() = Eigen::AngleAxisd(0.4, Eigen::Vector3d(0.3, -0.5, 0.8).normalized()).toRotationMatrix();
+  m.linear() =
+      Eigen::AngleAxisd(0.4, Eigen::Vector3d(0.3, -0.5, 0.8).normalized()).toRotationMatrix();
   m.translation() = Eigen::Vector3d(3.0, -1.5, 0.7);
   Eigen::Matrix<double, 6, 6> A;
   for (int i = 0; i < 36; ++i) A(i / 6, i % 6) = N(rng);
-  const Eigen::Matrix<double, 6, 6> info_icp = A * A.transpose() + 0.1 * Eigen::Matrix<double, 6, 6>::Identity();
+  const Eigen::Matrix<double, 6, 6> info_icp =
+      A * A.transpose() + 0.1 * Eigen::Matrix<double, 6, 6>::Identity();
   PoseGraphEdge e;
   e.from = 0;
   e.to = 1;
@@ -106,7 +112,8 @@ TEST(PoseGraph, EdgeInformationFromIcpMatchesTheLeftPerturbation) {
     Eigen::Matrix<double, 6, 1> xi;
     for (int i = 0; i < 6; ++i) xi(i) = 1e-4 * N(rng);
     Rigid3d d = Rigid3d::Identity();
-    d.linear() = Eigen::AngleAxisd(xi.head<3>().norm(), xi.head<3>().normalized()).toRotationMatrix();
+    d.linear() =
+        Eigen::AngleAxisd(xi.head<3>().norm(), xi.head<3>().normalized()).toRotationMatrix();
     d.translation() = xi.tail<3>();
     PoseGraph g;
     g.AddNode(Rigid3d::Identity());
@@ -160,7 +167,9 @@ TEST(PoseGraph, AChangeOfWorldFrameChangesNothingRelative) {
   std::vector<Rigid3d> truth;
   for (int i = 0; i < n; ++i) {
     Rigid3d t = CirclePose(i, 40, 25);
-    t.linear() = Eigen::AngleAxisd(0.03 * N(rng), Eigen::Vector3d(N(rng), N(rng), N(rng)).normalized()) * t.linear();
+    t.linear() =
+        Eigen::AngleAxisd(0.03 * N(rng), Eigen::Vector3d(N(rng), N(rng), N(rng)).normalized()) *
+        t.linear();
     truth.push_back(t);
   }
   std::vector<PoseGraphEdge> edges;
@@ -170,7 +179,8 @@ TEST(PoseGraph, AChangeOfWorldFrameChangesNothingRelative) {
       e.from = a;
       e.to = b;
       e.from_from_to = truth[static_cast<size_t>(a)].inverse() * truth[static_cast<size_t>(b)];
-      e.from_from_to.translation() += Eigen::Vector3d(0.02 * N(rng), 0.02 * N(rng), 0.02 * N(rng));  // measurement noise
+      e.from_from_to.translation() +=
+          Eigen::Vector3d(0.02 * N(rng), 0.02 * N(rng), 0.02 * N(rng));  // measurement noise
       Eigen::Matrix<double, 6, 6> A;
       for (int i = 0; i < 36; ++i) A(i / 6, i % 6) = N(rng);
       e.information = EdgeInformationFromIcp(A * A.transpose() * 1e4, e.from_from_to, 1.0);
@@ -185,16 +195,19 @@ TEST(PoseGraph, AChangeOfWorldFrameChangesNothingRelative) {
   };
   PoseGraph ref = build(Rigid3d::Identity());
   std::vector<double> ref_residuals;
-  for (int k = 0; k < static_cast<int>(edges.size()); ++k) ref_residuals.push_back(ref.EdgeResidual(k));
+  for (int k = 0; k < static_cast<int>(edges.size()); ++k)
+    ref_residuals.push_back(ref.EdgeResidual(k));
   PoseGraphSummary s;
   ASSERT_TRUE(ref.Optimize({}, &s).ok());
   for (const double tilt : {0.0, 0.01, -0.01}) {
     Rigid3d G = Rigid3d::Identity();
-    G.linear() = Eigen::AngleAxisd(M_PI, Eigen::Vector3d(1, -1, tilt).normalized()).toRotationMatrix();
+    G.linear() =
+        Eigen::AngleAxisd(M_PI, Eigen::Vector3d(1, -1, tilt).normalized()).toRotationMatrix();
     G.translation() = Eigen::Vector3d(5, -3, 2);
     PoseGraph g = build(G);
     for (int k = 0; k < static_cast<int>(edges.size()); ++k)
-      EXPECT_NEAR(g.EdgeResidual(k), ref_residuals[static_cast<size_t>(k)], 1e-6 * (1 + ref_residuals[static_cast<size_t>(k)]))
+      EXPECT_NEAR(g.EdgeResidual(k), ref_residuals[static_cast<size_t>(k)],
+                  1e-6 * (1 + ref_residuals[static_cast<size_t>(k)]))
           << "edge " << k << ", tilt " << tilt;
     ASSERT_TRUE(g.Optimize({}, &s).ok());
     for (int i = 1; i < n; ++i) {
@@ -232,10 +245,12 @@ TEST(PoseGraph, EachConnectedPartKeepsItsFirstNode) {
   PoseGraphSummary summary;
   ASSERT_TRUE(g.Optimize({}, &summary).ok());
   EXPECT_TRUE(g.pose(0).isApprox(Rigid3d::Identity()));
-  EXPECT_LT((g.pose(4).translation() - far.translation()).norm(), 1e-9);  // held, not pulled anywhere
+  EXPECT_LT((g.pose(4).translation() - far.translation()).norm(),
+            1e-9);  // held, not pulled anywhere
   for (int i = 1; i < 4; ++i) {
     EXPECT_LT((g.pose(i).translation() - Eigen::Vector3d(i, 0, 0)).norm(), 1e-6);
-    EXPECT_LT((g.pose(4 + i).translation() - (far.translation() + Eigen::Vector3d(i, 0, 0))).norm(), 1e-6);
+    EXPECT_LT((g.pose(4 + i).translation() - (far.translation() + Eigen::Vector3d(i, 0, 0))).norm(),
+              1e-6);
   }
 }
 

@@ -22,7 +22,9 @@ namespace d3d {
 // The poses of a Stanford scan set's `.conf` file (lines "bmesh NAME.ply tx ty tz qx qy qz qw",
 // metres): scan name without extension → world_from_scan with the translation in mm. The
 // rotation is the transpose of the quaternion's matrix (the convention of the data set's README).
-// Other lines are ignored. NOT_FOUND when the file cannot be read, PARSE_ERROR when it names no scan.
-[[nodiscard]] Status LoadRangeScanPoses(const std::string& conf_path, std::map<std::string, Rigid3d>* world_from_scan);
+// Other lines are ignored. NOT_FOUND when the file cannot be read, PARSE_ERROR when it names no
+// scan.
+[[nodiscard]] Status LoadRangeScanPoses(const std::string& conf_path,
+                                        std::map<std::string, Rigid3d>* world_from_scan);
 
 }  // namespace d3d

@@ -10,16 +10,20 @@ namespace d3d {
 
 void ReentryCheckOptions::Check() const {
   D3D_CHECK_MSG(keyframes >= 1, "ReentryCheckOptions: keyframes must be >= 1, got " << keyframes);
-  D3D_CHECK_MSG(max_centre_distance_mm > 0, "ReentryCheckOptions: max_centre_distance_mm must be > 0");
-  D3D_CHECK_MSG(grid_scale > 0 && grid_scale <= 1, "ReentryCheckOptions: grid_scale must be in (0, 1], got " << grid_scale);
-  D3D_CHECK_MSG(agree_mm > 0 && margin_mm >= agree_mm,
-                "ReentryCheckOptions: need 0 < agree_mm <= margin_mm, got " << agree_mm << ", " << margin_mm);
+  D3D_CHECK_MSG(max_centre_distance_mm > 0,
+                "ReentryCheckOptions: max_centre_distance_mm must be > 0");
+  D3D_CHECK_MSG(grid_scale > 0 && grid_scale <= 1,
+                "ReentryCheckOptions: grid_scale must be in (0, 1], got " << grid_scale);
+  D3D_CHECK_MSG(
+      agree_mm > 0 && margin_mm >= agree_mm,
+      "ReentryCheckOptions: need 0 < agree_mm <= margin_mm, got " << agree_mm << ", " << margin_mm);
   D3D_CHECK_MSG(max_violation_fraction >= 0 && max_violation_fraction <= 1,
                 "ReentryCheckOptions: max_violation_fraction must be in [0, 1]");
   D3D_CHECK_MSG(min_tested >= 1, "ReentryCheckOptions: min_tested must be >= 1");
 }
 
-ReentryCheck::ReentryCheck(const PinholeBrownConrady& camera, const ReentryCheckOptions& options) : o_(options) {
+ReentryCheck::ReentryCheck(const PinholeBrownConrady& camera, const ReentryCheckOptions& options)
+    : o_(options) {
   o_.Check();
   camera.Check();
   grid_ = PinholeIntrinsics::Of(camera).Scaled(o_.grid_scale);
@@ -40,8 +44,8 @@ void ReentryCheck::DepthGrid(const SurfacePoints& samples, cv::Mat* depth) const
   }
 }
 
-void ReentryCheck::Compare(const SurfacePoints& points, const Rigid3d& b_from_a, const cv::Mat& depth_b,
-                           ReentryEvidence* e) const {
+void ReentryCheck::Compare(const SurfacePoints& points, const Rigid3d& b_from_a,
+                           const cv::Mat& depth_b, ReentryEvidence* e) const {
   const Eigen::Matrix3f R = b_from_a.linear().cast<float>();
   const Eigen::Vector3f t = b_from_a.translation().cast<float>();
   const float margin = static_cast<float>(o_.margin_mm), agree = static_cast<float>(o_.agree_mm);
@@ -64,8 +68,10 @@ void ReentryCheck::Compare(const SurfacePoints& points, const Rigid3d& b_from_a,
         agrees = agrees || std::abs(d - p.z()) <= agree;
       }
     }
-    if (agrees) ++e->agreeing;
-    else if (with_depth >= 5 && nearest > p.z() + margin) ++e->seen_through;
+    if (agrees)
+      ++e->agreeing;
+    else if (with_depth >= 5 && nearest > p.z() + margin)
+      ++e->seen_through;
   }
 }
 
@@ -85,16 +91,19 @@ ReentryEvidence ReentryCheck::Test(const SurfacePoints& view_in_cam, const Rigid
     }
     const Rigid3d kf_from_view = kf.world_from_cam.inverse() * world_from_cam;
     DepthGrid(*kf.samples, &kf_depth_);
-    Compare(view_in_cam, kf_from_view, kf_depth_, &e);             // view points the keyframe saw through
-    Compare(*kf.samples, kf_from_view.inverse(), view_depth_, &e);  // keyframe points the view saw through
+    Compare(view_in_cam, kf_from_view, kf_depth_, &e);  // view points the keyframe saw through
+    Compare(*kf.samples, kf_from_view.inverse(), view_depth_,
+            &e);  // keyframe points the view saw through
     ++e.keyframes;
   }
   const int64_t tested = e.agreeing + e.seen_through;
   if (tested >= o_.min_tested && e.violation_fraction() > o_.max_violation_fraction) {
     e.ok = false;
     char why[160];
-    std::snprintf(why, sizeof why, "seen-through space: %.1f %% of %lld points against %d keyframes (limit %.1f %%)",
-                  100 * e.violation_fraction(), static_cast<long long>(tested), e.keyframes, 100 * o_.max_violation_fraction);
+    std::snprintf(why, sizeof why,
+                  "seen-through space: %.1f %% of %lld points against %d keyframes (limit %.1f %%)",
+                  100 * e.violation_fraction(), static_cast<long long>(tested), e.keyframes,
+                  100 * o_.max_violation_fraction);
     e.reason = why;
   }
   return e;

@@ -17,8 +17,8 @@
 // max_violation_fraction of the points that met the other's surface (violations + agreements),
 // tested over enough of them (min_tested); with fewer the check cannot judge and passes.
 //
-// Depth images: each side's samples (camera frame) projected into a pinhole grid `grid_scale` of the
-// camera's size, each cell the nearest depth through it. A point compares with the 3 × 3 cells
+// Depth images: each side's samples (camera frame) projected into a pinhole grid `grid_scale` of
+// the camera's size, each cell the nearest depth through it. A point compares with the 3 × 3 cells
 // around its projection: a violation needs at least 5 of them to hold a depth and the nearest of
 // them beyond the point (a ray that grazed an edge next to it does not count), agreement any of
 // them within agree_mm.
@@ -27,10 +27,9 @@
 #pragma once
 
 #include <cstdint>
+#include <opencv2/core.hpp>
 #include <string>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 #include "calib/model/camera_model.h"
 #include "common/core/rigid.h"
@@ -44,13 +43,13 @@ struct ReentryCheckOptions {
   // The keyframes it is tested against: the nearest by surface centre (the centroid of the view's
   // points at the candidate pose against each keyframe's) ...
   int keyframes = 4;
-  double max_centre_distance_mm = 6;    // ... within this distance (a view is ~16 × 12 mm)
-  double grid_scale = 0.25;             // depth grid size / camera image size (a cell per 4 × 4 px)
-  double margin_mm = 0.5;               // depth beyond a point that counts as seen through it
-  double agree_mm = 0.15;               // within this depth a point agrees with the other's surface
-  double max_violation_fraction = 0.05; // of violations + agreements
-  int64_t min_tested = 200;             // fewer violations + agreements: no verdict (passes)
-  void Check() const;                   // throws std::invalid_argument
+  double max_centre_distance_mm = 6;  // ... within this distance (a view is ~16 × 12 mm)
+  double grid_scale = 0.25;           // depth grid size / camera image size (a cell per 4 × 4 px)
+  double margin_mm = 0.5;             // depth beyond a point that counts as seen through it
+  double agree_mm = 0.15;             // within this depth a point agrees with the other's surface
+  double max_violation_fraction = 0.05;  // of violations + agreements
+  int64_t min_tested = 200;              // fewer violations + agreements: no verdict (passes)
+  void Check() const;                    // throws std::invalid_argument
 };
 
 // What the keyframes near a candidate pose say of a view placed there.
@@ -63,7 +62,7 @@ struct ReentryEvidence {
     const int64_t n = agreeing + seen_through;
     return n > 0 ? static_cast<double>(seen_through) / static_cast<double>(n) : 0.0;
   }
-  std::string reason;        // why not ok
+  std::string reason;  // why not ok
 };
 
 // A keyframe as the check sees it: its samples in its camera frame, its pose, and the centroid of
@@ -92,7 +91,8 @@ class ReentryCheck {
   // Depth grid of samples (their camera frame) into *depth ((H·s)×(W·s) CV_32F, mm; +inf = none).
   void DepthGrid(const SurfacePoints& samples, cv::Mat* depth) const;
   // Compares `points` (frame A) moved by b_from_a with grid `depth_b` of frame B; adds to *e.
-  void Compare(const SurfacePoints& points, const Rigid3d& b_from_a, const cv::Mat& depth_b, ReentryEvidence* e) const;
+  void Compare(const SurfacePoints& points, const Rigid3d& b_from_a, const cv::Mat& depth_b,
+               ReentryEvidence* e) const;
 
   PinholeIntrinsics grid_;  // the camera scaled to the grid
   ReentryCheckOptions o_;

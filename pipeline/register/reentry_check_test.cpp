@@ -24,7 +24,8 @@ class ReentryCheckTest : public ::testing::Test {
   // The view's samples tested at `pose` against the keyframe.
   ReentryEvidence TestAt(const Rigid3d& pose, const ReentryCheckOptions& o = {}) const {
     ReentryCheck check(cam_, o);
-    return check.Test(view_samples_, pose, {{&kf_samples_, kf_pose_, kf_pose_ * kf_samples_.Centroid()}});
+    return check.Test(view_samples_, pose,
+                      {{&kf_samples_, kf_pose_, kf_pose_ * kf_samples_.Centroid()}});
   }
   HeightField hf_;
   PinholeBrownConrady cam_;
@@ -65,7 +66,8 @@ TEST_F(ReentryCheckTest, AViewThatSawThroughTheKeyframesSurfaceFails) {
 TEST_F(ReentryCheckTest, ANeighbouringFitShiftedAlongTheSurfaceFails) {
   // 2.5 mm sideways and turned 10 degrees: the relief no longer lines up.
   Rigid3d wrong = Moved(view_pose_, {2.5, 0, 0});
-  wrong.linear() = Eigen::AngleAxisd(10 * M_PI / 180, Eigen::Vector3d::UnitZ()).toRotationMatrix() * wrong.linear();
+  wrong.linear() = Eigen::AngleAxisd(10 * M_PI / 180, Eigen::Vector3d::UnitZ()).toRotationMatrix() *
+                   wrong.linear();
   const ReentryEvidence e = TestAt(wrong);
   EXPECT_FALSE(e.ok) << e.violation_fraction();
 }

@@ -11,14 +11,17 @@ namespace d3d {
 void RelocaliserOptions::Check() const {
   D3D_CHECK_MSG(feature_candidates >= 1, "RelocaliserOptions: feature_candidates >= 1");
   D3D_CHECK_MSG(direct_max_views >= 0, "RelocaliserOptions: direct_max_views >= 0");
-  D3D_CHECK_MSG(min_eigen_ratio >= 0 && min_eigen_ratio < 1, "RelocaliserOptions: min_eigen_ratio in [0, 1)");
+  D3D_CHECK_MSG(min_eigen_ratio >= 0 && min_eigen_ratio < 1,
+                "RelocaliserOptions: min_eigen_ratio in [0, 1)");
   D3D_CHECK_MSG(ambiguity_mm >= 0, "RelocaliserOptions: ambiguity_mm >= 0 (0 = off)");
-  D3D_CHECK_MSG(jump_check_mm >= 0 && jump_check_deg >= 0, "RelocaliserOptions: jump_check_mm and jump_check_deg >= 0 (0 = off)");
+  D3D_CHECK_MSG(jump_check_mm >= 0 && jump_check_deg >= 0,
+                "RelocaliserOptions: jump_check_mm and jump_check_deg >= 0 (0 = off)");
   check.Check();
 }
 
-Relocaliser::Relocaliser(const PinholeBrownConrady& camera, const RelocaliserOptions& options, const Odometry* odometry,
-                         const MotionModel* motion, KeyframeGraph* keyframes, const Segments* segments)
+Relocaliser::Relocaliser(const PinholeBrownConrady& camera, const RelocaliserOptions& options,
+                         const Odometry* odometry, const MotionModel* motion,
+                         KeyframeGraph* keyframes, const Segments* segments)
     : o_(options),
       odometry_(*odometry),
       motion_(*motion),
@@ -30,7 +33,8 @@ Relocaliser::Relocaliser(const PinholeBrownConrady& camera, const RelocaliserOpt
 
 IcpOptions Relocaliser::LocalSearchIcp() const {
   IcpOptions icp = odometry_.options().icp;
-  icp.levels.front().max_distance_mm = std::max(icp.levels.front().max_distance_mm, o_.local_search_gate_mm);
+  icp.levels.front().max_distance_mm =
+      std::max(icp.levels.front().max_distance_mm, o_.local_search_gate_mm);
   // Its wide first level keeps IcpOptions' point-to-point share, which widens the basin: a
   // re-entry starts from a pose up to millimetres off, tracking from one a view's motion off.
   icp.levels.front().point_to_plane_weight = IcpOptions().levels.front().point_to_plane_weight;
@@ -40,7 +44,8 @@ IcpOptions Relocaliser::LocalSearchIcp() const {
   return icp;
 }
 
-void Relocaliser::SetCandidate(int64_t view, int64_t capture_ns, const Rigid3d& world_from_cam, const std::string& how) {
+void Relocaliser::SetCandidate(int64_t view, int64_t capture_ns, const Rigid3d& world_from_cam,
+                               const std::string& how) {
   candidate_.pending = true;
   candidate_.view = view;
   candidate_.capture_ns = capture_ns;
@@ -56,14 +61,17 @@ bool Relocaliser::Confirm(const SurfacePoints& samples, bool gap, TrackResult* o
     return false;
   }
   const double views = motion_.ViewsSince(candidate_.view, candidate_.capture_ns);
-  if (!motion_.ConsistentFrom(candidate_.world_from_cam, views, r.target_from_source, &out->reason)) return false;
+  if (!motion_.ConsistentFrom(candidate_.world_from_cam, views, r.target_from_source, &out->reason))
+    return false;
   if (!VerifyReentry(samples, r, gap, &out->reentry, &out->reason)) return false;
   out->icp = r;
   out->world_from_cam = r.target_from_source;
   return true;
 }
 
-bool Relocaliser::AfterGap(bool gap) const { return gap || motion_.ViewsElapsed() > o_.direct_max_views; }
+bool Relocaliser::AfterGap(bool gap) const {
+  return gap || motion_.ViewsElapsed() > o_.direct_max_views;
+}
 
 bool Relocaliser::JumpsFromPrediction(const Rigid3d& pose) const {
   if (motion_.last_view() < 0) return false;
@@ -71,14 +79,17 @@ bool Relocaliser::JumpsFromPrediction(const Rigid3d& pose) const {
   const double views = std::max(1.0, motion_.ViewsElapsed());
   const Rigid3d pred = motion_.Predict();
   return (o_.jump_check_mm > 0 && TranslationDistanceMm(pose, pred) > o_.jump_check_mm * views) ||
-         (o_.jump_check_deg > 0 && RotationAngleRad(pose, pred) * 180 / M_PI > o_.jump_check_deg * views);
+         (o_.jump_check_deg > 0 &&
+          RotationAngleRad(pose, pred) * 180 / M_PI > o_.jump_check_deg * views);
 }
 
-bool Relocaliser::MeetsJumpStandard(const SurfacePoints& samples, const IcpResult& r, bool gap, std::string* why) {
+bool Relocaliser::MeetsJumpStandard(const SurfacePoints& samples, const IcpResult& r, bool gap,
+                                    std::string* why) {
   char what[160];
   if (r.rmse_mm > o_.max_rmse_mm || r.overlap < o_.min_overlap) {
-    std::snprintf(what, sizeof what, "rmse %.1f um, overlap %.2f (a jump needs <= %.1f um, >= %.2f)", r.rmse_mm * 1000, r.overlap,
-                  o_.max_rmse_mm * 1000, o_.min_overlap);
+    std::snprintf(what, sizeof what,
+                  "rmse %.1f um, overlap %.2f (a jump needs <= %.1f um, >= %.2f)", r.rmse_mm * 1000,
+                  r.overlap, o_.max_rmse_mm * 1000, o_.min_overlap);
     *why = what;
     return false;
   }
@@ -86,9 +97,12 @@ bool Relocaliser::MeetsJumpStandard(const SurfacePoints& samples, const IcpResul
   return VerifyReentry(samples, r, gap, &evidence, why);
 }
 
-bool Relocaliser::VerifyReentry(const SurfacePoints& samples, const IcpResult& r, bool gap, ReentryEvidence* evidence, std::string* why) {
-  if ((AfterGap(gap) || JumpsFromPrediction(r.target_from_source)) && r.eigen_ratio < o_.min_eigen_ratio) {
-    *why = "degenerate re-entry (eigen ratio " + std::to_string(r.eigen_ratio) + " < " + std::to_string(o_.min_eigen_ratio) + ")";
+bool Relocaliser::VerifyReentry(const SurfacePoints& samples, const IcpResult& r, bool gap,
+                                ReentryEvidence* evidence, std::string* why) {
+  if ((AfterGap(gap) || JumpsFromPrediction(r.target_from_source)) &&
+      r.eigen_ratio < o_.min_eigen_ratio) {
+    *why = "degenerate re-entry (eigen ratio " + std::to_string(r.eigen_ratio) + " < " +
+           std::to_string(o_.min_eigen_ratio) + ")";
     return false;
   }
   *evidence = CheckReentry(samples, r.target_from_source);
@@ -97,7 +111,8 @@ bool Relocaliser::VerifyReentry(const SurfacePoints& samples, const IcpResult& r
   return false;
 }
 
-ReentryEvidence Relocaliser::CheckReentry(const SurfacePoints& samples, const Rigid3d& world_from_cam) {
+ReentryEvidence Relocaliser::CheckReentry(const SurfacePoints& samples,
+                                          const Rigid3d& world_from_cam) {
   // The keyframes whose surface centre is nearest the view's at the candidate pose.
   const Eigen::Vector3d centre = world_from_cam * samples.Centroid();
   std::vector<std::pair<double, int>> order;
@@ -116,7 +131,8 @@ ReentryEvidence Relocaliser::CheckReentry(const SurfacePoints& samples, const Ri
   return reentry_check_.Test(samples, world_from_cam, reentry_kfs_);
 }
 
-std::vector<std::pair<double, int>> Relocaliser::NearestKeyframes(const SurfacePoints& samples) const {
+std::vector<std::pair<double, int>> Relocaliser::NearestKeyframes(
+    const SurfacePoints& samples) const {
   const Eigen::Vector3d here = motion_.last_pose() * samples.Centroid();
   std::vector<std::pair<double, int>> order;
   for (int k = 0; k < keyframes_.size(); ++k) {
@@ -127,7 +143,8 @@ std::vector<std::pair<double, int>> Relocaliser::NearestKeyframes(const SurfaceP
   return order;
 }
 
-bool Relocaliser::SearchLocally(const SurfacePoints& samples, bool gap, TrackResult* out, bool* from_prediction) {
+bool Relocaliser::SearchLocally(const SurfacePoints& samples, bool gap, TrackResult* out,
+                                bool* from_prediction) {
   *from_prediction = false;
   const std::vector<std::pair<double, int>> order = NearestKeyframes(samples);
   std::vector<Rigid3d> starts = {motion_.Predict(), motion_.last_pose()};
@@ -138,8 +155,9 @@ bool Relocaliser::SearchLocally(const SurfacePoints& samples, bool gap, TrackRes
   // (over the views elapsed); a far return is left to the feature relocalisation.
   std::string last_reason, failures;  // failures: why each start failed, for the events
   const auto start_name = [&](size_t i) {
-    return i == 0 ? std::string("from the prediction") : i == 1 ? std::string("from the last pose")
-                                                               : "from keyframe " + std::to_string(order[i - 2].second);
+    return i == 0   ? std::string("from the prediction")
+           : i == 1 ? std::string("from the last pose")
+                    : "from keyframe " + std::to_string(order[i - 2].second);
   };
   // After a gap every start is tried: a second fit that passes too, elsewhere, makes the return
   // ambiguous (ambiguity_mm).
@@ -159,16 +177,20 @@ bool Relocaliser::SearchLocally(const SurfacePoints& samples, bool gap, TrackRes
     const IcpResult r = odometry_.Register(samples, starts[i], icp);
     ReentryEvidence evidence;
     if (!r.ok) last_reason = r.reason;
-    if (!r.ok || !motion_.Consistent(r.target_from_source, &last_reason) || !VerifyReentry(samples, r, gap, &evidence, &last_reason)) {
+    if (!r.ok || !motion_.Consistent(r.target_from_source, &last_reason) ||
+        !VerifyReentry(samples, r, gap, &evidence, &last_reason)) {
       failures += (failures.empty() ? "" : ", ") + start_name(i) + ": " + last_reason;
       continue;
     }
     if (found >= 0) {
-      const double apart_mm = (r.target_from_source * centre_in_cam - out->world_from_cam * centre_in_cam).norm();
-      const double apart_deg = RotationAngleRad(r.target_from_source, out->world_from_cam) * 180 / M_PI;
+      const double apart_mm =
+          (r.target_from_source * centre_in_cam - out->world_from_cam * centre_in_cam).norm();
+      const double apart_deg =
+          RotationAngleRad(r.target_from_source, out->world_from_cam) * 180 / M_PI;
       if (apart_mm > o_.ambiguity_mm || apart_deg > 2.0) {
         char why[160];
-        std::snprintf(why, sizeof why, "ambiguous re-entry: two fits %.2f mm, %.1f deg apart", apart_mm, apart_deg);
+        std::snprintf(why, sizeof why, "ambiguous re-entry: two fits %.2f mm, %.1f deg apart",
+                      apart_mm, apart_deg);
         out->reason = why;
         return false;
       }
@@ -187,8 +209,8 @@ bool Relocaliser::SearchLocally(const SurfacePoints& samples, bool gap, TrackRes
   return false;
 }
 
-bool Relocaliser::SearchByFeatures(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& texture, bool gap,
-                                   TrackResult* out) {
+bool Relocaliser::SearchByFeatures(const SurfacePoints& samples, const cv::Mat& points,
+                                   const cv::Mat& texture, bool gap, TrackResult* out) {
   const FeatureOptions& features = keyframes_.options().features;
   const ViewFeatures f = ExtractViewFeatures(points, texture, features);
   keyframes_.CollectFeatures();
@@ -217,7 +239,8 @@ bool Relocaliser::SearchByFeatures(const SurfacePoints& samples, const cv::Mat& 
     }
     out->icp = r;
     out->world_from_cam = r.target_from_source;
-    out->reason = "keyframe " + std::to_string(k) + ", " + std::to_string(a.inliers) + " feature inliers";
+    out->reason =
+        "keyframe " + std::to_string(k) + ", " + std::to_string(a.inliers) + " feature inliers";
     return true;
   }
   out->reason = last_reason;

@@ -8,7 +8,8 @@
 //  - Feature relocalisation: SIFT features of the view (features.h) matched to the keyframes
 //    nearest the last accepted view, RANSAC → ICP against the model.
 //  - Verification of a re-entry (VerifyReentry): after a gap or a jump, well constrained
-//    (min_eigen_ratio); and the re-entry check against the keyframes near the pose (reentry_check.h).
+//    (min_eigen_ratio); and the re-entry check against the keyframes near the pose
+//    (reentry_check.h).
 //  - Confirmation: after a loss a found view is a candidate, and the next view must confirm it
 //    (ICP from the candidate's pose, a consistent motion since it).
 //
@@ -19,10 +20,9 @@
 #pragma once
 
 #include <cstdint>
+#include <opencv2/core.hpp>
 #include <string>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 #include "calib/model/camera_model.h"
 #include "pipeline/register/keyframe_graph.h"
@@ -35,17 +35,20 @@
 namespace d3d {
 
 struct RelocaliserOptions {
-  bool by_features = true;            // feature relocalisation (and the keyframes' features) on
-  int feature_candidates = 6;         // keyframes matched by features, nearest the last accepted view first
-  int local_candidates = 4;           // local search: ICP from the last pose and this many nearest keyframes
+  bool by_features = true;  // feature relocalisation (and the keyframes' features) on
+  int feature_candidates =
+      6;                     // keyframes matched by features, nearest the last accepted view first
+  int local_candidates = 4;  // local search: ICP from the last pose and this many nearest keyframes
   double local_search_gate_mm = 4.0;  // first-level association gate of the local search
   // A re-entering view's (local search, features, confirmation) ICP residual (mm) and overlap
-  // limits, stricter than tracking's, which a neighbouring-tooth fit after a gap can pass (docs/decisions/0008).
+  // limits, stricter than tracking's, which a neighbouring-tooth fit after a gap can pass
+  // (docs/decisions/0008).
   double max_rmse_mm = 0.04;
   double min_overlap = 0.5;
   // After a loss, a found view is a re-entry candidate (refused, state kLost) that the next view
   // with points must confirm: one view can fit a neighbouring tooth, two in a row rarely agree on
-  // it. The cost: the first view of every re-entry after a loss is not fused. false: accepted at once.
+  // it. The cost: the first view of every re-entry after a loss is not fused. false: accepted at
+  // once.
   bool confirm_reentry = true;
   // ... except a re-entry ICP from the prediction finds at most this many views (by time with
   // motion.view_period_ns) after the last accepted one: one bad view in a track that never left,
@@ -72,8 +75,9 @@ struct RelocaliserOptions {
 class Relocaliser {
  public:
   // camera: intrinsics of the views (the re-entry check). Throws for invalid options.
-  Relocaliser(const PinholeBrownConrady& camera, const RelocaliserOptions& options, const Odometry* odometry, const MotionModel* motion,
-              KeyframeGraph* keyframes, const Segments* segments);
+  Relocaliser(const PinholeBrownConrady& camera, const RelocaliserOptions& options,
+              const Odometry* odometry, const MotionModel* motion, KeyframeGraph* keyframes,
+              const Segments* segments);
   const RelocaliserOptions& options() const { return o_; }
 
   // A return to the model after a gap or a loss. gap (here and below): the tracker knows of one
@@ -84,17 +88,21 @@ class Relocaliser {
   bool JumpsFromPrediction(const Rigid3d& pose) const;
   // A tracked view's fit (ICP result r of `samples`) that jumped: the re-entry's residual and
   // overlap limits, then VerifyReentry. False with *why.
-  bool MeetsJumpStandard(const SurfacePoints& samples, const IcpResult& r, bool gap, std::string* why);
+  bool MeetsJumpStandard(const SurfacePoints& samples, const IcpResult& r, bool gap,
+                         std::string* why);
   // The re-entry check of `samples` (camera frame) at world_from_cam against the keyframes nearest
   // to it (their current graph poses).
   ReentryEvidence CheckReentry(const SurfacePoints& samples, const Rigid3d& world_from_cam);
 
   // Local search; on success out->icp, world_from_cam, reentry and reason are set, and
-  // *from_prediction tells whether the fit started from the motion prediction. False with out->reason.
-  bool SearchLocally(const SurfacePoints& samples, bool gap, TrackResult* out, bool* from_prediction);
+  // *from_prediction tells whether the fit started from the motion prediction. False with
+  // out->reason.
+  bool SearchLocally(const SurfacePoints& samples, bool gap, TrackResult* out,
+                     bool* from_prediction);
   // Feature relocalisation of the view (points H×W CV_32FC3, texture H×W CV_8U or empty; samples
   // from them); the same outputs.
-  bool SearchByFeatures(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& texture, bool gap, TrackResult* out);
+  bool SearchByFeatures(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& texture,
+                        bool gap, TrackResult* out);
 
   // The pending re-entry candidate (confirm_reentry).
   struct Candidate {
@@ -104,7 +112,8 @@ class Relocaliser {
     std::string how;
   };
   const Candidate& candidate() const { return candidate_; }
-  void SetCandidate(int64_t view, int64_t capture_ns, const Rigid3d& world_from_cam, const std::string& how);
+  void SetCandidate(int64_t view, int64_t capture_ns, const Rigid3d& world_from_cam,
+                    const std::string& how);
   void DropCandidate() { candidate_ = Candidate{}; }
   // ICP of this view from the candidate's pose (the candidate is no longer pending after); true
   // with out->icp and world_from_cam when it confirms it, false with out->reason.
@@ -117,7 +126,8 @@ class Relocaliser {
   // The checks of a re-entry pose (ICP result r of `samples`) beyond ICP's own: after a gap or a
   // jump, well constrained; and the re-entry check, whose evidence goes to *evidence. False with
   // *why when one fails (*evidence untouched when the first did).
-  bool VerifyReentry(const SurfacePoints& samples, const IcpResult& r, bool gap, ReentryEvidence* evidence, std::string* why);
+  bool VerifyReentry(const SurfacePoints& samples, const IcpResult& r, bool gap,
+                     ReentryEvidence* evidence, std::string* why);
   // Keyframes of the active segment by the distance of their centre from the view's centre at the
   // last accepted pose, nearest first.
   std::vector<std::pair<double, int>> NearestKeyframes(const SurfacePoints& samples) const;

@@ -39,7 +39,9 @@ class RelocaliserTest : public ::testing::Test {
     }
   }
   static Rigid3d Truth(double x, double y = 0) { return LookDown(x, y, 30, 0.03, -0.02, 0.01 * x); }
-  SyntheticView View(const Rigid3d& pose, uint32_t seed) const { return RenderHeightField(hf_, cam_, pose, 0.004, seed); }
+  SyntheticView View(const Rigid3d& pose, uint32_t seed) const {
+    return RenderHeightField(hf_, cam_, pose, 0.004, seed);
+  }
   SurfacePoints Samples(const SyntheticView& v) const {
     SurfacePoints s;
     SampleOrganised(v.points, v.normals, v.quality, 2, &s);
@@ -81,7 +83,8 @@ TEST_F(RelocaliserTest, TellsAGapAndAJump) {
   EXPECT_FALSE(relocaliser_.JumpsFromPrediction(near));
   EXPECT_TRUE(relocaliser_.JumpsFromPrediction(far));
   Rigid3d turned = pred;
-  turned.linear() = pred.linear() * Eigen::AngleAxisd(4 * M_PI / 180, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  turned.linear() = pred.linear() *
+                    Eigen::AngleAxisd(4 * M_PI / 180, Eigen::Vector3d::UnitZ()).toRotationMatrix();
   EXPECT_TRUE(relocaliser_.JumpsFromPrediction(turned));
   motion_.BeginView(view_ + 2, 0);  // three views since the last placed one: a gap, a longer reach
   EXPECT_TRUE(relocaliser_.AfterGap(false));
@@ -103,20 +106,25 @@ TEST_F(RelocaliserTest, TheLocalSearchFindsAViewBackNearWhereItLeft) {
   const Rigid3d truth = Truth(-0.5, 0.3);
   TrackResult out;
   bool from_prediction = true;
-  ASSERT_TRUE(relocaliser_.SearchLocally(Samples(View(truth, 500)), true, &out, &from_prediction)) << out.reason;
+  ASSERT_TRUE(relocaliser_.SearchLocally(Samples(View(truth, 500)), true, &out, &from_prediction))
+      << out.reason;
   EXPECT_LT(TranslationDistanceMm(out.world_from_cam, truth), 0.01);
   EXPECT_TRUE(out.reentry.ok) << out.reentry.reason;
   TrackResult off;
-  EXPECT_FALSE(relocaliser_.SearchLocally(Samples(View(Truth(25), 501)), true, &off, &from_prediction));
+  EXPECT_FALSE(
+      relocaliser_.SearchLocally(Samples(View(Truth(25), 501)), true, &off, &from_prediction));
   EXPECT_NE(off.reason.find("from the last pose"), std::string::npos) << off.reason;
   // Without a velocity the prediction is the last pose: that start is registered once, and its
   // result stands for both (the same pose as registering it twice, at half the cost).
   motion_.ForgetVelocity();
   TrackResult again;
-  EXPECT_FALSE(relocaliser_.SearchLocally(Samples(View(Truth(25), 501)), true, &again, &from_prediction));
-  EXPECT_NE(again.reason.find("from the last pose: as from the prediction"), std::string::npos) << again.reason;
+  EXPECT_FALSE(
+      relocaliser_.SearchLocally(Samples(View(Truth(25), 501)), true, &again, &from_prediction));
+  EXPECT_NE(again.reason.find("from the last pose: as from the prediction"), std::string::npos)
+      << again.reason;
   TrackResult back;
-  ASSERT_TRUE(relocaliser_.SearchLocally(Samples(View(truth, 500)), true, &back, &from_prediction)) << back.reason;
+  ASSERT_TRUE(relocaliser_.SearchLocally(Samples(View(truth, 500)), true, &back, &from_prediction))
+      << back.reason;
   EXPECT_LT(TranslationDistanceMm(back.world_from_cam, truth), 0.01);
 }
 
@@ -126,7 +134,8 @@ TEST_F(RelocaliserTest, FeaturesPlaceAViewTheLocalSearchCannotReach) {
   const Rigid3d truth = Truth(-3.2, 0.4);
   const SyntheticView v = View(truth, 600);
   TrackResult out;
-  ASSERT_TRUE(relocaliser_.SearchByFeatures(Samples(v), v.points, v.texture, true, &out)) << out.reason;
+  ASSERT_TRUE(relocaliser_.SearchByFeatures(Samples(v), v.points, v.texture, true, &out))
+      << out.reason;
   EXPECT_NE(out.reason.find("feature inliers"), std::string::npos) << out.reason;
   EXPECT_LT(TranslationDistanceMm(out.world_from_cam, truth), 0.01);
 }

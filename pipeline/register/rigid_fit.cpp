@@ -43,18 +43,21 @@ std::optional<Rigid3d> FitRigid(const std::vector<Correspondence3d>& c, double m
 }
 
 void RansacOptions::Check() const {
-  D3D_CHECK_MSG(inlier_threshold_mm > 0, "inlier_threshold_mm must be > 0, got " << inlier_threshold_mm);
+  D3D_CHECK_MSG(inlier_threshold_mm > 0,
+                "inlier_threshold_mm must be > 0, got " << inlier_threshold_mm);
   D3D_CHECK_MSG(max_iterations > 0, "max_iterations must be > 0");
   D3D_CHECK_MSG(confidence > 0 && confidence < 1, "confidence must be in (0, 1)");
   D3D_CHECK_MSG(min_inliers >= 3, "min_inliers must be >= 3");
-  D3D_CHECK_MSG(min_inlier_ratio >= 0 && min_inlier_ratio <= 1, "min_inlier_ratio must be in [0, 1]");
+  D3D_CHECK_MSG(min_inlier_ratio >= 0 && min_inlier_ratio <= 1,
+                "min_inlier_ratio must be in [0, 1]");
   D3D_CHECK_MSG(min_sample_spread_mm >= 0 && min_inlier_spread_mm >= 0, "spreads must be >= 0");
   D3D_CHECK_MSG(max_edge_ratio_error > 0, "max_edge_ratio_error must be > 0");
 }
 
 namespace {
 
-std::vector<int> CollectInliers(const std::vector<Correspondence3d>& c, const Rigid3d& T, double thr2) {
+std::vector<int> CollectInliers(const std::vector<Correspondence3d>& c, const Rigid3d& T,
+                                double thr2) {
   std::vector<int> in;
   for (size_t i = 0; i < c.size(); ++i)
     if ((T * c[i].source - c[i].target).squaredNorm() < thr2) in.push_back(static_cast<int>(i));
@@ -103,7 +106,8 @@ RansacResult RansacRigid(const std::vector<Correspondence3d>& c, const RansacOpt
     const Eigen::Vector3d& s1 = c[b].source;
     const Eigen::Vector3d& s2 = c[d].source;
     // A thin or small triangle determines the rotation badly.
-    const double e01 = (s1 - s0).squaredNorm(), e02 = (s2 - s0).squaredNorm(), e12 = (s2 - s1).squaredNorm();
+    const double e01 = (s1 - s0).squaredNorm(), e02 = (s2 - s0).squaredNorm(),
+                 e12 = (s2 - s1).squaredNorm();
     const double emax = std::max({e01, e02, e12});
     const double area2 = (s1 - s0).cross(s2 - s0).squaredNorm();  // (2·area)²
     if (std::min({e01, e02, e12}) < spread2 || area2 < spread2 * emax) continue;
@@ -114,7 +118,8 @@ RansacResult RansacRigid(const std::vector<Correspondence3d>& c, const RansacOpt
     };
     ++it;
     if (!edge_ok(a, b) || !edge_ok(a, d) || !edge_ok(b, d)) continue;
-    const std::vector<Correspondence3d> sample = {{c[a].source, c[a].target, 1}, {c[b].source, c[b].target, 1},
+    const std::vector<Correspondence3d> sample = {{c[a].source, c[a].target, 1},
+                                                  {c[b].source, c[b].target, 1},
                                                   {c[d].source, c[d].target, 1}};
     const auto T = FitRigid(sample, 1e-6);
     if (!T) continue;
@@ -126,8 +131,10 @@ RansacResult RansacRigid(const std::vector<Correspondence3d>& c, const RansacOpt
       // fraction the quotient overflows an int (or is ±inf): cap it in double before the cast.
       const double w = static_cast<double>(best.size()) / n;
       const double log_fail = std::log1p(-w * w * w);
-      const double k = log_fail < 0 ? std::ceil(std::log(1 - o.confidence) / log_fail) : o.max_iterations;
-      needed = static_cast<int>(std::clamp(k, static_cast<double>(it), static_cast<double>(o.max_iterations)));
+      const double k =
+          log_fail < 0 ? std::ceil(std::log(1 - o.confidence) / log_fail) : o.max_iterations;
+      needed = static_cast<int>(
+          std::clamp(k, static_cast<double>(it), static_cast<double>(o.max_iterations)));
     }
   }
   r.iterations = it;
@@ -147,7 +154,8 @@ RansacResult RansacRigid(const std::vector<Correspondence3d>& c, const RansacOpt
     best = std::move(in);
   }
   if (static_cast<double>(best.size()) < o.min_inlier_ratio * n) {
-    r.reason = "inlier ratio too low (" + std::to_string(best.size()) + " of " + std::to_string(n) + ")";
+    r.reason =
+        "inlier ratio too low (" + std::to_string(best.size()) + " of " + std::to_string(n) + ")";
     return r;
   }
   const double spread = SecondSpreadMm(c, best);
@@ -156,7 +164,9 @@ RansacResult RansacRigid(const std::vector<Correspondence3d>& c, const RansacOpt
     return r;
   }
   double e2 = 0;
-  for (int i : best) e2 += (best_T * c[static_cast<size_t>(i)].source - c[static_cast<size_t>(i)].target).squaredNorm();
+  for (int i : best)
+    e2 += (best_T * c[static_cast<size_t>(i)].source - c[static_cast<size_t>(i)].target)
+              .squaredNorm();
   r.ok = true;
   r.target_from_source = best_T;
   r.inliers = std::move(best);

@@ -32,7 +32,8 @@ TEST(FitRigid, RecoversAKnownTransformExactly) {
 
 TEST(FitRigid, RefusesCollinearPoints) {
   std::vector<Correspondence3d> c;
-  for (int i = 0; i < 10; ++i) c.push_back({Eigen::Vector3d(i, 2 * i, 0), Eigen::Vector3d(i, 2 * i, 1), 1.0});
+  for (int i = 0; i < 10; ++i)
+    c.push_back({Eigen::Vector3d(i, 2 * i, 0), Eigen::Vector3d(i, 2 * i, 1), 1.0});
   EXPECT_FALSE(FitRigid(c).has_value());
 }
 
@@ -67,7 +68,8 @@ TEST(RansacRigid, KeepsDrawingWhenTheFirstConsensusIsTiny) {
   std::vector<Correspondence3d> c;
   for (int i = 0; i < 5000; ++i) {
     const Eigen::Vector3d s(U(rng), U(rng), U(rng));
-    const Eigen::Vector3d e = i % 10 == 0 ? Eigen::Vector3d(N(rng), N(rng), N(rng)) : Eigen::Vector3d(Miss(rng), Miss(rng), Miss(rng));
+    const Eigen::Vector3d e = i % 10 == 0 ? Eigen::Vector3d(N(rng), N(rng), N(rng))
+                                          : Eigen::Vector3d(Miss(rng), Miss(rng), Miss(rng));
     c.push_back({s, T * s + e, 1.0});
   }
   RansacOptions o;
@@ -82,7 +84,9 @@ TEST(RansacRigid, FailsCleanlyOnDegenerateOrRandomInput) {
   std::mt19937 rng(7);
   std::uniform_real_distribution<double> U(-8, 8);
   std::vector<Correspondence3d> random;
-  for (int i = 0; i < 100; ++i) random.push_back({Eigen::Vector3d(U(rng), U(rng), U(rng)), Eigen::Vector3d(U(rng), U(rng), U(rng)), 1});
+  for (int i = 0; i < 100; ++i)
+    random.push_back(
+        {Eigen::Vector3d(U(rng), U(rng), U(rng)), Eigen::Vector3d(U(rng), U(rng), U(rng)), 1});
   const RansacResult r = RansacRigid(random);
   EXPECT_FALSE(r.ok);
   EXPECT_NE(r.reason.find("inlier"), std::string::npos) << r.reason;

@@ -9,7 +9,8 @@ namespace d3d {
 namespace {
 
 // Samples thinned to one per sample_voxel_mm voxel, those without a normal dropped.
-SurfacePoints MakeSegmentJoinSamples(const SurfacePoints& points, const SegmentJoinOptions& options) {
+SurfacePoints MakeSegmentJoinSamples(const SurfacePoints& points,
+                                     const SegmentJoinOptions& options) {
   const SurfacePoints thinned = VoxelDownsample(points, options.sample_voxel_mm);
   // VoxelDownsample leaves NaN normals where a voxel's normals cancel: drop those samples.
   SurfacePoints clean;
@@ -23,15 +24,20 @@ SurfacePoints MakeSegmentJoinSamples(const SurfacePoints& points, const SegmentJ
 
 }  // namespace
 
-
 FpfhOptions DentalFpfh() {
   FpfhOptions o;
   o.voxel_mm = 1.0;
   o.normal_radius_mm = 2.0;
   o.feature_radius_mm = 5.0;
-  o.ransac = RansacOptions{.inlier_threshold_mm = 1.5, .max_iterations = 50000, .confidence = 0.999, .min_inliers = 8,
-                           .min_inlier_ratio = 0.02, .min_sample_spread_mm = 4, .min_inlier_spread_mm = 1.0,
-                           .max_edge_ratio_error = 0.1, .seed = 1};
+  o.ransac = RansacOptions{.inlier_threshold_mm = 1.5,
+                           .max_iterations = 50000,
+                           .confidence = 0.999,
+                           .min_inliers = 8,
+                           .min_inlier_ratio = 0.02,
+                           .min_sample_spread_mm = 4,
+                           .min_inlier_spread_mm = 1.0,
+                           .max_edge_ratio_error = 0.1,
+                           .seed = 1};
   o.ambiguity_mm = 2.0;
   o.ambiguity_deg = 5.0;
   return o;
@@ -48,12 +54,14 @@ IcpOptions SegmentJoinIcp() {
 void SegmentJoinOptions::Check() const {
   D3D_CHECK_MSG(sample_voxel_mm > 0, "SegmentJoinOptions: sample_voxel_mm must be > 0");
   D3D_CHECK_MSG(min_correspondences >= 1, "SegmentJoinOptions: min_correspondences must be >= 1");
-  D3D_CHECK_MSG(min_eigen_ratio >= 0 && min_eigen_ratio < 1, "SegmentJoinOptions: min_eigen_ratio in [0, 1)");
+  D3D_CHECK_MSG(min_eigen_ratio >= 0 && min_eigen_ratio < 1,
+                "SegmentJoinOptions: min_eigen_ratio in [0, 1)");
   fpfh.Check();
   icp.Check();
 }
 
-SegmentJoinTarget MakeSegmentJoinTarget(const SurfacePoints& main, const SegmentJoinOptions& options) {
+SegmentJoinTarget MakeSegmentJoinTarget(const SurfacePoints& main,
+                                        const SegmentJoinOptions& options) {
   options.Check();
   SegmentJoinTarget t;
   t.samples = MakeSegmentJoinSamples(main, options);
@@ -61,7 +69,8 @@ SegmentJoinTarget MakeSegmentJoinTarget(const SurfacePoints& main, const Segment
   return t;
 }
 
-SegmentJoinResult JoinSegment(const SurfacePoints& segment, const SegmentJoinTarget& target, const SegmentJoinOptions& options) {
+SegmentJoinResult JoinSegment(const SurfacePoints& segment, const SegmentJoinTarget& target,
+                              const SegmentJoinOptions& options) {
   if (target.empty()) {  // before the segment's features are made
     SegmentJoinResult r;
     r.reason = "the main model is empty";
@@ -70,7 +79,8 @@ SegmentJoinResult JoinSegment(const SurfacePoints& segment, const SegmentJoinTar
   return JoinSegment(MakeSegmentJoinTarget(segment, options), target, options);
 }
 
-SegmentJoinResult JoinSegment(const SegmentJoinTarget& segment, const SegmentJoinTarget& target, const SegmentJoinOptions& options) {
+SegmentJoinResult JoinSegment(const SegmentJoinTarget& segment, const SegmentJoinTarget& target,
+                              const SegmentJoinOptions& options) {
   SegmentJoinResult r;
   if (target.empty() || segment.empty()) {
     r.reason = target.empty() ? "the main model is empty" : "the segment is empty";
@@ -81,7 +91,8 @@ SegmentJoinResult JoinSegment(const SegmentJoinTarget& segment, const SegmentJoi
     r.reason = r.fpfh.reason;
     return r;
   }
-  SegmentJoinResult refined = RefineSegmentJoin(segment, target, r.fpfh.target_from_source, options);
+  SegmentJoinResult refined =
+      RefineSegmentJoin(segment, target, r.fpfh.target_from_source, options);
   refined.fpfh = r.fpfh;
   if (!refined.ok) {
     // Where the consensus put the segment (main_from_segment's angle and translation): a refused
@@ -89,14 +100,16 @@ SegmentJoinResult JoinSegment(const SegmentJoinTarget& segment, const SegmentJoi
     // verification does not hold; the truth tells which (docs/decisions/0011).
     const Rigid3d& T = r.fpfh.target_from_source;
     char at[96];
-    std::snprintf(at, sizeof at, "after fpfh (%.1f deg, %.1f mm): ", RotationAngleRad(T, Rigid3d::Identity()) * 180 / M_PI,
-                  T.translation().norm());
+    std::snprintf(at, sizeof at, "after fpfh (%.1f deg, %.1f mm): ",
+                  RotationAngleRad(T, Rigid3d::Identity()) * 180 / M_PI, T.translation().norm());
     refined.reason = at + refined.reason;
   }
   return refined;
 }
 
-SegmentJoinResult RefineSegmentJoin(const SegmentJoinTarget& segment, const SegmentJoinTarget& target, const Rigid3d& main_from_segment,
+SegmentJoinResult RefineSegmentJoin(const SegmentJoinTarget& segment,
+                                    const SegmentJoinTarget& target,
+                                    const Rigid3d& main_from_segment,
                                     const SegmentJoinOptions& options) {
   SegmentJoinResult r;
   if (target.empty() || segment.empty()) {
@@ -110,8 +123,9 @@ SegmentJoinResult RefineSegmentJoin(const SegmentJoinTarget& segment, const Segm
     return r;
   }
   if (r.icp.correspondences < options.min_correspondences) {
-    r.reason = "too little overlap (" + std::to_string(r.icp.correspondences) + " of " + std::to_string(source.size()) +
-               " samples on the main model, need " + std::to_string(options.min_correspondences) + ")";
+    r.reason = "too little overlap (" + std::to_string(r.icp.correspondences) + " of " +
+               std::to_string(source.size()) + " samples on the main model, need " +
+               std::to_string(options.min_correspondences) + ")";
     return r;
   }
   if (r.icp.eigen_ratio < options.min_eigen_ratio) {

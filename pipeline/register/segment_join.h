@@ -23,7 +23,8 @@ namespace d3d {
 
 // FPFH at the scale of teeth: 1 mm keypoints, 2 mm normals, 5 mm features; RANSAC inliers within
 // 1.5 mm, samples spread ≥ 4 mm, at least 8 inliers (a consensus is a proposal: the ICP of step 2
-// decides; docs/decisions/0005); a verified rival consensus 2 mm or 5° away at 0.6 × the inliers refuses.
+// decides; docs/decisions/0005); a verified rival consensus 2 mm or 5° away at 0.6 × the inliers
+// refuses.
 FpfhOptions DentalFpfh();
 // Levels 1.0 → 0.3 → 0.15 mm, residual ≤ 0.04 mm, overlap floor 0.02 (min_correspondences decides).
 IcpOptions SegmentJoinIcp();
@@ -33,7 +34,8 @@ struct SegmentJoinOptions {
   double sample_voxel_mm = 0.3;
   FpfhOptions fpfh = DentalFpfh();
   IcpOptions icp = SegmentJoinIcp();
-  int min_correspondences = 1500;  // of the segment's thinned samples (~135 mm² at 0.3 mm: a molar's crown)
+  int min_correspondences =
+      1500;  // of the segment's thinned samples (~135 mm² at 0.3 mm: a molar's crown)
   // The whole segment is ICP's source: a long strip of a segment is less well conditioned by its
   // length alone than one view (IcpOptions::min_eigen_ratio scales rotation by the source radius).
   double min_eigen_ratio = 0.005;
@@ -56,16 +58,21 @@ struct SegmentJoinTarget {
 };
 // main: the main model's samples (world, normals required). The same preparation (thinned
 // samples and their FPFH features) serves a segment that is joined more than one way.
-SegmentJoinTarget MakeSegmentJoinTarget(const SurfacePoints& main, const SegmentJoinOptions& options);
+SegmentJoinTarget MakeSegmentJoinTarget(const SurfacePoints& main,
+                                        const SegmentJoinOptions& options);
 
 // Registers `segment` (its samples in its own frame, normals required) onto the target.
-SegmentJoinResult JoinSegment(const SurfacePoints& segment, const SegmentJoinTarget& target, const SegmentJoinOptions& options);
+SegmentJoinResult JoinSegment(const SurfacePoints& segment, const SegmentJoinTarget& target,
+                              const SegmentJoinOptions& options);
 // The same for a segment already prepared by MakeSegmentJoinTarget.
-SegmentJoinResult JoinSegment(const SegmentJoinTarget& segment, const SegmentJoinTarget& target, const SegmentJoinOptions& options);
+SegmentJoinResult JoinSegment(const SegmentJoinTarget& segment, const SegmentJoinTarget& target,
+                              const SegmentJoinOptions& options);
 
 // Step 2 alone, from a pose found elsewhere (the tracker's keyframe features): ICP of the prepared
 // segment's samples onto the target from main_from_segment, and the same checks.
-SegmentJoinResult RefineSegmentJoin(const SegmentJoinTarget& segment, const SegmentJoinTarget& target, const Rigid3d& main_from_segment,
+SegmentJoinResult RefineSegmentJoin(const SegmentJoinTarget& segment,
+                                    const SegmentJoinTarget& target,
+                                    const Rigid3d& main_from_segment,
                                     const SegmentJoinOptions& options);
 
 }  // namespace d3d

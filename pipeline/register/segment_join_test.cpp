@@ -25,7 +25,8 @@ SurfacePoints Strip(const HeightField& hf, double from, double to, uint32_t seed
 
 Rigid3d SegmentFrame() {  // segment_from_world: a segment started somewhere else
   Rigid3d g = Rigid3d::Identity();
-  g.linear() = Eigen::AngleAxisd(0.4, Eigen::Vector3d(0.2, -0.5, 1).normalized()).toRotationMatrix();
+  g.linear() =
+      Eigen::AngleAxisd(0.4, Eigen::Vector3d(0.2, -0.5, 1).normalized()).toRotationMatrix();
   g.translation() = Eigen::Vector3d(2000, 13, -7);
   return g;
 }
@@ -54,13 +55,15 @@ TEST(JoinSegment, FindsWhereAnOverlappingSegmentBelongs) {
 TEST(JoinSegment, RefusesASegmentWithoutOverlapOrOnAPlane) {
   const HeightField hf(11);
   const SegmentJoinTarget target = MakeSegmentJoinTarget(Strip(hf, -10, 0, 1), SmallViews());
-  const SegmentJoinResult apart = JoinSegment(Strip(hf, 15, 25, 100).Transformed(SegmentFrame()), target, SmallViews());
+  const SegmentJoinResult apart =
+      JoinSegment(Strip(hf, 15, 25, 100).Transformed(SegmentFrame()), target, SmallViews());
   EXPECT_FALSE(apart.ok);
   EXPECT_FALSE(apart.reason.empty());
   HeightField plane(11);
   plane.flat = 1;
   const SegmentJoinTarget flat = MakeSegmentJoinTarget(Strip(plane, -10, 0, 1), SmallViews());
-  const SegmentJoinResult on_plane = JoinSegment(Strip(plane, -4, 6, 100).Transformed(SegmentFrame()), flat, SmallViews());
+  const SegmentJoinResult on_plane =
+      JoinSegment(Strip(plane, -4, 6, 100).Transformed(SegmentFrame()), flat, SmallViews());
   EXPECT_FALSE(on_plane.ok);
   EXPECT_FALSE(JoinSegment(SurfacePoints{}, target, SmallViews()).ok);
   EXPECT_FALSE(JoinSegment(Strip(hf, -4, 6, 100), SegmentJoinTarget{}, SmallViews()).ok);

@@ -8,12 +8,15 @@
 namespace d3d {
 
 void SegmentOptions::Check() const {
-  D3D_CHECK_MSG(after_views >= 0 && max_segments >= 1 && join_every >= 1 && join_feature_keyframes >= 0,
-                "SegmentOptions: after_views >= 0 (0 = off), max_segments >= 1, join_every >= 1, join_feature_keyframes >= 0");
+  D3D_CHECK_MSG(
+      after_views >= 0 && max_segments >= 1 && join_every >= 1 && join_feature_keyframes >= 0,
+      "SegmentOptions: after_views >= 0 (0 = off), max_segments >= 1, join_every >= 1, "
+      "join_feature_keyframes >= 0");
   join.Check();
 }
 
-Segments::Segments(const SegmentOptions& options, Odometry* odometry, KeyframeGraph* keyframes, bool by_features)
+Segments::Segments(const SegmentOptions& options, Odometry* odometry, KeyframeGraph* keyframes,
+                   bool by_features)
     : o_(options), odometry_(*odometry), keyframes_(*keyframes), by_features_(by_features) {
   o_.Check();
 }
@@ -25,7 +28,8 @@ int Segments::joined() const {
 }
 
 bool Segments::InMain(int segment) const {
-  return segment == 0 || (segment > 0 && segment < static_cast<int>(segments_.size()) && segments_[static_cast<size_t>(segment)].joined);
+  return segment == 0 || (segment > 0 && segment < static_cast<int>(segments_.size()) &&
+                          segments_[static_cast<size_t>(segment)].joined);
 }
 
 bool Segments::KeyframeInActive(int k) const {
@@ -46,7 +50,8 @@ bool Segments::StartsAt(int64_t view) const {
 }
 
 bool Segments::CountRefused() {
-  return o_.after_views > 0 && ++refused_in_row_ > o_.after_views && static_cast<int>(segments_.size()) < o_.max_segments;
+  return o_.after_views > 0 && ++refused_in_row_ > o_.after_views &&
+         static_cast<int>(segments_.size()) < o_.max_segments;
 }
 
 bool Segments::JoinDue() {
@@ -78,21 +83,25 @@ void Segments::Start(int64_t view, const Rigid3d& last_pose, Rigid3d* pose, Trac
   // The main model rests while the new segment grows: its join features are made once, now.
   const auto t0 = std::chrono::steady_clock::now();
   RefreshJoinTarget();
-  const double ms_target = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  const double ms_target =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   segments_.push_back(Segment{view, false, static_cast<size_t>(keyframes_.size())});
   active_ = s;
   *pose = MainFromSegmentFrame(s).inverse() * last_at_origin;
   out->state = TrackingState::kTracking;
   out->new_segment = true;
   char what[160];
-  std::snprintf(what, sizeof what, "; new segment %d after %d views that could not be placed (join features of the model: %.0f ms)", s,
-                refused_in_row_, ms_target);
+  std::snprintf(what, sizeof what,
+                "; new segment %d after %d views that could not be placed (join features of the "
+                "model: %.0f ms)",
+                s, refused_in_row_, ms_target);
   out->reason += what;
   refused_in_row_ = 0;
   undo_barrier_view_ = view + 1;  // undo does not reach back before it
 }
 
-bool Segments::FindJoin(int s, SegmentJoinResult* join, int* newest_out, std::string* how, std::string* why) {
+bool Segments::FindJoin(int s, SegmentJoinResult* join, int* newest_out, std::string* how,
+                        std::string* why) {
   // The segment's model samples (they lie around its offset) and its newest keyframe.
   const PointMap& map = odometry_.model();
   SurfacePoints seg;
@@ -132,12 +141,14 @@ bool Segments::FindJoin(int s, SegmentJoinResult* join, int* newest_out, std::st
   return true;
 }
 
-SegmentJoinResult Segments::JoinByFeatures(int s, int newest, const SegmentJoinTarget& seg, std::string* why) {
+SegmentJoinResult Segments::JoinByFeatures(int s, int newest, const SegmentJoinTarget& seg,
+                                           std::string* why) {
   SegmentJoinResult none;
   const std::vector<Keyframe>& kfs = keyframes_.keyframes();
   std::vector<int> main;
   for (int k = 0; k < static_cast<int>(kfs.size()); ++k)
-    if (kfs[static_cast<size_t>(k)].segment != s && InMain(kfs[static_cast<size_t>(k)].segment)) main.push_back(k);
+    if (kfs[static_cast<size_t>(k)].segment != s && InMain(kfs[static_cast<size_t>(k)].segment))
+      main.push_back(k);
   if (main.empty()) {
     *why = "no main keyframe";
     return none;
@@ -152,11 +163,13 @@ SegmentJoinResult Segments::JoinByFeatures(int s, int newest, const SegmentJoinT
     const int j = main[(g.feature_cursor + i) % main.size()];
     const FeatureAlignResult a = AlignByFeatures(newest_features, keyframes_.Features(j), features);
     if (!a.ok) continue;
-    const Rigid3d guess = keyframes_.world_from_keyframe(j) * a.target_from_source * keyframes_.world_from_keyframe(newest).inverse();
+    const Rigid3d guess = keyframes_.world_from_keyframe(j) * a.target_from_source *
+                          keyframes_.world_from_keyframe(newest).inverse();
     SegmentJoinResult r = RefineSegmentJoin(seg, join_target_, guess, o_.join);
     if (r.ok) {
       g.feature_cursor += i + 1;
-      *why = "keyframe " + std::to_string(j) + ", " + std::to_string(a.inliers) + " feature inliers";
+      *why =
+          "keyframe " + std::to_string(j) + ", " + std::to_string(a.inliers) + " feature inliers";
       return r;
     }
     *why = "keyframe " + std::to_string(j) + ": " + r.reason;

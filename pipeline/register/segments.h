@@ -3,11 +3,12 @@
 // points), the next such view starts a segment in a frame of its own (the main frame moved by
 // s · kSegmentSpacingMm along x, odometry.h: the segments never meet in the model, the keyframe
 // searches or the pose graph), and the track goes on there. Every join_every new keyframes of a
-// segment not joined yet, it is registered onto the main model (segment_join.h: FPFH + RANSAC + ICP;
-// when FPFH finds nothing, keyframe features against join_feature_keyframes main keyframes per
+// segment not joined yet, it is registered onto the main model (segment_join.h: FPFH + RANSAC +
+// ICP; when FPFH finds nothing, keyframe features against join_feature_keyframes main keyframes per
 // attempt, in turn); the Tracker verifies the join like a re-entry (relocaliser.h), and then the
 // segment's keyframes and model samples move into the main frame and a loop edge joins it to the
-// main keyframes (Merge). Undo (Tracker::UndoFrom) does not reach back past a segment's start or join.
+// main keyframes (Merge). Undo (Tracker::UndoFrom) does not reach back past a segment's start or
+// join.
 //
 // Owns: the segment list (first view, joined, join-attempt bookkeeping), the active segment, the
 // count of views refused in a row, the undo barrier and the main model's join features (made when a
@@ -30,17 +31,20 @@ struct SegmentOptions {
   // Views refused in a row while lost before the next starts a segment; 0 = never: the tracker
   // stays lost until a view re-enters the model.
   int after_views = 8;
-  int max_segments = 16;           // the main one included
-  int join_every = 1;              // new keyframes of a segment apart between join attempts
-  int join_feature_keyframes = 8;  // main keyframes the feature join tries per attempt; 0: FPFH only
+  int max_segments = 16;  // the main one included
+  int join_every = 1;     // new keyframes of a segment apart between join attempts
+  int join_feature_keyframes =
+      8;  // main keyframes the feature join tries per attempt; 0: FPFH only
   SegmentJoinOptions join;
   void Check() const;  // throws std::invalid_argument
 };
 
 class Segments {
  public:
-  // by_features: a join may fall back to keyframe features (they exist). Throws for invalid options.
-  Segments(const SegmentOptions& options, Odometry* odometry, KeyframeGraph* keyframes, bool by_features);
+  // by_features: a join may fall back to keyframe features (they exist). Throws for invalid
+  // options.
+  Segments(const SegmentOptions& options, Odometry* odometry, KeyframeGraph* keyframes,
+           bool by_features);
   const SegmentOptions& options() const { return o_; }
 
   int size() const { return static_cast<int>(segments_.size()); }
@@ -66,7 +70,8 @@ class Segments {
   bool JoinDue();
 
   // Starts a segment with view `view` (accepted, the track's last pose `last_pose` in the active
-  // segment's frame): *pose gets that pose in the new frame; out->state, new_segment and reason set.
+  // segment's frame): *pose gets that pose in the new frame; out->state, new_segment and reason
+  // set.
   void Start(int64_t view, const Rigid3d& last_pose, Rigid3d* pose, TrackResult* out);
   // Registers segment s onto the main model: true with the join (*join, main_from_segment), the
   // segment's newest keyframe and *how it was found; false with *why.
@@ -82,7 +87,8 @@ class Segments {
   SurfacePoints MainSamples() const;  // the main model's samples (world)
   // The join's second way: keyframe features of the segment's newest keyframe against main
   // keyframes in turn, refined by RefineSegmentJoin on `seg`.
-  SegmentJoinResult JoinByFeatures(int s, int newest, const SegmentJoinTarget& seg, std::string* why);
+  SegmentJoinResult JoinByFeatures(int s, int newest, const SegmentJoinTarget& seg,
+                                   std::string* why);
 
   SegmentOptions o_;
   Odometry& odometry_;

@@ -17,11 +17,16 @@ KeyframeGraphOptions PlainKeyframes() {
 
 class SegmentsTest : public ::testing::Test {
  protected:
-  SegmentsTest() : hf_(31), cam_(TestCamera()), odometry_(cam_, {}), keyframes_(PlainKeyframes(), DefaultTrackerIcp(), false) {}
+  SegmentsTest()
+      : hf_(31),
+        cam_(TestCamera()),
+        odometry_(cam_, {}),
+        keyframes_(PlainKeyframes(), DefaultTrackerIcp(), false) {}
   // View `view` of the true pose `truth`, placed at `pose` (its segment's frame) in the model and
   // the keyframes.
   void Place(const Rigid3d& truth, const Rigid3d& pose, int64_t view, int segment) {
-    const SyntheticView v = RenderHeightField(hf_, cam_, truth, 0.004, static_cast<uint32_t>(view + 1));
+    const SyntheticView v =
+        RenderHeightField(hf_, cam_, truth, 0.004, static_cast<uint32_t>(view + 1));
     odometry_.Insert(v.points, v.normals, pose);
     TrackResult out;
     keyframes_.Update(v.points, v.normals, v.texture, pose, view, segment, &out);
@@ -52,7 +57,9 @@ TEST_F(SegmentsTest, CountsRefusedViewsAndStartsASegmentApart) {
   EXPECT_EQ(segments.size(), 1);
   EXPECT_TRUE(segments.InMain(0));
   EXPECT_FALSE(segments.JoinDue());  // the main segment never joins
-  for (int64_t v = 0; v < 3; ++v) Place(LookDown(0.5 * static_cast<double>(v), 0, 30), LookDown(0.5 * static_cast<double>(v), 0, 30), v, 0);
+  for (int64_t v = 0; v < 3; ++v)
+    Place(LookDown(0.5 * static_cast<double>(v), 0, 30),
+          LookDown(0.5 * static_cast<double>(v), 0, 30), v, 0);
   EXPECT_FALSE(segments.CountRefused());
   EXPECT_FALSE(segments.CountRefused());
   EXPECT_TRUE(segments.CountRefused());
@@ -93,7 +100,8 @@ TEST_F(SegmentsTest, FindsAndMergesASegmentThatOverlapsTheMainModel) {
   o.join.min_correspondences = 300;  // the test's views are 9.6 × 7.2 mm
   Segments segments(o, &odometry_, &keyframes_, false);
   int64_t view = 0;
-  for (double x = -8; x <= 0.01; x += 0.5, ++view) Place(LookDown(x, 0, 30), LookDown(x, 0, 30), view, 0);
+  for (double x = -8; x <= 0.01; x += 0.5, ++view)
+    Place(LookDown(x, 0, 30), LookDown(x, 0, 30), view, 0);
   const int main_keyframes = keyframes_.size();
   Rigid3d pose;
   TrackResult out;
@@ -101,11 +109,13 @@ TEST_F(SegmentsTest, FindsAndMergesASegmentThatOverlapsTheMainModel) {
   // The segment's poses: the true ones moved by an error the join must find (1.2 mm, 4°), in the
   // segment's frame.
   Rigid3d error = Rigid3d::Identity();
-  error.linear() = Eigen::AngleAxisd(4 * M_PI / 180, Eigen::Vector3d(0.2, 0.3, 1).normalized()).toRotationMatrix();
+  error.linear() = Eigen::AngleAxisd(4 * M_PI / 180, Eigen::Vector3d(0.2, 0.3, 1).normalized())
+                       .toRotationMatrix();
   error.translation() = Eigen::Vector3d(1.0, -0.6, 0.3);
   const Rigid3d segment_from_main = segments.MainFromSegmentFrame(1).inverse() * error;
   const int64_t first_segment_view = view;
-  for (double x = -4; x <= 4.01; x += 0.5, ++view) Place(LookDown(x, 0.5, 30), segment_from_main * LookDown(x, 0.5, 30), view, 1);
+  for (double x = -4; x <= 4.01; x += 0.5, ++view)
+    Place(LookDown(x, 0.5, 30), segment_from_main * LookDown(x, 0.5, 30), view, 1);
   SegmentJoinResult join;
   int newest = -1;
   std::string how, why;
@@ -115,7 +125,8 @@ TEST_F(SegmentsTest, FindsAndMergesASegmentThatOverlapsTheMainModel) {
   // Judged where the surface is (the transform's own origin lies 2 m away, in the main frame).
   const Eigen::Vector3d on_surface = segment_from_main * Eigen::Vector3d(0, 0.5, 0);
   EXPECT_LT((join.main_from_segment * on_surface - Eigen::Vector3d(0, 0.5, 0)).norm(), 0.02);
-  EXPECT_LT(RotationAngleRad(join.main_from_segment, segment_from_main.inverse()) * 180 / M_PI, 0.05);
+  EXPECT_LT(RotationAngleRad(join.main_from_segment, segment_from_main.inverse()) * 180 / M_PI,
+            0.05);
   const size_t edges = keyframes_.edges();
   segments.Merge(1, join.main_from_segment, newest, view);
   EXPECT_TRUE(segments.InMain(1));
@@ -124,11 +135,14 @@ TEST_F(SegmentsTest, FindsAndMergesASegmentThatOverlapsTheMainModel) {
   for (const Eigen::Vector3f& p : odometry_.model().points()) ASSERT_EQ(SegmentOfPoint(p), 0);
   for (int k = main_keyframes; k < keyframes_.size(); ++k) {
     const Keyframe& kf = keyframes_.keyframes()[static_cast<size_t>(k)];
-    const Rigid3d truth = LookDown(-4 + 0.5 * static_cast<double>(kf.view - first_segment_view), 0.5, 30);
-    EXPECT_LT(TranslationDistanceMm(keyframes_.world_from_keyframe(k), truth), 0.03) << "keyframe " << k;
+    const Rigid3d truth =
+        LookDown(-4 + 0.5 * static_cast<double>(kf.view - first_segment_view), 0.5, 30);
+    EXPECT_LT(TranslationDistanceMm(keyframes_.world_from_keyframe(k), truth), 0.03)
+        << "keyframe " << k;
   }
   ASSERT_GT(keyframes_.edges(), edges);
-  for (size_t e = edges; e < keyframes_.edges(); ++e) EXPECT_TRUE(keyframes_.graph().edges()[e].loop);
+  for (size_t e = edges; e < keyframes_.edges(); ++e)
+    EXPECT_TRUE(keyframes_.graph().edges()[e].loop);
 }
 
 // A segment with nothing in common with the main model is not joined, and says why.
@@ -137,7 +151,8 @@ TEST_F(SegmentsTest, ASegmentApartFromTheModelIsNotJoined) {
   o.join.min_correspondences = 300;
   Segments segments(o, &odometry_, &keyframes_, false);
   int64_t view = 0;
-  for (double x = -20; x <= -14.99; x += 0.5, ++view) Place(LookDown(x, 0, 30), LookDown(x, 0, 30), view, 0);
+  for (double x = -20; x <= -14.99; x += 0.5, ++view)
+    Place(LookDown(x, 0, 30), LookDown(x, 0, 30), view, 0);
   Rigid3d pose;
   TrackResult out;
   SegmentJoinResult join;
@@ -147,7 +162,8 @@ TEST_F(SegmentsTest, ASegmentApartFromTheModelIsNotJoined) {
   EXPECT_EQ(why, "the segment is empty");
   segments.Start(view, LookDown(-15, 0, 30), &pose, &out);
   const Rigid3d segment_from_main = segments.MainFromSegmentFrame(1).inverse();
-  for (double x = 14; x <= 19.01; x += 0.5, ++view) Place(LookDown(x, 0, 30), segment_from_main * LookDown(x, 0, 30), view, 1);
+  for (double x = 14; x <= 19.01; x += 0.5, ++view)
+    Place(LookDown(x, 0, 30), segment_from_main * LookDown(x, 0, 30), view, 1);
   EXPECT_FALSE(segments.FindJoin(1, &join, &newest, &how, &why));
   EXPECT_FALSE(why.empty());
   EXPECT_FALSE(segments.InMain(1));

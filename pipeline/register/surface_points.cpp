@@ -15,7 +15,8 @@ SurfacePoints SurfacePoints::Subsample(int stride, int phase) const {
   SurfacePoints out;
   const bool has_n = normals.size() == points.size();
   const bool has_w = weights.size() == points.size();
-  for (size_t i = static_cast<size_t>(std::max(phase, 0)); i < points.size(); i += static_cast<size_t>(stride)) {
+  for (size_t i = static_cast<size_t>(std::max(phase, 0)); i < points.size();
+       i += static_cast<size_t>(stride)) {
     out.points.push_back(points[i]);
     if (has_n) out.normals.push_back(normals[i]);
     if (has_w) out.weights.push_back(weights[i]);
@@ -46,20 +47,24 @@ double SurfacePoints::RadiusMm() const {
   return std::sqrt(s / static_cast<double>(points.size()));
 }
 
-SurfacePoints SampleOrganised(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, int stride) {
+SurfacePoints SampleOrganised(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality,
+                              int stride) {
   SurfacePoints out;
   SampleOrganised(points, normals, quality, stride, &out);
   return out;
 }
 
-void SampleOrganised(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, int stride, SurfacePoints* out) {
+void SampleOrganised(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality,
+                     int stride, SurfacePoints* out) {
   D3D_CHECK_MSG(points.type() == CV_32FC3, "points must be CV_32FC3");
-  D3D_CHECK_MSG(normals.type() == CV_32FC3 && normals.size() == points.size(), "normals must be CV_32FC3 like points");
-  D3D_CHECK_MSG(quality.empty() || (quality.type() == CV_32F && quality.size() == points.size()), "quality must be CV_32F like points");
+  D3D_CHECK_MSG(normals.type() == CV_32FC3 && normals.size() == points.size(),
+                "normals must be CV_32FC3 like points");
+  D3D_CHECK_MSG(quality.empty() || (quality.type() == CV_32F && quality.size() == points.size()),
+                "quality must be CV_32F like points");
   D3D_CHECK_MSG(stride >= 1, "stride must be >= 1");
   out->clear();
-  // Row order: every 2·stride-th row first (0, 2·stride, …), then those between (stride, 3·stride, …),
-  // so that Subsample(2) keeps every other row.
+  // Row order: every 2·stride-th row first (0, 2·stride, …), then those between (stride, 3·stride,
+  // …), so that Subsample(2) keeps every other row.
   for (int first = 0; first <= stride; first += stride)
     for (int r = first; r < points.rows; r += 2 * stride) {
       const cv::Vec3f* P = points.ptr<cv::Vec3f>(r);
@@ -68,7 +73,9 @@ void SampleOrganised(const cv::Mat& points, const cv::Mat& normals, const cv::Ma
       for (int c = (r / stride) % 2 ? stride / 2 : 0; c < points.cols; c += stride) {
         const cv::Vec3f& p = P[c];
         const cv::Vec3f& n = N[c];
-        if (!std::isfinite(p[0]) || !std::isfinite(p[2]) || !std::isfinite(n[0]) || !std::isfinite(n[2])) continue;
+        if (!std::isfinite(p[0]) || !std::isfinite(p[2]) || !std::isfinite(n[0]) ||
+            !std::isfinite(n[2]))
+          continue;
         out->points.emplace_back(p[0], p[1], p[2]);
         out->normals.emplace_back(n[0], n[1], n[2]);
         if (Q) out->weights.push_back(std::clamp(std::isfinite(Q[c]) ? Q[c] : 0.0f, 0.0f, 1.0f));
@@ -91,8 +98,10 @@ cv::Mat GridNormals(const cv::Mat& P, double max_gap_mm) {
     for (int c = 0; c < P.cols; ++c) {
       Eigen::Vector3f p, l, rr, u, d;
       if (!get(r, c, &p)) continue;
-      const bool hl = get(r, c - 1, &l) && (l - p).norm() < gap, hr = get(r, c + 1, &rr) && (rr - p).norm() < gap;
-      const bool hu = get(r - 1, c, &u) && (u - p).norm() < gap, hd = get(r + 1, c, &d) && (d - p).norm() < gap;
+      const bool hl = get(r, c - 1, &l) && (l - p).norm() < gap,
+                 hr = get(r, c + 1, &rr) && (rr - p).norm() < gap;
+      const bool hu = get(r - 1, c, &u) && (u - p).norm() < gap,
+                 hd = get(r + 1, c, &d) && (d - p).norm() < gap;
       if (!(hl || hr) || !(hu || hd)) continue;
       const Eigen::Vector3f dc = (hr ? rr : p) - (hl ? l : p), dr = (hd ? d : p) - (hu ? u : p);
       const Eigen::Vector3f n = dc.cross(dr);
@@ -120,7 +129,8 @@ std::vector<Eigen::Vector3f> EstimateNormals(const std::vector<Eigen::Vector3f>&
   return normals;
 }
 
-bool PcaPlaneNormal(const std::vector<Eigen::Vector3f>& points, const int* indices, size_t count, Eigen::Vector3f* normal) {
+bool PcaPlaneNormal(const std::vector<Eigen::Vector3f>& points, const int* indices, size_t count,
+                    Eigen::Vector3f* normal) {
   if (count < 3) return false;
   Eigen::Vector3d m = Eigen::Vector3d::Zero();
   for (size_t j = 0; j < count; ++j) m += points[static_cast<size_t>(indices[j])].cast<double>();
@@ -137,7 +147,7 @@ bool PcaPlaneNormal(const std::vector<Eigen::Vector3f>& points, const int* indic
 }
 
 namespace {
-constexpr int kKeyAxisBits = 21;                             // per axis in a VoxelKey
+constexpr int kKeyAxisBits = 21;  // per axis in a VoxelKey
 constexpr uint64_t kKeyAxisMask = (uint64_t{1} << kKeyAxisBits) - 1;
 constexpr int64_t kKeyAxisBias = int64_t{1} << (kKeyAxisBits - 1);  // cell −2²⁰ is stored as 0
 }  // namespace

@@ -9,7 +9,8 @@ namespace d3d {
 namespace {
 
 // An organised view whose pixel (r, c) holds the point (c, r, 10) mm, NaN at random pixels.
-void View(std::mt19937* rng, int rows, int cols, cv::Mat* points, cv::Mat* normals, cv::Mat* quality) {
+void View(std::mt19937* rng, int rows, int cols, cv::Mat* points, cv::Mat* normals,
+          cv::Mat* quality) {
   const float nan = std::numeric_limits<float>::quiet_NaN();
   std::uniform_real_distribution<float> u(0, 1);
   points->create(rows, cols, CV_32FC3);
@@ -18,7 +19,9 @@ void View(std::mt19937* rng, int rows, int cols, cv::Mat* points, cv::Mat* norma
   for (int r = 0; r < rows; ++r)
     for (int c = 0; c < cols; ++c) {
       const bool hole = u(*rng) < 0.2f;
-      points->at<cv::Vec3f>(r, c) = hole ? cv::Vec3f(nan, nan, nan) : cv::Vec3f(static_cast<float>(c), static_cast<float>(r), 10);
+      points->at<cv::Vec3f>(r, c) =
+          hole ? cv::Vec3f(nan, nan, nan)
+               : cv::Vec3f(static_cast<float>(c), static_cast<float>(r), 10);
       normals->at<cv::Vec3f>(r, c) = cv::Vec3f(0, 0, -1);
       quality->at<float>(r, c) = 1.5f * u(*rng) - 0.25f;  // some outside [0, 1]: clamped
     }

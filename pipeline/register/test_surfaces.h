@@ -27,18 +27,22 @@ inline PinholeBrownConrady TestCamera(int w = 320, int h = 240, double f = 1000)
 // A bumpy surface: random Gaussian bumps (tooth-like relief, 0.3–1.5 mm high, 0.8–2.5 mm wide)
 // over a gentle wave, plus an albedo of random blobs.
 struct HeightField {
-  struct Bump { double x, y, a, s; };
+  struct Bump {
+    double x, y, a, s;
+  };
   std::vector<Bump> bumps, blobs;
   double flat = 0;  // 1 → a plane z = 0 (no relief)
   double extent = 60;
   // 1-mm cells along x holding the bumps / blobs that reach into them.
   std::vector<std::vector<int>> bump_cells, blob_cells;
   // width_scale < 1: finer relief (more bumps of smaller width and height).
-  explicit HeightField(uint32_t seed, double extent_mm = 60, int n = 400, double width_scale = 1.0) : extent(extent_mm) {
+  explicit HeightField(uint32_t seed, double extent_mm = 60, int n = 400, double width_scale = 1.0)
+      : extent(extent_mm) {
     std::mt19937 rng(seed);
-    std::uniform_real_distribution<double> U(-extent_mm / 2, extent_mm / 2), A(0.3 * width_scale, 1.5 * width_scale),
-        S(0.8 * width_scale, 2.5 * width_scale);
-    for (int i = 0; i < n; ++i) bumps.push_back({U(rng), U(rng) / 3, A(rng) * (i % 2 ? 1 : -0.6), S(rng)});
+    std::uniform_real_distribution<double> U(-extent_mm / 2, extent_mm / 2),
+        A(0.3 * width_scale, 1.5 * width_scale), S(0.8 * width_scale, 2.5 * width_scale);
+    for (int i = 0; i < n; ++i)
+      bumps.push_back({U(rng), U(rng) / 3, A(rng) * (i % 2 ? 1 : -0.6), S(rng)});
     std::uniform_real_distribution<double> Bs(0.04, 0.15);
     for (int i = 0; i < 40 * n; ++i) blobs.push_back({U(rng), U(rng) / 3, A(rng) - 0.9, Bs(rng)});
     Bin(bumps, &bump_cells);
@@ -74,13 +78,16 @@ struct HeightField {
   }
   double Height(double x, double y) const {
     if (flat > 0) return 0;
-    return 0.4 * std::sin(0.3 * x) * std::cos(0.4 * y) + Sum(bumps, bump_cells[static_cast<size_t>(Cell(x, y))], x, y);
+    return 0.4 * std::sin(0.3 * x) * std::cos(0.4 * y) +
+           Sum(bumps, bump_cells[static_cast<size_t>(Cell(x, y))], x, y);
   }
-  // Height and its gradient (∂h/∂x, ∂h/∂y) in one pass over the bumps (the ray caster's Newton step).
+  // Height and its gradient (∂h/∂x, ∂h/∂y) in one pass over the bumps (the ray caster's Newton
+  // step).
   double HeightAndGradient(double x, double y, double* gx, double* gy) const {
     *gx = *gy = 0;
     if (flat > 0) return 0;
-    const double sx = std::sin(0.3 * x), cx = std::cos(0.3 * x), sy = std::sin(0.4 * y), cy = std::cos(0.4 * y);
+    const double sx = std::sin(0.3 * x), cx = std::cos(0.3 * x), sy = std::sin(0.4 * y),
+                 cy = std::cos(0.4 * y);
     double z = 0.4 * sx * cy;
     *gx = 0.12 * cx * cy;
     *gy = -0.16 * sx * sy;
@@ -96,7 +103,8 @@ struct HeightField {
     return z;
   }
   double Albedo(double x, double y) const {
-    const double a = 0.5 + 0.1 * std::sin(2.1 * x + 1.3 * y) + 0.5 * Sum(blobs, blob_cells[static_cast<size_t>(Cell(x, y))], x, y);
+    const double a = 0.5 + 0.1 * std::sin(2.1 * x + 1.3 * y) +
+                     0.5 * Sum(blobs, blob_cells[static_cast<size_t>(Cell(x, y))], x, y);
     return std::clamp(a, 0.02, 1.0);
   }
 };
@@ -107,8 +115,9 @@ struct SyntheticView {
 
 // Ray-casts the height field from world_from_cam (camera looking roughly along world −z).
 // noise_mm: Gaussian noise along the ray. Points with |x| or |y| beyond `half_extent` are dropped.
-inline SyntheticView RenderHeightField(const HeightField& hf, const PinholeBrownConrady& cam, const Rigid3d& world_from_cam,
-                                       double noise_mm, uint32_t seed, double half_extent = 29) {
+inline SyntheticView RenderHeightField(const HeightField& hf, const PinholeBrownConrady& cam,
+                                       const Rigid3d& world_from_cam, double noise_mm,
+                                       uint32_t seed, double half_extent = 29) {
   const float nan = std::numeric_limits<float>::quiet_NaN();
   SyntheticView v;
   v.points.create(cam.height, cam.width, CV_32FC3);
@@ -123,7 +132,9 @@ inline SyntheticView RenderHeightField(const HeightField& hf, const PinholeBrown
   const Rigid3d cam_from_world = world_from_cam.inverse();
   for (int r = 0; r < cam.height; ++r)
     for (int c = 0; c < cam.width; ++c) {
-      const Eigen::Vector3d d = world_from_cam.linear() * Eigen::Vector3d((c - cam.cx) / cam.fx, (r - cam.cy) / cam.fy, 1).normalized();
+      const Eigen::Vector3d d =
+          world_from_cam.linear() *
+          Eigen::Vector3d((c - cam.cx) / cam.fx, (r - cam.cy) / cam.fy, 1).normalized();
       if (d.z() > -0.2) continue;
       // Root of g(t) = C.z + t·d.z − h(C + t·d) on the ray parameter: Newton steps, a damped
       // fixed-point step where the ray grazes the surface (g' near 0).
@@ -140,24 +151,32 @@ inline SyntheticView RenderHeightField(const HeightField& hf, const PinholeBrown
       const Eigen::Vector3d p = C + t * d;
       double gx, gy;
       const double h = hf.HeightAndGradient(p.x(), p.y(), &gx, &gy);
-      if (std::abs(p.z() - h) > 1e-6 || std::abs(p.x()) > half_extent || std::abs(p.y()) > half_extent) continue;
+      if (std::abs(p.z() - h) > 1e-6 || std::abs(p.x()) > half_extent ||
+          std::abs(p.y()) > half_extent)
+        continue;
       const Eigen::Vector3d n_w = Eigen::Vector3d(-gx, -gy, 1).normalized();
       if (n_w.dot(-d) < 0.2) continue;
       const Eigen::Vector3d pc = cam_from_world * (p + noise_mm * N(rng) * d);
       const Eigen::Vector3d nc = cam_from_world.linear() * n_w;
-      v.points.at<cv::Vec3f>(r, c) = cv::Vec3f(static_cast<float>(pc.x()), static_cast<float>(pc.y()), static_cast<float>(pc.z()));
-      v.normals.at<cv::Vec3f>(r, c) = cv::Vec3f(static_cast<float>(nc.x()), static_cast<float>(nc.y()), static_cast<float>(nc.z()));
+      v.points.at<cv::Vec3f>(r, c) = cv::Vec3f(
+          static_cast<float>(pc.x()), static_cast<float>(pc.y()), static_cast<float>(pc.z()));
+      v.normals.at<cv::Vec3f>(r, c) = cv::Vec3f(
+          static_cast<float>(nc.x()), static_cast<float>(nc.y()), static_cast<float>(nc.z()));
       v.quality.at<float>(r, c) = 1.0f;
-      v.texture.at<uint8_t>(r, c) = static_cast<uint8_t>(std::clamp(255.0 * hf.Albedo(p.x(), p.y()) * n_w.dot(-d), 0.0, 255.0));
+      v.texture.at<uint8_t>(r, c) = static_cast<uint8_t>(
+          std::clamp(255.0 * hf.Albedo(p.x(), p.y()) * n_w.dot(-d), 0.0, 255.0));
     }
   return v;
 }
 
 // Camera at (x, y, height) looking down (−z), image x along world +x, tilted by small angles.
-inline Rigid3d LookDown(double x, double y, double height, double tilt_x_rad = 0, double tilt_y_rad = 0, double yaw = 0) {
+inline Rigid3d LookDown(double x, double y, double height, double tilt_x_rad = 0,
+                        double tilt_y_rad = 0, double yaw = 0) {
   Rigid3d T = Rigid3d::Identity();
-  T.linear() = (Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()) * Eigen::AngleAxisd(tilt_y_rad, Eigen::Vector3d::UnitY()) *
-                Eigen::AngleAxisd(tilt_x_rad, Eigen::Vector3d::UnitX()) * Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()))
+  T.linear() = (Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()) *
+                Eigen::AngleAxisd(tilt_y_rad, Eigen::Vector3d::UnitY()) *
+                Eigen::AngleAxisd(tilt_x_rad, Eigen::Vector3d::UnitX()) *
+                Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()))
                    .toRotationMatrix();
   T.translation() = Eigen::Vector3d(x, y, height);
   return T;

@@ -12,28 +12,33 @@
 namespace d3d {
 
 enum class TrackingState { kInitialising, kTracking, kLost, kRelocalised };
-const char* TrackingStateName(TrackingState s);  // "initialising", "tracking", "lost", "relocalised"
+const char* TrackingStateName(
+    TrackingState s);  // "initialising", "tracking", "lost", "relocalised"
 
 struct TrackResult {
   TrackingState state = TrackingState::kInitialising;
-  bool accepted = false;              // pose valid and view added to the model (fuse it)
+  bool accepted = false;  // pose valid and view added to the model (fuse it)
   Rigid3d world_from_cam = Rigid3d::Identity();
-  std::string reason;                 // why refused, or how relocalised
+  std::string reason;  // why refused, or how relocalised
   IcpResult icp;
   bool new_keyframe = false;
-  bool keyframe_reused = false;       // an older keyframe became the current one (KeyframeGraphOptions::reuse_radius_mm)
-  bool in_model = false;              // the view's samples entered the tracking model (OdometryOptions::map_max_rmse_ratio)
-  ReentryEvidence reentry;            // the re-entry check of the pose found after a loss (keyframes 0: none ran)
-  int segment = 0;                    // the segment of the view (accepted views)
-  bool new_segment = false;           // the view started that segment
-  bool segment_joined = false;        // the segment was joined to the main model before this view
-  // Where a preview may draw a view of a segment apart (accepted, !in_main): world_from_cam with the
-  // segment's frame moved back to the main frame's origin (MainFromSegmentFrame), beside where the
-  // model was lost; not registered to it. In the main frame: world_from_cam.
+  bool keyframe_reused =
+      false;  // an older keyframe became the current one (KeyframeGraphOptions::reuse_radius_mm)
+  bool in_model =
+      false;  // the view's samples entered the tracking model (OdometryOptions::map_max_rmse_ratio)
+  ReentryEvidence
+      reentry;      // the re-entry check of the pose found after a loss (keyframes 0: none ran)
+  int segment = 0;  // the segment of the view (accepted views)
+  bool new_segment = false;     // the view started that segment
+  bool segment_joined = false;  // the segment was joined to the main model before this view
+  // Where a preview may draw a view of a segment apart (accepted, !in_main): world_from_cam with
+  // the segment's frame moved back to the main frame's origin (MainFromSegmentFrame), beside where
+  // the model was lost; not registered to it. In the main frame: world_from_cam.
   Rigid3d display_from_cam = Rigid3d::Identity();
-  // segment_joined: carries what was drawn at that segment's display_from_cam poses into the main frame.
+  // segment_joined: carries what was drawn at that segment's display_from_cam poses into the main
+  // frame.
   Rigid3d main_from_display = Rigid3d::Identity();
-  std::string join_attempt;           // what a join attempt before this view found (empty: none was made)
+  std::string join_attempt;  // what a join attempt before this view found (empty: none was made)
   // The pose is in the main frame (the first segment, or one joined to it): fuse the view into the
   // main model only then.
   bool in_main = true;

@@ -12,10 +12,14 @@ namespace d3d {
 
 const char* TrackingStateName(TrackingState s) {
   switch (s) {
-    case TrackingState::kInitialising: return "initialising";
-    case TrackingState::kTracking: return "tracking";
-    case TrackingState::kLost: return "lost";
-    case TrackingState::kRelocalised: return "relocalised";
+    case TrackingState::kInitialising:
+      return "initialising";
+    case TrackingState::kTracking:
+      return "tracking";
+    case TrackingState::kLost:
+      return "lost";
+    case TrackingState::kRelocalised:
+      return "relocalised";
   }
   return "?";
 }
@@ -35,7 +39,8 @@ Tracker::Tracker(const PinholeBrownConrady& camera, const TrackerOptions& option
       motion_(options.motion),
       keyframe_graph_(options.keyframes, options.odometry.icp, options.relocaliser.by_features),
       segments_(options.segments, &odometry_, &keyframe_graph_, options.relocaliser.by_features),
-      relocaliser_(camera, options.relocaliser, &odometry_, &motion_, &keyframe_graph_, &segments_) {
+      relocaliser_(camera, options.relocaliser, &odometry_, &motion_, &keyframe_graph_,
+                   &segments_) {
   camera_.Check();
   o_.Check();
 }
@@ -48,8 +53,9 @@ double Ms(std::chrono::steady_clock::time_point a) {
 }
 }  // namespace
 
-TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, const cv::Mat& texture,
-                           const ViewAugmenter& augment, int64_t capture_ns) {
+TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality,
+                           const cv::Mat& texture, const ViewAugmenter& augment,
+                           int64_t capture_ns) {
   CommitView();
   const auto t0 = std::chrono::steady_clock::now();
   bool joined_now = false;
@@ -63,7 +69,8 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     if (joined_now) main_from_display = main_from_segment * display_from_segment.inverse();
   }
   const Retractable before{true, state_, segments_.refused_in_row(), views_without_points_};
-  const bool held_before = state_ == TrackingState::kTracking || state_ == TrackingState::kRelocalised;
+  const bool held_before =
+      state_ == TrackingState::kTracking || state_ == TrackingState::kRelocalised;
   retractable_ = Retractable{};
   ++index_;
   motion_.BeginView(index_, capture_ns);
@@ -80,8 +87,9 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   SurfacePoints& samples = view_samples_;
   SampleOrganised(points, normals, quality, odo.sample_stride, &samples);
   bool augmented = false;
-  if (samples.size() < static_cast<size_t>(odo.min_view_samples) && augment && !odometry_.model().empty() &&
-      state_ == TrackingState::kTracking && index_ - motion_.last_view() <= 2) {
+  if (samples.size() < static_cast<size_t>(odo.min_view_samples) && augment &&
+      !odometry_.model().empty() && state_ == TrackingState::kTracking &&
+      index_ - motion_.last_view() <= 2) {
     // Too little of the view was anchored by its own burst (teeth without a readable marker): while
     // tracking from the view just before, the motion prediction is close enough for the augmenter
     // to try the model there.
@@ -145,9 +153,11 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
         accepted = true;
         pose = out.world_from_cam;
         out.state = TrackingState::kRelocalised;
-        out.reason = "lost; relocalised: re-entry of view " + std::to_string(at) + " (" + how + ") confirmed";
+        out.reason = "lost; relocalised: re-entry of view " + std::to_string(at) + " (" + how +
+                     ") confirmed";
       } else {
-        out.reason = "lost; re-entry of view " + std::to_string(at) + " not confirmed: " + out.reason;
+        out.reason =
+            "lost; re-entry of view " + std::to_string(at) + " not confirmed: " + out.reason;
       }
     }
   }
@@ -157,7 +167,8 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   auto reentered = [&](const std::string& why) {
     if (needs_confirmation) {
       relocaliser_.SetCandidate(index_, motion_.capture_ns(), out.world_from_cam, out.reason);
-      out.reason = why + "; re-entry candidate (" + out.reason + "), to be confirmed by the next view";
+      out.reason =
+          why + "; re-entry candidate (" + out.reason + "), to be confirmed by the next view";
       return false;
     }
     pose = out.world_from_cam;
@@ -172,16 +183,20 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     bool from_prediction = false;
     if (relocaliser_.SearchLocally(samples, gap, &out, &from_prediction)) {
       // One bad view in a track that never left: no confirmation (direct_max_views).
-      if (from_prediction && motion_.ViewsElapsed() <= o_.relocaliser.direct_max_views) needs_confirmation = false;
+      if (from_prediction && motion_.ViewsElapsed() <= o_.relocaliser.direct_max_views)
+        needs_confirmation = false;
       accepted = reentered(why);
     } else {
       out.reason = why + "; local search failed: " + out.reason;
     }
   }
-  if (!accepted && !relocaliser_.candidate().pending && o_.relocaliser.by_features && !keyframe_graph_.empty()) {
+  if (!accepted && !relocaliser_.candidate().pending && o_.relocaliser.by_features &&
+      !keyframe_graph_.empty()) {
     const std::string why = out.reason;
-    if (relocaliser_.SearchByFeatures(samples, points, texture, gap, &out)) accepted = reentered(why);
-    else out.reason = why + "; relocalisation failed: " + out.reason;
+    if (relocaliser_.SearchByFeatures(samples, points, texture, gap, &out))
+      accepted = reentered(why);
+    else
+      out.reason = why + "; relocalisation failed: " + out.reason;
   }
   if (!accepted && state_ != TrackingState::kInitialising && segments_.CountRefused()) {
     StartSegment(&pose, &out);  // the view cannot be placed: it starts a segment of its own
@@ -205,7 +220,8 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
     // enough to change the fit (a view whose own points were only the smooth palate, say).
     SurfacePoints& more = more_samples_;
     SampleOrganised(points, normals, quality, odo.sample_stride, &more);
-    const bool enough = static_cast<double>(more.size()) >= (1.0 + odo.reregister_min_gain) * static_cast<double>(samples.size());
+    const bool enough = static_cast<double>(more.size()) >=
+                        (1.0 + odo.reregister_min_gain) * static_cast<double>(samples.size());
     if (!enough) {
       std::swap(samples, more);  // fused and inserted at the pose found without them
     } else {
@@ -221,7 +237,8 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   }
   out.accepted = true;
   out.world_from_cam = pose;
-  if (out.state == TrackingState::kTracking && state_ == TrackingState::kTracking && motion_.HasVelocity()) {
+  if (out.state == TrackingState::kTracking && state_ == TrackingState::kTracking &&
+      motion_.HasVelocity()) {
     const Rigid3d pred = motion_.Predict();
     out.prediction_offset_mm = TranslationDistanceMm(pose, pred);
     out.prediction_offset_deg = RotationAngleRad(pose, pred) * 180 / M_PI;
@@ -238,10 +255,12 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   log.motion_restart = motion_restart;
   log.pose = pose;
   if (out.in_model) odometry_.Insert(points, normals, pose);
-  keyframe_graph_.Update(points, normals, texture, pose, index_, segments_.active(), &out);  // does not read the model
+  keyframe_graph_.Update(points, normals, texture, pose, index_, segments_.active(),
+                         &out);  // does not read the model
   log.current_since = keyframe_graph_.current_since();
   anchor_.back() = keyframe_graph_.current();
-  kf_from_cam_.back() = keyframe_graph_.world_from_keyframe(keyframe_graph_.current()).inverse() * pose;
+  kf_from_cam_.back() =
+      keyframe_graph_.world_from_keyframe(keyframe_graph_.current()).inverse() * pose;
   out.segment = segments_.active();
   out.in_main = segments_.InMain(segments_.active());
   out.segment_joined = joined_now;
@@ -252,9 +271,11 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   return out;
 }
 
-bool Tracker::Coast(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& normals, const Rigid3d& prediction,
-                    TrackResult* out) {
-  if (state_ == TrackingState::kInitialising || motion_.ViewsElapsed() > o_.relocaliser.direct_max_views) return false;
+bool Tracker::Coast(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& normals,
+                    const Rigid3d& prediction, TrackResult* out) {
+  if (state_ == TrackingState::kInitialising ||
+      motion_.ViewsElapsed() > o_.relocaliser.direct_max_views)
+    return false;
   IcpResult fit;
   if (!odometry_.Coast(samples, out->icp, prediction, motion_, &fit)) return false;
   const Rigid3d pose = fit.target_from_source;
@@ -263,10 +284,12 @@ bool Tracker::Coast(const SurfacePoints& samples, const cv::Mat& points, const c
   ViewLog& log = view_log_.back();
   log.coasted = true;
   log.pose = pose;
-  // Into the tracking model (not the fused one): the next view overlaps the stretch it slides along.
+  // Into the tracking model (not the fused one): the next view overlaps the stretch it slides
+  // along.
   odometry_.Insert(points, normals, pose);
   out->state = state_;
-  out->reason += "; coasting: tracked along its constrained directions, not fused (" + std::to_string(odometry_.coast_run()) + " of " +
+  out->reason += "; coasting: tracked along its constrained directions, not fused (" +
+                 std::to_string(odometry_.coast_run()) + " of " +
                  std::to_string(o_.odometry.max_coast_views) + " in a row)";
   return true;
 }
@@ -302,15 +325,17 @@ bool Tracker::JoinSegmentNow(int s, std::string* why, Rigid3d* main_from_segment
   // Verified like a re-entry: the newest keyframe at its joined pose does not contradict what the
   // main keyframes near it saw.
   const Keyframe& kn = keyframe_graph_.keyframes()[static_cast<size_t>(newest)];
-  const ReentryEvidence evidence = relocaliser_.CheckReentry(kn.samples, T * keyframe_graph_.world_from_keyframe(newest));
+  const ReentryEvidence evidence =
+      relocaliser_.CheckReentry(kn.samples, T * keyframe_graph_.world_from_keyframe(newest));
   if (!evidence.ok) {
     *why = "join: " + evidence.reason;
     return false;
   }
-  // Merge: the segment's keyframes, model samples (segments.h), views' logged poses and motion state
-  // into the main frame.
+  // Merge: the segment's keyframes, model samples (segments.h), views' logged poses and motion
+  // state into the main frame.
   for (int64_t v = 0; v < views(); ++v)
-    if (ViewSegment(v) == s) view_log_[static_cast<size_t>(v)].pose = T * view_log_[static_cast<size_t>(v)].pose;
+    if (ViewSegment(v) == s)
+      view_log_[static_cast<size_t>(v)].pose = T * view_log_[static_cast<size_t>(v)].pose;
   segments_.Merge(s, T, newest, index_);
   if (segments_.active() == s) {
     motion_.MoveFrame(T);
@@ -318,7 +343,8 @@ bool Tracker::JoinSegmentNow(int s, std::string* why, Rigid3d* main_from_segment
   }
   // The rebuilt model has no undo journal: undo starts again from here.
   for (ViewLog& log : view_log_) log.map_inserts_before = 0;
-  *why = "joined by " + how + ": " + std::to_string(r.icp.correspondences) + " samples, rmse " + std::to_string(r.icp.rmse_mm * 1000) + " um";
+  *why = "joined by " + how + ": " + std::to_string(r.icp.correspondences) + " samples, rmse " +
+         std::to_string(r.icp.rmse_mm * 1000) + " um";
   return true;
 }
 
@@ -361,13 +387,16 @@ int Tracker::JoinApartSegments() {
   return joined;
 }
 
-Status Tracker::Optimize(const PoseGraphOptions& options, PoseGraphSummary* summary) { return keyframe_graph_.Optimize(options, summary); }
+Status Tracker::Optimize(const PoseGraphOptions& options, PoseGraphSummary* summary) {
+  return keyframe_graph_.Optimize(options, summary);
+}
 
 int64_t Tracker::first_undoable_view() const {
   // Views' Insert counts do not decrease: the first view whose model state the journal still has.
   const int64_t oldest = odometry_.model().oldest_undoable_insert();
-  const auto it = std::lower_bound(view_log_.begin(), view_log_.end(), oldest,
-                                   [](const ViewLog& v, int64_t n) { return v.map_inserts_before < n; });
+  const auto it =
+      std::lower_bound(view_log_.begin(), view_log_.end(), oldest,
+                       [](const ViewLog& v, int64_t n) { return v.map_inserts_before < n; });
   return std::max(segments_.undo_barrier_view(), static_cast<int64_t>(it - view_log_.begin()));
 }
 
@@ -379,22 +408,24 @@ Tracker::UndoResult Tracker::UndoFrom(int64_t first_view) {
   CommitView();
   UndoResult r;
   if (first_view > views() || first_view < first_undoable_view()) {
-    r.reason = "view " + std::to_string(first_view) + " is outside what can be undone (views " + std::to_string(first_undoable_view()) +
-               " to " + std::to_string(views()) + ")";
+    r.reason = "view " + std::to_string(first_view) + " is outside what can be undone (views " +
+               std::to_string(first_undoable_view()) + " to " + std::to_string(views()) + ")";
     return r;
   }
   const size_t f = static_cast<size_t>(first_view);
   const bool logged = f < view_log_.size();
   if (logged) {
     const bool rolled_back = odometry_.RollBackTo(view_log_[f].map_inserts_before);
-    D3D_CHECK_MSG(rolled_back, "Tracker::UndoFrom: the model's journal does not reach view " << first_view);
+    D3D_CHECK_MSG(rolled_back,
+                  "Tracker::UndoFrom: the model's journal does not reach view " << first_view);
   }
   for (size_t v = f; v < anchor_.size(); ++v) {
     r.views_undone += anchor_[v] >= 0;
     anchor_[v] = -1;
   }
-  r.keyframes_undone = keyframe_graph_.DropFrom(first_view, logged, logged ? view_log_[f].edges_before : 0,
-                                                logged ? view_log_[f].deferred_edges_before : 0);
+  r.keyframes_undone =
+      keyframe_graph_.DropFrom(first_view, logged, logged ? view_log_[f].edges_before : 0,
+                               logged ? view_log_[f].deferred_edges_before : 0);
   // The current keyframe as the last kept accepted view left it (the one it anchored to).
   int current = -1;
   int64_t since = -1;
@@ -405,7 +436,8 @@ Tracker::UndoResult Tracker::UndoFrom(int64_t first_view) {
       break;
     }
   keyframe_graph_.SetCurrent(current, since);
-  // The motion state, residual history and map gate as the kept views left them (replayed in order).
+  // The motion state, residual history and map gate as the kept views left them (replayed in
+  // order).
   odometry_.ForgetResiduals();
   motion_.Reset();
   int coast_run = 0;
@@ -426,18 +458,22 @@ Tracker::UndoResult Tracker::UndoFrom(int64_t first_view) {
   relocaliser_.DropCandidate();
   retractable_ = Retractable{};  // the last view's loss is no longer the state's to take back
   retracted_ = false;
-  // The views refused in a row before first_view count toward a new segment; the undone ones do not.
+  // The views refused in a row before first_view count toward a new segment; the undone ones do
+  // not.
   if (logged) segments_.set_refused_in_row(view_log_[f].refused_in_row_before);
   views_without_points_ = 0;  // the next view is searched as after a loss (state kLost) anyway
   state_ = motion_.last_view() < 0 ? TrackingState::kInitialising : TrackingState::kLost;
-  if (motion_.last_view() < 0) D3D_CHECK_MSG(odometry_.model().empty(), "Tracker::UndoFrom: no view left but the model is not empty");
+  if (motion_.last_view() < 0)
+    D3D_CHECK_MSG(odometry_.model().empty(),
+                  "Tracker::UndoFrom: no view left but the model is not empty");
   r.ok = true;
   return r;
 }
 
 bool Tracker::ViewPose(int64_t view, Rigid3d* world_from_cam) const {
   if (view < 0 || view >= views() || anchor_[static_cast<size_t>(view)] < 0) return false;
-  *world_from_cam = keyframe_graph_.world_from_keyframe(anchor_[static_cast<size_t>(view)]) * kf_from_cam_[static_cast<size_t>(view)];
+  *world_from_cam = keyframe_graph_.world_from_keyframe(anchor_[static_cast<size_t>(view)]) *
+                    kf_from_cam_[static_cast<size_t>(view)];
   return true;
 }
 

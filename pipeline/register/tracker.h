@@ -11,10 +11,11 @@
 //  1. Prediction: constant velocity from the last two accepted poses, over skipped views too.
 //  2. Frame-to-model ICP against the model of every accepted view. A view with too few points
 //     (probe lifted, out of range) is skipped without a state change.
-//  3. Checks: ICP ok (overlap, residual, degeneracy) and a consistent motion; a pose that jumps from
-//     the prediction must meet a re-entry's standard. A view failing them is refused (not fused, not
-//     added to the model) and the state becomes kLost; optionally one that fits but is degenerate
-//     is coasted instead (not fused, the track kept).
+//  3. Checks: ICP ok (overlap, residual, degeneracy) and a consistent motion; a pose that jumps
+//  from
+//     the prediction must meet a re-entry's standard. A view failing them is refused (not fused,
+//     not added to the model) and the state becomes kLost; optionally one that fits but is
+//     degenerate is coasted instead (not fused, the track kept).
 //  4. Relocalisation (when ICP fails, and for every view while lost): the local search, then
 //     feature relocalisation; a return after a loss waits for the next view's confirmation.
 //  4b. Segments: views that still cannot be placed start a segment of their own frame, joined to
@@ -50,12 +51,12 @@
 namespace d3d {
 
 struct TrackerOptions {
-  OdometryOptions odometry;          // frame-to-model ICP and the tracking model
-  MotionModelOptions motion;         // prediction and the motion check
-  RelocaliserOptions relocaliser;    // finding the model again, and the re-entry standard
-  KeyframeGraphOptions keyframes;    // keyframes, pose-graph edges, loop closures
-  SegmentOptions segments;           // segments apart and their joins
-  void Check() const;                // throws std::invalid_argument
+  OdometryOptions odometry;        // frame-to-model ICP and the tracking model
+  MotionModelOptions motion;       // prediction and the motion check
+  RelocaliserOptions relocaliser;  // finding the model again, and the re-entry standard
+  KeyframeGraphOptions keyframes;  // keyframes, pose-graph edges, loop closures
+  SegmentOptions segments;         // segments apart and their joins
+  void Check() const;              // throws std::invalid_argument
 };
 
 class Tracker {
@@ -76,20 +77,30 @@ class Tracker {
 
   // points, normals: H×W CV_32FC3 camera frame (mm, NaN = none); quality H×W CV_32F or empty;
   // texture H×W CV_8U or empty (then relocalisation uses range features only).
-  // capture_ns: the view's capture time (ns, any epoch), used with TrackerOptions::motion.view_period_ns.
-  TrackResult Track(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality, const cv::Mat& texture,
-                    const ViewAugmenter& augment = {}, int64_t capture_ns = 0);
+  // capture_ns: the view's capture time (ns, any epoch), used with
+  // TrackerOptions::motion.view_period_ns.
+  TrackResult Track(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& quality,
+                    const cv::Mat& texture, const ViewAugmenter& augment = {},
+                    int64_t capture_ns = 0);
 
   TrackingState state() const { return state_; }
   // With KeyframeGraphOptions::feature_timing kWorker or kOnDemand, a keyframe's features may still
   // be pending (empty) here.
   const std::vector<Keyframe>& keyframes() const { return keyframe_graph_.keyframes(); }
-  int64_t keyframe_bytes() const { return keyframe_graph_.bytes(); }  // the keyframes' Keyframe::bytes(), summed
-  int keyframes_reused() const { return keyframe_graph_.reused(); }    // times an older keyframe became current again
-  int current_keyframe() const { return keyframe_graph_.current(); }   // the keyframe views anchor to now (−1: none yet)
+  int64_t keyframe_bytes() const {
+    return keyframe_graph_.bytes();
+  }  // the keyframes' Keyframe::bytes(), summed
+  int keyframes_reused() const {
+    return keyframe_graph_.reused();
+  }  // times an older keyframe became current again
+  int current_keyframe() const {
+    return keyframe_graph_.current();
+  }  // the keyframe views anchor to now (−1: none yet)
   const PoseGraph& graph() const { return keyframe_graph_.graph(); }
   int64_t views() const { return static_cast<int64_t>(anchor_.size()); }
-  const PointMap& model() const { return odometry_.model(); }  // without a pending insert (see CommitView)
+  const PointMap& model() const {
+    return odometry_.model();
+  }  // without a pending insert (see CommitView)
   // Runs the model insert Track() left pending (OdometryOptions::defer_model_insert); nothing when
   // none is. Returns its time (ms).
   double CommitView() { return odometry_.Commit(); }
@@ -103,8 +114,8 @@ class Tracker {
   int64_t first_undoable_view() const;
   struct UndoResult {
     bool ok = false;
-    std::string reason;          // why not (ok = false)
-    int64_t views_undone = 0;    // accepted views taken back
+    std::string reason;        // why not (ok = false)
+    int64_t views_undone = 0;  // accepted views taken back
     int keyframes_undone = 0;
   };
   // Takes back views first_view … views() − 1, before Optimize (after it the graph's poses are no
@@ -127,7 +138,9 @@ class Tracker {
   int ViewSegment(int64_t view) const;
   // Segment s's frame moved back to the main frame's origin (a translation: not a registration, the
   // two stay unrelated); identity for the main one.
-  Rigid3d MainFromSegmentFrame(int segment) const { return segments_.MainFromSegmentFrame(segment); }
+  Rigid3d MainFromSegmentFrame(int segment) const {
+    return segments_.MainFromSegmentFrame(segment);
+  }
   // A last join attempt for every segment not joined yet (at the end of a scan, before Optimize):
   // returns how many joined.
   int JoinApartSegments();
@@ -153,8 +166,8 @@ class Tracker {
   bool BackFromNoPoints() const;
   // Coasts the view (OdometryOptions::max_coast_views) when its ICP from `prediction` allows it:
   // true and *out filled (refused, the state kept), false when it does not apply.
-  bool Coast(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& normals, const Rigid3d& prediction,
-             TrackResult* out);
+  bool Coast(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& normals,
+             const Rigid3d& prediction, TrackResult* out);
   // Starts a new segment with this view (accepted at *pose, in the segment's frame).
   void StartSegment(Rigid3d* pose, TrackResult* out);
   // Tries to join segment s to the main model; true when it did (then merged). *why: what it
@@ -171,7 +184,7 @@ class Tracker {
   Segments segments_;
   Relocaliser relocaliser_;
   TrackingState state_ = TrackingState::kInitialising;
-  int64_t index_ = -1;  // current view index
+  int64_t index_ = -1;            // current view index
   int views_without_points_ = 0;  // views with too few points since the last placed view
   // The last view's loss, for RetractLoss: whether it may be taken back, and the state and
   // refused-in-a-row count before it.
@@ -195,15 +208,16 @@ class Tracker {
   std::vector<Rigid3d> kf_from_cam_;
   // Per view, what UndoFrom needs to replay the state the kept views left: the model's Insert count
   // at its start, and for an accepted view its pose, capture time, residual pushed to the map gate
-  // (< 0: none), whether it entered the model, whether it was a re-entry, and the view that made its
-  // keyframe current (the keyframe itself is anchor_'s), and the pose graph's edges and the
+  // (< 0: none), whether it entered the model, whether it was a re-entry, and the view that made
+  // its keyframe current (the keyframe itself is anchor_'s), and the pose graph's edges and the
   // deferred ones at its start (a keyframe reuse adds an edge between two older keyframes).
   struct ViewLog {
     int64_t map_inserts_before = 0;
     size_t edges_before = 0, deferred_edges_before = 0;
     int64_t current_since = -1;
     int64_t capture_ns = 0;
-    int refused_in_row_before = 0;  // Segments::refused_in_row() when the view came (UndoFrom restores it)
+    int refused_in_row_before =
+        0;  // Segments::refused_in_row() when the view came (UndoFrom restores it)
     double rmse_pushed_mm = -1;
     bool in_model = false;
     bool motion_restart = false;  // no velocity across it: a re-entry or a segment's first view

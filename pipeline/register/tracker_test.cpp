@@ -14,7 +14,9 @@ using namespace d3d::testing;
 class TrackerScan : public ::testing::Test {
  protected:
   TrackerScan() : hf_(31), cam_(TestCamera()) {}
-  Rigid3d Truth(double x, double y) const { return LookDown(x, y, 30, 0.05 * std::sin(x), 0.04 * std::cos(x), 0.02 * x); }
+  Rigid3d Truth(double x, double y) const {
+    return LookDown(x, y, 30, 0.05 * std::sin(x), 0.04 * std::cos(x), 0.02 * x);
+  }
   // A view at `pose` with depth noise σ = noise_mm.
   TrackResult Feed(Tracker* t, const Rigid3d& pose, uint32_t seed, double noise_mm = 0.004) {
     const auto v = RenderHeightField(hf_, cam_, pose, noise_mm, seed);
@@ -92,7 +94,8 @@ TEST_F(TrackerScan, TracksAStripRefusesABadViewAndRelocalises) {
 TEST_F(TrackerScan, ALossTakenBackLetsAViewFromTheGapBeTrackedOrIsReinstated) {
   Tracker tracker(cam_, TrackerOptions{});
   uint32_t seed = 1;
-  for (double x = -6; x <= 0.01; x += 1.0) ASSERT_TRUE(Feed(&tracker, Truth(x, 0), seed++).accepted);
+  for (double x = -6; x <= 0.01; x += 1.0)
+    ASSERT_TRUE(Feed(&tracker, Truth(x, 0), seed++).accepted);
   EXPECT_FALSE(tracker.RetractLoss()) << "the last view was placed";
   const TrackResult bad = Feed(&tracker, Truth(25, 0), 77);
   ASSERT_FALSE(bad.accepted);
@@ -104,7 +107,8 @@ TEST_F(TrackerScan, ALossTakenBackLetsAViewFromTheGapBeTrackedOrIsReinstated) {
   ASSERT_TRUE(bridge.accepted) << bridge.reason;
   EXPECT_EQ(bridge.state, TrackingState::kTracking) << "tracked, not a re-entry";
   EXPECT_TRUE(tracker.ReinstateLoss()) << "a retracted loss";
-  EXPECT_EQ(tracker.state(), TrackingState::kTracking) << "a view was placed since: the loss stays taken back";
+  EXPECT_EQ(tracker.state(), TrackingState::kTracking)
+      << "a view was placed since: the loss stays taken back";
   EXPECT_FALSE(tracker.ReinstateLoss());
   // Nothing placed after the retraction: lost again, and what comes next is a re-entry.
   ASSERT_FALSE(Feed(&tracker, Truth(30, 0), 78).accepted);
@@ -167,7 +171,9 @@ TEST_F(TrackerScan, AReentryTheNextViewContradictsIsDropped) {
 TEST_F(TrackerScan, UndoLeavesTheTrackerAsIfTheViewsHadNeverComeAndTheScanGoesOn) {
   using Timing = KeyframeGraphOptions::FeatureTiming;
   for (const Timing timing : {Timing::kInTrack, Timing::kWorker, Timing::kOnDemand}) {
-    SCOPED_TRACE(timing == Timing::kInTrack ? "features in Track" : timing == Timing::kWorker ? "features on the worker" : "features on demand");
+    SCOPED_TRACE(timing == Timing::kInTrack  ? "features in Track"
+                 : timing == Timing::kWorker ? "features on the worker"
+                                             : "features on demand");
     TrackerOptions o;
     o.odometry.min_view_samples /= 4;
     o.odometry.map.undo_inserts = 20;
@@ -199,7 +205,8 @@ TEST_F(TrackerScan, UndoLeavesTheTrackerAsIfTheViewsHadNeverComeAndTheScanGoesOn
     EXPECT_TRUE(all.model().weights() == kept.model().weights());
     // Keyframes and pose graph.
     ASSERT_EQ(all.keyframes().size(), kept.keyframes().size());
-    for (size_t k = 0; k < kept.keyframes().size(); ++k) EXPECT_EQ(all.keyframes()[k].view, kept.keyframes()[k].view);
+    for (size_t k = 0; k < kept.keyframes().size(); ++k)
+      EXPECT_EQ(all.keyframes()[k].view, kept.keyframes()[k].view);
     ASSERT_EQ(all.graph().num_nodes(), kept.graph().num_nodes());
     ASSERT_EQ(all.graph().edges().size(), kept.graph().edges().size());
     for (size_t e = 0; e < kept.graph().edges().size(); ++e) {
@@ -243,7 +250,8 @@ TEST_F(TrackerScan, UndoReachesAsFarAsTheJournalAndEverythingMeansANewStart) {
   o.odometry.map.undo_inserts = 3;
   Tracker tracker(small_cam_, o);
   uint32_t seed = 1;
-  for (int i = 0; i < 6; ++i) ASSERT_TRUE(FeedSmall(&tracker, Truth(-3 + 0.8 * i, 0), seed++).accepted);
+  for (int i = 0; i < 6; ++i)
+    ASSERT_TRUE(FeedSmall(&tracker, Truth(-3 + 0.8 * i, 0), seed++).accepted);
   EXPECT_EQ(tracker.first_undoable_view(), 3);
   const size_t samples = tracker.model().size();
   const Tracker::UndoResult beyond = tracker.UndoFrom(2);
@@ -257,7 +265,8 @@ TEST_F(TrackerScan, UndoReachesAsFarAsTheJournalAndEverythingMeansANewStart) {
   TrackerOptions deep = o;
   deep.odometry.map.undo_inserts = 10;
   Tracker fresh(small_cam_, deep);
-  for (int i = 0; i < 4; ++i) ASSERT_TRUE(FeedSmall(&fresh, Truth(-3 + 0.8 * i, 0), seed++).accepted);
+  for (int i = 0; i < 4; ++i)
+    ASSERT_TRUE(FeedSmall(&fresh, Truth(-3 + 0.8 * i, 0), seed++).accepted);
   const Tracker::UndoResult all = fresh.UndoFrom(0);
   ASSERT_TRUE(all.ok) << all.reason;
   EXPECT_EQ(all.views_undone, 4);
@@ -292,7 +301,9 @@ TEST_F(TrackerScan, AfterOneBadViewTheTrackResumesFromThePrediction) {
     const TrackResult r = FeedSmall(&tracker, next, seed++);
     if (direct == 0) {
       EXPECT_FALSE(r.accepted);
-      EXPECT_NE(r.reason.find("re-entry candidate (icp from the predicted pose)"), std::string::npos) << r.reason;
+      EXPECT_NE(r.reason.find("re-entry candidate (icp from the predicted pose)"),
+                std::string::npos)
+          << r.reason;
       continue;
     }
     ASSERT_TRUE(r.accepted) << r.reason;
@@ -330,7 +341,8 @@ TEST_F(TrackerScan, ADeferredModelInsertGivesTheSameScan) {
     const size_t before = committed.model().size();
     const TrackResult b = committed.Track(v.points, v.normals, v.quality, v.texture);
     EXPECT_EQ(committed.insert_pending(), b.accepted && b.in_model) << "view " << i;
-    EXPECT_EQ(committed.model().size(), before) << "view " << i << ": the insert waits for CommitView";
+    EXPECT_EQ(committed.model().size(), before)
+        << "view " << i << ": the insert waits for CommitView";
     committed.CommitView();
     EXPECT_FALSE(committed.insert_pending());
     const TrackResult c = left.Track(v.points, v.normals, v.quality, v.texture);
@@ -343,10 +355,12 @@ TEST_F(TrackerScan, ADeferredModelInsertGivesTheSameScan) {
     EXPECT_EQ(now.model().points(), committed.model().points()) << "view " << i;
     if (i == undo_after) {
       ASSERT_TRUE(left.insert_pending());
-      const Tracker::UndoResult ua = now.UndoFrom(now.views() - 3), uc = left.UndoFrom(left.views() - 3);
+      const Tracker::UndoResult ua = now.UndoFrom(now.views() - 3),
+                                uc = left.UndoFrom(left.views() - 3);
       ASSERT_TRUE(ua.ok && uc.ok) << ua.reason << " / " << uc.reason;
       (void)committed.UndoFrom(committed.views() - 3);
-      EXPECT_EQ(now.model().points(), left.model().points()) << "the pending insert ran before the undo";
+      EXPECT_EQ(now.model().points(), left.model().points())
+          << "the pending insert ran before the undo";
     }
   }
   left.CommitView();
@@ -364,17 +378,21 @@ TEST_F(TrackerScan, UnevenlySpacedViewsAreTrackedByCaptureTime) {
   TrackerOptions o;
   o.relocaliser.by_features = false;
   o.keyframes.detect_loops = false;
-  const PinholeBrownConrady cam = TestCamera(160, 120, 500);  // the fixture's field of view, 4× fewer pixels
+  const PinholeBrownConrady cam =
+      TestCamera(160, 120, 500);  // the fixture's field of view, 4× fewer pixels
   o.odometry.min_view_samples /= 4;
   const int64_t burst_ns = 33'333'333;
   TrackerOptions timed = o;
   timed.motion.view_period_ns = burst_ns;
   Tracker by_views(cam, o), by_time(cam, timed);
   const std::vector<int> bursts = {0, 1, 2, 6, 7, 11, 12, 13};
-  auto truth = [](int burst) { return LookDown(-6.0 + burst, 0, 30, 0.05, 0.04, 0.1 + 0.01 * burst); };  // constant velocity
+  auto truth = [](int burst) {
+    return LookDown(-6.0 + burst, 0, 30, 0.05, 0.04, 0.1 + 0.01 * burst);
+  };  // constant velocity
   int not_tracked_by_views = 0;
   for (size_t i = 0; i < bursts.size(); ++i) {
-    const auto v = RenderHeightField(hf_, cam, truth(bursts[i]), 0.004, static_cast<uint32_t>(i + 1));
+    const auto v =
+        RenderHeightField(hf_, cam, truth(bursts[i]), 0.004, static_cast<uint32_t>(i + 1));
     const int64_t capture_ns = 1'000'000'000 + bursts[i] * burst_ns;
     const TrackResult t = by_time.Track(v.points, v.normals, v.quality, v.texture, {}, capture_ns);
     EXPECT_TRUE(t.accepted) << "burst " << bursts[i] << ": " << t.reason;
@@ -417,7 +435,6 @@ TEST_F(TrackerScan, AJumpBeyondTheModelIsRefused) {
   EXPECT_NE(r.reason.find("icp"), std::string::npos) << r.reason;
 }
 
-
 TEST_F(TrackerScan, ALostTrackReentersOnlyAtTheRelocalisationResidual) {
   // A noisy view (σ 55–65 µm: ICP residual between the relocalisation limit, 40 µm, and tracking's)
   // continues a track from the predicted pose, but does not re-enter the model through the local
@@ -444,7 +461,8 @@ TEST_F(TrackerScan, ALostTrackReentersOnlyAtTheRelocalisationResidual) {
   EXPECT_LT(rmse_um, 1000 * o.odometry.icp.max_rmse_mm);
   const TrackResult candidate = Feed(&tracker, Truth(2.3, 0), 5);
   EXPECT_FALSE(candidate.accepted);
-  EXPECT_NE(candidate.reason.find("re-entry candidate (icp from"), std::string::npos) << candidate.reason;
+  EXPECT_NE(candidate.reason.find("re-entry candidate (icp from"), std::string::npos)
+      << candidate.reason;
   const TrackResult back = Feed(&tracker, Truth(2.4, 0), 6);  // confirms it
   ASSERT_TRUE(back.accepted) << back.reason;
   EXPECT_EQ(back.state, TrackingState::kRelocalised);
@@ -454,7 +472,8 @@ TEST_F(TrackerScan, ALostTrackReentersOnlyAtTheRelocalisationResidual) {
 // its own after segment_after_views views that cannot be placed; once its model overlaps the main
 // one, it is joined (`joined_by`: the join's account starts "joined by <joined_by>"), and every
 // view ends where it belongs.
-void TrackerScan::LostScanStartsASegmentThatJoins(const TrackerOptions& o, const std::string& joined_by) {
+void TrackerScan::LostScanStartsASegmentThatJoins(const TrackerOptions& o,
+                                                  const std::string& joined_by) {
   Tracker tracker(cam_, o);
   std::vector<std::pair<int64_t, Rigid3d>> truth;  // accepted views
   uint32_t seed = 1;
@@ -531,7 +550,8 @@ TEST_F(TrackerScan, ALostScanStartsASegmentThatJoinsWhenItOverlaps) {
 
 TEST_F(TrackerScan, ASegmentFpfhCannotPlaceJoinsByKeyframeFeatures) {
   TrackerOptions o = SegmentTestOptions();
-  o.segments.join.fpfh.min_overlap = 1.0;  // FPFH's verification never passes: the features must join
+  o.segments.join.fpfh.min_overlap =
+      1.0;  // FPFH's verification never passes: the features must join
   LostScanStartsASegmentThatJoins(o, "features");
 }
 
@@ -548,12 +568,15 @@ TEST_F(TrackerScan, UndoneRefusedViewsDoNotCountTowardASegment) {
   o.odometry.map.undo_inserts = 16;
   Tracker tracker(cam_, o);
   uint32_t seed = 1;
-  for (double x = -24; x <= -19.99; x += 1.0) ASSERT_TRUE(Feed(&tracker, Truth(x, 0), seed++).accepted);
+  for (double x = -24; x <= -19.99; x += 1.0)
+    ASSERT_TRUE(Feed(&tracker, Truth(x, 0), seed++).accepted);
   const int64_t first_off = tracker.views();
-  for (double x = 10; x <= 11.01; x += 1.0) EXPECT_FALSE(Feed(&tracker, Truth(x, 0), seed++).accepted);
+  for (double x = 10; x <= 11.01; x += 1.0)
+    EXPECT_FALSE(Feed(&tracker, Truth(x, 0), seed++).accepted);
   ASSERT_TRUE(tracker.UndoFrom(first_off).ok);
   // As if the two had never come: two more refused views, and only the third starts a segment.
-  for (double x = 12; x <= 13.01; x += 1.0) EXPECT_FALSE(Feed(&tracker, Truth(x, 0), seed++).accepted);
+  for (double x = 12; x <= 13.01; x += 1.0)
+    EXPECT_FALSE(Feed(&tracker, Truth(x, 0), seed++).accepted);
   EXPECT_EQ(tracker.segments(), 1);
   const TrackResult third = Feed(&tracker, Truth(14, 0), seed++);
   EXPECT_TRUE(third.new_segment);
@@ -563,7 +586,8 @@ TEST_F(TrackerScan, UndoneRefusedViewsDoNotCountTowardASegment) {
 TEST_F(TrackerScan, ASegmentThatNeverOverlapsStaysApart) {
   Tracker tracker(cam_, QuickSegmentOptions());
   uint32_t seed = 1;
-  for (double x = -24; x <= -19.99; x += 1.0) ASSERT_TRUE(Feed(&tracker, Truth(x, 0), seed++).accepted);
+  for (double x = -24; x <= -19.99; x += 1.0)
+    ASSERT_TRUE(Feed(&tracker, Truth(x, 0), seed++).accepted);
   const int64_t first_apart = tracker.views();
   for (double x = 10; x <= 16.01; x += 1.0) Feed(&tracker, Truth(x, 0), seed++);
   ASSERT_EQ(tracker.segments(), 2);
@@ -601,11 +625,13 @@ TEST_F(TrackerScan, ASegmentThatNeverOverlapsStaysApart) {
 // A new segment's views are compared with each other by the map gate (map_max_rmse_ratio), not
 // with the residuals of the model the track left: here the segment's views are noisier (σ 12 µm
 // against 4) and fit their young model worse than the main model's views fitted theirs; compared
-// with those, two of every three stayed out of the model and it stopped growing where the probe went.
+// with those, two of every three stayed out of the model and it stopped growing where the probe
+// went.
 TEST_F(TrackerScan, ANewSegmentsViewsAreGatedAgainstTheirOwnResiduals) {
   Tracker tracker(cam_, QuickSegmentOptions());
   uint32_t seed = 1;
-  for (double x = -26; x <= -16.99; x += 1.0) ASSERT_TRUE(Feed(&tracker, Truth(x, 0), seed++).accepted);
+  for (double x = -26; x <= -16.99; x += 1.0)
+    ASSERT_TRUE(Feed(&tracker, Truth(x, 0), seed++).accepted);
   int segment_views = 0, out_of_model = 0;
   bool started = false;
   for (double x = 10; x <= 14.01; x += 0.5) {
@@ -629,8 +655,8 @@ TEST_F(TrackerScan, NearLoopsCarryTheirFactorOfTheInformation) {
   // and only the loops to recent keyframes (fewer than loop_min_separation back) weigh a quarter.
   TrackerOptions o;
   o.odometry.min_view_samples /= 4;
-  o.keyframes.overlap = 0.85;   // a keyframe every ~1.5 mm
-  o.keyframes.loop_min_separation = 3;   // a short strip there and back has both kinds of loop
+  o.keyframes.overlap = 0.85;           // a keyframe every ~1.5 mm
+  o.keyframes.loop_min_separation = 3;  // a short strip there and back has both kinds of loop
   o.keyframes.near_loop_information_factor = 1;
   TrackerOptions oq = o;
   oq.keyframes.near_loop_information_factor = 0.25;
@@ -656,15 +682,19 @@ TEST_F(TrackerScan, NearLoopsCarryTheirFactorOfTheInformation) {
     near += is_near;
     far += a[i].loop && !is_near;
     const double f = is_near ? 0.25 : 1.0;
-    EXPECT_LE((b[i].information - f * a[i].information).norm(), 1e-9 * a[i].information.norm()) << "edge " << i;
+    EXPECT_LE((b[i].information - f * a[i].information).norm(), 1e-9 * a[i].information.norm())
+        << "edge " << i;
     // An odometry edge whose keyframe ICP failed is on σs (no information).
-    EXPECT_NEAR(b[i].sigma_translation_mm, a[i].sigma_translation_mm / std::sqrt(f), 1e-12) << "edge " << i;
-    EXPECT_NEAR(b[i].sigma_rotation_rad, a[i].sigma_rotation_rad / std::sqrt(f), 1e-12) << "edge " << i;
+    EXPECT_NEAR(b[i].sigma_translation_mm, a[i].sigma_translation_mm / std::sqrt(f), 1e-12)
+        << "edge " << i;
+    EXPECT_NEAR(b[i].sigma_rotation_rad, a[i].sigma_rotation_rad / std::sqrt(f), 1e-12)
+        << "edge " << i;
     if (a[i].loop) {
       EXPECT_GT(a[i].information.norm(), 0) << "edge " << i;
     }
   }
-  std::printf("[ loops    ] %zu keyframes, %d near and %d far loops\n", full.keyframes().size(), near, far);
+  std::printf("[ loops    ] %zu keyframes, %d near and %d far loops\n", full.keyframes().size(),
+              near, far);
   EXPECT_GT(near, 0) << "the strip must make near loops";
   EXPECT_GT(far, 0) << "the strip must make far loops";
   EXPECT_THROW(
@@ -694,7 +724,8 @@ TEST_F(TrackerScan, KeyframesGetTheTrackedRelativePoseAsASecondOdometryEdge) {
   for (double x = 4; x >= -4.01; x -= 0.5) path.push_back(Truth(x, 1.5));
   for (size_t i = 0; i < path.size(); ++i) {
     const auto v = RenderHeightField(hf_, small_cam_, path[i], 0.004, static_cast<uint32_t>(i + 1));
-    for (Tracker* t : {&one, &none, &half}) ASSERT_TRUE(t->Track(v.points, v.normals, v.quality, v.texture).accepted) << "view " << i;
+    for (Tracker* t : {&one, &none, &half})
+      ASSERT_TRUE(t->Track(v.points, v.normals, v.quality, v.texture).accepted) << "view " << i;
   }
   const auto check = [&](const Tracker& t, double factor) {
     const auto& with = t.graph().edges();
@@ -707,7 +738,8 @@ TEST_F(TrackerScan, KeyframesGetTheTrackedRelativePoseAsASecondOdometryEdge) {
       ASSERT_EQ(with[i].from, without[j].from);
       ASSERT_EQ(with[i].to, without[j].to);
       ASSERT_EQ(with[i].loop, without[j].loop);
-      EXPECT_TRUE(with[i].from_from_to.matrix() == without[j].from_from_to.matrix()) << "edge " << i;
+      EXPECT_TRUE(with[i].from_from_to.matrix() == without[j].from_from_to.matrix())
+          << "edge " << i;
       EXPECT_TRUE(with[i].information == without[j].information) << "edge " << i;
       if (with[i].loop || with[i].information.isZero(0)) continue;
       // A measured odometry edge: the tracked one follows.
@@ -719,7 +751,9 @@ TEST_F(TrackerScan, KeyframesGetTheTrackedRelativePoseAsASecondOdometryEdge) {
       // The graph's poses are still the tracked ones (before Optimize).
       const Rigid3d tracked_from_to = t.graph().pose(e.from).inverse() * t.graph().pose(e.to);
       EXPECT_LT((e.from_from_to.matrix() - tracked_from_to.matrix()).norm(), 1e-12) << "edge " << i;
-      EXPECT_LE((e.information - factor * with[i - 1].information).norm(), 1e-12 * with[i - 1].information.norm()) << "edge " << i;
+      EXPECT_LE((e.information - factor * with[i - 1].information).norm(),
+                1e-12 * with[i - 1].information.norm())
+          << "edge " << i;
       // Not the ICP's measurement: the tracker registered against the model, not the parent alone.
       EXPECT_FALSE(e.from_from_to.matrix() == with[i - 1].from_from_to.matrix()) << "edge " << i;
       ++tracked;
@@ -754,12 +788,15 @@ TEST_F(TrackerScan, AProbeThatTurnsOrLingersMakesKeyframesAnyway) {
   o.keyframes.max_views = 0;
   o.keyframes.reuse_radius_mm = 0;  // every trigger makes a keyframe (reuse: next test)
   std::vector<Rigid3d> path;
-  for (int i = 0; i <= 12; ++i) path.push_back(Truth(0, 0) * Rigid3d(Eigen::AngleAxisd(i * M_PI / 180, Eigen::Vector3d::UnitZ())));
+  for (int i = 0; i <= 12; ++i)
+    path.push_back(Truth(0, 0) *
+                   Rigid3d(Eigen::AngleAxisd(i * M_PI / 180, Eigen::Vector3d::UnitZ())));
   auto keyframe_views = [&](const TrackerOptions& options) {
     Tracker t(small_cam_, options);
     std::vector<int64_t> views;
     for (size_t i = 0; i < path.size(); ++i) {
-      const auto v = RenderHeightField(hf_, small_cam_, path[i], 0.004, static_cast<uint32_t>(i + 1));
+      const auto v =
+          RenderHeightField(hf_, small_cam_, path[i], 0.004, static_cast<uint32_t>(i + 1));
       const TrackResult r = t.Track(v.points, v.normals, v.quality, v.texture);
       EXPECT_TRUE(r.accepted) << "view " << i << ": " << r.reason;
       if (r.new_keyframe) views.push_back(static_cast<int64_t>(i));
@@ -789,7 +826,9 @@ TEST_F(TrackerScan, AProbeCirclingOneSpotReusesItsKeyframes) {
   constexpr int kRound = 16, kRounds = 3;
   for (int i = 0; i < kRound * kRounds; ++i) {
     const double a = 2 * M_PI * i / kRound;
-    path.push_back(Truth(std::cos(a), std::sin(a)) * Rigid3d(Eigen::AngleAxisd(6 * M_PI / 180 * std::sin(a), Eigen::Vector3d::UnitX())));
+    path.push_back(
+        Truth(std::cos(a), std::sin(a)) *
+        Rigid3d(Eigen::AngleAxisd(6 * M_PI / 180 * std::sin(a), Eigen::Vector3d::UnitX())));
   }
   struct Run {
     std::vector<int> keyframes_after_round;
@@ -803,7 +842,8 @@ TEST_F(TrackerScan, AProbeCirclingOneSpotReusesItsKeyframes) {
       const TrackResult r = FeedSmall(&t, path[i], static_cast<uint32_t>(i + 1));
       EXPECT_TRUE(r.accepted) << "view " << i << ": " << r.reason;
       EXPECT_FALSE(r.new_keyframe && r.keyframe_reused) << "view " << i;
-      if ((i + 1) % kRound == 0) run.keyframes_after_round.push_back(static_cast<int>(t.keyframes().size()));
+      if ((i + 1) % kRound == 0)
+        run.keyframes_after_round.push_back(static_cast<int>(t.keyframes().size()));
     }
     run.reused = t.keyframes_reused();
     for (size_t k = 1; k < t.keyframes().size(); ++k) EXPECT_GE(t.keyframes()[k].parent, 0);
@@ -827,7 +867,8 @@ TEST_F(TrackerScan, AProbeCirclingOneSpotReusesItsKeyframes) {
   const Run without = scan(never), with = scan(o);
   // Without reuse every round adds keyframes (the aged rule alone makes 2 a round); with it the
   // later rounds add at most one.
-  EXPECT_GE(without.keyframes_after_round.back() - without.keyframes_after_round.front(), 2 * (kRounds - 1));
+  EXPECT_GE(without.keyframes_after_round.back() - without.keyframes_after_round.front(),
+            2 * (kRounds - 1));
   EXPECT_EQ(without.reused, 0);
   EXPECT_LE(with.keyframes_after_round.back() - with.keyframes_after_round.front(), 1);
   EXPECT_GE(with.reused, kRounds - 1);
@@ -851,7 +892,8 @@ TEST_F(TrackerScan, AProbeCirclingOneSpotReusesItsKeyframes) {
   }
   int keep = -1;  // views kept: 0 … keep − 1
   for (size_t i = 2 * kRound; i + 2 < path.size() && keep < 0; ++i)
-    if (current[i] != static_cast<int>(made[i]) - 1 && current[i] != current.back()) keep = static_cast<int>(i) + 1;
+    if (current[i] != static_cast<int>(made[i]) - 1 && current[i] != current.back())
+      keep = static_cast<int>(i) + 1;
   ASSERT_GT(keep, 0) << "no view of the last round anchored to a reused keyframe";
   ASSERT_TRUE(all.UndoFrom(keep).ok);
   EXPECT_EQ(all.keyframes().size(), made[static_cast<size_t>(keep - 1)]);
@@ -872,21 +914,26 @@ TEST_F(TrackerScan, KeyframeIcpEdgesRemoveAnInjectedDrift) {
   std::vector<SurfacePoints> samples;
   for (int i = 0; i < n; ++i) {
     truth.push_back(Truth(-4 + 1.0 * i, 0.1 * std::sin(i)));
-    const auto v = RenderHeightField(hf_, cam_, truth.back(), 0.004, 100 + static_cast<uint32_t>(i));
+    const auto v =
+        RenderHeightField(hf_, cam_, truth.back(), 0.004, 100 + static_cast<uint32_t>(i));
     samples.push_back(SampleOrganised(v.points, v.normals, v.quality, 4));
   }
   Rigid3d bias = Rigid3d::Identity();
-  bias.linear() = Eigen::AngleAxisd(0.05 * M_PI / 180, Eigen::Vector3d(0.3, 1, 0.2).normalized()).toRotationMatrix();
+  bias.linear() = Eigen::AngleAxisd(0.05 * M_PI / 180, Eigen::Vector3d(0.3, 1, 0.2).normalized())
+                      .toRotationMatrix();
   bias.translation() = Eigen::Vector3d(0.01, -0.004, 0.002);
   PoseGraph g;
   Rigid3d pose = truth[0];
   g.AddNode(pose);
   for (int i = 1; i < n; ++i) {
-    pose = pose * truth[static_cast<size_t>(i - 1)].inverse() * truth[static_cast<size_t>(i)] * bias;
+    pose =
+        pose * truth[static_cast<size_t>(i - 1)].inverse() * truth[static_cast<size_t>(i)] * bias;
     g.AddNode(pose);
   }
   double drift_before = 0;
-  for (int i = 0; i < n; ++i) drift_before = std::max(drift_before, TranslationDistanceMm(g.pose(i), truth[static_cast<size_t>(i)]));
+  for (int i = 0; i < n; ++i)
+    drift_before =
+        std::max(drift_before, TranslationDistanceMm(g.pose(i), truth[static_cast<size_t>(i)]));
   ASSERT_GT(drift_before, 0.06);
   int edges = 0;
   for (int i = 1; i < n; ++i)
@@ -897,8 +944,9 @@ TEST_F(TrackerScan, KeyframeIcpEdgesRemoveAnInjectedDrift) {
       e.loop = back > 1;
       const Rigid3d guess = g.pose(e.from).inverse() * g.pose(e.to);
       IcpResult r;
-      ASSERT_TRUE(MeasureKeyframeEdge(samples[static_cast<size_t>(e.from)], samples[static_cast<size_t>(i)], guess,
-                                      KeyframeIcp(), 1e-3, &e, &r))
+      ASSERT_TRUE(MeasureKeyframeEdge(samples[static_cast<size_t>(e.from)],
+                                      samples[static_cast<size_t>(i)], guess, KeyframeIcp(), 1e-3,
+                                      &e, &r))
           << i << " from " << e.from << ": " << r.reason;
       g.AddEdge(e);
       ++edges;
@@ -908,10 +956,11 @@ TEST_F(TrackerScan, KeyframeIcpEdgesRemoveAnInjectedDrift) {
   double worst = 0, worst_deg = 0;
   for (int i = 0; i < n; ++i) {
     worst = std::max(worst, TranslationDistanceMm(g.pose(i), truth[static_cast<size_t>(i)]));
-    worst_deg = std::max(worst_deg, RotationAngleRad(g.pose(i), truth[static_cast<size_t>(i)]) * 180 / M_PI);
+    worst_deg = std::max(worst_deg,
+                         RotationAngleRad(g.pose(i), truth[static_cast<size_t>(i)]) * 180 / M_PI);
   }
-  std::printf("[ drift    ] %d edges: worst %.1f um before, %.1f um / %.4f deg after\n", edges, drift_before * 1000, worst * 1000,
-              worst_deg);
+  std::printf("[ drift    ] %d edges: worst %.1f um before, %.1f um / %.4f deg after\n", edges,
+              drift_before * 1000, worst * 1000, worst_deg);
   EXPECT_LT(worst, std::min(0.015, drift_before / 4));
   EXPECT_LT(worst_deg, 0.02);
   EXPECT_TRUE(s.disagreeing_edges.empty());
@@ -919,9 +968,11 @@ TEST_F(TrackerScan, KeyframeIcpEdgesRemoveAnInjectedDrift) {
 
 TEST_F(TrackerScan, AViewThatFitsMuchWorseThanTheRecentOnesStaysOutOfTheModel) {
   TrackerOptions o;
-  o.relocaliser.by_features = false;  // neither is needed here: no keyframe features, no loop search
+  o.relocaliser.by_features =
+      false;  // neither is needed here: no keyframe features, no loop search
   o.keyframes.detect_loops = false;
-  const PinholeBrownConrady cam = TestCamera(160, 120, 500);  // the fixture's field of view, 4× fewer pixels
+  const PinholeBrownConrady cam =
+      TestCamera(160, 120, 500);  // the fixture's field of view, 4× fewer pixels
   o.odometry.min_view_samples /= 4;
   ASSERT_EQ(o.odometry.map_gate_max_run, 2);
   Tracker tracker(cam, o);
@@ -963,7 +1014,8 @@ TEST_F(TrackerScan, AnAugmentedViewIsRegisteredAgainWithItsNewPoints) {
   const int cut = cam_.width * 2 / 5;
   int calls = 0, declined_calls = 0;
   uint32_t seed = 1;
-  for (double x = -2; x <= 2.01; x += 1.0, ++seed) {  // 5 views: enough for a model and 4 augmented views
+  for (double x = -2; x <= 2.01;
+       x += 1.0, ++seed) {  // 5 views: enough for a model and 4 augmented views
     const Rigid3d pose = Truth(x, 0);
     const auto full = RenderHeightField(hf_, cam_, pose, 0.004, seed);
     auto masked = [&](cv::Mat* points, cv::Mat* normals) {
@@ -977,23 +1029,26 @@ TEST_F(TrackerScan, AnAugmentedViewIsRegisteredAgainWithItsNewPoints) {
     masked(&p1, &n1);
     masked(&p2, &n2);
     ASSERT_TRUE(plain.Track(p0, n0, full.quality, full.texture).accepted);
-    const TrackResult r = augmented.Track(p1, n1, full.quality, full.texture, [&](const Rigid3d&, const PointMap& model) {
-      EXPECT_FALSE(model.empty());
-      ++calls;
-      full.points.colRange(cut, cam_.width).copyTo(p1.colRange(cut, cam_.width));
-      full.normals.colRange(cut, cam_.width).copyTo(n1.colRange(cut, cam_.width));
-      return true;
-    });
+    const TrackResult r = augmented.Track(
+        p1, n1, full.quality, full.texture, [&](const Rigid3d&, const PointMap& model) {
+          EXPECT_FALSE(model.empty());
+          ++calls;
+          full.points.colRange(cut, cam_.width).copyTo(p1.colRange(cut, cam_.width));
+          full.normals.colRange(cut, cam_.width).copyTo(n1.colRange(cut, cam_.width));
+          return true;
+        });
     ASSERT_TRUE(r.accepted) << r.reason;
-    const TrackResult d = declined.Track(p2, n2, full.quality, full.texture, [&](const Rigid3d&, const PointMap&) {
-      ++declined_calls;
-      return false;
-    });
+    const TrackResult d =
+        declined.Track(p2, n2, full.quality, full.texture, [&](const Rigid3d&, const PointMap&) {
+          ++declined_calls;
+          return false;
+        });
     ASSERT_TRUE(d.accepted) << d.reason;
   }
   EXPECT_EQ(calls, 4);  // every accepted view but the first (no model yet)
   EXPECT_EQ(declined_calls, 4);
-  EXPECT_GT(augmented.model().size(), plain.model().size() * 13 / 10);  // the revealed parts are in the model (1.8×)
+  EXPECT_GT(augmented.model().size(),
+            plain.model().size() * 13 / 10);  // the revealed parts are in the model (1.8×)
   const Rigid3d first_inv = Truth(-2, 0).inverse();
   for (int64_t i = 0; i < augmented.views(); ++i) {
     Rigid3d a, p, d;
@@ -1001,14 +1056,15 @@ TEST_F(TrackerScan, AnAugmentedViewIsRegisteredAgainWithItsNewPoints) {
     const Rigid3d want = first_inv * Truth(-2 + static_cast<double>(i), 0);
     EXPECT_LT(TranslationDistanceMm(a, want), 0.02) << "view " << i;
     EXPECT_LT(RotationAngleRad(a, want) * 180 / M_PI, 0.04) << "view " << i;
-    EXPECT_EQ(d.matrix(), p.matrix()) << "view " << i;  // an augmenter that adds nothing changes nothing
+    EXPECT_EQ(d.matrix(), p.matrix())
+        << "view " << i;  // an augmenter that adds nothing changes nothing
   }
 }
 
 // A smooth stretch (here 13.6 mm of the surface without relief, only the gentle wave): the views
-// over its middle slide along it (ICP degenerate). They are coasted: not fused, but tracked along what they do
-// constrain, the rest from the motion model, so the track is never lost and the relief beyond is
-// tracked on. Without coasting the track is lost in the stretch.
+// over its middle slide along it (ICP degenerate). They are coasted: not fused, but tracked along
+// what they do constrain, the rest from the motion model, so the track is never lost and the relief
+// beyond is tracked on. Without coasting the track is lost in the stretch.
 TEST_F(TrackerScan, ASmoothStretchIsCoastedThroughNotLost) {
   std::erase_if(hf_.bumps, [](const HeightField::Bump& b) { return std::abs(b.x) < 6.8; });
   hf_.Bin(hf_.bumps, &hf_.bump_cells);
@@ -1033,7 +1089,8 @@ TEST_F(TrackerScan, ASmoothStretchIsCoastedThroughNotLost) {
       }
       if (x >= 5) {  // the relief again
         ASSERT_TRUE(r.accepted) << "x = " << x << ": " << r.reason;
-        worst_after_mm = std::max(worst_after_mm, TranslationDistanceMm(r.world_from_cam, first_inv * truth(x)));
+        worst_after_mm =
+            std::max(worst_after_mm, TranslationDistanceMm(r.world_from_cam, first_inv * truth(x)));
       }
       if (coast == 0 && lost > 0) break;
     }
@@ -1067,7 +1124,8 @@ TEST_F(TrackerScan, AViewThatJumpsFromThePredictionBecomesAKeyframe) {
         EXPECT_LT(r.prediction_offset_mm, 0.1) << i;
       }
     }
-    const TrackResult r = Feed(&tracker, Truth(x + 1.2, 0), seed++);  // 1.5 mm where 0.3 were predicted
+    const TrackResult r =
+        Feed(&tracker, Truth(x + 1.2, 0), seed++);  // 1.5 mm where 0.3 were predicted
     ASSERT_TRUE(r.accepted) << r.reason;
     EXPECT_NEAR(r.prediction_offset_mm, 1.2, 0.1);
     EXPECT_EQ(r.new_keyframe, jump_mm > 0);
@@ -1084,7 +1142,8 @@ TEST_F(TrackerScan, ATrackedViewThatJumpsMeetsTheReentryStandard) {
     bool accepted;
   };
   for (const Case c : {Case{1.0, 0.004, true}, Case{1.0, 0.055, false}, Case{0.0, 0.055, true}}) {
-    SCOPED_TRACE(std::to_string(c.jump_check_mm) + " mm check, noise " + std::to_string(c.noise_mm));
+    SCOPED_TRACE(std::to_string(c.jump_check_mm) + " mm check, noise " +
+                 std::to_string(c.noise_mm));
     TrackerOptions o;
     o.relocaliser.jump_check_mm = c.jump_check_mm;
     o.relocaliser.jump_check_deg = 0;
@@ -1092,7 +1151,8 @@ TEST_F(TrackerScan, ATrackedViewThatJumpsMeetsTheReentryStandard) {
     Tracker tracker(cam_, o);
     uint32_t seed = 1;
     double x = -4;
-    for (int i = 0; i < 6; ++i, x += 0.3) ASSERT_TRUE(Feed(&tracker, Truth(x, 0), seed++).accepted) << i;
+    for (int i = 0; i < 6; ++i, x += 0.3)
+      ASSERT_TRUE(Feed(&tracker, Truth(x, 0), seed++).accepted) << i;
     const TrackResult r = Feed(&tracker, Truth(x + 1.2, 0), seed++, c.noise_mm);
     EXPECT_EQ(r.accepted, c.accepted) << r.reason << " (rmse " << r.icp.rmse_mm << " mm)";
     if (!c.accepted) {
@@ -1114,14 +1174,17 @@ TEST_F(TrackerScan, AProbeBackFromALiftIsAReentryNotTracked) {
     bool tracked;
   };
   for (const Case c : {Case{1, 0.004, true}, Case{5, 0.004, false}, Case{5, 0.055, false}}) {
-    SCOPED_TRACE(std::to_string(c.empty_views) + " empty views, noise " + std::to_string(c.noise_mm));
+    SCOPED_TRACE(std::to_string(c.empty_views) + " empty views, noise " +
+                 std::to_string(c.noise_mm));
     TrackerOptions o;
     o.odometry.min_view_samples /= 4;
     o.relocaliser.by_features = false;  // the local search only
     Tracker tracker(small_cam_, o);
     uint32_t seed = 1;
-    for (int i = 0; i < 8; ++i) ASSERT_TRUE(FeedSmall(&tracker, Truth(-4 + 0.8 * i, 0), seed++).accepted) << i;
-    const cv::Mat nothing(small_cam_.height, small_cam_.width, CV_32FC3, cv::Scalar::all(std::nan("")));
+    for (int i = 0; i < 8; ++i)
+      ASSERT_TRUE(FeedSmall(&tracker, Truth(-4 + 0.8 * i, 0), seed++).accepted) << i;
+    const cv::Mat nothing(small_cam_.height, small_cam_.width, CV_32FC3,
+                          cv::Scalar::all(std::nan("")));
     for (int i = 0; i < c.empty_views; ++i) {
       const TrackResult e = tracker.Track(nothing, nothing, cv::Mat(), cv::Mat());
       ASSERT_FALSE(e.accepted);
@@ -1135,8 +1198,9 @@ TEST_F(TrackerScan, AProbeBackFromALiftIsAReentryNotTracked) {
       continue;
     }
     EXPECT_FALSE(r.accepted) << r.reason;
-    EXPECT_NE(r.reason.find("back after " + std::to_string(c.empty_views) + " views without points"),
-              std::string::npos)
+    EXPECT_NE(
+        r.reason.find("back after " + std::to_string(c.empty_views) + " views without points"),
+        std::string::npos)
         << r.reason;
     const TrackResult next = FeedSmall(&tracker, Truth(-4 + 0.8 * 7.8, 0), seed++);
     if (c.noise_mm < o.relocaliser.max_rmse_mm) {

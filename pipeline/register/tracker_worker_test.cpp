@@ -16,7 +16,9 @@ using namespace d3d::testing;
 class TrackerWorker : public ::testing::Test {
  protected:
   // The strip of tracker_test.cpp's TrackerScan.
-  Rigid3d Truth(double x, double y) const { return LookDown(x, y, 30, 0.05 * std::sin(x), 0.04 * std::cos(x), 0.02 * x); }
+  Rigid3d Truth(double x, double y) const {
+    return LookDown(x, y, 30, 0.05 * std::sin(x), 0.04 * std::cos(x), 0.02 * x);
+  }
   HeightField hf_{31};
 };
 
@@ -25,9 +27,10 @@ TEST_F(TrackerWorker, KeyframeWorkOffTrackGivesTheSameScan) {
   // that hand the features to the worker thread or extract them on demand, and leave the pose-graph
   // edges to Optimize(): every result is identical, the feature relocalisation (which waits for the
   // worker, or extracts the candidates' features) and the optimised poses included. On demand, no
-  // keyframe has features before the loss, and only the relocalisation's candidates have them after.
-  // OpenCV's own loops (SIFT) sequential here: they run on oneTBB's workers, whose synchronisation
-  // ThreadSanitizer cannot see (tools/test.sh runs this test under it for the worker thread's).
+  // keyframe has features before the loss, and only the relocalisation's candidates have them
+  // after. OpenCV's own loops (SIFT) sequential here: they run on oneTBB's workers, whose
+  // synchronisation ThreadSanitizer cannot see (tools/test.sh runs this test under it for the
+  // worker thread's).
   struct SequentialOpenCv {
     int before = cv::getNumThreads();
     SequentialOpenCv() { cv::setNumThreads(0); }
@@ -35,7 +38,8 @@ TEST_F(TrackerWorker, KeyframeWorkOffTrackGivesTheSameScan) {
   } sequential_opencv;
   TrackerOptions o;
   o.keyframes.features.max_features = 800;
-  const PinholeBrownConrady cam = TestCamera(160, 120, 500);  // the fixture's field of view, 4× fewer pixels
+  const PinholeBrownConrady cam =
+      TestCamera(160, 120, 500);  // the fixture's field of view, 4× fewer pixels
   o.odometry.min_view_samples /= 4;
   o.relocaliser.feature_candidates = 2;
   using Timing = KeyframeGraphOptions::FeatureTiming;
@@ -86,7 +90,8 @@ TEST_F(TrackerWorker, KeyframeWorkOffTrackGivesTheSameScan) {
       }
       EXPECT_GE(extracted, 1u);
       EXPECT_LE(extracted, static_cast<size_t>(o.relocaliser.feature_candidates));
-      EXPECT_LT(extracted, off_track.keyframes().size()) << "the path must leave keyframes no relocalisation needed";
+      EXPECT_LT(extracted, off_track.keyframes().size())
+          << "the path must leave keyframes no relocalisation needed";
     }
     PoseGraphSummary sa, sb;
     ASSERT_TRUE(inline_features.Optimize({}, &sa).ok());

@@ -16,11 +16,15 @@ constexpr float kNaNf = std::numeric_limits<float>::quiet_NaN();
 
 void TriangulateOptions::Check() const {
   D3D_CHECK_MSG(depth_margin_mm >= 0, "depth margin must be ≥ 0");
-  D3D_CHECK_MSG(max_newton_steps >= 1 && max_newton_steps <= 50, "max_newton_steps must be in [1, 50]");
+  D3D_CHECK_MSG(max_newton_steps >= 1 && max_newton_steps <= 50,
+                "max_newton_steps must be in [1, 50]");
 }
 
-PhaseTriangulator::PhaseTriangulator(const ProbeCalibration& calibration, const TriangulateOptions& options)
-    : calibration_(calibration), options_(options), proj_from_cam_(calibration.cam_from_proj.inverse()),
+PhaseTriangulator::PhaseTriangulator(const ProbeCalibration& calibration,
+                                     const TriangulateOptions& options)
+    : calibration_(calibration),
+      options_(options),
+      proj_from_cam_(calibration.cam_from_proj.inverse()),
       axis_(calibration.pattern.axis == 'y' ? 1 : 0) {
   calibration_.Check();
   options_.Check();
@@ -48,7 +52,8 @@ PhaseTriangulator::PhaseTriangulator(const ProbeCalibration& calibration, const 
     const double tt = -1.0 + 2.0 * j / (kNodes - 1);
     for (int k = 0; k < kFitTerms; ++k) V(j, k) = std::pow(tt, k);
   }
-  const Eigen::Matrix<double, kFitTerms, kNodes> fit = (V.transpose() * V).inverse() * V.transpose();
+  const Eigen::Matrix<double, kFitTerms, kNodes> fit =
+      (V.transpose() * V).inverse() * V.transpose();
   auto eval = [](const auto& d, double tt) {
     double v = 0;
     for (int k = kFitTerms - 1; k >= 0; --k) v = v * tt + d[k];
@@ -61,7 +66,9 @@ PhaseTriangulator::PhaseTriangulator(const ProbeCalibration& calibration, const 
     if (!r.allFinite()) continue;
     const Eigen::Vector3d Rr = proj_from_cam_.linear() * r;
     const double a = Rr[axis_], e = Rr.z();
-    auto delta = [&](double z) { return CodedCoordinate(r * z) - (centre + f_px * (a * z + b) / (e * z + f)); };
+    auto delta = [&](double z) {
+      return CodedCoordinate(r * z) - (centre + f_px * (a * z + b) / (e * z + f));
+    };
     Eigen::Matrix<double, kNodes, 1> samples;
     bool ok = true;
     for (int j = 0; j < kNodes && ok; ++j) {
@@ -100,7 +107,7 @@ double PhaseTriangulator::FastDepth(size_t index, double Phi) const {
   const double target = spec.phase_origin_px + Phi * spec.fringe_period_px / (2.0 * M_PI);
   double delta = m.d[0];  // δ at the middle of the volume: a good start
   double z = kNaN;
-  for (int it = 0; it < 3; ++it) {  // three: see the header
+  for (int it = 0; it < 3; ++it) {                       // three: see the header
     const double mm = (target - delta - centre) / f_px;  // normalised pinhole target
     const double denom = mm * m.e - m.a;
     if (std::abs(denom) < 1e-12) return kNaN;
@@ -118,14 +125,18 @@ double PhaseTriangulator::CodedCoordinate(const Eigen::Vector3d& p_in_cam) const
 }
 
 double PhaseTriangulator::PhaseAtDepth(int col, int row, double z_mm) const {
-  const Eigen::Vector3d& r = rays_[static_cast<size_t>(row) * static_cast<size_t>(calibration_.camera.width) + static_cast<size_t>(col)];
+  const Eigen::Vector3d& r =
+      rays_[static_cast<size_t>(row) * static_cast<size_t>(calibration_.camera.width) +
+            static_cast<size_t>(col)];
   const auto px = calibration_.projector.Project(proj_from_cam_ * (r * z_mm));
   if (!px || !calibration_.projector.InImage(*px)) return kNaN;
   return calibration_.pattern.AbsolutePhase((*px)[axis_]);
 }
 
 double PhaseTriangulator::DepthForPhase(int col, int row, double Phi) const {
-  const Eigen::Vector3d& r = rays_[static_cast<size_t>(row) * static_cast<size_t>(calibration_.camera.width) + static_cast<size_t>(col)];
+  const Eigen::Vector3d& r =
+      rays_[static_cast<size_t>(row) * static_cast<size_t>(calibration_.camera.width) +
+            static_cast<size_t>(col)];
   if (!std::isfinite(Phi) || !r.allFinite()) return kNaN;
   const auto& proj = calibration_.projector;
   const double f_px = axis_ == 0 ? proj.fx : proj.fy;
@@ -183,19 +194,21 @@ Eigen::Vector3d PhaseTriangulator::PointForPhase(int col, int row, double Phi) c
   const auto& cam = calibration_.camera;
   if (col < 0 || row < 0 || col >= cam.width || row >= cam.height || !std::isfinite(Phi))
     return Eigen::Vector3d::Constant(kNaN);
-  const size_t index = static_cast<size_t>(row) * static_cast<size_t>(cam.width) + static_cast<size_t>(col);
+  const size_t index =
+      static_cast<size_t>(row) * static_cast<size_t>(cam.width) + static_cast<size_t>(col);
   const double z = fast_ok_[index] ? FastDepth(index, Phi) : DepthForPhase(col, row, Phi);
   if (!std::isfinite(z)) return Eigen::Vector3d::Constant(kNaN);
   return rays_[index] * z;
 }
 
-Status PhaseTriangulator::Triangulate(const cv::Mat& Phi, cv::Mat* points_in_cam, int threads) const {
+Status PhaseTriangulator::Triangulate(const cv::Mat& Phi, cv::Mat* points_in_cam,
+                                      int threads) const {
   const auto& cam = calibration_.camera;
   if (Phi.type() != CV_32F) return InvalidArgument("triangulate: absolute phase must be CV_32F");
   if (Phi.cols != cam.width || Phi.rows != cam.height) {
-    return InvalidArgument("triangulate: phase map is " + std::to_string(Phi.cols) + "x" + std::to_string(Phi.rows) +
-                           " but the calibration's camera is " + std::to_string(cam.width) + "x" +
-                           std::to_string(cam.height));
+    return InvalidArgument("triangulate: phase map is " + std::to_string(Phi.cols) + "x" +
+                           std::to_string(Phi.rows) + " but the calibration's camera is " +
+                           std::to_string(cam.width) + "x" + std::to_string(cam.height));
   }
   points_in_cam->create(cam.height, cam.width, CV_32FC3);
   ForRowBlocks(cam.height, threads, [&](int r0, int r1) {
@@ -207,14 +220,16 @@ Status PhaseTriangulator::Triangulate(const cv::Mat& Phi, cv::Mat* points_in_cam
           out[c] = cv::Vec3f(kNaNf, kNaNf, kNaNf);
           continue;
         }
-        const size_t index = static_cast<size_t>(r) * static_cast<size_t>(cam.width) + static_cast<size_t>(c);
+        const size_t index =
+            static_cast<size_t>(r) * static_cast<size_t>(cam.width) + static_cast<size_t>(c);
         const double z = fast_ok_[index] ? FastDepth(index, phi[c]) : DepthForPhase(c, r, phi[c]);
         if (!std::isfinite(z)) {
           out[c] = cv::Vec3f(kNaNf, kNaNf, kNaNf);
           continue;
         }
         const Eigen::Vector3d p = rays_[index] * z;
-        out[c] = cv::Vec3f(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
+        out[c] = cv::Vec3f(static_cast<float>(p.x()), static_cast<float>(p.y()),
+                           static_cast<float>(p.z()));
       }
     }
   });
@@ -229,8 +244,10 @@ inline cv::Vec3f NormalAt(const cv::Mat& points, int r, int c, double max_gap_mm
     const cv::Vec3f& v = points.at<cv::Vec3f>(rr, cc);
     return Eigen::Vector3d(v[0], v[1], v[2]);
   };
-  const Eigen::Vector3d p = at(r, c), L = at(r, c - 1), R = at(r, c + 1), U = at(r - 1, c), D = at(r + 1, c);
-  if (!p.allFinite() || !L.allFinite() || !R.allFinite() || !U.allFinite() || !D.allFinite()) return nan3;
+  const Eigen::Vector3d p = at(r, c), L = at(r, c - 1), R = at(r, c + 1), U = at(r - 1, c),
+                        D = at(r + 1, c);
+  if (!p.allFinite() || !L.allFinite() || !R.allFinite() || !U.allFinite() || !D.allFinite())
+    return nan3;
   if ((R - p).norm() > max_gap_mm || (p - L).norm() > max_gap_mm || (D - p).norm() > max_gap_mm ||
       (p - U).norm() > max_gap_mm) {
     return nan3;
@@ -256,13 +273,16 @@ void OrganisedNormals(const cv::Mat& points, double max_gap_mm, cv::Mat* normals
   });
 }
 
-void UpdateOrganisedNormals(const cv::Mat& points, double max_gap_mm, const std::vector<int>& changed, cv::Mat* normals) {
-  D3D_CHECK_MSG(normals->size() == points.size() && normals->type() == CV_32FC3 && points.type() == CV_32FC3,
-                "UpdateOrganisedNormals: normals must be CV_32FC3 of the points' size");
+void UpdateOrganisedNormals(const cv::Mat& points, double max_gap_mm,
+                            const std::vector<int>& changed, cv::Mat* normals) {
+  D3D_CHECK_MSG(
+      normals->size() == points.size() && normals->type() == CV_32FC3 && points.type() == CV_32FC3,
+      "UpdateOrganisedNormals: normals must be CV_32FC3 of the points' size");
   const int rows = points.rows, cols = points.cols;
   for (const int i : changed) {
     const int r = i / cols, c = i % cols;
-    for (const auto& [dr, dc] : {std::pair{0, 0}, std::pair{0, -1}, std::pair{0, 1}, std::pair{-1, 0}, std::pair{1, 0}}) {
+    for (const auto& [dr, dc] :
+         {std::pair{0, 0}, std::pair{0, -1}, std::pair{0, 1}, std::pair{-1, 0}, std::pair{1, 0}}) {
       const int rr = r + dr, cc = c + dc;
       if (rr < 1 || rr + 1 >= rows || cc < 1 || cc + 1 >= cols) continue;  // the border has none
       normals->at<cv::Vec3f>(rr, cc) = NormalAt(points, rr, cc, max_gap_mm);

@@ -58,7 +58,8 @@ class PhaseTriangulator {
   // Φ (H×W CV_32F, NaN where unknown) → points_in_cam (H×W CV_32FC3, mm, NaN where no valid
   // point). INVALID_ARGUMENT if Φ's size or type does not match the calibration's camera.
   // threads > 1: blocks of rows as oneTBB tasks (common/core/parallel_rows.h), the same bits.
-  [[nodiscard]] Status Triangulate(const cv::Mat& Phi, cv::Mat* points_in_cam, int threads = 1) const;
+  [[nodiscard]] Status Triangulate(const cv::Mat& Phi, cv::Mat* points_in_cam,
+                                   int threads = 1) const;
 
   // Share of the pixels that use the fast path (the others fall back to the exact solver).
   double FastPathShare() const;
@@ -91,7 +92,7 @@ class PhaseTriangulator {
   std::vector<uint8_t> fast_ok_;
   double z_mid_ = 0, z_half_ = 1;
   Rigid3d proj_from_cam_;
-  int axis_;  // 0 for x-coded patterns, 1 for y
+  int axis_;                           // 0 for x-coded patterns, 1 for y
   std::vector<Eigen::Vector3d> rays_;  // r(p), row-major; NaN where undistortion failed
 };
 
@@ -99,12 +100,13 @@ class PhaseTriangulator {
 // product of central differences of the point map; NaN where a neighbour is missing or the
 // neighbours are farther apart than max_gap_mm (a depth discontinuity). threads > 1: blocks of rows
 // as oneTBB tasks (common/core/parallel_rows.h), the same bits.
-void OrganisedNormals(const cv::Mat& points_in_cam, double max_gap_mm, cv::Mat* normals, int threads = 1);
+void OrganisedNormals(const cv::Mat& points_in_cam, double max_gap_mm, cv::Mat* normals,
+                      int threads = 1);
 // After the points at `changed` (row-major pixel indices) were rewritten: OrganisedNormals again at
 // those pixels and their 4-neighbours, the only normals that read them. `normals` then equals
 // OrganisedNormals over the whole map, for O(changed) work (model anchoring rewrites ~2 % of a
 // view's pixels). Throws std::invalid_argument unless normals and points are CV_32FC3 of one size.
-void UpdateOrganisedNormals(const cv::Mat& points_in_cam, double max_gap_mm, const std::vector<int>& changed,
-                            cv::Mat* normals);
+void UpdateOrganisedNormals(const cv::Mat& points_in_cam, double max_gap_mm,
+                            const std::vector<int>& changed, cv::Mat* normals);
 
 }  // namespace d3d

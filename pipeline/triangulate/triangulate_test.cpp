@@ -12,7 +12,6 @@
 namespace d3d {
 namespace {
 
-
 // Truth Φ from the renderer's projector coordinate, back through the triangulator: the points must
 // come back to the truth surface points (both use the same calibration, exactly).
 void ExpectRoundTrip(VirtualProbe& probe, int* checked) {
@@ -23,7 +22,8 @@ void ExpectRoundTrip(VirtualProbe& probe, int* checked) {
   for (int r = 0; r < Phi.rows; ++r)
     for (int c = 0; c < Phi.cols; ++c)
       if (t.visibility.at<uint8_t>(r, c) == 2) {
-        Phi.at<float>(r, c) = static_cast<float>(probe.calibration().pattern.AbsolutePhase(t.projector_uv.at<cv::Vec2f>(r, c)[0]));
+        Phi.at<float>(r, c) = static_cast<float>(
+            probe.calibration().pattern.AbsolutePhase(t.projector_uv.at<cv::Vec2f>(r, c)[0]));
       }
   cv::Mat points;
   ASSERT_TRUE(tri.Triangulate(Phi, &points).ok());
@@ -35,7 +35,8 @@ void ExpectRoundTrip(VirtualProbe& probe, int* checked) {
         continue;
       }
       const float z = t.depth_mm.at<float>(r, c);
-      if (z < 40 || z > 60) continue;  // outside the measurement volume (+margin): dropped by design
+      if (z < 40 || z > 60)
+        continue;  // outside the measurement volume (+margin): dropped by design
       const cv::Vec3f d = points.at<cv::Vec3f>(r, c) - t.points_in_cam.at<cv::Vec3f>(r, c);
       worst = std::max(worst, static_cast<double>(cv::norm(d)));
       ++*checked;
@@ -91,7 +92,9 @@ TEST(Triangulate, FastPathMatchesTheExactSolver) {
   for (int r = 0; r < 480; ++r)
     for (int c = 0; c < 640; ++c) {
       const double s = ((r * 640 + c) % 97) / 96.0;
-      if (std::isfinite(lo.at<float>(r, c))) Phi.at<float>(r, c) = lo.at<float>(r, c) + static_cast<float>(s) * (hi.at<float>(r, c) - lo.at<float>(r, c));
+      if (std::isfinite(lo.at<float>(r, c)))
+        Phi.at<float>(r, c) =
+            lo.at<float>(r, c) + static_cast<float>(s) * (hi.at<float>(r, c) - lo.at<float>(r, c));
     }
   cv::Mat points;
   ASSERT_TRUE(tri.Triangulate(Phi, &points).ok());
@@ -116,7 +119,8 @@ TEST(Triangulate, FastPathMatchesTheExactSolver) {
   EXPECT_GT(compared, 250000);
   EXPECT_FALSE(tri.PointForPhase(-1, 0, 10.0).allFinite());
   EXPECT_FALSE(tri.PointForPhase(0, 0, std::nan("")).allFinite());
-  std::printf("[ fast     ] fast path on %.1f %% of the pixels, worst |fast - exact| %.2e mm\n", 100.0 * tri.FastPathShare(), worst);
+  std::printf("[ fast     ] fast path on %.1f %% of the pixels, worst |fast - exact| %.2e mm\n",
+              100.0 * tri.FastPathShare(), worst);
   EXPECT_LT(worst, 1e-4) << "mm (float32 output is ~4e-6 mm at 50 mm)";
 }
 
@@ -124,7 +128,8 @@ TEST(Triangulate, RefusesMismatchedMapsAndDropsOutOfVolume) {
   const PhaseTriangulator tri(MakeDefaultProbeDesign().calibration);
   cv::Mat points;
   EXPECT_EQ(tri.Triangulate(cv::Mat(10, 10, CV_32F), &points).code(), StatusCode::kInvalidArgument);
-  EXPECT_EQ(tri.Triangulate(cv::Mat(480, 640, CV_64F), &points).code(), StatusCode::kInvalidArgument);
+  EXPECT_EQ(tri.Triangulate(cv::Mat(480, 640, CV_64F), &points).code(),
+            StatusCode::kInvalidArgument);
   // A phase that would put the point at 30 mm is dropped, not returned.
   EXPECT_TRUE(std::isnan(tri.DepthForPhase(320, 240, tri.PhaseAtDepth(320, 240, 30.0))));
   EXPECT_TRUE(std::isnan(tri.DepthForPhase(320, 240, std::nan(""))));
@@ -152,7 +157,8 @@ TEST(Triangulate, OrganisedNormalsOfAPlane) {
 bool SameBits(const cv::Mat& a, const cv::Mat& b) {
   if (a.size() != b.size() || a.type() != b.type()) return false;
   for (int r = 0; r < a.rows; ++r)
-    if (std::memcmp(a.ptr(r), b.ptr(r), static_cast<size_t>(a.cols) * a.elemSize()) != 0) return false;
+    if (std::memcmp(a.ptr(r), b.ptr(r), static_cast<size_t>(a.cols) * a.elemSize()) != 0)
+      return false;
   return true;
 }
 
@@ -164,8 +170,11 @@ TEST(Triangulate, NormalsOnRowBlocksAndUpdatedAtChangedPixelsEqualTheFullPass) {
   const float nan = std::nanf("");
   for (int r = 0; r < points.rows; ++r)
     for (int c = 0; c < points.cols; ++c) {
-      const float z = 50.0f + 0.3f * std::sin(c * 0.05f) * std::cos(r * 0.07f) + (c > 200 ? 1.0f : 0.0f);
-      points.at<cv::Vec3f>(r, c) = u(rng) < 0.05f ? cv::Vec3f(nan, nan, nan) : cv::Vec3f((c - 160) * 0.02f, (r - 120) * 0.02f, z);
+      const float z =
+          50.0f + 0.3f * std::sin(c * 0.05f) * std::cos(r * 0.07f) + (c > 200 ? 1.0f : 0.0f);
+      points.at<cv::Vec3f>(r, c) = u(rng) < 0.05f
+                                       ? cv::Vec3f(nan, nan, nan)
+                                       : cv::Vec3f((c - 160) * 0.02f, (r - 120) * 0.02f, z);
     }
   cv::Mat one, two;
   OrganisedNormals(points, 0.15, &one);
@@ -178,11 +187,12 @@ TEST(Triangulate, NormalsOnRowBlocksAndUpdatedAtChangedPixelsEqualTheFullPass) {
     if (u(rng) >= 0.02f) continue;
     cv::Vec3f& p = points.at<cv::Vec3f>(i / points.cols, i % points.cols);
     const int r = i / points.cols, c = i % points.cols;
-    p = u(rng) < 0.2f ? cv::Vec3f(nan, nan, nan) : cv::Vec3f((c - 160) * 0.02f, (r - 120) * 0.02f, 50.0f + 0.05f * u(rng));
+    p = u(rng) < 0.2f ? cv::Vec3f(nan, nan, nan)
+                      : cv::Vec3f((c - 160) * 0.02f, (r - 120) * 0.02f, 50.0f + 0.05f * u(rng));
     changed.push_back(i);
   }
-  changed.push_back(0);                                    // a corner
-  changed.push_back(points.rows * points.cols - 1);        // the other one
+  changed.push_back(0);                              // a corner
+  changed.push_back(points.rows * points.cols - 1);  // the other one
   ASSERT_GT(changed.size(), 1000u);
   cv::Mat updated = one.clone(), full;
   UpdateOrganisedNormals(points, 0.15, changed, &updated);

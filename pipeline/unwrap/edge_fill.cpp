@@ -9,31 +9,37 @@
 namespace d3d {
 
 void EdgeFillOptions::Check() const {
-  D3D_CHECK_MSG(passes >= 0 && passes <= 64, "EdgeFillOptions: passes must be in [0, 64], got " << passes);
+  D3D_CHECK_MSG(passes >= 0 && passes <= 64,
+                "EdgeFillOptions: passes must be in [0, 64], got " << passes);
   D3D_CHECK_MSG(std::isfinite(max_modulation_ratio) && max_modulation_ratio > 1,
                 "EdgeFillOptions: max_modulation_ratio must be > 1, got " << max_modulation_ratio);
-  D3D_CHECK_MSG(std::isfinite(max_spread) && max_spread > 0, "EdgeFillOptions: max_spread must be > 0, got " << max_spread);
+  D3D_CHECK_MSG(std::isfinite(max_spread) && max_spread > 0,
+                "EdgeFillOptions: max_spread must be > 0, got " << max_spread);
   D3D_CHECK_MSG(std::isfinite(quality_factor) && quality_factor > 0 && quality_factor <= 1,
                 "EdgeFillOptions: quality_factor must be in (0, 1], got " << quality_factor);
 }
 
-EdgeFiller::EdgeFiller(const EdgeFillOptions& options, const UnwrapOptions& unwrap) : options_(options), unwrap_(unwrap) {
+EdgeFiller::EdgeFiller(const EdgeFillOptions& options, const UnwrapOptions& unwrap)
+    : options_(options), unwrap_(unwrap) {
   options_.Check();
   unwrap_.Check();
 }
 
-Status EdgeFiller::Fill(const cv::Mat& phi, const cv::Mat& modulation, const cv::Mat& reason, const cv::Mat& phase_min,
-                        const cv::Mat& phase_max, cv::Mat* Phi, cv::Mat* order, cv::Mat* quality, EdgeFillStats* stats) {
+Status EdgeFiller::Fill(const cv::Mat& phi, const cv::Mat& modulation, const cv::Mat& reason,
+                        const cv::Mat& phase_min, const cv::Mat& phase_max, cv::Mat* Phi,
+                        cv::Mat* order, cv::Mat* quality, EdgeFillStats* stats) {
   if (stats) *stats = EdgeFillStats{};
   if (!Phi || !order || !quality) return InvalidArgument("edge fill: null output");
   const cv::Size size = phi.size();
   auto same = [&](const cv::Mat& m, int type) { return m.size() == size && m.type() == type; };
-  if (phi.empty() || !same(phi, CV_32F) || !same(modulation, CV_32F) || !same(reason, CV_8U) || !same(*Phi, CV_32F) ||
-      !same(*order, CV_32S) || !same(*quality, CV_32F))
-    return InvalidArgument("edge fill: phi, modulation, Phi, quality must be H×W CV_32F, reason CV_8U, order CV_32S");
+  if (phi.empty() || !same(phi, CV_32F) || !same(modulation, CV_32F) || !same(reason, CV_8U) ||
+      !same(*Phi, CV_32F) || !same(*order, CV_32S) || !same(*quality, CV_32F))
+    return InvalidArgument(
+        "edge fill: phi, modulation, Phi, quality must be H×W CV_32F, reason CV_8U, order CV_32S");
   const bool bounded = !phase_min.empty() || !phase_max.empty();
   if (bounded && (!same(phase_min, CV_32F) || !same(phase_max, CV_32F)))
-    return InvalidArgument("edge fill: phase_min / phase_max must both be H×W CV_32F or both empty");
+    return InvalidArgument(
+        "edge fill: phase_min / phase_max must both be H×W CV_32F or both empty");
   if (options_.passes == 0) return Status::Ok();
 
   const int w = size.width, h = size.height;
@@ -43,10 +49,12 @@ Status EdgeFiller::Fill(const cv::Mat& phi, const cv::Mat& modulation, const cv:
   for (int y = 0; y < h; ++y) {
     const float* P = Phi->ptr<float>(y);
     const float* Q = quality->ptr<float>(y);
-    for (int x = 0; x < w; ++x) base_[static_cast<size_t>(y) * w + x] = std::isfinite(P[x]) ? Q[x] : 0.0f;
+    for (int x = 0; x < w; ++x)
+      base_[static_cast<size_t>(y) * w + x] = std::isfinite(P[x]) ? Q[x] : 0.0f;
   }
   const float ratio = static_cast<float>(options_.max_modulation_ratio);
-  const float max_jump = static_cast<float>(unwrap_.max_jump), max_reverse = static_cast<float>(unwrap_.max_reverse);
+  const float max_jump = static_cast<float>(unwrap_.max_jump),
+              max_reverse = static_cast<float>(unwrap_.max_reverse);
   const float spread = static_cast<float>(options_.max_spread);
   const int mono = unwrap_.monotonic_x;
   const uint8_t kEdge = static_cast<uint8_t>(QualityReason::kModulationEdge);
@@ -75,10 +83,12 @@ Status EdgeFiller::Fill(const cv::Mat& phi, const cv::Mat& modulation, const cv:
           if (!std::isfinite(Pq) || layer_[qi] == pass) continue;
           const float Bq = modulation.at<float>(qy, qx);
           if (!(B[x] <= ratio * Bq && Bq <= ratio * B[x])) continue;
-          const float dphi = internal::WrapPi(internal::WrapTo2Pi(ph[x]) - internal::WrapTo2Pi(phi.at<float>(qy, qx)));
+          const float dphi = internal::WrapPi(internal::WrapTo2Pi(ph[x]) -
+                                              internal::WrapTo2Pi(phi.at<float>(qy, qx)));
           if (!(std::abs(dphi) <= max_jump)) continue;
           // Step along +x: Φ(right) − Φ(left); q right of p: −dphi, q left of p: dphi.
-          if (mono != 0 && kDx[d] != 0 && mono * (kDx[d] > 0 ? -dphi : dphi) < -max_reverse) continue;
+          if (mono != 0 && kDx[d] != 0 && mono * (kDx[d] > 0 ? -dphi : dphi) < -max_reverse)
+            continue;
           const float pred = Pq + dphi;
           lo = std::min(lo, pred);
           hi = std::max(hi, pred);
@@ -100,7 +110,8 @@ Status EdgeFiller::Fill(const cv::Mat& phi, const cv::Mat& modulation, const cv:
     for (size_t i = 0; i < added_.size(); ++i) {
       const int y = added_[i] / w, x = added_[i] % w;
       Phi->at<float>(y, x) = added_phi_[i];
-      order->at<int32_t>(y, x) = static_cast<int32_t>(std::floor(added_phi_[i] / internal::kTwoPiF));
+      order->at<int32_t>(y, x) =
+          static_cast<int32_t>(std::floor(added_phi_[i] / internal::kTwoPiF));
       quality->at<float>(y, x) = options_.quality_factor * added_base_[i];
       layer_[static_cast<size_t>(added_[i])] = static_cast<uint8_t>(pass);
       base_[static_cast<size_t>(added_[i])] = added_base_[i];

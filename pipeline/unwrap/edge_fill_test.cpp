@@ -56,15 +56,18 @@ TEST(EdgeFill, FillsTheCutFromTheAnchoredSideUpToPassesLayers) {
     const bool filled = x < 13 || x >= 27;
     EXPECT_EQ(std::isfinite(s.Phi.at<float>(1, x)), filled) << x;
     if (!filled) continue;
-    EXPECT_NEAR(s.Phi.at<float>(1, x), truth.at<float>(1, x), 1e-4) << x;  // across order boundaries too
-    EXPECT_EQ(s.order.at<int32_t>(1, x), static_cast<int32_t>(std::floor(truth.at<float>(1, x) / kTwoPi))) << x;
+    EXPECT_NEAR(s.Phi.at<float>(1, x), truth.at<float>(1, x), 1e-4)
+        << x;  // across order boundaries too
+    EXPECT_EQ(s.order.at<int32_t>(1, x),
+              static_cast<int32_t>(std::floor(truth.at<float>(1, x) / kTwoPi)))
+        << x;
     EXPECT_FLOAT_EQ(s.quality.at<float>(1, x), o.quality_factor * 0.8f) << x;
   }
 }
 
 TEST(EdgeFill, StopsWhereTheModulationSteps) {
-  // Beyond column 15 the modulation halves (an albedo border inside the cut): the fill from the left
-  // reaches column 15 and no further; from the right it fills down to column 16.
+  // Beyond column 15 the modulation halves (an albedo border inside the cut): the fill from the
+  // left reaches column 15 and no further; from the right it fills down to column 16.
   Scene s(3, 40, 0.4f, 60);
   for (int y = 0; y < 3; ++y)
     for (int x = 16; x < 40; ++x) s.B.at<float>(y, x) = 30;
@@ -92,7 +95,8 @@ TEST(EdgeFill, StopsWhereTheModulationSteps) {
   cv::Mat truth;
   Scene t = stepped(&truth);
   ASSERT_TRUE(filler.Fill(t.phi, t.B, t.reason, {}, {}, &t.Phi, &t.order, &t.quality).ok());
-  for (int x = 12; x < 24; ++x) EXPECT_NEAR(t.Phi.at<float>(1, x), truth.at<float>(1, x), 1e-4) << x;
+  for (int x = 12; x < 24; ++x)
+    EXPECT_NEAR(t.Phi.at<float>(1, x), truth.at<float>(1, x), 1e-4) << x;
   // Without the modulation test (a ratio above the step) the left side's order runs across the
   // step: the test is what separates them.
   Scene u = stepped(&truth);
@@ -115,7 +119,8 @@ TEST(EdgeFill, RefusesDisagreeingNeighboursBackwardStepsAndTheVolume) {
   ASSERT_TRUE(filler.Fill(s.phi, s.B, s.reason, {}, {}, &s.Phi, &s.order, &s.quality, &st).ok());
   EXPECT_EQ(st.pixels_filled, 0);
   EXPECT_TRUE(std::isnan(s.Phi.at<float>(0, 2)));
-  // Φ falling along x by more than max_reverse is a step the unwrapper would not cross (monotonic_x = 1).
+  // Φ falling along x by more than max_reverse is a step the unwrapper would not cross (monotonic_x
+  // = 1).
   Scene r(1, 6, -0.6f, 50);
   r.Cut(3, 6);
   ASSERT_TRUE(filler.Fill(r.phi, r.B, r.reason, {}, {}, &r.Phi, &r.order, &r.quality, &st).ok());
@@ -131,7 +136,8 @@ TEST(EdgeFill, RefusesDisagreeingNeighboursBackwardStepsAndTheVolume) {
 TEST(EdgeFill, OnlyCutPixelsAreFilledAndBadInputIsRefused) {
   Scene s(2, 8, 0.3f, 50);
   s.Cut(4, 8);
-  for (int y = 0; y < 2; ++y) s.reason.at<uint8_t>(y, 4) = static_cast<uint8_t>(QualityReason::kPhaseNoise);
+  for (int y = 0; y < 2; ++y)
+    s.reason.at<uint8_t>(y, 4) = static_cast<uint8_t>(QualityReason::kPhaseNoise);
   EdgeFiller filler(EdgeFillOptions{}, UnwrapOptions{});
   EdgeFillStats st;
   ASSERT_TRUE(filler.Fill(s.phi, s.B, s.reason, {}, {}, &s.Phi, &s.order, &s.quality, &st).ok());

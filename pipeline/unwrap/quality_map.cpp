@@ -12,26 +12,31 @@
 namespace d3d {
 
 void QualityOptions::Check() const {
-  const double all[] = {shadow_modulation, min_modulation, full_modulation, laplace_ref, max_laplace,
-                        saturation_level, modulation_edge_ratio, modulation_edge_min_dn};
+  const double all[] = {shadow_modulation,     min_modulation,        full_modulation,
+                        laplace_ref,           max_laplace,           saturation_level,
+                        modulation_edge_ratio, modulation_edge_min_dn};
   for (double v : all) D3D_CHECK_MSG(std::isfinite(v), "QualityOptions: non-finite value");
   D3D_CHECK_MSG(shadow_modulation >= 0 && shadow_modulation <= min_modulation,
                 "QualityOptions: need 0 <= shadow_modulation <= min_modulation, got "
                     << shadow_modulation << ", " << min_modulation);
-  D3D_CHECK_MSG(min_modulation > 0, "QualityOptions: min_modulation must be > 0, got " << min_modulation);
+  D3D_CHECK_MSG(min_modulation > 0,
+                "QualityOptions: min_modulation must be > 0, got " << min_modulation);
   D3D_CHECK_MSG(min_modulation < full_modulation,
-                "QualityOptions: need min_modulation < full_modulation, got " << min_modulation << ", "
-                                                                               << full_modulation);
+                "QualityOptions: need min_modulation < full_modulation, got "
+                    << min_modulation << ", " << full_modulation);
   D3D_CHECK_MSG(laplace_ref > 0, "QualityOptions: laplace_ref must be > 0, got " << laplace_ref);
   D3D_CHECK_MSG(max_laplace > 0, "QualityOptions: max_laplace must be > 0, got " << max_laplace);
   D3D_CHECK_MSG(saturation_level > 0,
                 "QualityOptions: saturation_level must be > 0, got " << saturation_level);
-  D3D_CHECK_MSG(modulation_edge_min_dn >= 0,
-                "QualityOptions: modulation_edge_min_dn must be >= 0, got " << modulation_edge_min_dn);
-  D3D_CHECK_MSG(modulation_edge_close == 0 || modulation_edge_close == 1,
-                "QualityOptions: modulation_edge_close must be 0 or 1, got " << modulation_edge_close);
+  D3D_CHECK_MSG(
+      modulation_edge_min_dn >= 0,
+      "QualityOptions: modulation_edge_min_dn must be >= 0, got " << modulation_edge_min_dn);
+  D3D_CHECK_MSG(
+      modulation_edge_close == 0 || modulation_edge_close == 1,
+      "QualityOptions: modulation_edge_close must be 0 or 1, got " << modulation_edge_close);
   D3D_CHECK_MSG(modulation_edge_ratio == 0 || modulation_edge_ratio > 1,
-                "QualityOptions: modulation_edge_ratio must be 0 (off) or > 1, got " << modulation_edge_ratio);
+                "QualityOptions: modulation_edge_ratio must be 0 (off) or > 1, got "
+                    << modulation_edge_ratio);
 }
 
 namespace {
@@ -45,7 +50,8 @@ void CleanRow(const float* phi, const float* mod, const uint8_t* valid, const ui
   for (int x = 0; x < w; ++x) {
     const float p = phi[x];
     const float b = mod[x];
-    bool ok = std::isfinite(p) && b >= min_mod && std::isfinite(b) && (valid == nullptr || valid[x] != 0);
+    bool ok =
+        std::isfinite(p) && b >= min_mod && std::isfinite(b) && (valid == nullptr || valid[x] != 0);
     if (peak8 != nullptr && static_cast<float>(peak8[x]) >= sat) ok = false;
     if (peak32 != nullptr && peak32[x] >= sat) ok = false;
     out[x] = ok ? internal::WrapTo2Pi(p) : kNaN;
@@ -80,9 +86,10 @@ Status ComputeQualityMap(const cv::Mat& phi, const cv::Mat& modulation, const cv
   if (!valid.empty() && (valid.type() != CV_8UC1 || valid.size() != phi.size())) {
     return InvalidArgument("ComputeQualityMap: valid must be empty or CV_8UC1 of phi's size");
   }
-  if (!peak.empty() && ((peak.type() != CV_8UC1 && peak.type() != CV_32FC1) ||
-                        peak.size() != phi.size())) {
-    return InvalidArgument("ComputeQualityMap: peak must be empty or CV_8UC1/CV_32FC1 of phi's size");
+  if (!peak.empty() &&
+      ((peak.type() != CV_8UC1 && peak.type() != CV_32FC1) || peak.size() != phi.size())) {
+    return InvalidArgument(
+        "ComputeQualityMap: peak must be empty or CV_8UC1/CV_32FC1 of phi's size");
   }
   if (quality->data == phi.data || quality->data == modulation.data) {
     return InvalidArgument("ComputeQualityMap: quality must not alias an input");
@@ -110,7 +117,8 @@ Status ComputeQualityMap(const cv::Mat& phi, const cv::Mat& modulation, const cv
     const float lo = min_mod;
     auto step = [edge_hi, edge_dn, lo](float a, float b2) -> uint8_t {
       // NaN fails every comparison: no edge.
-      return (a >= lo && b2 >= lo && (b2 > edge_hi * a || a > edge_hi * b2) && std::fabs(b2 - a) >= edge_dn)
+      return (a >= lo && b2 >= lo && (b2 > edge_hi * a || a > edge_hi * b2) &&
+              std::fabs(b2 - a) >= edge_dn)
                  ? 1
                  : 0;
     };
@@ -128,7 +136,8 @@ Status ComputeQualityMap(const cv::Mat& phi, const cv::Mat& modulation, const cv
     if (options.modulation_edge_close != 0) {
       // Bridge one-pixel gaps: decided on the unbridged mask (bit 0), marked in bit 1.
       auto e = [&](int yy, int xx) {
-        return yy >= 0 && yy < h && xx >= 0 && xx < w && (medge[static_cast<size_t>(yy) * w + xx] & 1u) != 0;
+        return yy >= 0 && yy < h && xx >= 0 && xx < w &&
+               (medge[static_cast<size_t>(yy) * w + xx] & 1u) != 0;
       };
       for (int y = 0; y < h; ++y) {
         for (int x = 0; x < w; ++x) {
@@ -157,9 +166,9 @@ Status ComputeQualityMap(const cv::Mat& phi, const cv::Mat& modulation, const cv
       std::fill(dst, dst + rw, kNaN);
       return;
     }
-    CleanRow(phi.ptr<float>(y), modulation.ptr<float>(y), valid.empty() ? nullptr : valid.ptr<uint8_t>(y),
-             p8 ? peak.ptr<uint8_t>(y) : nullptr, p32 ? peak.ptr<float>(y) : nullptr, min_mod, sat, w,
-             dst + 2);
+    CleanRow(phi.ptr<float>(y), modulation.ptr<float>(y),
+             valid.empty() ? nullptr : valid.ptr<uint8_t>(y), p8 ? peak.ptr<uint8_t>(y) : nullptr,
+             p32 ? peak.ptr<float>(y) : nullptr, min_mod, sat, w, dst + 2);
   };
   for (int k = 0; k < 4; ++k) clean(k - 2, r[k + 1]);  // r[1..4] = rows −2 .. 1
   for (int y = 0; y < h; ++y) {

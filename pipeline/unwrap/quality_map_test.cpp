@@ -1,9 +1,9 @@
 #include "pipeline/unwrap/quality_map.h"
 
+#include <gtest/gtest.h>
+
 #include <cmath>
 #include <limits>
-
-#include <gtest/gtest.h>
 
 namespace d3d {
 namespace {
@@ -100,7 +100,8 @@ TEST(QualityMap, MarksModulationEdge) {
   const cv::Mat phi = Ramp(40, 20, 0.27, 0.05);
   cv::Mat b(20, 40, CV_32FC1);
   for (int y = 0; y < 20; ++y) {
-    for (int x = 0; x < 40; ++x) b.at<float>(y, x) = (y < 10 ? 40.0f : 20.0f) * std::pow(1.05f, x * 0.5f);
+    for (int x = 0; x < 40; ++x)
+      b.at<float>(y, x) = (y < 10 ? 40.0f : 20.0f) * std::pow(1.05f, x * 0.5f);
   }
   cv::Mat q, why;
   ASSERT_TRUE(ComputeQualityMap(phi, b, cv::Mat(), {}, &q, &why).ok());
@@ -145,12 +146,12 @@ TEST(QualityMap, Masks) {
   cv::Mat b = Const(w, h, 30.0f);
   cv::Mat valid(h, w, CV_8UC1, cv::Scalar(255));
   cv::Mat peak(h, w, CV_8UC1, cv::Scalar(200));
-  phi.at<float>(1, 1) = kNaN;            // invalid (NaN phase)
-  valid.at<uint8_t>(1, 3) = 0;           // invalid (mask)
-  b.at<float>(1, 5) = 1.0f;              // shadow
-  b.at<float>(1, 7) = 3.0f;              // low modulation
-  peak.at<uint8_t>(1, 9) = 255;          // saturated
-  b.at<float>(1, 11) = kNaN;             // invalid (NaN modulation)
+  phi.at<float>(1, 1) = kNaN;    // invalid (NaN phase)
+  valid.at<uint8_t>(1, 3) = 0;   // invalid (mask)
+  b.at<float>(1, 5) = 1.0f;      // shadow
+  b.at<float>(1, 7) = 3.0f;      // low modulation
+  peak.at<uint8_t>(1, 9) = 255;  // saturated
+  b.at<float>(1, 11) = kNaN;     // invalid (NaN modulation)
   // An isolated pixel: all four neighbours invalid.
   valid.at<uint8_t>(6, 14) = valid.at<uint8_t>(8, 14) = valid.at<uint8_t>(7, 13) =
       valid.at<uint8_t>(7, 15) = 0;
@@ -190,7 +191,8 @@ TEST(QualityMap, BadInputs) {
   const cv::Mat phi = Ramp(10, 8, 0.3, 0.0);
   const cv::Mat b = Const(10, 8, 20.0f);
   cv::Mat q;
-  EXPECT_EQ(ComputeQualityMap(cv::Mat(), b, cv::Mat(), {}, &q).code(), StatusCode::kInvalidArgument);
+  EXPECT_EQ(ComputeQualityMap(cv::Mat(), b, cv::Mat(), {}, &q).code(),
+            StatusCode::kInvalidArgument);
   EXPECT_EQ(ComputeQualityMap(phi, Const(9, 8, 1.0f), cv::Mat(), {}, &q).code(),
             StatusCode::kInvalidArgument);
   cv::Mat b64;
@@ -207,7 +209,8 @@ TEST(QualityMap, BadInputs) {
             StatusCode::kInvalidArgument);
   EXPECT_EQ(ComputeQualityMap(phi, b, cv::Mat(), {}, nullptr).code(), StatusCode::kInvalidArgument);
   cv::Mat alias = phi.clone();
-  EXPECT_EQ(ComputeQualityMap(alias, b, cv::Mat(), {}, &alias).code(), StatusCode::kInvalidArgument);
+  EXPECT_EQ(ComputeQualityMap(alias, b, cv::Mat(), {}, &alias).code(),
+            StatusCode::kInvalidArgument);
   QualityOptions bad;
   bad.min_modulation = 50.0;  // > full_modulation
   EXPECT_EQ(ComputeQualityMap(phi, b, cv::Mat(), bad, &q).code(), StatusCode::kInvalidArgument);

@@ -122,7 +122,8 @@ cv::Mat SphereDepth(const SyntheticProbe& probe, double px, double py, double r_
     for (int x = 0; x < d.cols; ++x) {
       const double dx = (x - px) * mm_per_px, dy = (y - py) * mm_per_px;
       const double rr = dx * dx + dy * dy;
-      if (rr < r_mm * r_mm) d.at<float>(y, x) = static_cast<float>(z_apex + r_mm - std::sqrt(r_mm * r_mm - rr));
+      if (rr < r_mm * r_mm)
+        d.at<float>(y, x) = static_cast<float>(z_apex + r_mm - std::sqrt(r_mm * r_mm - rr));
     }
   }
   return d;
@@ -156,7 +157,8 @@ cv::Mat TeethDepth(const SyntheticProbe& probe, int count, double gap_px, uint64
         const double u = (x - cx) / rx, v = (y - cy) / ry;
         const double rho2 = u * u + v * v;
         if (rho2 >= 1.0) continue;
-        const double z = z0 - height * (1.0 - rho2) + groove * std::exp(-u * u * 40.0) * (1.0 - v * v);
+        const double z =
+            z0 - height * (1.0 - rho2) + groove * std::exp(-u * u * 40.0) * (1.0 - v * v);
         float& cur = d.at<float>(y, x);
         if (!std::isfinite(cur) || z < cur) cur = static_cast<float>(z);
       }

@@ -12,47 +12,46 @@
 #pragma once
 
 #include <cstdint>
-
 #include <opencv2/core.hpp>
 
 namespace d3d {
 
 struct SyntheticProbe {
   int width = 640, height = 480;
-  double fc = 2000.0;           // camera focal length [px]
-  double fp = 2100.0;           // projector focal length [px]
+  double fc = 2000.0;  // camera focal length [px]
+  double fp = 2100.0;  // projector focal length [px]
   double baseline_mm = 10.63;
-  double period_px = 24.0;      // fringe period T on the projector [px]
+  double period_px = 24.0;  // fringe period T on the projector [px]
   double phase_origin_px = 0.0;
-  double proj_width = 912.0;    // projector columns: outside [0, proj_width) there is no light
-  double proj_cx = 902.5;       // projector column of the camera centre ray at 50 mm: 456 + fp·b/50
+  double proj_width = 912.0;  // projector columns: outside [0, proj_width) there is no light
+  double proj_cx = 902.5;     // projector column of the camera centre ray at 50 mm: 456 + fp·b/50
   double z_min = 42.0, z_max = 58.0;
   int marker_first_order = 4, marker_spacing_orders = 10;
 
   // The same probe for another camera size (focal length scaled with the width).
   static SyntheticProbe ForSize(int width, int height);
-  double ColumnAt(double x, double z_mm) const;       // projector column u
-  double PhaseAt(double x, double z_mm) const;        // absolute phase Φ [rad]
+  double ColumnAt(double x, double z_mm) const;  // projector column u
+  double PhaseAt(double x, double z_mm) const;   // absolute phase Φ [rad]
 };
 
 struct SyntheticNoise {
-  double modulation = 40.0;       // B on a surface facing the camera [DN]
-  double intensity_sigma = 2.0;   // σ_I [DN]: phase noise σ_φ = σ_I·√(2/4) / B
-  double marker_miss_rate = 0.05; // share of true stripe pixels not detected
-  double marker_false_rate = 0.002; // share of other pixels detected as marker
+  double modulation = 40.0;          // B on a surface facing the camera [DN]
+  double intensity_sigma = 2.0;      // σ_I [DN]: phase noise σ_φ = σ_I·√(2/4) / B
+  double marker_miss_rate = 0.05;    // share of true stripe pixels not detected
+  double marker_false_rate = 0.002;  // share of other pixels detected as marker
   uint64_t seed = 1;
 };
 
 struct SyntheticScene {
-  cv::Mat depth;        // CV_32F [mm], NaN where nothing is seen (the input)
-  cv::Mat Phi_true;     // CV_32F absolute phase, NaN where nothing is lit
-  cv::Mat order_true;   // CV_32S k = floor(Φ/2π), −1 where nothing is lit
-  cv::Mat phi;          // CV_32F wrapped phase with noise, [0, 2π), NaN where nothing is lit
-  cv::Mat modulation;   // CV_32F B [DN]
-  cv::Mat valid;        // CV_8U 255 where lit
-  cv::Mat marker;       // CV_8U 255 in detected marker stripes
-  cv::Mat phase_min;    // CV_32F Φ(x, z_min)
-  cv::Mat phase_max;    // CV_32F Φ(x, z_max)
+  cv::Mat depth;       // CV_32F [mm], NaN where nothing is seen (the input)
+  cv::Mat Phi_true;    // CV_32F absolute phase, NaN where nothing is lit
+  cv::Mat order_true;  // CV_32S k = floor(Φ/2π), −1 where nothing is lit
+  cv::Mat phi;         // CV_32F wrapped phase with noise, [0, 2π), NaN where nothing is lit
+  cv::Mat modulation;  // CV_32F B [DN]
+  cv::Mat valid;       // CV_8U 255 where lit
+  cv::Mat marker;      // CV_8U 255 in detected marker stripes
+  cv::Mat phase_min;   // CV_32F Φ(x, z_min)
+  cv::Mat phase_max;   // CV_32F Φ(x, z_max)
 };
 
 // Renders a depth map (CV_32F mm, NaN = background) into a wrapped-phase scene. B falls with the

@@ -12,40 +12,63 @@
 namespace d3d {
 
 void UnwrapOptions::Check() const {
-  D3D_CHECK_MSG(marker_spacing_orders >= 0, "UnwrapOptions: marker_spacing_orders must be >= 0, got " << marker_spacing_orders);
-  D3D_CHECK_MSG(std::abs(marker_first_order) < 10000, "UnwrapOptions: marker_first_order out of range: " << marker_first_order);
-  D3D_CHECK_MSG(marker_width_periods > 0 && marker_width_periods <= 1,
-                "UnwrapOptions: marker_width_periods must be in (0, 1], got " << marker_width_periods);
-  D3D_CHECK_MSG(marker_edge_margin >= 0 && marker_edge_margin < M_PI * marker_width_periods,
-                "UnwrapOptions: marker_edge_margin must be in [0, π·width), got " << marker_edge_margin);
-  D3D_CHECK_MSG(marker_margin_below >= 0 && marker_margin_below <= 100 && marker_margin_above >= 0 && marker_margin_above <= 100,
-                "UnwrapOptions: marker_margin_below/above must be in [0, 100], got " << marker_margin_below << ", " << marker_margin_above);
-  D3D_CHECK_MSG(marker_tile_px >= 4 && marker_tile_rival_votes >= 0 && marker_tile_rival_density > 0 && marker_tile_rival_density <= 1,
-                "UnwrapOptions: marker_tile_px must be >= 4, marker_tile_rival_votes >= 0, marker_tile_rival_density in (0, 1]");
+  D3D_CHECK_MSG(marker_spacing_orders >= 0,
+                "UnwrapOptions: marker_spacing_orders must be >= 0, got " << marker_spacing_orders);
+  D3D_CHECK_MSG(std::abs(marker_first_order) < 10000,
+                "UnwrapOptions: marker_first_order out of range: " << marker_first_order);
+  D3D_CHECK_MSG(
+      marker_width_periods > 0 && marker_width_periods <= 1,
+      "UnwrapOptions: marker_width_periods must be in (0, 1], got " << marker_width_periods);
+  D3D_CHECK_MSG(
+      marker_edge_margin >= 0 && marker_edge_margin < M_PI * marker_width_periods,
+      "UnwrapOptions: marker_edge_margin must be in [0, π·width), got " << marker_edge_margin);
+  D3D_CHECK_MSG(marker_margin_below >= 0 && marker_margin_below <= 100 &&
+                    marker_margin_above >= 0 && marker_margin_above <= 100,
+                "UnwrapOptions: marker_margin_below/above must be in [0, 100], got "
+                    << marker_margin_below << ", " << marker_margin_above);
+  D3D_CHECK_MSG(marker_tile_px >= 4 && marker_tile_rival_votes >= 0 &&
+                    marker_tile_rival_density > 0 && marker_tile_rival_density <= 1,
+                "UnwrapOptions: marker_tile_px must be >= 4, marker_tile_rival_votes >= 0, "
+                "marker_tile_rival_density in (0, 1]");
   D3D_CHECK_MSG(std::isfinite(min_quality) && min_quality > 0 && min_quality <= 1,
                 "UnwrapOptions: min_quality must be in (0, 1], got " << min_quality);
   D3D_CHECK_MSG(std::isfinite(seed_quality) && seed_quality >= min_quality && seed_quality <= 1,
                 "UnwrapOptions: seed_quality must be in [min_quality, 1], got " << seed_quality);
-  D3D_CHECK_MSG(quality_levels >= 2 && quality_levels <= 255, "UnwrapOptions: quality_levels must be in [2, 255], got " << quality_levels);
-  D3D_CHECK_MSG(max_jump > 0 && max_jump < M_PI, "UnwrapOptions: max_jump must be in (0, π), got " << max_jump);
-  D3D_CHECK_MSG(monotonic_x >= -1 && monotonic_x <= 1, "UnwrapOptions: monotonic_x must be -1, 0 or 1, got " << monotonic_x);
-  D3D_CHECK_MSG(max_reverse >= 0 && max_reverse <= max_jump, "UnwrapOptions: max_reverse must be in [0, max_jump], got " << max_reverse);
-  D3D_CHECK_MSG(violation_phase > 0 && violation_phase < 2 * M_PI, "UnwrapOptions: violation_phase must be in (0, 2π), got " << violation_phase);
+  D3D_CHECK_MSG(quality_levels >= 2 && quality_levels <= 255,
+                "UnwrapOptions: quality_levels must be in [2, 255], got " << quality_levels);
+  D3D_CHECK_MSG(max_jump > 0 && max_jump < M_PI,
+                "UnwrapOptions: max_jump must be in (0, π), got " << max_jump);
+  D3D_CHECK_MSG(monotonic_x >= -1 && monotonic_x <= 1,
+                "UnwrapOptions: monotonic_x must be -1, 0 or 1, got " << monotonic_x);
+  D3D_CHECK_MSG(max_reverse >= 0 && max_reverse <= max_jump,
+                "UnwrapOptions: max_reverse must be in [0, max_jump], got " << max_reverse);
+  D3D_CHECK_MSG(violation_phase > 0 && violation_phase < 2 * M_PI,
+                "UnwrapOptions: violation_phase must be in (0, 2π), got " << violation_phase);
   D3D_CHECK_MSG(max_violations >= 0 && max_violation_share >= 0 && max_violation_share < 1,
                 "UnwrapOptions: max_violations must be >= 0 and max_violation_share in [0, 1)");
-  D3D_CHECK_MSG(min_region_pixels >= 1, "UnwrapOptions: min_region_pixels must be >= 1, got " << min_region_pixels);
-  D3D_CHECK_MSG(min_marker_votes >= 1, "UnwrapOptions: min_marker_votes must be >= 1, got " << min_marker_votes);
-  D3D_CHECK_MSG(marker_max_stripe_share > 0 && marker_max_stripe_share <= 1,
-                "UnwrapOptions: marker_max_stripe_share must be in (0, 1], got " << marker_max_stripe_share);
-  D3D_CHECK_MSG(marker_density > 0 && marker_density <= 1, "UnwrapOptions: marker_density must be in (0, 1], got " << marker_density);
-  D3D_CHECK_MSG(marker_rival_votes >= 1, "UnwrapOptions: marker_rival_votes must be >= 1, got " << marker_rival_votes);
-  D3D_CHECK_MSG(marker_rival_density > 0 && marker_rival_density <= 1,
-                "UnwrapOptions: marker_rival_density must be in (0, 1], got " << marker_rival_density);
-  D3D_CHECK_MSG(marker_depth_fraction >= 0 && marker_depth_fraction <= 1,
-                "UnwrapOptions: marker_depth_fraction must be in [0, 1], got " << marker_depth_fraction);
-  D3D_CHECK_MSG(depth_fraction > 0.5 && depth_fraction <= 1, "UnwrapOptions: depth_fraction must be in (0.5, 1], got " << depth_fraction);
-  D3D_CHECK_MSG(neck_radius >= 0 && neck_radius <= 8, "UnwrapOptions: neck_radius must be in [0, 8], got " << neck_radius);
-  D3D_CHECK_MSG(std::isfinite(volume_margin) && volume_margin >= 0, "UnwrapOptions: volume_margin must be finite and >= 0, got " << volume_margin);
+  D3D_CHECK_MSG(min_region_pixels >= 1,
+                "UnwrapOptions: min_region_pixels must be >= 1, got " << min_region_pixels);
+  D3D_CHECK_MSG(min_marker_votes >= 1,
+                "UnwrapOptions: min_marker_votes must be >= 1, got " << min_marker_votes);
+  D3D_CHECK_MSG(
+      marker_max_stripe_share > 0 && marker_max_stripe_share <= 1,
+      "UnwrapOptions: marker_max_stripe_share must be in (0, 1], got " << marker_max_stripe_share);
+  D3D_CHECK_MSG(marker_density > 0 && marker_density <= 1,
+                "UnwrapOptions: marker_density must be in (0, 1], got " << marker_density);
+  D3D_CHECK_MSG(marker_rival_votes >= 1,
+                "UnwrapOptions: marker_rival_votes must be >= 1, got " << marker_rival_votes);
+  D3D_CHECK_MSG(
+      marker_rival_density > 0 && marker_rival_density <= 1,
+      "UnwrapOptions: marker_rival_density must be in (0, 1], got " << marker_rival_density);
+  D3D_CHECK_MSG(
+      marker_depth_fraction >= 0 && marker_depth_fraction <= 1,
+      "UnwrapOptions: marker_depth_fraction must be in [0, 1], got " << marker_depth_fraction);
+  D3D_CHECK_MSG(depth_fraction > 0.5 && depth_fraction <= 1,
+                "UnwrapOptions: depth_fraction must be in (0.5, 1], got " << depth_fraction);
+  D3D_CHECK_MSG(neck_radius >= 0 && neck_radius <= 8,
+                "UnwrapOptions: neck_radius must be in [0, 8], got " << neck_radius);
+  D3D_CHECK_MSG(std::isfinite(volume_margin) && volume_margin >= 0,
+                "UnwrapOptions: volume_margin must be finite and >= 0, got " << volume_margin);
 }
 
 const char* RegionAnchorName(RegionAnchor anchor) {
@@ -72,7 +95,14 @@ constexpr int16_t kUnknown = INT16_MIN;  // klo_ value: no admissible range know
 constexpr int16_t kNone = INT16_MIN;     // kstripe_ value: not a stripe candidate
 constexpr int kOrderClamp = 30000;       // admissible orders are clamped to ±this (int16)
 
-enum State : uint8_t { kFree = 0, kQueued = 1, kCurrent = 2, kDropped = 3, kMember = 4, kBarrier = 5 };
+enum State : uint8_t {
+  kFree = 0,
+  kQueued = 1,
+  kCurrent = 2,
+  kDropped = 3,
+  kMember = 4,
+  kBarrier = 5
+};
 
 // Edge byte: bit 0 right joinable, bits 1-2 right step + 1, bit 3 down joinable, bits 4-5 down
 // step + 1. step = k(neighbour) − k(this).
@@ -83,10 +113,12 @@ inline int DownStep(uint8_t e) { return static_cast<int>((e >> 4) & 3u) - 1; }
 constexpr uint8_t kMarkerBit = 64u;
 
 inline int16_t ClampOrder(double k) {
-  return static_cast<int16_t>(std::clamp(k, static_cast<double>(-kOrderClamp), static_cast<double>(kOrderClamp)));
+  return static_cast<int16_t>(
+      std::clamp(k, static_cast<double>(-kOrderClamp), static_cast<double>(kOrderClamp)));
 }
 
-Status CheckInputs(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker, const cv::Mat& phase_min, const cv::Mat& phase_max) {
+Status CheckInputs(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker,
+                   const cv::Mat& phase_min, const cv::Mat& phase_max) {
   if (phi.empty()) return InvalidArgument("UnwrapPhase: phi is empty");
   if (phi.type() != CV_32FC1) return InvalidArgument("UnwrapPhase: phi must be CV_32FC1");
   auto size_str = [](const cv::Mat& m) {
@@ -95,18 +127,22 @@ Status CheckInputs(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& ma
     return os.str();
   };
   if (quality.type() != CV_32FC1 || quality.size() != phi.size()) {
-    return InvalidArgument("UnwrapPhase: quality must be CV_32FC1 of phi's size " + size_str(phi) + ", got " + size_str(quality));
+    return InvalidArgument("UnwrapPhase: quality must be CV_32FC1 of phi's size " + size_str(phi) +
+                           ", got " + size_str(quality));
   }
   if (!marker.empty() && (marker.type() != CV_8UC1 || marker.size() != phi.size())) {
-    return InvalidArgument("UnwrapPhase: marker must be empty or CV_8UC1 of phi's size " + size_str(phi));
+    return InvalidArgument("UnwrapPhase: marker must be empty or CV_8UC1 of phi's size " +
+                           size_str(phi));
   }
   if (phase_min.empty() != phase_max.empty()) {
-    return InvalidArgument("UnwrapPhase: phase_min and phase_max must both be given or both be empty");
+    return InvalidArgument(
+        "UnwrapPhase: phase_min and phase_max must both be given or both be empty");
   }
   if (!phase_min.empty()) {
     for (const cv::Mat* m : {&phase_min, &phase_max}) {
       if (m->type() != CV_32FC1 || m->size() != phi.size()) {
-        return InvalidArgument("UnwrapPhase: phase_min/phase_max must be CV_32FC1 of phi's size " + size_str(phi) + ", got " + size_str(*m));
+        return InvalidArgument("UnwrapPhase: phase_min/phase_max must be CV_32FC1 of phi's size " +
+                               size_str(phi) + ", got " + size_str(*m));
       }
     }
   }
@@ -120,11 +156,13 @@ Unwrapper::Unwrapper(const UnwrapOptions& options) : options_(options) {
   head_.assign(static_cast<size_t>(options_.quality_levels) + 1, -1);
 }
 
-void Unwrapper::Prepare(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker, const cv::Mat& phase_min, const cv::Mat& phase_max) {
+void Unwrapper::Prepare(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker,
+                        const cv::Mat& phase_min, const cv::Mat& phase_max) {
   ResizeGrid(phi.cols, phi.rows);
   ReadPixels(phi, quality, marker, phase_min, phase_max);
   const float max_jump = static_cast<float>(options_.max_jump);
-  // Admissible horizontal steps W(Δφ) ∈ [lo_x, hi_x] (the ordering constraint), vertical |W| ≤ max_jump.
+  // Admissible horizontal steps W(Δφ) ∈ [lo_x, hi_x] (the ordering constraint), vertical |W| ≤
+  // max_jump.
   const float rev = static_cast<float>(options_.max_reverse);
   const float lo_x = options_.monotonic_x > 0 ? -rev : -max_jump;
   const float hi_x = options_.monotonic_x < 0 ? rev : max_jump;
@@ -143,7 +181,8 @@ void Unwrapper::ClearPixel(size_t i) {
   kstripe_[i] = kNone;
 }
 
-// The padded grid for a w×h image (buffers keep their capacity), its top and bottom border rows cleared.
+// The padded grid for a w×h image (buffers keep their capacity), its top and bottom border rows
+// cleared.
 void Unwrapper::ResizeGrid(int w, int h) {
   w_ = w;
   h_ = h;
@@ -167,7 +206,8 @@ void Unwrapper::ResizeGrid(int w, int h) {
 
 // Per pixel: wrapped phase, quality level, admissible orders [klo, khi], stripe order, marker bit
 // (the left and right border columns cleared).
-void Unwrapper::ReadPixels(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker, const cv::Mat& phase_min, const cv::Mat& phase_max) {
+void Unwrapper::ReadPixels(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker,
+                           const cv::Mat& phase_min, const cv::Mat& phase_max) {
   const int levels = options_.quality_levels;
   const float qmin = options_.min_quality;
   const bool bounds = !phase_min.empty();
@@ -176,9 +216,12 @@ void Unwrapper::ReadPixels(const cv::Mat& phi, const cv::Mat& quality, const cv:
   const double inv_2pi = 1.0 / (2.0 * M_PI);
   const int first = options_.marker_first_order;
   const int spacing = options_.marker_spacing_orders;
-  const int margin_below = options_.marker_margin_below, margin_above = options_.marker_margin_above;
-  const float core_lo = static_cast<float>(M_PI * (1.0 - options_.marker_width_periods) + options_.marker_edge_margin);
-  const float core_hi = static_cast<float>(M_PI * (1.0 + options_.marker_width_periods) - options_.marker_edge_margin);
+  const int margin_below = options_.marker_margin_below,
+            margin_above = options_.marker_margin_above;
+  const float core_lo = static_cast<float>(M_PI * (1.0 - options_.marker_width_periods) +
+                                           options_.marker_edge_margin);
+  const float core_hi = static_cast<float>(M_PI * (1.0 + options_.marker_width_periods) -
+                                           options_.marker_edge_margin);
 
   const float inv_2pi_f = static_cast<float>(inv_2pi);
   const float margin_f = static_cast<float>(margin);
@@ -221,7 +264,8 @@ void Unwrapper::ReadPixels(const cv::Mat& phi, const cv::Mat& quality, const cv:
       if (ph >= core_lo && ph <= core_hi) {
         if (spacing == 0) {
           // One stripe: its order, if the range widened by the margin admits it (or is unknown).
-          if (lo == kUnknown || (first >= lo - margin_below && first <= hi + margin_above)) stripe = static_cast<int16_t>(first);
+          if (lo == kUnknown || (first >= lo - margin_below && first <= hi + margin_above))
+            stripe = static_cast<int16_t>(first);
         } else if (lo != kUnknown && lo <= hi) {
           // Smallest stripe order in the widened window; it must be the only one in it.
           const int slo = lo - margin_below, shi = hi + margin_above;
@@ -400,7 +444,9 @@ void Unwrapper::AnchorRegion(RegionInfo* info, int region_id) {
     }
   }
   info->violations = violations;
-  if (options_.monotonic_x != 0 && violations > std::max(static_cast<double>(options_.max_violations), options_.max_violation_share * info->pixels)) {
+  if (options_.monotonic_x != 0 &&
+      violations > std::max(static_cast<double>(options_.max_violations),
+                            options_.max_violation_share * info->pixels)) {
     info->anchor = RegionAnchor::kInconsistent;
     return;
   }
@@ -432,7 +478,8 @@ void Unwrapper::AnchorRegion(RegionInfo* info, int region_id) {
   for (size_t k = 1; k < span; ++k) hist_[k] += hist_[k - 1];
   info->bounded_pixels = bounded;
 
-  const size_t best = static_cast<size_t>(std::max_element(hits_.begin(), hits_.end()) - hits_.begin());
+  const size_t best =
+      static_cast<size_t>(std::max_element(hits_.begin(), hits_.end()) - hits_.begin());
   if (hits_[best] >= options_.min_marker_votes) {
     info->offset = kspan_lo + static_cast<int>(best);
     info->marker_hits = hits_[best];
@@ -460,15 +507,20 @@ void Unwrapper::AnchorRegion(RegionInfo* info, int region_id) {
         const int16_t st = kstripe_[i];
         if (st == kNone) continue;
         const int order = rel_[i] + info->offset;
-        if (options_.drop_outside_volume && klo_[i] != kUnknown && (order < klo_[i] || order > khi_[i])) continue;
+        if (options_.drop_outside_volume && klo_[i] != kUnknown &&
+            (order < klo_[i] || order > khi_[i]))
+          continue;
         const int x = i % stride_ - 1, y = i / stride_ - 1;
-        const size_t cell = static_cast<size_t>((y / tile) * tiles_x + x / tile) * span + static_cast<size_t>(st - rel_[i] - kspan_lo);
+        const size_t cell = static_cast<size_t>((y / tile) * tiles_x + x / tile) * span +
+                            static_cast<size_t>(st - rel_[i] - kspan_lo);
         ++tile_predicted_[cell];
         tile_hits_[cell] += (edge_[i] & kMarkerBit) != 0;
       }
       for (size_t cell = 0; cell < tile_hits_.size(); ++cell) {
         const int32_t h = tile_hits_[cell];
-        if (cell % span == best || h < options_.marker_tile_rival_votes || h < options_.marker_tile_rival_density * tile_predicted_[cell]) continue;
+        if (cell % span == best || h < options_.marker_tile_rival_votes ||
+            h < options_.marker_tile_rival_density * tile_predicted_[cell])
+          continue;
         rival = true;
         info->marker_rival_hits = std::max(info->marker_rival_hits, static_cast<int>(h));
       }
@@ -476,7 +528,8 @@ void Unwrapper::AnchorRegion(RegionInfo* info, int region_id) {
     const bool dense = hits_[best] >= options_.marker_density * predicted_[best];
     const bool extends_beyond = predicted_[best] <= options_.marker_max_stripe_share * info->pixels;
     const bool depth_ok = bounded == 0 || hist_[best] >= options_.marker_depth_fraction * bounded;
-    info->anchor = dense && !rival && depth_ok && extends_beyond ? RegionAnchor::kMarker : RegionAnchor::kMarkerConflict;
+    info->anchor = dense && !rival && depth_ok && extends_beyond ? RegionAnchor::kMarker
+                                                                 : RegionAnchor::kMarkerConflict;
     return;
   }
   if (bounded < options_.min_region_pixels) return;  // kAmbiguous
@@ -560,7 +613,8 @@ void Unwrapper::PruneNecks(const UnwrapResult& out) {
       }
     }
     // Same test as AnchorRegion's: enough hits, dense, and the piece reaches beyond the stripe.
-    if (hits >= votes && hits >= density * predicted && predicted <= options_.marker_max_stripe_share * static_cast<double>(stack_.size())) {
+    if (hits >= votes && hits >= density * predicted &&
+        predicted <= options_.marker_max_stripe_share * static_cast<double>(stack_.size())) {
       for (int i : stack_) keep_[static_cast<size_t>(i)] = 2;  // verified core
     }
   }
@@ -581,8 +635,8 @@ void Unwrapper::PruneNecks(const UnwrapResult& out) {
   }
 }
 
-Status Unwrapper::Run(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker, const cv::Mat& phase_min, const cv::Mat& phase_max,
-                      UnwrapResult* out) {
+Status Unwrapper::Run(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker,
+                      const cv::Mat& phase_min, const cv::Mat& phase_max, UnwrapResult* out) {
   if (out == nullptr) return InvalidArgument("UnwrapPhase: out is null");
   D3D_RETURN_IF_ERROR(CheckInputs(phi, quality, marker, phase_min, phase_max));
   for (const cv::Mat* m : {&out->Phi, &out->order, &out->region, &out->relative}) {
@@ -600,7 +654,8 @@ Status Unwrapper::Run(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat&
 
   // Seeds in raster order: first good pixels, then any usable one left.
   const float seed_q = options_.seed_quality;
-  const int seed_level = 1 + std::min(options_.quality_levels - 1, static_cast<int>(seed_q * options_.quality_levels));
+  const int seed_level =
+      1 + std::min(options_.quality_levels - 1, static_cast<int>(seed_q * options_.quality_levels));
   for (int pass = 0; pass < 2; ++pass) {
     const int need = pass == 0 ? seed_level : 1;
     for (int y = 0; y < h_; ++y) {
@@ -689,8 +744,9 @@ Status Unwrapper::Run(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat&
   return Status::Ok();
 }
 
-Status UnwrapPhase(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker, const cv::Mat& phase_min, const cv::Mat& phase_max,
-                   const UnwrapOptions& options, UnwrapResult* out) {
+Status UnwrapPhase(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker,
+                   const cv::Mat& phase_min, const cv::Mat& phase_max, const UnwrapOptions& options,
+                   UnwrapResult* out) {
   try {
     options.Check();
   } catch (const std::invalid_argument& e) {

@@ -37,9 +37,9 @@
 //        it; otherwise the region is rejected. False
 //        detections scatter over many K at low density and do not anchor anything.
 //     b. depth (An et al. 2016, Opt. Express 24(16):18445, geometric constraint): K is admissible
-//        at a pixel if Φ = φ + 2π(r + K) ∈ [phase_min − volume_margin, phase_max + volume_margin]. If
-//        exactly one K is admissible at ≥ depth_fraction of the region's pixels with known bounds
-//        (and ≥ min_region_pixels of them have bounds), that K is taken.
+//        at a pixel if Φ = φ + 2π(r + K) ∈ [phase_min − volume_margin, phase_max + volume_margin].
+//        If exactly one K is admissible at ≥ depth_fraction of the region's pixels with known
+//        bounds (and ≥ min_region_pixels of them have bounds), that K is taken.
 //     c. otherwise the region is rejected. Regions smaller than min_region_pixels are dropped.
 //     d. neck pruning (neck_radius): a marker-anchored region keeps only the parts that the marker
 //        verifies on their own, where parts are what is left after eroding the region by
@@ -65,8 +65,8 @@ struct UnwrapOptions {
   // Stripe width in periods (FringePatternSpec::marker_width_periods): a stripe of order k_m covers
   // Φ ∈ [2πk_m + π(1−w), 2πk_m + π(1+w)).
   double marker_width_periods = 1.0;
-  // A marker pixel votes only if φ lies at least this far [rad] inside its stripe's edges, so that a
-  // detection blurred across the stripe edge cannot vote for the neighbouring order.
+  // A marker pixel votes only if φ lies at least this far [rad] inside its stripe's edges, so that
+  // a detection blurred across the stripe edge cannot vote for the neighbouring order.
   double marker_edge_margin = 0.6;
   // A stripe-core pixel is attributed to the one stripe order within its admissible orders [lo, hi]
   // widened to [lo − marker_margin_below, hi + marker_margin_above] (none if that window holds two
@@ -97,7 +97,8 @@ struct UnwrapOptions {
   // monotonic_x·W(Δφ) ≥ −max_reverse (the noise allowance) [rad].
   int monotonic_x = 1;
   double max_reverse = 0.35;
-  bool reverse_barrier = true;  // both pixels of such a backward step are dropped (the cut is closed)
+  bool reverse_barrier =
+      true;  // both pixels of such a backward step are dropped (the cut is closed)
   // Region check: horizontal neighbours of one region whose unwrapped step Φ(x+1) − Φ(x) runs
   // backwards by more than violation_phase [rad] are violations; a region with more than
   // max(max_violations, max_violation_share·pixels) of them grew around a discontinuity and is
@@ -116,27 +117,28 @@ struct UnwrapOptions {
   // A region anchored by marker must reach beyond the stripe: its pixels predicted in the stripe
   // may be at most this share of the region. A region lying inside a stripe (a fragment cut out by
   // quality, or a false detection blob) shows no stripe edge, so its order is not verified and it
-  // is dropped (seen on noise-free renders: a 572-px fragment with 561 stripe pixels and 58 % of its
-  // pixels one order off).
+  // is dropped (seen on noise-free renders: a 572-px fragment with 561 stripe pixels and 58 % of
+  // its pixels one order off).
   double marker_max_stripe_share = 0.6;
   int marker_rival_votes = 10;        // another K with this many hits ...
   double marker_rival_density = 0.2;  // ... at this density rejects the region
   // The same test within each marker_tile_px square tile of the image, over the pixels where the
   // region's K is admissible: another K with at least marker_tile_rival_votes hits at a density
-  // ≥ marker_tile_rival_density in one tile rejects the region. A part beyond a hidden order jump that is small against its region shows its stripe
-  // densely where it is, but over the whole region that K also predicts a stripe on every pixel
-  // one order short of the region's true stripe, where nothing is detected, and its density stays
-  // far below marker_rival_density (real arch seed 2, burst 778: 646 of the part's 725 stripe
-  // pixels detected; 6,634 pixels kept 1.7 mm off). False detections are too sparse to fill a
-  // tile. With drop_outside_volume, a part outside the volume at the region's K is dropped
-  // whatever its order, so its stripe does not count. 0 votes = off.
+  // ≥ marker_tile_rival_density in one tile rejects the region. A part beyond a hidden order jump
+  // that is small against its region shows its stripe densely where it is, but over the whole
+  // region that K also predicts a stripe on every pixel one order short of the region's true
+  // stripe, where nothing is detected, and its density stays far below marker_rival_density (real
+  // arch seed 2, burst 778: 646 of the part's 725 stripe pixels detected; 6,634 pixels kept 1.7 mm
+  // off). False detections are too sparse to fill a tile. With drop_outside_volume, a part outside
+  // the volume at the region's K is dropped whatever its order, so its stripe does not count. 0
+  // votes = off.
   int marker_tile_px = 32;
   int marker_tile_rival_votes = 30;
   double marker_tile_rival_density = 0.5;
   // Share of the region's bounded pixels that must admit the marker's K: a majority. A K one stripe
-  // spacing off is admitted almost nowhere (the stripes are spaced wider than the admissible range);
-  // a correct K is not admitted where the region reaches beyond the measurement volume (gum and
-  // palate 10–17 mm behind the crowns: 24 % of a typodont view's region), and those pixels are
+  // spacing off is admitted almost nowhere (the stripes are spaced wider than the admissible
+  // range); a correct K is not admitted where the region reaches beyond the measurement volume (gum
+  // and palate 10–17 mm behind the crowns: 24 % of a typodont view's region), and those pixels are
   // dropped by drop_outside_volume. At 0.8, such whole views were lost.
   double marker_depth_fraction = 0.5;
   double depth_fraction = 0.97;     // share of bounded pixels that must admit a depth-only K
@@ -144,11 +146,11 @@ struct UnwrapOptions {
   bool drop_outside_volume = true;  // drop pixels whose Φ lies outside their admissible range
   // Neck pruning of marker-anchored regions (step 3c): a region that leaked around a cut through a
   // gap of a few pixels (e.g. at an image border or where two tooth/gingiva borders meet) carries
-  // a wrong order beyond it. The region's mask is eroded by neck_radius px (square), the 8-connected
-  // parts of what remains are checked each on its own against the marker (≥ min_marker_votes hits
-  // at a density ≥ marker_density for the region's K), and only the parts that pass are kept,
-  // grown back by neck_radius within the region. Parts joined to the verified ones only through a
-  // neck at most 2·neck_radius px wide are dropped. 0 = off.
+  // a wrong order beyond it. The region's mask is eroded by neck_radius px (square), the
+  // 8-connected parts of what remains are checked each on its own against the marker (≥
+  // min_marker_votes hits at a density ≥ marker_density for the region's K), and only the parts
+  // that pass are kept, grown back by neck_radius within the region. Parts joined to the verified
+  // ones only through a neck at most 2·neck_radius px wide are dropped. 0 = off.
   int neck_radius = 1;
 
   // Throws std::invalid_argument for values outside the documented ranges.
@@ -166,36 +168,39 @@ enum class RegionAnchor : uint8_t {
 };
 const char* RegionAnchorName(RegionAnchor anchor);
 // The region got an offset K (marker or depth): its pixels have absolute orders.
-inline bool IsAnchored(RegionAnchor anchor) { return anchor == RegionAnchor::kMarker || anchor == RegionAnchor::kDepth; }
+inline bool IsAnchored(RegionAnchor anchor) {
+  return anchor == RegionAnchor::kMarker || anchor == RegionAnchor::kDepth;
+}
 
 struct RegionInfo {
   int pixels = 0;  // pixels of the region (after conflict drops)
   RegionAnchor anchor = RegionAnchor::kTooSmall;
-  int offset = 0;             // K: absolute order = relative order + K (valid if anchored)
-  int marker_hits = 0;        // detected marker pixels on a stripe for the winning K
-  int marker_predicted = 0;   // stripe-core pixels predicted in a stripe for the winning K
-  int marker_rival_hits = 0;  // hits of the strongest rival K (0 if none; in one tile if the tile test found it)
-  int bounded_pixels = 0;     // pixels with a finite admissible range
-  int admitting_pixels = 0;   // bounded pixels that admit the chosen (or best) K
-  int candidates = 0;         // K admitted by ≥ depth_fraction (depth anchoring)
-  int violations = 0;         // ordering violations (see UnwrapOptions::violation_phase)
+  int offset = 0;            // K: absolute order = relative order + K (valid if anchored)
+  int marker_hits = 0;       // detected marker pixels on a stripe for the winning K
+  int marker_predicted = 0;  // stripe-core pixels predicted in a stripe for the winning K
+  int marker_rival_hits =
+      0;  // hits of the strongest rival K (0 if none; in one tile if the tile test found it)
+  int bounded_pixels = 0;    // pixels with a finite admissible range
+  int admitting_pixels = 0;  // bounded pixels that admit the chosen (or best) K
+  int candidates = 0;        // K admitted by ≥ depth_fraction (depth anchoring)
+  int violations = 0;        // ordering violations (see UnwrapOptions::violation_phase)
 };
 
 struct UnwrapStats {
   int regions_total = 0;
-  int regions_marker = 0;            // anchored by marker
-  int regions_depth = 0;             // anchored by the depth constraint
-  int regions_rejected = 0;          // marker conflict, ambiguous or inconsistent (≥ min_region_pixels)
-  int regions_small = 0;             // dropped as too small
-  int64_t pixels_usable = 0;         // quality ≥ min_quality
-  int64_t pixels_valid = 0;          // with an absolute order in the output
-  int64_t pixels_dropped = 0;        // usable but without an order (the reasons below add up to it)
+  int regions_marker = 0;      // anchored by marker
+  int regions_depth = 0;       // anchored by the depth constraint
+  int regions_rejected = 0;    // marker conflict, ambiguous or inconsistent (≥ min_region_pixels)
+  int regions_small = 0;       // dropped as too small
+  int64_t pixels_usable = 0;   // quality ≥ min_quality
+  int64_t pixels_valid = 0;    // with an absolute order in the output
+  int64_t pixels_dropped = 0;  // usable but without an order (the reasons below add up to it)
   int64_t pixels_discontinuity = 0;  //   at a backward horizontal step (reverse_barrier)
   int64_t pixels_conflict = 0;       //   neighbours predicted different orders
   int64_t pixels_small = 0;          //   in regions too small
   int64_t pixels_rejected = 0;       //   in rejected regions
   int64_t pixels_outside = 0;        //   outside the measurement volume (drop_outside_volume)
-  int64_t pixels_neck = 0;           //   in parts of marker regions not verified on their own (neck_radius)
+  int64_t pixels_neck = 0;  //   in parts of marker regions not verified on their own (neck_radius)
 };
 
 struct UnwrapResult {
@@ -218,22 +223,24 @@ class Unwrapper {
   const UnwrapOptions& options() const { return options_; }
 
   // Inputs (all H×W, the same size):
-  //   phi        CV_32F wrapped phase φ [rad] in [0, 2π) (any finite value is taken mod 2π), NaN invalid
-  //   quality    CV_32F quality map (ComputeQualityMap), 0 = unusable
-  //   marker     CV_8U, nonzero in detected marker stripes; empty = no marker detection
-  //   phase_min, phase_max  CV_32F: the absolute phase Φ each pixel can have given the measurement
+  //   phi        CV_32F wrapped phase φ [rad] in [0, 2π) (any finite value is taken mod 2π), NaN
+  //   invalid quality    CV_32F quality map (ComputeQualityMap), 0 = unusable marker     CV_8U,
+  //   nonzero in detected marker stripes; empty = no marker detection phase_min, phase_max  CV_32F:
+  //   the absolute phase Φ each pixel can have given the measurement
   //              volume (its camera ray at depth_min and depth_max projected into the projector);
   //              NaN/inf or phase_min > phase_max = unknown there; both empty = no depth constraint
-  // INVALID_ARGUMENT for empty phi, mismatched sizes/types, or a null `out`; then `out` is untouched.
-  // All-invalid input is fine: every pixel dropped, OK.
-  [[nodiscard]] Status Run(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker, const cv::Mat& phase_min, const cv::Mat& phase_max,
-                           UnwrapResult* out);
+  // INVALID_ARGUMENT for empty phi, mismatched sizes/types, or a null `out`; then `out` is
+  // untouched. All-invalid input is fine: every pixel dropped, OK.
+  [[nodiscard]] Status Run(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker,
+                           const cv::Mat& phase_min, const cv::Mat& phase_max, UnwrapResult* out);
 
  private:
-  void Prepare(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker, const cv::Mat& phase_min, const cv::Mat& phase_max);
+  void Prepare(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker,
+               const cv::Mat& phase_min, const cv::Mat& phase_max);
   // Prepare's steps, in order.
   void ResizeGrid(int w, int h);
-  void ReadPixels(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker, const cv::Mat& phase_min, const cv::Mat& phase_max);
+  void ReadPixels(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker,
+                  const cv::Mat& phase_min, const cv::Mat& phase_max);
   void MarkReverseBarriers(float lo_x, float hi_x, float max_jump);
   void AddEdges(float lo_x, float hi_x, float max_jump);
   void ClearPixel(size_t i);  // an unusable pixel (border, or not usable)
@@ -250,24 +257,27 @@ class Unwrapper {
   std::vector<uint8_t> state_;      // free, queued, in the current region, dropped, member
   std::vector<int32_t> rel_;        // relative order in its region
   std::vector<int32_t> region_;     // region of a member pixel
-  std::vector<int16_t> klo_, khi_;  // admissible absolute orders [klo, khi]; klo = INT16_MIN: unknown
-  std::vector<int16_t> kstripe_;    // the one admissible stripe order of a stripe-core pixel, or kNone
-  std::vector<int32_t> next_;       // bucket queue: next pixel in the same level's list
-  std::vector<int32_t> head_;       // bucket queue: first pixel of each level's list, −1 empty
+  std::vector<int16_t> klo_,
+      khi_;  // admissible absolute orders [klo, khi]; klo = INT16_MIN: unknown
+  std::vector<int16_t>
+      kstripe_;                // the one admissible stripe order of a stripe-core pixel, or kNone
+  std::vector<int32_t> next_;  // bucket queue: next pixel in the same level's list
+  std::vector<int32_t> head_;  // bucket queue: first pixel of each level's list, −1 empty
   int64_t barrier_ = 0;
   std::vector<int32_t> members_;  // pixels of the region being grown
   std::vector<int32_t> hist_;     // per-K histograms of one region
   std::vector<int32_t> predicted_, hits_;
   std::vector<int32_t> tile_predicted_, tile_hits_;  // per tile and K of one region (tile-major)
   std::vector<int> offsets_;                         // per region: K, or INT_MIN if not anchored
-  std::vector<int32_t> lab_, ero_, tmp_;             // neck pruning: region labels, eroded labels, scratch
-  std::vector<uint8_t> keep_;                        // neck pruning: 1 = verified part of a marker region
-  std::vector<int32_t> stack_;                       // neck pruning: flood-fill stack
+  std::vector<int32_t> lab_, ero_, tmp_;  // neck pruning: region labels, eroded labels, scratch
+  std::vector<uint8_t> keep_;             // neck pruning: 1 = verified part of a marker region
+  std::vector<int32_t> stack_;            // neck pruning: flood-fill stack
   int64_t conflicts_ = 0;
 };
 
 // One-shot convenience: Unwrapper(options).Run(...). Invalid options give INVALID_ARGUMENT.
-[[nodiscard]] Status UnwrapPhase(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker, const cv::Mat& phase_min,
-                                 const cv::Mat& phase_max, const UnwrapOptions& options, UnwrapResult* out);
+[[nodiscard]] Status UnwrapPhase(const cv::Mat& phi, const cv::Mat& quality, const cv::Mat& marker,
+                                 const cv::Mat& phase_min, const cv::Mat& phase_max,
+                                 const UnwrapOptions& options, UnwrapResult* out);
 
 }  // namespace d3d

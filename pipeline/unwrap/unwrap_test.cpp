@@ -1,12 +1,12 @@
 #include "pipeline/unwrap/unwrap.h"
 
+#include <gtest/gtest.h>
+
 #include <climits>
 #include <cmath>
 #include <cstdio>
 #include <limits>
 #include <map>
-
-#include <gtest/gtest.h>
 #include <opencv2/imgproc.hpp>
 
 #include "pipeline/unwrap/quality_map.h"
@@ -18,9 +18,9 @@ namespace {
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
 struct Eval {
-  int64_t lit = 0;      // pixels with a phase (truth order ≥ 0)
-  int64_t kept = 0;     // with an output order
-  int64_t wrong = 0;    // kept with order ≠ truth
+  int64_t lit = 0;           // pixels with a phase (truth order ≥ 0)
+  int64_t kept = 0;          // with an output order
+  int64_t wrong = 0;         // kept with order ≠ truth
   int64_t inconsistent = 0;  // kept with order ≠ floor(Φ/2π) or |Φ − Φ_true| > π
   double KeptShare() const { return lit > 0 ? static_cast<double>(kept) / lit : 0.0; }
 };
@@ -55,24 +55,27 @@ void DumpRegions(const UnwrapResult& r) {
   std::printf("usable %lld valid %lld conflict %lld small %lld rejected %lld outside %lld\n",
               static_cast<long long>(st.pixels_usable), static_cast<long long>(st.pixels_valid),
               static_cast<long long>(st.pixels_conflict), static_cast<long long>(st.pixels_small),
-              static_cast<long long>(st.pixels_rejected), static_cast<long long>(st.pixels_outside));
+              static_cast<long long>(st.pixels_rejected),
+              static_cast<long long>(st.pixels_outside));
   for (size_t i = 0; i < r.regions.size(); ++i) {
     const RegionInfo& g = r.regions[i];
     if (g.pixels < 100) continue;
-    std::printf("region %zu: %d px, %s, K %d, hits %d/%d rival %d, bounded %d admitting %d, candidates %d\n",
-                i, g.pixels, RegionAnchorName(g.anchor), g.offset, g.marker_hits, g.marker_predicted,
-                g.marker_rival_hits, g.bounded_pixels, g.admitting_pixels, g.candidates);
+    std::printf(
+        "region %zu: %d px, %s, K %d, hits %d/%d rival %d, bounded %d admitting %d, candidates "
+        "%d\n",
+        i, g.pixels, RegionAnchorName(g.anchor), g.offset, g.marker_hits, g.marker_predicted,
+        g.marker_rival_hits, g.bounded_pixels, g.admitting_pixels, g.candidates);
   }
 }
 
 UnwrapResult RunAll(const SyntheticScene& s, const UnwrapOptions& opt = {}, bool use_marker = true,
-                 bool use_bounds = true, const QualityOptions& qopt = {}) {
+                    bool use_bounds = true, const QualityOptions& qopt = {}) {
   cv::Mat q;
   EXPECT_TRUE(ComputeQualityMap(s.phi, s.modulation, s.valid, qopt, &q).ok());
   UnwrapResult r;
-  const Status st = UnwrapPhase(s.phi, q, use_marker ? s.marker : cv::Mat(),
-                                use_bounds ? s.phase_min : cv::Mat(),
-                                use_bounds ? s.phase_max : cv::Mat(), opt, &r);
+  const Status st =
+      UnwrapPhase(s.phi, q, use_marker ? s.marker : cv::Mat(), use_bounds ? s.phase_min : cv::Mat(),
+                  use_bounds ? s.phase_max : cv::Mat(), opt, &r);
   EXPECT_TRUE(st.ok()) << st.ToString();
   return r;
 }
@@ -84,9 +87,12 @@ int64_t NaiveWrongPixels(const SyntheticScene& s) {
   cv::Mat k(h, w, CV_32SC1, cv::Scalar(0));
   auto step = [](float a, float b) { return b - a > M_PI ? -1 : (b - a < -M_PI ? 1 : 0); };
   for (int y = 0; y < h; ++y) {
-    if (y > 0) k.at<int>(y, 0) = k.at<int>(y - 1, 0) + step(s.phi.at<float>(y - 1, 0), s.phi.at<float>(y, 0));
+    if (y > 0)
+      k.at<int>(y, 0) =
+          k.at<int>(y - 1, 0) + step(s.phi.at<float>(y - 1, 0), s.phi.at<float>(y, 0));
     for (int x = 1; x < w; ++x) {
-      k.at<int>(y, x) = k.at<int>(y, x - 1) + step(s.phi.at<float>(y, x - 1), s.phi.at<float>(y, x));
+      k.at<int>(y, x) =
+          k.at<int>(y, x - 1) + step(s.phi.at<float>(y, x - 1), s.phi.at<float>(y, x));
     }
   }
   std::map<int, int64_t> diff;
@@ -112,10 +118,14 @@ SyntheticNoise Noise(uint64_t seed = 1) {
 // Two whole scenes composed: `from`'s pixels in `rect` replace those of *to (a depth map with a
 // step would darken the rows beside it).
 void CopyRect(const SyntheticScene& from, const cv::Rect& rect, SyntheticScene* to) {
-  for (auto [dst, src] : {std::pair{&to->depth, &from.depth}, {&to->Phi_true, &from.Phi_true},
-                          {&to->order_true, &from.order_true}, {&to->phi, &from.phi},
-                          {&to->modulation, &from.modulation}, {&to->valid, &from.valid},
-                          {&to->marker, &from.marker}, {&to->phase_min, &from.phase_min},
+  for (auto [dst, src] : {std::pair{&to->depth, &from.depth},
+                          {&to->Phi_true, &from.Phi_true},
+                          {&to->order_true, &from.order_true},
+                          {&to->phi, &from.phi},
+                          {&to->modulation, &from.modulation},
+                          {&to->valid, &from.valid},
+                          {&to->marker, &from.marker},
+                          {&to->phase_min, &from.phase_min},
                           {&to->phase_max, &from.phase_max}}) {
     (*src)(rect).copyTo((*dst)(rect));
   }
@@ -150,7 +160,8 @@ TEST(Unwrap, FragmentInsideAStripeIsNotAnchoredByIt) {
   int inside = 0;
   for (int y = 0; y < s.phi.rows; ++y)
     for (int x = 0; x < s.phi.cols; ++x) {
-      const bool keep = s.order_true.at<int32_t>(y, x) == 14 && y >= 120 && y < 360;  // the order-14 stripe
+      const bool keep =
+          s.order_true.at<int32_t>(y, x) == 14 && y >= 120 && y < 360;  // the order-14 stripe
       if (!keep) {
         s.valid.at<uint8_t>(y, x) = 0;
         s.phi.at<float>(y, x) = std::nanf("");
@@ -162,7 +173,8 @@ TEST(Unwrap, FragmentInsideAStripeIsNotAnchoredByIt) {
   EXPECT_EQ(r.stats.pixels_valid, 0) << "a stripe fragment must not anchor itself";
   EXPECT_EQ(r.stats.regions_marker, 0);
   UnwrapOptions no_rule;
-  no_rule.marker_max_stripe_share = 1.0;  // without the rule the stripe alone "anchors" the fragment
+  no_rule.marker_max_stripe_share =
+      1.0;  // without the rule the stripe alone "anchors" the fragment
   EXPECT_GT(RunAll(s, no_rule).stats.pixels_valid, 0);
   // The same fragment with a band of surface on both sides of the stripe is anchored.
   SyntheticScene wide = MakeFringeScene(PlaneDepth(probe, 50.0, 0.004, -0.003), probe, Noise());
@@ -181,7 +193,8 @@ TEST(Unwrap, FragmentInsideAStripeIsNotAnchoredByIt) {
 
 TEST(Unwrap, SphereCap) {
   const SyntheticProbe probe;
-  const SyntheticScene s = MakeFringeScene(SphereDepth(probe, 300, 250, 6.0, 47.0), probe, Noise(2));
+  const SyntheticScene s =
+      MakeFringeScene(SphereDepth(probe, 300, 250, 6.0, 47.0), probe, Noise(2));
   const UnwrapResult r = RunAll(s);
   const Eval e = Evaluate(s, r);
   EXPECT_EQ(e.wrong, 0);
@@ -236,7 +249,7 @@ TEST(Unwrap, AlbedoEdgeWithHiddenNearIntegerStepIsNotCrossed) {
   cv::Mat depth = PlaneDepth(probe, 48.0, 0.0, 0.0);
   depth(cv::Rect(0, 240, 640, 240)).setTo(DepthForShift(probe, 48.0, 0.93));
   SyntheticScene s = MakeFringeScene(depth, probe, Noise(11));
-  s.modulation(cv::Rect(0, 0, 640, 240)).setTo(40.0f);  // no dark edge at the step (the optics
+  s.modulation(cv::Rect(0, 0, 640, 240)).setTo(40.0f);    // no dark edge at the step (the optics
   s.modulation(cv::Rect(0, 240, 640, 240)).setTo(18.0f);  // blur it away), only the albedo edge
   s.marker(cv::Rect(0, 240, 640, 240)).setTo(0);
   cv::Mat top = cv::Mat::zeros(480, 640, CV_8UC1), bottom = top.clone();
@@ -264,10 +277,11 @@ TEST(Unwrap, NarrowLeakIntoAnUnverifiedPartIsPruned) {
   // an invalid band. The integer step leaves no trace in φ, so the region grows through the gap and
   // the patch would inherit the top's offset, one order off. Neck pruning drops it.
   const SyntheticProbe probe;
-  // Two whole planes composed at row 245 (a depth map with the step would darken the rows beside it).
+  // Two whole planes composed at row 245 (a depth map with the step would darken the rows beside
+  // it).
   SyntheticScene s = MakeFringeScene(PlaneDepth(probe, 48.0, 0.0, 0.0), probe, Noise(12));
-  const SyntheticScene far =
-      MakeFringeScene(PlaneDepth(probe, DepthForShift(probe, 48.0, 1.0), 0.0, 0.0), probe, Noise(13));
+  const SyntheticScene far = MakeFringeScene(
+      PlaneDepth(probe, DepthForShift(probe, 48.0, 1.0), 0.0, 0.0), probe, Noise(13));
   const cv::Rect lower(0, 245, 640, 235);
   CopyRect(far, lower, &s);
   // A 150 px wide window of the bottom whose orders k and k − 1 avoid every stripe order.
@@ -285,8 +299,8 @@ TEST(Unwrap, NarrowLeakIntoAnUnverifiedPartIsPruned) {
   ASSERT_GE(x0, 0);
   cv::Mat invalid = cv::Mat::zeros(480, 640, CV_8UC1);
   invalid(cv::Rect(0, 240, 640, 240)).setTo(255);
-  invalid(cv::Rect(x0, 250, 150, 230)).setTo(0);     // the patch
-  invalid(cv::Rect(x0 + 74, 240, 2, 10)).setTo(0);   // the 2 px gap
+  invalid(cv::Rect(x0, 250, 150, 230)).setTo(0);    // the patch
+  invalid(cv::Rect(x0 + 74, 240, 2, 10)).setTo(0);  // the 2 px gap
   s.phi.setTo(kNaN, invalid);
   s.valid.setTo(0, invalid);
   s.marker.setTo(0, invalid);
@@ -377,7 +391,8 @@ TEST(Unwrap, ASmallPartBeyondAHiddenStepIsCaughtInItsTiles) {
   UnwrapOptions no_tiles;
   no_tiles.marker_tile_rival_votes = 0;
   const UnwrapResult r0 = RunAll(h.s, no_tiles);
-  EXPECT_GT(Evaluate(h.s, r0, h.patch).wrong, 2000) << "the region-wide rival test alone should miss it";
+  EXPECT_GT(Evaluate(h.s, r0, h.patch).wrong, 2000)
+      << "the region-wide rival test alone should miss it";
 
   const UnwrapResult r = RunAll(h.s);
   EXPECT_EQ(Evaluate(h.s, r).wrong, 0);
@@ -389,12 +404,16 @@ TEST(Unwrap, ASmallPartBeyondAHiddenStepIsCaughtInItsTiles) {
 // seed 2, burst 799: 10 hits of 16 predicted for K − 5 rejected a whole tooth).
 TEST(Unwrap, FalseStripeHitsJustNearerThanTheVolumeDoNotVote) {
   const SyntheticProbe probe;
-  // A plane 1 mm behind the near limit (0.5 orders): the lowest order its pixels admit is their own.
-  SyntheticScene s = MakeFringeScene(PlaneDepth(probe, probe.z_min + 1.0, 0.0, 0.0), probe, Noise(23));
+  // A plane 1 mm behind the near limit (0.5 orders): the lowest order its pixels admit is their
+  // own.
+  SyntheticScene s =
+      MakeFringeScene(PlaneDepth(probe, probe.z_min + 1.0, 0.0, 0.0), probe, Noise(23));
   // The columns one order past a stripe order are unlit except a 4-row bridge joining the parts;
   // false detections over the bridge's stripe core in one of them would put some 60 hits on K − 1
   // at a high density (the bridge is all K − 1 predicts), were the window widened below.
-  const auto past_stripe = [&](int k) { return (k - probe.marker_first_order) % probe.marker_spacing_orders == 1; };
+  const auto past_stripe = [&](int k) {
+    return (k - probe.marker_first_order) % probe.marker_spacing_orders == 1;
+  };
   cv::Mat cut = cv::Mat::zeros(480, 640, CV_8UC1);
   for (int x = 0; x < 640; ++x)
     if (past_stripe(s.order_true.at<int32_t>(300, x))) cut(cv::Rect(x, 0, 1, 480)).setTo(255);
@@ -449,7 +468,8 @@ TEST(Unwrap, SeparatedTeethOnlySomeWithMarker) {
   int64_t relative_dropped = 0;
   for (int y = 0; y < r.region.rows; ++y)
     for (int x = 0; x < r.region.cols; ++x) {
-      const int rid = r.region.at<int32_t>(y, x), rel = r.relative.at<int32_t>(y, x), k = r.order.at<int32_t>(y, x);
+      const int rid = r.region.at<int32_t>(y, x), rel = r.relative.at<int32_t>(y, x),
+                k = r.order.at<int32_t>(y, x);
       ASSERT_EQ(rid < 0, rel == INT32_MIN) << x << "," << y;
       if (k >= 0) {
         ASSERT_EQ(k, rel + r.regions[static_cast<size_t>(rid)].offset) << x << "," << y;
@@ -478,8 +498,10 @@ TEST(Unwrap, DepthConstraintAnchorsWhenTheWindowIsNarrow) {
   for (int y = 0; y < s.phi.rows; ++y) {
     for (int x = 0; x < s.phi.cols; ++x) {
       const float t = s.Phi_true.at<float>(y, x);
-      s.phase_min.at<float>(y, x) = std::isfinite(t) ? t - 0.45f * 2 * static_cast<float>(M_PI) : kNaN;
-      s.phase_max.at<float>(y, x) = std::isfinite(t) ? t + 0.45f * 2 * static_cast<float>(M_PI) : kNaN;
+      s.phase_min.at<float>(y, x) =
+          std::isfinite(t) ? t - 0.45f * 2 * static_cast<float>(M_PI) : kNaN;
+      s.phase_max.at<float>(y, x) =
+          std::isfinite(t) ? t + 0.45f * 2 * static_cast<float>(M_PI) : kNaN;
     }
   }
   const UnwrapResult r = RunAll(s, {}, /*use_marker=*/false);
@@ -495,10 +517,11 @@ TEST(Unwrap, NoiseHolesAndBlurredMarker) {
   cv::Mat holes = cv::Mat::zeros(480, 640, CV_8UC1);
   cv::RNG rng(11);
   for (int i = 0; i < 25; ++i) {
-    cv::circle(holes, {rng.uniform(0, 640), rng.uniform(0, 480)}, rng.uniform(3, 15), 255, cv::FILLED);
+    cv::circle(holes, {rng.uniform(0, 640), rng.uniform(0, 480)}, rng.uniform(3, 15), 255,
+               cv::FILLED);
   }
   SyntheticNoise noise = Noise(8);
-  noise.intensity_sigma = 5.0;     // σ_φ ≈ 0.09 rad at B = 40, ≈ 0.35 rad at B = 10
+  noise.intensity_sigma = 5.0;  // σ_φ ≈ 0.09 rad at B = 40, ≈ 0.35 rad at B = 10
   noise.marker_false_rate = 0.01;
   SyntheticScene s = MakeFringeScene(SphereDepth(probe, 320, 240, 7.0, 46.0), probe, noise, holes);
   // The marker detection bleeds 2 px past the stripe edges.

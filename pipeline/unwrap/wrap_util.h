@@ -9,9 +9,7 @@ inline constexpr float kTwoPiF = 6.28318530717958647692f;
 inline constexpr float kPiF = 3.14159265358979323846f;
 
 // Wraps a difference of two values in [0, 2π), i.e. d ∈ (−2π, 2π), to [−π, π]. NaN stays NaN.
-inline float WrapPi(float d) {
-  return d > kPiF ? d - kTwoPiF : (d < -kPiF ? d + kTwoPiF : d);
-}
+inline float WrapPi(float d) { return d > kPiF ? d - kTwoPiF : (d < -kPiF ? d + kTwoPiF : d); }
 
 // Order increment across an edge: Φ(b) = Φ(a) + W(φb − φa) means k(b) = k(a) + StepOrder(φb − φa).
 inline int StepOrder(float d) { return d > kPiF ? -1 : (d < -kPiF ? 1 : 0); }

@@ -1,8 +1,10 @@
-// An "older probe": publishes protocol-1.0 samples (frozen IDL) so that the versioning test can check
-// that the current reader still takes them. Usage: d3d_protocol_v1_0_writer CONFIG.xml DOMAIN BURSTS
-// Burst b (0-based) is 4 frames of 8×6 px, pixel i of frame f = (b·31 + f·7 + i) mod 256, serial
-// "OLD-1"; then one ProbeStatus in state STREAMING with bursts_published = BURSTS. Exits 0 once a
-// reader has acknowledged everything, 1 on error or after 20 s without a reader.
+// An "older probe": publishes protocol-1.0 samples (frozen IDL) so that the versioning test can
+// check that the current reader still takes them. Usage: d3d_protocol_v1_0_writer CONFIG.xml DOMAIN
+// BURSTS Burst b (0-based) is 4 frames of 8×6 px, pixel i of frame f = (b·31 + f·7 + i) mod 256,
+// serial "OLD-1"; then one ProbeStatus in state STREAMING with bursts_published = BURSTS. Exits 0
+// once a reader has acknowledged everything, 1 on error or after 20 s without a reader.
+#include <dds/dds.h>
+
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -12,8 +14,6 @@
 #include <string>
 #include <thread>
 #include <vector>
-
-#include <dds/dds.h>
 
 #include "d3d_protocol_v1_0.h"
 
@@ -29,8 +29,10 @@ int main(int argc, char** argv) {
   const int bursts = std::atoi(argv[3]);
   if (dds_create_domain(domain, xml.str().c_str()) < 0) return 1;
   const dds_entity_t pp = dds_create_participant(domain, nullptr, nullptr);
-  const dds_entity_t tb = dds_create_topic(pp, &d3d_proto_PhaseBurst_desc, "d3d/PhaseBurst", nullptr, nullptr);
-  const dds_entity_t ts = dds_create_topic(pp, &d3d_proto_ProbeStatus_desc, "d3d/ProbeStatus", nullptr, nullptr);
+  const dds_entity_t tb =
+      dds_create_topic(pp, &d3d_proto_PhaseBurst_desc, "d3d/PhaseBurst", nullptr, nullptr);
+  const dds_entity_t ts =
+      dds_create_topic(pp, &d3d_proto_ProbeStatus_desc, "d3d/ProbeStatus", nullptr, nullptr);
   dds_qos_t* q = dds_create_qos();
   dds_qset_reliability(q, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
   dds_qset_history(q, DDS_HISTORY_KEEP_ALL, 0);
@@ -53,7 +55,8 @@ int main(int argc, char** argv) {
     std::vector<std::vector<uint8_t>> pixels(4, std::vector<uint8_t>(kW * kH));
     std::vector<d3d_proto_ImageFrame> frames(4);
     for (int fi = 0; fi < 4; ++fi) {
-      for (int i = 0; i < kW * kH; ++i) pixels[fi][i] = static_cast<uint8_t>((b * 31 + fi * 7 + i) % 256);
+      for (int i = 0; i < kW * kH; ++i)
+        pixels[fi][i] = static_cast<uint8_t>((b * 31 + fi * 7 + i) % 256);
       d3d_proto_ImageFrame& fr = frames[fi];
       std::memset(&fr, 0, sizeof fr);
       std::snprintf(fr.pattern, sizeof fr.pattern, "phase4-marker/%d", fi);
@@ -85,7 +88,8 @@ int main(int argc, char** argv) {
   st.bursts_published = static_cast<uint64_t>(bursts);
   std::snprintf(st.last_error, sizeof st.last_error, "none");
   if (dds_write(ws, &st) < 0) return 1;
-  const bool acked = dds_wait_for_acks(wb, DDS_SECS(10)) == DDS_RETCODE_OK && dds_wait_for_acks(ws, DDS_SECS(10)) == DDS_RETCODE_OK;
+  const bool acked = dds_wait_for_acks(wb, DDS_SECS(10)) == DDS_RETCODE_OK &&
+                     dds_wait_for_acks(ws, DDS_SECS(10)) == DDS_RETCODE_OK;
   dds_delete(pp);
   return acked ? 0 : 1;
 }

@@ -33,13 +33,16 @@ Material Matte(double albedo) {
 nlohmann::json PoseJson(const Rigid3d& p) {
   const Eigen::Matrix3d R = p.linear();
   const Eigen::Vector3d t = p.translation();
-  return {{"R", {{R(0, 0), R(0, 1), R(0, 2)}, {R(1, 0), R(1, 1), R(1, 2)}, {R(2, 0), R(2, 1), R(2, 2)}}}, {"t_mm", {t.x(), t.y(), t.z()}}};
+  return {{"R",
+           {{R(0, 0), R(0, 1), R(0, 2)}, {R(1, 0), R(1, 1), R(1, 2)}, {R(2, 0), R(2, 1), R(2, 2)}}},
+          {"t_mm", {t.x(), t.y(), t.z()}}};
 }
 
 // Adds triangle (a, b, c) facing −z (toward the probe).
 void AddFace(TriangleMesh* m, int a, int b, int c, SurfaceLabel label) {
-  const Eigen::Vector3d n = (m->vertices[static_cast<size_t>(b)] - m->vertices[static_cast<size_t>(a)])
-                                .cross(m->vertices[static_cast<size_t>(c)] - m->vertices[static_cast<size_t>(a)]);
+  const Eigen::Vector3d n =
+      (m->vertices[static_cast<size_t>(b)] - m->vertices[static_cast<size_t>(a)])
+          .cross(m->vertices[static_cast<size_t>(c)] - m->vertices[static_cast<size_t>(a)]);
   if (n.z() > 0) std::swap(b, c);
   m->faces.emplace_back(a, b, c);
   m->face_labels.push_back(label);
@@ -61,10 +64,13 @@ void CalibrationSessionOptions::Check() const {
   D3D_CHECK_MSG(steps >= 3, "phase steps must be ≥ 3");
   D3D_CHECK_MSG(!periods_px.empty(), "at least one fringe period");
   for (double p : periods_px) D3D_CHECK_MSG(p >= 2.0, "fringe periods must be ≥ 2 projector px");
-  D3D_CHECK_MSG(white_supersample == 1 || white_supersample == 2, "white_supersample must be 1 or 2");
-  D3D_CHECK_MSG(paper_albedo > ink_albedo && ink_albedo > 0 && paper_albedo <= 1, "need 0 < ink < paper ≤ 1");
+  D3D_CHECK_MSG(white_supersample == 1 || white_supersample == 2,
+                "white_supersample must be 1 or 2");
+  D3D_CHECK_MSG(paper_albedo > ink_albedo && ink_albedo > 0 && paper_albedo <= 1,
+                "need 0 < ink < paper ≤ 1");
   D3D_CHECK_MSG(min_distance_mm > 0 && max_distance_mm >= min_distance_mm, "bad distance range");
-  D3D_CHECK_MSG(min_tilt_deg >= 0 && max_tilt_deg >= min_tilt_deg && max_tilt_deg < 80, "bad tilt range");
+  D3D_CHECK_MSG(min_tilt_deg >= 0 && max_tilt_deg >= min_tilt_deg && max_tilt_deg < 80,
+                "bad tilt range");
   D3D_CHECK_MSG(max_roll_deg >= 0 && max_roll_deg <= 180, "bad roll range");
   D3D_CHECK_MSG(threads >= 0, "threads must be ≥ 0");
 }
@@ -76,8 +82,10 @@ TriangleMesh MakeCalibrationTargetMesh(const CalibrationTarget& target, double m
   const auto [lo, hi] = target.FeatureBounds();
   TriangleMesh m;
   if (target.kind == TargetKind::kChessboard) {
-    const int i0 = static_cast<int>(std::floor((lo.x() - s - margin_mm) / s)), i1 = static_cast<int>(std::ceil((hi.x() + s + margin_mm) / s));
-    const int j0 = static_cast<int>(std::floor((lo.y() - s - margin_mm) / s)), j1 = static_cast<int>(std::ceil((hi.y() + s + margin_mm) / s));
+    const int i0 = static_cast<int>(std::floor((lo.x() - s - margin_mm) / s)),
+              i1 = static_cast<int>(std::ceil((hi.x() + s + margin_mm) / s));
+    const int j0 = static_cast<int>(std::floor((lo.y() - s - margin_mm) / s)),
+              j1 = static_cast<int>(std::ceil((hi.y() + s + margin_mm) / s));
     const int nx = i1 - i0 + 1;
     for (int j = j0; j <= j1; ++j)
       for (int i = i0; i <= i1; ++i) m.vertices.emplace_back(i * s, j * s, 0.0);
@@ -85,17 +93,21 @@ TriangleMesh MakeCalibrationTargetMesh(const CalibrationTarget& target, double m
     for (int j = j0; j < j1; ++j)
       for (int i = i0; i < i1; ++i) {
         const bool on_board = i >= -1 && i <= target.cols - 1 && j >= -1 && j <= target.rows - 1;
-        const SurfaceLabel label = on_board && (i + j) % 2 == 0 ? SurfaceLabel::kGingiva : SurfaceLabel::kTooth;
+        const SurfaceLabel label =
+            on_board && (i + j) % 2 == 0 ? SurfaceLabel::kGingiva : SurfaceLabel::kTooth;
         AddFace(&m, v(i, j), v(i + 1, j), v(i + 1, j + 1), label);
         AddFace(&m, v(i, j), v(i + 1, j + 1), v(i, j + 1), label);
       }
     return m;
   }
-  D3D_CHECK_MSG(target.circle_diameter_mm > 0 && target.circle_diameter_mm < s,
-                "the target mesh needs a circle diameter in (0, spacing): add :d=DIAM to the target");
+  D3D_CHECK_MSG(
+      target.circle_diameter_mm > 0 && target.circle_diameter_mm < s,
+      "the target mesh needs a circle diameter in (0, spacing): add :d=DIAM to the target");
   const double r = 0.5 * target.circle_diameter_mm;
-  const int ix0 = static_cast<int>(std::floor((lo.x() - margin_mm) / s)) - 1, ix1 = static_cast<int>(std::ceil((hi.x() + margin_mm) / s)) + 1;
-  const int iy0 = static_cast<int>(std::floor((lo.y() - margin_mm) / s)) - 1, iy1 = static_cast<int>(std::ceil((hi.y() + margin_mm) / s)) + 1;
+  const int ix0 = static_cast<int>(std::floor((lo.x() - margin_mm) / s)) - 1,
+            ix1 = static_cast<int>(std::ceil((hi.x() + margin_mm) / s)) + 1;
+  const int iy0 = static_cast<int>(std::floor((lo.y() - margin_mm) / s)) - 1,
+            iy1 = static_cast<int>(std::ceil((hi.y() + margin_mm) / s)) + 1;
   const int K = kRingPerSide;
   const int gw = (ix1 - ix0 + 1) * K + 1, gh = (iy1 - iy0 + 1) * K + 1;
   std::vector<int> grid(static_cast<size_t>(gw) * static_cast<size_t>(gh), -1);
@@ -120,38 +132,48 @@ TriangleMesh MakeCalibrationTargetMesh(const CalibrationTarget& target, double m
       m.vertices.push_back(centre);
       const int n = static_cast<int>(ring.size());
       if (!CircleAt(target, ix, iy)) {
-        for (int k = 0; k < n; ++k) AddFace(&m, c, ring[static_cast<size_t>(k)], ring[static_cast<size_t>((k + 1) % n)], SurfaceLabel::kTooth);
+        for (int k = 0; k < n; ++k)
+          AddFace(&m, c, ring[static_cast<size_t>(k)], ring[static_cast<size_t>((k + 1) % n)],
+                  SurfaceLabel::kTooth);
         continue;
       }
       std::vector<int> poly;
       for (int k = 0; k < n; ++k) {
-        const Eigen::Vector3d d = (m.vertices[static_cast<size_t>(ring[static_cast<size_t>(k)])] - centre).normalized();
+        const Eigen::Vector3d d =
+            (m.vertices[static_cast<size_t>(ring[static_cast<size_t>(k)])] - centre).normalized();
         poly.push_back(static_cast<int>(m.vertices.size()));
         m.vertices.push_back(centre + r * d);
       }
       for (int k = 0; k < n; ++k) {
         const int k1 = (k + 1) % n;
-        AddFace(&m, c, poly[static_cast<size_t>(k)], poly[static_cast<size_t>(k1)], SurfaceLabel::kGingiva);
-        AddFace(&m, poly[static_cast<size_t>(k)], ring[static_cast<size_t>(k)], ring[static_cast<size_t>(k1)], SurfaceLabel::kTooth);
-        AddFace(&m, poly[static_cast<size_t>(k)], ring[static_cast<size_t>(k1)], poly[static_cast<size_t>(k1)], SurfaceLabel::kTooth);
+        AddFace(&m, c, poly[static_cast<size_t>(k)], poly[static_cast<size_t>(k1)],
+                SurfaceLabel::kGingiva);
+        AddFace(&m, poly[static_cast<size_t>(k)], ring[static_cast<size_t>(k)],
+                ring[static_cast<size_t>(k1)], SurfaceLabel::kTooth);
+        AddFace(&m, poly[static_cast<size_t>(k)], ring[static_cast<size_t>(k1)],
+                poly[static_cast<size_t>(k1)], SurfaceLabel::kTooth);
       }
     }
   return m;
 }
 
-Status MakeCalibrationPoses(const CalibrationSessionOptions& o, const CalibrationTarget& target, const ProbeCalibration& calib, double margin_px,
+Status MakeCalibrationPoses(const CalibrationSessionOptions& o, const CalibrationTarget& target,
+                            const ProbeCalibration& calib, double margin_px,
                             std::vector<Rigid3d>* out) {
   o.Check();
   const auto [lo, hi] = target.FeatureBounds();
   const double s = target.spacing_mm;
   const Eigen::Vector3d centre(0.5 * (lo.x() + hi.x()), 0.5 * (lo.y() + hi.y()), 0.0);
-  const std::vector<Eigen::Vector3d> corners = {
-      {lo.x() - s, lo.y() - s, 0}, {hi.x() + s, lo.y() - s, 0}, {hi.x() + s, hi.y() + s, 0}, {lo.x() - s, hi.y() + s, 0}};
+  const std::vector<Eigen::Vector3d> corners = {{lo.x() - s, lo.y() - s, 0},
+                                                {hi.x() + s, lo.y() - s, 0},
+                                                {hi.x() + s, hi.y() + s, 0},
+                                                {lo.x() - s, hi.y() + s, 0}};
   const Rigid3d proj_from_cam = calib.cam_from_proj.inverse();
   auto inside = [&](const PinholeBrownConrady& dev, const Rigid3d& dev_from_target) {
     for (const auto& p : corners) {
       const auto uv = dev.Project(dev_from_target * p);
-      if (!uv || uv->x() < margin_px || uv->y() < margin_px || uv->x() > dev.width - 1 - margin_px || uv->y() > dev.height - 1 - margin_px)
+      if (!uv || uv->x() < margin_px || uv->y() < margin_px ||
+          uv->x() > dev.width - 1 - margin_px || uv->y() > dev.height - 1 - margin_px)
         return false;
     }
     return true;
@@ -170,27 +192,35 @@ Status MakeCalibrationPoses(const CalibrationSessionOptions& o, const Calibratio
       const double z = o.min_distance_mm + (o.max_distance_mm - o.min_distance_mm) * u01(rng);
       const Eigen::Vector3d axis(std::cos(axis_angle), std::sin(axis_angle), 0.0);
       Rigid3d pose = Rigid3d::Identity();
-      pose.linear() = (Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitZ()) * Eigen::AngleAxisd(tilt, axis)).toRotationMatrix();
+      pose.linear() =
+          (Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitZ()) * Eigen::AngleAxisd(tilt, axis))
+              .toRotationMatrix();
       const Eigen::Vector3d shift(1.0 * (2.0 * u01(rng) - 1.0), 0.8 * (2.0 * u01(rng) - 1.0), z);
       pose.translation() = shift - pose.linear() * centre;
       found = inside(calib.camera, pose) && inside(calib.projector, proj_from_cam * pose);
       if (found) out->push_back(pose);
     }
     if (!found) {
-      return InvalidArgument("target " + target.ToString() + " does not fit the camera's and projector's view at pose " + std::to_string(i) +
-                             " (make it smaller or reduce the tilt range)");
+      return InvalidArgument("target " + target.ToString() +
+                             " does not fit the camera's and projector's view at pose " +
+                             std::to_string(i) + " (make it smaller or reduce the tilt range)");
     }
   }
   return Status::Ok();
 }
 
-Status RenderCalibrationSession(const CalibrationSessionOptions& options, const std::string& out_dir, bool progress, CalibrationSessionResult* out) {
+Status RenderCalibrationSession(const CalibrationSessionOptions& options,
+                                const std::string& out_dir, bool progress,
+                                CalibrationSessionResult* out) {
   options.Check();
   const auto start = std::chrono::steady_clock::now();
   CalibrationTarget target;
   D3D_RETURN_IF_ERROR(ParseTarget(options.target, &target));
-  if (target.IsCircles() && !(target.circle_diameter_mm > 0 && target.circle_diameter_mm < target.spacing_mm)) {
-    return InvalidArgument("calibration session: the circle target needs :d=DIAM with DIAM < spacing, got '" + options.target + "'");
+  if (target.IsCircles() &&
+      !(target.circle_diameter_mm > 0 && target.circle_diameter_mm < target.spacing_mm)) {
+    return InvalidArgument(
+        "calibration session: the circle target needs :d=DIAM with DIAM < spacing, got '" +
+        options.target + "'");
   }
   ProbeDesign design = MakeDefaultProbeDesign(options.camera_width, options.camera_height);
   design.enamel = Matte(options.paper_albedo);
@@ -203,7 +233,8 @@ Status RenderCalibrationSession(const CalibrationSessionOptions& options, const 
 
   const auto [lo, hi] = target.FeatureBounds();
   const double half = 0.5 * std::max(hi.x() - lo.x(), hi.y() - lo.y());
-  const TriangleMesh mesh = MakeCalibrationTargetMesh(target, std::max(2.0 * target.spacing_mm, 20.0 - half));
+  const TriangleMesh mesh =
+      MakeCalibrationTargetMesh(target, std::max(2.0 * target.spacing_mm, 20.0 - half));
   RenderOptions ro;
   ro.noise = options.noise;
   ro.gamma = options.gamma;
@@ -232,7 +263,9 @@ Status RenderCalibrationSession(const CalibrationSessionOptions& options, const 
   const auto& proj = truth.projector;
   const PatternSet white = MakeUniformSet(255, proj.width, proj.height);
   std::vector<std::pair<char, PatternSet>> phase_sets;
-  for (char axis : {'x', 'y'}) phase_sets.emplace_back(axis, MakeMultiFrequencySet(axis, options.steps, options.periods_px, proj.width, proj.height));
+  for (char axis : {'x', 'y'})
+    phase_sets.emplace_back(axis, MakeMultiFrequencySet(axis, options.steps, options.periods_px,
+                                                        proj.width, proj.height));
 
   std::error_code ec;
   fs::create_directories(fs::path(out_dir) / "images", ec);
@@ -249,13 +282,16 @@ Status RenderCalibrationSession(const CalibrationSessionOptions& options, const 
                       {"axes", {"x", "y"}},
                       {"phase_origin_px", 0.0},
                       {"frames", "AXIS_PERIODINDEX_STEP.png, e.g. x_0_0.png"},
-                      {"pattern", "frame S of period T: 1/2 + 1/2 cos(2 pi c / T - 2 pi S / N), before the projector's gamma"}};
+                      {"pattern",
+                       "frame S of period T: 1/2 + 1/2 cos(2 pi c / T - 2 pi S / N), before the "
+                       "projector's gamma"}};
     std::ofstream f(fs::path(out_dir) / "phase" / "phase.json");
     f << pj.dump(2) << "\n";
     if (!f) return IoError("cannot write phase.json in '" + out_dir + "'");
   }
   const int frames_per_pose = 1 + 2 * options.steps * static_cast<int>(options.periods_px.size());
-  ProgressBar bar("calibration session", static_cast<int64_t>(poses.size()) * frames_per_pose, progress);
+  ProgressBar bar("calibration session", static_cast<int64_t>(poses.size()) * frames_per_pose,
+                  progress);
   int64_t done = 0;
   CalibrationSessionResult result;
   result.truth = truth;
@@ -273,7 +309,8 @@ Status RenderCalibrationSession(const CalibrationSessionOptions& options, const 
       cv::Mat f32;
       frame.image.convertTo(f32, CV_32F, 1.0 / 65535.0);
       cv::Mat small;
-      cv::resize(f32, small, cv::Size(truth.camera.width, truth.camera.height), 0, 0, cv::INTER_AREA);
+      cv::resize(f32, small, cv::Size(truth.camera.width, truth.camera.height), 0, 0,
+                 cv::INTER_AREA);
       // Sensor noise and 8-bit quantisation at the native resolution (SensorModel).
       std::mt19937_64 rng(FrameNoiseSeed(options.seed, 1000000 + i, 0));
       std::normal_distribution<double> n01(0.0, 1.0);
@@ -287,10 +324,12 @@ Status RenderCalibrationSession(const CalibrationSessionOptions& options, const 
           white_img.at<uint8_t>(r, c) = static_cast<uint8_t>(dn);
         }
     } else {
-      probe.RenderFrame(pose, 0, white.frames[0], FrameNoiseSeed(options.seed, i, 0), false, &frame);
+      probe.RenderFrame(pose, 0, white.frames[0], FrameNoiseSeed(options.seed, i, 0), false,
+                        &frame);
       white_img = frame.image;
     }
-    if (!cv::imwrite((fs::path(out_dir) / "images" / (std::string(name) + ".png")).string(), white_img))
+    if (!cv::imwrite((fs::path(out_dir) / "images" / (std::string(name) + ".png")).string(),
+                     white_img))
       return IoError("cannot write the white image of " + std::string(name));
     bar.Update(++done);
     const fs::path pose_dir = fs::path(out_dir) / "phase" / name;
@@ -299,10 +338,14 @@ Status RenderCalibrationSession(const CalibrationSessionOptions& options, const 
     int k = 1;
     for (const auto& [axis, set] : phase_sets) {
       for (size_t f = 0; f < set.frames.size(); ++f, ++k) {
-        probe.RenderFrame(pose, 0, set.frames[f], FrameNoiseSeed(options.seed, i, k), false, &frame);
-        const size_t period = f / static_cast<size_t>(options.steps), step = f % static_cast<size_t>(options.steps);
-        const std::string file = std::string(1, axis) + "_" + std::to_string(period) + "_" + std::to_string(step) + ".png";
-        if (!cv::imwrite((pose_dir / file).string(), frame.image)) return IoError("cannot write " + (pose_dir / file).string());
+        probe.RenderFrame(pose, 0, set.frames[f], FrameNoiseSeed(options.seed, i, k), false,
+                          &frame);
+        const size_t period = f / static_cast<size_t>(options.steps),
+                     step = f % static_cast<size_t>(options.steps);
+        const std::string file = std::string(1, axis) + "_" + std::to_string(period) + "_" +
+                                 std::to_string(step) + ".png";
+        if (!cv::imwrite((pose_dir / file).string(), frame.image))
+          return IoError("cannot write " + (pose_dir / file).string());
         bar.Update(++done);
       }
     }
@@ -311,7 +354,8 @@ Status RenderCalibrationSession(const CalibrationSessionOptions& options, const 
   bar.Finish();
   result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   nlohmann::json views = nlohmann::json::array();
-  for (const auto& v : result.views) views.push_back({{"name", v.name}, {"cam_from_target", PoseJson(v.cam_from_target)}});
+  for (const auto& v : result.views)
+    views.push_back({{"name", v.name}, {"cam_from_target", PoseJson(v.cam_from_target)}});
   nlohmann::json sj{{"format", "d3dscan.calibration-session"},
                     {"version", 1},
                     {"target", target.ToString()},

@@ -44,12 +44,13 @@ struct CalibrationSessionOptions {
   uint32_t seed = 1;       // poses and sensor noise
   int camera_width = 640;  // 640 × 480 or 1280 × 1024 (probe_design.h)
   int camera_height = 480;
-  int steps = 4;                                           // phase steps per period
-  std::vector<double> periods_px = {1200.0, 120.0, 24.0};  // coarse → fine; the first ≥ projector extent
-  int white_supersample = 2;                               // 1 = no anti-aliasing of the white image
-  double paper_albedo = 0.6;                               // white paper (kept below saturation at the nearest pose)
-  double ink_albedo = 0.04;                                // black print
-  double min_distance_mm = 46.0;                           // camera-to-target-centre distance range
+  int steps = 4;  // phase steps per period
+  std::vector<double> periods_px = {1200.0, 120.0,
+                                    24.0};  // coarse → fine; the first ≥ projector extent
+  int white_supersample = 2;                // 1 = no anti-aliasing of the white image
+  double paper_albedo = 0.6;      // white paper (kept below saturation at the nearest pose)
+  double ink_albedo = 0.04;       // black print
+  double min_distance_mm = 46.0;  // camera-to-target-centre distance range
   double max_distance_mm = 54.0;
   double min_tilt_deg = 12.0;  // target tilt range (about a random in-plane axis)
   double max_tilt_deg = 35.0;
@@ -77,13 +78,16 @@ TriangleMesh MakeCalibrationTargetMesh(const CalibrationTarget& target, double m
 
 // N seeded poses whose target (features plus one spacing) lies inside the camera's and the
 // projector's images with a margin of `margin_px`. INVALID_ARGUMENT if the target cannot fit.
-[[nodiscard]] Status MakeCalibrationPoses(const CalibrationSessionOptions& options, const CalibrationTarget& target,
-                                          const ProbeCalibration& calibration, double margin_px, std::vector<Rigid3d>* cam_from_target);
+[[nodiscard]] Status MakeCalibrationPoses(const CalibrationSessionOptions& options,
+                                          const CalibrationTarget& target,
+                                          const ProbeCalibration& calibration, double margin_px,
+                                          std::vector<Rigid3d>* cam_from_target);
 
 // Renders and writes the session to out_dir (created). INVALID_ARGUMENT for a bad target text or
 // a target that does not fit the view, IO_ERROR for files that cannot be written. Throws
 // std::invalid_argument for invalid options. `progress`: a progress bar on stderr.
-[[nodiscard]] Status RenderCalibrationSession(const CalibrationSessionOptions& options, const std::string& out_dir, bool progress,
+[[nodiscard]] Status RenderCalibrationSession(const CalibrationSessionOptions& options,
+                                              const std::string& out_dir, bool progress,
                                               CalibrationSessionResult* out);
 
 }  // namespace d3d

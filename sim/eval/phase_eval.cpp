@@ -16,7 +16,8 @@ constexpr double kMinPeriodPx = 8.0;
 TriangleMesh PlaneMesh(const Eigen::Vector3d& n, const Eigen::Vector3d& point, double half = 80.0) {
   const Eigen::Vector3d a = n.unitOrthogonal(), b = n.cross(a);
   TriangleMesh m;
-  m.vertices = {point - half * a - half * b, point + half * a - half * b, point + half * a + half * b, point - half * a + half * b};
+  m.vertices = {point - half * a - half * b, point + half * a - half * b,
+                point + half * a + half * b, point - half * a + half * b};
   m.faces = {{0, 1, 2}, {0, 2, 3}};
   m.face_labels = {SurfaceLabel::kTooth, SurfaceLabel::kTooth};
   return m;
@@ -35,10 +36,13 @@ Burst RenderScene(const RenderSpec& spec, ProbeCalibration* calibration) {
   std::unique_ptr<VirtualProbe> probe;
   PoseAtTime pose = identity;
   if (spec.scene == "plane") {
-    probe = std::make_unique<VirtualProbe>(PlaneMesh(Eigen::Vector3d(0.25, -0.15, -1.0).normalized(), Eigen::Vector3d(0, 0, 50)), design, o);
+    probe = std::make_unique<VirtualProbe>(
+        PlaneMesh(Eigen::Vector3d(0.25, -0.15, -1.0).normalized(), Eigen::Vector3d(0, 0, 50)),
+        design, o);
   } else if (spec.scene == "sphere") {
-    probe = std::make_unique<VirtualProbe>(PlaneMesh(Eigen::Vector3d(0.1, 0.05, -1.0).normalized(), Eigen::Vector3d(0, 0, 57)), design, o,
-                                           std::vector<SceneSphere>{{Eigen::Vector3d(0.8, -0.5, 50.0), 4.5, SurfaceLabel::kTooth}});
+    probe = std::make_unique<VirtualProbe>(
+        PlaneMesh(Eigen::Vector3d(0.1, 0.05, -1.0).normalized(), Eigen::Vector3d(0, 0, 57)), design,
+        o, std::vector<SceneSphere>{{Eigen::Vector3d(0.8, -0.5, 50.0), 4.5, SurfaceLabel::kTooth}});
   } else if (spec.scene == "typodont") {
     static std::unique_ptr<SimSession> session;  // the arch and its scan path, built once
     if (!session) {
@@ -47,7 +51,8 @@ Burst RenderScene(const RenderSpec& spec, ProbeCalibration* calibration) {
       const Status st = SimSession::Create(so, &session);
       if (!st.ok()) throw std::runtime_error(st.ToString());
     }
-    const Rigid3d at = session->trajectory().WorldFromProbe(session->BurstStartNs(spec.typodont_index));
+    const Rigid3d at =
+        session->trajectory().WorldFromProbe(session->BurstStartNs(spec.typodont_index));
     pose = [at](int64_t) { return at; };
     probe = std::make_unique<VirtualProbe>(session->scene(), design, o);
   } else {
@@ -57,7 +62,8 @@ Burst RenderScene(const RenderSpec& spec, ProbeCalibration* calibration) {
   return probe->RenderBurst(pose, 0, 0, spec.seed, true);
 }
 
-Evaluation Evaluate(const Burst& burst, const ProbeCalibration& calibration, const PhaseOptions& base) {
+Evaluation Evaluate(const Burst& burst, const ProbeCalibration& calibration,
+                    const PhaseOptions& base) {
   const FringePatternSpec& spec = calibration.pattern;
   std::vector<cv::Mat> frames;
   for (int n = 0; n < spec.steps; ++n) frames.push_back(burst.frames[n].image);
@@ -67,7 +73,8 @@ Evaluation Evaluate(const Burst& burst, const ProbeCalibration& calibration, con
 
   Evaluation ev;
   std::vector<PhaseMaps> maps;
-  for (auto a : {PhaseAlgorithm::kStandard, PhaseAlgorithm::kLutGamma, PhaseAlgorithm::kAdaptiveHarmonic}) {
+  for (auto a :
+       {PhaseAlgorithm::kStandard, PhaseAlgorithm::kLutGamma, PhaseAlgorithm::kAdaptiveHarmonic}) {
     PhaseOptions o = base;
     o.algorithm = a;
     maps.emplace_back();
@@ -76,7 +83,8 @@ Evaluation Evaluate(const Burst& burst, const ProbeCalibration& calibration, con
   }
   const int axis = spec.axis == 'y' ? 1 : 0;
   std::vector<double> s2_out(3, 0), s2_in(3, 0);
-  int n_out = 0, n_in = 0, core = 0, core_hit = 0, outside = 0, outside_hit = 0, edge = 0, edge_hit = 0;
+  int n_out = 0, n_in = 0, core = 0, core_hit = 0, outside = 0, outside_hit = 0, edge = 0,
+      edge_hit = 0;
   double kappa_sum = 0;
   const PhaseMaps& ours = maps[2];
   for (int y = 0; y < lit.rows; ++y)
@@ -89,8 +97,10 @@ Evaluation Evaluate(const Burst& burst, const ProbeCalibration& calibration, con
       // Fringes resolved by the camera: ≥ kMinPeriodPx camera px per period (steep or grazing
       // surfaces below that are limited by the camera's blur, not by the phase algorithm).
       if (x == 0 || y == 0 || x + 1 == lit.cols || y + 1 == lit.rows) continue;
-      const double gx = 0.5 * (truth.projector_uv.at<cv::Vec2f>(y, x + 1)[axis] - truth.projector_uv.at<cv::Vec2f>(y, x - 1)[axis]);
-      const double gy = 0.5 * (truth.projector_uv.at<cv::Vec2f>(y + 1, x)[axis] - truth.projector_uv.at<cv::Vec2f>(y - 1, x)[axis]);
+      const double gx = 0.5 * (truth.projector_uv.at<cv::Vec2f>(y, x + 1)[axis] -
+                               truth.projector_uv.at<cv::Vec2f>(y, x - 1)[axis]);
+      const double gy = 0.5 * (truth.projector_uv.at<cv::Vec2f>(y + 1, x)[axis] -
+                               truth.projector_uv.at<cv::Vec2f>(y - 1, x)[axis]);
       if (!(spec.fringe_period_px >= kMinPeriodPx * std::hypot(gx, gy))) continue;
       const bool in_core = spec.InMarker(c - 2) && spec.InMarker(c + 2);
       const bool out = !spec.InMarker(c - 2) && !spec.InMarker(c + 2);
@@ -128,12 +138,14 @@ Evaluation Evaluate(const Burst& burst, const ProbeCalibration& calibration, con
 
 std::string FormatRow(const std::string& label, const Evaluation& e) {
   char buf[512];
-  std::snprintf(buf, sizeof buf,
-                "%-22s outside: std %.4f  lut %.4f  ours %.4f | stripes: std %.4f  lut %.4f  ours %.4f | "
-                "kappa %.2f | marker recall %.4f fp %.5f (n %d/%d)",
-                label.c_str(), e.algorithms[0].rms_outside, e.algorithms[1].rms_outside, e.algorithms[2].rms_outside, e.algorithms[0].rms_inside,
-                e.algorithms[1].rms_inside, e.algorithms[2].rms_inside, e.mean_kappa, e.marker.recall, e.marker.false_positive, e.marker.n_core,
-                e.marker.n_outside);
+  std::snprintf(
+      buf, sizeof buf,
+      "%-22s outside: std %.4f  lut %.4f  ours %.4f | stripes: std %.4f  lut %.4f  ours %.4f | "
+      "kappa %.2f | marker recall %.4f fp %.5f (n %d/%d)",
+      label.c_str(), e.algorithms[0].rms_outside, e.algorithms[1].rms_outside,
+      e.algorithms[2].rms_outside, e.algorithms[0].rms_inside, e.algorithms[1].rms_inside,
+      e.algorithms[2].rms_inside, e.mean_kappa, e.marker.recall, e.marker.false_positive,
+      e.marker.n_core, e.marker.n_outside);
   return buf;
 }
 

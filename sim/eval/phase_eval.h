@@ -12,8 +12,8 @@
 namespace d3d::phase_eval {
 
 // Scenes rendered at the identity pose: "plane" (tilted plane at 50 mm), "sphere" (a 4.5 mm
-// enamel sphere at 54 mm before a plane at 62 mm, which it shadows), "typodont" (the procedural arch
-// from a full-arch scan pose, burst `typodont_index`).
+// enamel sphere at 54 mm before a plane at 62 mm, which it shadows), "typodont" (the procedural
+// arch from a full-arch scan pose, burst `typodont_index`).
 struct RenderSpec {
   std::string scene = "plane";
   double projector_gamma = 2.2;
@@ -33,7 +33,7 @@ struct AlgorithmScore {
 };
 
 struct MarkerScore {
-  double recall = 0;          // detected / lit stripe pixels ≥ 2 projector px from the stripe edges
+  double recall = 0;  // detected / lit stripe pixels ≥ 2 projector px from the stripe edges
   double false_positive = 0;  // detected / lit pixels ≥ 2 projector px outside every stripe
   double edge_detected = 0;   // detected share of the ±2 px transition band (informative)
   int n_core = 0, n_outside = 0;
@@ -49,7 +49,8 @@ struct Evaluation {
 // scored when lit in the truth, 2 px inside the lit region (no occlusion or shadow edges in the
 // camera's blur), where the fringe period spans ≥ 8 camera px (the truth's projector-coordinate
 // gradient), and valid for all three algorithms.
-Evaluation Evaluate(const Burst& burst, const ProbeCalibration& calibration, const PhaseOptions& base = {});
+Evaluation Evaluate(const Burst& burst, const ProbeCalibration& calibration,
+                    const PhaseOptions& base = {});
 
 // "gamma  standard  lut-gamma  adaptive-harmonic" table lines for the given evaluations.
 std::string FormatRow(const std::string& label, const Evaluation& e);

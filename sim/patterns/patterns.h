@@ -29,12 +29,15 @@ struct PatternSet {
 
 // The probe's burst: the N phase-shift frames of `spec` (marker in spec.marker_frame), then a
 // uniform white texture frame if spec.texture_frame. Values round(255 · p) (see FringePatternSpec).
-PatternSet MakePhaseShiftSet(const FringePatternSpec& spec, int projector_width, int projector_height);
+PatternSet MakePhaseShiftSet(const FringePatternSpec& spec, int projector_width,
+                             int projector_height);
 // N-step sets at several fringe periods (projector px), one after the other, no marker.
-PatternSet MakeMultiFrequencySet(char axis, int steps, const std::vector<double>& periods_px, int projector_width, int projector_height);
+PatternSet MakeMultiFrequencySet(char axis, int steps, const std::vector<double>& periods_px,
+                                 int projector_width, int projector_height);
 // Binary-reflected Gray code of the projector coordinate along `axis` in cells of `cell_px`
 // pixels, most significant bit first, each bit followed by its inverse when `with_inverse`.
-PatternSet MakeGrayCodeSet(char axis, int cell_px, bool with_inverse, int projector_width, int projector_height);
+PatternSet MakeGrayCodeSet(char axis, int cell_px, bool with_inverse, int projector_width,
+                           int projector_height);
 // One uniform frame of the given DMD level (255 = white, 0 = black).
 PatternSet MakeUniformSet(uint8_t level, int projector_width, int projector_height);
 
@@ -45,6 +48,7 @@ PatternSet MakeUniformSet(uint8_t level, int projector_width, int projector_heig
 //   "gray:CELL[:x|y]"            Gray code with inverses
 //   "white", "black"
 // INVALID_ARGUMENT naming the problem for anything else.
-[[nodiscard]] Status ParsePatternSet(const std::string& text, const ProbeCalibration& calibration, PatternSet* out);
+[[nodiscard]] Status ParsePatternSet(const std::string& text, const ProbeCalibration& calibration,
+                                     PatternSet* out);
 
 }  // namespace d3d

@@ -15,7 +15,8 @@ double ValueNoise3(const Eigen::Vector3d& p, uint64_t seed);
 
 // Multiplicative albedo factor at world point p_mm for `material`:
 //   (1 + a_m · n(p / s_m)) · (1 − a_s · smoothstep(0.15, 0.55, fbm(p / s_s)))
-// with n, fbm value noise (fbm: 3 octaves, gain ½). Mean ≈ 1 − a_s/4; range ⊂ [1 − a_m − a_s, 1 + a_m].
+// with n, fbm value noise (fbm: 3 octaves, gain ½). Mean ≈ 1 − a_s/4; range ⊂ [1 − a_m − a_s, 1 +
+// a_m].
 double AlbedoFactor(const Material& material, const Eigen::Vector3d& p_mm, uint64_t seed);
 
 }  // namespace d3d

@@ -7,11 +7,14 @@ namespace d3d {
 void ProbeOptics::Check() const {
   D3D_CHECK_MSG(camera_focus_mm > 0 && projector_focus_mm > 0, "focus distances must be positive");
   D3D_CHECK_MSG(camera_pupil_mm > 0 && projector_pupil_mm > 0, "pupil diameters must be positive");
-  D3D_CHECK_MSG(wavelength_nm > 200 && wavelength_nm < 2000, "wavelength " << wavelength_nm << " nm out of range");
-  D3D_CHECK_MSG(projector_irradiance > 0 && ambient_irradiance >= 0, "irradiances must be non-negative");
+  D3D_CHECK_MSG(wavelength_nm > 200 && wavelength_nm < 2000,
+                "wavelength " << wavelength_nm << " nm out of range");
+  D3D_CHECK_MSG(projector_irradiance > 0 && ambient_irradiance >= 0,
+                "irradiances must be non-negative");
 }
 
-double ProbeOptics::BlurSigmaPx(double f_px, double pupil_mm, double focus_mm, double wavelength_nm, double z_mm) {
+double ProbeOptics::BlurSigmaPx(double f_px, double pupil_mm, double focus_mm, double wavelength_nm,
+                                double z_mm) {
   return DeviceBlur(f_px, pupil_mm, focus_mm, wavelength_nm).SigmaPx(z_mm);
 }
 
@@ -24,10 +27,13 @@ void SensorModel::Check() const {
 
 void Material::Check() const {
   D3D_CHECK_MSG(albedo > 0 && albedo <= 1, "albedo must be in (0, 1]");
-  D3D_CHECK_MSG(subsurface_fraction >= 0 && subsurface_fraction <= 1, "sub-surface share must be in [0, 1]");
+  D3D_CHECK_MSG(subsurface_fraction >= 0 && subsurface_fraction <= 1,
+                "sub-surface share must be in [0, 1]");
   D3D_CHECK_MSG(subsurface_sigma_mm >= 0, "sub-surface sigma must be ≥ 0");
-  D3D_CHECK_MSG(specular_r0 >= 0 && specular_r0 < 1 && specular_exponent >= 1, "bad specular parameters");
-  D3D_CHECK_MSG(mottle_amplitude >= 0 && mottle_amplitude < 0.5 && stain_amplitude >= 0 && stain_amplitude < 0.5,
+  D3D_CHECK_MSG(specular_r0 >= 0 && specular_r0 < 1 && specular_exponent >= 1,
+                "bad specular parameters");
+  D3D_CHECK_MSG(mottle_amplitude >= 0 && mottle_amplitude < 0.5 && stain_amplitude >= 0 &&
+                    stain_amplitude < 0.5,
                 "texture amplitudes must be in [0, 0.5)");
   D3D_CHECK_MSG(mottle_scale_mm > 0 && stain_scale_mm > 0, "texture scales must be positive");
 }
@@ -69,7 +75,8 @@ void ProbeDesign::Check() const {
 ProbeDesign MakeDefaultProbeDesign(int camera_width, int camera_height) {
   const bool vga = camera_width == 640 && camera_height == 480;
   const bool sxga = camera_width == 1280 && camera_height == 1024;
-  D3D_CHECK_MSG(vga || sxga, "the default probe has a 640x480 or 1280x1024 camera, not " << camera_width << "x" << camera_height);
+  D3D_CHECK_MSG(vga || sxga, "the default probe has a 640x480 or 1280x1024 camera, not "
+                                 << camera_width << "x" << camera_height);
   const double scale = sxga ? 2.0 : 1.0;
   ProbeDesign d;
   ProbeCalibration& c = d.calibration;
@@ -86,7 +93,8 @@ ProbeDesign MakeDefaultProbeDesign(int camera_width, int camera_height) {
               2.0e-4,
               -1.5e-4,
               0.0};
-  c.projector = {912, 1140, 2100.0, 2100.0, 455.5 + 1.8, 569.5 - 3.1, 0.03, -0.05, -1.0e-4, 0.8e-4, 0.0};
+  c.projector = {912,  1140,  2100.0,  2100.0, 455.5 + 1.8, 569.5 - 3.1,
+                 0.03, -0.05, -1.0e-4, 0.8e-4, 0.0};
   const double angle = 12.0 * M_PI / 180.0;
   const double working_distance = 50.0;
   c.cam_from_proj = Rigid3d::Identity();

@@ -4,7 +4,8 @@
 // truth known only to the simulator.
 //
 // Default geometry (documented against published intraoral-scanner figures):
-//   - Field of view ≈ 16 × 12 mm at the 50 mm working distance (camera 640 × 480, fx = fy = 2000 px,
+//   - Field of view ≈ 16 × 12 mm at the 50 mm working distance (camera 640 × 480, fx = fy = 2000
+//   px,
 //     25 µm per pixel on the tooth). Published IOS fields of view are about 14–20 mm wide (e.g.
 //     Logozzo et al. 2014, "Recent advances in dental optics", Opt. Lasers Eng. 54: 203–221).
 //   - The working distance is measured along the unfolded optical path from the camera's centre
@@ -35,8 +36,8 @@ struct ProbeOptics {
   double projector_focus_mm = 50.0;  // plane of best focus, projector z
   double projector_pupil_mm = 0.8;
   double wavelength_nm = 450.0;  // blue LED illumination
-  // Irradiance of a fully-on projector pixel on a surface facing the projector at projector_focus_mm,
-  // in units of the sensor's full well per unit albedo during one exposure.
+  // Irradiance of a fully-on projector pixel on a surface facing the projector at
+  // projector_focus_mm, in units of the sensor's full well per unit albedo during one exposure.
   double projector_irradiance = 1.15;
   double ambient_irradiance = 0.02;  // stray room/operatory light reaching the teeth, same units
 
@@ -45,7 +46,8 @@ struct ProbeOptics {
   // device with focal length f_px: defocus blur circle of diameter c = f_px·D·|z − z_f| / (z·z_f)
   // (thin lens, z_f ≫ f) as a uniform disk (σ = c/4), combined in quadrature with the Airy core
   // (σ ≈ 0.42 λ f_px / D).
-  static double BlurSigmaPx(double f_px, double pupil_mm, double focus_mm, double wavelength_nm, double z_mm);
+  static double BlurSigmaPx(double f_px, double pupil_mm, double focus_mm, double wavelength_nm,
+                            double z_mm);
 };
 
 // BlurSigmaPx of one device with the factors that do not depend on z computed once: the same
@@ -115,7 +117,8 @@ struct ProbeDesign {
   Material enamel = DefaultMaterial(SurfaceLabel::kTooth);
   Material gingiva = DefaultMaterial(SurfaceLabel::kGingiva);
   const Material& MaterialOf(SurfaceLabel label) const {
-    return label == SurfaceLabel::kGingiva ? gingiva : enamel;  // unlabelled surfaces render as enamel
+    return label == SurfaceLabel::kGingiva ? gingiva
+                                           : enamel;  // unlabelled surfaces render as enamel
   }
   void Check() const;
 };

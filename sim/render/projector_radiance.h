@@ -47,7 +47,8 @@ class ProjectorRadiance {
 // Inline: called per lit pixel and frame (ShadePass).
 inline float ProjectorRadiance::SampleLevel(int level, float index) const {
   const float* row = levels_.data() + static_cast<size_t>(level) * static_cast<size_t>(length_);
-  if (!(index >= 0.0f) || index >= static_cast<float>(length_ - 1)) return 0.0f;  // far outside: dark
+  if (!(index >= 0.0f) || index >= static_cast<float>(length_ - 1))
+    return 0.0f;  // far outside: dark
   const int i = static_cast<int>(index);
   const float f = index - static_cast<float>(i);
   return row[i] + f * (row[i + 1] - row[i]);

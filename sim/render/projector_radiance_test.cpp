@@ -18,7 +18,8 @@ TEST(ProjectorRadiance, UniformFrameIsFlatInsideAndDarkOutside) {
   EXPECT_EQ(r.Sample(-5.0f, 0.25f), 0.0f);
   EXPECT_EQ(r.Sample(-2000.0f, 90.0f), 0.0f);
   const ProjectorFrame grey{"grey", 'x', std::vector<uint8_t>(912, 128)};
-  EXPECT_NEAR(ProjectorRadiance(grey, 2.2, 912).Sample(300.0f, 1.0f), std::pow(128 / 255.0, 2.2), 1e-5);
+  EXPECT_NEAR(ProjectorRadiance(grey, 2.2, 912).Sample(300.0f, 1.0f), std::pow(128 / 255.0, 2.2),
+              1e-5);
   EXPECT_NEAR(ProjectorRadiance(grey, 1.0, 912).Sample(300.0f, 1.0f), 128 / 255.0, 1e-5);
   EXPECT_THROW(ProjectorRadiance(grey, 2.2, 1140), std::invalid_argument);
 }
@@ -32,7 +33,9 @@ TEST(ProjectorRadiance, BlurAttenuatesFringesAsAGaussian) {
   spec.marker_frame = -1;
   const ProjectorFrame f{"f", 'x', [&] {
                            std::vector<uint8_t> v(912);
-                           for (int c = 0; c < 912; ++c) v[c] = static_cast<uint8_t>(std::lround(255 * spec.PatternValue(0, c)));
+                           for (int c = 0; c < 912; ++c)
+                             v[c] =
+                                 static_cast<uint8_t>(std::lround(255 * spec.PatternValue(0, c)));
                            return v;
                          }()};
   const ProjectorRadiance r(f, 1.0, 912);

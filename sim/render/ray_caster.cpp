@@ -19,7 +19,8 @@ RTCRay MakeRay(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_min,
   r.dir_y = static_cast<float>(d.y());
   r.dir_z = static_cast<float>(d.z());
   r.tnear = static_cast<float>(t_min);
-  r.tfar = t_max == std::numeric_limits<double>::infinity() ? std::numeric_limits<float>::infinity() : static_cast<float>(t_max);
+  r.tfar = t_max == std::numeric_limits<double>::infinity() ? std::numeric_limits<float>::infinity()
+                                                            : static_cast<float>(t_max);
   r.time = 0.0f;
   r.mask = 0xFFFFFFFFu;
   r.id = 0;
@@ -27,13 +28,17 @@ RTCRay MakeRay(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_min,
   return r;
 }
 
-Eigen::Vector3d FacingOrigin(const Eigen::Vector3d& n, const Eigen::Vector3d& d) { return n.dot(d) > 0 ? -n : n; }
+Eigen::Vector3d FacingOrigin(const Eigen::Vector3d& n, const Eigen::Vector3d& d) {
+  return n.dot(d) > 0 ? -n : n;
+}
 
 }  // namespace
 
-RayCaster::RayCaster(const TriangleMesh& mesh, std::vector<SceneSphere> spheres) : mesh_(mesh), spheres_(std::move(spheres)) {
+RayCaster::RayCaster(const TriangleMesh& mesh, std::vector<SceneSphere> spheres)
+    : mesh_(mesh), spheres_(std::move(spheres)) {
   mesh_.Check();
-  D3D_CHECK_MSG(!mesh_.faces.empty() || !spheres_.empty(), "the scene is empty (no triangles, no spheres)");
+  D3D_CHECK_MSG(!mesh_.faces.empty() || !spheres_.empty(),
+                "the scene is empty (no triangles, no spheres)");
   for (const auto& s : spheres_) D3D_CHECK_MSG(s.radius_mm > 0, "sphere radius must be positive");
   face_normals_.resize(mesh_.faces.size());
   for (size_t i = 0; i < mesh_.faces.size(); ++i) {
@@ -44,17 +49,20 @@ RayCaster::RayCaster(const TriangleMesh& mesh, std::vector<SceneSphere> spheres)
     face_normals_[i] = e1.cross(e2).normalized();
   }
   device_ = rtcNewDevice("verbose=0");
-  if (!device_) throw std::runtime_error("Embree: rtcNewDevice failed (error " + std::to_string(rtcGetDeviceError(nullptr)) + ")");
+  if (!device_)
+    throw std::runtime_error("Embree: rtcNewDevice failed (error " +
+                             std::to_string(rtcGetDeviceError(nullptr)) + ")");
   scene_ = rtcNewScene(device_);
   rtcSetSceneBuildQuality(scene_, RTC_BUILD_QUALITY_HIGH);
   if (!mesh_.faces.empty()) {
     RTCGeometry g = rtcNewGeometry(device_, RTC_GEOMETRY_TYPE_TRIANGLE);
     // rtcSetNewGeometryBuffer allocates with the padding Embree needs after the last vertex.
-    auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), mesh_.vertices.size()));
+    auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(
+        g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), mesh_.vertices.size()));
     for (size_t i = 0; i < mesh_.vertices.size(); ++i)
       for (int k = 0; k < 3; ++k) v[3 * i + k] = static_cast<float>(mesh_.vertices[i][k]);
-    auto* f =
-        static_cast<unsigned*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(unsigned), mesh_.faces.size()));
+    auto* f = static_cast<unsigned*>(rtcSetNewGeometryBuffer(
+        g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(unsigned), mesh_.faces.size()));
     for (size_t i = 0; i < mesh_.faces.size(); ++i)
       for (int k = 0; k < 3; ++k) f[3 * i + k] = static_cast<unsigned>(mesh_.faces[i][k]);
     rtcCommitGeometry(g);
@@ -63,7 +71,8 @@ RayCaster::RayCaster(const TriangleMesh& mesh, std::vector<SceneSphere> spheres)
   }
   if (!spheres_.empty()) {
     RTCGeometry g = rtcNewGeometry(device_, RTC_GEOMETRY_TYPE_SPHERE_POINT);
-    auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4, 4 * sizeof(float), spheres_.size()));
+    auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(
+        g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4, 4 * sizeof(float), spheres_.size()));
     for (size_t i = 0; i < spheres_.size(); ++i) {
       for (int k = 0; k < 3; ++k) v[4 * i + k] = static_cast<float>(spheres_[i].centre_mm[k]);
       v[4 * i + 3] = static_cast<float>(spheres_[i].radius_mm);
@@ -73,7 +82,8 @@ RayCaster::RayCaster(const TriangleMesh& mesh, std::vector<SceneSphere> spheres)
     rtcReleaseGeometry(g);
   }
   rtcCommitScene(scene_);
-  if (rtcGetDeviceError(device_) != RTC_ERROR_NONE) throw std::runtime_error("Embree: scene build failed");
+  if (rtcGetDeviceError(device_) != RTC_ERROR_NONE)
+    throw std::runtime_error("Embree: scene build failed");
 }
 
 RayCaster::~RayCaster() {
@@ -81,7 +91,8 @@ RayCaster::~RayCaster() {
   if (device_) rtcReleaseDevice(device_);
 }
 
-bool RayCaster::RefineTriangle(int face, const Eigen::Vector3d& o, const Eigen::Vector3d& d, SurfaceHit* hit) const {
+bool RayCaster::RefineTriangle(int face, const Eigen::Vector3d& o, const Eigen::Vector3d& d,
+                               SurfaceHit* hit) const {
   // Möller & Trumbore 1997, "Fast, minimum storage ray-triangle intersection", in double.
   const Eigen::Vector3i& f = mesh_.faces[static_cast<size_t>(face)];
   const Eigen::Vector3d& a = mesh_.vertices[static_cast<size_t>(f[0])];
@@ -103,20 +114,24 @@ bool RayCaster::RefineTriangle(int face, const Eigen::Vector3d& o, const Eigen::
     // Barycentrics may stray slightly outside [0,1] where Embree's float hit was on an edge.
     const double c1 = std::clamp(b1, 0.0, 1.0), c2 = std::clamp(b2, 0.0, 1.0 - c1);
     const Eigen::Vector3d ns = (1.0 - c1 - c2) * mesh_.vertex_normals[static_cast<size_t>(f[0])] +
-                               c1 * mesh_.vertex_normals[static_cast<size_t>(f[1])] + c2 * mesh_.vertex_normals[static_cast<size_t>(f[2])];
-    hit->shading_normal = ns.squaredNorm() > 0 ? FacingOrigin(ns.normalized(), d) : hit->geometric_normal;
+                               c1 * mesh_.vertex_normals[static_cast<size_t>(f[1])] +
+                               c2 * mesh_.vertex_normals[static_cast<size_t>(f[2])];
+    hit->shading_normal =
+        ns.squaredNorm() > 0 ? FacingOrigin(ns.normalized(), d) : hit->geometric_normal;
   } else {
     hit->shading_normal = hit->geometric_normal;
   }
   hit->label = mesh_.Label(face);
-  hit->tooth_id = mesh_.face_tooth_ids.empty() ? 0 : mesh_.face_tooth_ids[static_cast<size_t>(face)];
+  hit->tooth_id =
+      mesh_.face_tooth_ids.empty() ? 0 : mesh_.face_tooth_ids[static_cast<size_t>(face)];
   hit->face = face;
   hit->b1 = b1;
   hit->b2 = b2;
   return true;
 }
 
-bool RayCaster::RefineSphere(int index, const Eigen::Vector3d& o, const Eigen::Vector3d& d, SurfaceHit* hit) const {
+bool RayCaster::RefineSphere(int index, const Eigen::Vector3d& o, const Eigen::Vector3d& d,
+                             SurfaceHit* hit) const {
   const SceneSphere& s = spheres_[static_cast<size_t>(index)];
   const Eigen::Vector3d oc = o - s.centre_mm;
   const double a = d.squaredNorm(), b = oc.dot(d), c = oc.squaredNorm() - s.radius_mm * s.radius_mm;
@@ -139,7 +154,9 @@ bool RayCaster::RefineSphere(int index, const Eigen::Vector3d& o, const Eigen::V
   return true;
 }
 
-std::optional<SurfaceHit> RayCaster::Intersect(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, double t_min) const {
+std::optional<SurfaceHit> RayCaster::Intersect(const Eigen::Vector3d& origin,
+                                               const Eigen::Vector3d& direction,
+                                               double t_min) const {
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
   RTCRayHit rh;
@@ -149,13 +166,15 @@ std::optional<SurfaceHit> RayCaster::Intersect(const Eigen::Vector3d& origin, co
   rtcIntersect1(scene_, &ctx, &rh);
   if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return std::nullopt;
   SurfaceHit hit;
-  const bool ok = rh.hit.geomID == mesh_geom_id_ ? RefineTriangle(static_cast<int>(rh.hit.primID), origin, direction, &hit)
-                                                 : RefineSphere(static_cast<int>(rh.hit.primID), origin, direction, &hit);
+  const bool ok = rh.hit.geomID == mesh_geom_id_
+                      ? RefineTriangle(static_cast<int>(rh.hit.primID), origin, direction, &hit)
+                      : RefineSphere(static_cast<int>(rh.hit.primID), origin, direction, &hit);
   if (!ok || !(hit.t > t_min)) return std::nullopt;
   return hit;
 }
 
-bool RayCaster::Occluded(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, double t_min, double t_max) const {
+bool RayCaster::Occluded(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
+                         double t_min, double t_max) const {
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
   RTCRay r = MakeRay(origin, direction, t_min, t_max);
@@ -167,8 +186,8 @@ bool RayCaster::Occluded(const Eigen::Vector3d& origin, const Eigen::Vector3d& d
 
 namespace d3d {
 
-void RayCaster::Intersect16(const Eigen::Vector3d& origin, const Eigen::Vector3d* directions, int count, double t_min, SurfaceHit* hits,
-                            bool* hit) const {
+void RayCaster::Intersect16(const Eigen::Vector3d& origin, const Eigen::Vector3d* directions,
+                            int count, double t_min, SurfaceHit* hits, bool* hit) const {
   RTCRayHit16 rh;
   alignas(64) int valid[kPacket];
   for (int i = 0; i < kPacket; ++i) {
@@ -198,13 +217,15 @@ void RayCaster::Intersect16(const Eigen::Vector3d& origin, const Eigen::Vector3d
     hit[i] = false;
     if (rh.hit.geomID[i] == RTC_INVALID_GEOMETRY_ID) continue;
     const int prim = static_cast<int>(rh.hit.primID[i]);
-    const bool ok = rh.hit.geomID[i] == mesh_geom_id_ ? RefineTriangle(prim, origin, directions[i], &hits[i])
-                                                      : RefineSphere(prim, origin, directions[i], &hits[i]);
+    const bool ok = rh.hit.geomID[i] == mesh_geom_id_
+                        ? RefineTriangle(prim, origin, directions[i], &hits[i])
+                        : RefineSphere(prim, origin, directions[i], &hits[i]);
     hit[i] = ok && hits[i].t > t_min;
   }
 }
 
-void RayCaster::OccludedToPoint16(const Eigen::Vector3d* origins, const bool* active, int count, const Eigen::Vector3d& target, double t_min,
+void RayCaster::OccludedToPoint16(const Eigen::Vector3d* origins, const bool* active, int count,
+                                  const Eigen::Vector3d& target, double t_min,
                                   bool* occluded) const {
   Eigen::Vector3d unit[kPacket];
   double distance[kPacket];
@@ -217,8 +238,10 @@ void RayCaster::OccludedToPoint16(const Eigen::Vector3d* origins, const bool* ac
   OccludedToPoint16(origins, unit, distance, active, count, target, t_min, occluded);
 }
 
-void RayCaster::OccludedToPoint16(const Eigen::Vector3d* origins, const Eigen::Vector3d* unit, const double* distance, const bool* active, int count,
-                                  const Eigen::Vector3d& target, double t_min, bool* occluded) const {
+void RayCaster::OccludedToPoint16(const Eigen::Vector3d* origins, const Eigen::Vector3d* unit,
+                                  const double* distance, const bool* active, int count,
+                                  const Eigen::Vector3d& target, double t_min,
+                                  bool* occluded) const {
   RTCRay16 r;
   alignas(64) int valid[kPacket];
   for (int i = 0; i < kPacket; ++i) {

@@ -28,7 +28,8 @@ struct SurfaceHit {
   double t = 0.0;                    // ray parameter: point = origin + t · direction
   Eigen::Vector3d point;             // world, mm
   Eigen::Vector3d geometric_normal;  // unit, faces the ray origin
-  Eigen::Vector3d shading_normal;    // unit (interpolated vertex normals if present), faces the origin
+  Eigen::Vector3d
+      shading_normal;  // unit (interpolated vertex normals if present), faces the origin
   SurfaceLabel label = SurfaceLabel::kUnknown;
   uint8_t tooth_id = 0;
   int face = -1;              // triangle index, or -1 for a sphere
@@ -45,29 +46,36 @@ class RayCaster {
   RayCaster& operator=(const RayCaster&) = delete;
 
   // First surface along origin + t·direction, t in (t_min, ∞). `direction` need not be unit.
-  std::optional<SurfaceHit> Intersect(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, double t_min = 0.0) const;
+  std::optional<SurfaceHit> Intersect(const Eigen::Vector3d& origin,
+                                      const Eigen::Vector3d& direction, double t_min = 0.0) const;
   // True if anything lies along origin + t·direction for t in (t_min, t_max).
-  bool Occluded(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, double t_min, double t_max) const;
+  bool Occluded(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, double t_min,
+                double t_max) const;
 
   // Packet versions (Embree's rtcIntersect16/rtcOccluded16; coherent rays, e.g. a 4×4 pixel tile,
   // are several times faster than one by one). Same results as the single-ray calls.
   static constexpr int kPacket = 16;
   // count ≤ 16 rays from one origin; hit[i] is false where ray i meets nothing (t > t_min).
-  void Intersect16(const Eigen::Vector3d& origin, const Eigen::Vector3d* directions, int count, double t_min, SurfaceHit* hits, bool* hit) const;
+  void Intersect16(const Eigen::Vector3d& origin, const Eigen::Vector3d* directions, int count,
+                   double t_min, SurfaceHit* hits, bool* hit) const;
   // Shadow rays from origins[i] (where active[i]) toward `target`; occluded[i] is true if anything
   // lies strictly between, more than t_min (mm) from both ends. Inactive rays report false.
-  void OccludedToPoint16(const Eigen::Vector3d* origins, const bool* active, int count, const Eigen::Vector3d& target, double t_min,
-                         bool* occluded) const;
-  // The same with the rays as that call computes them, from a caller that has them already: for each
-  // active ray, distance[i] = (target − origins[i]).norm() > 0 and unit[i] = (target − origins[i]) / distance[i].
-  void OccludedToPoint16(const Eigen::Vector3d* origins, const Eigen::Vector3d* unit, const double* distance, const bool* active, int count,
+  void OccludedToPoint16(const Eigen::Vector3d* origins, const bool* active, int count,
+                         const Eigen::Vector3d& target, double t_min, bool* occluded) const;
+  // The same with the rays as that call computes them, from a caller that has them already: for
+  // each active ray, distance[i] = (target − origins[i]).norm() > 0 and unit[i] = (target −
+  // origins[i]) / distance[i].
+  void OccludedToPoint16(const Eigen::Vector3d* origins, const Eigen::Vector3d* unit,
+                         const double* distance, const bool* active, int count,
                          const Eigen::Vector3d& target, double t_min, bool* occluded) const;
 
   const TriangleMesh& mesh() const { return mesh_; }
 
  private:
-  bool RefineTriangle(int face, const Eigen::Vector3d& o, const Eigen::Vector3d& d, SurfaceHit* hit) const;
-  bool RefineSphere(int index, const Eigen::Vector3d& o, const Eigen::Vector3d& d, SurfaceHit* hit) const;
+  bool RefineTriangle(int face, const Eigen::Vector3d& o, const Eigen::Vector3d& d,
+                      SurfaceHit* hit) const;
+  bool RefineSphere(int index, const Eigen::Vector3d& o, const Eigen::Vector3d& d,
+                    SurfaceHit* hit) const;
 
   TriangleMesh mesh_;
   // Unit geometric normal of each face, e1 × e2 normalised as RefineTriangle would compute it per

@@ -28,6 +28,7 @@ struct PreparedScene {
 // Subdivides until the median edge ≤ max_median_edge_mm, fills vertex normals if absent, and bakes
 // the albedo of each face corner from its material (design.MaterialOf(label)) and, if `texture`,
 // the procedural factor (albedo_texture.h) seeded with `texture_seed`.
-PreparedScene PrepareScene(const TriangleMesh& mesh, const ProbeDesign& design, bool texture, uint64_t texture_seed, double max_median_edge_mm = 0.3);
+PreparedScene PrepareScene(const TriangleMesh& mesh, const ProbeDesign& design, bool texture,
+                           uint64_t texture_seed, double max_median_edge_mm = 0.3);
 
 }  // namespace d3d

@@ -19,8 +19,8 @@ struct VirtualProbe::PixelGeometry {
   float depth = std::numeric_limits<float>::quiet_NaN();  // camera z, mm
   float x = 0, y = 0, z = 0;                              // p_in_cam, mm
   float u = 0, v = 0;                                     // projector pixel (valid when vis == 2)
-  int32_t face = -1;                                      // scene triangle, −1 for none or an analytic sphere
-  uint8_t vis = 0;                                        // 0 none, 1 not lit, 2 lit
+  int32_t face = -1;  // scene triangle, −1 for none or an analytic sphere
+  uint8_t vis = 0;    // 0 none, 1 not lit, 2 lit
   uint8_t label = 0;
   float ambient = 0;      // v·ρ·E_amb
   float diffuse = 0;      // v·ρ·E_p
@@ -80,7 +80,7 @@ class PixelRng {
   // Poisson sample by Knuth's product of uniforms (for small means; larger ones use the normal
   // approximation in the caller).
   double PoissonSmall(double mean) {
-    if (mean == 0.0) return 0.0;           // limit 1: no uniform in (0, 1) exceeds it (a dark pixel, no exp)
+    if (mean == 0.0) return 0.0;  // limit 1: no uniform in (0, 1) exceeds it (a dark pixel, no exp)
     const double limit = std::exp(-mean);  // Knuth's product of uniforms
     double p = Uniform();
     int k = 0;
@@ -132,11 +132,12 @@ double RoundToDn(double x, double max_dn) {
 
 // A conservative pre-test of Shade's specular gate n·ĥ > gate (ĥ the unit half vector of l and the
 // unit view vector): false only where that test is false, so that the exact half vector (a square
-// root and three divisions) is computed only near the lobe. Here h = l + v is unnormalised, v is the
-// view vector scaled by a reciprocal; n·h/|h| is then within ~1e-15 of the exact n·ĥ (unit vectors),
-// far inside the 1e-9 margin. A near-zero h (grazing, opposite l and v) goes to the exact test.
-bool SpecularMayPass(const Eigen::Vector3d& n, const Eigen::Vector3d& point, const Eigen::Vector3d& l, const Eigen::Vector3d& cam_centre,
-                     double gate) {
+// root and three divisions) is computed only near the lobe. Here h = l + v is unnormalised, v is
+// the view vector scaled by a reciprocal; n·h/|h| is then within ~1e-15 of the exact n·ĥ (unit
+// vectors), far inside the 1e-9 margin. A near-zero h (grazing, opposite l and v) goes to the exact
+// test.
+bool SpecularMayPass(const Eigen::Vector3d& n, const Eigen::Vector3d& point,
+                     const Eigen::Vector3d& l, const Eigen::Vector3d& cam_centre, double gate) {
   const Eigen::Vector3d to_cam = cam_centre - point;
   const Eigen::Vector3d h = l + to_cam * (1.0 / to_cam.norm());
   const double h2 = h.squaredNorm();
@@ -149,26 +150,31 @@ bool SpecularMayPass(const Eigen::Vector3d& n, const Eigen::Vector3d& point, con
 }  // namespace
 
 void RenderOptions::Check() const {
-  D3D_CHECK_MSG(motion_blur_samples >= 1 && motion_blur_samples <= 64, "motion_blur_samples must be in [1, 64]");
+  D3D_CHECK_MSG(motion_blur_samples >= 1 && motion_blur_samples <= 64,
+                "motion_blur_samples must be in [1, 64]");
   D3D_CHECK_MSG(frame_interval_ns > 0, "frame interval must be positive");
   D3D_CHECK_MSG(threads >= 0, "threads must be ≥ 0");
 }
 
 uint64_t FrameNoiseSeed(uint64_t seed, uint64_t sequence, int frame_index) {
-  return SplitMix64(seed ^ SplitMix64(sequence * 64 + static_cast<uint64_t>(frame_index) + 0x5EEDull));
+  return SplitMix64(seed ^
+                    SplitMix64(sequence * 64 + static_cast<uint64_t>(frame_index) + 0x5EEDull));
 }
 
-VirtualProbe::VirtualProbe(const TriangleMesh& scene, const ProbeDesign& design, const RenderOptions& options, std::vector<SceneSphere> spheres)
+VirtualProbe::VirtualProbe(const TriangleMesh& scene, const ProbeDesign& design,
+                           const RenderOptions& options, std::vector<SceneSphere> spheres)
     : design_(design),
       options_(options),
       scene_(PrepareScene(scene, design, options.texture, options.texture_seed)),
       arena_(options.threads > 0 ? options.threads : tbb::task_arena::automatic),
-      camera_blur_(design_.calibration.camera.fx, design_.optics.camera_pupil_mm, design_.optics.camera_focus_mm, design_.optics.wavelength_nm),
-      projector_blur_(design_.calibration.projector.fx, design_.optics.projector_pupil_mm, design_.optics.projector_focus_mm,
-                      design_.optics.wavelength_nm) {
+      camera_blur_(design_.calibration.camera.fx, design_.optics.camera_pupil_mm,
+                   design_.optics.camera_focus_mm, design_.optics.wavelength_nm),
+      projector_blur_(design_.calibration.projector.fx, design_.optics.projector_pupil_mm,
+                      design_.optics.projector_focus_mm, design_.optics.wavelength_nm) {
   design_.Check();
   options_.Check();
-  if (!options_.gamma) design_.calibration.projector_gamma = 1.0;  // a linear projector, and its calibration says so
+  if (!options_.gamma)
+    design_.calibration.projector_gamma = 1.0;  // a linear projector, and its calibration says so
   caster_ = std::make_unique<RayCaster>(scene_.mesh, std::move(spheres));
   const auto& cam = design_.calibration.camera;
   const auto& proj = design_.calibration.projector;
@@ -178,16 +184,19 @@ VirtualProbe::VirtualProbe(const TriangleMesh& scene, const ProbeDesign& design,
   for (int r = 0; r < cam.height; ++r)
     for (int c = 0; c < cam.width; ++c) {
       const auto ray = cam.PixelRay(Eigen::Vector2d(c, r));
-      const size_t i = static_cast<size_t>(r) * static_cast<size_t>(cam.width) + static_cast<size_t>(c);
+      const size_t i =
+          static_cast<size_t>(r) * static_cast<size_t>(cam.width) + static_cast<size_t>(c);
       if (ray) {
         pixel_rays_[i] = *ray;
         pixel_ray_valid_[i] = 1;
       }
     }
   geometry_.resize(pixel_rays_.size());
-  for (const SurfaceLabel label : {SurfaceLabel::kUnknown, SurfaceLabel::kGingiva, SurfaceLabel::kTooth}) {
+  for (const SurfaceLabel label :
+       {SurfaceLabel::kUnknown, SurfaceLabel::kGingiva, SurfaceLabel::kTooth}) {
     // (n·h)^m below 1e-6 of the lobe's peak is dropped: n·h < 1e-6^(1/m).
-    specular_gate_[static_cast<size_t>(label)] = std::pow(1e-6, 1.0 / design_.MaterialOf(label).specular_exponent);
+    specular_gate_[static_cast<size_t>(label)] =
+        std::pow(1e-6, 1.0 / design_.MaterialOf(label).specular_exponent);
   }
   NormalQuantiles();  // build the table now, not inside the first parallel loop
   for (const auto& f : burst_patterns_.frames) RadianceFor(f);
@@ -203,14 +212,17 @@ const ProjectorRadiance& VirtualProbe::RadianceFor(const ProjectorFrame& frame) 
   auto it = radiance_cache_.find(key);
   if (it == radiance_cache_.end()) {
     const double gamma = design_.calibration.projector_gamma;
-    auto table = std::make_unique<ProjectorRadiance>(frame, gamma, frame.axis == 'y' ? proj.height : proj.width);
+    auto table = std::make_unique<ProjectorRadiance>(frame, gamma,
+                                                     frame.axis == 'y' ? proj.height : proj.width);
     it = radiance_cache_.emplace(std::move(key), std::move(table)).first;
   }
   return *it->second;
 }
 
-const std::vector<VirtualProbe::PixelGeometry>& VirtualProbe::GeometryAt(const Rigid3d& world_from_probe, bool shade) {
-  const bool same = geometry_valid_ && (geometry_shaded_ || !shade) && SameBits(geometry_pose_, world_from_probe);
+const std::vector<VirtualProbe::PixelGeometry>& VirtualProbe::GeometryAt(
+    const Rigid3d& world_from_probe, bool shade) {
+  const bool same =
+      geometry_valid_ && (geometry_shaded_ || !shade) && SameBits(geometry_pose_, world_from_probe);
   if (!same) {
     geometry_valid_ = false;
     GeometryPass(world_from_probe, shade, &geometry_);
@@ -221,7 +233,8 @@ const std::vector<VirtualProbe::PixelGeometry>& VirtualProbe::GeometryAt(const R
   return geometry_;
 }
 
-void VirtualProbe::GeometryPass(const Rigid3d& world_from_probe, bool shade, std::vector<PixelGeometry>* out) {
+void VirtualProbe::GeometryPass(const Rigid3d& world_from_probe, bool shade,
+                                std::vector<PixelGeometry>* out) {
   const ProbeCalibration& calib = design_.calibration;
   const int width = calib.camera.width, height = calib.camera.height;
   out->resize(pixel_rays_.size());
@@ -233,7 +246,8 @@ void VirtualProbe::GeometryPass(const Rigid3d& world_from_probe, bool shade, std
   constexpr int kTile = 4;  // 4×4 pixel tiles: one coherent Embree packet of 16 rays
   ParallelRows(arena_, (height + kTile - 1) / kTile, [&](int tile_row) {
     size_t index[RayCaster::kPacket];
-    Eigen::Vector3d dirs[RayCaster::kPacket], points[RayCaster::kPacket], p_in_proj[RayCaster::kPacket];
+    Eigen::Vector3d dirs[RayCaster::kPacket], points[RayCaster::kPacket],
+        p_in_proj[RayCaster::kPacket];
     Eigen::Vector3d to_proj_unit[RayCaster::kPacket];  // the shadow ray's direction: l in Shade
     double to_proj_dist[RayCaster::kPacket];
     SurfaceHit hits[RayCaster::kPacket];
@@ -243,7 +257,8 @@ void VirtualProbe::GeometryPass(const Rigid3d& world_from_probe, bool shade, std
       int n = 0;
       for (int r = tile_row * kTile; r < std::min(height, (tile_row + 1) * kTile); ++r)
         for (int c = c0; c < std::min(width, c0 + kTile); ++c) {
-          const size_t i = static_cast<size_t>(r) * static_cast<size_t>(width) + static_cast<size_t>(c);
+          const size_t i =
+              static_cast<size_t>(r) * static_cast<size_t>(width) + static_cast<size_t>(c);
           (*out)[i] = PixelGeometry{};
           if (!pixel_ray_valid_[i]) continue;
           index[n] = i;
@@ -259,26 +274,31 @@ void VirtualProbe::GeometryPass(const Rigid3d& world_from_probe, bool shade, std
         p_in_proj[k] = proj_from_world * hits[k].point;
         const Eigen::Vector3d to_proj = proj_centre - hits[k].point;
         const std::optional<Eigen::Vector2d> pixel = calib.projector.Project(p_in_proj[k]);
-        facing[k] = pixel && calib.projector.InImage(*pixel) && hits[k].geometric_normal.dot(to_proj) > 0.0;
+        facing[k] =
+            pixel && calib.projector.InImage(*pixel) && hits[k].geometric_normal.dot(to_proj) > 0.0;
         if (pixel) uv[k] = *pixel;
         if (facing[k]) {  // to_proj ≠ 0
           to_proj_dist[k] = to_proj.norm();
           to_proj_unit[k] = to_proj / to_proj_dist[k];
         }
       }
-      caster_->OccludedToPoint16(points, to_proj_unit, to_proj_dist, facing, n, proj_centre, 1e-3, occluded);
+      caster_->OccludedToPoint16(points, to_proj_unit, to_proj_dist, facing, n, proj_centre, 1e-3,
+                                 occluded);
       for (int k = 0; k < n; ++k) {
         if (!hit[k]) continue;
         const Eigen::Vector2d* lit_uv = facing[k] && !occluded[k] ? &uv[k] : nullptr;
         PixelGeometry* g = &(*out)[index[k]];
         HitTruth(hits[k], index[k], lit_uv, g);
-        if (shade) Shade(hits[k], index[k], cam_centre, p_in_proj[k], lit_uv, to_proj_unit[k], to_proj_dist[k], g);
+        if (shade)
+          Shade(hits[k], index[k], cam_centre, p_in_proj[k], lit_uv, to_proj_unit[k],
+                to_proj_dist[k], g);
       }
     }
   });
 }
 
-void VirtualProbe::HitTruth(const SurfaceHit& hit, size_t pixel, const Eigen::Vector2d* uv, PixelGeometry* g) const {
+void VirtualProbe::HitTruth(const SurfaceHit& hit, size_t pixel, const Eigen::Vector2d* uv,
+                            PixelGeometry* g) const {
   const Eigen::Vector3d p_in_cam = pixel_rays_[pixel] * hit.t;
   g->depth = static_cast<float>(hit.t);
   g->x = static_cast<float>(p_in_cam.x());
@@ -293,33 +313,39 @@ void VirtualProbe::HitTruth(const SurfaceHit& hit, size_t pixel, const Eigen::Ve
   }
 }
 
-void VirtualProbe::Shade(const SurfaceHit& hit, size_t pixel, const Eigen::Vector3d& cam_centre, const Eigen::Vector3d& p_in_proj,
-                         const Eigen::Vector2d* uv, const Eigen::Vector3d& l, double dist, PixelGeometry* g) const {
+void VirtualProbe::Shade(const SurfaceHit& hit, size_t pixel, const Eigen::Vector3d& cam_centre,
+                         const Eigen::Vector3d& p_in_proj, const Eigen::Vector2d* uv,
+                         const Eigen::Vector3d& l, double dist, PixelGeometry* g) const {
   const ProbeCalibration& calib = design_.calibration;
   const ProbeOptics& optics = design_.optics;
   const Eigen::Vector3d& ray = pixel_rays_[pixel];
   const Material& m = design_.MaterialOf(hit.label);
-  const double vignetting = 1.0 / (ray.squaredNorm() * ray.squaredNorm());  // cos⁴ α for ray = (x, y, 1)
+  const double vignetting =
+      1.0 / (ray.squaredNorm() * ray.squaredNorm());  // cos⁴ α for ray = (x, y, 1)
   double albedo;
   if (hit.face >= 0) {  // baked at the corners (scene_prep.h), interpolated
     const float* a = &scene_.corner_albedo[3 * static_cast<size_t>(hit.face)];
     const double b1 = std::clamp(hit.b1, 0.0, 1.0), b2 = std::clamp(hit.b2, 0.0, 1.0 - b1);
     albedo = (1.0 - b1 - b2) * a[0] + b1 * a[1] + b2 * a[2];
   } else {
-    albedo = m.albedo * (options_.texture ? AlbedoFactor(m, hit.point, options_.texture_seed) : 1.0);
+    albedo =
+        m.albedo * (options_.texture ? AlbedoFactor(m, hit.point, options_.texture_seed) : 1.0);
   }
   g->ambient = static_cast<float>(vignetting * albedo * optics.ambient_irradiance);
   g->sigma_cam = static_cast<float>(camera_blur_.SigmaPx(hit.t));
   if (!uv) return;  // not lit by the projector
   const double cos_i = std::max(0.0, hit.shading_normal.dot(l));
-  const double e_p = optics.projector_irradiance * cos_i * (optics.projector_focus_mm / dist) * (optics.projector_focus_mm / dist);
+  const double e_p = optics.projector_irradiance * cos_i * (optics.projector_focus_mm / dist) *
+                     (optics.projector_focus_mm / dist);
   g->diffuse = static_cast<float>(vignetting * albedo * e_p);
   if (options_.specular && m.specular_r0 > 0.0 &&
-      SpecularMayPass(hit.shading_normal, hit.point, l, cam_centre, specular_gate_[static_cast<size_t>(hit.label)])) {
+      SpecularMayPass(hit.shading_normal, hit.point, l, cam_centre,
+                      specular_gate_[static_cast<size_t>(hit.label)])) {
     const Eigen::Vector3d view = (cam_centre - hit.point).normalized();
     const double n_h = hit.shading_normal.dot((l + view).normalized());
     if (n_h > specular_gate_[static_cast<size_t>(hit.label)]) {
-      const double f = m.specular_r0 * (m.specular_exponent + 8.0) / 8.0 * std::pow(n_h, m.specular_exponent);
+      const double f =
+          m.specular_r0 * (m.specular_exponent + 8.0) / 8.0 * std::pow(n_h, m.specular_exponent);
       g->specular = static_cast<float>(vignetting * f * e_p);
     }
   }
@@ -333,20 +359,23 @@ void VirtualProbe::Shade(const SurfaceHit& hit, size_t pixel, const Eigen::Vecto
   }
 }
 
-void VirtualProbe::ShadePass(const std::vector<PixelGeometry>& geometry, const ProjectorRadiance& radiance, float weight, cv::Mat* signal) {
+void VirtualProbe::ShadePass(const std::vector<PixelGeometry>& geometry,
+                             const ProjectorRadiance& radiance, float weight, cv::Mat* signal) {
   const int width = signal->cols;
   const bool along_v = radiance.axis() == 'y';
   ParallelRows(arena_, signal->rows, [&](int row) {
     float* out = signal->ptr<float>(row);
     for (int col = 0; col < width; ++col) {
-      const PixelGeometry& g = geometry[static_cast<size_t>(row) * static_cast<size_t>(width) + static_cast<size_t>(col)];
+      const PixelGeometry& g = geometry[static_cast<size_t>(row) * static_cast<size_t>(width) +
+                                        static_cast<size_t>(col)];
       if (g.vis == 0) continue;
       float s = g.ambient;
       if (g.vis == 2) {
         const float c = along_v ? g.v : g.u;
         const float sharp = radiance.Sample(c, g.sigma_p);
         float diffuse = sharp;
-        if (g.ss_fraction > 0.0f) diffuse = (1.0f - g.ss_fraction) * sharp + g.ss_fraction * radiance.Sample(c, g.sigma_ss);
+        if (g.ss_fraction > 0.0f)
+          diffuse = (1.0f - g.ss_fraction) * sharp + g.ss_fraction * radiance.Sample(c, g.sigma_ss);
         s += g.diffuse * diffuse + g.specular * sharp;
       }
       out[col] += weight * s;
@@ -359,9 +388,9 @@ void VirtualProbe::CameraDefocus(const std::vector<PixelGeometry>& geometry, cv:
   // approximation: exact on surfaces of slowly varying depth).
   static constexpr float kLevels[] = {0.5f, 0.7f, 1.0f, 1.4f, 2.0f, 2.8f, 4.0f};
   constexpr int kCount = sizeof(kLevels) / sizeof(kLevels[0]);
-  const float airy =
-      static_cast<float>(ProbeOptics::BlurSigmaPx(design_.calibration.camera.fx, design_.optics.camera_pupil_mm, design_.optics.camera_focus_mm,
-                                                  design_.optics.wavelength_nm, design_.optics.camera_focus_mm));
+  const float airy = static_cast<float>(ProbeOptics::BlurSigmaPx(
+      design_.calibration.camera.fx, design_.optics.camera_pupil_mm, design_.optics.camera_focus_mm,
+      design_.optics.wavelength_nm, design_.optics.camera_focus_mm));
   // Each pixel's σ (into a compact array: the geometry is read once) and the largest σ, by rows in
   // parallel. A pixel without a surface has sigma_cam 0 < airy, so the maximum is that of all
   // sigma_cam and airy as before; std::max from airy skips a NaN in any order: the same value.
@@ -383,13 +412,16 @@ void VirtualProbe::CameraDefocus(const std::vector<PixelGeometry>& geometry, cv:
   int needed = 1;
   while (needed < kCount && kLevels[needed - 1] < max_sigma) ++needed;
   blur_levels_.resize(kCount);
-  for (int k = 0; k < needed; ++k) cv::GaussianBlur(*signal, blur_levels_[k], cv::Size(0, 0), kLevels[k], kLevels[k], cv::BORDER_REFLECT);
+  for (int k = 0; k < needed; ++k)
+    cv::GaussianBlur(*signal, blur_levels_[k], cv::Size(0, 0), kLevels[k], kLevels[k],
+                     cv::BORDER_REFLECT);
   const cv::Mat sharp = signal->clone();
   ParallelRows(arena_, signal->rows, [&](int row) {
     float* out = signal->ptr<float>(row);
     const float* s0 = sharp.ptr<float>(row);
     for (int col = 0; col < width; ++col) {
-      const float sigma = pixel_sigma_[static_cast<size_t>(row) * static_cast<size_t>(width) + static_cast<size_t>(col)];
+      const float sigma = pixel_sigma_[static_cast<size_t>(row) * static_cast<size_t>(width) +
+                                       static_cast<size_t>(col)];
       if (sigma <= kLevels[0]) {
         const float w = sigma / kLevels[0];
         out[col] = s0[col] + w * (blur_levels_[0].ptr<float>(row)[col] - s0[col]);
@@ -402,7 +434,8 @@ void VirtualProbe::CameraDefocus(const std::vector<PixelGeometry>& geometry, cv:
         continue;
       }
       const float w = (sigma - kLevels[k]) / (kLevels[k + 1] - kLevels[k]);
-      const float a = blur_levels_[k].ptr<float>(row)[col], b = blur_levels_[k + 1].ptr<float>(row)[col];
+      const float a = blur_levels_[k].ptr<float>(row)[col],
+                  b = blur_levels_[k + 1].ptr<float>(row)[col];
       out[col] = a + w * (b - a);
     }
   });
@@ -420,10 +453,12 @@ void VirtualProbe::SensorPass(const cv::Mat& signal, uint64_t frame_seed, cv::Ma
     for (int col = 0; col < width; ++col) {
       double electrons = std::max(0.0, static_cast<double>(s[col])) * sensor.full_well_e;
       if (options_.noise) {  // photon shot noise (Poisson) + read noise (Gaussian), in electrons
-        PixelRng rng(SplitMix64(frame_seed + static_cast<uint64_t>(row) * 1315423911ull + static_cast<uint64_t>(col)));
+        PixelRng rng(SplitMix64(frame_seed + static_cast<uint64_t>(row) * 1315423911ull +
+                                static_cast<uint64_t>(col)));
         double n1, n2;
         rng.Normal2(&n1, &n2);
-        const double shot = electrons > 64.0 ? std::max(0.0, electrons + std::sqrt(electrons) * n1) : rng.PoissonSmall(electrons);
+        const double shot = electrons > 64.0 ? std::max(0.0, electrons + std::sqrt(electrons) * n1)
+                                             : rng.PoissonSmall(electrons);
         electrons = shot + sensor.read_noise_e * n2;
       }
       const double dn = RoundToDn(electrons * dn_per_e, max_dn);
@@ -435,7 +470,8 @@ void VirtualProbe::SensorPass(const cv::Mat& signal, uint64_t frame_seed, cv::Ma
   });
 }
 
-void VirtualProbe::FillTruth(const std::vector<PixelGeometry>& geometry, int width, int height, FrameTruth* out) {
+void VirtualProbe::FillTruth(const std::vector<PixelGeometry>& geometry, int width, int height,
+                             FrameTruth* out) {
   out->depth_mm.create(height, width, CV_32F);
   out->points_in_cam.create(height, width, CV_32FC3);
   out->projector_uv.create(height, width, CV_32FC2);
@@ -450,7 +486,8 @@ void VirtualProbe::FillTruth(const std::vector<PixelGeometry>& geometry, int wid
     uint8_t* label = out->label.ptr<uint8_t>(r);
     int32_t* face = out->face_index.ptr<int32_t>(r);
     for (int c = 0; c < width; ++c) {
-      const auto& g = geometry[static_cast<size_t>(r) * static_cast<size_t>(width) + static_cast<size_t>(c)];
+      const auto& g =
+          geometry[static_cast<size_t>(r) * static_cast<size_t>(width) + static_cast<size_t>(c)];
       const bool hit = g.vis != 0;
       depth[c] = hit ? g.depth : kNaN;
       points[c] = hit ? cv::Vec3f(g.x, g.y, g.z) : cv::Vec3f(kNaN, kNaN, kNaN);
@@ -463,12 +500,13 @@ void VirtualProbe::FillTruth(const std::vector<PixelGeometry>& geometry, int wid
 }
 
 void VirtualProbe::RenderTruth(const Rigid3d& world_from_probe, FrameTruth* out) {
-  FillTruth(GeometryAt(world_from_probe, false), design_.calibration.camera.width, design_.calibration.camera.height, out);
+  FillTruth(GeometryAt(world_from_probe, false), design_.calibration.camera.width,
+            design_.calibration.camera.height, out);
   out->world_from_probe = world_from_probe;
 }
 
-void VirtualProbe::RenderFrame(const PoseAtTime& pose, int64_t t_ns, const ProjectorFrame& frame, uint64_t noise_seed, bool with_truth,
-                               BurstFrame* out) {
+void VirtualProbe::RenderFrame(const PoseAtTime& pose, int64_t t_ns, const ProjectorFrame& frame,
+                               uint64_t noise_seed, bool with_truth, BurstFrame* out) {
   const auto& cam = design_.calibration.camera;
   const ProjectorRadiance& radiance = RadianceFor(frame);
   out->pattern = frame.name;
@@ -482,11 +520,13 @@ void VirtualProbe::RenderFrame(const PoseAtTime& pose, int64_t t_ns, const Proje
   } else {
     const double exposure = static_cast<double>(design_.sensor.exposure_ns);
     for (int s = 0; s < samples; ++s) {
-      const auto t = t_ns + static_cast<int64_t>(std::llround(exposure * ((s + 0.5) / samples - 0.5)));
+      const auto t =
+          t_ns + static_cast<int64_t>(std::llround(exposure * ((s + 0.5) / samples - 0.5)));
       const Rigid3d sub_pose = pose(t);
       const bool still = SameBits(sub_pose, world_from_probe);  // geometry_ is at that pose
       if (!still) GeometryPass(sub_pose, true, &geometry_sub_);
-      ShadePass(still ? geometry_ : geometry_sub_, radiance, 1.0f / static_cast<float>(samples), &signal);
+      ShadePass(still ? geometry_ : geometry_sub_, radiance, 1.0f / static_cast<float>(samples),
+                &signal);
     }
   }
   if (options_.camera_defocus) CameraDefocus(geometry_, &signal);
@@ -496,14 +536,16 @@ void VirtualProbe::RenderFrame(const PoseAtTime& pose, int64_t t_ns, const Proje
   out->truth.world_from_probe = world_from_probe;
 }
 
-Burst VirtualProbe::RenderBurst(const PoseAtTime& pose, int64_t t0_ns, uint64_t sequence, uint64_t seed, bool with_truth, const PatternSet* set) {
+Burst VirtualProbe::RenderBurst(const PoseAtTime& pose, int64_t t0_ns, uint64_t sequence,
+                                uint64_t seed, bool with_truth, const PatternSet* set) {
   const PatternSet& patterns = set ? *set : burst_patterns_;
   Burst burst;
   burst.sequence = sequence;
   burst.frames.resize(patterns.frames.size());
   for (size_t i = 0; i < patterns.frames.size(); ++i) {
     const int64_t t = t0_ns + static_cast<int64_t>(i) * options_.frame_interval_ns;
-    RenderFrame(pose, t, patterns.frames[i], FrameNoiseSeed(seed, sequence, static_cast<int>(i)), with_truth, &burst.frames[i]);
+    RenderFrame(pose, t, patterns.frames[i], FrameNoiseSeed(seed, sequence, static_cast<int>(i)),
+                with_truth, &burst.frames[i]);
   }
   burst.reference_ns = (burst.frames.front().timestamp_ns + burst.frames.back().timestamp_ns) / 2;
   if (with_truth) RenderTruth(pose(burst.reference_ns), &burst.reference_truth);

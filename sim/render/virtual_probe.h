@@ -4,7 +4,8 @@
 // Photometric model (per camera pixel whose ray meets the surface at X with shading normal n,
 // in units of the sensor's full well; see probe_design.h for parameter values and sources):
 //   S = v · ρ(X) · E_amb
-//     + v · ρ(X) · E_p · [(1 − s) · P(c, σ_p) + s · P(c, √(σ_p² + σ_ss²))]      (diffuse + sub-surface)
+//     + v · ρ(X) · E_p · [(1 − s) · P(c, σ_p) + s · P(c, √(σ_p² + σ_ss²))]      (diffuse +
+//     sub-surface)
 //     + v · F(n, l, h) · E_p · P(c, σ_p)                                          (specular, wet)
 //   E_p = projector_irradiance · max(0, n·l) · (z_f / d)²    (Lambert, inverse square; d = distance
 //         to the projector centre, z_f its focus distance), only where the projector sees X
@@ -48,15 +49,15 @@
 namespace d3d {
 
 struct RenderOptions {
-  bool noise = true;                      // shot + read noise (quantisation and saturation always apply)
-  bool gamma = true;                      // projector gamma as calibrated (false: a linear projector; the
-                                          // probe's calibration then says projector_gamma = 1)
-  bool camera_defocus = true;             // camera blur from depth (false: no camera blur at all)
-  bool projector_defocus = true;          // projector blur from depth (false: DMD pixels only)
-  bool subsurface = true;                 // sub-surface blur of the pattern on translucent materials
-  bool specular = true;                   // wet glints
-  bool texture = true;                    // procedural albedo texture
-  int motion_blur_samples = 1;            // poses averaged over the exposure (1: the pose at mid-exposure)
+  bool noise = true;              // shot + read noise (quantisation and saturation always apply)
+  bool gamma = true;              // projector gamma as calibrated (false: a linear projector; the
+                                  // probe's calibration then says projector_gamma = 1)
+  bool camera_defocus = true;     // camera blur from depth (false: no camera blur at all)
+  bool projector_defocus = true;  // projector blur from depth (false: DMD pixels only)
+  bool subsurface = true;         // sub-surface blur of the pattern on translucent materials
+  bool specular = true;           // wet glints
+  bool texture = true;            // procedural albedo texture
+  int motion_blur_samples = 1;    // poses averaged over the exposure (1: the pose at mid-exposure)
   int64_t frame_interval_ns = 2'500'000;  // between frames of a burst
   int threads = 0;                        // worker threads, 0 = all cores
   uint64_t texture_seed = 1;              // the albedo texture of the scene (not noise)
@@ -70,7 +71,8 @@ class VirtualProbe {
  public:
   // Throws std::invalid_argument on an invalid design/options or an empty scene. The mesh is
   // prepared once (scene_prep.h: subdivision of coarse meshes, baked albedo texture).
-  VirtualProbe(const TriangleMesh& scene, const ProbeDesign& design, const RenderOptions& options, std::vector<SceneSphere> spheres = {});
+  VirtualProbe(const TriangleMesh& scene, const ProbeDesign& design, const RenderOptions& options,
+               std::vector<SceneSphere> spheres = {});
   ~VirtualProbe();
   VirtualProbe(const VirtualProbe&) = delete;
   VirtualProbe& operator=(const VirtualProbe&) = delete;
@@ -79,18 +81,21 @@ class VirtualProbe {
   const ProbeCalibration& calibration() const { return design_.calibration; }
   const RenderOptions& options() const { return options_; }
   const RayCaster& ray_caster() const { return *caster_; }
-  // The scene as rendered: the input mesh, subdivided if coarse (face_index maps refer to the input).
+  // The scene as rendered: the input mesh, subdivided if coarse (face_index maps refer to the
+  // input).
   const TriangleMesh& rendered_mesh() const { return scene_.mesh; }
   // The probe's own burst pattern set (calibration.pattern).
   const PatternSet& burst_patterns() const { return burst_patterns_; }
 
   // Renders frame `frame` at time t_ns. `noise_seed` selects the noise realisation. out->truth gets
   // the pose always and the truth maps when with_truth.
-  void RenderFrame(const PoseAtTime& pose, int64_t t_ns, const ProjectorFrame& frame, uint64_t noise_seed, bool with_truth, BurstFrame* out);
+  void RenderFrame(const PoseAtTime& pose, int64_t t_ns, const ProjectorFrame& frame,
+                   uint64_t noise_seed, bool with_truth, BurstFrame* out);
   // Renders all frames of `set` (default: the probe's burst set), frame i at t0 + i·interval.
   // The noise of frame i is seeded from (seed, sequence, i). With truth, also the truth at the
   // burst's reference time (Burst::reference_ns, the middle of the first and last exposure).
-  Burst RenderBurst(const PoseAtTime& pose, int64_t t0_ns, uint64_t sequence, uint64_t seed, bool with_truth, const PatternSet* set = nullptr);
+  Burst RenderBurst(const PoseAtTime& pose, int64_t t0_ns, uint64_t sequence, uint64_t seed,
+                    bool with_truth, const PatternSet* set = nullptr);
   // Ground truth only (no shading, no noise) at a pose: cheap visibility/coverage queries.
   void RenderTruth(const Rigid3d& world_from_probe, FrameTruth* out);
 
@@ -101,17 +106,21 @@ class VirtualProbe {
   // geometry_ at world_from_probe, shaded if `shade`: reused when the last pass was at the same
   // pose (bit for bit; a still probe, the reference truth of a still burst), else computed.
   const std::vector<PixelGeometry>& GeometryAt(const Rigid3d& world_from_probe, bool shade);
-  // The truth fields of g (what FillTruth reads) from a camera ray's hit; uv: the projector pixel if
-  // lit, nullptr if not.
-  void HitTruth(const SurfaceHit& hit, size_t pixel, const Eigen::Vector2d* uv, PixelGeometry* g) const;
+  // The truth fields of g (what FillTruth reads) from a camera ray's hit; uv: the projector pixel
+  // if lit, nullptr if not.
+  void HitTruth(const SurfaceHit& hit, size_t pixel, const Eigen::Vector2d* uv,
+                PixelGeometry* g) const;
   // The shading fields of g; uv as for HitTruth, and where lit, l and dist: the unit vector and the
   // distance from the hit to the projector's centre.
-  void Shade(const SurfaceHit& hit, size_t pixel, const Eigen::Vector3d& cam_centre, const Eigen::Vector3d& p_in_proj, const Eigen::Vector2d* uv,
-             const Eigen::Vector3d& l, double dist, PixelGeometry* g) const;
-  void ShadePass(const std::vector<PixelGeometry>& geometry, const ProjectorRadiance& radiance, float weight, cv::Mat* signal);
+  void Shade(const SurfaceHit& hit, size_t pixel, const Eigen::Vector3d& cam_centre,
+             const Eigen::Vector3d& p_in_proj, const Eigen::Vector2d* uv, const Eigen::Vector3d& l,
+             double dist, PixelGeometry* g) const;
+  void ShadePass(const std::vector<PixelGeometry>& geometry, const ProjectorRadiance& radiance,
+                 float weight, cv::Mat* signal);
   void CameraDefocus(const std::vector<PixelGeometry>& geometry, cv::Mat* signal);
   void SensorPass(const cv::Mat& signal, uint64_t frame_seed, cv::Mat* image);
-  void FillTruth(const std::vector<PixelGeometry>& geometry, int width, int height, FrameTruth* out);
+  void FillTruth(const std::vector<PixelGeometry>& geometry, int width, int height,
+                 FrameTruth* out);
   const ProjectorRadiance& RadianceFor(const ProjectorFrame& frame);
 
   ProbeDesign design_;
@@ -123,7 +132,7 @@ class VirtualProbe {
   std::vector<Eigen::Vector3d> pixel_rays_;  // (x, y, 1) per pixel in the camera frame, row-major
   std::vector<uint8_t> pixel_ray_valid_;
   DeviceBlur camera_blur_, projector_blur_;  // ProbeOptics::BlurSigmaPx of each device
-  std::array<double, 3> specular_gate_{};    // per SurfaceLabel: smallest n·h worth a specular term
+  std::array<double, 3> specular_gate_{};  // per SurfaceLabel: smallest n·h worth a specular term
   std::mutex radiance_mutex_;
   std::unordered_map<std::string, std::unique_ptr<ProjectorRadiance>> radiance_cache_;
   // Scratch owned by the caller thread of Render* (see class comment).

@@ -36,7 +36,8 @@ PoseAtTime Static(const Rigid3d& pose) {
   return [pose](int64_t) { return pose; };
 }
 
-const Plane kTilted{Eigen::Vector3d(0.25, -0.15, -1.0).normalized(), Eigen::Vector3d(0.0, 0.0, 50.0)};
+const Plane kTilted{Eigen::Vector3d(0.25, -0.15, -1.0).normalized(),
+                    Eigen::Vector3d(0.0, 0.0, 50.0)};
 
 // Checks every surface pixel's truth against an analytic intersection `surface(ray) → X`.
 template <typename Surface>
@@ -57,7 +58,10 @@ void ExpectTruthMatchesAnalytic(VirtualProbe& probe, Surface&& surface, int* che
       ++*checked;
       worst_depth = std::max(worst_depth, std::abs(depth - X->z()));
       const cv::Vec3f p = truth.points_in_cam.at<cv::Vec3f>(r, c);
-      worst_reproj = std::max(worst_reproj, (*calib.camera.Project(Eigen::Vector3d(p[0], p[1], p[2])) - Eigen::Vector2d(c, r)).norm());
+      worst_reproj = std::max(
+          worst_reproj,
+          (*calib.camera.Project(Eigen::Vector3d(p[0], p[1], p[2])) - Eigen::Vector2d(c, r))
+              .norm());
       if (truth.visibility.at<uint8_t>(r, c) == 2) {
         const auto uv = calib.projector.Project(proj_from_cam * *X);
         const cv::Vec2f t = truth.projector_uv.at<cv::Vec2f>(r, c);
@@ -86,12 +90,14 @@ TEST(VirtualProbeTruth, SphereMatchesAnalyticDepthAndProjectorCoordinate) {
   const Eigen::Vector3d centre(0.8, -0.5, 54.0);
   const double radius = 4.5;
   TriangleMesh far_wall = PlaneMesh({Eigen::Vector3d(0, 0, -1), Eigen::Vector3d(0, 0, 90)});
-  VirtualProbe probe(far_wall, MakeDefaultProbeDesign(), Ideal(), {SceneSphere{centre, radius, SurfaceLabel::kTooth}});
+  VirtualProbe probe(far_wall, MakeDefaultProbeDesign(), Ideal(),
+                     {SceneSphere{centre, radius, SurfaceLabel::kTooth}});
   int checked = 0;
   ExpectTruthMatchesAnalytic(
       probe,
       [&](const Eigen::Vector3d& ray) -> std::optional<Eigen::Vector3d> {
-        const double a = ray.squaredNorm(), b = -ray.dot(centre), c = centre.squaredNorm() - radius * radius;
+        const double a = ray.squaredNorm(), b = -ray.dot(centre),
+                     c = centre.squaredNorm() - radius * radius;
         const double disc = b * b - a * c;
         if (disc < 0) return ray * (90.0 / ray.z());  // the wall behind
         return ray * ((-b - std::sqrt(disc)) / a);
@@ -128,9 +134,10 @@ TEST(VirtualProbePhotometry, UniformFramesFollowTheModelWithAndWithoutGamma) {
         const double d = to_proj.norm();
         const double cos_i = std::abs(kTilted.n.dot(to_proj / d));
         const double cos_a = X.z() / X.norm();
-        const double S =
-            std::pow(cos_a, 4) * design.enamel.albedo *
-            (design.optics.ambient_irradiance + design.optics.projector_irradiance * cos_i * std::pow(design.optics.projector_focus_mm / d, 2) * p);
+        const double S = std::pow(cos_a, 4) * design.enamel.albedo *
+                         (design.optics.ambient_irradiance +
+                          design.optics.projector_irradiance * cos_i *
+                              std::pow(design.optics.projector_focus_mm / d, 2) * p);
         worst = std::max(worst, std::abs(f.image.at<uint8_t>(r, c) - S * 255.0));
         ++n;
       }
@@ -189,9 +196,11 @@ TEST(VirtualProbePhotometry, FringesEncodeTheProjectorCoordinateAndGammaDistorts
         ++n;
       }
     ASSERT_GT(n, 50000);
-    const double rms = std::sqrt(err2 / n), residual = std::sqrt(residual2 / n), predicted = std::sqrt(predicted2 / n);
+    const double rms = std::sqrt(err2 / n), residual = std::sqrt(residual2 / n),
+                 predicted = std::sqrt(predicted2 / n);
     // What is left beyond the gamma error: 8-bit DMD and camera quantisation (≈ 0.003 rad).
-    EXPECT_LT(residual, 0.005) << "gamma " << gamma << ": rms " << rms << " predicted " << predicted;
+    EXPECT_LT(residual, 0.005) << "gamma " << gamma << ": rms " << rms << " predicted "
+                               << predicted;
     if (gamma == 2.8) {
       EXPECT_GT(rms, 0.02) << "a strong gamma must show its phase error";
     }
@@ -232,7 +241,8 @@ TEST(VirtualProbeNoise, StatisticsMatchShotReadAndQuantisation) {
   const ProjectorFrame grey{"grey", 'x', std::vector<uint8_t>(912, 100)};
   // Noise-free reference from the model, then 40 noisy realisations.
   RenderOptions clean = Ideal();
-  VirtualProbe reference(PlaneMesh({Eigen::Vector3d(0, 0, -1), Eigen::Vector3d(0, 0, 50)}), design, clean);
+  VirtualProbe reference(PlaneMesh({Eigen::Vector3d(0, 0, -1), Eigen::Vector3d(0, 0, 50)}), design,
+                         clean);
   const cv::Rect roi(200, 150, 100, 80);
   constexpr int kRuns = 40;
   cv::Mat sum(roi.size(), CV_64F, cv::Scalar(0)), sum2(roi.size(), CV_64F, cv::Scalar(0));
@@ -258,7 +268,8 @@ TEST(VirtualProbeNoise, StatisticsMatchShotReadAndQuantisation) {
       const double mean = sum.at<double>(r, c) / kRuns;
       const double var = (sum2.at<double>(r, c) - kRuns * mean * mean) / (kRuns - 1);
       const double S_dn = ref.image(roi).at<uint8_t>(r, c);  // noise-free, ±0.5 DN
-      const double expected_var = (S_dn / gain + std::pow(design.sensor.read_noise_e, 2)) * gain * gain + 1.0 / 12;
+      const double expected_var =
+          (S_dn / gain + std::pow(design.sensor.read_noise_e, 2)) * gain * gain + 1.0 / 12;
       ratio_sum += var / expected_var;
       mean_err += mean - S_dn;
       ++n;
@@ -282,7 +293,8 @@ TEST(VirtualProbeNoise, IdenticalOutputForAnyThreadCount) {
   VirtualProbe a(plane, MakeDefaultProbeDesign(), one), b(plane, MakeDefaultProbeDesign(), two);
   const Burst x = a.RenderBurst(Static(Rigid3d::Identity()), 0, 7, 42, false);
   const Burst y = b.RenderBurst(Static(Rigid3d::Identity()), 0, 7, 42, false);
-  for (size_t i = 0; i < x.frames.size(); ++i) EXPECT_EQ(cv::norm(x.frames[i].image, y.frames[i].image, cv::NORM_INF), 0.0);
+  for (size_t i = 0; i < x.frames.size(); ++i)
+    EXPECT_EQ(cv::norm(x.frames[i].image, y.frames[i].image, cv::NORM_INF), 0.0);
 }
 
 // Moving probe: each frame has its own pose, and motion blur within the exposure averages the
@@ -292,21 +304,24 @@ bool SameBytes(const cv::Mat& a, const cv::Mat& b) {  // NaN included
          std::memcmp(a.data, b.data, a.total() * a.elemSize()) == 0;
 }
 
-// A still probe's frames reuse one geometry pass (bit-identical poses); the reuse must give the bits
-// of frames rendered by a probe that moved (other poses, a truth-only pass) in between.
+// A still probe's frames reuse one geometry pass (bit-identical poses); the reuse must give the
+// bits of frames rendered by a probe that moved (other poses, a truth-only pass) in between.
 TEST(VirtualProbeReuse, AStillProbeRendersTheBitsOfAProbeThatMovedInBetween) {
   const TriangleMesh plane = PlaneMesh(kTilted);
   const Rigid3d still = Rigid3d::Identity();
   Rigid3d other = Rigid3d::Identity();
   other.translation() = Eigen::Vector3d(0.3, -0.2, 1.0);
-  VirtualProbe a(plane, MakeDefaultProbeDesign(), RenderOptions{}), b(plane, MakeDefaultProbeDesign(), RenderOptions{});
+  VirtualProbe a(plane, MakeDefaultProbeDesign(), RenderOptions{}),
+      b(plane, MakeDefaultProbeDesign(), RenderOptions{});
   const Burst x = a.RenderBurst(Static(still), 0, 7, 42, true);
   for (size_t i = 0; i < x.frames.size(); ++i) {
     FrameTruth elsewhere;
     b.RenderTruth(other, &elsewhere);  // a truth-only pass at another pose
     BurstFrame f;
-    b.RenderFrame(Static(other), 0, b.burst_patterns().frames[(i + 1) % x.frames.size()], 1, false, &f);
-    b.RenderFrame(Static(still), x.frames[i].timestamp_ns, b.burst_patterns().frames[i], FrameNoiseSeed(42, 7, static_cast<int>(i)), true, &f);
+    b.RenderFrame(Static(other), 0, b.burst_patterns().frames[(i + 1) % x.frames.size()], 1, false,
+                  &f);
+    b.RenderFrame(Static(still), x.frames[i].timestamp_ns, b.burst_patterns().frames[i],
+                  FrameNoiseSeed(42, 7, static_cast<int>(i)), true, &f);
     EXPECT_TRUE(SameBytes(x.frames[i].image, f.image)) << i;
     EXPECT_TRUE(SameBytes(x.frames[i].truth.points_in_cam, f.truth.points_in_cam)) << i;
   }
@@ -337,7 +352,8 @@ TEST(VirtualProbeMotion, FramesHaveTheirOwnPosesAndMotionBlurAttenuatesAsPredict
   const Burst b = blurred.RenderBurst(moving, t0, 0, 1, true);
   for (size_t i = 0; i < a.frames.size(); ++i) {
     EXPECT_EQ(a.frames[i].timestamp_ns, t0 + static_cast<int64_t>(i) * 2'500'000);
-    EXPECT_NEAR(a.frames[i].truth.world_from_probe.translation().z(), speed_mm_per_ns * a.frames[i].timestamp_ns, 1e-12);
+    EXPECT_NEAR(a.frames[i].truth.world_from_probe.translation().z(),
+                speed_mm_per_ns * a.frames[i].timestamp_ns, 1e-12);
   }
   // Predicted attenuation from the truth: phase swept by a pixel during the exposure.
   const int r = 240, c = 320;
@@ -346,7 +362,8 @@ TEST(VirtualProbeMotion, FramesHaveTheirOwnPosesAndMotionBlurAttenuatesAsPredict
   std::complex<double> mean(0, 0);
   for (int s = 0; s < 16; ++s) {
     FrameTruth t;
-    blurred.RenderTruth(moving(t0 + static_cast<int64_t>(std::llround(e * ((s + 0.5) / 16 - 0.5)))), &t);
+    blurred.RenderTruth(moving(t0 + static_cast<int64_t>(std::llround(e * ((s + 0.5) / 16 - 0.5)))),
+                        &t);
     mean += std::polar(1.0, spec.AbsolutePhase(t.projector_uv.at<cv::Vec2f>(r, c)[0])) / 16.0;
   }
   const double predicted = std::abs(mean);

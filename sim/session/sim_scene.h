@@ -17,11 +17,13 @@
 namespace d3d {
 
 struct SimSceneOptions {
-  std::string model = "typodont";         // "typodont" or a mesh file (PLY/STL/OBJ, millimetres)
-  std::string trajectory = "full-arch";   // a scan style (scan_styles.h: full-arch, lifts, ...), quadrant, or a TUM file
-  uint32_t seed = 1;                      // hand motion (scan path)
-  double burst_rate_hz = 30.0;            // bursts per second of trajectory time
-  int64_t frame_interval_ns = 2'500'000;  // between the frames of a burst (RenderOptions::frame_interval_ns)
+  std::string model = "typodont";  // "typodont" or a mesh file (PLY/STL/OBJ, millimetres)
+  std::string trajectory =
+      "full-arch";  // a scan style (scan_styles.h: full-arch, lifts, ...), quadrant, or a TUM file
+  uint32_t seed = 1;            // hand motion (scan path)
+  double burst_rate_hz = 30.0;  // bursts per second of trajectory time
+  int64_t frame_interval_ns =
+      2'500'000;  // between the frames of a burst (RenderOptions::frame_interval_ns)
   TypodontOptions typodont;
   ScanPathOptions scan_path;  // its seed is replaced by `seed`
   void Check() const;         // throws std::invalid_argument

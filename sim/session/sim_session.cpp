@@ -4,8 +4,10 @@ namespace d3d {
 
 void SimSessionOptions::Check() const {
   D3D_CHECK_MSG(!model.empty(), "model must be 'typodont' or a mesh file");
-  D3D_CHECK_MSG(!trajectory.empty(), "trajectory must be a scan style (scan_styles.h), quadrant or a TUM file");
-  D3D_CHECK_MSG(burst_rate_hz > 0 && burst_rate_hz <= 1000, "burst rate must be in (0, 1000] Hz, got " << burst_rate_hz);
+  D3D_CHECK_MSG(!trajectory.empty(),
+                "trajectory must be a scan style (scan_styles.h), quadrant or a TUM file");
+  D3D_CHECK_MSG(burst_rate_hz > 0 && burst_rate_hz <= 1000,
+                "burst rate must be in (0, 1000] Hz, got " << burst_rate_hz);
   render.Check();
   typodont.Check();
 }
@@ -37,11 +39,14 @@ Status SimSession::Create(const SimSessionOptions& options, std::unique_ptr<SimS
 
 int64_t SimSession::BurstStartNs(int64_t index) const { return world_.BurstStartNs(index); }
 
-int64_t SimSession::NumBursts() const { return world_.NumBursts(static_cast<int>(probe_->burst_patterns().frames.size())); }
+int64_t SimSession::NumBursts() const {
+  return world_.NumBursts(static_cast<int>(probe_->burst_patterns().frames.size()));
+}
 
 Burst SimSession::RenderBurst(int64_t index, bool with_truth) {
   const PoseAtTime pose = [this](int64_t t_ns) { return world_.trajectory().WorldFromProbe(t_ns); };
-  return probe_->RenderBurst(pose, BurstStartNs(index), static_cast<uint64_t>(index), options_.seed, with_truth);
+  return probe_->RenderBurst(pose, BurstStartNs(index), static_cast<uint64_t>(index), options_.seed,
+                             with_truth);
 }
 
 }  // namespace d3d

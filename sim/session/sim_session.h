@@ -17,11 +17,12 @@
 namespace d3d {
 
 struct SimSessionOptions {
-  std::string model = "typodont";        // "typodont" or a mesh file (PLY/STL/OBJ, millimetres)
-  std::string trajectory = "full-arch";  // a scan style (scan_styles.h: full-arch, lifts, ...), quadrant, or a TUM file
-  uint32_t seed = 1;                     // hand motion (scan path) and sensor noise
-  double burst_rate_hz = 30.0;           // bursts per second of trajectory time
-  int camera_width = 640;                // 640 × 480 or 1280 × 1024 (probe_design.h)
+  std::string model = "typodont";  // "typodont" or a mesh file (PLY/STL/OBJ, millimetres)
+  std::string trajectory =
+      "full-arch";  // a scan style (scan_styles.h: full-arch, lifts, ...), quadrant, or a TUM file
+  uint32_t seed = 1;            // hand motion (scan path) and sensor noise
+  double burst_rate_hz = 30.0;  // bursts per second of trajectory time
+  int camera_width = 640;       // 640 × 480 or 1280 × 1024 (probe_design.h)
   int camera_height = 480;
   bool texture_frame = false;  // bursts get a 5th, uniformly lit frame (probe pattern set)
   RenderOptions render;
@@ -35,7 +36,8 @@ class SimSession {
   // Builds the scene, the trajectory and the probe. NOT_FOUND/PARSE_ERROR/... for a model or
   // trajectory file that cannot be read, INVALID_ARGUMENT for a mesh that is not an arch (when a
   // scan path must be generated for it). Throws std::invalid_argument for invalid options.
-  [[nodiscard]] static Status Create(const SimSessionOptions& options, std::unique_ptr<SimSession>* out);
+  [[nodiscard]] static Status Create(const SimSessionOptions& options,
+                                     std::unique_ptr<SimSession>* out);
 
   const SimSessionOptions& options() const { return options_; }
   const TriangleMesh& scene() const { return world_.scene(); }

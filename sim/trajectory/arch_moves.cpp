@@ -10,7 +10,8 @@ namespace d3d {
 double ArcPositionSeenMm(const ArchFrame& arch, const Rigid3d& world_from_probe) {
   D3D_CHECK_MSG(arch.ok() && !arch.curve.empty(), "ArcPositionSeenMm needs an analysed arch");
   const int i = ArchPointNearestAxis(arch, world_from_probe);
-  return i < 0 ? std::numeric_limits<double>::quiet_NaN() : arch.curve[static_cast<size_t>(i)].arc_mm;
+  return i < 0 ? std::numeric_limits<double>::quiet_NaN()
+               : arch.curve[static_cast<size_t>(i)].arc_mm;
 }
 
 Rigid3d ArchLocalFrame(const ArchFrame& arch, double arc_mm) {

@@ -14,8 +14,8 @@ namespace d3d {
 // curve is behind the camera. Requires arch.ok().
 double ArcPositionSeenMm(const ArchFrame& arch, const Rigid3d& world_from_probe);
 
-// The arch's local frame at arc position arc_mm: columns tangent, buccal, occlusal (orthonormalised,
-// occlusal kept), origin at the curve point. Requires arch.ok().
+// The arch's local frame at arc position arc_mm: columns tangent, buccal, occlusal
+// (orthonormalised, occlusal kept), origin at the curve point. Requires arch.ok().
 Rigid3d ArchLocalFrame(const ArchFrame& arch, double arc_mm);
 
 // The rigid move that carries the arch's local frame at arc_mm to the one at arc_mm + delta_arc_mm:
@@ -25,7 +25,8 @@ Rigid3d ArchMove(const ArchFrame& arch, double arc_mm, double delta_arc_mm);
 // A pose mirrored across the arch's midline (ArchFrame::midline_arc_mm): the pose relative to the
 // local frame at arc_mm, with the tangent reversed, placed at 2·midline − arc_mm. A reflection is
 // not a rigid motion; the camera's x axis is reversed too so the result is a proper pose (it sees
-// the mirrored surface as a mirror image). arc_mm: ArcPositionSeenMm of the pose (or any reference).
+// the mirrored surface as a mirror image). arc_mm: ArcPositionSeenMm of the pose (or any
+// reference).
 Rigid3d MirrorAcrossMidline(const ArchFrame& arch, double arc_mm, const Rigid3d& world_from_probe);
 
 }  // namespace d3d

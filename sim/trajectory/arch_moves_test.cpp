@@ -13,8 +13,8 @@ using namespace d3d::testing;
 Rigid3d LookingAt(const ArchFrame& arch, double arc_mm) {
   const Rigid3d f = ArchLocalFrame(arch, arc_mm);
   Rigid3d local = Rigid3d::Identity();
-  local.linear() =
-      Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()).toRotationMatrix() * Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  local.linear() = Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()).toRotationMatrix() *
+                   Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitY()).toRotationMatrix();
   local.translation() = Eigen::Vector3d(0.5, 1.0, 15.0);
   return f * local;
 }

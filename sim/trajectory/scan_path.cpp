@@ -22,13 +22,13 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 // ---------------------------------------------------------------------------------------------
 // Arch analysis: constants
 
-constexpr size_t kMinToothFaces = 50;       // fewer labelled tooth faces: not a dental arch
-constexpr double kSampleSpacingMm = 1.5;    // faces are resampled so samples are ≤ ~1.5 mm apart
-constexpr double kCellMm = 1.0;             // occupancy grid cell
-constexpr double kSliceMm = 1.0;            // slices along the band
-constexpr double kEndCapMm = 4.0;           // cells this close to the farthest ones form an end cap
-constexpr double kEndChordMm = 4.0;         // the ends are extended along the chord over this length
-constexpr double kEndTrimMm = 5.0;          // ... after dropping this much of each end
+constexpr size_t kMinToothFaces = 50;     // fewer labelled tooth faces: not a dental arch
+constexpr double kSampleSpacingMm = 1.5;  // faces are resampled so samples are ≤ ~1.5 mm apart
+constexpr double kCellMm = 1.0;           // occupancy grid cell
+constexpr double kSliceMm = 1.0;          // slices along the band
+constexpr double kEndCapMm = 4.0;         // cells this close to the farthest ones form an end cap
+constexpr double kEndChordMm = 4.0;       // the ends are extended along the chord over this length
+constexpr double kEndTrimMm = 5.0;        // ... after dropping this much of each end
 constexpr double kMinEndSliceWeight = 0.6;  // lighter end slices (× median) are merged
 constexpr double kSmoothSigmaMm = 3.0;      // Gaussian smoothing of the slice centroids
 constexpr double kCurveStepMm = 0.5;        // resampling of the arch curve
@@ -48,7 +48,8 @@ struct SurfaceSample {
 
 // Area-weighted points covering a face: centroids of its k² sub-triangles (k edge subdivisions),
 // so large faces are not under-represented.
-void SampleFace(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c, std::vector<SurfaceSample>* out) {
+void SampleFace(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c,
+                std::vector<SurfaceSample>* out) {
   const Eigen::Vector3d cross = (b - a).cross(c - a);
   const double area = 0.5 * cross.norm();
   if (!(area > 0.0)) return;
@@ -86,7 +87,8 @@ std::vector<T> SmoothOddReflect(const std::vector<T>& x, double sigma_samples) {
   if (n < 3 || sigma_samples <= 0.0) return x;
   const int radius = std::min(static_cast<int>(std::ceil(3.0 * sigma_samples)), n - 1);
   std::vector<double> kernel(static_cast<size_t>(radius) + 1);
-  for (int k = 0; k <= radius; ++k) kernel[static_cast<size_t>(k)] = std::exp(-0.5 * k * k / (sigma_samples * sigma_samples));
+  for (int k = 0; k <= radius; ++k)
+    kernel[static_cast<size_t>(k)] = std::exp(-0.5 * k * k / (sigma_samples * sigma_samples));
   auto at = [&](int i) -> T {
     if (i < 0) return 2.0 * x.front() - x[static_cast<size_t>(-i)];
     if (i >= n) return 2.0 * x.back() - x[static_cast<size_t>(2 * (n - 1) - i)];
@@ -159,7 +161,8 @@ class BandGrid {
   }
 
   // Dijkstra distances (mm) inside `mask` from every source cell (8-neighbours, 1 or √2 cells).
-  std::vector<double> Geodesic(const std::vector<uint8_t>& mask, const std::vector<int>& sources) const {
+  std::vector<double> Geodesic(const std::vector<uint8_t>& mask,
+                               const std::vector<int>& sources) const {
     std::vector<double> dist(size(), kInf);
     using Item = std::pair<double, int>;
     std::priority_queue<Item, std::vector<Item>, std::greater<>> queue;
@@ -205,7 +208,8 @@ class BandGrid {
           for (int dx = -r; dx <= r; ++dx) {
             if (dx * dx + dy * dy > r * r) continue;
             const int x = ix + dx, y = iy + dy;
-            const bool v = x >= 0 && y >= 0 && x < nx_ && y < ny_ && in[static_cast<size_t>(y * nx_ + x)];
+            const bool v =
+                x >= 0 && y >= 0 && x < nx_ && y < ny_ && in[static_cast<size_t>(y * nx_ + x)];
             any = any || v;
             all = all && v;
           }
@@ -236,8 +240,8 @@ std::vector<int> FarthestCells(const std::vector<double>& dist, double band) {
 // Arch analysis steps
 
 struct SelectedSurface {
-  std::vector<SurfaceSample> arch;                       // the samples analysed (teeth, or everything)
-  std::vector<SurfaceSample> gingiva;                    // gingiva samples (when labelled)
+  std::vector<SurfaceSample> arch;     // the samples analysed (teeth, or everything)
+  std::vector<SurfaceSample> gingiva;  // gingiva samples (when labelled)
   Eigen::Vector3d normal_sum = Eigen::Vector3d::Zero();  // Σ area · unit normal over the arch faces
   size_t faces = 0;
   bool used_labels = false;
@@ -251,8 +255,9 @@ Status SelectSurface(const TriangleMesh& mesh, SelectedSurface* sel) {
   }
   sel->used_labels = n_tooth + n_gingiva > 0;
   if (sel->used_labels && n_tooth < kMinToothFaces) {
-    return InvalidArgument("not a dental arch: too few tooth faces (" + std::to_string(n_tooth) + " of " + std::to_string(mesh.faces.size()) +
-                           ", need " + std::to_string(kMinToothFaces) + ")");
+    return InvalidArgument("not a dental arch: too few tooth faces (" + std::to_string(n_tooth) +
+                           " of " + std::to_string(mesh.faces.size()) + ", need " +
+                           std::to_string(kMinToothFaces) + ")");
   }
   for (int f = 0; f < static_cast<int>(mesh.faces.size()); ++f) {
     const Eigen::Vector3i& F = mesh.faces[static_cast<size_t>(f)];
@@ -349,7 +354,8 @@ std::vector<V> Resample(std::vector<V> pts, double step, double extend) {
 
 // First guess of the centreline: the band is rasterised, its geodesic diameter gives the two
 // ends, and slices by geodesic distance from one end give ordered centroids (smoothed, 1 mm apart).
-Status GeodesicCentreline(const PlanePoints& pts, std::vector<Eigen::Vector2d>* line, double* area_mm2, double* length_mm) {
+Status GeodesicCentreline(const PlanePoints& pts, std::vector<Eigen::Vector2d>* line,
+                          double* area_mm2, double* length_mm) {
   const BandGrid grid(pts.uv, 10.0);
   // Close the interdental gaps with the smallest radius that gathers ≥ 90 % of the surface.
   const double total = std::accumulate(pts.weight.begin(), pts.weight.end(), 0.0);
@@ -427,15 +433,19 @@ struct LineCoords {
   double lateral = 0;
 };
 
-double Cross2(const Eigen::Vector2d& a, const Eigen::Vector2d& b) { return a.x() * b.y() - a.y() * b.x(); }
+double Cross2(const Eigen::Vector2d& a, const Eigen::Vector2d& b) {
+  return a.x() * b.y() - a.y() * b.x();
+}
 
 // Nearest-point queries on a polyline, accelerated by a grid of its segments: a cell lists every
 // segment within kSearchRadiusMm of it, so a hit closer than that radius is the global nearest;
 // farther points fall back to a scan of all segments.
 class PolylineProjector {
  public:
-  explicit PolylineProjector(const std::vector<Eigen::Vector2d>& line) : line_(line), arc_(line.size(), 0.0) {
-    for (size_t i = 1; i < line_.size(); ++i) arc_[i] = arc_[i - 1] + (line_[i] - line_[i - 1]).norm();
+  explicit PolylineProjector(const std::vector<Eigen::Vector2d>& line)
+      : line_(line), arc_(line.size(), 0.0) {
+    for (size_t i = 1; i < line_.size(); ++i)
+      arc_[i] = arc_[i - 1] + (line_[i] - line_[i - 1]).norm();
     lo_ = hi_ = line_.front();
     for (const auto& p : line_) {
       lo_ = lo_.cwiseMin(p);
@@ -447,10 +457,13 @@ class PolylineProjector {
     ny_ = static_cast<int>((hi_.y() - lo_.y()) / kGridCellMm) + 1;
     cells_.resize(static_cast<size_t>(nx_) * static_cast<size_t>(ny_));
     for (size_t i = 0; i + 1 < line_.size(); ++i) {
-      const Eigen::Vector2d a = line_[i].cwiseMin(line_[i + 1]) - Eigen::Vector2d::Constant(kSearchRadiusMm);
-      const Eigen::Vector2d b = line_[i].cwiseMax(line_[i + 1]) + Eigen::Vector2d::Constant(kSearchRadiusMm);
+      const Eigen::Vector2d a =
+          line_[i].cwiseMin(line_[i + 1]) - Eigen::Vector2d::Constant(kSearchRadiusMm);
+      const Eigen::Vector2d b =
+          line_[i].cwiseMax(line_[i + 1]) + Eigen::Vector2d::Constant(kSearchRadiusMm);
       for (int y = CellY(a.y()); y <= CellY(b.y()); ++y)
-        for (int x = CellX(a.x()); x <= CellX(b.x()); ++x) cells_[static_cast<size_t>(y * nx_ + x)].push_back(i);
+        for (int x = CellX(a.x()); x <= CellX(b.x()); ++x)
+          cells_[static_cast<size_t>(y * nx_ + x)].push_back(i);
     }
   }
 
@@ -458,7 +471,8 @@ class PolylineProjector {
     double best = kInf;
     LineCoords out;
     if ((p.array() >= lo_.array()).all() && (p.array() <= hi_.array()).all()) {
-      for (size_t i : cells_[static_cast<size_t>(CellY(p.y()) * nx_ + CellX(p.x()))]) Consider(i, p, &best, &out);
+      for (size_t i : cells_[static_cast<size_t>(CellY(p.y()) * nx_ + CellX(p.x()))])
+        Consider(i, p, &best, &out);
       if (best <= kSearchRadiusMm * kSearchRadiusMm) return out;
     }
     for (size_t i = 0; i + 1 < line_.size(); ++i) Consider(i, p, &best, &out);
@@ -469,8 +483,12 @@ class PolylineProjector {
   static constexpr double kGridCellMm = 4.0;
   static constexpr double kSearchRadiusMm = 8.0;
 
-  int CellX(double x) const { return std::clamp(static_cast<int>((x - lo_.x()) / kGridCellMm), 0, nx_ - 1); }
-  int CellY(double y) const { return std::clamp(static_cast<int>((y - lo_.y()) / kGridCellMm), 0, ny_ - 1); }
+  int CellX(double x) const {
+    return std::clamp(static_cast<int>((x - lo_.x()) / kGridCellMm), 0, nx_ - 1);
+  }
+  int CellY(double y) const {
+    return std::clamp(static_cast<int>((y - lo_.y()) / kGridCellMm), 0, ny_ - 1);
+  }
 
   void Consider(size_t i, const Eigen::Vector2d& p, double* best, LineCoords* out) const {
     const Eigen::Vector2d d = line_[i + 1] - line_[i];
@@ -495,7 +513,8 @@ class PolylineProjector {
 };
 
 // The point at arc position `arc` of a polyline and its left normal there.
-std::pair<Eigen::Vector2d, Eigen::Vector2d> PointAtArc(const std::vector<Eigen::Vector2d>& line, double arc) {
+std::pair<Eigen::Vector2d, Eigen::Vector2d> PointAtArc(const std::vector<Eigen::Vector2d>& line,
+                                                       double arc) {
   double acc = 0;
   for (size_t i = 0; i + 1 < line.size(); ++i) {
     const Eigen::Vector2d d = line[i + 1] - line[i];
@@ -548,7 +567,8 @@ void MergeLightEnds(std::vector<Slice>* slices) {
 // kSliceMm. A slice's centre sits at its mean arc position, midway between the 5th and 95th
 // percentiles of the lateral offsets: the middle of the band, even where a slice cuts the end of
 // the band obliquely (a centroid would be pulled toward the corner that sticks out).
-std::vector<Slice> SliceAlong(const PlanePoints& pts, const std::vector<Eigen::Vector2d>& centreline) {
+std::vector<Slice> SliceAlong(const PlanePoints& pts,
+                              const std::vector<Eigen::Vector2d>& centreline) {
   const std::vector<Eigen::Vector2d> line = ExtendEnds(centreline, 100.0);
   const PolylineProjector projector(line);
   std::vector<LineCoords> lc(pts.uv.size());
@@ -571,7 +591,8 @@ std::vector<Slice> SliceAlong(const PlanePoints& pts, const std::vector<Eigen::V
   MergeLightEnds(&slices);
   for (auto& sl : slices) {
     const auto [foot, normal] = PointAtArc(line, sl.arc_sum / sl.weight);
-    const double mid = 0.5 * (WeightedPercentile(sl.lateral, 0.05) + WeightedPercentile(sl.lateral, 0.95));
+    const double mid =
+        0.5 * (WeightedPercentile(sl.lateral, 0.05) + WeightedPercentile(sl.lateral, 0.95));
     sl.centre = foot + mid * normal;
   }
   return slices;
@@ -596,12 +617,14 @@ std::vector<Slice> RefinedSlices(const PlanePoints& pts, std::vector<Eigen::Vect
     if (it == kIterations || slices.size() < 3) return slices;
     line.clear();
     for (const auto& s : slices) line.push_back(s.centre);
-    line = TrimEnds(Resample(SmoothOddReflect(line, kSmoothSigmaMm / kSliceMm), kSliceMm, 0.0), kEndTrimMm);
+    line = TrimEnds(Resample(SmoothOddReflect(line, kSmoothSigmaMm / kSliceMm), kSliceMm, 0.0),
+                    kEndTrimMm);
   }
 }
 
 // Builds the curve (positions, tangents, buccal directions, arc lengths) from the slices.
-void BuildCurve(const std::vector<Slice>& slices, const Eigen::Vector3d& centre, const Eigen::Vector3d& e_u, const Eigen::Vector3d& e_v,
+void BuildCurve(const std::vector<Slice>& slices, const Eigen::Vector3d& centre,
+                const Eigen::Vector3d& e_u, const Eigen::Vector3d& e_v,
                 const Eigen::Vector3d& occlusal, ArchFrame* arch) {
   std::vector<Eigen::Vector3d> raw;
   for (const Slice& s : slices) {
@@ -640,18 +663,20 @@ void BuildCurve(const std::vector<Slice>& slices, const Eigen::Vector3d& centre,
 }
 
 // Per-point half width: 95th percentile of |lateral offset| of the nearby samples.
-void EstimateHalfWidths(const PlanePoints& plane, const Eigen::Vector3d& centre, const Eigen::Vector3d& e_u, const Eigen::Vector3d& e_v,
-                        ArchFrame* arch) {
+void EstimateHalfWidths(const PlanePoints& plane, const Eigen::Vector3d& centre,
+                        const Eigen::Vector3d& e_u, const Eigen::Vector3d& e_v, ArchFrame* arch) {
   const size_t n = arch->curve.size();
   std::vector<Eigen::Vector2d> line;
-  for (const auto& q : arch->curve) line.emplace_back((q.position - centre).dot(e_u), (q.position - centre).dot(e_v));
+  for (const auto& q : arch->curve)
+    line.emplace_back((q.position - centre).dot(e_u), (q.position - centre).dot(e_v));
   std::vector<double> arc(n, 0.0);
   for (size_t k = 1; k < n; ++k) arc[k] = arc[k - 1] + (line[k] - line[k - 1]).norm();
   const PolylineProjector projector(line);
   std::vector<std::vector<std::pair<double, double>>> lateral(n);
   for (size_t i = 0; i < plane.uv.size(); ++i) {
     const LineCoords lc = projector.Project(plane.uv[i]);
-    const size_t k = std::min<size_t>(static_cast<size_t>(std::lower_bound(arc.begin(), arc.end(), lc.arc) - arc.begin()), n - 1);
+    const size_t k = std::min<size_t>(
+        static_cast<size_t>(std::lower_bound(arc.begin(), arc.end(), lc.arc) - arc.begin()), n - 1);
     lateral[k].push_back({std::abs(lc.lateral), plane.weight[i]});
   }
   const int window = static_cast<int>(std::round(2.0 / kCurveStepMm));
@@ -685,7 +710,8 @@ double MidlineArc(const ArchFrame& arch) {
   return arc;
 }
 
-std::vector<std::pair<double, double>> Zip(const std::vector<double>& a, const std::vector<double>& b) {
+std::vector<std::pair<double, double>> Zip(const std::vector<double>& a,
+                                           const std::vector<double>& b) {
   std::vector<std::pair<double, double>> out(a.size());
   for (size_t i = 0; i < a.size(); ++i) out[i] = {a[i], b[i]};
   return out;
@@ -693,8 +719,8 @@ std::vector<std::pair<double, double>> Zip(const std::vector<double>& a, const s
 
 // Fits the arch curve to the plane points (see AnalyzeArch): fills curve, length, widths and
 // midline of *arch, or says why the points are not an arch.
-Status FitArchCurve(const PlanePoints& plane, const Eigen::Vector3d& centre, const Eigen::Vector3d& e_u, const Eigen::Vector3d& e_v,
-                    ArchFrame* arch) {
+Status FitArchCurve(const PlanePoints& plane, const Eigen::Vector3d& centre,
+                    const Eigen::Vector3d& e_u, const Eigen::Vector3d& e_v, ArchFrame* arch) {
   char buf[200];
   std::vector<Eigen::Vector2d> line;
   double area_mm2 = 0, geodesic_mm = 0;
@@ -702,7 +728,8 @@ Status FitArchCurve(const PlanePoints& plane, const Eigen::Vector3d& centre, con
   // A band: its geodesic diameter is long compared with its width (area / diameter).
   if (geodesic_mm < kMinElongation * area_mm2 / std::max(geodesic_mm, 1e-9)) {
     std::snprintf(buf, sizeof(buf),
-                  "not a dental arch: not an elongated band (geodesic length %.1f mm vs mean width %.1f mm; a "
+                  "not a dental arch: not an elongated band (geodesic length %.1f mm vs mean width "
+                  "%.1f mm; a "
                   "plate or a blob?)",
                   geodesic_mm, area_mm2 / std::max(geodesic_mm, 1e-9));
     return InvalidArgument(buf);
@@ -719,8 +746,10 @@ Status FitArchCurve(const PlanePoints& plane, const Eigen::Vector3d& centre, con
   }
   // The refined curve must follow the band, not wander across a wide one.
   if (arch->length_mm > kMaxCurveOverGeodesic * geodesic_mm + 10.0) {
-    std::snprintf(buf, sizeof(buf), "not a dental arch: no clear centreline (curve %.1f mm vs geodesic length %.1f mm)", arch->length_mm,
-                  geodesic_mm);
+    std::snprintf(
+        buf, sizeof(buf),
+        "not a dental arch: no clear centreline (curve %.1f mm vs geodesic length %.1f mm)",
+        arch->length_mm, geodesic_mm);
     return InvalidArgument(buf);
   }
   EstimateHalfWidths(plane, centre, e_u, e_v, arch);
@@ -747,7 +776,8 @@ ArchPoint ArchFrame::At(double arc_mm) const {
     p.arc_mm = arc_mm;
     return p;
   }
-  const auto it = std::upper_bound(curve.begin(), curve.end(), arc_mm, [](double s, const ArchPoint& q) { return s < q.arc_mm; });
+  const auto it = std::upper_bound(curve.begin(), curve.end(), arc_mm,
+                                   [](double s, const ArchPoint& q) { return s < q.arc_mm; });
   const ArchPoint& b = *it;
   const ArchPoint& a = *(it - 1);
   const double u = (arc_mm - a.arc_mm) / std::max(b.arc_mm - a.arc_mm, 1e-12);
@@ -782,20 +812,24 @@ ArchFrame AnalyzeArch(const TriangleMesh& mesh) {
   const Eigen::Vector3d var = pca.variances;
   char buf[200];
   if (var(1) < 1.0 || var(1) < 1e-3 * var(2)) {
-    std::snprintf(buf, sizeof(buf), "not a dental arch: the surface is degenerate (spreads %.2f, %.2f, %.2f mm)", std::sqrt(var(0)),
-                  std::sqrt(var(1)), std::sqrt(var(2)));
+    std::snprintf(buf, sizeof(buf),
+                  "not a dental arch: the surface is degenerate (spreads %.2f, %.2f, %.2f mm)",
+                  std::sqrt(var(0)), std::sqrt(var(1)), std::sqrt(var(2)));
     arch.status = InvalidArgument(buf);
     return arch;
   }
   if (var(0) > 0.5 * var(1)) {
-    std::snprintf(buf, sizeof(buf), "not a dental arch: no dominant occlusal plane (spreads %.1f, %.1f, %.1f mm)", std::sqrt(var(0)),
-                  std::sqrt(var(1)), std::sqrt(var(2)));
+    std::snprintf(buf, sizeof(buf),
+                  "not a dental arch: no dominant occlusal plane (spreads %.1f, %.1f, %.1f mm)",
+                  std::sqrt(var(0)), std::sqrt(var(1)), std::sqrt(var(2)));
     arch.status = InvalidArgument(buf);
     return arch;
   }
   const double sense = OcclusalSense(sel, pca.axes.col(0));
   if (sense == 0.0) {
-    arch.status = InvalidArgument("cannot tell the occlusal side: no tooth/gingiva labels and no net face normal (closed mesh?)");
+    arch.status = InvalidArgument(
+        "cannot tell the occlusal side: no tooth/gingiva labels and no net face normal (closed "
+        "mesh?)");
     return arch;
   }
   arch.occlusal = sense * pca.axes.col(0);
@@ -809,7 +843,8 @@ ArchFrame AnalyzeArch(const TriangleMesh& mesh) {
     plane.height.push_back(d.dot(arch.occlusal));
     // Footprint weight: what the surface covers in the occlusal plane (walls parallel to the
     // occlusal direction, e.g. the distal faces of the last molars, barely pull the curve).
-    plane.weight.push_back(s.w * (kWallWeight + (1.0 - kWallWeight) * std::abs(s.n.dot(arch.occlusal))));
+    plane.weight.push_back(s.w *
+                           (kWallWeight + (1.0 - kWallWeight) * std::abs(s.n.dot(arch.occlusal))));
   }
   arch.status = FitArchCurve(plane, pca.mean, e_u, e_v, &arch);
   if (!arch.ok() && !sel.used_labels) {
@@ -884,44 +919,70 @@ const char* ScanPhaseName(ScanPhase phase) {
 
 void ScanPathOptions::Check() const {
   auto in = [](double v, double lo, double hi) { return std::isfinite(v) && v >= lo && v <= hi; };
-  D3D_CHECK_MSG(in(working_distance_mm, 1, 500), "working_distance_mm out of (1, 500]: " << working_distance_mm);
+  D3D_CHECK_MSG(in(working_distance_mm, 1, 500),
+                "working_distance_mm out of (1, 500]: " << working_distance_mm);
   D3D_CHECK_MSG(!passes.empty(), "passes is empty");
   for (ScanPhase p : passes) {
     D3D_CHECK_MSG(p == ScanPhase::kOcclusal || p == ScanPhase::kBuccal || p == ScanPhase::kLingual,
                   "passes may only hold occlusal, buccal or lingual, got " << ScanPhaseName(p));
   }
   D3D_CHECK_MSG(in(buccal_tilt_deg, 0, 80), "buccal_tilt_deg out of [0, 80]: " << buccal_tilt_deg);
-  D3D_CHECK_MSG(in(lingual_tilt_deg, 0, 80), "lingual_tilt_deg out of [0, 80]: " << lingual_tilt_deg);
-  D3D_CHECK_MSG(in(buccal_aim_offset_mm, 0, 20), "buccal_aim_offset_mm out of [0, 20]: " << buccal_aim_offset_mm);
-  D3D_CHECK_MSG(in(lingual_aim_offset_mm, 0, 20), "lingual_aim_offset_mm out of [0, 20]: " << lingual_aim_offset_mm);
-  D3D_CHECK_MSG(in(side_aim_drop_mm, -10, 10), "side_aim_drop_mm out of [-10, 10]: " << side_aim_drop_mm);
-  D3D_CHECK_MSG(in(end_overshoot_mm, 0, 20), "end_overshoot_mm out of [0, 20]: " << end_overshoot_mm);
+  D3D_CHECK_MSG(in(lingual_tilt_deg, 0, 80),
+                "lingual_tilt_deg out of [0, 80]: " << lingual_tilt_deg);
+  D3D_CHECK_MSG(in(buccal_aim_offset_mm, 0, 20),
+                "buccal_aim_offset_mm out of [0, 20]: " << buccal_aim_offset_mm);
+  D3D_CHECK_MSG(in(lingual_aim_offset_mm, 0, 20),
+                "lingual_aim_offset_mm out of [0, 20]: " << lingual_aim_offset_mm);
+  D3D_CHECK_MSG(in(side_aim_drop_mm, -10, 10),
+                "side_aim_drop_mm out of [-10, 10]: " << side_aim_drop_mm);
+  D3D_CHECK_MSG(in(end_overshoot_mm, 0, 20),
+                "end_overshoot_mm out of [0, 20]: " << end_overshoot_mm);
   D3D_CHECK_MSG(in(distal_tilt_deg, 0, 80), "distal_tilt_deg out of [0, 80]: " << distal_tilt_deg);
-  D3D_CHECK_MSG(in(transition_lift_mm, 0, 20), "transition_lift_mm out of [0, 20]: " << transition_lift_mm);
-  D3D_CHECK_MSG(in(corner_smoothing_mm, 0, 50), "corner_smoothing_mm out of [0, 50]: " << corner_smoothing_mm);
+  D3D_CHECK_MSG(in(transition_lift_mm, 0, 20),
+                "transition_lift_mm out of [0, 20]: " << transition_lift_mm);
+  D3D_CHECK_MSG(in(corner_smoothing_mm, 0, 50),
+                "corner_smoothing_mm out of [0, 50]: " << corner_smoothing_mm);
   D3D_CHECK_MSG(in(speed_mm_s, 5, 30), "speed_mm_s out of [5, 30]: " << speed_mm_s);
-  D3D_CHECK_MSG(in(speed_variation, 0, 0.5), "speed_variation out of [0, 0.5]: " << speed_variation);
-  D3D_CHECK_MSG(in(min_camera_speed_mm_s, 0.1, 100) && in(max_camera_speed_mm_s, min_camera_speed_mm_s, 100),
-                "need 0.1 <= min_camera_speed_mm_s <= max_camera_speed_mm_s <= 100, got " << min_camera_speed_mm_s << ", " << max_camera_speed_mm_s);
-  D3D_CHECK_MSG(in(transition_speed_mm_s, 1, 100), "transition_speed_mm_s out of [1, 100]: " << transition_speed_mm_s);
-  D3D_CHECK_MSG(in(max_path_angular_speed_rad_s, 0.05, 20), "max_path_angular_speed_rad_s out of [0.05, 20]: " << max_path_angular_speed_rad_s);
-  D3D_CHECK_MSG(in(roll_amplitude_deg, 0, 45), "roll_amplitude_deg out of [0, 45]: " << roll_amplitude_deg);
-  D3D_CHECK_MSG(in(rock_amplitude_deg, 0, 45), "rock_amplitude_deg out of [0, 45]: " << rock_amplitude_deg);
-  D3D_CHECK_MSG(in(roll_frequency_hz, 0, 5), "roll_frequency_hz out of [0, 5]: " << roll_frequency_hz);
-  D3D_CHECK_MSG(in(rock_frequency_hz, 0, 5), "rock_frequency_hz out of [0, 5]: " << rock_frequency_hz);
-  D3D_CHECK_MSG(in(roll_pivot_depth_mm, 0, 2 * working_distance_mm), "roll_pivot_depth_mm out of [0, 2 × working distance]: " << roll_pivot_depth_mm);
-  D3D_CHECK_MSG(in(rock_pivot_depth_mm, 0, 2 * working_distance_mm), "rock_pivot_depth_mm out of [0, 2 × working distance]: " << rock_pivot_depth_mm);
-  D3D_CHECK_MSG(in(tremor_position_mm, 0, 5), "tremor_position_mm out of [0, 5]: " << tremor_position_mm);
-  D3D_CHECK_MSG(in(tremor_rotation_deg, 0, 5), "tremor_rotation_deg out of [0, 5]: " << tremor_rotation_deg);
+  D3D_CHECK_MSG(in(speed_variation, 0, 0.5),
+                "speed_variation out of [0, 0.5]: " << speed_variation);
+  D3D_CHECK_MSG(
+      in(min_camera_speed_mm_s, 0.1, 100) && in(max_camera_speed_mm_s, min_camera_speed_mm_s, 100),
+      "need 0.1 <= min_camera_speed_mm_s <= max_camera_speed_mm_s <= 100, got "
+          << min_camera_speed_mm_s << ", " << max_camera_speed_mm_s);
+  D3D_CHECK_MSG(in(transition_speed_mm_s, 1, 100),
+                "transition_speed_mm_s out of [1, 100]: " << transition_speed_mm_s);
+  D3D_CHECK_MSG(in(max_path_angular_speed_rad_s, 0.05, 20),
+                "max_path_angular_speed_rad_s out of [0.05, 20]: " << max_path_angular_speed_rad_s);
+  D3D_CHECK_MSG(in(roll_amplitude_deg, 0, 45),
+                "roll_amplitude_deg out of [0, 45]: " << roll_amplitude_deg);
+  D3D_CHECK_MSG(in(rock_amplitude_deg, 0, 45),
+                "rock_amplitude_deg out of [0, 45]: " << rock_amplitude_deg);
+  D3D_CHECK_MSG(in(roll_frequency_hz, 0, 5),
+                "roll_frequency_hz out of [0, 5]: " << roll_frequency_hz);
+  D3D_CHECK_MSG(in(rock_frequency_hz, 0, 5),
+                "rock_frequency_hz out of [0, 5]: " << rock_frequency_hz);
+  D3D_CHECK_MSG(in(roll_pivot_depth_mm, 0, 2 * working_distance_mm),
+                "roll_pivot_depth_mm out of [0, 2 × working distance]: " << roll_pivot_depth_mm);
+  D3D_CHECK_MSG(in(rock_pivot_depth_mm, 0, 2 * working_distance_mm),
+                "rock_pivot_depth_mm out of [0, 2 × working distance]: " << rock_pivot_depth_mm);
+  D3D_CHECK_MSG(in(tremor_position_mm, 0, 5),
+                "tremor_position_mm out of [0, 5]: " << tremor_position_mm);
+  D3D_CHECK_MSG(in(tremor_rotation_deg, 0, 5),
+                "tremor_rotation_deg out of [0, 5]: " << tremor_rotation_deg);
   D3D_CHECK_MSG(in(tremor_min_hz, 0.1, 100) && in(tremor_max_hz, tremor_min_hz, 100),
-                "need 0.1 <= tremor_min_hz <= tremor_max_hz <= 100, got " << tremor_min_hz << ", " << tremor_max_hz);
-  D3D_CHECK_MSG(in(drift_position_mm, 0, 20), "drift_position_mm out of [0, 20]: " << drift_position_mm);
-  D3D_CHECK_MSG(in(drift_rotation_deg, 0, 20), "drift_rotation_deg out of [0, 20]: " << drift_rotation_deg);
-  D3D_CHECK_MSG(in(drift_frequency_hz, 0.01, 10), "drift_frequency_hz out of [0.01, 10]: " << drift_frequency_hz);
+                "need 0.1 <= tremor_min_hz <= tremor_max_hz <= 100, got " << tremor_min_hz << ", "
+                                                                          << tremor_max_hz);
+  D3D_CHECK_MSG(in(drift_position_mm, 0, 20),
+                "drift_position_mm out of [0, 20]: " << drift_position_mm);
+  D3D_CHECK_MSG(in(drift_rotation_deg, 0, 20),
+                "drift_rotation_deg out of [0, 20]: " << drift_rotation_deg);
+  D3D_CHECK_MSG(in(drift_frequency_hz, 0.01, 10),
+                "drift_frequency_hz out of [0.01, 10]: " << drift_frequency_hz);
   D3D_CHECK_MSG(side == 0 || side == 1, "side must be 0 or 1, got " << side);
   D3D_CHECK_MSG(in(tooth_arc_mm, 0, 200), "tooth_arc_mm out of [0, 200]: " << tooth_arc_mm);
   D3D_CHECK_MSG(in(dwell_rock_deg, 0, 60), "dwell_rock_deg out of [0, 60]: " << dwell_rock_deg);
-  D3D_CHECK_MSG(key_interval_ns >= 100'000 && key_interval_ns <= 100'000'000, "key_interval_ns out of [0.1 ms, 100 ms]: " << key_interval_ns);
+  D3D_CHECK_MSG(key_interval_ns >= 100'000 && key_interval_ns <= 100'000'000,
+                "key_interval_ns out of [0.1 ms, 100 ms]: " << key_interval_ns);
 }
 
 namespace {
@@ -955,7 +1016,9 @@ struct Oscillator3 {
   Oscillator x, y, z;
   Oscillator3() = default;
   Oscillator3(std::mt19937* rng, int components, double f_lo, double f_hi, double peak)
-      : x(rng, components, f_lo, f_hi, peak), y(rng, components, f_lo, f_hi, peak), z(rng, components, f_lo, f_hi, peak) {}
+      : x(rng, components, f_lo, f_hi, peak),
+        y(rng, components, f_lo, f_hi, peak),
+        z(rng, components, f_lo, f_hi, peak) {}
   Eigen::Vector3d operator()(double t_s) const { return {x(t_s), y(t_s), z(t_s)}; }
 };
 
@@ -971,16 +1034,19 @@ struct HandModel {
     roll = Oscillator(&rng, 2, 0.85 * o.roll_frequency_hz, 1.15 * o.roll_frequency_hz, 1.0);
     rock = Oscillator(&rng, 2, 0.85 * o.rock_frequency_hz, 1.15 * o.rock_frequency_hz, 1.0);
     tremor_pos = Oscillator3(&rng, 3, o.tremor_min_hz, o.tremor_max_hz, o.tremor_position_mm);
-    tremor_rot = Oscillator3(&rng, 3, o.tremor_min_hz, o.tremor_max_hz, o.tremor_rotation_deg * kDegToRad);
-    drift_pos = Oscillator3(&rng, 2, 0.6 * o.drift_frequency_hz, 1.4 * o.drift_frequency_hz, o.drift_position_mm);
-    drift_rot = Oscillator3(&rng, 2, 0.6 * o.drift_frequency_hz, 1.4 * o.drift_frequency_hz, o.drift_rotation_deg * kDegToRad);
+    tremor_rot =
+        Oscillator3(&rng, 3, o.tremor_min_hz, o.tremor_max_hz, o.tremor_rotation_deg * kDegToRad);
+    drift_pos = Oscillator3(&rng, 2, 0.6 * o.drift_frequency_hz, 1.4 * o.drift_frequency_hz,
+                            o.drift_position_mm);
+    drift_rot = Oscillator3(&rng, 2, 0.6 * o.drift_frequency_hz, 1.4 * o.drift_frequency_hz,
+                            o.drift_rotation_deg * kDegToRad);
   }
 };
 
 // The planned (intentional) state of the probe relative to the arch.
 struct PlanState {
-  double arc = 0;    // arc position of the aimed point, mm
-  double tilt = 0;   // rad about the tangent: 0 occlusal, > 0 camera on the buccal side, < 0 lingual
+  double arc = 0;   // arc position of the aimed point, mm
+  double tilt = 0;  // rad about the tangent: 0 occlusal, > 0 camera on the buccal side, < 0 lingual
   double pitch = 0;  // rad: optical axis tilted toward +tangent
   double lift = 0;   // mm added to the working distance
   ScanPhase phase = ScanPhase::kOcclusal;
@@ -1000,29 +1066,35 @@ double PassTilt(ScanPhase pass, const ScanPathOptions& o) {
 
 Leg PassLeg(ScanPhase pass, double arc0, double arc1, const ScanPathOptions& o) {
   const double tilt = PassTilt(pass, o);
-  return {pass, [=](double s) { return PlanState{arc0 + s * (arc1 - arc0), tilt, 0.0, 0.0, pass}; }};
+  return {pass, [=](double s) {
+            return PlanState{arc0 + s * (arc1 - arc0), tilt, 0.0, 0.0, pass};
+          }};
 }
 
 // Lift and roll from tilt0 to tilt1 at `arc`; distal_sign = ±1 at a distal end (the side beyond
 // the end along the tangent), 0 elsewhere (the midline of a quadrant).
-Leg TransitionLeg(double arc, double tilt0, double tilt1, double distal_sign, const ScanPathOptions& o) {
+Leg TransitionLeg(double arc, double tilt0, double tilt1, double distal_sign,
+                  const ScanPathOptions& o) {
   const double pitch = -distal_sign * o.distal_tilt_deg * kDegToRad;
   const double lift = o.transition_lift_mm;
   return {ScanPhase::kTransition, [=](double s) {
             const double bump = std::sin(kPi * s);
-            return PlanState{arc, tilt0 + s * (tilt1 - tilt0), pitch * bump, lift * bump, ScanPhase::kTransition};
+            return PlanState{arc, tilt0 + s * (tilt1 - tilt0), pitch * bump, lift * bump,
+                             ScanPhase::kTransition};
           }};
 }
 
 // Serpentine passes between arc positions a (start) and b, with transitions at the turning ends.
-std::vector<Leg> PassPlan(double a, double b, double distal_sign_a, double distal_sign_b, const ScanPathOptions& o) {
+std::vector<Leg> PassPlan(double a, double b, double distal_sign_a, double distal_sign_b,
+                          const ScanPathOptions& o) {
   std::vector<Leg> legs;
   double from = a, to = b;
   for (size_t i = 0; i < o.passes.size(); ++i) {
     legs.push_back(PassLeg(o.passes[i], from, to, o));
     if (i + 1 < o.passes.size()) {
       const double sign = to == b ? distal_sign_b : distal_sign_a;
-      legs.push_back(TransitionLeg(to, PassTilt(o.passes[i], o), PassTilt(o.passes[i + 1], o), sign, o));
+      legs.push_back(
+          TransitionLeg(to, PassTilt(o.passes[i], o), PassTilt(o.passes[i + 1], o), sign, o));
     }
     std::swap(from, to);
   }
@@ -1036,7 +1108,8 @@ std::vector<Leg> DwellPlan(double arc, const ScanPathOptions& o) {
   const double rock = o.dwell_rock_deg * kDegToRad;
   auto loop = [=](double s) {
     const double psi = 2 * kPi * s, c = std::cos(psi);
-    return PlanState{arc, c >= 0 ? buccal * c : lingual * c, rock * std::sin(psi), 0.0, ScanPhase::kDwell};
+    return PlanState{arc, c >= 0 ? buccal * c : lingual * c, rock * std::sin(psi), 0.0,
+                     ScanPhase::kDwell};
   };
   return {{ScanPhase::kDwell,
            [=](double s) {
@@ -1049,8 +1122,8 @@ std::vector<Leg> DwellPlan(double arc, const ScanPathOptions& o) {
 }
 
 double PlanDistance(const PlanState& a, const PlanState& b, double wd) {
-  return std::sqrt(std::pow(b.arc - a.arc, 2) + std::pow(wd * (b.tilt - a.tilt), 2) + std::pow(wd * (b.pitch - a.pitch), 2) +
-                   std::pow(b.lift - a.lift, 2));
+  return std::sqrt(std::pow(b.arc - a.arc, 2) + std::pow(wd * (b.tilt - a.tilt), 2) +
+                   std::pow(wd * (b.pitch - a.pitch), 2) + std::pow(b.lift - a.lift, 2));
 }
 
 constexpr double kPlanStepMm = 0.25;
@@ -1061,7 +1134,9 @@ std::vector<PlanState> SamplePlan(const std::vector<Leg>& legs, const ScanPathOp
   for (const Leg& leg : legs) {
     double length = 0;
     constexpr int kProbe = 256;
-    for (int k = 1; k <= kProbe; ++k) length += PlanDistance(leg.at((k - 1.0) / kProbe), leg.at(1.0 * k / kProbe), o.working_distance_mm);
+    for (int k = 1; k <= kProbe; ++k)
+      length +=
+          PlanDistance(leg.at((k - 1.0) / kProbe), leg.at(1.0 * k / kProbe), o.working_distance_mm);
     const int n = std::max(2, static_cast<int>(std::ceil(length / kPlanStepMm)));
     for (int k = out.empty() ? 0 : 1; k <= n; ++k) out.push_back(leg.at(1.0 * k / n));
   }
@@ -1095,11 +1170,14 @@ BasePose PoseFor(const ArchFrame& arch, const PlanState& st, const ScanPathOptio
   const ArchPoint q = arch.At(st.arc);
   const Eigen::Vector3d& O = arch.occlusal;
   const Eigen::Vector3d T = (q.tangent - q.tangent.dot(O) * O).normalized();
-  const Eigen::Vector3d B = T.cross(O).dot(q.buccal) >= 0 ? T.cross(O).normalized() : O.cross(T).normalized();
+  const Eigen::Vector3d B =
+      T.cross(O).dot(q.buccal) >= 0 ? T.cross(O).normalized() : O.cross(T).normalized();
   // How far to the side the aim moves: 1 at the pass's nominal tilt.
   const double ref = st.tilt >= 0 ? o.buccal_tilt_deg : o.lingual_tilt_deg;
-  const double side = ref > 0 ? std::clamp(std::sin(std::abs(st.tilt)) / std::sin(ref * kDegToRad), 0.0, 1.5) : 0.0;
-  const double lateral = st.tilt >= 0 ? o.buccal_aim_offset_mm * side : -o.lingual_aim_offset_mm * side;
+  const double side =
+      ref > 0 ? std::clamp(std::sin(std::abs(st.tilt)) / std::sin(ref * kDegToRad), 0.0, 1.5) : 0.0;
+  const double lateral =
+      st.tilt >= 0 ? o.buccal_aim_offset_mm * side : -o.lingual_aim_offset_mm * side;
   const Eigen::Vector3d aim = q.position + lateral * B - o.side_aim_drop_mm * side * O;
 
   const double ct = std::cos(st.tilt), stl = std::sin(st.tilt);
@@ -1112,23 +1190,29 @@ BasePose PoseFor(const ArchFrame& arch, const PlanState& st, const ScanPathOptio
   return {pose, aim};
 }
 
-bool IsPass(ScanPhase p) { return p == ScanPhase::kOcclusal || p == ScanPhase::kBuccal || p == ScanPhase::kLingual; }
+bool IsPass(ScanPhase p) {
+  return p == ScanPhase::kOcclusal || p == ScanPhase::kBuccal || p == ScanPhase::kLingual;
+}
 
 // Times the plan: during passes the aim moves at the (varying) nominal speed with the camera
 // speed kept within its bounds; elsewhere the camera moves at the transition speed; the path's
 // angular speed is capped. Returns seconds from the start, one per state.
-std::vector<double> TimePlan(const std::vector<PlanState>& plan, const std::vector<BasePose>& poses, const HandModel& hand,
-                             const ScanPathOptions& o) {
+std::vector<double> TimePlan(const std::vector<PlanState>& plan, const std::vector<BasePose>& poses,
+                             const HandModel& hand, const ScanPathOptions& o) {
   std::vector<double> t(plan.size(), 0.0);
   for (size_t i = 1; i < plan.size(); ++i) {
-    const double dc = (poses[i].world_from_probe.translation() - poses[i - 1].world_from_probe.translation()).norm();
+    const double dc =
+        (poses[i].world_from_probe.translation() - poses[i - 1].world_from_probe.translation())
+            .norm();
     const double da = (poses[i].aim - poses[i - 1].aim).norm();
     const double dang = RotationAngleRad(poses[i].world_from_probe, poses[i - 1].world_from_probe);
     const double vary = 1.0 + o.speed_variation * hand.speed(t[i - 1]);
     double v_cam;
     if (IsPass(plan[i].phase)) {
       const double v_aim = o.speed_mm_s * vary;
-      v_cam = da > 1e-9 ? std::clamp(v_aim * dc / da, o.min_camera_speed_mm_s, o.max_camera_speed_mm_s) : o.min_camera_speed_mm_s;
+      v_cam = da > 1e-9
+                  ? std::clamp(v_aim * dc / da, o.min_camera_speed_mm_s, o.max_camera_speed_mm_s)
+                  : o.min_camera_speed_mm_s;
     } else {
       v_cam = o.transition_speed_mm_s * vary;
     }
@@ -1139,7 +1223,8 @@ std::vector<double> TimePlan(const std::vector<PlanState>& plan, const std::vect
 }
 
 // world_from_probe · (rotation by `angle` about the probe-frame `axis` through (0, 0, depth)).
-Rigid3d PivotAboutAxisPoint(const Rigid3d& world_from_probe, const Eigen::Vector3d& axis, double angle, double depth) {
+Rigid3d PivotAboutAxisPoint(const Rigid3d& world_from_probe, const Eigen::Vector3d& axis,
+                            double angle, double depth) {
   Rigid3d local = Rigid3d::Identity();
   local.linear() = Eigen::AngleAxisd(angle, axis).toRotationMatrix();
   const Eigen::Vector3d pivot(0, 0, depth);
@@ -1153,12 +1238,13 @@ constexpr double kWiggleRampS = 1.5;
 // transitions (the plan already turns the probe there, and each pass must reach the arch's ends
 // unwiggled), back to 1 within kWiggleRampS along a smoothstep (C1).
 double WiggleEnvelope(int64_t t_ns, const std::vector<ScanSegment>& segments) {
-  double gap_ns =
-      std::min(std::abs(static_cast<double>(t_ns - segments.front().start_ns)), std::abs(static_cast<double>(segments.back().end_ns - t_ns)));
+  double gap_ns = std::min(std::abs(static_cast<double>(t_ns - segments.front().start_ns)),
+                           std::abs(static_cast<double>(segments.back().end_ns - t_ns)));
   for (const auto& s : segments) {
     if (s.phase != ScanPhase::kTransition) continue;
     if (t_ns >= s.start_ns && t_ns <= s.end_ns) return 0.0;
-    gap_ns = std::min({gap_ns, std::abs(static_cast<double>(t_ns - s.start_ns)), std::abs(static_cast<double>(t_ns - s.end_ns))});
+    gap_ns = std::min({gap_ns, std::abs(static_cast<double>(t_ns - s.start_ns)),
+                       std::abs(static_cast<double>(t_ns - s.end_ns))});
   }
   const double x = std::clamp(gap_ns * 1e-9 / kWiggleRampS, 0.0, 1.0);
   return x * x * (3.0 - 2.0 * x);
@@ -1166,10 +1252,14 @@ double WiggleEnvelope(int64_t t_ns, const std::vector<ScanSegment>& segments) {
 
 // Composes the deliberate wiggles (scaled by `envelope`) and the involuntary motion on the planned
 // pose at t (s).
-Rigid3d HandPose(const Rigid3d& planned, double t, double envelope, const HandModel& hand, const ScanPathOptions& o) {
-  Rigid3d T =
-      PivotAboutAxisPoint(planned, Eigen::Vector3d::UnitX(), envelope * o.rock_amplitude_deg * kDegToRad * hand.rock(t), o.rock_pivot_depth_mm);
-  T = PivotAboutAxisPoint(T, Eigen::Vector3d::UnitY(), envelope * o.roll_amplitude_deg * kDegToRad * hand.roll(t), o.roll_pivot_depth_mm);
+Rigid3d HandPose(const Rigid3d& planned, double t, double envelope, const HandModel& hand,
+                 const ScanPathOptions& o) {
+  Rigid3d T = PivotAboutAxisPoint(planned, Eigen::Vector3d::UnitX(),
+                                  envelope * o.rock_amplitude_deg * kDegToRad * hand.rock(t),
+                                  o.rock_pivot_depth_mm);
+  T = PivotAboutAxisPoint(T, Eigen::Vector3d::UnitY(),
+                          envelope * o.roll_amplitude_deg * kDegToRad * hand.roll(t),
+                          o.roll_pivot_depth_mm);
   // Drift and tremor: world-axis rotation about the optical centre, world-axis translation.
   const Eigen::Vector3d rot = hand.drift_rot(t) + hand.tremor_rot(t);
   T.linear() = (ExpSO3(rot) * T.linear()).eval();
@@ -1177,7 +1267,8 @@ Rigid3d HandPose(const Rigid3d& planned, double t, double envelope, const HandMo
   return T;
 }
 
-std::vector<ScanSegment> Segments(const std::vector<PlanState>& plan, const std::vector<int64_t>& t_ns) {
+std::vector<ScanSegment> Segments(const std::vector<PlanState>& plan,
+                                  const std::vector<int64_t>& t_ns) {
   std::vector<ScanSegment> out;
   for (size_t i = 0; i < plan.size(); ++i) {
     if (out.empty() || out.back().phase != plan[i].phase) {
@@ -1189,7 +1280,8 @@ std::vector<ScanSegment> Segments(const std::vector<PlanState>& plan, const std:
   return out;
 }
 
-Status BuildLegs(const ArchFrame& arch, ScanKind kind, const ScanPathOptions& o, std::vector<Leg>* legs) {
+Status BuildLegs(const ArchFrame& arch, ScanKind kind, const ScanPathOptions& o,
+                 std::vector<Leg>* legs) {
   const double lo = -o.end_overshoot_mm, hi = arch.length_mm + o.end_overshoot_mm;
   const double mid = arch.midline_arc_mm;
   switch (kind) {
@@ -1197,12 +1289,14 @@ Status BuildLegs(const ArchFrame& arch, ScanKind kind, const ScanPathOptions& o,
       *legs = o.side == 0 ? PassPlan(lo, hi, -1, +1, o) : PassPlan(hi, lo, +1, -1, o);
       return Status::Ok();
     case ScanKind::kQuadrant:
-      *legs = o.side == 0 ? PassPlan(lo, mid + o.end_overshoot_mm, -1, 0, o) : PassPlan(hi, mid - o.end_overshoot_mm, +1, 0, o);
+      *legs = o.side == 0 ? PassPlan(lo, mid + o.end_overshoot_mm, -1, 0, o)
+                          : PassPlan(hi, mid - o.end_overshoot_mm, +1, 0, o);
       return Status::Ok();
     case ScanKind::kTooth: {
       const double half = o.side == 0 ? mid : arch.length_mm - mid;
       if (o.tooth_arc_mm > half) {
-        return InvalidArgument("tooth_arc_mm " + std::to_string(o.tooth_arc_mm) + " mm is beyond the midline (half arch " + std::to_string(half) +
+        return InvalidArgument("tooth_arc_mm " + std::to_string(o.tooth_arc_mm) +
+                               " mm is beyond the midline (half arch " + std::to_string(half) +
                                " mm)");
       }
       *legs = DwellPlan(o.side == 0 ? o.tooth_arc_mm : arch.length_mm - o.tooth_arc_mm, o);
@@ -1214,7 +1308,8 @@ Status BuildLegs(const ArchFrame& arch, ScanKind kind, const ScanPathOptions& o,
 
 }  // namespace
 
-ScanPathResult MakeScanTrajectory(const TriangleMesh& mesh, ScanKind kind, const ScanPathOptions& options) {
+ScanPathResult MakeScanTrajectory(const TriangleMesh& mesh, ScanKind kind,
+                                  const ScanPathOptions& options) {
   options.Check();
   const ArchFrame arch = AnalyzeArch(mesh);
   if (!arch.ok()) {
@@ -1226,7 +1321,8 @@ ScanPathResult MakeScanTrajectory(const TriangleMesh& mesh, ScanKind kind, const
   return MakeScanTrajectory(arch, kind, options);
 }
 
-ScanPathResult MakeScanTrajectory(const ArchFrame& arch, ScanKind kind, const ScanPathOptions& options) {
+ScanPathResult MakeScanTrajectory(const ArchFrame& arch, ScanKind kind,
+                                  const ScanPathOptions& options) {
   options.Check();
   ScanPathResult result;
   result.arch = arch;
@@ -1239,12 +1335,14 @@ ScanPathResult MakeScanTrajectory(const ArchFrame& arch, ScanKind kind, const Sc
   if (!result.ok()) return result;
 
   const HandModel hand(options);
-  const std::vector<PlanState> plan = SmoothPlan(SamplePlan(legs, options), options.corner_smoothing_mm);
+  const std::vector<PlanState> plan =
+      SmoothPlan(SamplePlan(legs, options), options.corner_smoothing_mm);
   std::vector<BasePose> poses;
   for (const auto& st : plan) poses.push_back(PoseFor(arch, st, options));
   const std::vector<double> t_s = TimePlan(plan, poses, hand, options);
 
-  // The planned (smooth) motion as a C1 trajectory, then the hand on top, sampled every key interval.
+  // The planned (smooth) motion as a C1 trajectory, then the hand on top, sampled every key
+  // interval.
   std::vector<TimedPose> planned_keys;
   std::vector<int64_t> t_ns(plan.size());
   for (size_t i = 0; i < plan.size(); ++i) {
@@ -1259,7 +1357,8 @@ ScanPathResult MakeScanTrajectory(const ArchFrame& arch, ScanKind kind, const Sc
   for (int64_t t = planned.StartNs();; t += options.key_interval_ns) {
     const int64_t tc = std::min(t, planned.EndNs());
     const double ts = static_cast<double>(tc - options.start_ns) * 1e-9;
-    keys.push_back({tc, HandPose(planned.WorldFromProbe(tc), ts, WiggleEnvelope(tc, result.segments), hand, options)});
+    keys.push_back({tc, HandPose(planned.WorldFromProbe(tc), ts,
+                                 WiggleEnvelope(tc, result.segments), hand, options)});
     if (tc == planned.EndNs()) break;
   }
   result.trajectory = Trajectory(std::move(keys));
@@ -1271,11 +1370,13 @@ ScanPathResult MakeScanTrajectory(const ArchFrame& arch, ScanKind kind, const Sc
 
 std::string ScanPathStats::ToString() const {
   char buf[512];
-  std::snprintf(buf, sizeof(buf),
-                "duration %.1f s, path %.0f mm, speed min/mean/max %.1f/%.1f/%.1f mm/s (%.1f %% in 5-20), "
-                "angular mean/max %.2f/%.2f rad/s, axis depth in DOF %.1f %% (mean %.1f mm), %zu samples",
-                duration_s, path_length_mm, min_speed_mm_s, mean_speed_mm_s, max_speed_mm_s, 100 * speed_in_5_20_share, mean_angular_speed_rad_s,
-                max_angular_speed_rad_s, 100 * depth_in_dof_share, mean_axis_depth_mm, samples);
+  std::snprintf(
+      buf, sizeof(buf),
+      "duration %.1f s, path %.0f mm, speed min/mean/max %.1f/%.1f/%.1f mm/s (%.1f %% in 5-20), "
+      "angular mean/max %.2f/%.2f rad/s, axis depth in DOF %.1f %% (mean %.1f mm), %zu samples",
+      duration_s, path_length_mm, min_speed_mm_s, mean_speed_mm_s, max_speed_mm_s,
+      100 * speed_in_5_20_share, mean_angular_speed_rad_s, max_angular_speed_rad_s,
+      100 * depth_in_dof_share, mean_axis_depth_mm, samples);
   return buf;
 }
 

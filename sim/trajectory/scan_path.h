@@ -22,13 +22,13 @@ namespace d3d {
 
 // A sample of the arch curve (world frame).
 struct ArchPoint {
-  Eigen::Vector3d position = Eigen::Vector3d::Zero();  // mm: middle of the tooth band, at the height
-                                                       // of the occlusal (biting) surface
+  Eigen::Vector3d position = Eigen::Vector3d::Zero();  // mm: middle of the tooth band, at the
+                                                       // height of the occlusal (biting) surface
   Eigen::Vector3d tangent = Eigen::Vector3d::UnitX();  // unit, toward increasing arc length
-  Eigen::Vector3d buccal = Eigen::Vector3d::UnitY();   // unit, outward (cheek/lip side), ⟂ tangent and
-                                                       // ⟂ the occlusal direction
-  double arc_mm = 0;                                   // arc length from the curve's first end
-  double half_width_mm = 0;                            // half the band's buccal-lingual width here (95th percentile)
+  Eigen::Vector3d buccal = Eigen::Vector3d::UnitY();  // unit, outward (cheek/lip side), ⟂ tangent
+                                                      // and ⟂ the occlusal direction
+  double arc_mm = 0;                                  // arc length from the curve's first end
+  double half_width_mm = 0;  // half the band's buccal-lingual width here (95th percentile)
 };
 
 // The geometry of a dental arch, found from the mesh alone.
@@ -36,7 +36,8 @@ struct ArchFrame {
   Status status;  // ok, or why the mesh is not taken for an arch (the other fields are then unset)
   // Unit vector from the roots toward the biting surfaces (world frame).
   Eigen::Vector3d occlusal = Eigen::Vector3d::UnitZ();
-  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();  // area-weighted centroid of the analysed surface
+  Eigen::Vector3d centroid =
+      Eigen::Vector3d::Zero();  // area-weighted centroid of the analysed surface
   // Ordered from one distal end to the other, about 0.5 mm apart.
   std::vector<ArchPoint> curve;
   double length_mm = 0;       // arc length of the curve
@@ -229,9 +230,11 @@ struct ScanPathResult {
 // (INVALID_ARGUMENT when past the midline).
 // Throws std::invalid_argument when options.Check() fails; a mesh that is not an arch gives a
 // non-ok status with AnalyzeArch's reason.
-ScanPathResult MakeScanTrajectory(const TriangleMesh& mesh, ScanKind kind, const ScanPathOptions& options);
+ScanPathResult MakeScanTrajectory(const TriangleMesh& mesh, ScanKind kind,
+                                  const ScanPathOptions& options);
 // Same, on an already analysed arch (must be ok()).
-ScanPathResult MakeScanTrajectory(const ArchFrame& arch, ScanKind kind, const ScanPathOptions& options);
+ScanPathResult MakeScanTrajectory(const ArchFrame& arch, ScanKind kind,
+                                  const ScanPathOptions& options);
 
 // Summary figures of a scan trajectory over an arch.
 struct ScanPathStats {

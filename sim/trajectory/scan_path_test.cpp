@@ -32,7 +32,8 @@ TEST(AnalyzeArch, RecoversTheSyntheticArches) {
     std::vector<Eigen::Vector3d> c;
     const double true_length = ArchCentreline(shape, 0.5, &c);
     for (const bool labels : {true, false}) {
-      const std::string what = std::string(shape == Shape::kU ? "U" : "parabola") + (labels ? ", labels" : ", no labels");
+      const std::string what = std::string(shape == Shape::kU ? "U" : "parabola") +
+                               (labels ? ", labels" : ", no labels");
       const ArchFrame arch = AnalyzeArch(RidgeArch(T, labels, shape));
       ASSERT_TRUE(arch.ok()) << what << ": " << arch.status.ToString();
       EXPECT_EQ(arch.used_labels, labels);
@@ -53,7 +54,8 @@ TEST(AnalyzeArch, RecoversTheSyntheticArches) {
         const Eigen::Vector3d p = local_from_world * q.position;
         // Nearest centreline point: the curve runs through the middle of the ridge.
         double dist = 1e9;
-        for (const auto& x : c) dist = std::min(dist, (Eigen::Vector3d(p.x(), 0, p.z()) - x).norm());
+        for (const auto& x : c)
+          dist = std::min(dist, (Eigen::Vector3d(p.x(), 0, p.z()) - x).norm());
         EXPECT_LT(dist, 0.8) << what << " at arc " << q.arc_mm;
         EXPECT_NEAR(q.buccal.dot(arch.occlusal), 0.0, 1e-9);
         EXPECT_NEAR(q.tangent.dot(q.buccal), 0.0, 1e-9);
@@ -61,7 +63,8 @@ TEST(AnalyzeArch, RecoversTheSyntheticArches) {
           EXPECT_NEAR(q.half_width_mm, kWidth / 2, 0.6) << what << " at arc " << q.arc_mm;
           // Buccal points away from the arch's interior (the local origin side is inside).
           const Eigen::Vector3d b = T.linear().transpose() * q.buccal;
-          EXPECT_GT(b.dot(Eigen::Vector3d(p.x(), 0, p.z() - (shape == Shape::kU ? 12 : 0))), 0.0) << what;
+          EXPECT_GT(b.dot(Eigen::Vector3d(p.x(), 0, p.z() - (shape == Shape::kU ? 12 : 0))), 0.0)
+              << what;
         }
       }
     }
@@ -85,13 +88,15 @@ TEST(AnalyzeArch, RefusesNonArches) {
   }
   const ArchFrame flat = AnalyzeArch(plate);
   EXPECT_FALSE(flat.ok());
-  EXPECT_NE(flat.status.message().find("not an elongated band"), std::string::npos) << flat.status.ToString();
+  EXPECT_NE(flat.status.message().find("not an elongated band"), std::string::npos)
+      << flat.status.ToString();
 
   TriangleMesh gums = RidgeArch(Rigid3d::Identity(), true);
   std::fill(gums.face_labels.begin(), gums.face_labels.end(), SurfaceLabel::kGingiva);
   const ArchFrame no_teeth = AnalyzeArch(gums);
   EXPECT_FALSE(no_teeth.ok());
-  EXPECT_NE(no_teeth.status.message().find("too few tooth faces"), std::string::npos) << no_teeth.status.ToString();
+  EXPECT_NE(no_teeth.status.message().find("too few tooth faces"), std::string::npos)
+      << no_teeth.status.ToString();
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -158,7 +163,9 @@ void CheckFullArchScan(const ScanPathResult& scan, const std::string& what) {
   std::vector<ScanPhase> order;
   for (const auto& s : scan.segments)
     if (s.phase != ScanPhase::kTransition) order.push_back(s.phase);
-  EXPECT_EQ(order, (std::vector<ScanPhase>{ScanPhase::kOcclusal, ScanPhase::kBuccal, ScanPhase::kLingual})) << what;
+  EXPECT_EQ(order,
+            (std::vector<ScanPhase>{ScanPhase::kOcclusal, ScanPhase::kBuccal, ScanPhase::kLingual}))
+      << what;
   EXPECT_EQ(scan.segments.front().start_ns, tr.StartNs());
   EXPECT_EQ(scan.segments.back().end_ns, tr.EndNs());
   PassAngles angles;
@@ -212,11 +219,13 @@ TEST(MakeScanTrajectory, DeterministicForASeed) {
   ASSERT_EQ(a.trajectory.keys().size(), b.trajectory.keys().size());
   for (size_t i = 0; i < a.trajectory.keys().size(); ++i) {
     ASSERT_EQ(a.trajectory.keys()[i].t_ns, b.trajectory.keys()[i].t_ns);
-    ASSERT_TRUE(a.trajectory.keys()[i].world_from_probe.isApprox(b.trajectory.keys()[i].world_from_probe, 0.0));
+    ASSERT_TRUE(a.trajectory.keys()[i].world_from_probe.isApprox(
+        b.trajectory.keys()[i].world_from_probe, 0.0));
   }
   double max_diff = 0;
   for (int64_t t = 0; t < std::min(a.trajectory.EndNs(), c.trajectory.EndNs()); t += 50'000'000) {
-    max_diff = std::max(max_diff, TranslationDistanceMm(a.trajectory.WorldFromProbe(t), c.trajectory.WorldFromProbe(t)));
+    max_diff = std::max(max_diff, TranslationDistanceMm(a.trajectory.WorldFromProbe(t),
+                                                        c.trajectory.WorldFromProbe(t)));
   }
   EXPECT_GT(max_diff, 0.5);
 }
@@ -265,7 +274,8 @@ TEST(MakeScanTrajectory, QuadrantAndTooth) {
     EXPECT_LT(ts.duration_s, 30.0);
     EXPECT_GE(ts.depth_in_dof_share, 0.9);
     // The aimed tooth stays the one at tooth_arc_mm from the chosen end.
-    const Eigen::Vector3d target = arch.At(side == 0 ? options.tooth_arc_mm : arch.length_mm - options.tooth_arc_mm).position;
+    const Eigen::Vector3d target =
+        arch.At(side == 0 ? options.tooth_arc_mm : arch.length_mm - options.tooth_arc_mm).position;
     for (int64_t t = tooth.trajectory.StartNs(); t <= tooth.trajectory.EndNs(); t += 200'000'000) {
       const Rigid3d pose = tooth.trajectory.WorldFromProbe(t);
       const double miss = (target - pose.translation()).cross(pose.linear().col(2)).norm();
@@ -297,7 +307,8 @@ TEST(MakeScanTrajectory, TrajectoryIsSmooth) {
   // Speed at 1 ms resolution never jumps between neighbouring milliseconds by much (C1 + tremor).
   double prev = LinearSpeedMmPerS(scan.trajectory, scan.trajectory.StartNs() + 1'000'000);
   double max_jump = 0;
-  for (int64_t t = scan.trajectory.StartNs() + 2'000'000; t < scan.trajectory.EndNs() - 1'000'000; t += 1'000'000) {
+  for (int64_t t = scan.trajectory.StartNs() + 2'000'000; t < scan.trajectory.EndNs() - 1'000'000;
+       t += 1'000'000) {
     const double v = LinearSpeedMmPerS(scan.trajectory, t);
     max_jump = std::max(max_jump, std::abs(v - prev));
     prev = v;
@@ -310,7 +321,8 @@ TEST(MakeScanTrajectory, TrajectoryIsSmooth) {
 
 TEST(MakeScanTrajectory, FullArchOnTheRealScan) {
   const std::string path = std::string(D3D_SHARED_DATA_DIR) + "/dental/upper_arch_0189MCMV.ply";
-  if (!std::filesystem::exists(path)) GTEST_SKIP() << "real arch not found at " << path << " (../shared/data absent)";
+  if (!std::filesystem::exists(path))
+    GTEST_SKIP() << "real arch not found at " << path << " (../shared/data absent)";
   TriangleMesh mesh;
   const Status st = LoadMesh(path, &mesh);
   ASSERT_TRUE(st.ok()) << st.ToString();
@@ -323,8 +335,10 @@ TEST(MakeScanTrajectory, FullArchOnTheRealScan) {
   EXPECT_GT(arch.length_mm, 90.0);
   EXPECT_LT(arch.length_mm, 170.0);
   EXPECT_GT(arch.At(arch.midline_arc_mm).position.z(), 35.0);
-  std::printf("[real] occlusal (%.3f %.3f %.3f), length %.1f mm, mean width %.1f mm, midline at %.1f mm\n", arch.occlusal.x(), arch.occlusal.y(),
-              arch.occlusal.z(), arch.length_mm, arch.mean_width_mm, arch.midline_arc_mm);
+  std::printf(
+      "[real] occlusal (%.3f %.3f %.3f), length %.1f mm, mean width %.1f mm, midline at %.1f mm\n",
+      arch.occlusal.x(), arch.occlusal.y(), arch.occlusal.z(), arch.length_mm, arch.mean_width_mm,
+      arch.midline_arc_mm);
   CheckFullArchScan(MakeScanTrajectory(arch, ScanKind::kFullArch, ScanPathOptions{}), "real");
 
   // Without labels the palate is in: the crowns are found as the most occlusal part.
@@ -334,7 +348,8 @@ TEST(MakeScanTrajectory, FullArchOnTheRealScan) {
   EXPECT_FALSE(unlabelled.used_labels);
   EXPECT_LT(AngleDeg(unlabelled.occlusal, arch.occlusal), 5.0);
   EXPECT_NEAR(unlabelled.length_mm, arch.length_mm, 0.15 * arch.length_mm);
-  std::printf("[real, unlabelled] length %.1f mm, mean width %.1f mm\n", unlabelled.length_mm, unlabelled.mean_width_mm);
+  std::printf("[real, unlabelled] length %.1f mm, mean width %.1f mm\n", unlabelled.length_mm,
+              unlabelled.mean_width_mm);
 }
 
 }  // namespace

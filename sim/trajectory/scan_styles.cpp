@@ -7,7 +7,8 @@
 namespace d3d {
 namespace {
 
-constexpr double kLiftMm = 30.0;  // backed off this far along the axis: 80 mm from the teeth, beyond the 58 mm volume
+constexpr double kLiftMm =
+    30.0;  // backed off this far along the axis: 80 mm from the teeth, beyond the 58 mm volume
 constexpr int64_t kNsPerS = 1'000'000'000;
 
 double SmoothStep(double x) {
@@ -16,7 +17,8 @@ double SmoothStep(double x) {
 }
 
 // The segments of `r` within [from_ns, to_ns], shifted by shift_ns, appended to *out.
-void AppendSegments(const std::vector<ScanSegment>& segments, int64_t from_ns, int64_t to_ns, int64_t shift_ns, std::vector<ScanSegment>* out) {
+void AppendSegments(const std::vector<ScanSegment>& segments, int64_t from_ns, int64_t to_ns,
+                    int64_t shift_ns, std::vector<ScanSegment>* out) {
   for (const ScanSegment& s : segments) {
     const int64_t a = std::max(s.start_ns, from_ns), b = std::min(s.end_ns, to_ns);
     if (b <= a) continue;
@@ -35,7 +37,8 @@ ScanPathResult WithLifts(ScanPathResult base, uint32_t seed) {
   std::vector<int64_t> cuts;
   for (int k = 1; k <= kLifts; ++k) {
     const double part = duration_s / (kLifts + 1);
-    const double lo = std::max(8.0, part * k - 0.3 * part), hi = std::min(duration_s - 4, part * k + 0.3 * part);
+    const double lo = std::max(8.0, part * k - 0.3 * part),
+                 hi = std::min(duration_s - 4, part * k + 0.3 * part);
     if (lo >= hi) continue;  // a path too short for this lift
     std::uniform_real_distribution<double> at(lo, hi);
     cuts.push_back(t0 + static_cast<int64_t>(at(rng) * kNsPerS));
@@ -73,7 +76,8 @@ ScanPathResult Reversed(const ScanPathResult& r) {
   out.status = r.status;
   out.arch = r.arch;
   out.trajectory = Trajectory(std::move(keys));
-  for (auto s = r.segments.rbegin(); s != r.segments.rend(); ++s) out.segments.push_back({s->phase, t0 + t1 - s->end_ns, t0 + t1 - s->start_ns});
+  for (auto s = r.segments.rbegin(); s != r.segments.rend(); ++s)
+    out.segments.push_back({s->phase, t0 + t1 - s->end_ns, t0 + t1 - s->start_ns});
   return out;
 }
 
@@ -82,7 +86,8 @@ ScanPathResult Reversed(const ScanPathResult& r) {
 // scanned and joins the first over the incisors) or, `outward`, played backwards from the midline
 // to its distal end (style "incisors-first": the second starts on the incisors the first began
 // on, a re-entry onto the model's oldest part).
-ScanPathResult TwoQuadrants(const ArchFrame& arch, const ScanPathOptions& base, bool outward, int64_t lift_ns) {
+ScanPathResult TwoQuadrants(const ArchFrame& arch, const ScanPathOptions& base, bool outward,
+                            int64_t lift_ns) {
   ScanPathOptions o = base;
   o.side = 0;
   ScanPathResult first = MakeScanTrajectory(arch, ScanKind::kQuadrant, o);
@@ -98,18 +103,21 @@ ScanPathResult TwoQuadrants(const ArchFrame& arch, const ScanPathOptions& base, 
   const int64_t a_end = first.trajectory.EndNs(), b_start = second.trajectory.StartNs();
   ScanPathResult out;
   out.arch = arch;
-  out.trajectory = JoinWithLift(first.trajectory, a_end, second.trajectory, b_start, lift_ns, kLiftMm);
+  out.trajectory =
+      JoinWithLift(first.trajectory, a_end, second.trajectory, b_start, lift_ns, kLiftMm);
   out.segments = first.segments;
   out.segments.push_back({ScanPhase::kLift, a_end, a_end + lift_ns});
-  AppendSegments(second.segments, b_start, second.trajectory.EndNs(), a_end + lift_ns - b_start, &out.segments);
+  AppendSegments(second.segments, b_start, second.trajectory.EndNs(), a_end + lift_ns - b_start,
+                 &out.segments);
   return out;
 }
 
 }  // namespace
 
 const std::vector<std::string>& ScanStyleNames() {
-  static const std::vector<std::string> names = {"full-arch", "buccal-first", "lingual-first",  "second-pass", "fast",
-                                                 "lifts",     "quadrants",    "incisors-first", "tooth",       "glare"};
+  static const std::vector<std::string> names = {
+      "full-arch", "buccal-first", "lingual-first",  "second-pass", "fast",
+      "lifts",     "quadrants",    "incisors-first", "tooth",       "glare"};
   return names;
 }
 
@@ -126,12 +134,16 @@ bool IsScanStyle(const std::string& name) {
   return std::find(n.begin(), n.end(), name) != n.end();
 }
 
-Trajectory JoinWithLift(const Trajectory& a, int64_t a_end_ns, const Trajectory& b, int64_t b_start_ns, int64_t lift_ns, double lift_mm,
+Trajectory JoinWithLift(const Trajectory& a, int64_t a_end_ns, const Trajectory& b,
+                        int64_t b_start_ns, int64_t lift_ns, double lift_mm,
                         int64_t key_interval_ns) {
   D3D_CHECK_MSG(!a.empty() && !b.empty(), "JoinWithLift: empty trajectory");
-  D3D_CHECK_MSG(a_end_ns > a.StartNs() && a_end_ns <= a.EndNs(), "JoinWithLift: a_end_ns outside a");
-  D3D_CHECK_MSG(b_start_ns >= b.StartNs() && b_start_ns < b.EndNs(), "JoinWithLift: b_start_ns outside b");
-  D3D_CHECK_MSG(key_interval_ns > 0 && lift_ns > 2 * key_interval_ns, "JoinWithLift: lift_ns must exceed two key intervals");
+  D3D_CHECK_MSG(a_end_ns > a.StartNs() && a_end_ns <= a.EndNs(),
+                "JoinWithLift: a_end_ns outside a");
+  D3D_CHECK_MSG(b_start_ns >= b.StartNs() && b_start_ns < b.EndNs(),
+                "JoinWithLift: b_start_ns outside b");
+  D3D_CHECK_MSG(key_interval_ns > 0 && lift_ns > 2 * key_interval_ns,
+                "JoinWithLift: lift_ns must exceed two key intervals");
   D3D_CHECK_MSG(std::isfinite(lift_mm) && lift_mm >= 0, "JoinWithLift: lift_mm must be >= 0");
   std::vector<TimedPose> keys;
   for (const TimedPose& k : a.keys())
@@ -148,7 +160,8 @@ Trajectory JoinWithLift(const Trajectory& a, int64_t a_end_ns, const Trajectory&
     const double up = lift_mm * SmoothStep(s / 0.25) * SmoothStep((1 - s) / 0.25);
     Rigid3d p = Rigid3d::Identity();
     p.linear() = from.linear() * ExpSO3(w * turn);
-    p.translation() = (1 - w) * from.translation() + w * to.translation() - up * (p.linear() * Eigen::Vector3d::UnitZ());
+    p.translation() = (1 - w) * from.translation() + w * to.translation() -
+                      up * (p.linear() * Eigen::Vector3d::UnitZ());
     keys.push_back({a_end_ns + t, p});
   }
   const int64_t shift = a_end_ns + lift_ns - b_start_ns;
@@ -157,7 +170,8 @@ Trajectory JoinWithLift(const Trajectory& a, int64_t a_end_ns, const Trajectory&
   return Trajectory(std::move(keys));
 }
 
-ScanPathResult MakeStyledScan(const TriangleMesh& mesh, const std::string& style, const ScanPathOptions& base) {
+ScanPathResult MakeStyledScan(const TriangleMesh& mesh, const std::string& style,
+                              const ScanPathOptions& base) {
   base.Check();
   ScanPathResult result;
   if (!IsScanStyle(style)) {
@@ -174,8 +188,10 @@ ScanPathResult MakeStyledScan(const TriangleMesh& mesh, const std::string& style
   if (style == "tooth") return MakeScanTrajectory(arch, ScanKind::kTooth, o);
   if (style == "quadrants") return TwoQuadrants(arch, o, false, 2 * kNsPerS);
   if (style == "incisors-first") return TwoQuadrants(arch, o, true, 1'500'000'000);
-  if (style == "buccal-first") o.passes = {ScanPhase::kBuccal, ScanPhase::kOcclusal, ScanPhase::kLingual};
-  if (style == "lingual-first") o.passes = {ScanPhase::kLingual, ScanPhase::kOcclusal, ScanPhase::kBuccal};
+  if (style == "buccal-first")
+    o.passes = {ScanPhase::kBuccal, ScanPhase::kOcclusal, ScanPhase::kLingual};
+  if (style == "lingual-first")
+    o.passes = {ScanPhase::kLingual, ScanPhase::kOcclusal, ScanPhase::kBuccal};
   if (style == "second-pass") o.passes.push_back(ScanPhase::kOcclusal);
   if (style == "fast") {
     o.speed_mm_s = 27;

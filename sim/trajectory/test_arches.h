@@ -52,7 +52,8 @@ inline double ArchCentreline(Shape shape, double step, std::vector<Eigen::Vector
 }
 
 inline void AddTriangle(TriangleMesh* m, int a, int b, int c, const Eigen::Vector3d& outward) {
-  const Eigen::Vector3d n = (m->vertices[b] - m->vertices[a]).cross(m->vertices[c] - m->vertices[a]);
+  const Eigen::Vector3d n =
+      (m->vertices[b] - m->vertices[a]).cross(m->vertices[c] - m->vertices[a]);
   if (n.dot(outward) >= 0)
     m->faces.emplace_back(a, b, c);
   else
@@ -61,7 +62,8 @@ inline void AddTriangle(TriangleMesh* m, int a, int b, int c, const Eigen::Vecto
   m->face_labels.push_back(h > kToothFrom ? SurfaceLabel::kTooth : SurfaceLabel::kGingiva);
 }
 
-inline TriangleMesh RidgeArch(const Rigid3d& world_from_local, bool with_labels, Shape shape = Shape::kU) {
+inline TriangleMesh RidgeArch(const Rigid3d& world_from_local, bool with_labels,
+                              Shape shape = Shape::kU) {
   std::vector<Eigen::Vector3d> c;
   ArchCentreline(shape, 1.0, &c);
   // Open box profile (lateral offset, height) from outer bottom over the top to inner bottom.
@@ -86,7 +88,8 @@ inline TriangleMesh RidgeArch(const Rigid3d& world_from_local, bool with_labels,
   for (size_t i = 0; i + 1 < c.size(); ++i) {
     for (int k = 0; k + 1 < np; ++k) {
       const Eigen::Vector2d mid = 0.5 * (profile[k] + profile[k + 1]);
-      const Eigen::Vector3d outward = mid.y() >= kHeight - 1e-9 ? up : (mid.x() > 0 ? outs[i] : Eigen::Vector3d(-outs[i]));
+      const Eigen::Vector3d outward =
+          mid.y() >= kHeight - 1e-9 ? up : (mid.x() > 0 ? outs[i] : Eigen::Vector3d(-outs[i]));
       AddTriangle(&m, vid(i, k), vid(i + 1, k), vid(i + 1, k + 1), outward);
       AddTriangle(&m, vid(i, k), vid(i + 1, k + 1), vid(i, k + 1), outward);
     }
@@ -97,7 +100,9 @@ inline TriangleMesh RidgeArch(const Rigid3d& world_from_local, bool with_labels,
     const int base = static_cast<int>(m.vertices.size());
     constexpr int kNx = 9, kNy = 8;
     for (int y = 0; y <= kNy; ++y)
-      for (int x = 0; x <= kNx; ++x) m.vertices.push_back(c[i] + (kWidth * x / kNx - kWidth / 2) * outs[i] + (kHeight * y / kNy) * up);
+      for (int x = 0; x <= kNx; ++x)
+        m.vertices.push_back(c[i] + (kWidth * x / kNx - kWidth / 2) * outs[i] +
+                             (kHeight * y / kNy) * up);
     for (int y = 0; y < kNy; ++y) {
       for (int x = 0; x < kNx; ++x) {
         const int v00 = base + y * (kNx + 1) + x;

@@ -20,12 +20,15 @@ Eigen::Matrix3d Hat(const Eigen::Vector3d& v) {
   return m;
 }
 
-double SecondsBetween(int64_t a_ns, int64_t b_ns) { return static_cast<double>(b_ns - a_ns) / kNsPerS; }
+double SecondsBetween(int64_t a_ns, int64_t b_ns) {
+  return static_cast<double>(b_ns - a_ns) / kNsPerS;
+}
 
 // Three-point derivative at a key from the slopes of its two neighbouring segments, weighted by the
 // opposite interval (the derivative of the parabola through the three keys; Catmull-Rom when the
 // intervals are equal).
-Eigen::Vector3d ThreePointDerivative(const Eigen::Vector3d& slope_prev, double h_prev, const Eigen::Vector3d& slope_next, double h_next) {
+Eigen::Vector3d ThreePointDerivative(const Eigen::Vector3d& slope_prev, double h_prev,
+                                     const Eigen::Vector3d& slope_next, double h_next) {
   return (slope_next * h_prev + slope_prev * h_next) / (h_prev + h_next);
 }
 
@@ -42,16 +45,19 @@ struct HermiteBasis {
 };
 
 bool IsProperRotation(const Eigen::Matrix3d& R) {
-  return R.allFinite() && (R.transpose() * R - Eigen::Matrix3d::Identity()).norm() < 1e-6 && std::abs(R.determinant() - 1.0) < 1e-6;
+  return R.allFinite() && (R.transpose() * R - Eigen::Matrix3d::Identity()).norm() < 1e-6 &&
+         std::abs(R.determinant() - 1.0) < 1e-6;
 }
 
 // "12.000000345" (seconds, 9 decimals, exact) for a time in ns.
 std::string FormatSeconds(int64_t t_ns) {
   const bool negative = t_ns < 0;
   // Work with the magnitude in unsigned arithmetic so INT64_MIN does not overflow.
-  const uint64_t mag = negative ? static_cast<uint64_t>(-(t_ns + 1)) + 1u : static_cast<uint64_t>(t_ns);
+  const uint64_t mag =
+      negative ? static_cast<uint64_t>(-(t_ns + 1)) + 1u : static_cast<uint64_t>(t_ns);
   char buf[48];
-  std::snprintf(buf, sizeof(buf), "%s%llu.%09llu", negative ? "-" : "", static_cast<unsigned long long>(mag / 1'000'000'000u),
+  std::snprintf(buf, sizeof(buf), "%s%llu.%09llu", negative ? "-" : "",
+                static_cast<unsigned long long>(mag / 1'000'000'000u),
                 static_cast<unsigned long long>(mag % 1'000'000'000u));
   return buf;
 }
@@ -89,7 +95,8 @@ bool ParseSecondsToNs(const std::string& token, int64_t* t_ns) {
     return true;
   }
   uint64_t whole = 0;
-  for (size_t k = int_begin; k < int_end; ++k) whole = whole * 10 + static_cast<uint64_t>(token[k] - '0');
+  for (size_t k = int_begin; k < int_end; ++k)
+    whole = whole * 10 + static_cast<uint64_t>(token[k] - '0');
   if (whole > 9'200'000'000ull) return false;
   uint64_t frac = 0;
   for (size_t k = 0; k < 9; ++k) {
@@ -123,14 +130,16 @@ Eigen::Matrix3d RightJacobianSO3(const Eigen::Vector3d& phi) {
   const Eigen::Matrix3d K = Hat(phi);
   if (theta < 1e-6) return Eigen::Matrix3d::Identity() - 0.5 * K + K * K / 6.0;
   const double t2 = theta * theta;
-  return Eigen::Matrix3d::Identity() - (1.0 - std::cos(theta)) / t2 * K + (theta - std::sin(theta)) / (t2 * theta) * K * K;
+  return Eigen::Matrix3d::Identity() - (1.0 - std::cos(theta)) / t2 * K +
+         (theta - std::sin(theta)) / (t2 * theta) * K * K;
 }
 
 Eigen::Matrix3d RightJacobianInvSO3(const Eigen::Vector3d& phi) {
   const double theta = phi.norm();
   const Eigen::Matrix3d K = Hat(phi);
   if (theta < 1e-6) return Eigen::Matrix3d::Identity() + 0.5 * K + K * K / 12.0;
-  const double coeff = 1.0 / (theta * theta) - (1.0 + std::cos(theta)) / (2.0 * theta * std::sin(theta));
+  const double coeff =
+      1.0 / (theta * theta) - (1.0 + std::cos(theta)) / (2.0 * theta * std::sin(theta));
   return Eigen::Matrix3d::Identity() + 0.5 * K + coeff * K * K;
 }
 
@@ -144,8 +153,10 @@ Trajectory::Trajectory(std::vector<TimedPose> keys) : keys_(std::move(keys)) {
     D3D_CHECK_MSG(T.translation().allFinite(), "key " << i << ": non-finite translation");
     D3D_CHECK_MSG(IsProperRotation(T.linear()), "key " << i << ": not a proper rotation");
     if (i > 0) {
-      D3D_CHECK_MSG(keys_[i].t_ns > keys_[i - 1].t_ns,
-                    "key times must be strictly increasing: key " << i << " at " << keys_[i].t_ns << " ns after " << keys_[i - 1].t_ns << " ns");
+      D3D_CHECK_MSG(keys_[i].t_ns > keys_[i - 1].t_ns, "key times must be strictly increasing: key "
+                                                           << i << " at " << keys_[i].t_ns
+                                                           << " ns after " << keys_[i - 1].t_ns
+                                                           << " ns");
     }
   }
   const size_t n = keys_.size();
@@ -154,9 +165,13 @@ Trajectory::Trajectory(std::vector<TimedPose> keys) : keys_(std::move(keys)) {
   segment_log_.resize(n - 1);
   for (size_t i = 0; i + 1 < n; ++i) {
     h[i] = SecondsBetween(keys_[i].t_ns, keys_[i + 1].t_ns);
-    slope[i] = (keys_[i + 1].world_from_probe.translation() - keys_[i].world_from_probe.translation()) / h[i];
-    segment_log_[i] = LogSO3(keys_[i].world_from_probe.linear().transpose() * keys_[i + 1].world_from_probe.linear());
-    // Log(R_iᵀ R_{i+1}) is the same vector whether read in frame i or i+1 (a rotation fixes its axis).
+    slope[i] =
+        (keys_[i + 1].world_from_probe.translation() - keys_[i].world_from_probe.translation()) /
+        h[i];
+    segment_log_[i] = LogSO3(keys_[i].world_from_probe.linear().transpose() *
+                             keys_[i + 1].world_from_probe.linear());
+    // Log(R_iᵀ R_{i+1}) is the same vector whether read in frame i or i+1 (a rotation fixes its
+    // axis).
     rot_slope[i] = segment_log_[i] / h[i];
   }
   linear_velocity_.resize(n);
@@ -182,7 +197,8 @@ int64_t Trajectory::EndNs() const {
 }
 
 size_t Trajectory::SegmentIndex(int64_t t_ns) const {
-  const auto it = std::upper_bound(keys_.begin(), keys_.end(), t_ns, [](int64_t t, const TimedPose& k) { return t < k.t_ns; });
+  const auto it = std::upper_bound(keys_.begin(), keys_.end(), t_ns,
+                                   [](int64_t t, const TimedPose& k) { return t < k.t_ns; });
   return static_cast<size_t>(it - keys_.begin()) - 1;
 }
 
@@ -197,10 +213,12 @@ Rigid3d Trajectory::WorldFromProbe(int64_t t_ns) const {
   const double s = static_cast<double>(t_ns - a.t_ns) / static_cast<double>(b.t_ns - a.t_ns);
   const HermiteBasis H(s);
 
-  const Eigen::Vector3d p = H.h00 * a.world_from_probe.translation() + H.h10 * h * linear_velocity_[i] + H.h01 * b.world_from_probe.translation() +
-                            H.h11 * h * linear_velocity_[i + 1];
+  const Eigen::Vector3d p =
+      H.h00 * a.world_from_probe.translation() + H.h10 * h * linear_velocity_[i] +
+      H.h01 * b.world_from_probe.translation() + H.h11 * h * linear_velocity_[i + 1];
   const Eigen::Vector3d& phi1 = segment_log_[i];
-  const Eigen::Vector3d phi = H.h10 * h * angular_velocity_[i] + H.h01 * phi1 + H.h11 * h * (RightJacobianInvSO3(phi1) * angular_velocity_[i + 1]);
+  const Eigen::Vector3d phi = H.h10 * h * angular_velocity_[i] + H.h01 * phi1 +
+                              H.h11 * h * (RightJacobianInvSO3(phi1) * angular_velocity_[i + 1]);
   Rigid3d T = Rigid3d::Identity();
   T.linear() = a.world_from_probe.linear() * ExpSO3(phi);
   T.translation() = p;
@@ -220,7 +238,8 @@ Status Trajectory::SaveTum(const std::string& path) const {
   for (const TimedPose& k : keys_) {
     const Eigen::Quaterniond q(k.world_from_probe.linear());
     const Eigen::Vector3d& t = k.world_from_probe.translation();
-    std::snprintf(buf, sizeof(buf), " %.9f %.9f %.9f %.12f %.12f %.12f %.12f\n", t.x(), t.y(), t.z(), q.x(), q.y(), q.z(), q.w());
+    std::snprintf(buf, sizeof(buf), " %.9f %.9f %.9f %.12f %.12f %.12f %.12f\n", t.x(), t.y(),
+                  t.z(), q.x(), q.y(), q.z(), q.w());
     os << FormatSeconds(k.t_ns) << buf;
   }
   os.flush();
@@ -245,14 +264,17 @@ Status Trajectory::LoadTum(const std::string& path, Trajectory* out) {
     std::vector<std::string> tokens;
     for (std::string tok; ls >> tok;) tokens.push_back(tok);
     if (tokens.size() != 8) {
-      return ParseError(where + "expected 8 fields 'timestamp tx ty tz qx qy qz qw', got " + std::to_string(tokens.size()));
+      return ParseError(where + "expected 8 fields 'timestamp tx ty tz qx qy qz qw', got " +
+                        std::to_string(tokens.size()));
     }
     TimedPose key;
-    if (!ParseSecondsToNs(tokens[0], &key.t_ns)) return ParseError(where + "bad timestamp '" + tokens[0] + "'");
+    if (!ParseSecondsToNs(tokens[0], &key.t_ns))
+      return ParseError(where + "bad timestamp '" + tokens[0] + "'");
     double v[7];
     for (int k = 0; k < 7; ++k) {
       if (!ParseDouble(tokens[static_cast<size_t>(k) + 1], &v[k])) {
-        return ParseError(where + "bad number '" + tokens[static_cast<size_t>(k) + 1] + "' in field " + std::to_string(k + 2));
+        return ParseError(where + "bad number '" + tokens[static_cast<size_t>(k) + 1] +
+                          "' in field " + std::to_string(k + 2));
       }
     }
     Eigen::Quaterniond q(v[6], v[3], v[4], v[5]);  // (w, x, y, z)
@@ -267,7 +289,8 @@ Status Trajectory::LoadTum(const std::string& path, Trajectory* out) {
   }
   if (is.bad()) return IoError("read failed: '" + path + "'");
   if (keys.size() < 2) {
-    return ParseError(path + ": a trajectory needs at least 2 poses, found " + std::to_string(keys.size()));
+    return ParseError(path + ": a trajectory needs at least 2 poses, found " +
+                      std::to_string(keys.size()));
   }
   *out = Trajectory(std::move(keys));
   return Status::Ok();
@@ -278,7 +301,8 @@ Status Trajectory::LoadTum(const std::string& path, Trajectory* out) {
 
 namespace {
 // The central-difference window [t0, t1] around t, clamped into the trajectory's span.
-std::pair<int64_t, int64_t> DifferenceWindow(const Trajectory& trajectory, int64_t t_ns, int64_t step_ns) {
+std::pair<int64_t, int64_t> DifferenceWindow(const Trajectory& trajectory, int64_t t_ns,
+                                             int64_t step_ns) {
   D3D_CHECK_MSG(step_ns > 0, "finite-difference step must be positive, got " << step_ns);
   const int64_t t0 = std::max(trajectory.StartNs(), t_ns - step_ns);
   const int64_t t1 = std::min(trajectory.EndNs(), t_ns + step_ns);
@@ -289,13 +313,15 @@ std::pair<int64_t, int64_t> DifferenceWindow(const Trajectory& trajectory, int64
 double LinearSpeedMmPerS(const Trajectory& trajectory, int64_t t_ns, int64_t step_ns) {
   const auto [t0, t1] = DifferenceWindow(trajectory, t_ns, step_ns);
   if (t1 <= t0) return 0.0;
-  return TranslationDistanceMm(trajectory.WorldFromProbe(t1), trajectory.WorldFromProbe(t0)) / SecondsBetween(t0, t1);
+  return TranslationDistanceMm(trajectory.WorldFromProbe(t1), trajectory.WorldFromProbe(t0)) /
+         SecondsBetween(t0, t1);
 }
 
 double AngularSpeedRadPerS(const Trajectory& trajectory, int64_t t_ns, int64_t step_ns) {
   const auto [t0, t1] = DifferenceWindow(trajectory, t_ns, step_ns);
   if (t1 <= t0) return 0.0;
-  return RotationAngleRad(trajectory.WorldFromProbe(t1), trajectory.WorldFromProbe(t0)) / SecondsBetween(t0, t1);
+  return RotationAngleRad(trajectory.WorldFromProbe(t1), trajectory.WorldFromProbe(t0)) /
+         SecondsBetween(t0, t1);
 }
 
 }  // namespace d3d

@@ -1,9 +1,9 @@
 // Continuous-time rigid trajectory of the virtual probe: `world_from_probe(t)`, t in nanoseconds.
 //
 // Frames and units: the probe frame is the camera frame (OpenCV convention: origin at the optical
-// centre, +z along the optical axis toward the scene, +x image right, +y image down). Positions are in
-// millimetres, times in int64 nanoseconds, angles in radians. `world_from_probe` maps a point given in
-// the probe frame into the world (scene) frame: p_world = world_from_probe * p_probe.
+// centre, +z along the optical axis toward the scene, +x image right, +y image down). Positions are
+// in millimetres, times in int64 nanoseconds, angles in radians. `world_from_probe` maps a point
+// given in the probe frame into the world (scene) frame: p_world = world_from_probe * p_probe.
 #pragma once
 
 #include <cstdint>

@@ -24,30 +24,36 @@ std::vector<TimedPose> WigglyKeys() {
           {1'000'000'007, Pose(-0.9, {1, 2, 3}, {2, 3, 4})}};
 }
 
-std::string TempPath(const std::string& name) { return (std::filesystem::temp_directory_path() / ("d3d_traj_test_" + name)).string(); }
+std::string TempPath(const std::string& name) {
+  return (std::filesystem::temp_directory_path() / ("d3d_traj_test_" + name)).string();
+}
 
 void WriteFile(const std::string& path, const std::string& text) { std::ofstream(path) << text; }
 
 // Body angular velocity (rad/s) from R(a) to R(b).
 Eigen::Vector3d BodyRate(const Trajectory& tr, int64_t a, int64_t b) {
-  return LogSO3(tr.WorldFromProbe(a).linear().transpose() * tr.WorldFromProbe(b).linear()) / (static_cast<double>(b - a) * 1e-9);
+  return LogSO3(tr.WorldFromProbe(a).linear().transpose() * tr.WorldFromProbe(b).linear()) /
+         (static_cast<double>(b - a) * 1e-9);
 }
 
 Eigen::Vector3d LinearRate(const Trajectory& tr, int64_t a, int64_t b) {
-  return (tr.WorldFromProbe(b).translation() - tr.WorldFromProbe(a).translation()) / (static_cast<double>(b - a) * 1e-9);
+  return (tr.WorldFromProbe(b).translation() - tr.WorldFromProbe(a).translation()) /
+         (static_cast<double>(b - a) * 1e-9);
 }
 
 TEST(SO3, ExpLogAndJacobians) {
   const Eigen::Vector3d phi(0.3, -1.1, 0.7);
   EXPECT_TRUE(LogSO3(ExpSO3(phi)).isApprox(phi, 1e-12));
-  EXPECT_TRUE((RightJacobianSO3(phi) * RightJacobianInvSO3(phi)).isApprox(Eigen::Matrix3d::Identity(), 1e-12));
+  EXPECT_TRUE((RightJacobianSO3(phi) * RightJacobianInvSO3(phi))
+                  .isApprox(Eigen::Matrix3d::Identity(), 1e-12));
   // Exp(φ + δ) ≈ Exp(φ) Exp(J_r(φ) δ)
   const Eigen::Vector3d delta(1e-6, -2e-6, 0.5e-6);
   const Eigen::Matrix3d lhs = ExpSO3(phi + delta);
   const Eigen::Matrix3d rhs = ExpSO3(phi) * ExpSO3(RightJacobianSO3(phi) * delta);
   EXPECT_LT((lhs - rhs).norm(), 1e-11);
   const Eigen::Vector3d tiny(1e-9, 0, 0);
-  EXPECT_TRUE((RightJacobianSO3(tiny) * RightJacobianInvSO3(tiny)).isApprox(Eigen::Matrix3d::Identity(), 1e-12));
+  EXPECT_TRUE((RightJacobianSO3(tiny) * RightJacobianInvSO3(tiny))
+                  .isApprox(Eigen::Matrix3d::Identity(), 1e-12));
 }
 
 TEST(Trajectory, PassesThroughKeys) {
@@ -71,7 +77,8 @@ TEST(Trajectory, IsC1AtTheKnots) {
     const int64_t t = keys[i].t_ns;
     const Eigen::Vector3d vl = LinearRate(tr, t - kDelta, t), vr = LinearRate(tr, t, t + kDelta);
     const Eigen::Vector3d wl = BodyRate(tr, t - kDelta, t), wr = BodyRate(tr, t, t + kDelta);
-    // The one-sided differences differ by ~acceleration × δ; a kink would make them differ by O(|v|).
+    // The one-sided differences differ by ~acceleration × δ; a kink would make them differ by
+    // O(|v|).
     EXPECT_LT((vl - vr).norm(), 1e-3 * std::max(1.0, vl.norm())) << "position kink at key " << i;
     EXPECT_LT((wl - wr).norm(), 1e-3 * std::max(1.0, wl.norm())) << "rotation kink at key " << i;
   }
@@ -81,8 +88,10 @@ TEST(Trajectory, IsC1AtTheKnots) {
   const Rigid3d a = InterpolateRigid(keys[1].world_from_probe, keys[2].world_from_probe, s_left);
   const Rigid3d b = InterpolateRigid(keys[2].world_from_probe, keys[3].world_from_probe, s_right);
   const double h1 = (keys[2].t_ns - keys[1].t_ns) * 1e-9, h2 = (keys[3].t_ns - t) * 1e-9;
-  const Eigen::Vector3d vl = (keys[2].world_from_probe.translation() - a.translation()) / ((1 - s_left) * h1);
-  const Eigen::Vector3d vr = (b.translation() - keys[2].world_from_probe.translation()) / (s_right * h2);
+  const Eigen::Vector3d vl =
+      (keys[2].world_from_probe.translation() - a.translation()) / ((1 - s_left) * h1);
+  const Eigen::Vector3d vr =
+      (b.translation() - keys[2].world_from_probe.translation()) / (s_right * h2);
   EXPECT_GT((vl - vr).norm(), 1.0);
 }
 
@@ -97,8 +106,10 @@ TEST(Trajectory, ClampsOutsideItsSpan) {
 
 TEST(Trajectory, RejectsBadKeys) {
   EXPECT_THROW(Trajectory({{0, Rigid3d::Identity()}}), std::invalid_argument);
-  EXPECT_THROW(Trajectory({{5, Rigid3d::Identity()}, {5, Rigid3d::Identity()}}), std::invalid_argument);
-  EXPECT_THROW(Trajectory({{5, Rigid3d::Identity()}, {3, Rigid3d::Identity()}}), std::invalid_argument);
+  EXPECT_THROW(Trajectory({{5, Rigid3d::Identity()}, {5, Rigid3d::Identity()}}),
+               std::invalid_argument);
+  EXPECT_THROW(Trajectory({{5, Rigid3d::Identity()}, {3, Rigid3d::Identity()}}),
+               std::invalid_argument);
   Rigid3d bad = Rigid3d::Identity();
   bad.linear() *= 2.0;
   EXPECT_THROW(Trajectory({{0, Rigid3d::Identity()}, {1, bad}}), std::invalid_argument);
@@ -109,7 +120,8 @@ TEST(Trajectory, RejectsBadKeys) {
 
 TEST(Trajectory, SpeedsOfAUniformMotion) {
   // Two keys: the Hermite tangents equal the chord, so the motion is uniform.
-  const Trajectory tr({{0, Pose(0, {0, 0, 1}, {0, 0, 0})}, {2'000'000'000, Pose(1.0, {0, 0, 1}, {20, 0, 0})}});
+  const Trajectory tr(
+      {{0, Pose(0, {0, 0, 1}, {0, 0, 0})}, {2'000'000'000, Pose(1.0, {0, 0, 1}, {20, 0, 0})}});
   EXPECT_NEAR(LinearSpeedMmPerS(tr, 1'000'000'000), 10.0, 1e-6);
   EXPECT_NEAR(AngularSpeedRadPerS(tr, 1'000'000'000), 0.5, 1e-6);
   EXPECT_NEAR(LinearSpeedMmPerS(tr, 0), 10.0, 1e-6);  // one-sided at the ends
@@ -120,7 +132,8 @@ TEST(Trajectory, TumRoundTripKeepsNanoseconds) {
   auto keys = WigglyKeys();
   keys[1].t_ns = 1'234'567'891'234'567'891;  // ~39 years in ns: ns resolution must survive
   keys[0].t_ns = -3;
-  for (size_t i = 2; i < keys.size(); ++i) keys[i].t_ns = keys[1].t_ns + static_cast<int64_t>(i) * 333'333'333 + 1;
+  for (size_t i = 2; i < keys.size(); ++i)
+    keys[i].t_ns = keys[1].t_ns + static_cast<int64_t>(i) * 333'333'333 + 1;
   const Trajectory tr(keys);
   const std::string path = TempPath("roundtrip.tum");
   ASSERT_TRUE(tr.SaveTum(path).ok());
@@ -131,7 +144,8 @@ TEST(Trajectory, TumRoundTripKeepsNanoseconds) {
   for (size_t i = 0; i < keys.size(); ++i) {
     EXPECT_NEAR(static_cast<double>(back.keys()[i].t_ns - keys[i].t_ns), 0.0, 1000.0);
     EXPECT_EQ(back.keys()[i].t_ns, keys[i].t_ns);  // in fact exact
-    EXPECT_LT(TranslationDistanceMm(back.keys()[i].world_from_probe, keys[i].world_from_probe), 1e-8);
+    EXPECT_LT(TranslationDistanceMm(back.keys()[i].world_from_probe, keys[i].world_from_probe),
+              1e-8);
     EXPECT_LT(RotationAngleRad(back.keys()[i].world_from_probe, keys[i].world_from_probe), 1e-10);
   }
   std::filesystem::remove(path);
@@ -148,7 +162,8 @@ TEST(Trajectory, TumReadsCommentsAndExponents) {
   ASSERT_EQ(tr.keys().size(), 2u);
   EXPECT_EQ(tr.StartNs(), 1'500'000'000);
   EXPECT_EQ(tr.EndNs(), 2'000'000'000);
-  EXPECT_NEAR(RotationAngleRad(tr.keys()[1].world_from_probe, Rigid3d::Identity()), std::numbers::pi / 2, 1e-12);
+  EXPECT_NEAR(RotationAngleRad(tr.keys()[1].world_from_probe, Rigid3d::Identity()),
+              std::numbers::pi / 2, 1e-12);
   std::filesystem::remove(path);
 }
 

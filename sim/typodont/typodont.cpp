@@ -58,19 +58,25 @@
 namespace d3d {
 
 void TypodontOptions::Check() const {
-  D3D_CHECK_MSG(std::isfinite(scale) && scale >= 0.3 && scale <= 3.0, "typodont scale must be in [0.3, 3], got " << scale);
-  D3D_CHECK_MSG(std::isfinite(gap_mm) && gap_mm >= 0.0 && gap_mm <= 2.0, "typodont gap_mm must be in [0, 2] mm, got " << gap_mm);
+  D3D_CHECK_MSG(std::isfinite(scale) && scale >= 0.3 && scale <= 3.0,
+                "typodont scale must be in [0.3, 3], got " << scale);
+  D3D_CHECK_MSG(std::isfinite(gap_mm) && gap_mm >= 0.0 && gap_mm <= 2.0,
+                "typodont gap_mm must be in [0, 2] mm, got " << gap_mm);
   D3D_CHECK_MSG(std::isfinite(crown_edge_mm) && crown_edge_mm >= 0.03 && crown_edge_mm <= 1.0,
                 "typodont crown_edge_mm must be in [0.03, 1] mm, got " << crown_edge_mm);
   D3D_CHECK_MSG(std::isfinite(gingiva_edge_mm) && gingiva_edge_mm >= 0.05 && gingiva_edge_mm <= 3.0,
                 "typodont gingiva_edge_mm must be in [0.05, 3] mm, got " << gingiva_edge_mm);
-  D3D_CHECK_MSG(std::isfinite(gingiva_thickness_mm) && gingiva_thickness_mm >= 0.4 && gingiva_thickness_mm <= 3.0,
-                "typodont gingiva_thickness_mm must be in [0.4, 3] mm, got " << gingiva_thickness_mm);
-  D3D_CHECK_MSG(std::isfinite(gingiva_top_y_mm) && gingiva_top_y_mm >= 12.0 && gingiva_top_y_mm <= 30.0,
-                "typodont gingiva_top_y_mm must be in [12, 30] mm, got " << gingiva_top_y_mm);
+  D3D_CHECK_MSG(
+      std::isfinite(gingiva_thickness_mm) && gingiva_thickness_mm >= 0.4 &&
+          gingiva_thickness_mm <= 3.0,
+      "typodont gingiva_thickness_mm must be in [0.4, 3] mm, got " << gingiva_thickness_mm);
+  D3D_CHECK_MSG(
+      std::isfinite(gingiva_top_y_mm) && gingiva_top_y_mm >= 12.0 && gingiva_top_y_mm <= 30.0,
+      "typodont gingiva_top_y_mm must be in [12, 30] mm, got " << gingiva_top_y_mm);
   D3D_CHECK_MSG(std::isfinite(palate_width_mm) && palate_width_mm >= 0.5 && palate_width_mm <= 15.0,
                 "typodont palate_width_mm must be in [0.5, 15] mm, got " << palate_width_mm);
-  D3D_CHECK_MSG(std::isfinite(asymmetry) && asymmetry >= 0.0 && asymmetry <= 3.0, "typodont asymmetry must be in [0, 3], got " << asymmetry);
+  D3D_CHECK_MSG(std::isfinite(asymmetry) && asymmetry >= 0.0 && asymmetry <= 3.0,
+                "typodont asymmetry must be in [0, 3], got " << asymmetry);
 }
 
 namespace {
@@ -97,7 +103,9 @@ double SmoothMin(double a, double b, double k) {
 double Sq(double x) { return x * x; }
 
 // Portable uniform draw in (-1, 1) from mt19937 (std distributions differ between libraries).
-double Symmetric(std::mt19937& rng) { return 2.0 * (static_cast<double>(rng()) + 0.5) / 4294967296.0 - 1.0; }
+double Symmetric(std::mt19937& rng) {
+  return 2.0 * (static_cast<double>(rng()) + 0.5) / 4294967296.0 - 1.0;
+}
 
 double DistanceToSegment(const Vector2d& p, const Vector2d& a, const Vector2d& b) {
   const Vector2d ab = b - a;
@@ -137,7 +145,8 @@ class Profile {
     const double h = t_[i] - t_[i - 1];
     const double x = (t - t_[i - 1]) / h;
     const double x2 = x * x, x3 = x2 * x;
-    return (2 * x3 - 3 * x2 + 1) * v_[i - 1] + (x3 - 2 * x2 + x) * h * m_[i - 1] + (-2 * x3 + 3 * x2) * v_[i] + (x3 - x2) * h * m_[i];
+    return (2 * x3 - 3 * x2 + 1) * v_[i - 1] + (x3 - 2 * x2 + x) * h * m_[i - 1] +
+           (-2 * x3 + 3 * x2) * v_[i] + (x3 - x2) * h * m_[i];
   }
 
  private:
@@ -150,8 +159,8 @@ class Profile {
 enum class ToothKind { kIncisor, kCanine, kPremolar, kMolar };
 
 struct CuspSpec {
-  double u, v;    // tip, as fractions of the half-widths at the shoulder (u > 0 distal, v > 0 buccal)
-  double drop;    // mm below the crown height
+  double u, v;  // tip, as fractions of the half-widths at the shoulder (u > 0 distal, v > 0 buccal)
+  double drop;  // mm below the crown height
   double ru, rv;  // footprint stretch (1 = standard cone)
 };
 struct RidgeSpec {
@@ -164,18 +173,18 @@ struct ToothSpec {
   double height = 10;                                 // crown height, CEJ to tip
   double md = 8, bl = 7;                              // for the record and tests
   std::vector<Knot> mesial, distal, buccal, palatal;  // half-widths (t = w / height, mm)
-  double shoulder = 0.9;                              // start of the occlusal cap, fraction of the height
-  double cap_top = 1.0;                               // apex of the blank cap above the crown height (mm)
-  double cap_power = 2.0;                             // flatness of the cap blank
-  double exponent = 2.3;                              // superellipse exponent of the cross-sections
-  double skew = 0.0;                                  // rhomboid shear: u += skew * v
-  double palatal_taper = 0.0;                         // MD narrowing toward the palatal side (cingulum)
-  double inclination = 0, angulation = 0;             // deg
-  double tip_y = 0;                                   // y of the crown tip (occlusal plane = 0)
-  double papilla = 3;                                 // mm
-  double eminence = 0.5;                              // buccal root eminence (mm)
-  double fossa_depth = 0;                             // palatal fossa (incisors, canine)
-  std::vector<double> fossa_centers;                  // fractions of the MD half-width
+  double shoulder = 0.9;                   // start of the occlusal cap, fraction of the height
+  double cap_top = 1.0;                    // apex of the blank cap above the crown height (mm)
+  double cap_power = 2.0;                  // flatness of the cap blank
+  double exponent = 2.3;                   // superellipse exponent of the cross-sections
+  double skew = 0.0;                       // rhomboid shear: u += skew * v
+  double palatal_taper = 0.0;              // MD narrowing toward the palatal side (cingulum)
+  double inclination = 0, angulation = 0;  // deg
+  double tip_y = 0;                        // y of the crown tip (occlusal plane = 0)
+  double papilla = 3;                      // mm
+  double eminence = 0.5;                   // buccal root eminence (mm)
+  double fossa_depth = 0;                  // palatal fossa (incisors, canine)
+  std::vector<double> fossa_centers;       // fractions of the MD half-width
   double fossa_width = 0.5;
   std::vector<CuspSpec> cusps;
   std::vector<RidgeSpec> ridges;
@@ -221,7 +230,8 @@ ToothSpec SpecFor(int position) {
       s.palatal = {{-0.15, 3.35}, {0, 3.5}, {0.25, 3.9}, {0.6, 2.6}};
       s.shoulder = 0.6, s.cap_top = 0.6, s.cap_power = 2.0, s.exponent = 2.2;
       s.inclination = 8, s.angulation = 9, s.tip_y = 0.0, s.papilla = 3.5, s.eminence = 0.7;
-      s.fossa_depth = 0.3, s.fossa_centers = {-0.42, 0.42}, s.fossa_width = 0.22, s.palatal_taper = 0.25;
+      s.fossa_depth = 0.3, s.fossa_centers = {-0.42, 0.42}, s.fossa_width = 0.22,
+      s.palatal_taper = 0.25;
       s.cusps = {{-0.05, 0.12, 0.0, 1.0, 1.0}};
       break;
     case 4:
@@ -237,7 +247,8 @@ ToothSpec SpecFor(int position) {
       s.shoulder = 0.68, s.cap_top = 1.0, s.cap_power = 3.0, s.exponent = 2.4;
       s.inclination = first ? 3 : 2, s.angulation = 3, s.tip_y = first ? 0.2 : 0.3;
       s.papilla = 3.0, s.eminence = 0.3;
-      s.cusps = {{first ? 0.06 : 0.0, 0.46, 0.0, 1.8, 1.0}, {-0.04, -0.46, first ? 0.8 : 0.3, 1.6, 1.0}};
+      s.cusps = {{first ? 0.06 : 0.0, 0.46, 0.0, 1.8, 1.0},
+                 {-0.04, -0.46, first ? 0.8 : 0.3, 1.6, 1.0}};
       s.ridges = {{{-0.84, -0.45}, {-0.84, 0.45}, 1.7}, {{0.84, -0.45}, {0.84, 0.45}, 1.8}};
       s.grooves = {{{-0.64, 0.0}, {-0.2, 0.02}, {0.2, 0.02}, {0.64, 0.0}}};
       s.cusp_slope = 0.85, s.palatal_taper = 0.1;
@@ -311,7 +322,9 @@ class ArchCurve {
     }
   }
   // Tangent angle of the left half (s >= 0), from +x toward -z.
-  double Phi(double s) const { return kPhiMax * (1.0 - std::exp(-std::pow(s / (kS0 * scale_), kP))); }
+  double Phi(double s) const {
+    return kPhiMax * (1.0 - std::exp(-std::pow(s / (kS0 * scale_), kP)));
+  }
   double SignedPhi(double s) const { return s >= 0 ? Phi(s) : -Phi(-s); }
   double Curvature(double s) const {
     const double a = std::abs(s) / (kS0 * scale_);
@@ -390,7 +403,8 @@ class CrownShape {
       const double v = c.v * (c.v >= 0 ? cap_widths_.buccal : cap_widths_.palatal);
       cusps_.push_back({c.u * a_ref_ + spec.skew * v, v, height_ - c.drop * scale, c.ru, c.rv});
     }
-    for (const RidgeSpec& r : spec.ridges) ridges_.push_back({ToLocal(r.a), ToLocal(r.b), r.drop * scale});
+    for (const RidgeSpec& r : spec.ridges)
+      ridges_.push_back({ToLocal(r.a), ToLocal(r.b), r.drop * scale});
     for (const auto& g : spec.grooves) {
       std::vector<Vector2d> pts;
       for (const Vector2d& p : g) pts.push_back(ToLocal(p));
@@ -419,7 +433,9 @@ class CrownShape {
   }
 
   // Blank cap: parameter beta in [0, pi/2] -> (rho, w).
-  double CapRho(double beta) const { return std::pow(std::max(std::cos(beta), 0.0), 2.0 / spec_.cap_power); }
+  double CapRho(double beta) const {
+    return std::pow(std::max(std::cos(beta), 0.0), 2.0 / spec_.cap_power);
+  }
   double CapW(double beta) const { return shoulder_ + (cap_top_ - shoulder_) * std::sin(beta); }
 
   // Occlusal surface height w = F(u, v) (used where it lies below the blank cap).
@@ -474,8 +490,11 @@ class CrownShape {
     }
     if (spec_.kind == ToothKind::kMolar) {
       const double band = Smoothstep((t - 0.4) / 0.3);
-      if (pv > 0) dv -= 0.3 * scale_ * std::exp(-Sq((x - spec_.buccal_groove_u) / 0.07)) * band * Sq(Sq(pv));
-      if (pv < 0) dv += 0.25 * scale_ * std::exp(-Sq((x - spec_.palatal_groove_u) / 0.08)) * band * Sq(Sq(pv));
+      if (pv > 0)
+        dv -= 0.3 * scale_ * std::exp(-Sq((x - spec_.buccal_groove_u) / 0.07)) * band * Sq(Sq(pv));
+      if (pv < 0)
+        dv +=
+            0.25 * scale_ * std::exp(-Sq((x - spec_.palatal_groove_u) / 0.08)) * band * Sq(Sq(pv));
     }
     return dv;
   }
@@ -502,7 +521,8 @@ class CrownShape {
     const double sigma = 0.2 * scale_, depth = 0.4 * scale_;
     for (const auto& g : grooves_) {
       double d = kInf;
-      for (size_t i = 0; i + 1 < g.size(); ++i) d = std::min(d, DistanceToSegment(p, g[i], g[i + 1]));
+      for (size_t i = 0; i + 1 < g.size(); ++i)
+        d = std::min(d, DistanceToSegment(p, g[i], g[i + 1]));
       h -= depth * std::exp(-0.5 * Sq(d / sigma));
     }
     return h;
@@ -555,9 +575,12 @@ OutlineTable MakeOutlineTable(F&& outline) {
 }
 
 // Connects ring a (lower / outer) to ring b (upper / inner) by matching their parameters.
-void Zip(const std::vector<double>& pa, int a0, const std::vector<double>& pb, int b0, std::vector<Vector3i>& faces) {
+void Zip(const std::vector<double>& pa, int a0, const std::vector<double>& pb, int b0,
+         std::vector<Vector3i>& faces) {
   const int na = static_cast<int>(pa.size()), nb = static_cast<int>(pb.size());
-  auto param = [](const std::vector<double>& p, int i) { return i < static_cast<int>(p.size()) ? p[i] : 2.0 * kPi + p[0]; };
+  auto param = [](const std::vector<double>& p, int i) {
+    return i < static_cast<int>(p.size()) ? p[i] : 2.0 * kPi + p[0];
+  };
   int i = 0, j = 0;
   while (i < na || j < nb) {
     const bool advance_a = j >= nb || (i < na && param(pa, i + 1) < param(pb, j + 1));
@@ -571,7 +594,8 @@ void Zip(const std::vector<double>& pa, int a0, const std::vector<double>& pb, i
   }
 }
 
-std::vector<Vector3d> AreaWeightedNormals(const std::vector<Vector3d>& v, const std::vector<Vector3i>& f) {
+std::vector<Vector3d> AreaWeightedNormals(const std::vector<Vector3d>& v,
+                                          const std::vector<Vector3i>& f) {
   std::vector<Vector3d> n(v.size(), Vector3d::Zero());
   for (const Vector3i& t : f) {
     const Vector3d c = (v[t[1]] - v[t[0]]).cross(v[t[2]] - v[t[0]]);
@@ -607,7 +631,8 @@ LocalCrown BuildCrown(const CrownShape& shape, double edge, double scale) {
 
   // Side wall: rings of constant height from below the cervical line up to the shoulder.
   const double w_bottom = -1.6 * scale;
-  const int wall_rings = std::max(2, static_cast<int>(std::ceil((shape.shoulder() - w_bottom) / (0.9 * edge))) + 1);
+  const int wall_rings =
+      std::max(2, static_cast<int>(std::ceil((shape.shoulder() - w_bottom) / (0.9 * edge))) + 1);
   for (int r = 0; r < wall_rings; ++r) {
     const double w = w_bottom + (shape.shoulder() - w_bottom) * r / (wall_rings - 1);
     const HalfWidths hw = shape.Widths(w);
@@ -644,7 +669,8 @@ LocalCrown BuildCrown(const CrownShape& shape, double edge, double scale) {
   const int cap_rings = std::max(2, static_cast<int>(std::ceil(arc.back() / (0.8 * edge))));
   for (int r = 1; r < cap_rings; ++r) {
     const double target = arc.back() * r / cap_rings;
-    const size_t i = static_cast<size_t>(std::upper_bound(arc.begin(), arc.end(), target) - arc.begin());
+    const size_t i =
+        static_cast<size_t>(std::upper_bound(arc.begin(), arc.end(), target) - arc.begin());
     const size_t k = std::clamp<size_t>(i, 1, kBeta);
     const double f = (target - arc[k - 1]) / std::max(arc[k] - arc[k - 1], 1e-15);
     const double beta = 0.5 * kPi * (k - 1 + f) / kBeta;
@@ -755,7 +781,8 @@ Proximal ProximalSide(const LocalCrown& crown, const Pose& pose, bool distal) {
 class PointGrid {
  public:
   PointGrid(const std::vector<Vector3d>& points, double cell) : points_(points), cell_(cell) {
-    for (size_t i = 0; i < points.size(); ++i) cells_[Key(Cell(points[i]))].push_back(static_cast<int>(i));
+    for (size_t i = 0; i < points.size(); ++i)
+      cells_[Key(Cell(points[i]))].push_back(static_cast<int>(i));
   }
   // Index of the nearest point within about one cell, or -1.
   int Nearest(const Vector3d& q) const {
@@ -777,10 +804,13 @@ class PointGrid {
 
  private:
   Eigen::Vector3i Cell(const Vector3d& p) const {
-    return {static_cast<int>(std::floor(p.x() / cell_)), static_cast<int>(std::floor(p.y() / cell_)), static_cast<int>(std::floor(p.z() / cell_))};
+    return {static_cast<int>(std::floor(p.x() / cell_)),
+            static_cast<int>(std::floor(p.y() / cell_)),
+            static_cast<int>(std::floor(p.z() / cell_))};
   }
   static int64_t Key(const Eigen::Vector3i& c) {
-    return (static_cast<int64_t>(c.x() + 4096) << 26) ^ (static_cast<int64_t>(c.y() + 4096) << 13) ^ static_cast<int64_t>(c.z() + 4096);
+    return (static_cast<int64_t>(c.x() + 4096) << 26) ^ (static_cast<int64_t>(c.y() + 4096) << 13) ^
+           static_cast<int64_t>(c.z() + 4096);
   }
   const std::vector<Vector3d>& points_;
   double cell_;
@@ -796,7 +826,8 @@ double OneWayDistance(const Proximal& a, const PointGrid& grid_a, const Proximal
     if ((q - a.points[i]).norm() > best + 0.5) continue;
     for (int f : a.vertex_faces[i]) {
       const Vector3i& t = a.faces[f];
-      best = std::min(best, (q - ClosestOnTriangle(q, a.points[t[0]], a.points[t[1]], a.points[t[2]])).norm());
+      best = std::min(
+          best, (q - ClosestOnTriangle(q, a.points[t[0]], a.points[t[1]], a.points[t[2]])).norm());
     }
   }
   return best;
@@ -809,7 +840,8 @@ double Separation(const Proximal& a, const PointGrid& grid_a, const Proximal& b)
 }
 
 // Places the seven teeth of one side along the arch, mesial to distal, each `gap` from the last.
-void PlaceSide(const ArchCurve& arch, const std::vector<LocalCrown>& crowns, double gap, std::vector<ToothPlacement>& teeth) {
+void PlaceSide(const ArchCurve& arch, const std::vector<LocalCrown>& crowns, double gap,
+               std::vector<ToothPlacement>& teeth) {
   constexpr double kCell = 0.8;
   double s = 0.5 * crowns[0].half_md + 0.5 * gap;
   for (size_t k = 0; k < teeth.size(); ++k) {
@@ -866,7 +898,8 @@ struct GumTooth {
 class GumShape {
  public:
   GumShape(std::vector<GumTooth> teeth, double scale) : teeth_(std::move(teeth)), scale_(scale) {
-    std::sort(teeth_.begin(), teeth_.end(), [](const GumTooth& a, const GumTooth& b) { return a.s_lo < b.s_lo; });
+    std::sort(teeth_.begin(), teeth_.end(),
+              [](const GumTooth& a, const GumTooth& b) { return a.s_lo < b.s_lo; });
     const size_t n = teeth_.size();
     pap_lo_.resize(n), pap_hi_.resize(n);
     for (size_t i = 0; i < n; ++i) {
@@ -887,7 +920,8 @@ class GumShape {
     for (size_t i = 0; i < n; ++i) table_[i] = Crest(s0 + step * i);
   }
   double CrestFast(double s) const {
-    const double x = std::clamp((s - table_s0_) / table_step_, 0.0, static_cast<double>(table_.size() - 2));
+    const double x =
+        std::clamp((s - table_s0_) / table_step_, 0.0, static_cast<double>(table_.size() - 2));
     const size_t i = static_cast<size_t>(x);
     return table_[i] + (x - i) * (table_[i + 1] - table_[i]);
   }
@@ -905,8 +939,10 @@ class GumShape {
       f[n++] = t.y_mid - (t.y_mid - side) * std::pow(std::abs(x), kQ);
     }
     const double ramp = 5.0 * scale_, rise = 2.5 * scale_;
-    if (s < teeth_.front().Center()) f[n++] = pap_lo_.front() + rise * Smoothstep((teeth_.front().s_lo - s) / ramp);
-    if (s > teeth_.back().Center()) f[n++] = pap_hi_.back() + rise * Smoothstep((s - teeth_.back().s_hi) / ramp);
+    if (s < teeth_.front().Center())
+      f[n++] = pap_lo_.front() + rise * Smoothstep((teeth_.front().s_lo - s) / ramp);
+    if (s > teeth_.back().Center())
+      f[n++] = pap_hi_.back() + rise * Smoothstep((s - teeth_.back().s_hi) / ramp);
     double m = -kInf;
     for (size_t i = 0; i < n; ++i) m = std::max(m, f[i]);
     double sum = 0;
@@ -1016,7 +1052,8 @@ class WallLimits {
     return out;
   }
   // Gaussian smoothing; with `floor`, never inside it (sign: +1 keep >=, -1 keep <=).
-  std::vector<double> Smooth(const std::vector<double>& a, double sigma, const std::vector<double>* floor, int sign) const {
+  std::vector<double> Smooth(const std::vector<double>& a, double sigma,
+                             const std::vector<double>* floor, int sign) const {
     const int r = static_cast<int>(std::ceil(3 * sigma / bin_));
     const int n = static_cast<int>(a.size());
     std::vector<double> out(a.size());
@@ -1067,21 +1104,27 @@ class GumProfile {
     const double y = crest_ + p_.corner + t * (top_ - crest_ - p_.corner);
     return {BuccalN(y), y};
   }
-  Vector2d Palatal(double t) const {  // quarter ellipse from the palatal top (t=0) down to the fillet
+  Vector2d Palatal(
+      double t) const {  // quarter ellipse from the palatal top (t=0) down to the fillet
     const double a = 0.5 * kPi * (1.0 - t);
     const double y0 = crest_ + p_.corner;
     return {n_p_ - (n_p_ - n_p_top_) * (1.0 - std::cos(a)), y0 + (palate_top_ - y0) * std::sin(a)};
   }
-  Vector2d Crest(double t) const { return {n_p_ + p_.corner + t * (n_b_ - n_p_ - 2 * p_.corner), crest_}; }
+  Vector2d Crest(double t) const {
+    return {n_p_ + p_.corner + t * (n_b_ - n_p_ - 2 * p_.corner), crest_};
+  }
   Vector2d BuccalCorner(double t) const {  // crest end -> wall start, quadratic Bezier
     return Bezier({n_b_ - p_.corner, crest_}, {n_b_, crest_}, Buccal(0.0), t);
   }
-  Vector2d PalatalCorner(double t) const { return Bezier(Palatal(1.0), {n_p_, crest_}, {n_p_ + p_.corner, crest_}, t); }
+  Vector2d PalatalCorner(double t) const {
+    return Bezier(Palatal(1.0), {n_p_, crest_}, {n_p_ + p_.corner, crest_}, t);
+  }
 
  private:
   double BuccalN(double y) const {
     const double rise = y - crest_;
-    const double base = n_b_ + (n_b_top_ - n_b_) * Smoothstep((rise - 1.0 * p_.scale) / (3.0 * p_.scale));
+    const double base =
+        n_b_ + (n_b_top_ - n_b_) * Smoothstep((rise - 1.0 * p_.scale) / (3.0 * p_.scale));
     return base - lean_ * rise + eminence_ * Smoothstep(rise / (3.0 * p_.scale));
   }
   static Vector2d Bezier(const Vector2d& a, const Vector2d& c, const Vector2d& b, double t) {
@@ -1104,7 +1147,8 @@ double CurveLength(F&& f) {
 }
 
 // Sweeps the gingiva profile along the arch (an open sheet: top, palate edge and ends are open).
-TriangleMesh BuildGingiva(const ArchCurve& arch, const GumShape& shape, const WallLimits& walls, const GumParams& p) {
+TriangleMesh BuildGingiva(const ArchCurve& arch, const GumShape& shape, const WallLimits& walls,
+                          const GumParams& p) {
   // Candidate stations every 0.05 mm along the arch (the gingiva runs 5 mm past the last teeth).
   const double s_lo = shape.s_min() - 5.0 * p.scale, s_hi = shape.s_max() + 5.0 * p.scale;
   const int n_candidates = static_cast<int>(std::ceil((s_hi - s_lo) / (0.05 * p.scale))) + 1;
@@ -1116,14 +1160,17 @@ TriangleMesh BuildGingiva(const ArchCurve& arch, const GumShape& shape, const Wa
     candidates[j] = s_lo + (s_hi - s_lo) * j / (n_candidates - 1);
     profiles.emplace_back(shape, walls, p, candidates[j]);
     const GumProfile& g = profiles.back();
-    const std::array<double, 5> len = {CurveLength([&](double t) { return g.Palatal(t); }), CurveLength([&](double t) { return g.PalatalCorner(t); }),
-                                       CurveLength([&](double t) { return g.Crest(t); }), CurveLength([&](double t) { return g.BuccalCorner(t); }),
+    const std::array<double, 5> len = {CurveLength([&](double t) { return g.Palatal(t); }),
+                                       CurveLength([&](double t) { return g.PalatalCorner(t); }),
+                                       CurveLength([&](double t) { return g.Crest(t); }),
+                                       CurveLength([&](double t) { return g.BuccalCorner(t); }),
                                        CurveLength([&](double t) { return g.Buccal(t); })};
     for (int k = 0; k < 5; ++k) longest[k] = std::max(longest[k], len[k]);
   }
   // Profile point counts per piece from the longest piece over all stations.
   std::array<int, 5> count{};
-  for (int k = 0; k < 5; ++k) count[k] = std::max(2, static_cast<int>(std::ceil(longest[k] / p.edge)));
+  for (int k = 0; k < 5; ++k)
+    count[k] = std::max(2, static_cast<int>(std::ceil(longest[k] / p.edge)));
   const int per = count[0] + count[1] + count[2] + count[3] + count[4] + 1;
   auto profile_points = [&](int j) {
     const GumProfile& g = profiles[j];
@@ -1131,7 +1178,9 @@ TriangleMesh BuildGingiva(const ArchCurve& arch, const GumShape& shape, const Wa
     const Vector2d nrm = arch.Normal(candidates[j]);
     std::vector<Vector3d> pts;
     pts.reserve(per);
-    auto emit = [&](const Vector2d& q) { pts.emplace_back(c.x() + q.x() * nrm.x(), q.y(), c.y() + q.x() * nrm.y()); };
+    auto emit = [&](const Vector2d& q) {
+      pts.emplace_back(c.x() + q.x() * nrm.x(), q.y(), c.y() + q.x() * nrm.y());
+    };
     for (int i = 0; i < count[0]; ++i) emit(g.Palatal(static_cast<double>(i) / count[0]));
     for (int i = 0; i < count[1]; ++i) emit(g.PalatalCorner(static_cast<double>(i) / count[1]));
     for (int i = 0; i < count[2]; ++i) emit(g.Crest(static_cast<double>(i) / count[2]));
@@ -1154,7 +1203,8 @@ TriangleMesh BuildGingiva(const ArchCurve& arch, const GumShape& shape, const Wa
       last = accepted;
     }
     accepted = std::move(pts);
-    if (j + 1 == n_candidates) gum.vertices.insert(gum.vertices.end(), accepted.begin(), accepted.end());
+    if (j + 1 == n_candidates)
+      gum.vertices.insert(gum.vertices.end(), accepted.begin(), accepted.end());
   }
   const int n_stations = static_cast<int>(gum.vertices.size()) / per;
   for (int j = 0; j + 1 < n_stations; ++j) {
@@ -1248,7 +1298,8 @@ TriangleMesh MakeTypodont(const TypodontOptions& options, TypodontInfo* info) {
     gum_teeth.push_back(g);
   }
   GumShape gum_shape(gum_teeth, scale);
-  gum_shape.Tabulate(gum_shape.s_min() - 6.0 * scale, gum_shape.s_max() + 6.0 * scale, 0.02 * scale);
+  gum_shape.Tabulate(gum_shape.s_min() - 6.0 * scale, gum_shape.s_max() + 6.0 * scale,
+                     0.02 * scale);
 
   // Walls of the gingiva: clear the crowns where they pierce the crest.
   WallLimits walls(gum_shape.s_min() - 6.0 * scale, gum_shape.s_max() + 6.0 * scale, 0.2 * scale);
@@ -1259,12 +1310,17 @@ TriangleMesh MakeTypodont(const TypodontOptions& options, TypodontInfo* info) {
     for (size_t i = 0; i < c.vertices.size(); ++i) {
       const Vector2d sn = arch.Project({c.vertices[i].x(), c.vertices[i].z()}, c.arch_s[i]);
       arch_sn[ci][i] = sn;
-      if (std::abs(c.vertices[i].y() - gum_shape.CrestFast(sn.x())) < 0.6 * scale) walls.Add(sn.x(), sn.y());
+      if (std::abs(c.vertices[i].y() - gum_shape.CrestFast(sn.x())) < 0.6 * scale)
+        walls.Add(sn.x(), sn.y());
     }
   }
   walls.Finish(0.8 * scale, 0.6 * scale, 2.5 * scale);
-  const GumParams gum_params{options.gingiva_edge_mm,          options.gingiva_thickness_mm,    0.75 * options.gingiva_thickness_mm,
-                             options.gingiva_top_y_mm * scale, options.palate_width_mm * scale, scale};
+  const GumParams gum_params{options.gingiva_edge_mm,
+                             options.gingiva_thickness_mm,
+                             0.75 * options.gingiva_thickness_mm,
+                             options.gingiva_top_y_mm * scale,
+                             options.palate_width_mm * scale,
+                             scale};
 
   // Cut each crown exactly where it enters the gingiva: a crown triangle wholly under the gum
   // surface goes, one crossing it is clipped along the crossing (edge points interpolated linearly
@@ -1279,13 +1335,14 @@ TriangleMesh MakeTypodont(const TypodontOptions& options, TypodontInfo* info) {
     std::vector<double> depth(c.vertices.size());
     for (size_t i = 0; i < c.vertices.size(); ++i) {
       const double s = arch_sn[ci][i].x(), n = arch_sn[ci][i].y();
-      const double gum_y =
-          GumSurfaceY(gum_shape.CrestFast(s), walls.Hi(s) + gum_params.thickness, walls.Lo(s) - gum_params.thickness, gum_params.corner, n);
+      const double gum_y = GumSurfaceY(gum_shape.CrestFast(s), walls.Hi(s) + gum_params.thickness,
+                                       walls.Lo(s) - gum_params.thickness, gum_params.corner, n);
       depth[i] = std::isfinite(gum_y) ? c.vertices[i].y() - gum_y : -1.0;
     }
     std::vector<int> remap(c.vertices.size(), -1);
-    std::map<std::pair<int, int>, int> crossing;  // crown edge -> mesh vertex where it meets the gum
-    constexpr double kSnap = 0.05;                // share of an edge under which a crossing snaps to its kept end
+    std::map<std::pair<int, int>, int>
+        crossing;                   // crown edge -> mesh vertex where it meets the gum
+    constexpr double kSnap = 0.05;  // share of an edge under which a crossing snaps to its kept end
     auto keep = [&](int i) {
       if (remap[i] < 0) {
         remap[i] = static_cast<int>(mesh.vertices.size());
@@ -1304,7 +1361,8 @@ TriangleMesh MakeTypodont(const TypodontOptions& options, TypodontInfo* info) {
         v = keep(inside);  // the crossing all but meets the kept corner: no sliver
       } else {
         v = static_cast<int>(mesh.vertices.size());
-        mesh.vertices.push_back(c.vertices[key.first] + t * (c.vertices[key.second] - c.vertices[key.first]));
+        mesh.vertices.push_back(c.vertices[key.first] +
+                                t * (c.vertices[key.second] - c.vertices[key.first]));
       }
       crossing.emplace(key, v);
       return v;

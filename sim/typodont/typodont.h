@@ -47,19 +47,20 @@ struct TypodontOptions {
 
 // Landmarks of one tooth as placed in the typodont (global frame above).
 struct TypodontTooth {
-  int fdi = 0;                                         // 17..11, 21..27
-  double arch_s = 0;                                   // signed arc length of the crown on the occlusal arch curve
-                                                       // (0 on the midline, + toward the patient's left)
-  Eigen::Vector3d cej_center{0, 0, 0};                 // centre of the cervical line (cemento-enamel junction)
-  Eigen::Vector3d tip{0, 0, 0};                        // top of the crown axis (incisal edge / cusp level)
+  int fdi = 0;                          // 17..11, 21..27
+  double arch_s = 0;                    // signed arc length of the crown on the occlusal arch curve
+                                        // (0 on the midline, + toward the patient's left)
+  Eigen::Vector3d cej_center{0, 0, 0};  // centre of the cervical line (cemento-enamel junction)
+  Eigen::Vector3d tip{0, 0, 0};         // top of the crown axis (incisal edge / cusp level)
   Eigen::Matrix3d axes = Eigen::Matrix3d::Identity();  // columns: distal, buccal, occlusal units
   std::vector<Eigen::Vector3d> cusp_tips;              // mesh vertices at the cusp tips
-                                                       // (canine 1, premolars B,P, molars MB,DB,MP,DP)
+                                           // (canine 1, premolars B,P, molars MB,DB,MP,DP)
 };
 
 struct TypodontInfo {
-  std::vector<TypodontTooth> teeth;         // in mesh order: 17..11 then 21..27
-  std::vector<Eigen::Vector3d> arch_curve;  // occlusal arch curve at y = 0, 1 mm steps, right to left
+  std::vector<TypodontTooth> teeth;  // in mesh order: 17..11 then 21..27
+  std::vector<Eigen::Vector3d>
+      arch_curve;  // occlusal arch curve at y = 0, 1 mm steps, right to left
 };
 
 // Builds the typodont: 14 crowns (face_labels kTooth, face_tooth_ids = FDI number) followed by one

@@ -45,17 +45,22 @@ void MaybeDump(const TriangleMesh& mesh) {
   std::ofstream out(path);
   out << "ply\nformat ascii 1.0\ncomment d3dscan procedural typodont (mm)\n"
       << "element vertex " << mesh.vertices.size()
-      << "\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\nproperty float ny\n"
+      << "\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\nproperty "
+         "float ny\n"
          "property float nz\nelement face "
-      << mesh.faces.size() << "\nproperty list uchar int vertex_indices\nproperty uchar label\nproperty uchar tooth_id\nend_header\n";
+      << mesh.faces.size()
+      << "\nproperty list uchar int vertex_indices\nproperty uchar label\nproperty uchar "
+         "tooth_id\nend_header\n";
   for (size_t i = 0; i < mesh.vertices.size(); ++i) {
     const Vector3d& v = mesh.vertices[i];
     const Vector3d& n = mesh.vertex_normals[i];
-    out << v.x() << ' ' << v.y() << ' ' << v.z() << ' ' << n.x() << ' ' << n.y() << ' ' << n.z() << '\n';
+    out << v.x() << ' ' << v.y() << ' ' << v.z() << ' ' << n.x() << ' ' << n.y() << ' ' << n.z()
+        << '\n';
   }
   for (size_t f = 0; f < mesh.faces.size(); ++f) {
-    out << "3 " << mesh.faces[f][0] << ' ' << mesh.faces[f][1] << ' ' << mesh.faces[f][2] << ' ' << static_cast<int>(mesh.face_labels[f]) << ' '
-        << static_cast<int>(mesh.face_tooth_ids[f]) << '\n';
+    out << "3 " << mesh.faces[f][0] << ' ' << mesh.faces[f][1] << ' ' << mesh.faces[f][2] << ' '
+        << static_cast<int>(mesh.face_labels[f]) << ' ' << static_cast<int>(mesh.face_tooth_ids[f])
+        << '\n';
   }
   std::printf("typodont written to %s\n", path.c_str());
 }
@@ -73,7 +78,8 @@ const Fixture& Default() {
     const auto t0 = std::chrono::steady_clock::now();
     f->mesh = MakeTypodont(TypodontOptions{}, &f->info);
     f->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    std::printf("typodont: %zu triangles, %zu vertices, %.3f s\n", f->mesh.faces.size(), f->mesh.vertices.size(), f->seconds);
+    std::printf("typodont: %zu triangles, %zu vertices, %.3f s\n", f->mesh.faces.size(),
+                f->mesh.vertices.size(), f->seconds);
     MaybeDump(f->mesh);
     return f;
   }();
@@ -112,12 +118,15 @@ std::map<int, Crown> SplitCrowns(const TriangleMesh& mesh) {
 
 double FaceArea(const TriangleMesh& m, int f) {
   const Vector3i& t = m.faces[f];
-  return 0.5 * (m.vertices[t[1]] - m.vertices[t[0]]).cross(m.vertices[t[2]] - m.vertices[t[0]]).norm();
+  return 0.5 *
+         (m.vertices[t[1]] - m.vertices[t[0]]).cross(m.vertices[t[2]] - m.vertices[t[0]]).norm();
 }
 
 Vector3d FaceNormal(const TriangleMesh& m, int f) {
   const Vector3i& t = m.faces[f];
-  return (m.vertices[t[1]] - m.vertices[t[0]]).cross(m.vertices[t[2]] - m.vertices[t[0]]).normalized();
+  return (m.vertices[t[1]] - m.vertices[t[0]])
+      .cross(m.vertices[t[2]] - m.vertices[t[0]])
+      .normalized();
 }
 
 // Uniform grid over points or triangles (by centroid) for neighbourhood queries.
@@ -139,10 +148,13 @@ class Grid {
 
  private:
   Eigen::Vector3i Cell(const Vector3d& p) const {
-    return {static_cast<int>(std::floor(p.x() / cell_)), static_cast<int>(std::floor(p.y() / cell_)), static_cast<int>(std::floor(p.z() / cell_))};
+    return {static_cast<int>(std::floor(p.x() / cell_)),
+            static_cast<int>(std::floor(p.y() / cell_)),
+            static_cast<int>(std::floor(p.z() / cell_))};
   }
   static int64_t Pack(const Eigen::Vector3i& c) {
-    return (static_cast<int64_t>(c.x() + 100000) * 200003 + (c.y() + 100000)) * 200003 + (c.z() + 100000);
+    return (static_cast<int64_t>(c.x() + 100000) * 200003 + (c.y() + 100000)) * 200003 +
+           (c.z() + 100000);
   }
   int64_t Key(const Vector3d& p) const { return Pack(Cell(p)); }
   double cell_;
@@ -161,7 +173,9 @@ double VertexToTriangleDistance(const TriangleMesh& m, const Crown& a, const Cro
     const Vector3d& p = m.vertices[v];
     grid.ForNear(p, [&](int f) {
       const Vector3i& t = m.faces[f];
-      best = std::min(best, (p - ClosestOnTriangle(p, m.vertices[t[0]], m.vertices[t[1]], m.vertices[t[2]])).norm());
+      best = std::min(
+          best,
+          (p - ClosestOnTriangle(p, m.vertices[t[0]], m.vertices[t[1]], m.vertices[t[2]])).norm());
     });
   }
   return best;
@@ -169,7 +183,8 @@ double VertexToTriangleDistance(const TriangleMesh& m, const Crown& a, const Cro
 
 // Cusp tips: vertices highest (-y) among all crown vertices within `radius` (horizontally) and
 // standing at least `prominence` above the lowest of them.
-std::vector<Vector3d> CuspTips(const TriangleMesh& m, const Crown& c, double radius, double prominence) {
+std::vector<Vector3d> CuspTips(const TriangleMesh& m, const Crown& c, double radius,
+                               double prominence) {
   Grid grid(radius);
   double top = -1e9;
   for (int v : c.vertices) {
@@ -257,7 +272,9 @@ void CheckExtentAndArchDimensions(const TriangleMesh& m, const std::map<int, Cro
   auto mesiobuccal = [&](int id) {  // of the 4 molar cusps: the 2 most buccal, then the more mesial
     auto tips = CuspTips(m, crowns.at(id), 1.2, 0.3);
     EXPECT_GE(tips.size(), 4u);
-    std::sort(tips.begin(), tips.end(), [](const Vector3d& a, const Vector3d& b) { return std::abs(a.x()) > std::abs(b.x()); });
+    std::sort(tips.begin(), tips.end(), [](const Vector3d& a, const Vector3d& b) {
+      return std::abs(a.x()) > std::abs(b.x());
+    });
     if (tips.size() < 2) return Vector3d(0, 0, 0);
     return tips[0].z() > tips[1].z() ? tips[0] : tips[1];
   };
@@ -268,7 +285,8 @@ void CheckExtentAndArchDimensions(const TriangleMesh& m, const std::map<int, Cro
   for (int id : {17, 27})
     for (int v : crowns.at(id).vertices) z_back = std::min(z_back, m.vertices[v].z());
   const double depth = z_front - z_back;
-  std::printf("inter-canine %.2f mm, inter-first-molar (MB cusps) %.2f mm, arch depth %.2f mm\n", intercanine, intermolar, depth);
+  std::printf("inter-canine %.2f mm, inter-first-molar (MB cusps) %.2f mm, arch depth %.2f mm\n",
+              intercanine, intermolar, depth);
   EXPECT_NEAR(intercanine, 34.0, 1.5);
   EXPECT_NEAR(intermolar, 52.0, 2.0);
   EXPECT_NEAR(depth, 45.0, 2.0);
@@ -288,11 +306,14 @@ void CheckCrownWidths(const TriangleMesh& m, const std::map<int, Crown>& crowns)
     const Vector3d bl = Vector3d::UnitY().cross(md);
     double md_lo = 1e9, md_hi = -1e9, bl_lo = 1e9, bl_hi = -1e9;
     for (int v : crowns.at(id).vertices) {
-      md_lo = std::min(md_lo, m.vertices[v].dot(md)), md_hi = std::max(md_hi, m.vertices[v].dot(md));
-      bl_lo = std::min(bl_lo, m.vertices[v].dot(bl)), bl_hi = std::max(bl_hi, m.vertices[v].dot(bl));
+      md_lo = std::min(md_lo, m.vertices[v].dot(md)),
+      md_hi = std::max(md_hi, m.vertices[v].dot(md));
+      bl_lo = std::min(bl_lo, m.vertices[v].dot(bl)),
+      bl_hi = std::max(bl_hi, m.vertices[v].dot(bl));
     }
     const double md_width = md_hi - md_lo, bl_width = bl_hi - bl_lo;
-    std::printf("tooth %d: MD %.2f (table %.1f), BL %.2f (table %.1f)\n", id, md_width, kMesiodistal[pos - 1], bl_width, kBuccolingual[pos - 1]);
+    std::printf("tooth %d: MD %.2f (table %.1f), BL %.2f (table %.1f)\n", id, md_width,
+                kMesiodistal[pos - 1], bl_width, kBuccolingual[pos - 1]);
     EXPECT_NEAR(md_width, kMesiodistal[pos - 1], 0.1 * kMesiodistal[pos - 1]) << "tooth " << id;
     EXPECT_NEAR(bl_width, kBuccolingual[pos - 1], 0.15 * kBuccolingual[pos - 1]) << "tooth " << id;
     // Anatomical crown height (cervical line to tip) from the landmarks.
@@ -346,7 +367,8 @@ void CheckMeshSanity(const TriangleMesh& m) {
     for (int k = 0; k < 3; ++k) ASSERT_TRUE(t[k] >= 0 && t[k] < nv);
     ASSERT_GT(FaceArea(m, static_cast<int>(f)), 1e-8) << "degenerate face " << f;
     double e = 0;
-    for (int k = 0; k < 3; ++k) e = std::max(e, (m.vertices[t[k]] - m.vertices[t[(k + 1) % 3]]).norm());
+    for (int k = 0; k < 3; ++k)
+      e = std::max(e, (m.vertices[t[k]] - m.vertices[t[(k + 1) % 3]]).norm());
     if (m.face_labels[f] == SurfaceLabel::kTooth) {
       ASSERT_TRUE(m.face_tooth_ids[f] >= 11 && m.face_tooth_ids[f] <= 27);
       max_crown_edge = std::max(max_crown_edge, e);
@@ -358,7 +380,8 @@ void CheckMeshSanity(const TriangleMesh& m) {
       ++gum_faces;
     }
   }
-  std::printf("max edge: crowns %.3f mm, gingiva %.3f mm; %zu gingiva faces\n", max_crown_edge, max_gum_edge, gum_faces);
+  std::printf("max edge: crowns %.3f mm, gingiva %.3f mm; %zu gingiva faces\n", max_crown_edge,
+              max_gum_edge, gum_faces);
   EXPECT_LE(max_crown_edge, 2.0 * crown_edge);
   EXPECT_LE(max_gum_edge, 3.0 * TypodontOptions{}.gingiva_edge_mm);
   EXPECT_GT(gum_faces, 10000u);
@@ -413,7 +436,10 @@ void CheckCutEdgesCovered(const TriangleMesh& m) {
 // crest the crowns pierce). A probe cannot see such surface; a lab scan of the model has none.
 double ToothAreaInsideGingiva(const TriangleMesh& m, double tolerance_mm) {
   constexpr double kCell = 1.0;  // mm, xz buckets of gingiva triangles
-  auto key = [](double x, double z) { return std::make_pair(static_cast<int>(std::floor(x / kCell)), static_cast<int>(std::floor(z / kCell))); };
+  auto key = [](double x, double z) {
+    return std::make_pair(static_cast<int>(std::floor(x / kCell)),
+                          static_cast<int>(std::floor(z / kCell)));
+  };
   std::map<std::pair<int, int>, std::vector<int>> buckets;
   for (size_t f = 0; f < m.faces.size(); ++f) {
     if (m.face_labels[f] != SurfaceLabel::kGingiva) continue;
@@ -440,8 +466,10 @@ double ToothAreaInsideGingiva(const TriangleMesh& m, double tolerance_mm) {
       const Vector3d& d = m.vertices[m.faces[g][2]];
       const double det = (b.x() - a.x()) * (d.z() - a.z()) - (d.x() - a.x()) * (b.z() - a.z());
       if (std::abs(det) < 1e-12) continue;
-      const double u = ((c.x() - a.x()) * (d.z() - a.z()) - (d.x() - a.x()) * (c.z() - a.z())) / det;
-      const double v = ((b.x() - a.x()) * (c.z() - a.z()) - (c.x() - a.x()) * (b.z() - a.z())) / det;
+      const double u =
+          ((c.x() - a.x()) * (d.z() - a.z()) - (d.x() - a.x()) * (c.z() - a.z())) / det;
+      const double v =
+          ((b.x() - a.x()) * (c.z() - a.z()) - (c.x() - a.x()) * (b.z() - a.z())) / det;
       if (u < 0 || v < 0 || u + v > 1) continue;
       lowest = std::min(lowest, a.y() + u * (b.y() - a.y()) + v * (d.y() - a.y()));
     }
@@ -473,7 +501,8 @@ TEST(Typodont, GapsMeshSanityAndGingivaCover) {
     SCOPED_TRACE("gingiva covers the crowns' cut edges");
     CheckCutEdgesCovered(m);
   }
-  std::printf("generation %.3f s (printed only: speed is not a pass/fail test)\n", Default().seconds);
+  std::printf("generation %.3f s (printed only: speed is not a pass/fail test)\n",
+              Default().seconds);
 }
 
 TEST(Typodont, CuspsOnPosteriorTeethAndCanines) {
@@ -508,7 +537,8 @@ TEST(Typodont, DeterministicPerSeed) {
   other.seed = options.seed + 1;
   const TriangleMesh c = MakeTypodont(other);
   bool differs = c.vertices.size() != a.vertices.size();
-  for (size_t i = 0; !differs && i < a.vertices.size(); ++i) differs = (a.vertices[i] - c.vertices[i]).norm() > 1e-6;
+  for (size_t i = 0; !differs && i < a.vertices.size(); ++i)
+    differs = (a.vertices[i] - c.vertices[i]).norm() > 1e-6;
   EXPECT_TRUE(differs);
 }
 

@@ -1,6 +1,6 @@
-// A stand-in for the part of libusb-1.0 that dfu-util (Debian's) calls, loaded with LD_PRELOAD, that
-// presents the simulated probe behind D3D_SIM_SOCKET as one USB device: descriptors are read with
-// GET_DESCRIPTOR control transfers over the sim link, every control transfer dfu-util makes is
+// A stand-in for the part of libusb-1.0 that dfu-util (Debian's) calls, loaded with LD_PRELOAD,
+// that presents the simulated probe behind D3D_SIM_SOCKET as one USB device: descriptors are read
+// with GET_DESCRIPTOR control transfers over the sim link, every control transfer dfu-util makes is
 // carried over it unchanged, libusb_reset_device is a bus reset. This lets dfu-util, the reference
 // DFU client, talk to d3d-update-agent without USB hardware. Test-only.
 #include <libusb-1.0/libusb.h>
@@ -63,10 +63,12 @@ void Disconnect() {
 }
 
 // One control transfer over the sim link: bytes received (IN) or sent (OUT), or a libusb error.
-int Transfer(uint8_t type, uint8_t request, uint16_t value, uint16_t index, unsigned char* data, uint16_t length) {
+int Transfer(uint8_t type, uint8_t request, uint16_t value, uint16_t index, unsigned char* data,
+             uint16_t length) {
   if (!Connect()) return LIBUSB_ERROR_NO_DEVICE;
   const dfu::SetupPacket s{type, request, value, index, length};
-  const std::span<const uint8_t> out = s.is_in() ? std::span<const uint8_t>() : std::span<const uint8_t>(data, length);
+  const std::span<const uint8_t> out =
+      s.is_in() ? std::span<const uint8_t>() : std::span<const uint8_t>(data, length);
   if (!dfu::WriteFull(g_fd, dfu::EncodeRequest(dfu::kKindControl, s, out)).ok()) {
     Disconnect();
     return LIBUSB_ERROR_NO_DEVICE;
@@ -87,7 +89,8 @@ int Transfer(uint8_t type, uint8_t request, uint16_t value, uint16_t index, unsi
 
 int GetDescriptor(uint8_t type, uint8_t index, std::vector<uint8_t>* out, uint16_t length) {
   out->assign(length, 0);
-  const int n = Transfer(0x80, dfu::kGetDescriptor, static_cast<uint16_t>(type << 8 | index), 0, out->data(), length);
+  const int n = Transfer(0x80, dfu::kGetDescriptor, static_cast<uint16_t>(type << 8 | index), 0,
+                         out->data(), length);
   if (n < 0) return n;
   out->resize(static_cast<size_t>(n));
   return n;
@@ -114,13 +117,20 @@ const struct libusb_version* LIBUSB_CALL libusb_get_version(void) {
 
 const char* LIBUSB_CALL libusb_error_name(int code) {
   switch (code) {
-    case LIBUSB_SUCCESS: return "LIBUSB_SUCCESS";
-    case LIBUSB_ERROR_IO: return "LIBUSB_ERROR_IO";
-    case LIBUSB_ERROR_NO_DEVICE: return "LIBUSB_ERROR_NO_DEVICE";
-    case LIBUSB_ERROR_NOT_FOUND: return "LIBUSB_ERROR_NOT_FOUND";
-    case LIBUSB_ERROR_PIPE: return "LIBUSB_ERROR_PIPE";
-    case LIBUSB_ERROR_TIMEOUT: return "LIBUSB_ERROR_TIMEOUT";
-    default: return "LIBUSB_ERROR_OTHER";
+    case LIBUSB_SUCCESS:
+      return "LIBUSB_SUCCESS";
+    case LIBUSB_ERROR_IO:
+      return "LIBUSB_ERROR_IO";
+    case LIBUSB_ERROR_NO_DEVICE:
+      return "LIBUSB_ERROR_NO_DEVICE";
+    case LIBUSB_ERROR_NOT_FOUND:
+      return "LIBUSB_ERROR_NOT_FOUND";
+    case LIBUSB_ERROR_PIPE:
+      return "LIBUSB_ERROR_PIPE";
+    case LIBUSB_ERROR_TIMEOUT:
+      return "LIBUSB_ERROR_TIMEOUT";
+    default:
+      return "LIBUSB_ERROR_OTHER";
   }
 }
 
@@ -152,16 +162,19 @@ int LIBUSB_CALL libusb_get_device_descriptor(libusb_device*, struct libusb_devic
   return 0;
 }
 
-int LIBUSB_CALL libusb_get_config_descriptor(libusb_device*, uint8_t index, struct libusb_config_descriptor** config) {
+int LIBUSB_CALL libusb_get_config_descriptor(libusb_device*, uint8_t index,
+                                             struct libusb_config_descriptor** config) {
   if (index != 0) return LIBUSB_ERROR_NOT_FOUND;
   std::vector<uint8_t> b;
   if (GetDescriptor(dfu::kDescConfiguration, 0, &b, 9) < 9) return LIBUSB_ERROR_IO;
   const uint16_t total = static_cast<uint16_t>(b[2] | (b[3] << 8));
   if (GetDescriptor(dfu::kDescConfiguration, 0, &b, total) < total) return LIBUSB_ERROR_IO;
   // One interface with one alternate setting; descriptors after it (DFU functional) go to `extra`.
-  auto* cfg = static_cast<libusb_config_descriptor*>(std::calloc(1, sizeof(libusb_config_descriptor)));
+  auto* cfg =
+      static_cast<libusb_config_descriptor*>(std::calloc(1, sizeof(libusb_config_descriptor)));
   auto* intf = static_cast<libusb_interface*>(std::calloc(1, sizeof(libusb_interface)));
-  auto* alt = static_cast<libusb_interface_descriptor*>(std::calloc(1, sizeof(libusb_interface_descriptor)));
+  auto* alt = static_cast<libusb_interface_descriptor*>(
+      std::calloc(1, sizeof(libusb_interface_descriptor)));
   std::memcpy(cfg, b.data(), 9);
   cfg->interface = intf;
   intf->altsetting = alt;
@@ -183,7 +196,8 @@ int LIBUSB_CALL libusb_get_config_descriptor(libusb_device*, uint8_t index, stru
   return 0;
 }
 
-int LIBUSB_CALL libusb_get_active_config_descriptor(libusb_device* dev, struct libusb_config_descriptor** config) {
+int LIBUSB_CALL libusb_get_active_config_descriptor(libusb_device* dev,
+                                                    struct libusb_config_descriptor** config) {
   return libusb_get_config_descriptor(dev, 0, config);
 }
 
@@ -206,12 +220,14 @@ int LIBUSB_CALL libusb_claim_interface(libusb_device_handle*, int) { return 0; }
 int LIBUSB_CALL libusb_release_interface(libusb_device_handle*, int) { return 0; }
 int LIBUSB_CALL libusb_set_interface_alt_setting(libusb_device_handle*, int interface, int alt) {
   unsigned char none = 0;
-  const int n = Transfer(0x01, 0x0B, static_cast<uint16_t>(alt), static_cast<uint16_t>(interface), &none, 0);
+  const int n =
+      Transfer(0x01, 0x0B, static_cast<uint16_t>(alt), static_cast<uint16_t>(interface), &none, 0);
   return n < 0 ? n : 0;
 }
 
-int LIBUSB_CALL libusb_control_transfer(libusb_device_handle*, uint8_t type, uint8_t request, uint16_t value,
-                                        uint16_t index, unsigned char* data, uint16_t length, unsigned int) {
+int LIBUSB_CALL libusb_control_transfer(libusb_device_handle*, uint8_t type, uint8_t request,
+                                        uint16_t value, uint16_t index, unsigned char* data,
+                                        uint16_t length, unsigned int) {
   return Transfer(type, request, value, index, data, length);
 }
 

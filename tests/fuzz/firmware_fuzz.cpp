@@ -64,7 +64,8 @@ void FuzzFirmwareImageOnce(const uint8_t* data, size_t size) {
       if (dfu::DecodeStringDescriptor(in, &s)) Check(s.size() * 2 + 2 <= in.size());
       if (in.size() >= 8) {
         const auto setup = dfu::SetupPacket::Decode(std::span<const uint8_t, 8>(in.data(), 8));
-        Check(setup.Encode() == (std::array<uint8_t, 8>{in[0], in[1], in[2], in[3], in[4], in[5], in[6], in[7]}));
+        Check(setup.Encode() ==
+              (std::array<uint8_t, 8>{in[0], in[1], in[2], in[3], in[4], in[5], in[6], in[7]}));
       }
       break;
     }
@@ -78,8 +79,9 @@ struct FuzzHooks : fw::ProbeHooks {
   uint8_t health = 0;
   bool IsStreaming() const override { return streaming; }
   fw::HealthResult HealthCheck(const fw::ImageHeader&) override {
-    return health % 3 == 0 ? fw::HealthResult::kHealthy
-                           : (health % 3 == 1 ? fw::HealthResult::kUnhealthy : fw::HealthResult::kNoAnswer);
+    return health % 3 == 0
+               ? fw::HealthResult::kHealthy
+               : (health % 3 == 1 ? fw::HealthResult::kUnhealthy : fw::HealthResult::kNoAnswer);
   }
   bool SimSetStreaming(bool on) override {
     streaming = on;
@@ -111,7 +113,8 @@ const std::vector<uint8_t>& ProvisionedFlash() {
     auto flash = fw::Flash::InMemory(Geometry());
     FuzzHooks hooks;
     fw::UpdateAgent agent(flash.get(), Key().pk, Options(), &hooks);
-    if (!agent.slots().Provision(fw::testing::MakeImage(&Key(), {1, 0, 0}, 1, 1, 2000, 1)).ok()) std::abort();
+    if (!agent.slots().Provision(fw::testing::MakeImage(&Key(), {1, 0, 0}, 1, 1, 2000, 1)).ok())
+      std::abort();
     std::vector<uint8_t> all(Geometry().size_bytes);
     if (!flash->Read(0, all).ok()) std::abort();
     return all;
@@ -134,7 +137,8 @@ int FuzzDfuRequestsOnce(const uint8_t* data, size_t size) {
   int64_t now = 0;
   fw::UpdateAgentOptions opt = Options();
   opt.dfu.clock_ms = [&now] { return now; };
-  opt.dfu.fixed_poll_ms = size > 0 && (data[0] & 0x10) ? -1 : 0;  // modelled flash busy times, or none
+  opt.dfu.fixed_poll_ms =
+      size > 0 && (data[0] & 0x10) ? -1 : 0;  // modelled flash busy times, or none
   {
     fw::UpdateAgent agent(flash.get(), Key().pk, opt, &hooks);
     Check(agent.PowerOn().ok());
@@ -152,12 +156,15 @@ int FuzzDfuRequestsOnce(const uint8_t* data, size_t size) {
           }
           dfu::SetupPacket s = dfu::SetupPacket::Decode(std::span<const uint8_t, 8>(data + pos, 8));
           pos += 8;
-          static constexpr uint8_t kTypes[] = {dfu::kRequestTypeClassOut, dfu::kRequestTypeClassIn, dfu::kRequestTypeStandardIn,
-                                               dfu::kRequestTypeVendorIn, dfu::kRequestTypeVendorOut};
+          static constexpr uint8_t kTypes[] = {
+              dfu::kRequestTypeClassOut, dfu::kRequestTypeClassIn, dfu::kRequestTypeStandardIn,
+              dfu::kRequestTypeVendorIn, dfu::kRequestTypeVendorOut};
           if (op % 5 == 0) {
             s.request_type = kTypes[s.request_type % 5];
             s.index = 0;
-            if (s.request_type == dfu::kRequestTypeClassOut || s.request_type == dfu::kRequestTypeClassIn) s.request %= 8;
+            if (s.request_type == dfu::kRequestTypeClassOut ||
+                s.request_type == dfu::kRequestTypeClassIn)
+              s.request %= 8;
             s.length %= 1024;
           }
           out.clear();
@@ -169,10 +176,12 @@ int FuzzDfuRequestsOnce(const uint8_t* data, size_t size) {
           }
           const dfu::ControlResponse r = agent.HandleControl(s, out);
           Check(r.data.size() <= s.length || (!s.is_in() && r.data.empty()));
-          if (s.request_type == dfu::kRequestTypeClassIn && s.request == dfu::kGetStatus && !r.stall) {
+          if (s.request_type == dfu::kRequestTypeClassIn && s.request == dfu::kGetStatus &&
+              !r.stall) {
             Check(r.data.size() == 6 || s.length < 6);
           }
-          if (s.request_type == dfu::kRequestTypeClassOut && s.request == dfu::kDnload && !r.stall && s.length > 0) {
+          if (s.request_type == dfu::kRequestTypeClassOut && s.request == dfu::kDnload &&
+              !r.stall && s.length > 0) {
             block = static_cast<uint16_t>(s.value + 1);
           }
           break;
@@ -186,8 +195,10 @@ int FuzzDfuRequestsOnce(const uint8_t* data, size_t size) {
         default: {  // the next block of a valid signed image, as d3d-flash would send it
           const auto& img = ValidImage();
           const size_t n = std::min<size_t>(512, img.size() - std::min(image_off, img.size()));
-          dfu::SetupPacket s{dfu::kRequestTypeClassOut, dfu::kDnload, block, 0, static_cast<uint16_t>(n)};
-          const auto r = agent.HandleControl(s, std::span<const uint8_t>(img).subspan(std::min(image_off, img.size()), n));
+          dfu::SetupPacket s{dfu::kRequestTypeClassOut, dfu::kDnload, block, 0,
+                             static_cast<uint16_t>(n)};
+          const auto r = agent.HandleControl(
+              s, std::span<const uint8_t>(img).subspan(std::min(image_off, img.size()), n));
           if (!r.stall) {
             block = static_cast<uint16_t>(block + 1);
             image_off = n == 0 ? 0 : image_off + n;

@@ -20,7 +20,8 @@ TEST(FirmwareFuzz, MutatedImagesAndRecords) {
     if (i % 3 == 0) {
       in.insert(in.end(), img.begin(), img.end());
       const int flips = 1 + static_cast<int>(rng() % 4);
-      for (int f = 0; f < flips; ++f) in[1 + rng() % img.size()] ^= static_cast<uint8_t>(1 << (rng() % 8));
+      for (int f = 0; f < flips; ++f)
+        in[1 + rng() % img.size()] ^= static_cast<uint8_t>(1 << (rng() % 8));
       if (rng() % 4 == 0) in.resize(1 + rng() % in.size());
     } else {
       const size_t n = rng() % 200;
@@ -41,8 +42,10 @@ TEST(FirmwareFuzz, RandomDfuRequestScriptsNeverLeaveTheProbeUnbootable) {
   const std::vector<uint8_t> kGetStatus = {0, 1, 3, 0, 0, 0, 0, 6, 0};  // type index 1 = class IN
   int updated = 0;
   for (int i = 0; i < 400; ++i) {
-    std::vector<uint8_t> in = {static_cast<uint8_t>(i % 3)};  // healthy / unhealthy / silent; no busy times
-    std::vector<std::vector<uint8_t>> steps = {{0, 0, 0, 0xE8, 3, 0, 0, 0, 0}, {2}};  // DETACH, bus reset
+    std::vector<uint8_t> in = {
+        static_cast<uint8_t>(i % 3)};  // healthy / unhealthy / silent; no busy times
+    std::vector<std::vector<uint8_t>> steps = {{0, 0, 0, 0xE8, 3, 0, 0, 0, 0},
+                                               {2}};  // DETACH, bus reset
     for (int b = 0; b < 8; ++b) {  // 7 blocks of the valid image, then the zero-length DNLOAD
       steps.push_back({4});
       steps.push_back(kGetStatus);

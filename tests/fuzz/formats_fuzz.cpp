@@ -14,12 +14,14 @@ void FuzzFormatsOnce(const uint8_t* data, size_t size) {
   const std::string_view bytes(reinterpret_cast<const char*>(data) + 1, size - 1);
   if (data[0] % 2 == 0) {
     NpyArray a;
-    if (ParseNpy(bytes, &a).ok() && a.bytes.size() != static_cast<size_t>(a.NumElements()) * NpyArray::ElementSize(a.type)) {
+    if (ParseNpy(bytes, &a).ok() &&
+        a.bytes.size() != static_cast<size_t>(a.NumElements()) * NpyArray::ElementSize(a.type)) {
       std::abort();  // a parsed array must hold exactly its shape's bytes
     }
   } else {
     ProbeCalibration c;
-    if (ProbeCalibration::FromJson(std::string(bytes), &c).ok()) c.Check();  // ok ⇒ valid (throws otherwise)
+    if (ProbeCalibration::FromJson(std::string(bytes), &c).ok())
+      c.Check();  // ok ⇒ valid (throws otherwise)
   }
 }
 

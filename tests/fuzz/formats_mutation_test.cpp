@@ -55,10 +55,19 @@ TEST(FormatsFuzz, SeededMutationsNeverCrash) {
     for (int e = 0; e < edits && s.size() > 1; ++e) {
       const size_t pos = 1 + rng() % (s.size() - 1);
       switch (rng() % 4) {
-        case 0: s[pos] = static_cast<char>(s[pos] ^ (1 << (rng() % 8))); break;  // bit flip
-        case 1: s.resize(pos); break;                                            // truncation
-        case 2: s = s.substr(0, pos) + std::string(1 + rng() % 4, static_cast<char>(rng())) + s.substr(pos); break;
-        default: s[pos] = "0123456789-.eE,:{}[]\"() "[rng() % 24]; break;       // plausible token
+        case 0:
+          s[pos] = static_cast<char>(s[pos] ^ (1 << (rng() % 8)));
+          break;  // bit flip
+        case 1:
+          s.resize(pos);
+          break;  // truncation
+        case 2:
+          s = s.substr(0, pos) + std::string(1 + rng() % 4, static_cast<char>(rng())) +
+              s.substr(pos);
+          break;
+        default:
+          s[pos] = "0123456789-.eE,:{}[]\"() "[rng() % 24];
+          break;  // plausible token
       }
     }
     EXPECT_NO_THROW(FuzzFormatsOnce(reinterpret_cast<const uint8_t*>(s.data()), s.size())) << i;

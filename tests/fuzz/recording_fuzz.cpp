@@ -18,18 +18,21 @@ void FuzzRecordingOnce(const uint8_t* data, size_t size) {
       if (!RecordingReader::Open(MemorySource(std::string(bytes)), &r).ok()) return;
       uint64_t total = 0;
       for (const ChunkInfo& c : r->chunks()) {
-        if (c.offset + 40 + c.compressed_size > bytes.size()) std::abort();  // a chunk lies inside the file
+        if (c.offset + 40 + c.compressed_size > bytes.size())
+          std::abort();  // a chunk lies inside the file
         total += c.compressed_size;
       }
       if (total > bytes.size()) std::abort();
       std::vector<RecordedMessage> msgs;
-      SequenceLossCounter lost(r.get());  // channel 0's messages numbered by their place in the file
+      SequenceLossCounter lost(
+          r.get());  // channel 0's messages numbered by their place in the file
       uint64_t seq = 0;
       for (size_t i = 0; i < r->chunks().size(); ++i) {
         const bool ok = r->ReadChunk(i, &msgs).ok();
         if (ok && msgs.size() != r->chunks()[i].message_count) std::abort();
         if (!ok && !msgs.empty()) std::abort();
-        if (!ok && !r->diagnostics().damaged()) std::abort();  // a lost chunk makes the file damaged
+        if (!ok && !r->diagnostics().damaged())
+          std::abort();  // a lost chunk makes the file damaged
         lost.Chunk(i, ok);
         for (const RecordedMessage& m : msgs)
           if (m.channel == 0) lost.Message(seq++, m.data.size());

@@ -22,7 +22,10 @@ std::string ValidRecording() {
   RecordingWriterOptions o;
   o.chunk_bytes = 256;
   EXPECT_TRUE(w.Open(p.string(), h, o).ok());
-  for (int k = 0; k < 12; ++k) EXPECT_TRUE(w.Add(static_cast<uint16_t>(k % 2), k, std::string(40 + k, static_cast<char>('a' + k))).ok());
+  for (int k = 0; k < 12; ++k)
+    EXPECT_TRUE(
+        w.Add(static_cast<uint16_t>(k % 2), k, std::string(40 + k, static_cast<char>('a' + k)))
+            .ok());
   EXPECT_TRUE(w.Close().ok());
   std::ifstream f(p, std::ios::binary);
   return std::string((std::istreambuf_iterator<char>(f)), {});
@@ -42,8 +45,17 @@ std::string ValidBurst() {
 
 TEST(RecordingFuzz, SeededMutationsNeverCrash) {
   std::string seeds[4];
-  const std::string bodies[4] = {ValidRecording(), ValidBurst(), [] { std::string s; proto::Encode(proto::InfoMsg{}, &s); return s; }(),
-                                 [] { std::string s; proto::Encode(proto::StatusMsg{}, &s); return s; }()};
+  const std::string bodies[4] = {ValidRecording(), ValidBurst(),
+                                 [] {
+                                   std::string s;
+                                   proto::Encode(proto::InfoMsg{}, &s);
+                                   return s;
+                                 }(),
+                                 [] {
+                                   std::string s;
+                                   proto::Encode(proto::StatusMsg{}, &s);
+                                   return s;
+                                 }()};
   for (int i = 0; i < 4; ++i) {
     seeds[i].push_back(static_cast<char>(i));
     seeds[i].append(bodies[i]);
@@ -56,9 +68,15 @@ TEST(RecordingFuzz, SeededMutationsNeverCrash) {
     for (int e = 0; e < edits && s.size() > 1; ++e) {
       const size_t pos = 1 + rng() % (s.size() - 1);
       switch (rng() % 3) {
-        case 0: s[pos] = static_cast<char>(s[pos] ^ (1 << (rng() % 8))); break;
-        case 1: s.resize(pos); break;
-        default: s.insert(pos, std::string(1 + rng() % 4, static_cast<char>(rng()))); break;
+        case 0:
+          s[pos] = static_cast<char>(s[pos] ^ (1 << (rng() % 8)));
+          break;
+        case 1:
+          s.resize(pos);
+          break;
+        default:
+          s.insert(pos, std::string(1 + rng() % 4, static_cast<char>(rng())));
+          break;
       }
     }
     EXPECT_NO_THROW(FuzzRecordingOnce(reinterpret_cast<const uint8_t*>(s.data()), s.size())) << i;

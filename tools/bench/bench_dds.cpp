@@ -4,9 +4,10 @@
 // For each burst size (4 frames of 640×480 and of 1280×1024, 8 bit) and each offered rate, a child
 // process subscribes like the recorder (host/receiver, RELIABLE KEEP_ALL, the listener copies each
 // sample out) and the parent publishes N bursts with the probe's writer QoS, frame 0 stamped with
-// the write time. Latency = the subscriber's take time − that stamp (same clock). A rate is lossless
-// when all N arrive with no sequence gap. "max" publishes with the replay writer (KEEP_ALL, flow
-// controlled) as fast as the reader takes it. Prints one line per trial and a summary per size.
+// the write time. Latency = the subscriber's take time − that stamp (same clock). A rate is
+// lossless when all N arrive with no sequence gap. "max" publishes with the replay writer
+// (KEEP_ALL, flow controlled) as fast as the reader takes it. Prints one line per trial and a
+// summary per size.
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -25,7 +26,11 @@ using namespace d3d;
 
 namespace {
 
-int64_t NowNs() { return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch()).count(); }
+int64_t NowNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(
+             std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
 
 struct TrialResult {
   int64_t received = 0;
@@ -68,9 +73,12 @@ int Subscriber(int domain, int64_t n, int out_fd) {
   if (!lat_ms.empty()) {
     std::sort(lat_ms.begin(), lat_ms.end());
     t.p50_ms = lat_ms[lat_ms.size() / 2];
-    t.p99_ms = lat_ms[std::min(lat_ms.size() - 1, static_cast<size_t>(0.99 * static_cast<double>(lat_ms.size())))];
+    t.p99_ms = lat_ms[std::min(lat_ms.size() - 1,
+                               static_cast<size_t>(0.99 * static_cast<double>(lat_ms.size())))];
     t.max_ms = lat_ms.back();
-    if (last > first) t.achieved_hz = static_cast<double>(lat_ms.size() - 1) / (static_cast<double>(last - first) * 1e-9);
+    if (last > first)
+      t.achieved_hz =
+          static_cast<double>(lat_ms.size() - 1) / (static_cast<double>(last - first) * 1e-9);
   }
   return write(out_fd, &t, sizeof t) == sizeof t ? 0 : 1;
 }
@@ -90,9 +98,10 @@ bool Trial(int domain, int w, int h, double rate_hz, int64_t n, TrialResult* res
     proto::DdsParticipant pp;
     ok = tools::CreateToolParticipant(domain, &pp, "d3d-bench-dds").ok();
     Status st;
-    const dds_entity_t topic = ok ? pp.Topic(&d3d_proto_PhaseBurst_desc, proto::kTopicPhaseBurst, &st) : 0;
-    std::unique_ptr<dds_qos_t, proto::QosDeleter> q(
-        proto::MakeQos(rate_hz > 0 ? proto::QosProfile::kBurstWriter : proto::QosProfile::kBurstReplayWriter));
+    const dds_entity_t topic =
+        ok ? pp.Topic(&d3d_proto_PhaseBurst_desc, proto::kTopicPhaseBurst, &st) : 0;
+    std::unique_ptr<dds_qos_t, proto::QosDeleter> q(proto::MakeQos(
+        rate_hz > 0 ? proto::QosProfile::kBurstWriter : proto::QosProfile::kBurstReplayWriter));
     const dds_entity_t wr = ok ? dds_create_writer(pp.participant(), topic, q.get(), nullptr) : -1;
     ok = ok && wr > 0 && tools::WaitForReaders(wr, 1, 30, nullptr);
     // Let the subscriber's other readers (ProbeInfo/Status) finish discovery too.
@@ -114,7 +123,9 @@ bool Trial(int domain, int w, int h, double rate_hz, int64_t n, TrialResult* res
     std::vector<d3d_proto_ImageFrame> storage;
     const auto start = std::chrono::steady_clock::now();
     for (int64_t i = 0; ok && i < n; ++i) {
-      if (rate_hz > 0) std::this_thread::sleep_until(start + std::chrono::nanoseconds(static_cast<int64_t>(static_cast<double>(i) * 1e9 / rate_hz)));
+      if (rate_hz > 0)
+        std::this_thread::sleep_until(start + std::chrono::nanoseconds(static_cast<int64_t>(
+                                                  static_cast<double>(i) * 1e9 / rate_hz)));
       b.burst_seq = static_cast<uint64_t>(i);
       const int64_t t = NowNs();
       for (int f = 0; f < 4; ++f) b.frames[f].timestamp_ns = t + f;
@@ -134,7 +145,9 @@ bool Trial(int domain, int w, int h, double rate_hz, int64_t n, TrialResult* res
 }  // namespace
 
 int main(int argc, char** argv) {
-  OptionRegistry options("d3d-bench-dds: max lossless PhaseBurst throughput and p50/p99 latency over loopback (two processes)");
+  OptionRegistry options(
+      "d3d-bench-dds: max lossless PhaseBurst throughput and p50/p99 latency over loopback (two "
+      "processes)");
   int domain = 90;
   double seconds = 2.0;
   std::vector<double> rates = {30, 60, 90, 120, 180, 240};
@@ -142,8 +155,8 @@ int main(int argc, char** argv) {
   options.Add("--seconds", &seconds, "duration of each fixed-rate trial");
   options.Add("--rates", &rates, "offered burst rates (Hz); a 'max' trial always follows");
   if (int code = 0; !options.Parse(argc, argv, &code)) return code;
-  std::printf("%-10s %8s %8s %8s %6s %9s %9s %9s %10s %9s\n", "size", "offered", "sent", "recv", "lost", "p50_ms", "p99_ms", "max_ms", "recv_hz",
-              "MB/s");
+  std::printf("%-10s %8s %8s %8s %6s %9s %9s %9s %10s %9s\n", "size", "offered", "sent", "recv",
+              "lost", "p50_ms", "p99_ms", "max_ms", "recv_hz", "MB/s");
   for (const auto& [w, h] : std::vector<std::pair<int, int>>{{640, 480}, {1280, 1024}}) {
     double best_lossless = 0;
     TrialResult at60{};
@@ -155,8 +168,9 @@ int main(int argc, char** argv) {
         continue;
       }
       const int64_t lost = n - t.received;
-      std::printf("%4dx%-5d %8.0f %8lld %8lld %6lld %9.2f %9.2f %9.2f %10.1f %9.1f\n", w, h, r, static_cast<long long>(n),
-                  static_cast<long long>(t.received), static_cast<long long>(lost), t.p50_ms, t.p99_ms, t.max_ms, t.achieved_hz,
+      std::printf("%4dx%-5d %8.0f %8lld %8lld %6lld %9.2f %9.2f %9.2f %10.1f %9.1f\n", w, h, r,
+                  static_cast<long long>(n), static_cast<long long>(t.received),
+                  static_cast<long long>(lost), t.p50_ms, t.p99_ms, t.max_ms, t.achieved_hz,
                   t.achieved_hz * 4.0 * w * h / 1e6);
       std::fflush(stdout);
       if (lost == 0 && t.gaps == 0) best_lossless = std::max(best_lossless, r);
@@ -165,13 +179,16 @@ int main(int argc, char** argv) {
     TrialResult t;
     const int64_t n = 300;
     if (Trial(domain, w, h, 0, n, &t)) {
-      std::printf("%4dx%-5d %8s %8lld %8lld %6lld %9.2f %9.2f %9.2f %10.1f %9.1f\n", w, h, "max", static_cast<long long>(n),
-                  static_cast<long long>(t.received), static_cast<long long>(n - t.received), t.p50_ms, t.p99_ms, t.max_ms, t.achieved_hz,
-                  t.achieved_hz * 4.0 * w * h / 1e6);
+      std::printf("%4dx%-5d %8s %8lld %8lld %6lld %9.2f %9.2f %9.2f %10.1f %9.1f\n", w, h, "max",
+                  static_cast<long long>(n), static_cast<long long>(t.received),
+                  static_cast<long long>(n - t.received), t.p50_ms, t.p99_ms, t.max_ms,
+                  t.achieved_hz, t.achieved_hz * 4.0 * w * h / 1e6);
     }
     std::printf(
-        "SUMMARY %dx%d: max lossless offered rate %.0f bursts/s; at 60 Hz p50 %.2f ms p99 %.2f ms; flow-controlled max %.1f bursts/s (%lld/%lld)\n",
-        w, h, best_lossless, at60.p50_ms, at60.p99_ms, t.achieved_hz, static_cast<long long>(t.received), static_cast<long long>(n));
+        "SUMMARY %dx%d: max lossless offered rate %.0f bursts/s; at 60 Hz p50 %.2f ms p99 %.2f ms; "
+        "flow-controlled max %.1f bursts/s (%lld/%lld)\n",
+        w, h, best_lossless, at60.p50_ms, at60.p99_ms, t.achieved_hz,
+        static_cast<long long>(t.received), static_cast<long long>(n));
     std::fflush(stdout);
   }
   return 0;

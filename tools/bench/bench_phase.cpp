@@ -1,6 +1,7 @@
 // d3d-bench-phase: speed of the phase stage (Google Benchmark), one core.
 //   build/bin/d3d-bench-phase [--benchmark_filter=...]      timings
-//   build/bin/d3d-bench-phase --gamma_table                  phase RMS table (rad) on renders, then exit
+//   build/bin/d3d-bench-phase --gamma_table                  phase RMS table (rad) on renders, then
+//   exit
 // Timings: PhaseEstimator::Compute on a rendered 4-frame burst of the typodont (gamma 2.2, noise),
 // per algorithm, at 640×480 and 1280×1024, with and without marker detection. The estimator (its
 // tables) is built once outside the timed loop, as the pipeline does.
@@ -55,8 +56,8 @@ void BM_Phase(benchmark::State& state) {
   state.SetItemsProcessed(state.iterations() * width * height);
   state.counters["valid"] = maps.num_valid;
   state.counters["marker_px"] = maps.num_marker;
-  state.SetLabel(std::string(PhaseAlgorithmName(algorithm)) + (marker ? " +marker" : "") + " " + std::to_string(width) +
-                 "x" + std::to_string(height));
+  state.SetLabel(std::string(PhaseAlgorithmName(algorithm)) + (marker ? " +marker" : "") + " " +
+                 std::to_string(width) + "x" + std::to_string(height));
 }
 BENCHMARK(BM_Phase)
     ->ArgsProduct({{640}, {480}, {0, 1, 2}, {0, 1}})
@@ -65,9 +66,12 @@ BENCHMARK(BM_Phase)
     ->MinTime(1.0);
 
 void PrintGammaTable() {
-  std::cout << "Phase RMS (rad) vs truth, lit pixels resolved by >= 8 camera px per fringe; 'outside' = >= 2 projector px\n"
-               "from marker stripes (4 frames), 'stripes' = >= 2 px inside them (3 frames + compensation).\n"
-               "std = plain 4-step, lut = Zhang & Yau 2007 LUT from the calibrated gamma, ours = adaptive harmonic.\n";
+  std::cout << "Phase RMS (rad) vs truth, lit pixels resolved by >= 8 camera px per fringe; "
+               "'outside' = >= 2 projector px\n"
+               "from marker stripes (4 frames), 'stripes' = >= 2 px inside them (3 frames + "
+               "compensation).\n"
+               "std = plain 4-step, lut = Zhang & Yau 2007 LUT from the calibrated gamma, ours = "
+               "adaptive harmonic.\n";
   for (const char* scene : {"plane", "sphere", "typodont"})
     for (bool noise : {true, false})
       for (double g : {1.0, 1.6, 2.2, 2.8}) {
@@ -78,7 +82,10 @@ void PrintGammaTable() {
         ProbeCalibration calibration;
         const Burst b = phase_eval::RenderScene(rs, &calibration);
         const auto e = phase_eval::Evaluate(b, calibration);
-        std::cout << phase_eval::FormatRow(std::string(scene) + (noise ? " noisy g=" : " clean g=") + std::to_string(g).substr(0, 3), e)
+        std::cout << phase_eval::FormatRow(std::string(scene) +
+                                               (noise ? " noisy g=" : " clean g=") +
+                                               std::to_string(g).substr(0, 3),
+                                           e)
                   << std::endl;
       }
 }

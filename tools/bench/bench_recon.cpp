@@ -31,8 +31,10 @@ void BM_Reconstruct(benchmark::State& state) {
   std::vector<cv::Mat> frames;
   for (int k = 0; k < 4; ++k) frames.push_back(b.frames[static_cast<size_t>(k)].image);
   ReconstructOptions options;
-  options.threads = static_cast<int>(state.range(2));  // > 1: per-pixel passes on row blocks (oneTBB)
-  tbb::global_control cap(tbb::global_control::max_allowed_parallelism, static_cast<size_t>(options.threads));
+  options.threads =
+      static_cast<int>(state.range(2));  // > 1: per-pixel passes on row blocks (oneTBB)
+  tbb::global_control cap(tbb::global_control::max_allowed_parallelism,
+                          static_cast<size_t>(options.threads));
   Reconstructor recon(session->calibration(), options);
   ReconstructedView view;
   double phase = 0, quality = 0, unwrap = 0, tri = 0;

@@ -8,7 +8,8 @@
 //   - "same place": where the scan went on (the control: it should re-enter there);
 //   - "N teeth back / on": the scan's next poses moved along the arch by N tooth pitches (the arch
 //     length / 14), seen from the same side, distance and angle;
-//   - "mirrored": the scan's next poses mirrored across the arch's midline (the contralateral tooth).
+//   - "mirrored": the scan's next poses mirrored across the arch's midline (the contralateral
+//   tooth).
 // After each trial the tracker takes its views back (Tracker::UndoFrom) for the next one. The track
 // starts from the place it left, so the neighbouring and the mirrored tooth meet the re-entry
 // search's own prior.
@@ -64,16 +65,19 @@ class Chain {
 
   // Burst `index` of the session rendered along move(trajectory) with noise of `sequence` into
   // *frames; *truth: the true pose at the burst's reference time.
-  void Render(int64_t index, const std::function<Rigid3d(const Rigid3d&)>& move, uint64_t sequence, std::vector<cv::Mat>* frames, Rigid3d* truth) {
+  void Render(int64_t index, const std::function<Rigid3d(const Rigid3d&)>& move, uint64_t sequence,
+              std::vector<cv::Mat>* frames, Rigid3d* truth) {
     const Trajectory& traj = session_.trajectory();
     const PoseAtTime pose = [&](int64_t t) { return move(traj.WorldFromProbe(t)); };
-    const Burst b = session_.probe().RenderBurst(pose, session_.BurstStartNs(index), sequence, session_.options().seed, false);
+    const Burst b = session_.probe().RenderBurst(pose, session_.BurstStartNs(index), sequence,
+                                                 session_.options().seed, false);
     frames->clear();
     for (const BurstFrame& f : b.frames) frames->push_back(f.image);
     *truth = pose(b.reference_ns);
   }
   TrackResult Feed(const std::vector<cv::Mat>& frames, uint64_t sequence) {
-    if (!recon_.Reconstruct(frames, &view_).ok()) throw std::runtime_error("reconstruction refused a rendered burst");
+    if (!recon_.Reconstruct(frames, &view_).ok())
+      throw std::runtime_error("reconstruction refused a rendered burst");
     return Register(sequence);
   }
   TrackResult FeedEmpty(uint64_t sequence) {  // the probe out of the mouth: no points
@@ -84,7 +88,9 @@ class Chain {
     return Register(sequence);
   }
   ScanRegistrar& registrar() { return registrar_; }
-  const PinholeBrownConrady& camera() const { return recon_.calibration().camera; }  // the views' (binned)
+  const PinholeBrownConrady& camera() const {
+    return recon_.calibration().camera;
+  }  // the views' (binned)
 
  private:
   TrackResult Register(uint64_t sequence) {
@@ -101,14 +107,16 @@ class Chain {
 };
 
 struct Scan {
-  std::vector<Rigid3d> est, truth;         // the scan's views in the main model
-  std::vector<Eigen::Vector3d> footprint;  // ViewFootprint of the view camera: where errors are judged
+  std::vector<Rigid3d> est, truth;  // the scan's views in the main model
+  std::vector<Eigen::Vector3d>
+      footprint;  // ViewFootprint of the view camera: where errors are judged
 };
 
 // The pose error of a trial view (est, truth) relative to the scan's view nearest it (by true
-// position): (E_j⁻¹ E)⁻¹ (T_j⁻¹ T), mm at the view's footprint and degrees. Relative to a neighbour the
-// scan placed, its drift is no error here, and no alignment's own error enters.
-void ErrorAgainstNearest(const Scan& scan, const Rigid3d& est, const Rigid3d& truth, double* mm, double* deg) {
+// position): (E_j⁻¹ E)⁻¹ (T_j⁻¹ T), mm at the view's footprint and degrees. Relative to a neighbour
+// the scan placed, its drift is no error here, and no alignment's own error enters.
+void ErrorAgainstNearest(const Scan& scan, const Rigid3d& est, const Rigid3d& truth, double* mm,
+                         double* deg) {
   size_t j = 0;
   double best = std::numeric_limits<double>::infinity();
   for (size_t i = 0; i < scan.truth.size(); ++i) {
@@ -148,29 +156,33 @@ std::vector<Tally> Evaluate(const std::vector<TrialView>& views, size_t starts, 
   return tally;
 }
 
-void Print(const std::vector<Start>& starts, const std::vector<Tally>& tally, nlohmann::json* j, bool json) {
+void Print(const std::vector<Start>& starts, const std::vector<Tally>& tally, nlohmann::json* j,
+           bool json) {
   int all = 0, wrong = 0;
   if (!json)
-    std::printf("%-14s %7s %7s %8s %7s %12s %9s %9s %14s\n", "start", "trials", "right", "refused", "wrong", "false acc %", "worst mm", "worst deg",
-                "right max mm/°");
+    std::printf("%-14s %7s %7s %8s %7s %12s %9s %9s %14s\n", "start", "trials", "right", "refused",
+                "wrong", "false acc %", "worst mm", "worst deg", "right max mm/°");
   for (size_t s = 0; s < starts.size(); ++s) {
     const Tally& t = tally[s];
     const double rate = t.trials ? 100.0 * t.wrong / t.trials : 0;
     all += t.trials;
     wrong += t.wrong;
-    (*j)["starts"][starts[s].name] = {{"trials", t.trials},       {"right", t.right},           {"refused", t.refused},
-                                      {"wrong", t.wrong},         {"false_accept_pct", rate},   {"worst_mm", t.worst_mm},
-                                      {"worst_deg", t.worst_deg}, {"right_max_mm", t.right_mm}, {"right_max_deg", t.right_deg}};
+    (*j)["starts"][starts[s].name] = {
+        {"trials", t.trials},       {"right", t.right},           {"refused", t.refused},
+        {"wrong", t.wrong},         {"false_accept_pct", rate},   {"worst_mm", t.worst_mm},
+        {"worst_deg", t.worst_deg}, {"right_max_mm", t.right_mm}, {"right_max_deg", t.right_deg}};
     if (!json)
-      std::printf("%-14s %7d %7d %8d %7d %12.2f %9.3f %9.2f %8.3f/%5.2f\n", starts[s].name.c_str(), t.trials, t.right, t.refused, t.wrong, rate,
-                  t.worst_mm, t.worst_deg, t.right_mm, t.right_deg);
+      std::printf("%-14s %7d %7d %8d %7d %12.2f %9.3f %9.2f %8.3f/%5.2f\n", starts[s].name.c_str(),
+                  t.trials, t.right, t.refused, t.wrong, rate, t.worst_mm, t.worst_deg, t.right_mm,
+                  t.right_deg);
   }
   (*j)["trials"] = all;
   (*j)["false_accepts"] = wrong;
   if (json)
     std::printf("%s\n", j->dump(2).c_str());
   else
-    std::printf("all: %d trials, %d false accepts (%.2f %%)\n", all, wrong, all ? 100.0 * wrong / all : 0);
+    std::printf("all: %d trials, %d false accepts (%.2f %%)\n", all, wrong,
+                all ? 100.0 * wrong / all : 0);
 }
 
 struct Options {
@@ -222,7 +234,8 @@ ScanRun RunScan(SimSession& session, const ScanOptions& so, int every) {
     run.scan.footprint = ViewFootprint(chain.camera(), EvaluateOptions{}.footprint_depth_mm);
     const auto identity = [](const Rigid3d& p) { return p; };
     for (size_t i = 0; i < n; ++i) {
-      chain.Render(run.bursts[i], identity, static_cast<uint64_t>(run.bursts[i]), &run.frames[i], &run.truth[i]);
+      chain.Render(run.bursts[i], identity, static_cast<uint64_t>(run.bursts[i]), &run.frames[i],
+                   &run.truth[i]);
       run.tracked[i] = chain.Feed(run.frames[i], static_cast<uint64_t>(run.bursts[i]));
       std::fprintf(stderr, "\rscan: view %zu of %zu", i + 1, n);
     }
@@ -233,13 +246,15 @@ ScanRun RunScan(SimSession& session, const ScanOptions& so, int every) {
       run.scan.truth.push_back(run.truth[i]);
     }
   std::fprintf(stderr, "\nscan: %zu of %zu views in the model\n", run.scan.est.size(), n);
-  if (run.scan.est.size() < 50) throw std::runtime_error("the scan placed too few views to judge the trials");
+  if (run.scan.est.size() < 50)
+    throw std::runtime_error("the scan placed too few views to judge the trials");
   return run;
 }
 
 // The trials (the file comment): from every --stride-th view the scan placed, a lift and a put-back
 // at each start, taken back after. Returns every put-back view.
-std::vector<TrialView> RunTrials(SimSession& session, const ArchFrame& arch, const ScanOptions& so, const Options& o, const ScanRun& run,
+std::vector<TrialView> RunTrials(SimSession& session, const ArchFrame& arch, const ScanOptions& so,
+                                 const Options& o, const ScanRun& run,
                                  const std::vector<Start>& starts) {
   const double pitch = arch.length_mm / 14;
   std::vector<TrialView> trials;
@@ -254,9 +269,12 @@ std::vector<TrialView> RunTrials(SimSession& session, const ArchFrame& arch, con
     for (size_t s = 0; s < starts.size(); ++s) {
       const Start& st = starts[s];
       const double to = st.mirror ? 2 * arch.midline_arc_mm - arc : arc + st.teeth * pitch;
-      if (to < 0 || to > arch.length_mm || (st.mirror && std::abs(to - arc) < 1.5 * pitch)) continue;
+      if (to < 0 || to > arch.length_mm || (st.mirror && std::abs(to - arc) < 1.5 * pitch))
+        continue;
       const Rigid3d along = ArchMove(arch, arc, st.teeth * pitch);
-      const auto move = [&](const Rigid3d& p) { return st.mirror ? MirrorAcrossMidline(arch, arc, p) : along * p; };
+      const auto move = [&](const Rigid3d& p) {
+        return st.mirror ? MirrorAcrossMidline(arch, arc, p) : along * p;
+      };
       const int64_t first = chain.registrar().tracker().views();
       for (int g = 0; g < o.gap; ++g) chain.FeedEmpty(sequence++);
       for (size_t k = i + 1; k <= i + 2; ++k) {
@@ -282,7 +300,8 @@ std::vector<TrialView> RunTrials(SimSession& session, const ArchFrame& arch, con
 
 int main(int argc, char** argv) {
   OptionRegistry options(
-      "d3d-bench-reentry: the false-accept rate of re-entries after a lift, put back one and two teeth off\n"
+      "d3d-bench-reentry: the false-accept rate of re-entries after a lift, put back one and two "
+      "teeth off\n"
       "and mirrored across the midline (the method: this tool's source).");
   Options o;
   DeclareOptions(&options, &o);
@@ -292,16 +311,20 @@ int main(int argc, char** argv) {
     sso.model = o.model;
     sso.seed = o.seed;
     std::unique_ptr<SimSession> session;
-    if (const Status s = SimSession::Create(sso, &session); !s.ok()) throw std::runtime_error(s.ToString());
+    if (const Status s = SimSession::Create(sso, &session); !s.ok())
+      throw std::runtime_error(s.ToString());
     const ArchFrame arch = AnalyzeArch(session->scene());
-    if (!arch.ok()) throw std::runtime_error(o.model + " is not taken for an arch: " + arch.status.ToString());
+    if (!arch.ok())
+      throw std::runtime_error(o.model + " is not taken for an arch: " + arch.status.ToString());
     const ScanOptions so = ReentryScanOptions(o.bin, o.every);
-    const std::vector<Start> starts = {{"same place", 0, false},    {"1 tooth back", -1, false}, {"1 tooth on", 1, false},
-                                       {"2 teeth back", -2, false}, {"2 teeth on", 2, false},    {"mirrored", 0, true}};
+    const std::vector<Start> starts = {{"same place", 0, false}, {"1 tooth back", -1, false},
+                                       {"1 tooth on", 1, false}, {"2 teeth back", -2, false},
+                                       {"2 teeth on", 2, false}, {"mirrored", 0, true}};
     const ScanRun run = RunScan(*session, so, o.every);
     const std::vector<TrialView> trials = RunTrials(*session, arch, so, o, run, starts);
-    nlohmann::json j{{"model", o.model}, {"seed", o.seed},     {"bin", o.bin},
-                     {"every", o.every}, {"gap_views", o.gap}, {"tooth_pitch_mm", arch.length_mm / 14}};
+    nlohmann::json j{{"model", o.model},   {"seed", o.seed},
+                     {"bin", o.bin},       {"every", o.every},
+                     {"gap_views", o.gap}, {"tooth_pitch_mm", arch.length_mm / 14}};
     Print(starts, Evaluate(trials, starts.size(), run.scan), &j, o.json);
     return 0;
   } catch (const std::exception& e) {

@@ -44,7 +44,11 @@ namespace o3r = open3d::pipelines::registration;
 
 namespace {
 
-double Now() { return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
+double Now() {
+  return std::chrono::duration<double, std::milli>(
+             std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
 
 double PointRmsUm(const SurfacePoints& s, const Rigid3d& a, const Rigid3d& b) {
   double e = 0;
@@ -104,14 +108,16 @@ nlohmann::json RunIcpCase(const IcpCase& c, int repeats) {
   };
   for (int threads : {1, 2}) {
     for (const auto& [assoc, name] :
-         {std::pair{Assoc::kKdTree, "kdtree"}, std::pair{Assoc::kGrid, "grid"}, std::pair{Assoc::kProjective, "projective"}}) {
+         {std::pair{Assoc::kKdTree, "kdtree"}, std::pair{Assoc::kGrid, "grid"},
+          std::pair{Assoc::kProjective, "projective"}}) {
       if (assoc == Assoc::kProjective && c.target_points.empty()) continue;
       const auto [r, ms] = time_ours(assoc, threads);
-      j[std::string("ours_") + name + "_t" + std::to_string(threads)] = {{"ms", ms},
-                                                                         {"error_um", PointRmsUm(c.source, r.target_from_source, c.truth)},
-                                                                         {"ok", r.ok},
-                                                                         {"iterations", r.iterations},
-                                                                         {"rmse_um", r.rmse_mm * 1000}};
+      j[std::string("ours_") + name + "_t" + std::to_string(threads)] = {
+          {"ms", ms},
+          {"error_um", PointRmsUm(c.source, r.target_from_source, c.truth)},
+          {"ok", r.ok},
+          {"iterations", r.iterations},
+          {"rmse_um", r.rmse_mm * 1000}};
     }
   }
   const auto src = ToO3d(c.source, false), tgt = ToO3d(c.target, true);
@@ -119,19 +125,23 @@ nlohmann::json RunIcpCase(const IcpCase& c, int repeats) {
   double best = 1e30;
   for (int k = 0; k < repeats; ++k) {
     const double t0 = Now();
-    res = o3r::RegistrationICP(src, tgt, c.o3d_max_distance_mm, c.init.matrix(), o3r::TransformationEstimationPointToPlane(),
+    res = o3r::RegistrationICP(src, tgt, c.o3d_max_distance_mm, c.init.matrix(),
+                               o3r::TransformationEstimationPointToPlane(),
                                o3r::ICPConvergenceCriteria(1e-6, 1e-6, 30));
     best = std::min(best, Now() - t0);
   }
   Rigid3d T(res.transformation_);
-  j["open3d_point_to_plane"] = {
-      {"ms", best}, {"error_um", PointRmsUm(c.source, T, c.truth)}, {"fitness", res.fitness_}, {"rmse_um", res.inlier_rmse_ * 1000}};
+  j["open3d_point_to_plane"] = {{"ms", best},
+                                {"error_um", PointRmsUm(c.source, T, c.truth)},
+                                {"fitness", res.fitness_},
+                                {"rmse_um", res.inlier_rmse_ * 1000}};
   return j;
 }
 
 Rigid3d Perturb(const Rigid3d& T, double deg, double mm) {
   Rigid3d d = Rigid3d::Identity();
-  d.linear() = Eigen::AngleAxisd(deg * M_PI / 180, Eigen::Vector3d(0.4, -0.7, 0.6).normalized()).toRotationMatrix();
+  d.linear() = Eigen::AngleAxisd(deg * M_PI / 180, Eigen::Vector3d(0.4, -0.7, 0.6).normalized())
+                   .toRotationMatrix();
   d.translation() = Eigen::Vector3d(0.5, 0.3, -0.8).normalized() * mm;
   return d * T;
 }
@@ -151,9 +161,11 @@ void DeclareOptions(OptionRegistry* r, Options* o) {
 
 // Our pairwise registration of range grid S onto T from identity (initial alignment by `method`,
 // then ICP): its error against `truth` and times, as JSON and as a line of the table on stderr.
-nlohmann::json OursFromIdentity(const std::string& pair, const cv::Mat& S, const cv::Mat& T, const Rigid3d& truth, InitialAlignment method) {
+nlohmann::json OursFromIdentity(const std::string& pair, const cv::Mat& S, const cv::Mat& T,
+                                const Rigid3d& truth, InitialAlignment method) {
   const double t0 = Now();
-  const PairwiseResult r = RegisterPair(S, cv::Mat(), T, cv::Mat(), RangeScanPairwiseOptions(method));
+  const PairwiseResult r =
+      RegisterPair(S, cv::Mat(), T, cv::Mat(), RangeScanPairwiseOptions(method));
   const double ms = Now() - t0;
   nlohmann::json pj = {{"pair", pair},
                        {"method", ToString(method)},
@@ -164,7 +176,8 @@ nlohmann::json OursFromIdentity(const std::string& pair, const cv::Mat& S, const
                        {"ms_features", r.ms_features},
                        {"ms_icp", r.ms_icp},
                        {"ms_total", ms}};
-  if (method == InitialAlignment::kFpfh) pj["fpfh_keypoints"] = {r.fpfh.source_keypoints, r.fpfh.target_keypoints};
+  if (method == InitialAlignment::kFpfh)
+    pj["fpfh_keypoints"] = {r.fpfh.source_keypoints, r.fpfh.target_keypoints};
   if (r.initial.ok) {
     pj["initial_error_deg"] = RotationAngleRad(r.initial.target_from_source, truth) * 180 / M_PI;
     pj["initial_error_mm"] = TranslationDistanceMm(r.initial.target_from_source, truth);
@@ -173,34 +186,45 @@ nlohmann::json OursFromIdentity(const std::string& pair, const cv::Mat& S, const
     pj["error_deg"] = RotationAngleRad(r.target_from_source, truth) * 180 / M_PI;
     pj["error_mm"] = TranslationDistanceMm(r.target_from_source, truth);
   }
-  std::fprintf(stderr, "%-16s %-12s %-3s %7.3f deg %7.3f mm  features %5.0f ms  icp %5.0f ms  total %5.0f ms  %s\n", pair.c_str(), ToString(method),
-               r.ok ? "ok" : "no", r.ok ? pj["error_deg"].get<double>() : NAN, r.ok ? pj["error_mm"].get<double>() : NAN, r.ms_features, r.ms_icp, ms,
-               r.reason.c_str());
+  std::fprintf(
+      stderr,
+      "%-16s %-12s %-3s %7.3f deg %7.3f mm  features %5.0f ms  icp %5.0f ms  total %5.0f ms  %s\n",
+      pair.c_str(), ToString(method), r.ok ? "ok" : "no",
+      r.ok ? pj["error_deg"].get<double>() : NAN, r.ok ? pj["error_mm"].get<double>() : NAN,
+      r.ms_features, r.ms_icp, ms, r.reason.c_str());
   return pj;
 }
 
 // The reference: Open3D's FPFH + RANSAC at the voxel, radii and thresholds of our FPFH options `o`
 // (initial alignment only), as JSON and as a line of the table on stderr.
-nlohmann::json Open3dFpfhRansac(const std::string& pair, const cv::Mat& S, const cv::Mat& T, const Rigid3d& truth, const PairwiseOptions& o) {
+nlohmann::json Open3dFpfhRansac(const std::string& pair, const cv::Mat& S, const cv::Mat& T,
+                                const Rigid3d& truth, const PairwiseOptions& o) {
   const double t0 = Now();
   const double v = o.fpfh.voxel_mm;
-  const auto sd = ToO3d(SampleOrganised(S, GridNormals(S, o.max_gap_mm), cv::Mat(), 1), true).VoxelDownSample(v);
-  const auto td = ToO3d(SampleOrganised(T, GridNormals(T, o.max_gap_mm), cv::Mat(), 1), true).VoxelDownSample(v);
+  const auto sd = ToO3d(SampleOrganised(S, GridNormals(S, o.max_gap_mm), cv::Mat(), 1), true)
+                      .VoxelDownSample(v);
+  const auto td = ToO3d(SampleOrganised(T, GridNormals(T, o.max_gap_mm), cv::Mat(), 1), true)
+                      .VoxelDownSample(v);
   const open3d::geometry::KDTreeSearchParamHybrid nparam(o.fpfh.normal_radius_mm, 30);
   sd->EstimateNormals(nparam, false);
   td->EstimateNormals(nparam, false);
-  const open3d::geometry::KDTreeSearchParamHybrid fparam(o.fpfh.feature_radius_mm, o.fpfh.max_neighbours);
+  const open3d::geometry::KDTreeSearchParamHybrid fparam(o.fpfh.feature_radius_mm,
+                                                         o.fpfh.max_neighbours);
   const auto fs = o3r::ComputeFPFHFeature(*sd, fparam), ft = o3r::ComputeFPFHFeature(*td, fparam);
   const o3r::CorrespondenceCheckerBasedOnEdgeLength edge(1 - o.fpfh.ransac.max_edge_ratio_error);
   const o3r::CorrespondenceCheckerBasedOnDistance dist(o.fpfh.ransac.inlier_threshold_mm);
   const auto res = o3r::RegistrationRANSACBasedOnFeatureMatching(
-      *sd, *td, *fs, *ft, o.fpfh.mutual, o.fpfh.ransac.inlier_threshold_mm, o3r::TransformationEstimationPointToPoint(false), 3, {edge, dist},
+      *sd, *td, *fs, *ft, o.fpfh.mutual, o.fpfh.ransac.inlier_threshold_mm,
+      o3r::TransformationEstimationPointToPoint(false), 3, {edge, dist},
       o3r::RANSACConvergenceCriteria(o.fpfh.ransac.max_iterations, o.fpfh.ransac.confidence));
   const double ms = Now() - t0;
   const Rigid3d T3(res.transformation_);
-  const double deg = RotationAngleRad(T3, truth) * 180 / M_PI, mm = TranslationDistanceMm(T3, truth);
-  std::fprintf(stderr, "%-16s %-12s     %7.3f deg %7.3f mm  features %5.0f ms  (initial alignment only, no ICP)\n", pair.c_str(), "open3d-fpfh", deg,
-               mm, ms);
+  const double deg = RotationAngleRad(T3, truth) * 180 / M_PI,
+               mm = TranslationDistanceMm(T3, truth);
+  std::fprintf(
+      stderr,
+      "%-16s %-12s     %7.3f deg %7.3f mm  features %5.0f ms  (initial alignment only, no ICP)\n",
+      pair.c_str(), "open3d-fpfh", deg, mm, ms);
   return {{"pair", pair},
           {"method", "open3d-fpfh-ransac (initial only)"},
           {"fitness", res.fitness_},
@@ -218,10 +242,16 @@ void CompareBunnyPairs(const std::string& data, nlohmann::json* out, std::vector
   std::map<std::string, Rigid3d> conf;
   if (!LoadRangeScanPoses(dir + "/bun.conf", &conf).ok()) conf.clear();
   nlohmann::json pairs = nlohmann::json::array();
-  for (auto [s, t] : std::vector<std::pair<std::string, std::string>>{
-           {"bun045", "bun000"}, {"bun315", "bun000"}, {"bun090", "bun045"}, {"bun270", "bun315"}, {"bun180", "bun090"}, {"bun180", "bun270"}}) {
+  for (auto [s, t] : std::vector<std::pair<std::string, std::string>>{{"bun045", "bun000"},
+                                                                      {"bun315", "bun000"},
+                                                                      {"bun090", "bun045"},
+                                                                      {"bun270", "bun315"},
+                                                                      {"bun180", "bun090"},
+                                                                      {"bun180", "bun270"}}) {
     cv::Mat S, T;
-    if (!LoadRangeGridPly(dir + "/" + s + ".ply", 1000, &S).ok() || !LoadRangeGridPly(dir + "/" + t + ".ply", 1000, &T).ok()) continue;
+    if (!LoadRangeGridPly(dir + "/" + s + ".ply", 1000, &S).ok() ||
+        !LoadRangeGridPly(dir + "/" + t + ".ply", 1000, &T).ok())
+      continue;
     const Rigid3d truth = conf.at(t).inverse() * conf.at(s);
     // Initial alignment by SIFT (range images) and by FPFH, each followed by the same ICP.
     for (InitialAlignment method : {InitialAlignment::kSift, InitialAlignment::kFpfh})
@@ -243,14 +273,16 @@ void CompareBunnyPairs(const std::string& data, nlohmann::json* out, std::vector
 
 // `count` consecutive bursts of the virtual probe from burst 300 on, reconstructed, and their true
 // poses. False when a reconstruction fails.
-bool ReconstructViews(SimSession* session, int count, std::vector<ReconstructedView>* views, std::vector<Rigid3d>* poses) {
+bool ReconstructViews(SimSession* session, int count, std::vector<ReconstructedView>* views,
+                      std::vector<Rigid3d>* poses) {
   const ProbeCalibration& calib = session->calibration();
   Reconstructor recon(calib);
   const int64_t start = 300;
   for (int i = 0; i < count; ++i) {
     const Burst b = session->RenderBurst(start + i, false);
     std::vector<cv::Mat> imgs;
-    for (int f = 0; f < calib.pattern.steps; ++f) imgs.push_back(b.frames[static_cast<size_t>(f)].image);
+    for (int f = 0; f < calib.pattern.steps; ++f)
+      imgs.push_back(b.frames[static_cast<size_t>(f)].image);
     ReconstructedView v;
     if (!recon.Reconstruct(imgs, &v).ok()) return false;
     views->push_back(v);
@@ -261,21 +293,26 @@ bool ReconstructViews(SimSession* session, int count, std::vector<ReconstructedV
 
 // The ICP cases on the virtual probe's views: a burst pair from identity, and the tracker's
 // frame-to-model ICP.
-void AddVirtualProbeCases(const ProbeCalibration& calib, const std::vector<ReconstructedView>& views, const std::vector<Rigid3d>& poses,
-                          std::vector<IcpCase>* cases) {
-  {  // Two bursts 1/30 s apart, every valid pixel (~140k source and ~130k target samples at 640 × 480).
+void AddVirtualProbeCases(const ProbeCalibration& calib,
+                          const std::vector<ReconstructedView>& views,
+                          const std::vector<Rigid3d>& poses, std::vector<IcpCase>* cases) {
+  {  // Two bursts 1/30 s apart, every valid pixel (~140k source and ~130k target samples at 640 ×
+     // 480).
     IcpCase c;
     c.name = "virtual-probe bursts 300->301";
-    const SurfacePoints all = SampleOrganised(views[1].points_in_cam, views[1].normals, cv::Mat(), 1);
+    const SurfacePoints all =
+        SampleOrganised(views[1].points_in_cam, views[1].normals, cv::Mat(), 1);
     c.source = all.Subsample(std::max<int>(1, static_cast<int>(all.size() / 100000)));
     c.target = SampleOrganised(views[0].points_in_cam, views[0].normals, cv::Mat(), 1);
     c.target_points = views[0].points_in_cam;
     c.target_normals = views[0].normals;
-    c.k = {calib.camera.fx, calib.camera.fy, calib.camera.cx, calib.camera.cy, calib.camera.width, calib.camera.height};
+    c.k = {calib.camera.fx, calib.camera.fy,    calib.camera.cx,
+           calib.camera.cy, calib.camera.width, calib.camera.height};
     c.truth = poses[0].inverse() * poses[1];
     c.init = Rigid3d::Identity();  // no motion prediction
     c.ours.levels = {{16, 12, 1.0, 0.7}, {4, 8, 0.3, 0.9}, {1, 6, 0.1, 1.0}};
-    {  // stop as the tracker does (pipeline/register/odometry.h: DefaultTrackerIcp): same final error here, 20 vs 25 iterations
+    {  // stop as the tracker does (pipeline/register/odometry.h: DefaultTrackerIcp): same final
+       // error here, 20 vs 25 iterations
       const IcpOptions tr = DefaultTrackerIcp();
       c.ours.min_delta_translation_mm = tr.min_delta_translation_mm;
       c.ours.min_delta_rotation_rad = tr.min_delta_rotation_rad;
@@ -289,7 +326,8 @@ void AddVirtualProbeCases(const ProbeCalibration& calib, const std::vector<Recon
     // gate of TrackerOptionsForStep: 0.8 mm lossless, 1.96 mm for a live host's views 6 bursts
     // apart) on a model-like target (every 3rd pixel, ~the tracking model's 0.08 mm spacing),
     // started 0.3 mm / 0.5 deg off as from a motion prediction.
-    const size_t to = static_cast<size_t>(std::min<double>(every, static_cast<double>(views.size() - 1)));
+    const size_t to =
+        static_cast<size_t>(std::min<double>(every, static_cast<double>(views.size() - 1)));
     IcpCase c;
     c.name = "virtual-probe bursts 300->" + std::to_string(300 + to) + ", tracker ICP";
     c.source = SampleOrganised(views[to].points_in_cam, views[to].normals, views[to].quality, 2);
@@ -306,19 +344,25 @@ void AddVirtualProbeCases(const ProbeCalibration& calib, const std::vector<Recon
 
 // 3. TSDF integration of the views at their true poses, ours vs Open3D's ScalableTSDFVolume, into
 // out["tsdf"]. False when ours refuses a view.
-bool CompareTsdf(const ProbeCalibration& calib, const std::vector<ReconstructedView>& views, const std::vector<Rigid3d>& poses, nlohmann::json* out) {
+bool CompareTsdf(const ProbeCalibration& calib, const std::vector<ReconstructedView>& views,
+                 const std::vector<Rigid3d>& poses, nlohmann::json* out) {
   TsdfOptions to;
   TsdfVolume ours(to);
   double t0 = Now();
   for (size_t i = 0; i < views.size(); ++i)
-    if (!ours.Integrate(views[i].points_in_cam, views[i].normals, views[i].quality, calib.camera, poses[i]).ok()) return false;
+    if (!ours.Integrate(views[i].points_in_cam, views[i].normals, views[i].quality, calib.camera,
+                        poses[i])
+             .ok())
+      return false;
   const double ours_ms = (Now() - t0) / static_cast<double>(views.size());
   t0 = Now();
   const TriangleMesh m = ours.ExtractMesh();
   const double ours_mesh_ms = Now() - t0;
-  open3d::pipelines::integration::ScalableTSDFVolume o3d(to.voxel_mm, to.truncation_mm, open3d::pipelines::integration::TSDFVolumeColorType::NoColor,
-                                                         16, 4);
-  const open3d::camera::PinholeCameraIntrinsic K(calib.camera.width, calib.camera.height, calib.camera.fx, calib.camera.fy, calib.camera.cx,
+  open3d::pipelines::integration::ScalableTSDFVolume o3d(
+      to.voxel_mm, to.truncation_mm, open3d::pipelines::integration::TSDFVolumeColorType::NoColor,
+      16, 4);
+  const open3d::camera::PinholeCameraIntrinsic K(calib.camera.width, calib.camera.height,
+                                                 calib.camera.fx, calib.camera.fy, calib.camera.cx,
                                                  calib.camera.cy);
   std::vector<std::shared_ptr<open3d::geometry::RGBDImage>> rgbd;
   for (const auto& v : views) {
@@ -330,7 +374,8 @@ bool CompareTsdf(const ProbeCalibration& calib, const std::vector<ReconstructedV
         const float z = v.points_in_cam.at<cv::Vec3f>(r, c)[2];
         *depth.PointerAt<float>(c, r) = std::isfinite(z) ? z : 0.0f;
       }
-    rgbd.push_back(open3d::geometry::RGBDImage::CreateFromColorAndDepth(colour, depth, 1.0, 100.0, false));
+    rgbd.push_back(
+        open3d::geometry::RGBDImage::CreateFromColorAndDepth(colour, depth, 1.0, 100.0, false));
   }
   t0 = Now();
   for (size_t i = 0; i < views.size(); ++i) o3d.Integrate(*rgbd[i], K, poses[i].inverse().matrix());
@@ -338,32 +383,42 @@ bool CompareTsdf(const ProbeCalibration& calib, const std::vector<ReconstructedV
   t0 = Now();
   const auto om = o3d.ExtractTriangleMesh();
   const double o3d_mesh_ms = Now() - t0;
-  (*out)["tsdf"] = {
-      {"views", views.size()},        {"voxel_mm", to.voxel_mm},       {"ours_ms_per_view", ours_ms},
-      {"ours_mesh_ms", ours_mesh_ms}, {"ours_faces", m.faces.size()},  {"ours_memory_mib", static_cast<double>(ours.MemoryBytes()) / (1 << 20)},
-      {"open3d_ms_per_view", o3d_ms}, {"open3d_mesh_ms", o3d_mesh_ms}, {"open3d_faces", om->triangles_.size()}};
+  (*out)["tsdf"] = {{"views", views.size()},
+                    {"voxel_mm", to.voxel_mm},
+                    {"ours_ms_per_view", ours_ms},
+                    {"ours_mesh_ms", ours_mesh_ms},
+                    {"ours_faces", m.faces.size()},
+                    {"ours_memory_mib", static_cast<double>(ours.MemoryBytes()) / (1 << 20)},
+                    {"open3d_ms_per_view", o3d_ms},
+                    {"open3d_mesh_ms", o3d_mesh_ms},
+                    {"open3d_faces", om->triangles_.size()}};
   return true;
 }
 
 // 4. The fusion's free-space test (pipeline/fuse/free_space.h), each view against the earlier
 // ones (every view a reference, the nearest 6 tested): the cost it adds to a fused view, into
 // out["free_space"].
-void MeasureFreeSpace(const ProbeCalibration& calib, const std::vector<ReconstructedView>& views, const std::vector<Rigid3d>& poses,
-                      nlohmann::json* out) {
+void MeasureFreeSpace(const ProbeCalibration& calib, const std::vector<ReconstructedView>& views,
+                      const std::vector<Rigid3d>& poses, nlohmann::json* out) {
   FreeSpaceOptions fo;
   fo.reference_every = 1;
   FreeSpaceTest test(calib.camera, fo);
   cv::Mat rejected;
   int64_t n = 0;
   const double t0 = Now();
-  for (size_t i = 0; i < views.size(); ++i) n += test.TestAndRemember(views[i].points_in_cam, poses[i], &rejected);
-  (*out)["free_space"] = {{"views", views.size()}, {"ms_per_view", (Now() - t0) / static_cast<double>(views.size())}, {"rejected_points", n}};
+  for (size_t i = 0; i < views.size(); ++i)
+    n += test.TestAndRemember(views[i].points_in_cam, poses[i], &rejected);
+  (*out)["free_space"] = {{"views", views.size()},
+                          {"ms_per_view", (Now() - t0) / static_cast<double>(views.size())},
+                          {"rejected_points", n}};
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  OptionRegistry options("d3d-bench-register: our ICP and TSDF vs Open3D's on the same data (bunny scans, virtual-probe views).");
+  OptionRegistry options(
+      "d3d-bench-register: our ICP and TSDF vs Open3D's on the same data (bunny scans, "
+      "virtual-probe views).");
   Options o;
   DeclareOptions(&options, &o);
   if (int code = 0; !options.Parse(argc, argv, &code)) return code;

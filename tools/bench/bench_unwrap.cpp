@@ -19,6 +19,7 @@
 // scikit-image unwrap relatively, so they are compared up to the best single offset per connected
 // component of the unwrapped mask. All methods get the same mask: pixels with quality > 0.
 #include <benchmark/benchmark.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
@@ -29,21 +30,19 @@
 #include <fstream>
 #include <map>
 #include <memory>
-#include <sstream>
-#include <string>
-#include <unistd.h>
-#include <vector>
-
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/phase_unwrapping.hpp>
+#include <sstream>
+#include <string>
+#include <vector>
 
 #include "calib/model/probe_calibration.h"
 #include "common/core/npy_io.h"
+#include "pipeline/triangulate/triangulate.h"
 #include "pipeline/unwrap/quality_map.h"
 #include "pipeline/unwrap/synthetic_fringes.h"
-#include "pipeline/triangulate/triangulate.h"
 #include "pipeline/unwrap/unwrap.h"
 
 #ifndef D3D_SKIMAGE_SCRIPT
@@ -73,9 +72,11 @@ Maps FromSynthetic(int w, int h, uint64_t seed) {
   cv::Mat holes = cv::Mat::zeros(h, w, CV_8UC1);
   cv::RNG rng(seed);
   for (int i = 0; i < 12; ++i) {
-    cv::circle(holes, {rng.uniform(0, w), rng.uniform(0, h)}, rng.uniform(2, 8) * w / 640, 255, cv::FILLED);
+    cv::circle(holes, {rng.uniform(0, w), rng.uniform(0, h)}, rng.uniform(2, 8) * w / 640, 255,
+               cv::FILLED);
   }
-  const SyntheticScene s = MakeFringeScene(TeethDepth(probe, 5, 12.0 * w / 640, seed), probe, noise, holes);
+  const SyntheticScene s =
+      MakeFringeScene(TeethDepth(probe, 5, 12.0 * w / 640, seed), probe, noise, holes);
   Maps m;
   m.name = "synthetic teeth " + std::to_string(w) + "x" + std::to_string(h);
   m.phi = s.phi;
@@ -95,11 +96,21 @@ cv::Mat MatFromNpy(const NpyArray& a) {
   const int ch = a.shape.size() > 2 ? static_cast<int>(a.shape[2]) : 1;
   int depth = -1;
   switch (a.type) {
-    case NpyType::kFloat32: depth = CV_32F; break;
-    case NpyType::kFloat64: depth = CV_64F; break;
-    case NpyType::kUint8: depth = CV_8U; break;
-    case NpyType::kUint16: depth = CV_16U; break;
-    case NpyType::kInt32: depth = CV_32S; break;
+    case NpyType::kFloat32:
+      depth = CV_32F;
+      break;
+    case NpyType::kFloat64:
+      depth = CV_64F;
+      break;
+    case NpyType::kUint8:
+      depth = CV_8U;
+      break;
+    case NpyType::kUint16:
+      depth = CV_16U;
+      break;
+    case NpyType::kInt32:
+      depth = CV_32S;
+      break;
   }
   cv::Mat m(h, w, CV_MAKETYPE(depth, ch));
   std::memcpy(m.data, a.bytes.data(), std::min(a.bytes.size(), m.total() * m.elemSize()));
@@ -158,7 +169,8 @@ bool FromBurst(const std::string& dir, Maps* m) {
   vis = cv::imread(dir + "/truth_0/visibility.png", cv::IMREAD_GRAYSCALE);
   label = cv::imread(dir + "/truth_0/label.png", cv::IMREAD_GRAYSCALE);
   const int h = I[0].rows, w = I[0].cols;
-  if (vis.size() != I[0].size() || label.size() != I[0].size() || uv.size() != I[0].size()) return false;
+  if (vis.size() != I[0].size() || label.size() != I[0].size() || uv.size() != I[0].size())
+    return false;
 
   m->name = "render " + dir;
   m->phi.create(h, w, CV_32F);
@@ -180,7 +192,8 @@ bool FromBurst(const std::string& dir, Maps* m) {
                   i3 = I[3].at<float>(y, x);
       const cv::Vec2f t = uv.at<cv::Vec2f>(y, x);
       const bool lit = vis.at<uint8_t>(y, x) == 2 && std::isfinite(t[0]);
-      const double Phi_true = lit ? kTwoPi * (t[0] - pat.phase_origin_px) / pat.fringe_period_px : NAN;
+      const double Phi_true =
+          lit ? kTwoPi * (t[0] - pat.phase_origin_px) / pat.fringe_period_px : NAN;
       const bool in_stripe = lit && pat.InMarker(t[0]);
       float phi, b;
       if (in_stripe) {  // frames 0–2: a 3-step set with π/2 shifts
@@ -222,7 +235,8 @@ double MedianMs(int reps, F&& f) {
   for (int i = 0; i < reps; ++i) {
     const auto t0 = std::chrono::steady_clock::now();
     f();
-    t.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+    t.push_back(
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
   }
   std::sort(t.begin(), t.end());
   return t[t.size() / 2];
@@ -241,7 +255,8 @@ OrderErrors RelativeErrors(const cv::Mat& order, const cv::Mat& labels, const cv
   OrderErrors e;
   for (int y = 0; y < order.rows; ++y) {
     for (int x = 0; x < order.cols; ++x) {
-      const int k = order.at<int32_t>(y, x), t = truth.at<int32_t>(y, x), l = labels.at<int32_t>(y, x);
+      const int k = order.at<int32_t>(y, x), t = truth.at<int32_t>(y, x),
+                l = labels.at<int32_t>(y, x);
       if (k == INT32_MIN || t < 0 || l < 0) continue;
       ++count[{l, t - k}];
       ++total[l];
@@ -279,7 +294,8 @@ cv::Mat OrdersOf(const cv::Mat& unwrapped, const cv::Mat& phi, const cv::Mat& ma
     for (int x = 0; x < phi.cols; ++x) {
       const float u = unwrapped.at<float>(y, x);
       if (mask.at<uint8_t>(y, x) == 0 || !std::isfinite(u)) continue;
-      k.at<int32_t>(y, x) = static_cast<int32_t>(std::lround((u + shift - phi.at<float>(y, x)) / kTwoPi));
+      k.at<int32_t>(y, x) =
+          static_cast<int32_t>(std::lround((u + shift - phi.at<float>(y, x)) / kTwoPi));
     }
   }
   return k;
@@ -303,7 +319,8 @@ void Dump(const Maps& m, const UnwrapResult& res, const std::string& dir) {
   auto put = [&](const char* name, const cv::Mat& mat, NpyType type) {
     if (mat.empty()) return;
     const cv::Mat c = mat.clone();
-    if (!WriteNpy(dir + "/" + name, type, shape, c.data).ok()) std::fprintf(stderr, "cannot write %s\n", name);
+    if (!WriteNpy(dir + "/" + name, type, shape, c.data).ok())
+      std::fprintf(stderr, "cannot write %s\n", name);
   };
   put("phi.npy", m.phi, NpyType::kFloat32);
   put("modulation.npy", m.modulation, NpyType::kFloat32);
@@ -363,21 +380,23 @@ void Compare(const Maps& m, const Options& opt, int index) {
       ours_abs.wrong += k != t;
     }
   }
-  std::printf("ours   quality %.3f ms + unwrap %.3f ms = %.3f ms | usable %lld px, valid %lld (%.1f%%), "
-              "regions %d: marker %d, depth %d, rejected %d, small %d; conflicts %lld, outside %lld\n",
-              ms_quality, ms_unwrap, ms_ours, static_cast<long long>(usable),
-              static_cast<long long>(res.stats.pixels_valid),
-              usable > 0 ? 100.0 * res.stats.pixels_valid / usable : 0.0, res.stats.regions_total,
-              res.stats.regions_marker, res.stats.regions_depth, res.stats.regions_rejected,
-              res.stats.regions_small, static_cast<long long>(res.stats.pixels_conflict),
-              static_cast<long long>(res.stats.pixels_outside));
+  std::printf(
+      "ours   quality %.3f ms + unwrap %.3f ms = %.3f ms | usable %lld px, valid %lld (%.1f%%), "
+      "regions %d: marker %d, depth %d, rejected %d, small %d; conflicts %lld, outside %lld\n",
+      ms_quality, ms_unwrap, ms_ours, static_cast<long long>(usable),
+      static_cast<long long>(res.stats.pixels_valid),
+      usable > 0 ? 100.0 * res.stats.pixels_valid / usable : 0.0, res.stats.regions_total,
+      res.stats.regions_marker, res.stats.regions_depth, res.stats.regions_rejected,
+      res.stats.regions_small, static_cast<long long>(res.stats.pixels_conflict),
+      static_cast<long long>(res.stats.pixels_outside));
   for (size_t i = 0; i < res.regions.size(); ++i) {
     const RegionInfo& g = res.regions[i];
     if (g.pixels < 2000) continue;
-    std::printf("       region %zu: %d px %s K=%d marker hits %d/%d rival %d, bounded %d admitting %d, "
-                "depth candidates %d, violations %d\n", i, g.pixels, RegionAnchorName(g.anchor), g.offset, g.marker_hits,
-                g.marker_predicted, g.marker_rival_hits, g.bounded_pixels, g.admitting_pixels, g.candidates,
-                g.violations);
+    std::printf(
+        "       region %zu: %d px %s K=%d marker hits %d/%d rival %d, bounded %d admitting %d, "
+        "depth candidates %d, violations %d\n",
+        i, g.pixels, RegionAnchorName(g.anchor), g.offset, g.marker_hits, g.marker_predicted,
+        g.marker_rival_hits, g.bounded_pixels, g.admitting_pixels, g.candidates, g.violations);
   }
   if (tooth_lit > 0) {
     std::printf("       valid share of the %s: %.2f%% of %lld px\n",
@@ -388,7 +407,8 @@ void Compare(const Maps& m, const Options& opt, int index) {
   // OpenCV HistogramPhaseUnwrapping: input in [−π, π), relative.
   OpenCvUnwrap ocv = MakeOpenCvUnwrap(m.phi, mask);
   cv::Mat cv_out;
-  const double ms_cv = MedianMs(std::max(3, opt.reps / 3), [&] { ocv.unwrapper->unwrapPhaseMap(ocv.wrapped, cv_out, mask); });
+  const double ms_cv = MedianMs(std::max(3, opt.reps / 3),
+                                [&] { ocv.unwrapper->unwrapPhaseMap(ocv.wrapped, cv_out, mask); });
   cv::Mat cv_k = OrdersOf(cv_out, m.phi, mask, M_PI);
   cv::Mat cc;
   cv::connectedComponents(mask, cc, 4, CV_32S);
@@ -399,7 +419,8 @@ void Compare(const Maps& m, const Options& opt, int index) {
   cv::Mat sk_k;
   std::string sk_version;
   if (opt.skimage) {
-    const fs::path tmp = fs::temp_directory_path() / ("d3d-bench-unwrap-" + std::to_string(::getpid()));
+    const fs::path tmp =
+        fs::temp_directory_path() / ("d3d-bench-unwrap-" + std::to_string(::getpid()));
     fs::create_directories(tmp);
     cv::Mat wp = m.phi - static_cast<float>(M_PI);
     wp.setTo(0.0f, ~mask);
@@ -418,9 +439,11 @@ void Compare(const Maps& m, const Options& opt, int index) {
         if (rc == 0 && at != std::string::npos) {
           ms_sk = std::atof(out.c_str() + at + 6);
           const size_t v = out.find("\"version\": \"");
-          if (v != std::string::npos) sk_version = out.substr(v + 12, out.find('"', v + 12) - v - 12);
+          if (v != std::string::npos)
+            sk_version = out.substr(v + 12, out.find('"', v + 12) - v - 12);
           cv::Mat sk;
-          if (LoadNpy((tmp / "unwrapped.npy").string(), CV_32F, &sk, true)) sk_k = OrdersOf(sk, m.phi, mask, M_PI);
+          if (LoadNpy((tmp / "unwrapped.npy").string(), CV_32F, &sk, true))
+            sk_k = OrdersOf(sk, m.phi, mask, M_PI);
         } else {
           std::printf("scikit-image: failed (%s): %s\n", cmd.c_str(), out.c_str());
         }
@@ -431,7 +454,8 @@ void Compare(const Maps& m, const Options& opt, int index) {
 
   std::printf("OpenCV HistogramPhaseUnwrapping %.3f ms (%.1fx ours)\n", ms_cv, ms_cv / ms_ours);
   if (ms_sk >= 0) {
-    std::printf("scikit-image %s unwrap_phase %.3f ms (%.1fx ours)\n", sk_version.c_str(), ms_sk, ms_sk / ms_ours);
+    std::printf("scikit-image %s unwrap_phase %.3f ms (%.1fx ours)\n", sk_version.c_str(), ms_sk,
+                ms_sk / ms_ours);
   } else if (opt.skimage) {
     std::printf("scikit-image: not run (install python3-skimage)\n");
   }
@@ -442,12 +466,14 @@ void Compare(const Maps& m, const Options& opt, int index) {
               static_cast<long long>(ours_abs.wrong), static_cast<long long>(ours_abs.evaluated),
               100 * ours_abs.Share(), 100 * ours_rel.Share());
   std::printf("              OpenCV %lld of %lld (%.4f%%, relative per connected component)\n",
-              static_cast<long long>(cv_rel.wrong), static_cast<long long>(cv_rel.evaluated), 100 * cv_rel.Share());
+              static_cast<long long>(cv_rel.wrong), static_cast<long long>(cv_rel.evaluated),
+              100 * cv_rel.Share());
   if (!sk_k.empty()) {
     const OrderErrors sk_rel = RelativeErrors(sk_k, cc, m.order_true);
-    std::printf("              scikit-image %lld of %lld (%.4f%%, relative per connected component)\n",
-                static_cast<long long>(sk_rel.wrong), static_cast<long long>(sk_rel.evaluated),
-                100 * sk_rel.Share());
+    std::printf(
+        "              scikit-image %lld of %lld (%.4f%%, relative per connected component)\n",
+        static_cast<long long>(sk_rel.wrong), static_cast<long long>(sk_rel.evaluated),
+        100 * sk_rel.Share());
   }
 }
 
@@ -460,24 +486,28 @@ void RegisterBenchmarks(const Maps& m, const std::string& tag) {
   benchmark::RegisterBenchmark(("quality/" + tag).c_str(), [&m](benchmark::State& state) {
     cv::Mat q;
     for (auto _ : state) {
-      if (!ComputeQualityMap(m.phi, m.modulation, m.valid, m.peak, {}, &q).ok()) state.SkipWithError("quality");
+      if (!ComputeQualityMap(m.phi, m.modulation, m.valid, m.peak, {}, &q).ok())
+        state.SkipWithError("quality");
       benchmark::DoNotOptimize(q.data);
     }
   })->Unit(benchmark::kMillisecond);
   benchmark::RegisterBenchmark(("unwrap/" + tag).c_str(), [&m](benchmark::State& state) {
     cv::Mat q;
-    if (!ComputeQualityMap(m.phi, m.modulation, m.valid, m.peak, {}, &q).ok()) state.SkipWithError("quality");
+    if (!ComputeQualityMap(m.phi, m.modulation, m.valid, m.peak, {}, &q).ok())
+      state.SkipWithError("quality");
     Unwrapper u(m.unwrap);
     UnwrapResult r;
     for (auto _ : state) {
-      if (!u.Run(m.phi, q, m.marker, m.phase_min, m.phase_max, &r).ok()) state.SkipWithError("unwrap");
+      if (!u.Run(m.phi, q, m.marker, m.phase_min, m.phase_max, &r).ok())
+        state.SkipWithError("unwrap");
       benchmark::DoNotOptimize(r.Phi.data);
     }
   })->Unit(benchmark::kMillisecond);
   benchmark::RegisterBenchmark(("opencv_histogram/" + tag).c_str(), [&m](benchmark::State& state) {
     cv::setNumThreads(1);
     cv::Mat q;
-    if (!ComputeQualityMap(m.phi, m.modulation, m.valid, m.peak, {}, &q).ok()) state.SkipWithError("quality");
+    if (!ComputeQualityMap(m.phi, m.modulation, m.valid, m.peak, {}, &q).ok())
+      state.SkipWithError("quality");
     const cv::Mat mask = q > 0;
     OpenCvUnwrap ocv = MakeOpenCvUnwrap(m.phi, mask);
     cv::Mat out;
@@ -501,27 +531,45 @@ int main(int argc, char** argv) {
       }
       return argv[++i];
     };
-    if (a == "--burst") opt.bursts.push_back(next());
-    else if (a == "--npy") opt.npys.push_back(next());
-    else if (a == "--reps") opt.reps = std::max(1, std::atoi(next().c_str()));
-    else if (a == "--python") opt.python = next();
-    else if (a == "--script") opt.script = next();
-    else if (a == "--no-skimage") opt.skimage = false;
-    else if (a == "--no-compare") opt.compare = false;
-    else if (a == "--dump") opt.dump = next();
-    else if (a == "--max-laplace") opt.quality.max_laplace = std::atof(next().c_str());
-    else if (a == "--laplace-ref") opt.quality.laplace_ref = std::atof(next().c_str());
-    else if (a == "--min-quality") opt.unwrap.min_quality = static_cast<float>(std::atof(next().c_str()));
-    else if (a == "--max-jump") opt.unwrap.max_jump = std::atof(next().c_str());
-    else if (a == "--max-reverse") opt.unwrap.max_reverse = std::atof(next().c_str());
-    else if (a == "--levels") opt.unwrap.quality_levels = std::atoi(next().c_str());
+    if (a == "--burst")
+      opt.bursts.push_back(next());
+    else if (a == "--npy")
+      opt.npys.push_back(next());
+    else if (a == "--reps")
+      opt.reps = std::max(1, std::atoi(next().c_str()));
+    else if (a == "--python")
+      opt.python = next();
+    else if (a == "--script")
+      opt.script = next();
+    else if (a == "--no-skimage")
+      opt.skimage = false;
+    else if (a == "--no-compare")
+      opt.compare = false;
+    else if (a == "--dump")
+      opt.dump = next();
+    else if (a == "--max-laplace")
+      opt.quality.max_laplace = std::atof(next().c_str());
+    else if (a == "--laplace-ref")
+      opt.quality.laplace_ref = std::atof(next().c_str());
+    else if (a == "--min-quality")
+      opt.unwrap.min_quality = static_cast<float>(std::atof(next().c_str()));
+    else if (a == "--max-jump")
+      opt.unwrap.max_jump = std::atof(next().c_str());
+    else if (a == "--max-reverse")
+      opt.unwrap.max_reverse = std::atof(next().c_str());
+    else if (a == "--levels")
+      opt.unwrap.quality_levels = std::atoi(next().c_str());
     else if (a == "--help" || a == "-h") {
-      std::printf("d3d-bench-unwrap [--burst DIR]... [--npy DIR]... [--reps N] [--python EXE] [--script PY]\n"
-                  "                 [--no-skimage] [--no-compare] [--dump DIR] [--max-laplace R] [--laplace-ref R]\n"
-                  "                 [--min-quality Q] [--max-jump R] [--max-reverse R] [--levels L]\n"
-                  "                 [Google Benchmark flags]\n");
+      std::printf(
+          "d3d-bench-unwrap [--burst DIR]... [--npy DIR]... [--reps N] [--python EXE] [--script "
+          "PY]\n"
+          "                 [--no-skimage] [--no-compare] [--dump DIR] [--max-laplace R] "
+          "[--laplace-ref R]\n"
+          "                 [--min-quality Q] [--max-jump R] [--max-reverse R] [--levels L]\n"
+          "                 [Google Benchmark flags]\n");
       return 0;
-    } else rest.push_back(argv[i]);
+    } else
+      rest.push_back(argv[i]);
   }
   auto& maps = Registry();
   maps.push_back(std::make_unique<Maps>(FromSynthetic(640, 480, 7)));

@@ -34,7 +34,8 @@ std::string CheckFrames(const Burst& b, int width, int height) {
 std::string CheckTruth(const FrameTruth& t) {
   if (!t.has_maps()) return "no truth maps";
   const cv::Mat finite = t.depth_mm == t.depth_mm;  // false where NaN
-  if (cv::countNonZero(finite) < t.depth_mm.rows * t.depth_mm.cols / 2) return "the truth has too few valid points";
+  if (cv::countNonZero(finite) < t.depth_mm.rows * t.depth_mm.cols / 2)
+    return "the truth has too few valid points";
   return "";
 }
 
@@ -58,7 +59,7 @@ void BM_RenderBurst(benchmark::State& state) {
   cv::setNumThreads(threads);
   SimSession& session = Session(width, height, threads);
   int64_t index = 300;  // over the molars: a full field of teeth
-  {  // before timing: a burst with truth must be sane
+  {                     // before timing: a burst with truth must be sane
     const Burst b = session.RenderBurst(index, true);
     std::string why = CheckFrames(b, width, height);
     if (why.empty()) why = CheckTruth(b.reference_truth);
@@ -72,15 +73,22 @@ void BM_RenderBurst(benchmark::State& state) {
     b = session.RenderBurst(index++, false);
     benchmark::DoNotOptimize(b.frames.back().image.data);
   }
-  if (const std::string why = CheckFrames(b, width, height); !why.empty()) {  // the last timed burst too
+  if (const std::string why = CheckFrames(b, width, height);
+      !why.empty()) {  // the last timed burst too
     state.SkipWithError(("last burst: " + why).c_str());
     return;
   }
   state.SetItemsProcessed(state.iterations());
-  state.SetLabel(std::to_string(width) + "x" + std::to_string(height) + ", " + std::to_string(threads) + " thread(s)");
+  state.SetLabel(std::to_string(width) + "x" + std::to_string(height) + ", " +
+                 std::to_string(threads) + " thread(s)");
 }
-BENCHMARK(BM_RenderBurst)->Args({640, 480, 1})->Args({640, 480, 2})->Args({1280, 1024, 2})
-    ->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(3.0);
+BENCHMARK(BM_RenderBurst)
+    ->Args({640, 480, 1})
+    ->Args({640, 480, 2})
+    ->Args({1280, 1024, 2})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->MinTime(3.0);
 
 void BM_RenderTruthOnly(benchmark::State& state) {
   const int threads = static_cast<int>(state.range(0));
@@ -88,7 +96,8 @@ void BM_RenderTruthOnly(benchmark::State& state) {
   int64_t index = 300;
   FrameTruth truth;
   for (auto _ : state) {
-    session.probe().RenderTruth(session.trajectory().WorldFromProbe(session.BurstStartNs(index++)), &truth);
+    session.probe().RenderTruth(session.trajectory().WorldFromProbe(session.BurstStartNs(index++)),
+                                &truth);
     benchmark::DoNotOptimize(truth.depth_mm.data);
   }
   if (const std::string why = CheckTruth(truth); !why.empty()) {

@@ -20,16 +20,19 @@ inline int64_t ReadProcBytes(const char* path) {
 }
 
 // Creates the participant for `domain`; prints a warning when the socket buffers are limited.
-inline Status CreateToolParticipant(int domain, proto::DdsParticipant* participant, const char* tool) {
+inline Status CreateToolParticipant(int domain, proto::DdsParticipant* participant,
+                                    const char* tool) {
   std::string warning;
-  const std::string xml = proto::SelectCycloneConfig(std::getenv("CYCLONEDDS_URI"), ReadProcBytes("/proc/sys/net/core/rmem_max"),
-                                                     ReadProcBytes("/proc/sys/net/core/wmem_max"), &warning);
+  const std::string xml = proto::SelectCycloneConfig(
+      std::getenv("CYCLONEDDS_URI"), ReadProcBytes("/proc/sys/net/core/rmem_max"),
+      ReadProcBytes("/proc/sys/net/core/wmem_max"), &warning);
   if (!warning.empty()) std::fprintf(stderr, "%s: warning: %s\n", tool, warning.c_str());
   return participant->Create({domain, xml});
 }
 
 // Waits until `writer` has matched at least `n` readers; false after timeout_s.
-inline bool WaitForReaders(dds_entity_t writer, int n, double timeout_s, const volatile std::sig_atomic_t* stop) {
+inline bool WaitForReaders(dds_entity_t writer, int n, double timeout_s,
+                           const volatile std::sig_atomic_t* stop) {
   if (n <= 0) return true;
   for (int i = 0; i < static_cast<int>(timeout_s * 100); ++i) {
     dds_publication_matched_status_t st{};

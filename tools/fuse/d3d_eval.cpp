@@ -27,9 +27,11 @@ Status LoadTumPoses(const std::string& path, std::vector<double>* t, std::vector
     if (line.empty() || line[0] == '#') continue;
     std::istringstream is(line);
     double ts, x, y, z, qx, qy, qz, qw;
-    if (!(is >> ts >> x >> y >> z >> qx >> qy >> qz >> qw)) return ParseError(path + ":" + std::to_string(ln) + ": expected 8 numbers");
+    if (!(is >> ts >> x >> y >> z >> qx >> qy >> qz >> qw))
+      return ParseError(path + ":" + std::to_string(ln) + ": expected 8 numbers");
     const Eigen::Quaterniond q(qw, qx, qy, qz);
-    if (std::abs(q.norm() - 1) > 1e-3) return ParseError(path + ":" + std::to_string(ln) + ": quaternion not unit");
+    if (std::abs(q.norm() - 1) > 1e-3)
+      return ParseError(path + ":" + std::to_string(ln) + ": quaternion not unit");
     t->push_back(ts);
     poses->push_back(RigidFromQuaternion(q.normalized(), Eigen::Vector3d(x, y, z)));
   }
@@ -55,18 +57,22 @@ void DeclareOptions(OptionRegistry* r, Options* o) {
   r->Add("--heatmap-range", &o->range_um, "heat map colour range ± (um)");
   r->Add("--max-distance", &o->max_distance, "scan points farther than this (mm) are outliers");
   r->Add("--precision", &o->precision,
-         "two or more scans of the same object: pairwise precision (RMS, p95 of |d| in um) over the surface both\n"
+         "two or more scans of the same object: pairwise precision (RMS, p95 of |d| in um) over "
+         "the surface both\n"
          "cover (reciprocal closest points; the one-sided figures are printed too)");
-  r->Add("--poses", &o->poses_path, "estimated poses (TUM, mm); with --truth: ATE. Also the initial alignment");
+  r->Add("--poses", &o->poses_path,
+         "estimated poses (TUM, mm); with --truth: ATE. Also the initial alignment");
   r->Add("--truth", &o->truth_path, "true poses (TUM, mm), matched by timestamp");
-  r->Flag("--no-global", &o->no_global, "start ICP from identity instead of the global (principal axes) alignment");
+  r->Flag("--no-global", &o->no_global,
+          "start ICP from identity instead of the global (principal axes) alignment");
   r->Flag("--json", &o->json, "print one JSON object");
 }
 
 // The absolute trajectory error of --poses against --truth (each estimated pose matched to the true
 // one nearest in time, within 1 ms) into *j. *initial: the alignment it found, taken as the scan's
 // initial alignment when *have_initial (3 or more matched poses).
-Status AddTrajectoryError(const Options& o, nlohmann::json* j, Rigid3d* initial, bool* have_initial) {
+Status AddTrajectoryError(const Options& o, nlohmann::json* j, Rigid3d* initial,
+                          bool* have_initial) {
   std::vector<double> te, tt;
   std::vector<Rigid3d> pe, pt;
   if (const Status s = LoadTumPoses(o.poses_path, &te, &pe); !s.ok()) return s;
@@ -104,7 +110,9 @@ Status AddTrueness(const Options& o, Rigid3d initial, bool have_initial, nlohman
   AddTruenessFields(t, j);
   const Eigen::Quaterniond q(t.reference_from_scan.linear());
   (*j)["best_fit"] = {
-      {"t_mm", {t.reference_from_scan.translation().x(), t.reference_from_scan.translation().y(), t.reference_from_scan.translation().z()}},
+      {"t_mm",
+       {t.reference_from_scan.translation().x(), t.reference_from_scan.translation().y(),
+        t.reference_from_scan.translation().z()}},
       {"q_xyzw", {q.x(), q.y(), q.z(), q.w()}}};
   (*j)["trueness_max_um"] = t.max_um;
   (*j)["points"] = t.points;
@@ -112,7 +120,8 @@ Status AddTrueness(const Options& o, Rigid3d initial, bool have_initial, nlohman
   if (!o.heatmap.empty()) {
     TriangleMesh in_ref = scan;
     for (auto& v : in_ref.vertices) v = t.reference_from_scan * v;
-    if (!cv::imwrite(o.heatmap, DeviationHeatMap(in_ref, t.signed_um, o.range_um))) return IoError("cannot write '" + o.heatmap + "'");
+    if (!cv::imwrite(o.heatmap, DeviationHeatMap(in_ref, t.signed_um, o.range_um)))
+      return IoError("cannot write '" + o.heatmap + "'");
   }
   return Status::Ok();
 }
@@ -150,9 +159,12 @@ Status AddPrecision(const Options& o, nlohmann::json* j) {
 
 int main(int argc, char** argv) {
   OptionRegistry options(
-      "d3d-eval: accuracy of a scan (mm) against a reference mesh: best-fit ICP, signed deviations (trueness:\n"
-      "RMS, mean, mean |d|, p95 in um), coverage of the reference teeth within 0.2 mm, a heat map; precision\n"
-      "between repeated scans (--precision); absolute trajectory error (--poses with --truth, TUM files, mm).");
+      "d3d-eval: accuracy of a scan (mm) against a reference mesh: best-fit ICP, signed deviations "
+      "(trueness:\n"
+      "RMS, mean, mean |d|, p95 in um), coverage of the reference teeth within 0.2 mm, a heat map; "
+      "precision\n"
+      "between repeated scans (--precision); absolute trajectory error (--poses with --truth, TUM "
+      "files, mm).");
   Options o;
   DeclareOptions(&options, &o);
   if (int code = 0; !options.Parse(argc, argv, &code)) return code;
@@ -161,13 +173,16 @@ int main(int argc, char** argv) {
     Rigid3d initial = Rigid3d::Identity();
     bool have_initial = false;
     if (!o.poses_path.empty() && !o.truth_path.empty())
-      if (const Status s = AddTrajectoryError(o, &j, &initial, &have_initial); !s.ok()) return Fail(s);
+      if (const Status s = AddTrajectoryError(o, &j, &initial, &have_initial); !s.ok())
+        return Fail(s);
     if (!o.scan_path.empty() && !o.ref_path.empty())
       if (const Status s = AddTrueness(o, initial, have_initial, &j); !s.ok()) return Fail(s);
     if (o.precision.size() >= 2)
       if (const Status s = AddPrecision(o, &j); !s.ok()) return Fail(s);
     if (j.empty()) {
-      std::fprintf(stderr, "d3d-eval: nothing to do: give --scan and --reference, --precision A B ..., or --poses and --truth\n");
+      std::fprintf(stderr,
+                   "d3d-eval: nothing to do: give --scan and --reference, --precision A B ..., or "
+                   "--poses and --truth\n");
       return 2;
     }
     std::printf("%s\n", o.json ? j.dump().c_str() : j.dump(2).c_str());

@@ -38,16 +38,19 @@ void PrintPose(std::FILE* f, const Rigid3d& p) { std::fprintf(f, " %s", TumPoseF
 // --pose-graph: the keyframes' nodes (their pose in the graph: optimised, or the tracked one when
 // the graph was not optimised (--no-loops); and the true one when known) and every edge
 // with its measurement and information, for offline study of what bends the arch.
-Status WritePoseGraph(const std::string& path, const ScanRegistrar& registrar, const std::map<uint64_t, Rigid3d>& true_poses) {
+Status WritePoseGraph(const std::string& path, const ScanRegistrar& registrar,
+                      const std::map<uint64_t, Rigid3d>& true_poses) {
   std::FILE* f = std::fopen(path.c_str(), "w");
   if (!f) return IoError("cannot write '" + path + "'");
-  std::fprintf(f,
-               "# node <node> <view> <burst> <graph t q> [<true t q>]\n"
-               "# edge <from> <to> <loop> <measured from_from_to t q> <information 6x6 row-major>\n");
+  std::fprintf(
+      f,
+      "# node <node> <view> <burst> <graph t q> [<true t q>]\n"
+      "# edge <from> <to> <loop> <measured from_from_to t q> <information 6x6 row-major>\n");
   const Tracker& tracker = registrar.tracker();
   for (const Keyframe& kf : tracker.keyframes()) {
     const uint64_t burst = registrar.views()[static_cast<size_t>(kf.view)].burst_seq;
-    std::fprintf(f, "node %d %lld %llu", kf.node, static_cast<long long>(kf.view), static_cast<unsigned long long>(burst));
+    std::fprintf(f, "node %d %lld %llu", kf.node, static_cast<long long>(kf.view),
+                 static_cast<unsigned long long>(burst));
     PrintPose(f, tracker.graph().pose(kf.node));
     if (const auto it = true_poses.find(burst); it != true_poses.end()) PrintPose(f, it->second);
     std::fprintf(f, "\n");
@@ -80,11 +83,13 @@ class BurstPrefetcher {
         try {
           item.status = load(index, &item.burst);
         } catch (const std::exception& e) {
-          item.status = Status(StatusCode::kInternal, std::string("loading burst ") + std::to_string(index) + ": " + e.what());
+          item.status = Status(StatusCode::kInternal, std::string("loading burst ") +
+                                                          std::to_string(index) + ": " + e.what());
         }
         item.ms = Ms(std::chrono::steady_clock::now() - t0).count();
         const bool failed = !item.status.ok();
-        while (!stop_.load() && !queue_.try_push(std::move(item))) std::this_thread::sleep_for(std::chrono::microseconds(200));
+        while (!stop_.load() && !queue_.try_push(std::move(item)))
+          std::this_thread::sleep_for(std::chrono::microseconds(200));
         if (failed) break;
       }
     });
@@ -123,14 +128,17 @@ class BurstTrace {
   BurstTrace(const std::string& path, bool with_truth) : with_truth_(with_truth) {
     if (path.empty()) return;
     out_.open(path);
-    out_ << "# burst accepted state rmse_um overlap eigen_ratio correspondences keyframe loops err_mm err_deg"
-            " view_rms_um view_order_error_pct tooth_valid_pct in_model reentry_keyframes reentry_agreeing"
+    out_ << "# burst accepted state rmse_um overlap eigen_ratio correspondences keyframe loops "
+            "err_mm err_deg"
+            " view_rms_um view_order_error_pct tooth_valid_pct in_model reentry_keyframes "
+            "reentry_agreeing"
             " reentry_seen_through prediction_offset_mm prediction_offset_deg\n";
   }
   bool open() const { return out_.is_open(); }
   bool with_truth() const { return open() && with_truth_; }
 
-  void Write(int64_t index, const TrackResult& r, const Rigid3d& truth_pose, const Burst& b, const ReconstructedView& view, const TriangleMesh& scene,
+  void Write(int64_t index, const TrackResult& r, const Rigid3d& truth_pose, const Burst& b,
+             const ReconstructedView& view, const TriangleMesh& scene,
              const ProbeCalibration& calib, int bin) {
     double err_mm = NAN, err_deg = NAN;
     if (r.accepted && !have_first_) {
@@ -147,14 +155,19 @@ class BurstTrace {
     CloudErrors ve;
     ve.rms_um = ve.order_error_pct = ve.tooth_valid_pct = NAN;
     if (with_truth() && b.reference_truth.has_maps())
-      ve =
-          EvaluateCloud(view.points_in_cam, view.unwrap.Phi, bin > 1 ? BinnedTruth(b.reference_truth, bin) : b.reference_truth, scene, calib.pattern);
+      ve = EvaluateCloud(view.points_in_cam, view.unwrap.Phi,
+                         bin > 1 ? BinnedTruth(b.reference_truth, bin) : b.reference_truth, scene,
+                         calib.pattern);
     char line[640];
-    std::snprintf(line, sizeof line, "%lld %d %s %.2f %.3f %.5f %d %d %d %.4f %.4f %.2f %.4f %.1f %d %d %lld %lld %.4f %.4f\n",
-                  static_cast<long long>(index), r.accepted ? 1 : 0, TrackingStateName(r.state), r.icp.rmse_mm * 1000, r.icp.overlap,
-                  r.icp.eigen_ratio, r.icp.correspondences, r.new_keyframe ? 1 : 0, r.loops_added, err_mm, err_deg, ve.rms_um, ve.order_error_pct,
-                  ve.tooth_valid_pct, r.in_model ? 1 : 0, r.reentry.keyframes, static_cast<long long>(r.reentry.agreeing),
-                  static_cast<long long>(r.reentry.seen_through), r.prediction_offset_mm, r.prediction_offset_deg);
+    std::snprintf(
+        line, sizeof line,
+        "%lld %d %s %.2f %.3f %.5f %d %d %d %.4f %.4f %.2f %.4f %.1f %d %d %lld %lld %.4f %.4f\n",
+        static_cast<long long>(index), r.accepted ? 1 : 0, TrackingStateName(r.state),
+        r.icp.rmse_mm * 1000, r.icp.overlap, r.icp.eigen_ratio, r.icp.correspondences,
+        r.new_keyframe ? 1 : 0, r.loops_added, err_mm, err_deg, ve.rms_um, ve.order_error_pct,
+        ve.tooth_valid_pct, r.in_model ? 1 : 0, r.reentry.keyframes,
+        static_cast<long long>(r.reentry.agreeing), static_cast<long long>(r.reentry.seen_through),
+        r.prediction_offset_mm, r.prediction_offset_deg);
     out_ << line;
   }
 
@@ -185,14 +198,17 @@ Status OfflineSource::Open(const OfflineScanArgs& args, OfflineSource* out) {
     out->scene = out->session->scene();
     n_total = out->session->NumBursts();
   } else {
-    D3D_RETURN_IF_ERROR(ProbeCalibration::Load((fs::path(args.bursts_dir) / "calibration.json").string(), &out->calibration));
+    D3D_RETURN_IF_ERROR(ProbeCalibration::Load(
+        (fs::path(args.bursts_dir) / "calibration.json").string(), &out->calibration));
     for (const auto& e : fs::directory_iterator(fs::path(args.bursts_dir) / "bursts"))
       if (e.is_directory()) out->burst_dirs.push_back(e.path().string());
     std::sort(out->burst_dirs.begin(), out->burst_dirs.end());
     n_total = static_cast<int64_t>(out->burst_dirs.size());
     const fs::path scene_path = fs::path(args.bursts_dir) / "scene.ply";
-    if (fs::exists(scene_path) && !LoadMesh(scene_path.string(), &out->scene).ok()) out->scene = TriangleMesh{};
-    if (!out->scene.face_colors.empty() && out->scene.face_labels.empty()) LabelFacesFromColors(&out->scene);
+    if (fs::exists(scene_path) && !LoadMesh(scene_path.string(), &out->scene).ok())
+      out->scene = TriangleMesh{};
+    if (!out->scene.face_colors.empty() && out->scene.face_labels.empty())
+      LabelFacesFromColors(&out->scene);
   }
   for (int64_t i = args.first; i < n_total; i += args.every) {
     if (args.max_bursts >= 0 && static_cast<int64_t>(out->indices.size()) >= args.max_bursts) break;
@@ -212,10 +228,12 @@ Status OfflineSource::Load(int64_t index, bool with_truth, Burst* out) const {
 Rigid3d OfflineSource::TruePose(const Burst& b) const {
   if (session) return session->trajectory().WorldFromProbe(b.reference_ns);
   if (b.frames.empty()) return Rigid3d::Identity();
-  return InterpolateRigid(b.frames.front().truth.world_from_probe, b.frames.back().truth.world_from_probe, 0.5);
+  return InterpolateRigid(b.frames.front().truth.world_from_probe,
+                          b.frames.back().truth.world_from_probe, 0.5);
 }
 
-Status RunOfflineScan(const OfflineScanArgs& args, const OfflineSource& source, const ScanFlags& flags, const ScanOptions& so, ScanResult* result) {
+Status RunOfflineScan(const OfflineScanArgs& args, const OfflineSource& source,
+                      const ScanFlags& flags, const ScanOptions& so, ScanResult* result) {
   const ProbeCalibration& calib = source.calibration;
   const TriangleMesh& scene = source.scene;
   const std::vector<int64_t>& indices = source.indices;
@@ -223,12 +241,15 @@ Status RunOfflineScan(const OfflineScanArgs& args, const OfflineSource& source, 
   const ProbeCalibration& view_calib = recon.calibration();  // of the (binned) views
   ScanRegistrar registrar(view_calib, so.tracker, so.anchor, so.recon.normal_max_gap_mm);
   LiveVolumeOptions live;
-  live.voxel_mm = flags.refuse ? flags.live_voxel_mm : 0.0;  // without refusion the live volume is the model
+  live.voxel_mm =
+      flags.refuse ? flags.live_voxel_mm : 0.0;  // without refusion the live volume is the model
   live.Check();
   ScanFuser fuser(view_calib.camera, live.Of(so.tsdf), so.free_space);
   BurstTrace trace(args.trace_path, source.session != nullptr && !scene.faces.empty());
   // Burst `index` of the source, rendered or read (with truth maps for the trace's figures).
-  const auto load_burst = [&](int64_t index, Burst* b) { return source.Load(index, trace.with_truth(), b); };
+  const auto load_burst = [&](int64_t index, Burst* b) {
+    return source.Load(index, trace.with_truth(), b);
+  };
   // The accepted views' frames as reconstructed (binned), kept for the end of the scan (refusion,
   // segments apart) instead of rendering or reading their bursts again: zstd, in an unnamed
   // temporary file in the output folder (memory when that cannot be made).
@@ -236,7 +257,8 @@ Status RunOfflineScan(const OfflineScanArgs& args, const OfflineSource& source, 
   FramePacker packer;
   std::string packed;
   if (const Status s = kept.SpillTo(args.out_dir); !s.ok() && !args.quiet)
-    std::fprintf(stderr, "d3d-fuse: keeping the views' frames in memory: %s\n", s.ToString().c_str());
+    std::fprintf(stderr, "d3d-fuse: keeping the views' frames in memory: %s\n",
+                 s.ToString().c_str());
   ProgressBar bar("d3d-fuse", static_cast<int64_t>(indices.size()), !args.quiet);
   ScanTimes times;
   double ms_render = 0;
@@ -285,8 +307,8 @@ Status RunOfflineScan(const OfflineScanArgs& args, const OfflineSource& source, 
       (void)kept.Add(static_cast<uint64_t>(indices[k]), packed);
     }
     if (!args.quiet && (r.state != TrackingState::kTracking || !r.accepted))
-      std::fprintf(stderr, "\nburst %lld: %s%s%s\n", static_cast<long long>(indices[k]), TrackingStateName(r.state), r.reason.empty() ? "" : ": ",
-                   r.reason.c_str());
+      std::fprintf(stderr, "\nburst %lld: %s%s%s\n", static_cast<long long>(indices[k]),
+                   TrackingStateName(r.state), r.reason.empty() ? "" : ": ", r.reason.c_str());
     if (trace.open()) trace.Write(indices[k], r, truth_pose, b, view, scene, calib, so.bin);
     ms_render += ms_load;
     times.ms_recon += Ms(t2 - t1).count();
@@ -303,7 +325,8 @@ Status RunOfflineScan(const OfflineScanArgs& args, const OfflineSource& source, 
   ScanTruth truth;
   if (!args.no_eval && !scene.faces.empty()) truth.reference = &scene;
   const bool have_true_poses =
-      source.session != nullptr || (!true_poses.empty() && true_poses.begin()->second.matrix() != Rigid3d::Identity().matrix());
+      source.session != nullptr ||
+      (!true_poses.empty() && true_poses.begin()->second.matrix() != Rigid3d::Identity().matrix());
   if (have_true_poses)
     truth.true_pose = [&](const ScanViewRecord& record, Rigid3d* world_from_cam) {
       const auto it = true_poses.find(record.burst_seq);
@@ -328,10 +351,13 @@ Status RunOfflineScan(const OfflineScanArgs& args, const OfflineSource& source, 
   D3D_RETURN_IF_ERROR(WriteScanOutputs(args.out_dir, *result));
   if (have_true_poses) {
     std::vector<Rigid3d> acc_truth;
-    for (const int64_t k : result->pose_views) acc_truth.push_back(true_poses.at(registrar.views()[static_cast<size_t>(k)].burst_seq));
-    D3D_RETURN_IF_ERROR(WriteTumPoses((fs::path(args.out_dir) / "truth_poses.txt").string(), result->pose_t_ns, acc_truth));
+    for (const int64_t k : result->pose_views)
+      acc_truth.push_back(true_poses.at(registrar.views()[static_cast<size_t>(k)].burst_seq));
+    D3D_RETURN_IF_ERROR(WriteTumPoses((fs::path(args.out_dir) / "truth_poses.txt").string(),
+                                      result->pose_t_ns, acc_truth));
   }
-  if (!args.graph_path.empty()) D3D_RETURN_IF_ERROR(WritePoseGraph(args.graph_path, registrar, true_poses));
+  if (!args.graph_path.empty())
+    D3D_RETURN_IF_ERROR(WritePoseGraph(args.graph_path, registrar, true_poses));
   return Status::Ok();
 }
 

@@ -43,7 +43,7 @@ struct OfflineSource {
   ProbeCalibration calibration;
   TriangleMesh scene;                   // the truth when known (empty otherwise)
   std::vector<std::string> burst_dirs;  // a bursts folder's bursts, sorted
-  std::vector<int64_t> indices;         // the bursts used, in order (--first, --every, --max-bursts)
+  std::vector<int64_t> indices;  // the bursts used, in order (--first, --every, --max-bursts)
 
   // Opens --sim or --bursts (exactly one is set; checked by the caller).
   [[nodiscard]] static Status Open(const OfflineScanArgs& args, OfflineSource* out);
@@ -57,7 +57,8 @@ struct OfflineSource {
 // finishes it into *result with d3d-fuse's report fields, and writes the outputs into
 // args.out_dir (WriteScanOutputs, and truth_poses.txt when the truth is known); --trace while it
 // runs, --pose-graph at the end.
-[[nodiscard]] Status RunOfflineScan(const OfflineScanArgs& args, const OfflineSource& source, const ScanFlags& flags, const ScanOptions& options,
+[[nodiscard]] Status RunOfflineScan(const OfflineScanArgs& args, const OfflineSource& source,
+                                    const ScanFlags& flags, const ScanOptions& options,
                                     ScanResult* result);
 
 }  // namespace d3d

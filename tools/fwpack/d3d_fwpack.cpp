@@ -51,11 +51,13 @@ void DeclareOptions(OptionRegistry* r, FwpackOptions* o) {
   r->Flag("--unsigned", &o->is_unsigned, "write an unsigned image (tests: every probe refuses it)");
   r->Add("--version", &o->version, "firmware semantic version MAJOR.MINOR.PATCH");
   r->Add("--hw", &o->hw, "hardware compatibility id (e.g. 0x0001)");
-  r->Add("--counter", &o->counter, "security counter (anti-rollback); raise it to retire older images");
+  r->Add("--counter", &o->counter,
+         "security counter (anti-rollback); raise it to retire older images");
   r->Add("--in", &o->in, "payload file (the firmware itself)");
   r->Add("--pubkey", &o->pubkey, "signing.pub a probe trusts (--verify)");
   r->Add("--min-counter", &o->min_counter, "the probe's anti-rollback floor (--verify)");
-  r->Add("--max-size", &o->max_size, "the probe's slot capacity in bytes (--verify; default: no limit)");
+  r->Add("--max-size", &o->max_size,
+         "the probe's slot capacity in bytes (--verify; default: no limit)");
   r->Flag("--force", &o->force, "overwrite existing key files (--keygen)");
   r->Add("image", &o->image, "image to verify (--verify)");
 }
@@ -103,7 +105,8 @@ int Verify(const FwpackOptions& o) {
     std::printf("version    %s\n", h.version.ToString().c_str());
     std::printf("hardware   %s\n", hwbuf);
     std::printf("counter    %u\n", h.security_counter);
-    std::printf("payload    %llu bytes (%s), SHA-256 %s\n", static_cast<unsigned long long>(h.payload_size), Mib(h.payload_size).c_str(),
+    std::printf("payload    %llu bytes (%s), SHA-256 %s\n",
+                static_cast<unsigned long long>(h.payload_size), Mib(h.payload_size).c_str(),
                 Hex(h.payload_sha256).c_str());
     std::printf("key id     %s (trusted: %s)\n", Hex(h.key_id).c_str(), Hex(KeyIdOf(pk)).c_str());
   }
@@ -111,18 +114,23 @@ int Verify(const FwpackOptions& o) {
     std::printf("verdict    REFUSED: %s\n", v.message.c_str());
     return 1;
   }
-  std::printf("verdict    OK: signature, hash and size verify%s%s\n", policy.check_hw_id ? ", hardware id matches" : "",
+  std::printf("verdict    OK: signature, hash and size verify%s%s\n",
+              policy.check_hw_id ? ", hardware id matches" : "",
               o.min_counter > 0 ? ", counter ≥ floor" : "");
   return 0;
 }
 
 // Packing: the payload with its header, signed with --key (or --unsigned), written to --out.
 int Pack(const FwpackOptions& o) {
-  if (o.in.empty() || o.out.empty() || o.version.empty() || o.hw.empty() || (o.key.empty() && !o.is_unsigned)) {
-    return Fail("packing needs --key KEY (or --unsigned) --version V --hw ID --counter N --in PAYLOAD --out IMAGE");
+  if (o.in.empty() || o.out.empty() || o.version.empty() || o.hw.empty() ||
+      (o.key.empty() && !o.is_unsigned)) {
+    return Fail(
+        "packing needs --key KEY (or --unsigned) --version V --hw ID --counter N --in PAYLOAD "
+        "--out IMAGE");
   }
   ImageHeader h;
-  if (!SemVer::Parse(o.version, &h.version)) return Fail("--version must be MAJOR.MINOR.PATCH, got " + o.version);
+  if (!SemVer::Parse(o.version, &h.version))
+    return Fail("--version must be MAJOR.MINOR.PATCH, got " + o.version);
   h.hw_id = static_cast<uint32_t>(std::stoul(o.hw, nullptr, 0));
   h.security_counter = o.counter;
   std::vector<uint8_t> payload;
@@ -135,8 +143,9 @@ int Pack(const FwpackOptions& o) {
   if (!WriteFile(o.out, img)) return Fail("cannot write " + o.out);
   ImageHeader written;
   (void)ParseHeader(img, &written);
-  std::printf("wrote %s: firmware %s for hardware 0x%04x, counter %u, %s payload, %s, key id %s\n", o.out.c_str(), h.version.ToString().c_str(),
-              h.hw_id, h.security_counter, Mib(payload.size()).c_str(), o.is_unsigned ? "UNSIGNED" : "signed (Ed25519ph)",
+  std::printf("wrote %s: firmware %s for hardware 0x%04x, counter %u, %s payload, %s, key id %s\n",
+              o.out.c_str(), h.version.ToString().c_str(), h.hw_id, h.security_counter,
+              Mib(payload.size()).c_str(), o.is_unsigned ? "UNSIGNED" : "signed (Ed25519ph)",
               Hex(written.key_id).c_str());
   return 0;
 }
@@ -148,10 +157,12 @@ int main(int argc, char** argv) {
   OptionRegistry options(
       "d3d-fwpack: make signing keys, sign firmware images, verify them as a probe would\n"
       "Modes:\n"
-      "  d3d-fwpack --keygen --out DIR                 writes DIR/signing.key (0600) and DIR/signing.pub\n"
+      "  d3d-fwpack --keygen --out DIR                 writes DIR/signing.key (0600) and "
+      "DIR/signing.pub\n"
       "  d3d-fwpack --key KEY --version V --hw ID --counter N --in PAYLOAD --out IMAGE\n"
       "  d3d-fwpack --verify --pubkey PUB [--hw ID] [--min-counter N] [--max-size BYTES] IMAGE\n"
-      "--verify exits 0 when a probe would accept the image, 1 naming the reason when it would refuse it,\n"
+      "--verify exits 0 when a probe would accept the image, 1 naming the reason when it would "
+      "refuse it,\n"
       "2 on usage or I/O errors.");
   FwpackOptions o;
   DeclareOptions(&options, &o);

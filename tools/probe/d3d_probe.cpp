@@ -45,26 +45,39 @@ struct ProbeToolOptions {
 };
 
 void DeclareOptions(OptionRegistry* r, ProbeToolOptions* o) {
-  r->Add("--sim", &o->sim, "virtual probe scene: typodont or a mesh file (PLY/STL/OBJ, mm); implies --camera sim");
-  r->Add("--camera", &o->camera, "capture backend: auto (first real camera), libcamera, sim (default: sim with --sim, else auto)");
-  r->Add("--trajectory", &o->capture.trajectory, "sim scan path: a style (" + ScanStyleList("|") + "), quadrant or FILE.tum");
+  r->Add("--sim", &o->sim,
+         "virtual probe scene: typodont or a mesh file (PLY/STL/OBJ, mm); implies --camera sim");
+  r->Add("--camera", &o->camera,
+         "capture backend: auto (first real camera), libcamera, sim (default: sim with --sim, else "
+         "auto)");
+  r->Add("--trajectory", &o->capture.trajectory,
+         "sim scan path: a style (" + ScanStyleList("|") + "), quadrant or FILE.tum");
   r->Add("--rate", &o->app.rate_hz, "bursts per second");
-  r->Add("--frames", &o->frames, "publish this many bursts, wait for readers' acks, exit (0 = until SIGINT)");
+  r->Add("--frames", &o->frames,
+         "publish this many bursts, wait for readers' acks, exit (0 = until SIGINT)");
   r->Add("--seed", &o->capture.seed, "sim: scan path and sensor noise seed");
   r->Add("--serial", &o->serial, "probe serial number (≤ 32 characters)");
   r->Add("--domain", &o->domain, "DDS domain id");
   r->Add("--size", &o->size, "sim camera: 640x480 or 1280x1024");
-  r->Add("--sim-cycle", &o->capture.sim_cycle, "sim: distinct bursts rendered at start-up, then repeated");
-  r->Add("--fault-rate", &o->capture.sim_fault_rate, "sim: share of frames lost, torn or out of order (tests the frame sync)");
+  r->Add("--sim-cycle", &o->capture.sim_cycle,
+         "sim: distinct bursts rendered at start-up, then repeated");
+  r->Add("--fault-rate", &o->capture.sim_fault_rate,
+         "sim: share of frames lost, torn or out of order (tests the frame sync)");
   r->Add("--render-threads", &o->capture.render_threads, "sim: render threads (0 = all cores)");
   r->Flag("--idle", &o->idle, "start idle; stream on ProbeCommand START_STREAMING");
-  r->Add("--wait-subscribers", &o->wait_subscribers, "before streaming, wait for this many PhaseBurst readers");
+  r->Add("--wait-subscribers", &o->wait_subscribers,
+         "before streaming, wait for this many PhaseBurst readers");
   r->Add("--wait-timeout", &o->wait_timeout_s, "seconds to wait for them");
-  r->Add("--manifest", &o->manifest, "write 'burst_seq crc32(frame 0) ... crc32(frame N-1)' per published burst (tests)");
-  r->Add("--update-socket", &o->update.socket_path, "serve firmware updates on this Unix socket (sim link)");
-  r->Add("--flash", &o->update.setup.flash_dir, "directory of the probe's flash (flash.bin, A/B slots)");
-  r->Add("--pubkey", &o->update.setup.pubkey_path, "the firmware signing public key the probe trusts");
-  r->Add("--provision", &o->update.setup.provision_path, "factory image written to slot A when the flash is blank");
+  r->Add("--manifest", &o->manifest,
+         "write 'burst_seq crc32(frame 0) ... crc32(frame N-1)' per published burst (tests)");
+  r->Add("--update-socket", &o->update.socket_path,
+         "serve firmware updates on this Unix socket (sim link)");
+  r->Add("--flash", &o->update.setup.flash_dir,
+         "directory of the probe's flash (flash.bin, A/B slots)");
+  r->Add("--pubkey", &o->update.setup.pubkey_path,
+         "the firmware signing public key the probe trusts");
+  r->Add("--provision", &o->update.setup.provision_path,
+         "factory image written to slot A when the flash is blank");
   r->Add("--hw", &o->hw, "this probe's hardware compatibility id");
   r->Add("--slot-mib", &o->slot_mib, "capacity of each A/B slot, MiB");
   r->Add("--erase-kib", &o->erase_kib, "flash erase block, KiB");
@@ -106,19 +119,25 @@ int ResolveOptions(ProbeToolOptions* o) {
 }
 
 // Opens the capture backend `camera` (the sim pre-renders its cycle here); 0, or the exit code.
-int OpenCamera(const std::string& camera, const CaptureOptions& capture, std::unique_ptr<CaptureBackend>* backend) {
+int OpenCamera(const std::string& camera, const CaptureOptions& capture,
+               std::unique_ptr<CaptureBackend>* backend) {
   CaptureBackendRegistry registry;
   RegisterBuiltinCaptureBackends(&registry);
   const auto t0 = std::chrono::steady_clock::now();
-  if (camera == "sim") std::fprintf(stderr, "d3d-probe: sim: building the scene and pre-rendering up to %d bursts...\n", capture.sim_cycle);
+  if (camera == "sim")
+    std::fprintf(stderr,
+                 "d3d-probe: sim: building the scene and pre-rendering up to %d bursts...\n",
+                 capture.sim_cycle);
   const Status opened = registry.CreateAndOpen(camera, capture, backend);
   if (!opened.ok()) {
-    std::fprintf(stderr, "d3d-probe: cannot open camera '%s': %s\n", camera.c_str(), opened.ToString().c_str());
+    std::fprintf(stderr, "d3d-probe: cannot open camera '%s': %s\n", camera.c_str(),
+                 opened.ToString().c_str());
     return opened.code() == StatusCode::kInvalidArgument ? 2 : 3;
   }
   const CaptureInfo& info = (*backend)->info();
-  std::fprintf(stderr, "d3d-probe: camera '%s' (%s, %dx%d) ready in %.1f s\n", info.backend.c_str(), info.sensor_model.c_str(), info.width,
-               info.height, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+  std::fprintf(stderr, "d3d-probe: camera '%s' (%s, %dx%d) ready in %.1f s\n", info.backend.c_str(),
+               info.sensor_model.c_str(), info.width, info.height,
+               std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
   return 0;
 }
 
@@ -132,7 +151,9 @@ bool OpenManifest(const std::string& path, ProbeAppOptions* app, std::FILE** fil
   }
   app->on_published = [manifest = *file](uint64_t seq, const std::vector<CapturedFrame>& frames) {
     std::fprintf(manifest, "%llu", static_cast<unsigned long long>(seq));
-    for (const auto& f : frames) std::fprintf(manifest, " %08lx", crc32(0L, f.pixels->data(), static_cast<uInt>(f.pixels->size())));
+    for (const auto& f : frames)
+      std::fprintf(manifest, " %08lx",
+                   crc32(0L, f.pixels->data(), static_cast<uInt>(f.pixels->size())));
     std::fprintf(manifest, "\n");
   };
   return true;
@@ -140,11 +161,14 @@ bool OpenManifest(const std::string& path, ProbeAppOptions* app, std::FILE** fil
 
 void PrintPublished(const ProbeApp& app, double secs) {
   const uint64_t published = app.counters().bursts_published.load();
-  std::printf("d3d-probe: published %llu bursts in %.2f s (%.2f/s); dropped by frame sync %llu, publish failures %llu, overruns %llu\n",
-              static_cast<unsigned long long>(published), secs, secs > 0 ? static_cast<double>(published) / secs : 0.0,
-              static_cast<unsigned long long>(app.sync_counters().dropped_total()),
-              static_cast<unsigned long long>(app.counters().publish_failures.load()),
-              static_cast<unsigned long long>(app.counters().capture_overruns.load()));
+  std::printf(
+      "d3d-probe: published %llu bursts in %.2f s (%.2f/s); dropped by frame sync %llu, publish "
+      "failures %llu, overruns %llu\n",
+      static_cast<unsigned long long>(published), secs,
+      secs > 0 ? static_cast<double>(published) / secs : 0.0,
+      static_cast<unsigned long long>(app.sync_counters().dropped_total()),
+      static_cast<unsigned long long>(app.counters().publish_failures.load()),
+      static_cast<unsigned long long>(app.counters().capture_overruns.load()));
 }
 
 // Opens the camera and DDS, streams until --frames or a signal (serving updates if asked); the exit
@@ -153,7 +177,8 @@ int RunProbe(ProbeToolOptions* o) {
   std::unique_ptr<CaptureBackend> backend;
   if (const int code = OpenCamera(o->camera, o->capture, &backend); code != 0) return code;
   proto::DdsParticipant participant;
-  if (const Status s = tools::CreateToolParticipant(o->domain, &participant, "d3d-probe"); !s.ok()) {
+  if (const Status s = tools::CreateToolParticipant(o->domain, &participant, "d3d-probe");
+      !s.ok()) {
     std::fprintf(stderr, "d3d-probe: DDS: %s\n", s.ToString().c_str());
     return 3;
   }
@@ -161,7 +186,8 @@ int RunProbe(ProbeToolOptions* o) {
   if (!o->manifest.empty() && !OpenManifest(o->manifest, &o->app, &manifest_file)) return 2;
   o->app.wait_readers = o->wait_subscribers;
   o->app.wait_readers_timeout_ns = static_cast<int64_t>(o->wait_timeout_s * 1e9);
-  ProbeApp app(o->app, std::move(backend), std::make_unique<LoggingProjectorDriver>(stderr), &participant);
+  ProbeApp app(o->app, std::move(backend), std::make_unique<LoggingProjectorDriver>(stderr),
+               &participant);
   g_app = &app;
   if (g_stop) app.RequestStop();
   if (const Status s = app.Start(); !s.ok()) {
@@ -176,7 +202,8 @@ int RunProbe(ProbeToolOptions* o) {
       std::fprintf(stderr, "d3d-probe: firmware update agent: %s\n", s.ToString().c_str());
       return 3;
     }
-    std::fprintf(stderr, "d3d-probe: firmware: %s; updates on %s\n", updates->boot_log().c_str(), o->update.socket_path.c_str());
+    std::fprintf(stderr, "d3d-probe: firmware: %s; updates on %s\n", updates->boot_log().c_str(),
+                 o->update.socket_path.c_str());
   }
   const auto t1 = std::chrono::steady_clock::now();
   const Status s = app.Run();
@@ -197,7 +224,8 @@ int RunProbe(ProbeToolOptions* o) {
 int main(int argc, char** argv) {
   OptionRegistry options(
       "d3d-probe: the probe's acquisition process (capture, frame sync, DDS publishing)\n"
-      "Firmware update agent (d3d-flash --device sim:SOCKET): --update-socket, --flash, --pubkey, --provision, --hw, --slot-mib, "
+      "Firmware update agent (d3d-flash --device sim:SOCKET): --update-socket, --flash, --pubkey, "
+      "--provision, --hw, --slot-mib, "
       "--erase-kib");
   ProbeToolOptions o;
   DeclareOptions(&options, &o);

@@ -29,8 +29,11 @@ void DeclareOptions(OptionRegistry* options, ToolOptions* o) {
   options->Add("--margin", &ko.bound_margin_px, "Gray-code bound margin m, projector px");
   options->Add("--tol", &ko.agree_tol_px, "agreement tolerance, projector px");
   options->Add("--min-region", &ko.min_region_pixels, "UnwrapOptions::min_region_pixels (kamino)");
-  options->Add("--edge-ratio", &ko.modulation_edge_ratio, "QualityOptions::modulation_edge_ratio (0 = off)");
-  options->Add("--depth-fraction", &ko.depth_fraction, "UnwrapOptions::depth_fraction (kamino; lower it to see what rejected regions would give)");
+  options->Add("--edge-ratio", &ko.modulation_edge_ratio,
+               "QualityOptions::modulation_edge_ratio (0 = off)");
+  options->Add(
+      "--depth-fraction", &ko.depth_fraction,
+      "UnwrapOptions::depth_fraction (kamino; lower it to see what rejected regions would give)");
   options->Flag("!--no-cross-check", &ko.cross_check, "skip the 100-px set comparison");
   options->Add("--monotonic-x", &ko.monotonic_x, "UnwrapOptions::monotonic_x (kamino)");
 }
@@ -43,25 +46,45 @@ bool RunKaminoReport(const KaminoOptions& ko, const std::string& out) {
     std::fprintf(stderr, "kamino410: %s\n", s.ToString().c_str());
     return false;
   }
-  std::printf("kamino410/object2 (%d x %d), %s, gamma %.2f, margin %.1f px, tol %.1f px  [%.2f s]\n", kr.width, kr.height,
-              PhaseAlgorithmName(ko.algorithm), ko.gamma, ko.bound_margin_px, ko.agree_tol_px, kr.seconds);
-  std::printf("  frame order (pat01, pat00, pat02): mean |phi - author's atan2| = %.4f rad (naive pat00,01,02: %.3f)\n", kr.order_check_rad,
-              kr.order_check_swapped_rad);
-  std::printf("  Gray x cell grows with camera x at %.1f %% of cell changes\n", 100.0 * kr.monotonic_corr);
-  std::printf("  valid: phase %lld, Gray %lld, unwrapped %lld (regions %d, anchored %d, rejected %d, small %d)\n",
-              static_cast<long long>(kr.phase_valid), static_cast<long long>(kr.gray_valid), static_cast<long long>(kr.unwrapped_valid),
-              kr.stats.regions_total, kr.regions_anchored, kr.stats.regions_rejected, kr.stats.regions_small);
-  std::printf("  dropped: discontinuity %lld, conflict %lld, small %lld, rejected %lld\n", static_cast<long long>(kr.stats.pixels_discontinuity),
-              static_cast<long long>(kr.stats.pixels_conflict), static_cast<long long>(kr.stats.pixels_small),
+  std::printf(
+      "kamino410/object2 (%d x %d), %s, gamma %.2f, margin %.1f px, tol %.1f px  [%.2f s]\n",
+      kr.width, kr.height, PhaseAlgorithmName(ko.algorithm), ko.gamma, ko.bound_margin_px,
+      ko.agree_tol_px, kr.seconds);
+  std::printf(
+      "  frame order (pat01, pat00, pat02): mean |phi - author's atan2| = %.4f rad (naive "
+      "pat00,01,02: %.3f)\n",
+      kr.order_check_rad, kr.order_check_swapped_rad);
+  std::printf("  Gray x cell grows with camera x at %.1f %% of cell changes\n",
+              100.0 * kr.monotonic_corr);
+  std::printf(
+      "  valid: phase %lld, Gray %lld, unwrapped %lld (regions %d, anchored %d, rejected %d, small "
+      "%d)\n",
+      static_cast<long long>(kr.phase_valid), static_cast<long long>(kr.gray_valid),
+      static_cast<long long>(kr.unwrapped_valid), kr.stats.regions_total, kr.regions_anchored,
+      kr.stats.regions_rejected, kr.stats.regions_small);
+  std::printf("  dropped: discontinuity %lld, conflict %lld, small %lld, rejected %lld\n",
+              static_cast<long long>(kr.stats.pixels_discontinuity),
+              static_cast<long long>(kr.stats.pixels_conflict),
+              static_cast<long long>(kr.stats.pixels_small),
               static_cast<long long>(kr.stats.pixels_rejected));
-  std::printf("  AGREEMENT with Gray code: %.4f %% (%lld of %lld both valid), median px outside cell %.2f\n", 100.0 * kr.agree_share,
-              static_cast<long long>(kr.agree), static_cast<long long>(kr.both_valid), kr.median_abs_err_px);
-  std::printf("  Gray decoding vs vizualized.png: %.4f %% of %lld (viz valid %lld)\n", 100.0 * kr.gray_viz_share,
-              static_cast<long long>(kr.gray_viz_both), static_cast<long long>(kr.viz_valid));
-  std::printf("  our column vs vizualized.png x: median |c - x| %.3f px (signed %+.3f), within 2 px %.4f %% of %lld\n", kr.c_viz_median_px,
-              kr.c_viz_signed_median_px, 100.0 * kr.c_viz_within2_share, static_cast<long long>(kr.c_viz_both));
-  std::printf("  column from the 66.67-px set vs the 100-px set: median %.3f px (signed %+.3f), RMS %.3f px over %lld px\n", kr.cross_median_px,
-              kr.cross_signed_median_px, kr.cross_rms_px, static_cast<long long>(kr.cross_count));
+  std::printf(
+      "  AGREEMENT with Gray code: %.4f %% (%lld of %lld both valid), median px outside cell "
+      "%.2f\n",
+      100.0 * kr.agree_share, static_cast<long long>(kr.agree),
+      static_cast<long long>(kr.both_valid), kr.median_abs_err_px);
+  std::printf("  Gray decoding vs vizualized.png: %.4f %% of %lld (viz valid %lld)\n",
+              100.0 * kr.gray_viz_share, static_cast<long long>(kr.gray_viz_both),
+              static_cast<long long>(kr.viz_valid));
+  std::printf(
+      "  our column vs vizualized.png x: median |c - x| %.3f px (signed %+.3f), within 2 px %.4f "
+      "%% of %lld\n",
+      kr.c_viz_median_px, kr.c_viz_signed_median_px, 100.0 * kr.c_viz_within2_share,
+      static_cast<long long>(kr.c_viz_both));
+  std::printf(
+      "  column from the 66.67-px set vs the 100-px set: median %.3f px (signed %+.3f), RMS %.3f "
+      "px over %lld px\n",
+      kr.cross_median_px, kr.cross_signed_median_px, kr.cross_rms_px,
+      static_cast<long long>(kr.cross_count));
   cv::imwrite(out + "/kamino_gray_disagreement.png", kr.disagreement);
   cv::imwrite(out + "/kamino_viz_disagreement.png", kr.viz_diff);
   cv::imwrite(out + "/kamino_unwrapped_phase.png", PhaseImage(kr.Phi));
@@ -79,10 +102,12 @@ bool RunRelativeReport(const std::string& data, const char* name, const std::str
     return false;
   }
   std::printf(
-      "kylemcdonald/%s (%d x %d) [%.2f s]: phase valid %lld, unwrapped %lld (%.1f %%, %d of %d regions), "
+      "kylemcdonald/%s (%d x %d) [%.2f s]: phase valid %lld, unwrapped %lld (%.1f %%, %d of %d "
+      "regions), "
       "continuity %.4f %% of %lld pairs\n",
-      name, rr.width, rr.height, rr.seconds, static_cast<long long>(rr.phase_valid), static_cast<long long>(rr.unwrapped_valid), 100.0 * rr.coverage,
-      rr.regions_anchored, rr.regions_total, 100.0 * rr.continuity_share, static_cast<long long>(rr.pairs));
+      name, rr.width, rr.height, rr.seconds, static_cast<long long>(rr.phase_valid),
+      static_cast<long long>(rr.unwrapped_valid), 100.0 * rr.coverage, rr.regions_anchored,
+      rr.regions_total, 100.0 * rr.continuity_share, static_cast<long long>(rr.pairs));
   cv::imwrite(out + "/" + name + "_unwrapped_phase.png", PhaseImage(rr.Phi));
   return true;
 }
@@ -91,9 +116,12 @@ bool RunRelativeReport(const std::string& data, const char* name, const std::str
 
 int main(int argc, char** argv) {
   OptionRegistry options(
-      "d3d-real-fringe: phase + unwrapping on real fringe images (../shared/data/fringe). On kamino410/object2 "
-      "the 3-step 66.67-px set is unwrapped with the Gray code as phase bounds and compared with the decoded "
-      "Gray cells and the author's vizualized.png; on kylemcdonald/{zhang,kyle} a relative unwrap is checked "
+      "d3d-real-fringe: phase + unwrapping on real fringe images (../shared/data/fringe). On "
+      "kamino410/object2 "
+      "the 3-step 66.67-px set is unwrapped with the Gray code as phase bounds and compared with "
+      "the decoded "
+      "Gray cells and the author's vizualized.png; on kylemcdonald/{zhang,kyle} a relative unwrap "
+      "is checked "
       "for continuity. Writes PNGs to --out.");
   ToolOptions o;
   DeclareOptions(&options, &o);

@@ -29,7 +29,8 @@ double PhaseRmsRad(const PhaseMaps& phase, const FrameTruth& truth, const Fringe
   for (int r = 0; r < phase.phi.rows; ++r)
     for (int c = 0; c < phase.phi.cols; ++c) {
       if (!phase.valid.at<uint8_t>(r, c) || truth.visibility.at<uint8_t>(r, c) != 2) continue;
-      const double Phi = spec.AbsolutePhase(truth.projector_uv.at<cv::Vec2f>(r, c)[spec.axis == 'y' ? 1 : 0]);
+      const double Phi =
+          spec.AbsolutePhase(truth.projector_uv.at<cv::Vec2f>(r, c)[spec.axis == 'y' ? 1 : 0]);
       if (!std::isfinite(Phi)) continue;  // a binned block across a depth step
       const double e = std::remainder(phase.phi.at<float>(r, c) - Phi, 2 * M_PI);
       sum2 += e * e;
@@ -38,7 +39,9 @@ double PhaseRmsRad(const PhaseMaps& phase, const FrameTruth& truth, const Fringe
   return n ? std::sqrt(sum2 / static_cast<double>(n)) : std::nan("");
 }
 
-cv::Mat Colourise(const cv::Mat& m, double lo, double hi) { return FalseColour(m, lo, hi, cv::COLORMAP_VIRIDIS); }
+cv::Mat Colourise(const cv::Mat& m, double lo, double hi) {
+  return FalseColour(m, lo, hi, cv::COLORMAP_VIRIDIS);
+}
 
 // Why each pixel has no point, as colours (BGR): the first stage that dropped it.
 //   black    no wrapped phase (dark, saturated, too little modulation B)
@@ -54,20 +57,26 @@ cv::Mat Colourise(const cv::Mat& m, double lo, double hi) { return FalseColour(m
 //   white    a point
 //   sky blue a point in the albedo-edge cut, its phase filled from the anchored pixels beside it
 cv::Mat DropReasonImage(const ReconstructedView& v) {
-  const cv::Vec3b kBlack{0, 0, 0}, kGrey{128, 128, 128}, kBlue{255, 0, 0}, kOrange{0, 140, 255}, kCyan{255, 255, 0}, kYellow{0, 255, 255},
-      kMagenta{255, 0, 255}, kPurple{128, 0, 128}, kPink{203, 192, 255}, kRed{0, 0, 255}, kWhite{255, 255, 255}, kSky{255, 191, 0};
+  const cv::Vec3b kBlack{0, 0, 0}, kGrey{128, 128, 128}, kBlue{255, 0, 0}, kOrange{0, 140, 255},
+      kCyan{255, 255, 0}, kYellow{0, 255, 255}, kMagenta{255, 0, 255}, kPurple{128, 0, 128},
+      kPink{203, 192, 255}, kRed{0, 0, 255}, kWhite{255, 255, 255}, kSky{255, 191, 0};
   cv::Mat out(v.points_in_cam.size(), CV_8UC3);
   for (int r = 0; r < out.rows; ++r)
     for (int c = 0; c < out.cols; ++c) {
       cv::Vec3b colour = kRed;
       const int rid = v.unwrap.region.at<int32_t>(r, c);
       if (std::isfinite(v.points_in_cam.at<cv::Vec3f>(r, c)[2])) {
-        colour = v.quality_reason.at<uint8_t>(r, c) == static_cast<uint8_t>(QualityReason::kModulationEdge) ? kSky : kWhite;
+        colour = v.quality_reason.at<uint8_t>(r, c) ==
+                         static_cast<uint8_t>(QualityReason::kModulationEdge)
+                     ? kSky
+                     : kWhite;
       } else if (!v.phase.valid.at<uint8_t>(r, c)) {
         colour = kBlack;
       } else if (!(v.quality.at<float>(r, c) > 0)) {
         const auto reason = static_cast<QualityReason>(v.quality_reason.at<uint8_t>(r, c));
-        colour = reason == QualityReason::kModulationEdge ? kBlue : reason == QualityReason::kPhaseNoise ? kOrange : kGrey;
+        colour = reason == QualityReason::kModulationEdge ? kBlue
+                 : reason == QualityReason::kPhaseNoise   ? kOrange
+                                                          : kGrey;
       } else if (rid < 0 || rid >= static_cast<int>(v.unwrap.regions.size())) {
         colour = kCyan;
       } else if (v.unwrap.order.at<int32_t>(r, c) < 0) {
@@ -82,7 +91,8 @@ cv::Mat DropReasonImage(const ReconstructedView& v) {
           case RegionAnchor::kInconsistent:
             colour = kPurple;
             break;
-          // Anchored: neck pruning, or outside the measurement volume (the unwrapper does not say which).
+          // Anchored: neck pruning, or outside the measurement volume (the unwrapper does not say
+          // which).
           default:
             colour = kPink;
             break;
@@ -104,11 +114,16 @@ Status WriteMaps(const std::string& dir, const ReconstructedView& v, const cv::M
   cv::minMaxIdx(v.unwrap.order, nullptr, &kmax);
   const bool ok =
       cv::imwrite(dir + "/phase.png", Colourise(v.phase.phi, 0, 2 * M_PI)) &&
-      cv::imwrite(dir + "/modulation.png", Colourise(v.phase.modulation, 0, 120)) && cv::imwrite(dir + "/quality.png", Colourise(v.quality, 0, 1)) &&
-      cv::imwrite(dir + "/order.png", Colourise(order_f, kmin, std::max(kmax, 1.0))) && cv::imwrite(dir + "/marker.png", v.phase.marker) &&
-      cv::imwrite(dir + "/texture.png", v.texture) && cv::imwrite(dir + "/dropped.png", DropReasonImage(v)) &&
-      (v.phase.kappa.empty() || cv::imwrite(dir + "/kappa.png", Colourise(v.phase.kappa, 0, 1.5))) &&
-      (error_um.empty() || (cv::imwrite(dir + "/error_um.png", ErrorHeatMap(error_um, 25.0)) && cv::imwrite(dir + "/error_um.tiff", error_um)));
+      cv::imwrite(dir + "/modulation.png", Colourise(v.phase.modulation, 0, 120)) &&
+      cv::imwrite(dir + "/quality.png", Colourise(v.quality, 0, 1)) &&
+      cv::imwrite(dir + "/order.png", Colourise(order_f, kmin, std::max(kmax, 1.0))) &&
+      cv::imwrite(dir + "/marker.png", v.phase.marker) &&
+      cv::imwrite(dir + "/texture.png", v.texture) &&
+      cv::imwrite(dir + "/dropped.png", DropReasonImage(v)) &&
+      (v.phase.kappa.empty() ||
+       cv::imwrite(dir + "/kappa.png", Colourise(v.phase.kappa, 0, 1.5))) &&
+      (error_um.empty() || (cv::imwrite(dir + "/error_um.png", ErrorHeatMap(error_um, 25.0)) &&
+                            cv::imwrite(dir + "/error_um.tiff", error_um)));
   return ok ? Status::Ok() : IoError("cannot write maps in '" + dir + "'");
 }
 
@@ -134,23 +149,31 @@ struct ToolOptions {
 void DeclareOptions(OptionRegistry* options, ToolOptions* o) {
   options->Add("--images", &o->images, "burst folder (frame_K.png + burst.json)");
   options->Add("--sim", &o->sim_model, "render with the virtual probe: 'typodont' or a mesh file");
-  options->Add("--index", &o->index, "--sim: burst index on the full-arch trajectory (default: the first pose)");
+  options->Add("--index", &o->index,
+               "--sim: burst index on the full-arch trajectory (default: the first pose)");
   options->Add("--pose", &o->pose_text,
-               "--sim: render one burst with the probe held still at world_from_probe = 'tx ty tz qx qy qz qw'\n"
+               "--sim: render one burst with the probe held still at world_from_probe = 'tx ty tz "
+               "qx qy qz qw'\n"
                "(mm, unit quaternion; the TUM order without the time)");
   options->Add("--camera", &o->camera, "--sim: camera size, 640x480 (default) or 1280x1024");
-  options->Add("--count", &o->count, "--sim: evaluate N bursts spread evenly over the trajectory (default 1)");
+  options->Add("--count", &o->count,
+               "--sim: evaluate N bursts spread evenly over the trajectory (default 1)");
   options->Add("--seed", &o->seed, "--sim: seed (default 1)");
-  options->Add("--calibration", &o->calibration_path, "calibration.json (default: found beside the images)");
-  options->Add("--out", &o->out_ply, "write the cloud as binary PLY (x y z nx ny nz intensity quality)");
+  options->Add("--calibration", &o->calibration_path,
+               "calibration.json (default: found beside the images)");
+  options->Add("--out", &o->out_ply,
+               "write the cloud as binary PLY (x y z nx ny nz intensity quality)");
   options->Add("--maps", &o->maps_dir,
-               "write PNG maps: phase, modulation, quality, order, marker, texture, dropped (why a pixel has no point), kappa "
+               "write PNG maps: phase, modulation, quality, order, marker, texture, dropped (why a "
+               "pixel has no point), kappa "
                "(harmonic attenuation), error (PNG, and TIFF in µm)");
   options->Flag("--motion-compensation", &o->motion_compensation,
-                "compensate the hand's motion within the burst (PhaseOptions::motion_compensation), as d3d-fuse and\n"
+                "compensate the hand's motion within the burst "
+                "(PhaseOptions::motion_compensation), as d3d-fuse and\n"
                 "d3d-scan reconstruct hand-held bursts");
   options->Add("--bin", &o->bin,
-               "average the frames over NxN pixel blocks and reconstruct with the binned calibration, as d3d-scan\n"
+               "average the frames over NxN pixel blocks and reconstruct with the binned "
+               "calibration, as d3d-scan\n"
                "does (default 1; the truth is binned alike: BinnedTruth)");
   options->Flag("--json", &o->json, "print one JSON object as the last line");
 }
@@ -172,7 +195,8 @@ int LoadBurstFolder(ToolOptions* o, Inputs* in) {
     return 1;
   }
   if (o->calibration_path.empty()) {
-    for (fs::path d = fs::absolute(o->images); !d.empty() && d != d.root_path(); d = d.parent_path()) {
+    for (fs::path d = fs::absolute(o->images); !d.empty() && d != d.root_path();
+         d = d.parent_path()) {
       if (fs::exists(d / "calibration.json")) {
         o->calibration_path = (d / "calibration.json").string();
         break;
@@ -184,7 +208,8 @@ int LoadBurstFolder(ToolOptions* o, Inputs* in) {
     return 1;
   }
   const fs::path scene_path = fs::path(o->calibration_path).parent_path() / "scene.ply";
-  in->have_truth = b.reference_truth.has_maps() && fs::exists(scene_path) && LoadMesh(scene_path.string(), &in->scene).ok();
+  in->have_truth = b.reference_truth.has_maps() && fs::exists(scene_path) &&
+                   LoadMesh(scene_path.string(), &in->scene).ok();
   in->bursts.push_back(std::move(b));
   return 0;
 }
@@ -197,7 +222,8 @@ int RenderSimBursts(ToolOptions* o, Inputs* in) {
   so.model = o->sim_model;
   so.seed = o->seed;
   if (std::sscanf(o->camera.c_str(), "%dx%d", &so.camera_width, &so.camera_height) != 2) {
-    std::fprintf(stderr, "d3d-recon: --camera must look like 640x480, got '%s'\n", o->camera.c_str());
+    std::fprintf(stderr, "d3d-recon: --camera must look like 640x480, got '%s'\n",
+                 o->camera.c_str());
     return 2;
   }
   std::unique_ptr<SimSession> session;
@@ -211,17 +237,24 @@ int RenderSimBursts(ToolOptions* o, Inputs* in) {
   const int64_t n = session->NumBursts();
   if (!o->pose_text.empty()) {
     double v[7];
-    if (std::sscanf(o->pose_text.c_str(), "%lf %lf %lf %lf %lf %lf %lf", &v[0], &v[1], &v[2], &v[3], &v[4], &v[5], &v[6]) != 7 ||
+    if (std::sscanf(o->pose_text.c_str(), "%lf %lf %lf %lf %lf %lf %lf", &v[0], &v[1], &v[2], &v[3],
+                    &v[4], &v[5], &v[6]) != 7 ||
         std::abs(Eigen::Vector4d(v[3], v[4], v[5], v[6]).norm() - 1.0) > 1e-3) {
-      std::fprintf(stderr, "d3d-recon: --pose must be 'tx ty tz qx qy qz qw' with a unit quaternion, got '%s'\n", o->pose_text.c_str());
+      std::fprintf(
+          stderr,
+          "d3d-recon: --pose must be 'tx ty tz qx qy qz qw' with a unit quaternion, got '%s'\n",
+          o->pose_text.c_str());
       return 2;
     }
-    const Rigid3d world_from_probe = RigidFromQuaternion(Eigen::Quaterniond(v[6], v[3], v[4], v[5]).normalized(), Eigen::Vector3d(v[0], v[1], v[2]));
-    in->bursts.push_back(session->probe().RenderBurst([world_from_probe](int64_t) { return world_from_probe; }, 0, 0, o->seed, true));
+    const Rigid3d world_from_probe = RigidFromQuaternion(
+        Eigen::Quaterniond(v[6], v[3], v[4], v[5]).normalized(), Eigen::Vector3d(v[0], v[1], v[2]));
+    in->bursts.push_back(session->probe().RenderBurst(
+        [world_from_probe](int64_t) { return world_from_probe; }, 0, 0, o->seed, true));
     o->count = 0;
   }
   for (int64_t i = 0; i < o->count; ++i) {
-    const int64_t k = o->index >= 0 ? o->index + i : (o->count == 1 ? 0 : i * (n - 1) / (o->count - 1));
+    const int64_t k =
+        o->index >= 0 ? o->index + i : (o->count == 1 ? 0 : i * (n - 1) / (o->count - 1));
     if (k >= n) break;
     in->bursts.push_back(session->RenderBurst(k, true));
   }
@@ -229,18 +262,22 @@ int RenderSimBursts(ToolOptions* o, Inputs* in) {
 }
 
 // The figures of one reconstructed view; with the truth, its accuracy (error_um: per pixel).
-Figures Evaluate(const ReconstructedView& view, const Burst& b, const Inputs& in, int bin, cv::Mat* error_um) {
+Figures Evaluate(const ReconstructedView& view, const Burst& b, const Inputs& in, int bin,
+                 cv::Mat* error_um) {
   Figures f;
   f.ms = view.ms_total;
   f.points = view.points;
   f.pixels_edge_filled = view.pixels_edge_filled;
   f.unwrap = view.unwrap.stats;
   f.largest_regions.resize(std::min<size_t>(view.unwrap.regions.size(), 6));
-  std::partial_sort_copy(view.unwrap.regions.begin(), view.unwrap.regions.end(), f.largest_regions.begin(), f.largest_regions.end(),
-                         [](const RegionInfo& a, const RegionInfo& b) { return a.pixels > b.pixels; });
+  std::partial_sort_copy(
+      view.unwrap.regions.begin(), view.unwrap.regions.end(), f.largest_regions.begin(),
+      f.largest_regions.end(),
+      [](const RegionInfo& a, const RegionInfo& b) { return a.pixels > b.pixels; });
   if (in.have_truth) {
     const FrameTruth truth = bin > 1 ? BinnedTruth(b.reference_truth, bin) : b.reference_truth;
-    f.err = EvaluateCloud(view.points_in_cam, view.unwrap.Phi, truth, in.scene, in.calib.pattern, error_um);
+    f.err = EvaluateCloud(view.points_in_cam, view.unwrap.Phi, truth, in.scene, in.calib.pattern,
+                          error_um);
     f.phase_rms_rad = PhaseRmsRad(view.phase, truth, in.calib.pattern);
   }
   return f;
@@ -249,7 +286,9 @@ Figures Evaluate(const ReconstructedView& view, const Burst& b, const Inputs& in
 // --out and --maps of the first burst. Returns 0, or 1 after printing why.
 int WriteFirstView(const ToolOptions& o, const ReconstructedView& view, const cv::Mat& error_um) {
   if (!o.out_ply.empty()) {
-    if (const Status s = SavePointCloudPly(o.out_ply, view.points_in_cam, view.normals, view.texture, view.quality); !s.ok()) {
+    if (const Status s = SavePointCloudPly(o.out_ply, view.points_in_cam, view.normals,
+                                           view.texture, view.quality);
+        !s.ok()) {
       std::fprintf(stderr, "d3d-recon: %s\n", s.ToString().c_str());
       return 1;
     }
@@ -281,13 +320,16 @@ int ReconstructAll(const ToolOptions& o, Inputs* in, std::vector<Figures>* figur
     for (int k = 0; k < in->calib.pattern.steps && k < static_cast<int>(b.frames.size()); ++k) {
       frames.push_back(b.frames[static_cast<size_t>(k)].image);
       if (o.bin > 1)
-        if (const Status s = BinFrame(b.frames[static_cast<size_t>(k)].image, o.bin, &frames.back()); !s.ok()) {
+        if (const Status s =
+                BinFrame(b.frames[static_cast<size_t>(k)].image, o.bin, &frames.back());
+            !s.ok()) {
           std::fprintf(stderr, "d3d-recon: %s\n", s.ToString().c_str());
           return 1;
         }
     }
     if (const Status s = recon.Reconstruct(frames, &view); !s.ok()) {
-      std::fprintf(stderr, "d3d-recon: burst %llu: %s\n", static_cast<unsigned long long>(b.sequence), s.ToString().c_str());
+      std::fprintf(stderr, "d3d-recon: burst %llu: %s\n",
+                   static_cast<unsigned long long>(b.sequence), s.ToString().c_str());
       return 1;
     }
     cv::Mat error_um;
@@ -296,9 +338,11 @@ int ReconstructAll(const ToolOptions& o, Inputs* in, std::vector<Figures>* figur
     if (&b == &in->bursts.front())
       if (const int code = WriteFirstView(o, view, error_um); code != 0) return code;
     if (o.count > 1) {
-      std::fprintf(stderr, "burst %6llu: %7lld points, tooth valid %5.1f %%, rms %6.1f um, p95 %6.1f um, order errors %.4f %%, %.1f ms\n",
-                   static_cast<unsigned long long>(b.sequence), static_cast<long long>(f.points), f.err.tooth_valid_pct, f.err.rms_um, f.err.p95_um,
-                   f.err.order_error_pct, f.ms);
+      std::fprintf(stderr,
+                   "burst %6llu: %7lld points, tooth valid %5.1f %%, rms %6.1f um, p95 %6.1f um, "
+                   "order errors %.4f %%, %.1f ms\n",
+                   static_cast<unsigned long long>(b.sequence), static_cast<long long>(f.points),
+                   f.err.tooth_valid_pct, f.err.rms_um, f.err.p95_um, f.err.order_error_pct, f.ms);
     }
   }
   return 0;
@@ -307,13 +351,14 @@ int ReconstructAll(const ToolOptions& o, Inputs* in, std::vector<Figures>* figur
 // The unwrapper's statistics and largest regions of a single burst, for diagnosis.
 nlohmann::json UnwrapJson(const Figures& f) {
   const UnwrapStats& u = f.unwrap;
-  nlohmann::json j = {{"regions_total", u.regions_total},     {"regions_marker", u.regions_marker},
-                      {"regions_depth", u.regions_depth},     {"regions_rejected", u.regions_rejected},
-                      {"regions_small", u.regions_small},     {"pixels_usable", u.pixels_usable},
-                      {"pixels_valid", u.pixels_valid},       {"pixels_discontinuity", u.pixels_discontinuity},
-                      {"pixels_conflict", u.pixels_conflict}, {"pixels_small", u.pixels_small},
-                      {"pixels_rejected", u.pixels_rejected}, {"pixels_outside", u.pixels_outside},
-                      {"pixels_neck", u.pixels_neck},         {"pixels_edge_filled", f.pixels_edge_filled}};
+  nlohmann::json j = {
+      {"regions_total", u.regions_total},     {"regions_marker", u.regions_marker},
+      {"regions_depth", u.regions_depth},     {"regions_rejected", u.regions_rejected},
+      {"regions_small", u.regions_small},     {"pixels_usable", u.pixels_usable},
+      {"pixels_valid", u.pixels_valid},       {"pixels_discontinuity", u.pixels_discontinuity},
+      {"pixels_conflict", u.pixels_conflict}, {"pixels_small", u.pixels_small},
+      {"pixels_rejected", u.pixels_rejected}, {"pixels_outside", u.pixels_outside},
+      {"pixels_neck", u.pixels_neck},         {"pixels_edge_filled", f.pixels_edge_filled}};
   for (const RegionInfo& r : f.largest_regions)
     j["largest_regions"].push_back({{"pixels", r.pixels},
                                     {"anchor", RegionAnchorName(r.anchor)},
@@ -353,7 +398,9 @@ nlohmann::json Aggregate(const std::vector<Figures>& figures, bool have_truth) {
     j["rms_um"] = evaluated ? std::sqrt(sum2 / static_cast<double>(evaluated)) : 0.0;
     j["worst_frame_rms_um"] = worst_rms;
     j["p95_um"] = p95_sum / n;
-    j["fringe_order_error_pct"] = order_checked ? 100.0 * static_cast<double>(order_err) / static_cast<double>(order_checked) : 0.0;
+    j["fringe_order_error_pct"] =
+        order_checked ? 100.0 * static_cast<double>(order_err) / static_cast<double>(order_checked)
+                      : 0.0;
     j["phase_rms_rad"] = phase_sum / n;
   }
   if (figures.size() == 1) j["unwrap"] = UnwrapJson(figures.front());
@@ -364,8 +411,10 @@ nlohmann::json Aggregate(const std::vector<Figures>& figures, bool have_truth) {
 
 int main(int argc, char** argv) {
   OptionRegistry options(
-      "d3d-recon: reconstructs one phase-shift burst into an organised point cloud (camera frame, mm).\n"
-      "Input: a burst folder (--images, as written by d3d-sim or a recorder; calibration.json in it or\n"
+      "d3d-recon: reconstructs one phase-shift burst into an organised point cloud (camera frame, "
+      "mm).\n"
+      "Input: a burst folder (--images, as written by d3d-sim or a recorder; calibration.json in "
+      "it or\n"
       "in a parent folder) or the virtual probe (--sim). With truth, prints accuracy figures.");
   ToolOptions o;
   DeclareOptions(&options, &o);
@@ -376,7 +425,9 @@ int main(int argc, char** argv) {
   }
   try {
     Inputs in;
-    if (const int code = !o.images.empty() ? LoadBurstFolder(&o, &in) : RenderSimBursts(&o, &in); code != 0) return code;
+    if (const int code = !o.images.empty() ? LoadBurstFolder(&o, &in) : RenderSimBursts(&o, &in);
+        code != 0)
+      return code;
     std::vector<Figures> figures;
     if (const int code = ReconstructAll(o, &in, &figures); code != 0) return code;
     const nlohmann::json j = Aggregate(figures, in.have_truth);

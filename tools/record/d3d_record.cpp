@@ -1,8 +1,8 @@
 // d3d-record: writes every PhaseBurst, ProbeInfo and ProbeStatus sample seen on DDS to a recording
 // (common/recording: chunked, zstd, CRC per chunk, index). The header carries the protocol version
-// and the probe's calibration from its ProbeInfo, so recording waits (up to --info-timeout, buffering
-// samples) for a ProbeInfo before it opens the file. Killed at any moment, the file is readable up
-// to its last complete chunk.
+// and the probe's calibration from its ProbeInfo, so recording waits (up to --info-timeout,
+// buffering samples) for a ProbeInfo before it opens the file. Killed at any moment, the file is
+// readable up to its last complete chunk.
 //
 // Threads: the receiver's DDS listener copies samples into its queue; this tool's main thread pops,
 // encodes (protocol/codec.h) and writes them.
@@ -23,7 +23,11 @@ using namespace d3d;
 namespace {
 volatile std::sig_atomic_t g_stop = 0;
 void OnSignal(int) { g_stop = 1; }
-int64_t NowNs() { return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch()).count(); }
+int64_t NowNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(
+             std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
 enum Channel : uint16_t { kBurst = 0, kInfo = 1, kStatus = 2 };
 
 struct RecordOptions {
@@ -41,7 +45,8 @@ void DeclareOptions(OptionRegistry* r, RecordOptions* o) {
   r->Add("--frames", &o->frames, "stop after this many bursts (0 = no limit)");
   r->Add("--domain", &o->domain, "DDS domain id");
   r->Add("--serial", &o->serial, "record only this probe (default: any)");
-  r->Add("--info-timeout", &o->info_timeout_s, "seconds to wait for ProbeInfo (calibration) before writing without it");
+  r->Add("--info-timeout", &o->info_timeout_s,
+         "seconds to wait for ProbeInfo (calibration) before writing without it");
   r->Add("--zstd-level", &o->writer.zstd_level, "zstd level 1..19");
   r->Add("--queue", &o->queue, "samples buffered between the DDS thread and the writer");
 }
@@ -99,11 +104,14 @@ class RecordingSink {
 
   void PrintSummary(const ReceiverCounters& c) const {
     std::printf(
-        "d3d-record: %s: %lld bursts, %lld ProbeInfo, %lld ProbeStatus, %.1f MB in %.2f s; sequence gaps %llu (%llu bursts missing), "
+        "d3d-record: %s: %lld bursts, %lld ProbeInfo, %lld ProbeStatus, %.1f MB in %.2f s; "
+        "sequence gaps %llu (%llu bursts missing), "
         "dropped %llu\n",
-        options_.out.c_str(), static_cast<long long>(bursts_), static_cast<long long>(infos_), static_cast<long long>(statuses_),
-        static_cast<double>(writer_.bytes_written()) / 1e6, static_cast<double>(last_ns_ - first_ns_) * 1e-9,
-        static_cast<unsigned long long>(c.sequence_gaps), static_cast<unsigned long long>(c.bursts_missing),
+        options_.out.c_str(), static_cast<long long>(bursts_), static_cast<long long>(infos_),
+        static_cast<long long>(statuses_), static_cast<double>(writer_.bytes_written()) / 1e6,
+        static_cast<double>(last_ns_ - first_ns_) * 1e-9,
+        static_cast<unsigned long long>(c.sequence_gaps),
+        static_cast<unsigned long long>(c.bursts_missing),
         static_cast<unsigned long long>(c.dropped_total()));
   }
 
@@ -116,14 +124,19 @@ class RecordingSink {
 
 // Before the file is open: buffers `r` (if `got`) and opens the file once a ProbeInfo came or
 // --info-timeout passed, then writes the buffered samples in arrival order (up to --frames).
-Status BufferUntilInfo(const RecordOptions& o, int64_t start_ns, bool got, ReceivedSample* r, std::deque<ReceivedSample>* pending,
-                       RecordingSink* sink) {
+Status BufferUntilInfo(const RecordOptions& o, int64_t start_ns, bool got, ReceivedSample* r,
+                       std::deque<ReceivedSample>* pending, RecordingSink* sink) {
   const proto::InfoMsg* info = got ? std::get_if<proto::InfoMsg>(&r->msg) : nullptr;
   if (got) pending->push_back(std::move(*r));
-  const bool timed_out = static_cast<double>(NowNs() - start_ns) * 1e-9 >= o.info_timeout_s && !pending->empty();
+  const bool timed_out =
+      static_cast<double>(NowNs() - start_ns) * 1e-9 >= o.info_timeout_s && !pending->empty();
   if (info == nullptr && !timed_out) return Status();
-  if (info == nullptr) std::fprintf(stderr, "d3d-record: warning: no ProbeInfo within %.0f s: header without calibration\n", o.info_timeout_s);
-  Status failure = sink->Open(info != nullptr ? &std::get<proto::InfoMsg>(pending->back().msg) : nullptr);
+  if (info == nullptr)
+    std::fprintf(stderr,
+                 "d3d-record: warning: no ProbeInfo within %.0f s: header without calibration\n",
+                 o.info_timeout_s);
+  Status failure =
+      sink->Open(info != nullptr ? &std::get<proto::InfoMsg>(pending->back().msg) : nullptr);
   if (!failure.ok()) return failure;
   for (auto& p : *pending) {
     if (sink->done() && std::holds_alternative<proto::BurstMsg>(p.msg)) continue;
@@ -166,7 +179,8 @@ Status Record(const RecordOptions& o, BurstReceiver* rx, RecordingSink* sink) {
 // Joins the DDS domain, records, prints the summary; the exit code (1 a write failed, 3 DDS).
 int RunRecorder(const RecordOptions& o) {
   proto::DdsParticipant participant;
-  if (const Status s = tools::CreateToolParticipant(o.domain, &participant, "d3d-record"); !s.ok()) {
+  if (const Status s = tools::CreateToolParticipant(o.domain, &participant, "d3d-record");
+      !s.ok()) {
     std::fprintf(stderr, "d3d-record: DDS: %s\n", s.ToString().c_str());
     return 3;
   }
@@ -193,7 +207,9 @@ int RunRecorder(const RecordOptions& o) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  OptionRegistry options("d3d-record: record PhaseBurst, ProbeInfo and ProbeStatus samples to a chunked, compressed, indexed file");
+  OptionRegistry options(
+      "d3d-record: record PhaseBurst, ProbeInfo and ProbeStatus samples to a chunked, compressed, "
+      "indexed file");
   RecordOptions o;
   DeclareOptions(&options, &o);
   if (int code = 0; !options.Parse(argc, argv, &code)) return code;

@@ -39,63 +39,80 @@ struct Summary {
 };
 
 // What a damaged recording lost, on stderr (the file named): each finding, then the totals.
-void ReportDamage(const RecordingReader& r, const std::string& path, const SequenceLossCounter* bursts) {
-  for (const auto& p : r.diagnostics().problems) std::fprintf(stderr, "d3d-replay: %s: damaged: %s\n", path.c_str(), p.c_str());
-  std::fprintf(stderr, "d3d-replay: %s is damaged; every intact chunk was read; lost: %s%s%s (exit 3)\n", path.c_str(),
-               r.diagnostics().LossSummary().c_str(), bursts != nullptr ? "; bursts lost: " : "",
+void ReportDamage(const RecordingReader& r, const std::string& path,
+                  const SequenceLossCounter* bursts) {
+  for (const auto& p : r.diagnostics().problems)
+    std::fprintf(stderr, "d3d-replay: %s: damaged: %s\n", path.c_str(), p.c_str());
+  std::fprintf(stderr,
+               "d3d-replay: %s is damaged; every intact chunk was read; lost: %s%s%s (exit 3)\n",
+               path.c_str(), r.diagnostics().LossSummary().c_str(),
+               bursts != nullptr ? "; bursts lost: " : "",
                bursts != nullptr ? bursts->Describe().c_str() : "");
 }
 
 // The summary as text (--info), a field a line.
-void PrintInfoText(const RecordingReader& r, const std::string& path, const Summary& s, const SequenceLossCounter& lost) {
+void PrintInfoText(const RecordingReader& r, const std::string& path, const Summary& s,
+                   const SequenceLossCounter& lost) {
   const RecordingHeader& h = r.header();
   const RecordingDiagnostics& d = r.diagnostics();
-  std::printf("recording:     %s (format %d.%d, protocol %d.%d)\n", path.c_str(), h.format_major, h.format_minor, h.protocol_version / 100,
-              h.protocol_version % 100);
-  std::printf("probe:         %s, calibration %s\n", h.probe_serial.empty() ? "(unknown)" : h.probe_serial.c_str(),
+  std::printf("recording:     %s (format %d.%d, protocol %d.%d)\n", path.c_str(), h.format_major,
+              h.format_minor, h.protocol_version / 100, h.protocol_version % 100);
+  std::printf("probe:         %s, calibration %s\n",
+              h.probe_serial.empty() ? "(unknown)" : h.probe_serial.c_str(),
               h.calibration_json.empty() ? "absent" : "present");
-  std::printf("duration:      %.3f s\n", s.messages > 0 ? static_cast<double>(s.last_ns - s.first_ns) * 1e-9 : 0.0);
-  std::printf("chunks:        %zu (%s)\n", r.chunks().size(), d.index_used ? "indexed" : "scanned: no valid index");
-  std::printf("messages:      %lld (bursts %lld, ProbeInfo %lld, ProbeStatus %lld)\n", static_cast<long long>(s.messages),
-              static_cast<long long>(s.bursts), static_cast<long long>(s.infos), static_cast<long long>(s.statuses));
-  for (const auto& [k, n] : s.sizes) std::printf("burst size:    %s: %lld bursts\n", k.c_str(), static_cast<long long>(n));
+  std::printf("duration:      %.3f s\n",
+              s.messages > 0 ? static_cast<double>(s.last_ns - s.first_ns) * 1e-9 : 0.0);
+  std::printf("chunks:        %zu (%s)\n", r.chunks().size(),
+              d.index_used ? "indexed" : "scanned: no valid index");
+  std::printf("messages:      %lld (bursts %lld, ProbeInfo %lld, ProbeStatus %lld)\n",
+              static_cast<long long>(s.messages), static_cast<long long>(s.bursts),
+              static_cast<long long>(s.infos), static_cast<long long>(s.statuses));
+  for (const auto& [k, n] : s.sizes)
+    std::printf("burst size:    %s: %lld bursts\n", k.c_str(), static_cast<long long>(n));
   std::printf("pixel bytes:   %.1f MB\n", static_cast<double>(s.pixel_bytes) / 1e6);
-  std::printf("sequence gaps: %llu in intact data (%llu bursts missing upstream, before the recorder)\n",
-              static_cast<unsigned long long>(lost.upstream_gaps()), static_cast<unsigned long long>(lost.missing_upstream()));
+  std::printf(
+      "sequence gaps: %llu in intact data (%llu bursts missing upstream, before the recorder)\n",
+      static_cast<unsigned long long>(lost.upstream_gaps()),
+      static_cast<unsigned long long>(lost.missing_upstream()));
   std::printf("lost:          %s\n", d.LossSummary().c_str());
   std::printf("bursts lost:   %s\n", lost.Describe().c_str());
-  if (s.undecodable > 0) std::printf("undecodable:   %lld bursts\n", static_cast<long long>(s.undecodable));
+  if (s.undecodable > 0)
+    std::printf("undecodable:   %lld bursts\n", static_cast<long long>(s.undecodable));
 }
 
 // The summary as one JSON object (--info --json), the same fields as the text.
-void PrintInfoJson(const RecordingReader& r, const std::string& path, const Summary& s, const SequenceLossCounter& lost) {
+void PrintInfoJson(const RecordingReader& r, const std::string& path, const Summary& s,
+                   const SequenceLossCounter& lost) {
   const RecordingHeader& h = r.header();
   const RecordingDiagnostics& d = r.diagnostics();
   nlohmann::json sizes = nlohmann::json::object();
   for (const auto& [k, n] : s.sizes) sizes[k] = n;
   const std::optional<uint64_t> lost_max = lost.lost_max();
-  const nlohmann::json j = {{"recording", path},
-                            {"format", std::to_string(h.format_major) + "." + std::to_string(h.format_minor)},
-                            {"protocol", std::to_string(h.protocol_version / 100) + "." + std::to_string(h.protocol_version % 100)},
-                            {"probe_serial", h.probe_serial},
-                            {"calibration", !h.calibration_json.empty()},
-                            {"duration_s", s.messages > 0 ? static_cast<double>(s.last_ns - s.first_ns) * 1e-9 : 0.0},
-                            {"chunks", r.chunks().size()},
-                            {"indexed", d.index_used},
-                            {"messages", s.messages},
-                            {"bursts", s.bursts},
-                            {"probe_info", s.infos},
-                            {"probe_status", s.statuses},
-                            {"burst_sizes", sizes},
-                            {"pixel_bytes", s.pixel_bytes},
-                            {"sequence_gaps", lost.upstream_gaps()},
-                            {"bursts_missing_upstream", lost.missing_upstream()},
-                            {"damaged", d.damaged()},
-                            {"lost", d.LossSummary()},
-                            {"bursts_lost", lost.Describe()},
-                            {"bursts_lost_min", lost.lost_min()},
-                            {"bursts_lost_max", lost_max ? nlohmann::json(*lost_max) : nlohmann::json(nullptr)},  // null: unknown
-                            {"undecodable", s.undecodable}};
+  const nlohmann::json j = {
+      {"recording", path},
+      {"format", std::to_string(h.format_major) + "." + std::to_string(h.format_minor)},
+      {"protocol",
+       std::to_string(h.protocol_version / 100) + "." + std::to_string(h.protocol_version % 100)},
+      {"probe_serial", h.probe_serial},
+      {"calibration", !h.calibration_json.empty()},
+      {"duration_s", s.messages > 0 ? static_cast<double>(s.last_ns - s.first_ns) * 1e-9 : 0.0},
+      {"chunks", r.chunks().size()},
+      {"indexed", d.index_used},
+      {"messages", s.messages},
+      {"bursts", s.bursts},
+      {"probe_info", s.infos},
+      {"probe_status", s.statuses},
+      {"burst_sizes", sizes},
+      {"pixel_bytes", s.pixel_bytes},
+      {"sequence_gaps", lost.upstream_gaps()},
+      {"bursts_missing_upstream", lost.missing_upstream()},
+      {"damaged", d.damaged()},
+      {"lost", d.LossSummary()},
+      {"bursts_lost", lost.Describe()},
+      {"bursts_lost_min", lost.lost_min()},
+      {"bursts_lost_max",
+       lost_max ? nlohmann::json(*lost_max) : nlohmann::json(nullptr)},  // null: unknown
+      {"undecodable", s.undecodable}};
   std::printf("%s\n", j.dump().c_str());
 }
 
@@ -121,8 +138,9 @@ int PrintInfo(RecordingReader* r, const std::string& path, bool json) {
         }
         ++s.bursts;
         s.pixel_bytes += b.PixelBytes();
-        s.sizes[std::to_string(b.width) + "x" + std::to_string(b.height) + "x" + std::to_string(b.bit_depth) + " bit, " +
-                std::to_string(b.frames.size()) + " frames"]++;
+        s.sizes[std::to_string(b.width) + "x" + std::to_string(b.height) + "x" +
+                std::to_string(b.bit_depth) + " bit, " + std::to_string(b.frames.size()) +
+                " frames"]++;
         lost.Message(b.burst_seq, m.data.size());
       } else if (ci != nullptr && m.channel == ci->id) {
         ++s.infos;
@@ -139,7 +157,8 @@ int PrintInfo(RecordingReader* r, const std::string& path, bool json) {
     PrintInfoText(*r, path, s, lost);
   if (d.damaged()) ReportDamage(*r, path, &lost);
   if (s.undecodable > 0)
-    std::fprintf(stderr, "d3d-replay: %s: %lld bursts do not decode (exit 3)\n", path.c_str(), static_cast<long long>(s.undecodable));
+    std::fprintf(stderr, "d3d-replay: %s: %lld bursts do not decode (exit 3)\n", path.c_str(),
+                 static_cast<long long>(s.undecodable));
   return d.damaged() || s.undecodable > 0 ? 3 : 0;
 }
 
@@ -154,13 +173,16 @@ struct ReplayOptions {
 void DeclareOptions(OptionRegistry* r, ReplayOptions* o) {
   r->Add("file", &o->path, "recording written by d3d-record").Required();
   r->Flag("--info", &o->info, "print the summary (duration, bursts, sizes, gaps, damage) and exit");
-  r->Flag("--json", &o->json, "--info: the summary as one JSON object on stdout (damage reports stay on stderr)");
-  r->Add("--rate", &o->rate_text, "1.0 = original timing (2.0 twice as fast), max = as fast as readers take it");
+  r->Flag("--json", &o->json,
+          "--info: the summary as one JSON object on stdout (damage reports stay on stderr)");
+  r->Add("--rate", &o->rate_text,
+         "1.0 = original timing (2.0 twice as fast), max = as fast as readers take it");
   r->Flag("--loop", &o->loop, "repeat until interrupted (burst_seq continues across loops)");
   r->Add("--start", &o->start_s, "skip the first S seconds");
   r->Add("--frames", &o->frames, "publish at most this many bursts (0 = all)");
   r->Add("--domain", &o->domain, "DDS domain id");
-  r->Add("--wait-subscribers", &o->wait_subscribers, "wait for this many PhaseBurst readers before publishing");
+  r->Add("--wait-subscribers", &o->wait_subscribers,
+         "wait for this many PhaseBurst readers before publishing");
   r->Add("--wait-timeout", &o->wait_timeout_s, "seconds to wait for them");
 }
 
@@ -188,16 +210,26 @@ struct ReplayChannels {
 // flow-controlled replay QoS. False (printed) when DDS refuses one.
 bool CreateWriters(proto::DdsParticipant* participant, bool paced, ReplayChannels* c) {
   Status st;
-  const dds_entity_t tb = participant->Topic(&d3d_proto_PhaseBurst_desc, proto::kTopicPhaseBurst, &st);
-  const dds_entity_t ti = participant->Topic(&d3d_proto_ProbeInfo_desc, proto::kTopicProbeInfo, &st);
-  const dds_entity_t ts = participant->Topic(&d3d_proto_ProbeStatus_desc, proto::kTopicProbeStatus, &st);
+  const dds_entity_t tb =
+      participant->Topic(&d3d_proto_PhaseBurst_desc, proto::kTopicPhaseBurst, &st);
+  const dds_entity_t ti =
+      participant->Topic(&d3d_proto_ProbeInfo_desc, proto::kTopicProbeInfo, &st);
+  const dds_entity_t ts =
+      participant->Topic(&d3d_proto_ProbeStatus_desc, proto::kTopicProbeStatus, &st);
   using Q = std::unique_ptr<dds_qos_t, proto::QosDeleter>;
   const dds_entity_t pp = participant->participant();
   c->burst_writer =
-      dds_create_writer(pp, tb, Q(proto::MakeQos(paced ? proto::QosProfile::kBurstWriter : proto::QosProfile::kBurstReplayWriter)).get(), nullptr);
-  c->info_writer = dds_create_writer(pp, ti, Q(proto::MakeQos(proto::QosProfile::kInfoWriter)).get(), nullptr);
-  c->status_writer = dds_create_writer(pp, ts, Q(proto::MakeQos(proto::QosProfile::kStatusWriter)).get(), nullptr);
-  if (tb <= 0 || ti <= 0 || ts <= 0 || c->burst_writer < 0 || c->info_writer < 0 || c->status_writer < 0) {
+      dds_create_writer(pp, tb,
+                        Q(proto::MakeQos(paced ? proto::QosProfile::kBurstWriter
+                                               : proto::QosProfile::kBurstReplayWriter))
+                            .get(),
+                        nullptr);
+  c->info_writer =
+      dds_create_writer(pp, ti, Q(proto::MakeQos(proto::QosProfile::kInfoWriter)).get(), nullptr);
+  c->status_writer =
+      dds_create_writer(pp, ts, Q(proto::MakeQos(proto::QosProfile::kStatusWriter)).get(), nullptr);
+  if (tb <= 0 || ti <= 0 || ts <= 0 || c->burst_writer < 0 || c->info_writer < 0 ||
+      c->status_writer < 0) {
     std::fprintf(stderr, "d3d-replay: cannot create DDS writers\n");
     return false;
   }
@@ -256,7 +288,8 @@ class Publisher {
 
 // Publishes the recording (once, or until a signal with --loop; at most --frames bursts, from
 // --start) at `rate` (0 = max); the first pass counts the lost bursts into `lost`.
-void PublishPasses(RecordingReader* reader, const ReplayOptions& o, double rate, const ReplayChannels& c, ProgressBar* bar, SequenceLossCounter* lost,
+void PublishPasses(RecordingReader* reader, const ReplayOptions& o, double rate,
+                   const ReplayChannels& c, ProgressBar* bar, SequenceLossCounter* lost,
                    int64_t* published, int64_t* failures) {
   Publisher publisher(c);
   std::vector<RecordedMessage> msgs;
@@ -273,7 +306,8 @@ void PublishPasses(RecordingReader* reader, const ReplayOptions& o, double rate,
         if (t0_file < 0) t0_file = m.log_time_ns + static_cast<int64_t>(o.start_s * 1e9);
         if (m.log_time_ns < t0_file) continue;  // --start
         if (rate > 0) {
-          const auto due = t0_wall + std::chrono::nanoseconds(static_cast<int64_t>(static_cast<double>(m.log_time_ns - t0_file) / rate));
+          const auto due = t0_wall + std::chrono::nanoseconds(static_cast<int64_t>(
+                                         static_cast<double>(m.log_time_ns - t0_file) / rate));
           std::this_thread::sleep_until(due);
         }
         bool burst = false;
@@ -295,14 +329,17 @@ int Replay(RecordingReader* reader, const ReplayOptions& o, double rate) {
   c.info = reader->header().FindTopic(proto::kTopicProbeInfo);
   c.status = reader->header().FindTopic(proto::kTopicProbeStatus);
   if (c.burst == nullptr) {
-    std::fprintf(stderr, "d3d-replay: %s has no %s channel\n", o.path.c_str(), proto::kTopicPhaseBurst);
+    std::fprintf(stderr, "d3d-replay: %s has no %s channel\n", o.path.c_str(),
+                 proto::kTopicPhaseBurst);
     return 2;
   }
   int64_t total_bursts = 0;
-  for (const ChunkInfo& ci : reader->chunks()) total_bursts += ci.message_count;  // upper bound for the bar
+  for (const ChunkInfo& ci : reader->chunks())
+    total_bursts += ci.message_count;  // upper bound for the bar
 
   proto::DdsParticipant participant;
-  if (const Status s = tools::CreateToolParticipant(o.domain, &participant, "d3d-replay"); !s.ok()) {
+  if (const Status s = tools::CreateToolParticipant(o.domain, &participant, "d3d-replay");
+      !s.ok()) {
     std::fprintf(stderr, "d3d-replay: DDS: %s\n", s.ToString().c_str());
     return 1;
   }
@@ -319,7 +356,8 @@ int Replay(RecordingReader* reader, const ReplayOptions& o, double rate) {
   bar.Finish();
   const dds_return_t acked = dds_wait_for_acks(c.burst_writer, DDS_SECS(30));
   (void)dds_wait_for_acks(c.status_writer, DDS_SECS(2));
-  std::printf("d3d-replay: published %lld bursts, %lld failures%s\n", static_cast<long long>(published), static_cast<long long>(failures),
+  std::printf("d3d-replay: published %lld bursts, %lld failures%s\n",
+              static_cast<long long>(published), static_cast<long long>(failures),
               acked == DDS_RETCODE_OK ? "" : " (readers did not acknowledge everything)");
   // Bursts lost are known only when the whole file was replayed once.
   const bool whole_pass = !(o.loop || o.frames > 0 || o.start_s > 0 || g_stop);
@@ -331,7 +369,8 @@ int Replay(RecordingReader* reader, const ReplayOptions& o, double rate) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  OptionRegistry options("d3d-replay: publish a recording back onto DDS, or print its summary (--info)");
+  OptionRegistry options(
+      "d3d-replay: publish a recording back onto DDS, or print its summary (--info)");
   ReplayOptions o;
   DeclareOptions(&options, &o);
   if (int code = 0; !options.Parse(argc, argv, &code)) return code;

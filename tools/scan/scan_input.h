@@ -22,17 +22,17 @@
 namespace d3d {
 
 struct ScanToolArgs {
-  std::string replay;          // a recording to replay instead of DDS
-  double replay_rate = 0;      // 0 = as fast as the graph takes bursts, else the recorded timing × this
-  int64_t max_bursts = 0;      // --replay: the first N bursts only (0 = all)
-  std::string replay_views;    // --replay: only the bursts this TUM file lists
-  uint64_t rx_queue = 0;       // live: the receiver's queue (0: by policy)
-  std::string policy_text;     // live | lossless (empty: live on DDS, lossless with --replay)
-  double step = 0;             // bursts between processed views for the tracker's gates (0: by policy)
-  int threads = 0;             // OpenCV / oneTBB threads (0: by policy)
-  int icp_threads = 0;         // the tracker's ICP threads (0 = threads)
-  std::string spill_views;     // --refuse: where the kept frames spill ('memory': nowhere)
-  std::string reference;       // evaluate against this scene
+  std::string replay;      // a recording to replay instead of DDS
+  double replay_rate = 0;  // 0 = as fast as the graph takes bursts, else the recorded timing × this
+  int64_t max_bursts = 0;    // --replay: the first N bursts only (0 = all)
+  std::string replay_views;  // --replay: only the bursts this TUM file lists
+  uint64_t rx_queue = 0;     // live: the receiver's queue (0: by policy)
+  std::string policy_text;   // live | lossless (empty: live on DDS, lossless with --replay)
+  double step = 0;          // bursts between processed views for the tracker's gates (0: by policy)
+  int threads = 0;          // OpenCV / oneTBB threads (0: by policy)
+  int icp_threads = 0;      // the tracker's ICP threads (0 = threads)
+  std::string spill_views;  // --refuse: where the kept frames spill ('memory': nowhere)
+  std::string reference;    // evaluate against this scene
   std::string sim_trajectory;  // the virtual probe's scan path (true poses)
   uint32_t sim_seed = 1;
   double sim_rate = 30;  // the probe's burst rate (Hz)
@@ -57,7 +57,8 @@ int ResolveScanToolArgs(ScanToolArgs* args);
 // The app's options: the scan flags applied (ApplyScanFlags at the resolved step) and the live
 // host's own (threads, view period, kept views and their spill folder, the live volume, binning of
 // the highlighted view).
-[[nodiscard]] Status MakeScanAppOptions(const ScanToolArgs& args, const ScanFlags& flags, ScanAppOptions* app);
+[[nodiscard]] Status MakeScanAppOptions(const ScanToolArgs& args, const ScanFlags& flags,
+                                        ScanAppOptions* app);
 
 // The preview window, or offscreen (--headless, or when no window opens); null with --no-preview
 // or when neither works (said on stderr).
@@ -75,9 +76,11 @@ struct ScanInput {
 // Opens the recording, or joins DDS and waits for a probe's calibration (the preview, when there
 // is one, shows "waiting" meanwhile; closing it sets *stop). 0, or the exit code after printing
 // the error: 2 for a bad recording or views file, 3 when DDS or the probe fail.
-int OpenScanInput(const ScanToolArgs& args, const ScanAppOptions& app, Viewer* viewer, std::atomic<bool>* stop, ScanInput* in);
+int OpenScanInput(const ScanToolArgs& args, const ScanAppOptions& app, Viewer* viewer,
+                  std::atomic<bool>* stop, ScanInput* in);
 // The input's figures for report.json: the input, and a replayed recording's damage and skips.
-void ReportInput(const ScanToolArgs& args, const ScanFlags& flags, const ScanInput& in, nlohmann::json* report);
+void ReportInput(const ScanToolArgs& args, const ScanFlags& flags, const ScanInput& in,
+                 nlohmann::json* report);
 
 // The truth the scan is evaluated against: the scene (--reference) and, with --sim-trajectory,
 // the virtual probe's true poses (its scene and trajectory, without the renderer). `truth` points
@@ -87,6 +90,7 @@ struct EvaluationTruth {
   TriangleMesh scene;
   ScanTruth truth;
 };
-[[nodiscard]] Status LoadEvaluationTruth(const ScanToolArgs& args, const ProbeCalibration& calibration, EvaluationTruth* out);
+[[nodiscard]] Status LoadEvaluationTruth(const ScanToolArgs& args,
+                                         const ProbeCalibration& calibration, EvaluationTruth* out);
 
 }  // namespace d3d
