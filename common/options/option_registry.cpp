@@ -122,10 +122,4 @@ bool OptionRegistry::Parse(int argc, const char* const* argv, int* exit_code) {
   }
 }
 
-bool OptionRegistry::Given(const std::string& name) const {
-  const CLI::Option* o = impl_->app.get_option_no_throw(name);
-  if (o == nullptr) throw std::invalid_argument("OptionRegistry: no option " + name);
-  return o->count() > 0;
-}
-
 }  // namespace d3d

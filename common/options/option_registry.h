@@ -59,8 +59,6 @@ class OptionRegistry {
   // should exit with *exit_code: 0 after --help (printed on stdout), 2 after a usage error
   // (printed on stderr after the tool's name, argv[0]'s file name, naming the option).
   [[nodiscard]] bool Parse(int argc, const char* const* argv, int* exit_code);
-  // Whether `name` (as declared, e.g. "--step") was on the command line; valid after Parse.
-  bool Given(const std::string& name) const;
 
  private:
   struct Impl;

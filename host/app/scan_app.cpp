@@ -1,9 +1,9 @@
 #include "host/app/scan_app.h"
 
-#include <sys/resource.h>
-
 #include <chrono>
 #include <stdexcept>
+
+#include "common/core/process_stats.h"
 
 namespace d3d {
 
@@ -229,9 +229,7 @@ nlohmann::json ScanApp::HostReport() const {
   j["catch_up_thinned"] =
       graph_->catch_up_thinned();  // ... the graph fell behind and kept 1 burst of 3 meanwhile
   j["warm_up_items"] = o_.policy == EdgePolicy::kLive ? graph_->pool_size() : 0;
-  rusage u{};
-  getrusage(RUSAGE_SELF, &u);
-  j["peak_rss_mb"] = static_cast<double>(u.ru_maxrss) / 1024.0;
+  j["peak_rss_mb"] = PeakRssMiB();
   return j;
 }
 

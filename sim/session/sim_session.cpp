@@ -2,29 +2,28 @@
 
 namespace d3d {
 
+SimSceneOptions SimSessionOptions::Scene() const {
+  SimSceneOptions o;
+  o.model = model;
+  o.trajectory = trajectory;
+  o.seed = seed;
+  o.burst_rate_hz = burst_rate_hz;
+  o.frame_interval_ns = render.frame_interval_ns;
+  o.typodont = typodont;
+  o.scan_path = scan_path;
+  return o;
+}
+
 void SimSessionOptions::Check() const {
-  D3D_CHECK_MSG(!model.empty(), "model must be 'typodont' or a mesh file");
-  D3D_CHECK_MSG(!trajectory.empty(),
-                "trajectory must be a scan style (scan_styles.h), quadrant or a TUM file");
-  D3D_CHECK_MSG(burst_rate_hz > 0 && burst_rate_hz <= 1000,
-                "burst rate must be in (0, 1000] Hz, got " << burst_rate_hz);
   render.Check();
-  typodont.Check();
+  Scene().Check();
 }
 
 Status SimSession::Create(const SimSessionOptions& options, std::unique_ptr<SimSession>* out) {
   options.Check();
   std::unique_ptr<SimSession> s(new SimSession());
   s->options_ = options;
-  SimSceneOptions world;
-  world.model = options.model;
-  world.trajectory = options.trajectory;
-  world.seed = options.seed;
-  world.burst_rate_hz = options.burst_rate_hz;
-  world.frame_interval_ns = options.render.frame_interval_ns;
-  world.typodont = options.typodont;
-  world.scan_path = options.scan_path;
-  D3D_RETURN_IF_ERROR(SimScene::Create(world, &s->world_));
+  D3D_RETURN_IF_ERROR(SimScene::Create(options.Scene(), &s->world_));
   const std::string& t = options.trajectory;
   ProbeDesign design = MakeDefaultProbeDesign(options.camera_width, options.camera_height);
   if (IsScanStyle(t)) {  // the style's scene: wet teeth for "glare"

@@ -28,7 +28,9 @@ struct SimSessionOptions {
   RenderOptions render;
   TypodontOptions typodont;
   ScanPathOptions scan_path;  // its seed is replaced by `seed`
-  void Check() const;         // throws std::invalid_argument
+  // The scene's part of these options (what SimScene builds; the frame interval is the render's).
+  SimSceneOptions Scene() const;
+  void Check() const;  // throws std::invalid_argument
 };
 
 class SimSession {

@@ -9,7 +9,6 @@
 // On llvmpipe every millisecond of it is taken from the scan pipeline's two cores. Speed is
 // measured here, never in tests.
 #include <malloc.h>
-#include <sys/resource.h>
 
 #include <chrono>
 #include <cmath>
@@ -17,6 +16,7 @@
 #include <cstdlib>
 #include <memory>
 
+#include "common/core/process_stats.h"
 #include "common/options/option_registry.h"
 #include "host/graph/stage_graph.h"
 #include "viewer/viewer.h"
@@ -29,12 +29,6 @@ double WallMs() {
   return std::chrono::duration<double, std::milli>(
              std::chrono::steady_clock::now().time_since_epoch())
       .count();
-}
-double ProcessCpuMs() {
-  rusage u{};
-  getrusage(RUSAGE_SELF, &u);
-  return 1e3 * static_cast<double>(u.ru_utime.tv_sec + u.ru_stime.tv_sec) +
-         1e-3 * static_cast<double>(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
 }
 double ThreadCpuMs() {
   return 1e-6 * static_cast<double>(ThreadCpuNs());

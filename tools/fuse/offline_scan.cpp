@@ -1,6 +1,5 @@
 #include "tools/fuse/offline_scan.h"
 
-#include <sys/resource.h>
 #include <tbb/concurrent_queue.h>
 
 #include <algorithm>
@@ -15,6 +14,7 @@
 #include <thread>
 
 #include "common/burst/burst_io.h"
+#include "common/core/process_stats.h"
 #include "common/core/progress.h"
 #include "common/mesh/mesh_io.h"
 #include "common/pack/frame_pack.h"
@@ -26,12 +26,6 @@ namespace d3d {
 namespace {
 
 using Ms = std::chrono::duration<double, std::milli>;
-
-double PeakRssMiB() {
-  rusage u{};
-  getrusage(RUSAGE_SELF, &u);
-  return static_cast<double>(u.ru_maxrss) / 1024.0;
-}
 
 void PrintPose(std::FILE* f, const Rigid3d& p) { std::fprintf(f, " %s", TumPoseFields(p).c_str()); }
 
