@@ -124,8 +124,9 @@ BurstSource::Result RecordingBurstSource::Next(IngestedBurst* out) {
     lost_.Message(msg_.burst_seq,
                   m.data.size());  // a malformed burst's number is not to be trusted
     missing_.store(lost_.missing_upstream(), std::memory_order_relaxed);
-    if (!Selected(out->capture_ns)) {  // not one of the chosen views: as if never sent
+    if (!Selected(out->capture_ns)) {  // not one of the chosen views: as if the graph dropped it
       skipped_.fetch_add(1, std::memory_order_relaxed);
+      if (skipped_sink_) skipped_sink_(*out);
       continue;
     }
     received_.fetch_add(1, std::memory_order_relaxed);

@@ -55,8 +55,15 @@ class BurstSource {
   uint64_t missing() const {
     return missing_.load(std::memory_order_relaxed);
   }  // sequence gaps: lost before the host
+  // Set before the graph starts. A burst the source leaves out by design (a replay's selection,
+  // RecordingSourceOptions::select_capture_ns) is handed to `sink` on the ingest thread, in capture
+  // order: a live host's graph drops bursts too, and they still reach the gap bridge's ring.
+  void set_skipped_sink(std::function<void(const IngestedBurst&)> sink) {
+    skipped_sink_ = std::move(sink);
+  }
 
  protected:
+  std::function<void(const IngestedBurst&)> skipped_sink_;
   std::atomic<uint64_t> received_{0}, malformed_{0}, dropped_{0}, probe_returns_{0}, missing_{0};
   std::atomic<bool> probe_lost_{false};
 };

@@ -6,6 +6,7 @@
 #include <memory>
 #include <vector>
 
+#include "host/app/ingest_stage.h"
 #include "pipeline/recon/reconstruct.h"
 #include "sim/session/sim_session.h"
 
@@ -75,6 +76,39 @@ TEST(BurstRing, TakesTheBurstNearestTheTargetStrictlyInsideTheGapAndSkipsTriedOn
   EXPECT_EQ(out.burst_seq, 213u);
   EXPECT_FALSE(ring.TakeNearest(212 * kPeriodNs, 213 * kPeriodNs, 212 * kPeriodNs, {}, &out));
   EXPECT_FALSE(ring.TakeNearest(after, before, after, {213, 214, 215, 216, 217, 218, 219}, &out));
+}
+
+// A source that delivers every other burst and leaves the rest out, as a replay of chosen views
+// (--replay-views) does.
+class EveryOtherSource final : public BurstSource {
+ public:
+  Result Next(IngestedBurst* out) override {
+    for (;;) {
+      if (next_ >= 10) return Result::kEnd;
+      *out = BurstAt(next_++);
+      if (out->burst_seq % 2 == 0) return Result::kBurst;
+      if (skipped_sink_) skipped_sink_(*out);
+    }
+  }
+
+ private:
+  uint64_t next_ = 0;
+};
+
+TEST(BurstRing, AReplaysLeftOutBurstsReachTheRingAsALiveGraphsDroppedOnesDo) {
+  EveryOtherSource source;
+  UndoLog undo(false);
+  BurstRing ring(32, 8, 6);
+  IngestStage ingest(&source, &undo, &ring, {});
+  ScanItem item;
+  ItemMeta meta;
+  int items = 0;
+  while (ingest.Run(item, &meta) == StageGraph<ScanItem>::SourceResult::kItem) ++items;
+  EXPECT_EQ(items, 5);
+  EXPECT_EQ(ring.size(), 10u) << "the delivered bursts and the left-out ones";
+  IngestedBurst out;
+  ASSERT_TRUE(ring.TakeNearest(2 * kPeriodNs, 4 * kPeriodNs, 3 * kPeriodNs, {}, &out));
+  EXPECT_EQ(out.burst_seq, 3u) << "a left-out burst bridges the gap between two delivered ones";
 }
 
 TEST(GapBridge, AppliesOnlyToAViewRefusedWhileTheTrackWasHeldAfterAGap) {

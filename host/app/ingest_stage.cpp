@@ -6,7 +6,10 @@ namespace d3d {
 
 IngestStage::IngestStage(BurstSource* source, UndoLog* undo, BurstRing* ring,
                          std::vector<uint64_t> undo_after_bursts)
-    : source_(source), undo_(undo), ring_(ring), undo_after_bursts_(std::move(undo_after_bursts)) {}
+    : source_(source), undo_(undo), ring_(ring), undo_after_bursts_(std::move(undo_after_bursts)) {
+  // A replay's left-out bursts are the ones a live graph would have dropped: bridgeable too.
+  if (ring_) source_->set_skipped_sink([this](const IngestedBurst& b) { ring_->Put(b); });
+}
 
 StageGraph<ScanItem>::SourceResult IngestStage::Run(ScanItem& item, ItemMeta* meta) {
   using Result = StageGraph<ScanItem>::SourceResult;

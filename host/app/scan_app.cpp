@@ -49,7 +49,7 @@ ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& opti
   reconstruct_ =
       std::make_unique<ReconstructStage>(calibration, o_.scan.recon, o_.scan.bin, o_.keep_views);
   std::unique_ptr<GapBridge> bridge;
-  if (o_.policy == EdgePolicy::kLive && o_.bridge.ring_bursts > 0) {
+  if ((o_.policy == EdgePolicy::kLive || o_.bridge_lossless) && o_.bridge.ring_bursts > 0) {
     ring_ = std::make_unique<BurstRing>(static_cast<size_t>(o_.bridge.ring_bursts),
                                         calibration.camera.width, calibration.camera.height, 4,
                                         o_.scan.bin);

@@ -112,6 +112,9 @@ struct ScanAppOptions {
   // Live: a view refused several bursts after the last one placed is tried again after a burst from
   // between them is placed (gap_bridge.h); the ring of recent bursts it takes them from.
   GapBridgeOptions bridge;
+  // Lossless too: a replay of chosen views (d3d-scan --replay-views) bridges from the bursts it
+  // leaves out, as the live host it reproduces did from those its graph dropped.
+  bool bridge_lossless = false;
   void Check() const;  // throws std::invalid_argument
 };
 

@@ -2,7 +2,7 @@
 # d3d-cpu-budget: the host's CPU per burst, stage by stage, of this build against an older commit
 # built beside it (issue 51), side by side on one machine in alternating runs (A B A B ...).
 #
-# The virtual probe's 450-burst full-arch typodont recording (made once, shared with
+# The virtual probe's full-arch typodont recording (450 bursts by default) (made once, shared with
 # live_latency.sh) is replayed losslessly through d3d-scan by each build: every burst processed, so
 # the report's stage CPU ms per burst compare like for like. With --live the same recording is also
 # published in real time to a live d3d-scan (live_latency.sh, optionally at --cpu-quota): bursts/s,
@@ -27,7 +27,9 @@ Options:
   --runs N           lossless replays per build (default 3)
   --live             also N live runs per build at real time (live_latency.sh)
   --cpu-quota C      --live: limit d3d-scan + d3d-replay to C cores' worth of CPU (root, cgroup)
-  --recording FILE   the recording (default: OUT/typodont_full_arch_450.d3drec, made once)
+  --bursts N         bursts of the full-arch path recorded (default 450: 15 s, half the arch;
+                     1490: the whole arch)
+  --recording FILE   the recording (default: OUT/typodont_full_arch_N.d3drec, made once)
   --out DIR          outputs (default: cpu_budget_out)
   --domain D         DDS domain id for recording and live runs (default 78)
   -h, --help         this help
@@ -39,7 +41,7 @@ EOF
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 source "$root/tools/lib/setup.sh"
 source "$root/tools/lib/bench.sh"
-base=4a94ecd base_bin="" bin="$root/build/bin" runs=3 live=0 quota="" rec="" out="cpu_budget_out" domain=78
+base=4a94ecd base_bin="" bin="$root/build/bin" runs=3 live=0 quota="" rec="" bursts=450 out="cpu_budget_out" domain=78
 extra=(--threads 1)
 while [ $# -gt 0 ]; do
   if d3d_bench_option "$1" "${2:-}"; then shift 2; continue; fi
@@ -67,8 +69,8 @@ fi
 for t in "${tools[@]}"; do
   [ -x "$base_bin/$t" ] || { echo "cpu_budget: $base_bin/$t not found" >&2; exit 2; }
 done
-rec=${rec:-$out/typodont_full_arch_450.d3drec}
-d3d_record_full_arch "$bin" "$rec" "$out" "$domain" || exit 1
+rec=${rec:-$out/typodont_full_arch_$bursts.d3drec}
+d3d_record_full_arch "$bin" "$rec" "$out" "$domain" "$bursts" || exit 1
 
 echo "cpu_budget: A = $base_bin, B = $bin; $runs lossless run(s) each${extra[*]:+, d3d-scan ${extra[*]}}"
 for i in $(seq 1 "$runs"); do
@@ -161,7 +163,7 @@ def table(title, kind, rows, loader):
         if bad[ab]:
             print("  %s: %d %s run(s) left out: no burst processed or no sane trueness" % (ab, bad[ab], kind))
 
-table("Lossless replay of the 450-burst full arch", "lossless", rows, lossless_run)
+table("Lossless replay of the recording", "lossless", rows, lossless_run)
 
 # d3d-bench-recon, 640 x 480, one thread: the reconstruction's parts.
 recon_rows = [(n, (lambda k: lambda r: r.get(k))(k)) for n, k in

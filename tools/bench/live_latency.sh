@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # d3d-live-latency: the host's live criteria measured the way issue 6 states them, repeatably.
 #
-# The virtual probe's 450-burst full-arch typodont scan is recorded once (d3d-probe --sim typodont +
+# The virtual probe's full-arch typodont scan (450 bursts, or --bursts) is recorded once (d3d-probe --sim typodont +
 # d3d-record, 640 x 480 at 30 Hz), then published again in real time (d3d-replay --rate 1) to a live
 # d3d-scan on the same machine, --runs times. Each run's report gives bursts/s, latency p50/p95/max
 # (capture to preview), preview fps, peak RSS and the trueness; the table ends with how many runs
@@ -26,7 +26,9 @@ issue 6's live criteria, per run, and how many runs met them.
 Options:
   --runs N           live runs (default 3)
   --cpu-quota C      limit d3d-scan + d3d-replay to C cores' worth of CPU time (e.g. 1.1; root, cgroup)
-  --recording FILE   recording to publish (default: OUT/typodont_full_arch_450.d3drec, recorded once
+  --bursts N         bursts of the full-arch path recorded (default 450: 15 s, half the arch;
+                     1490: the whole arch)
+  --recording FILE   recording to publish (default: OUT/typodont_full_arch_N.d3drec, recorded once
                      from the virtual probe when missing)
   --bin DIR          folder of d3d-scan, d3d-replay, d3d-probe, d3d-record (default: build/bin)
   --out DIR          where the runs' outputs go (default: live_latency_out)
@@ -37,7 +39,7 @@ EOF
 }
 
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
-runs=3 quota="" rec="" bin="$root/build/bin" out="live_latency_out" domain=77
+runs=3 quota="" rec="" bursts=450 bin="$root/build/bin" out="live_latency_out" domain=77
 extra=()
 source "$root/tools/lib/setup.sh"
 source "$root/tools/lib/bench.sh"
@@ -56,8 +58,8 @@ for tool in d3d-scan d3d-replay d3d-probe d3d-record; do
   [ -x "$bin/$tool" ] || { echo "live_latency: $bin/$tool not found (build first: tools/demo.sh, or --bin)" >&2; exit 2; }
 done
 mkdir -p "$out"
-rec=${rec:-$out/typodont_full_arch_450.d3drec}
-d3d_record_full_arch "$bin" "$rec" "$out" "$domain" || exit 1
+rec=${rec:-$out/typodont_full_arch_$bursts.d3drec}
+d3d_record_full_arch "$bin" "$rec" "$out" "$domain" "$bursts" || exit 1
 
 # The CPU cgroup (removed on exit).
 cg=""

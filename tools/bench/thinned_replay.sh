@@ -4,10 +4,11 @@
 #
 # A live host that cannot keep up processes a subset of the bursts (1 in 2 to 1 in 6, at
 # irregular gaps). Which subset it processes decides the trueness more than the number does, so a
-# live run's figure cannot be repeated. Here the 450-burst full-arch recording (live_latency.sh's)
+# live run's figure cannot be repeated. Here the full-arch recording (live_latency.sh's, 450 bursts or --bursts)
 # is replayed losslessly through d3d-scan with only some bursts listed (--replay-views): every N-th
 # burst at each offset, and the views of given live runs (their poses.txt). A live run's views
-# replayed this way give its trueness again, to 0.01 µm (docs/decisions/0014, "Stop 69").
+# replayed this way give its trueness again, to 0.01 µm (docs/decisions/0014, "Stop 69"). The bursts
+# left out reach the gap bridge's ring, as a live graph's dropped bursts do (decision 0014, "Stop 71").
 # Per pattern: views fused, trueness RMS, ATE (and after aligning the trajectories), the pose
 # graph's largest correction and the wrong fusions; per N the median and range of the trueness.
 set -euo pipefail
@@ -23,7 +24,9 @@ Options:
   --every LIST       N values, comma-separated, each at offsets 0 .. N-1 (default 1,2,3; 1 = all)
   --views FILE       also replay the bursts this TUM file lists, e.g. a live run's poses.txt
                      (repeatable)
-  --recording FILE   the recording (default: OUT/typodont_full_arch_450.d3drec, made once as
+  --bursts N         bursts of the full-arch path recorded (default 450: 15 s, half the arch;
+                     1490: the whole arch)
+  --recording FILE   the recording (default: OUT/typodont_full_arch_N.d3drec, made once as
                      live_latency.sh makes it)
   --bin DIR          folder of d3d-scan (default: build/bin)
   --out DIR          outputs (default: thinned_replay_out)
@@ -34,7 +37,7 @@ EOF
 }
 
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
-every="1,2,3" rec="" bin="$root/build/bin" out="thinned_replay_out" domain=79
+every="1,2,3" rec="" bursts=450 bin="$root/build/bin" out="thinned_replay_out" domain=79
 views=() extra=()
 source "$root/tools/lib/setup.sh"
 source "$root/tools/lib/bench.sh"
@@ -51,8 +54,8 @@ done
 [[ "$every" =~ ^[1-9][0-9]*(,[1-9][0-9]*)*$ ]] || { echo "thinned_replay: --every must list positive integers, e.g. 1,2,3" >&2; exit 2; }
 [ -x "$bin/d3d-scan" ] || { echo "thinned_replay: $bin/d3d-scan not found (build first: tools/demo.sh, or --bin)" >&2; exit 2; }
 mkdir -p "$out"
-rec=${rec:-$out/typodont_full_arch_450.d3drec}
-d3d_record_full_arch "$bin" "$rec" "$out" "$domain" || exit 1
+rec=${rec:-$out/typodont_full_arch_$bursts.d3drec}
+d3d_record_full_arch "$bin" "$rec" "$out" "$domain" "$bursts" || exit 1
 
 replay() {  # replay NAME [VIEWS-FILE]: one lossless replay into OUT/NAME
   local name=$1 list=${2:-}

@@ -1,16 +1,17 @@
 # Shared by the benchmark scripts (tools/bench/*.sh); sourced, not run.
 
-# d3d_record_full_arch BIN REC LOGDIR DOMAIN: the virtual probe's 450-burst full-arch typodont scan
+# d3d_record_full_arch BIN REC LOGDIR DOMAIN [BURSTS]: the first BURSTS bursts (default 450, 15 s,
+# half the arch; the whole path is 1,490, 50 s) of the virtual probe's full-arch typodont scan
 # (640 x 480 at 30 Hz, seed 1) recorded once over DDS into REC (d3d-probe + d3d-record); nothing
 # when REC exists. The same recording for every build compared.
 d3d_record_full_arch() {
-  local bin=$1 rec=$2 logs=$3 domain=$4 recorder
+  local bin=$1 rec=$2 logs=$3 domain=$4 bursts=${5:-450} recorder
   [ -f "$rec" ] && return 0
-  echo "recording the virtual probe's 450-burst full-arch scan to $rec (pre-rendering takes ~1 min)"
+  echo "recording the virtual probe's $bursts-burst full-arch scan to $rec (pre-rendering takes ~$((bursts / 400 + 1)) min)"
   mkdir -p "$logs" "$(dirname "$rec")"
-  "$bin/d3d-record" --out "$rec.part" --frames 450 --domain "$domain" > "$logs/record.log" 2>&1 &
+  "$bin/d3d-record" --out "$rec.part" --frames "$bursts" --domain "$domain" > "$logs/record.log" 2>&1 &
   recorder=$!
-  "$bin/d3d-probe" --sim typodont --trajectory full-arch --seed 1 --rate 30 --frames 450 --sim-cycle 450 \
+  "$bin/d3d-probe" --sim typodont --trajectory full-arch --seed 1 --rate 30 --frames "$bursts" --sim-cycle "$bursts" \
     --domain "$domain" > "$logs/probe.log" 2>&1
   wait "$recorder" || { echo "d3d-record failed (see $logs/record.log)" >&2; return 1; }
   mv "$rec.part" "$rec"
@@ -35,12 +36,15 @@ d3d_build_commit() {
   echo "$dir/build/bin"
 }
 
-# d3d_bench_option ARG VALUE: the options the benchmark scripts share (--recording, --bin, --out,
-# --domain), each with a value, set rec, bin, out and domain; 0 when ARG was one of them (the caller
-# shifts 2), 1 when not. Use: if d3d_bench_option "$1" "${2:-}"; then shift 2; continue; fi
+# d3d_bench_option ARG VALUE: the options the benchmark scripts share (--recording, --bursts, --bin,
+# --out, --domain), each with a value, set rec, bursts, bin, out and domain; 0 when ARG was one of
+# them (the caller shifts 2), 1 when not. Use: if d3d_bench_option "$1" "${2:-}"; then shift 2; continue; fi
 d3d_bench_option() {
   case "$1" in
     --recording) rec=$2 ;;
+    --bursts)
+      [[ "$2" =~ ^[1-9][0-9]*$ ]] || { echo "${0##*/}: --bursts must be a positive whole number" >&2; exit 2; }
+      bursts=$2 ;;
     --bin) bin=$2 ;;
     --out) out=$2 ;;
     --domain) domain=$2 ;;

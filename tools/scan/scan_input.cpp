@@ -22,7 +22,8 @@ void DeclareScanToolArgs(OptionRegistry* r, ScanToolArgs* a, ScanAppOptions* app
       "--replay-views", &a->replay_views,
       "--replay: only the bursts whose capture times this TUM file lists (e.g. a live run's "
       "poses.txt: its views again, "
-      "losslessly, with the live tracker's gates: --step 6 by default and motion by capture time)");
+      "losslessly, with the live tracker's gates: --step 6 by default and motion by capture time; "
+      "the bursts left out are the gap bridge's, as a live graph's dropped ones are)");
   r->Add("--rx-queue", &a->rx_queue,
          "live: bursts the DDS receiver may hold for the graph (default: 64 live, 8 with "
          "--catch-up 0, 300 lossless)");
@@ -126,6 +127,7 @@ int ResolveScanToolArgs(ScanToolArgs* a) {
 
 Status MakeScanAppOptions(const ScanToolArgs& a, const ScanFlags& flags, ScanAppOptions* app) {
   app->policy = a.policy;
+  app->bridge_lossless = !a.replay_views.empty();
   D3D_RETURN_IF_ERROR(ApplyScanFlags(flags, a.step, &app->scan));
   // The tracker's ICP (association and normal equations) on the register thread and oneTBB
   // workers, at most --threads; its sums in a fixed order, so a lossless run repeats bit for bit.
