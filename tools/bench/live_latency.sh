@@ -107,7 +107,10 @@ out, runs = sys.argv[1], int(sys.argv[2])
 cols = [("bursts/s", "bursts_per_s", "%.2f"), ("p50 ms", "latency_ms_p50", "%.1f"), ("p95 ms", "latency_ms_p95", "%.1f"),
         ("max ms", "latency_ms_max", "%.0f"), ("preview fps", "preview_fps", "%.2f"),
         ("draws/s", "preview_draws_per_s", "%.2f"), ("dropped", "bursts_dropped", "%d"),
-        ("peak RSS MB", "peak_rss_mb", "%.0f"), ("trueness µm", "trueness_rms_um", "%.2f")]
+        ("peak RSS MB", "peak_rss_mb", "%.0f"), ("trueness µm", "trueness_rms_um", "%.2f"),
+        ("in model", "views_in_model", "%d"), ("processed", "bursts_processed", "%d"),
+        ("lost", "tracking_lost", "%d"), ("segments", "segments_started", "%d"),
+        ("apart", "segments_apart", "%d"), ("wrong", "wrong_fusions", "%d")]
 print("\nrun  " + "  ".join("%12s" % c[0] for c in cols))
 met = done = 0
 for i in range(1, runs + 1):
@@ -117,7 +120,7 @@ for i in range(1, runs + 1):
         continue
     r = json.load(open(path))
     done += 1
-    print("%-4d " % i + "  ".join("%12s" % (f % r[k]) for _, k, f in cols))
+    print("%-4d " % i + "  ".join("%12s" % (f % r[k] if k in r else "-") for _, k, f in cols))
     met += r["bursts_per_s"] >= 28 and r["latency_ms_p95"] <= 100 and r["preview_fps"] >= 15
 print("\n%d of %d runs met >= 28 bursts/s, latency p95 <= 100 ms and preview >= 15 fps" % (met, done))
 PY

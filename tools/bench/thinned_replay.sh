@@ -90,7 +90,8 @@ done
 python3 - "$out" "${names[@]}" <<'PY'
 import json, os, statistics, sys
 out, names = sys.argv[1], sys.argv[2:]
-print("\n%-12s %9s %11s %8s %13s %13s %7s" % ("pattern", "fused of", "trueness µm", "ATE mm", "ATE aligned", "graph corr mm", "wrong"))
+print("\n%-12s %9s %11s %8s %13s %13s %7s %8s" % ("pattern", "in model", "trueness µm", "ATE mm", "ATE aligned", "graph corr mm", "wrong",
+                                                "seg/apart"))
 def listed(name):  # bursts the subset lists (all: the lossless replay's poses)
     path = os.path.join(out, "all", "poses.txt") if name == "all" else os.path.join(out, name + ".tum")
     return sum(1 for line in open(path) if line.strip() and not line.startswith("#"))
@@ -99,14 +100,17 @@ groups = {}
 for name in names:
     path = os.path.join(out, name, "report.json")
     r = json.load(open(path)) if os.path.exists(path) else {}
-    fused, rms = r.get("fused", 0), r.get("trueness_rms_um")
+    # Views in the saved model: those fused live, and those of segments that joined (fused at the
+    # end, at their optimised poses).
+    fused, rms = r.get("views_in_model", r.get("fused", 0)), r.get("trueness_rms_um")
     # A run's figures are shown only when they are sane: views fused and a trueness found.
     if not fused or rms is None or rms != rms:
         print("%-12s (no model: see %s.log)" % (name, os.path.join(out, name)))
         continue
     n = listed(name)
-    print("%-12s %9s %11.2f %8.3f %13.3f %13.3f %7d" % (name, "%d/%d" % (fused, n), rms, r["ate_mm"], r["ate_trajectory_aligned_mm"],
-                                                     r["pose_graph_max_correction_mm"], r["wrong_fusions"]))
+    print("%-12s %9s %11.2f %8.3f %13.3f %13.3f %7d %8s" % (name, "%d/%d" % (fused, n), rms, r["ate_mm"], r["ate_trajectory_aligned_mm"],
+                                                          r["pose_graph_max_correction_mm"], r["wrong_fusions"],
+                                                          "%d/%d" % (r.get("segments_started", 0), r.get("segments_apart", 0))))
     if fused < 0.9 * n:
         partial.append(name)
     groups.setdefault(name.split("_")[0], []).append(rms)
@@ -115,7 +119,7 @@ for g, v in groups.items():
     if len(v) > 1:
         print("%-12s trueness median %.2f µm [%.2f – %.2f] over %d offsets" % (g, statistics.median(v), min(v), max(v), len(v)))
 if partial:
-    print("fewer than 90 %% of the listed views fused (the track lost, a segment apart): %s; their trueness is of a part of the scan" % ", ".join(partial))
+    print("fewer than 90 %% of the listed views in the model (the track lost, a segment apart): %s; their trueness is of a part of the scan" % ", ".join(partial))
 PY
 exit
 }
