@@ -37,6 +37,10 @@ ScanAppOptions AppOptions(const ScanAppOptions& options) {
   return o;
 }
 
+// The bridge ring of a lossless replay of chosen views: this many times the live one (384 bursts at
+// the default 96: 115 MB at 640 × 480, bin 2).
+constexpr int kLosslessRingFactor = 4;
+
 }  // namespace
 
 ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& options,
@@ -50,9 +54,13 @@ ScanApp::ScanApp(const ProbeCalibration& calibration, const ScanAppOptions& opti
       std::make_unique<ReconstructStage>(calibration, o_.scan.recon, o_.scan.bin, o_.keep_views);
   std::unique_ptr<GapBridge> bridge;
   if ((o_.policy == EdgePolicy::kLive || o_.bridge_lossless) && o_.bridge.ring_bursts > 0) {
-    ring_ = std::make_unique<BurstRing>(static_cast<size_t>(o_.bridge.ring_bursts),
-                                        calibration.camera.width, calibration.camera.height, 4,
-                                        o_.scan.bin);
+    // A lossless replay's source is not held to real time: it reads ahead of the register stage by
+    // the items its edges hold (~7), each up to a sparse selection's gap of tens of bursts, and
+    // the bursts of the gap a bridge needs must still be in the ring then.
+    const int ring =
+        o_.bridge.ring_bursts * (o_.policy == EdgePolicy::kLive ? 1 : kLosslessRingFactor);
+    ring_ = std::make_unique<BurstRing>(static_cast<size_t>(ring), calibration.camera.width,
+                                        calibration.camera.height, 4, o_.scan.bin);
     bridge = std::make_unique<GapBridge>(o_.bridge, ring_.get(), calibration_, o_.scan.recon);
     bridge->WarmUp();
   }
