@@ -117,6 +117,7 @@ bool GapBridge::Bridge(ScanRegistrar* registrar, int64_t last_placed_ns, int64_t
     ++stats_.attempts;
     if (!recon_.Reconstruct(burst_.frames, &view_).ok()) continue;
     const TrackResult r = registrar->Register(view_, burst_.burst_seq, burst_.capture_ns);
+    registrar->MarkLastAsBridge();
     if (r.accepted) {
       ++stats_.placed;
       *placed_ns = burst_.capture_ns;

@@ -199,6 +199,14 @@ TEST(GapBridge, PlacesABurstFromTheGapAndThenTheRefusedViewAtATurn) {
   EXPECT_LT(placed_ns, b.capture_ns);
   EXPECT_GE(bridge.stats().placed, 1u);
   EXPECT_LE(bridge.stats().attempts, static_cast<uint64_t>(go.max_bursts));
+  // The bridging views helped the track but are not the scan's: no group, so no pose in the result.
+  int bridges = 0;
+  for (size_t k = 0; k < registrar.views().size(); ++k)
+    if (registrar.views()[k].bridge) {
+      ++bridges;
+      EXPECT_EQ(registrar.ViewGroup(static_cast<int64_t>(k)), -1);
+    }
+  EXPECT_EQ(bridges, static_cast<int>(bridge.stats().attempts));
   // The view again (its points as reconstructed: the refused attempt did not anchor them).
   ASSERT_TRUE(recon.Reconstruct(b.frames, &view).ok());
   const TrackResult again = registrar.Register(view, b.burst_seq, b.capture_ns);

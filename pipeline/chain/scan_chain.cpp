@@ -299,7 +299,7 @@ ScanRegistrar::UndoResult ScanRegistrar::UndoLastSeconds(double seconds) {
 
 int ScanRegistrar::ViewGroup(int64_t index) const {
   if (index < 0 || index >= static_cast<int64_t>(views_.size()) ||
-      !views_[static_cast<size_t>(index)].accepted)
+      !views_[static_cast<size_t>(index)].accepted || views_[static_cast<size_t>(index)].bridge)
     return -1;
   if (!given_poses_.empty()) return 0;
   const int s = tracker_.ViewSegment(index);

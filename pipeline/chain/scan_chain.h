@@ -165,6 +165,9 @@ struct ScanViewRecord {
   int64_t reference_ns = 0;  // capture time of the burst (mid-burst, ns)
   bool accepted = false;
   TrackingState state = TrackingState::kInitialising;
+  // Registered only to bridge a gap before another view (host/app/gap_bridge.h): it helped the
+  // track but is not one of the scan's views (not fused, no pose in the result).
+  bool bridge = false;
 };
 
 class ScanRegistrar {
@@ -202,8 +205,12 @@ class ScanRegistrar {
   bool ViewPose(int64_t index, Rigid3d* world_from_cam) const;
   // The group of frames view `index` was placed in: 0 for the main one (always with RegisterAtPose;
   // with Register, the first segment and those joined to it: Tracker::SegmentInMain), else its
-  // scan segment's number; −1 for a refused or undone view.
+  // scan segment's number; −1 for a refused or undone view, or a bridge (MarkLastAsBridge).
   int ViewGroup(int64_t index) const;
+  // The view just registered was a bridge (ScanViewRecord::bridge): left out of the result.
+  void MarkLastAsBridge() {
+    if (!views_.empty()) views_.back().bridge = true;
+  }
   // "Undo last seconds" (Register's views only, before FinishScan): the accepted views captured
   // within `seconds` of the newest accepted one (reference_ns; without capture times, the newest
   // accepted view only), back to the oldest the tracker can still undo
