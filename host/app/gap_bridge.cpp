@@ -84,7 +84,7 @@ GapBridge::GapBridge(const GapBridgeOptions& options, const BurstRing* ring,
     : o_(options), ring_(ring), recon_(view_calibration, recon, 1) {
   o_.Check();
   if (ring_ == nullptr) throw std::invalid_argument("GapBridge: no burst ring");
-  tried_.reserve(static_cast<size_t>(o_.max_bursts));
+  skip_.reserve(static_cast<size_t>(o_.max_bursts) + 16);
 }
 
 void GapBridge::WarmUp() {
@@ -103,17 +103,17 @@ bool BridgeApplies(const GapBridgeOptions& o, TrackingState state_before,
 }
 
 bool GapBridge::Bridge(ScanRegistrar* registrar, int64_t last_placed_ns, int64_t view_capture_ns,
-                       int64_t* placed_ns) {
+                       const std::vector<uint64_t>& seen, int64_t* placed_ns) {
   // The refused view's loss taken back: a burst from before it is tracked as if it had come first
   // (not for a view the tracker coasted: nothing to take back, no bridge).
   if (!registrar->RetractLoss()) return false;
   ++stats_.views;
-  tried_.clear();
+  skip_.assign(seen.begin(), seen.end());
   const int64_t gap = view_capture_ns - last_placed_ns;
   int64_t target = last_placed_ns + gap / 2;
-  for (int fits = 0; fits < o_.max_attempts && static_cast<int>(tried_.size()) < o_.max_bursts;) {
-    if (!ring_->TakeNearest(last_placed_ns, view_capture_ns, target, tried_, &burst_)) break;
-    tried_.push_back(burst_.burst_seq);
+  for (int fits = 0, bursts = 0; fits < o_.max_attempts && bursts < o_.max_bursts; ++bursts) {
+    if (!ring_->TakeNearest(last_placed_ns, view_capture_ns, target, skip_, &burst_)) break;
+    skip_.push_back(burst_.burst_seq);
     ++stats_.attempts;
     if (!recon_.Reconstruct(burst_.frames, &view_).ok()) continue;
     const TrackResult r = registrar->Register(view_, burst_.burst_seq, burst_.capture_ns);

@@ -194,7 +194,7 @@ TEST(GapBridge, PlacesABurstFromTheGapAndThenTheRefusedViewAtATurn) {
   ASSERT_TRUE(BridgeApplies(go, before, first, b.capture_ns, capture.back()));
   GapBridge bridge(go, &ring, recon.calibration(), o.recon);
   int64_t placed_ns = 0;
-  ASSERT_TRUE(bridge.Bridge(&registrar, capture.back(), b.capture_ns, &placed_ns));
+  ASSERT_TRUE(bridge.Bridge(&registrar, capture.back(), b.capture_ns, {220}, &placed_ns));
   EXPECT_GT(placed_ns, capture.back());
   EXPECT_LT(placed_ns, b.capture_ns);
   EXPECT_GE(bridge.stats().placed, 1u);
@@ -207,6 +207,9 @@ TEST(GapBridge, PlacesABurstFromTheGapAndThenTheRefusedViewAtATurn) {
       EXPECT_EQ(registrar.ViewGroup(static_cast<int64_t>(k)), -1);
     }
   EXPECT_EQ(bridges, static_cast<int>(bridge.stats().attempts));
+  EXPECT_EQ(registrar.accepted() + registrar.rejected() + bridges,
+            static_cast<int64_t>(registrar.views().size()))
+      << "a bridge counts as neither";
   // The view again (its points as reconstructed: the refused attempt did not anchor them).
   ASSERT_TRUE(recon.Reconstruct(b.frames, &view).ok());
   const TrackResult again = registrar.Register(view, b.burst_seq, b.capture_ns);

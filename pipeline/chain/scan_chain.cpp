@@ -194,6 +194,21 @@ TrackResult ScanRegistrar::Register(ReconstructedView& view, uint64_t burst_seq,
   return r;
 }
 
+void ScanRegistrar::MarkLastAsBridge() {
+  if (views_.empty() || views_.back().bridge) return;
+  ScanViewRecord& v = views_.back();
+  v.bridge = true;
+  if (v.accepted)
+    --accepted_;
+  else
+    --rejected_;
+  const int64_t index = static_cast<int64_t>(views_.size()) - 1;
+  for (auto it = events_.rbegin(); it != events_.rend() && (*it)["view"] == index; ++it) {
+    (*it)["bridge"] = true;
+    (*it)["fused"] = false;
+  }
+}
+
 bool ScanRegistrar::RetractLoss() {
   if (!tracker_.RetractLoss()) return false;
   retracted_counted_ =
@@ -570,7 +585,8 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
     out->apart.push_back(std::move(m));
   }
   const double n = static_cast<double>(std::max<int64_t>(times.bursts, 1));
-  j["bursts"] = n_views;
+  j["bursts"] =
+      std::count_if(views.begin(), views.end(), [](const ScanViewRecord& v) { return !v.bridge; });
   j["segments_started"] =
       tracker.segments() - 1;  // segments after the first (SegmentOptions::after_views)
   j["segments_joined"] = tracker.segments_joined();

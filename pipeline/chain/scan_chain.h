@@ -207,10 +207,9 @@ class ScanRegistrar {
   // with Register, the first segment and those joined to it: Tracker::SegmentInMain), else its
   // scan segment's number; −1 for a refused or undone view, or a bridge (MarkLastAsBridge).
   int ViewGroup(int64_t index) const;
-  // The view just registered was a bridge (ScanViewRecord::bridge): left out of the result.
-  void MarkLastAsBridge() {
-    if (!views_.empty()) views_.back().bridge = true;
-  }
+  // The view just registered was a bridge (ScanViewRecord::bridge): left out of the result and of
+  // the counts of views accepted and refused; its events say "bridge".
+  void MarkLastAsBridge();
   // "Undo last seconds" (Register's views only, before FinishScan): the accepted views captured
   // within `seconds` of the newest accepted one (reference_ns; without capture times, the newest
   // accepted view only), back to the oldest the tracker can still undo
