@@ -84,7 +84,7 @@ GapBridge::GapBridge(const GapBridgeOptions& options, const BurstRing* ring,
     : o_(options), ring_(ring), recon_(view_calibration, recon, 1) {
   o_.Check();
   if (ring_ == nullptr) throw std::invalid_argument("GapBridge: no burst ring");
-  skip_.reserve(static_cast<size_t>(o_.max_bursts) + 16);
+  skip_.reserve(static_cast<size_t>(o_.max_bursts));
 }
 
 void GapBridge::WarmUp() {
@@ -103,12 +103,15 @@ bool BridgeApplies(const GapBridgeOptions& o, TrackingState state_before,
 }
 
 bool GapBridge::Bridge(ScanRegistrar* registrar, int64_t last_placed_ns, int64_t view_capture_ns,
-                       const std::vector<uint64_t>& seen, int64_t* placed_ns) {
+                       int64_t* placed_ns) {
   // The refused view's loss taken back: a burst from before it is tracked as if it had come first
   // (not for a view the tracker coasted: nothing to take back, no bridge).
   if (!registrar->RetractLoss()) return false;
   ++stats_.views;
-  skip_.assign(seen.begin(), seen.end());
+  skip_.clear();
+  const std::vector<ScanViewRecord>& views = registrar->views();
+  for (auto v = views.rbegin(); v != views.rend() && !v->accepted; ++v)
+    skip_.push_back(v->burst_seq);
   const int64_t gap = view_capture_ns - last_placed_ns;
   int64_t target = last_placed_ns + gap / 2;
   for (int fits = 0, bursts = 0; fits < o_.max_attempts && bursts < o_.max_bursts; ++bursts) {
@@ -116,8 +119,8 @@ bool GapBridge::Bridge(ScanRegistrar* registrar, int64_t last_placed_ns, int64_t
     skip_.push_back(burst_.burst_seq);
     ++stats_.attempts;
     if (!recon_.Reconstruct(burst_.frames, &view_).ok()) continue;
-    const TrackResult r = registrar->Register(view_, burst_.burst_seq, burst_.capture_ns);
-    registrar->MarkLastAsBridge();
+    const TrackResult r =
+        registrar->Register(view_, burst_.burst_seq, burst_.capture_ns, /*bridge=*/true);
     if (r.accepted) {
       ++stats_.placed;
       *placed_ns = burst_.capture_ns;

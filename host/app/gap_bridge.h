@@ -91,11 +91,11 @@ class GapBridge {
   // and the scan's report counts it as registered) until one is placed or max_attempts fits or
   // max_bursts reconstructions are spent. The first is the kept burst nearest the middle of the
   // gap; after one with too few points, its later neighbour; after one refused otherwise, the one
-  // nearest a third of the gap (closer to the model). `seen`: bursts the tracker had as views since
-  // the last placed one (the refused view included), never tried again (their fate is known).
-  // Returns whether one was placed, and its capture time in *placed_ns.
+  // nearest a third of the gap (closer to the model). A burst the registrar has had since its last
+  // placed view (the refused view included) is never taken: its fate is known. Returns whether one
+  // was placed, and its capture time in *placed_ns.
   bool Bridge(ScanRegistrar* registrar, int64_t last_placed_ns, int64_t view_capture_ns,
-              const std::vector<uint64_t>& seen, int64_t* placed_ns);
+              int64_t* placed_ns);
   // Warms the reconstructor and view buffer up (one blank burst), so that the first bridge does not
   // allocate its maps.
   void WarmUp();
@@ -107,7 +107,8 @@ class GapBridge {
   ScanReconstructor recon_;
   IngestedBurst burst_;
   ReconstructedView view_;
-  std::vector<uint64_t> skip_;  // bursts not to take: seen as views, or tried
+  std::vector<uint64_t>
+      skip_;  // bursts not to take: registered since the last placed view, or tried
   Stats stats_;
 };
 

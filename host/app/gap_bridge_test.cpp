@@ -194,7 +194,7 @@ TEST(GapBridge, PlacesABurstFromTheGapAndThenTheRefusedViewAtATurn) {
   ASSERT_TRUE(BridgeApplies(go, before, first, b.capture_ns, capture.back()));
   GapBridge bridge(go, &ring, recon.calibration(), o.recon);
   int64_t placed_ns = 0;
-  ASSERT_TRUE(bridge.Bridge(&registrar, capture.back(), b.capture_ns, {220}, &placed_ns));
+  ASSERT_TRUE(bridge.Bridge(&registrar, capture.back(), b.capture_ns, &placed_ns));
   EXPECT_GT(placed_ns, capture.back());
   EXPECT_LT(placed_ns, b.capture_ns);
   EXPECT_GE(bridge.stats().placed, 1u);

@@ -24,7 +24,6 @@ bool RegisterStage::Run(ScanItem& item) {
     registrar_ = MakeRegistrar();
     epoch_ = item.epoch;
     last_placed_ns_ = 0;
-    seen_since_placed_.clear();
   }
   for (; undo_requests_ < item.undo_requests; ++undo_requests_)
     if (undo_->Record(registrar_->UndoLastSeconds(undo_seconds_))) ++undo_gen_;
@@ -38,12 +37,11 @@ bool RegisterStage::Run(ScanItem& item) {
   item.view_index = static_cast<int64_t>(registrar_->views().size());
   const TrackingState before = registrar_->tracker().state();
   item.track = registrar_->Register(item.view, item.burst.burst_seq, item.burst.capture_ns);
-  seen_since_placed_.push_back(item.burst.burst_seq);
   if (bridge_ && bridge_->Applies(before, item.track, item.burst.capture_ns, last_placed_ns_)) {
     // A gap the live policy left: a burst from between placed first, then this view again.
     int64_t placed_ns = 0;
-    const bool placed = bridge_->Bridge(registrar_.get(), last_placed_ns_, item.burst.capture_ns,
-                                        seen_since_placed_, &placed_ns);
+    const bool placed =
+        bridge_->Bridge(registrar_.get(), last_placed_ns_, item.burst.capture_ns, &placed_ns);
     bridge_views_.store(bridge_->stats().views, std::memory_order_relaxed);
     bridge_attempts_.store(bridge_->stats().attempts, std::memory_order_relaxed);
     bridge_placed_.store(bridge_->stats().placed, std::memory_order_relaxed);
@@ -54,10 +52,7 @@ bool RegisterStage::Run(ScanItem& item) {
       if (item.track.accepted) bridge_resumed_.fetch_add(1, std::memory_order_relaxed);
     }
   }
-  if (item.track.accepted) {
-    last_placed_ns_ = item.burst.capture_ns;
-    seen_since_placed_.clear();
-  }
+  if (item.track.accepted) last_placed_ns_ = item.burst.capture_ns;
   if (!item.track.accepted) refused_.fetch_add(1, std::memory_order_relaxed);
   view_pending_ = true;
   return true;  // refused views still go on: the preview shows them (red)

@@ -10,7 +10,6 @@
 #include <cstdint>
 #include <memory>
 #include <nlohmann/json.hpp>
-#include <vector>
 
 #include "host/app/gap_bridge.h"
 #include "host/app/scan_item.h"
@@ -51,7 +50,6 @@ class RegisterStage {
   uint64_t memory_views_ = 0;   // views since the figures were last published
   bool view_pending_ = false;   // Run registered a view, After commits it
   int64_t last_placed_ns_ = 0;  // capture time of the last view the tracker placed (this epoch)
-  std::vector<uint64_t> seen_since_placed_;  // bursts registered as views since then (a bridge's)
   std::atomic<uint64_t> refused_{0};
   std::atomic<uint64_t> bridge_views_{0}, bridge_attempts_{0}, bridge_placed_{0},
       bridge_resumed_{0};

@@ -146,7 +146,7 @@ ScanRegistrar::ScanRegistrar(const ProbeCalibration& calibration, const TrackerO
 }
 
 TrackResult ScanRegistrar::Register(ReconstructedView& view, uint64_t burst_seq,
-                                    int64_t reference_ns) {
+                                    int64_t reference_ns, bool bridge) {
   D3D_CHECK_MSG(given_poses_.empty(), "ScanRegistrar: Register after RegisterAtPose");
   const auto t0 = Clock::now();
   const int64_t index = static_cast<int64_t>(views_.size());
@@ -170,43 +170,24 @@ TrackResult ScanRegistrar::Register(ReconstructedView& view, uint64_t burst_seq,
                                  copy ? track_normals_ : view.normals, view.quality, view.texture,
                                  augment, reference_ns);
   ms_ += MsSince(t0);  // with OdometryOptions::defer_model_insert, Commit() adds the insert's
-  if (r.accepted)
-    ++accepted_;
-  else
-    ++rejected_;
+  if (!bridge) ++(r.accepted ? accepted_ : rejected_);  // a bridge is not one of the scan's views
   if (r.state == TrackingState::kLost && prev_state_ != TrackingState::kLost) ++lost_events_;
   if (r.state == TrackingState::kRelocalised) ++relocalised_;
-  if (r.state != TrackingState::kTracking || !r.accepted || r.new_segment)
-    events_.push_back({{"view", index},
-                       {"burst", burst_seq},
-                       {"state", TrackingStateName(r.state)},
-                       {"fused", r.accepted && r.in_main},
-                       {"reason", r.reason}});
-  if (!r.join_attempt.empty())  // joined, or why not
-    events_.push_back({{"view", index},
-                       {"burst", burst_seq},
-                       {"state", TrackingStateName(r.state)},
-                       {"fused", r.accepted && r.in_main},
-                       {"reason", "segment join: " + r.join_attempt}});
+  auto event = [&](const std::string& reason) {
+    nlohmann::json e = {{"view", index},
+                        {"burst", burst_seq},
+                        {"state", TrackingStateName(r.state)},
+                        {"fused", r.accepted && r.in_main && !bridge},
+                        {"reason", reason}};
+    if (bridge) e["bridge"] = true;
+    events_.push_back(std::move(e));
+  };
+  if (r.state != TrackingState::kTracking || !r.accepted || r.new_segment) event(r.reason);
+  if (!r.join_attempt.empty()) event("segment join: " + r.join_attempt);  // joined, or why not
   state_before_last_ = prev_state_;
   prev_state_ = r.state;
-  views_.push_back({burst_seq, reference_ns, r.accepted, r.state});
+  views_.push_back({burst_seq, reference_ns, r.accepted, r.state, bridge});
   return r;
-}
-
-void ScanRegistrar::MarkLastAsBridge() {
-  if (views_.empty() || views_.back().bridge) return;
-  ScanViewRecord& v = views_.back();
-  v.bridge = true;
-  if (v.accepted)
-    --accepted_;
-  else
-    --rejected_;
-  const int64_t index = static_cast<int64_t>(views_.size()) - 1;
-  for (auto it = events_.rbegin(); it != events_.rend() && (*it)["view"] == index; ++it) {
-    (*it)["bridge"] = true;
-    (*it)["fused"] = false;
-  }
 }
 
 bool ScanRegistrar::RetractLoss() {

@@ -188,7 +188,11 @@ class ScanRegistrar {
   // the border) would bias the pose, which every other point of the view then inherits; they are
   // there for the fusion's coverage. Typodont seed 2 with them registered: ATE 0.048 → 0.067 mm,
   // trueness 7.9 → 12.1 µm RMS.
-  TrackResult Register(ReconstructedView& view, uint64_t burst_seq, int64_t reference_ns);
+  // bridge: the view is registered only to bridge a gap before another one
+  // (ScanViewRecord::bridge): left out of the result and of the counts of views accepted and
+  // refused; its events say "bridge".
+  TrackResult Register(ReconstructedView& view, uint64_t burst_seq, int64_t reference_ns,
+                       bool bridge = false);
   // With OdometryOptions::defer_model_insert: the last Register's model insert, which Register left
   // pending (Tracker::CommitView); call it once the view has been passed on. The next Register or
   // UndoLastSeconds runs a pending one first.
@@ -205,11 +209,8 @@ class ScanRegistrar {
   bool ViewPose(int64_t index, Rigid3d* world_from_cam) const;
   // The group of frames view `index` was placed in: 0 for the main one (always with RegisterAtPose;
   // with Register, the first segment and those joined to it: Tracker::SegmentInMain), else its
-  // scan segment's number; −1 for a refused or undone view, or a bridge (MarkLastAsBridge).
+  // scan segment's number; −1 for a refused or undone view, or a bridge (Register's `bridge`).
   int ViewGroup(int64_t index) const;
-  // The view just registered was a bridge (ScanViewRecord::bridge): left out of the result and of
-  // the counts of views accepted and refused; its events say "bridge".
-  void MarkLastAsBridge();
   // "Undo last seconds" (Register's views only, before FinishScan): the accepted views captured
   // within `seconds` of the newest accepted one (reference_ns; without capture times, the newest
   // accepted view only), back to the oldest the tracker can still undo
