@@ -449,7 +449,8 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   // segment apart with more views (the scan lost the model early and went on there; it needs its
   // views again: a provider). The other groups are saved on their own, never fused at a guess.
   int joined_at_end = 0;
-  if (tracker.segments() > 1) joined_at_end = tracker.JoinApartSegments();
+  std::vector<std::string> join_attempts_at_end;
+  if (tracker.segments() > 1) joined_at_end = tracker.JoinApartSegments(&join_attempts_at_end);
   std::map<int, int64_t> group_views;
   for (int64_t k = 0; k < n_views; ++k)
     if (const int g = registrar->ViewGroup(k); g >= 0) ++group_views[g];
@@ -572,6 +573,7 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
       tracker.segments() - 1;  // segments after the first (SegmentOptions::after_views)
   j["segments_joined"] = tracker.segments_joined();
   j["segments_joined_at_end"] = joined_at_end;
+  j["segment_joins_at_end"] = join_attempts_at_end;  // what each last attempt found
   j["segments_apart"] = static_cast<int64_t>(group_views.size()) -
                         (group_views.empty() ? 0 : 1);  // saved as segment_N.ply
   j["views_apart"] = views_apart;

@@ -2,16 +2,18 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <utility>
 
 namespace d3d {
 
 void SegmentOptions::Check() const {
-  D3D_CHECK_MSG(
-      after_views >= 0 && max_segments >= 1 && join_every >= 1 && join_feature_keyframes >= 0,
-      "SegmentOptions: after_views >= 0 (0 = off), max_segments >= 1, join_every >= 1, "
-      "join_feature_keyframes >= 0");
+  D3D_CHECK_MSG(after_views >= 0 && max_segments >= 1 && join_every >= 1 &&
+                    join_feature_keyframes >= 0 && join_starts_at_end >= 0 &&
+                    join_start_gate_mm > 0,
+                "SegmentOptions: after_views >= 0 (0 = off), max_segments >= 1, join_every >= 1, "
+                "join_feature_keyframes >= 0, join_starts_at_end >= 0, join_start_gate_mm > 0");
   join.Check();
 }
 
@@ -100,7 +102,7 @@ void Segments::Start(int64_t view, const Rigid3d& last_pose, Rigid3d* pose, Trac
   undo_barrier_view_ = view + 1;  // undo does not reach back before it
 }
 
-bool Segments::FindJoin(int s, SegmentJoinResult* join, int* newest_out, std::string* how,
+bool Segments::FindJoin(int s, bool at_end, SegmentJoinResult* join, int* anchor, std::string* how,
                         std::string* why) {
   // The segment's model samples (they lie around its offset) and its newest keyframe.
   const PointMap& map = odometry_.model();
@@ -135,10 +137,101 @@ bool Segments::FindJoin(int s, SegmentJoinResult* join, int* newest_out, std::st
       }
     }
   }
+  *anchor = newest;
+  if (!r.ok && at_end && o_.join_starts_at_end > 0) {
+    std::string starts_why;
+    SegmentJoinResult f = JoinFromKeyframeStarts(s, source, anchor, &starts_why);
+    if (f.ok) {
+      r = std::move(f);
+      *how = "keyframe starts (" + starts_why + ")";
+    } else {
+      *why += "; keyframe starts: " + starts_why;
+    }
+  }
   if (!r.ok) return false;
   *join = std::move(r);
-  *newest_out = newest;
   return true;
+}
+
+SegmentJoinResult Segments::JoinFromKeyframeStarts(int s, const SegmentJoinTarget& seg, int* anchor,
+                                                   std::string* why) {
+  SegmentJoinResult none;
+  if (join_target_.empty() || seg.empty()) {
+    *why = "nothing to join";
+    return none;
+  }
+  const std::vector<Keyframe>& kfs = keyframes_.keyframes();
+  std::vector<int> main, first;
+  for (int k = 0; k < static_cast<int>(kfs.size()); ++k) {
+    const int g = kfs[static_cast<size_t>(k)].segment;
+    if (g == s && static_cast<int>(first.size()) < o_.join_starts_at_end) first.push_back(k);
+    if (g != s && InMain(g)) main.push_back(k);
+  }
+  // One view held at a main keyframe's camera: a wide first gate brings it in from the few
+  // millimetres between two passes' cameras; the whole segment's refinement decides (a single view
+  // of a smooth crown may be degenerate on its own).
+  // Capped samples: a start only has to show that the view lies on the model there (most of it,
+  // closely); the segment's refinement measures the join. No eigenvalue limit on one view: a
+  // smooth crown may be degenerate alone, the whole segment is not. (A cheaper screen, 500 samples
+  // and an acceptance at 1 mm, held none of incisors-first's right starts: docs/decisions/0005.)
+  IcpOptions start = o_.join.icp;
+  start.levels = {IcpLevel{1, 20, o_.join_start_gate_mm, 0.5, 1500},
+                  IcpLevel{1, 10, 1.0, 0.7, 1500}, IcpLevel{1, 8, 0.3, 0.9, 3000}};
+  start.min_overlap = 0.3;
+  start.max_rmse_mm = 0.06;
+  start.min_eigen_ratio = 0;
+  const KdTreeTarget main_tree(join_target_.samples);
+  struct Held {
+    SegmentJoinResult join;
+    int anchor;
+  };
+  std::vector<Held> held;
+  int starts = 0, views_held = 0;
+  for (const int k : first) {
+    const Rigid3d segment_from_cam = keyframes_.world_from_keyframe(k);
+    for (const int j : main) {
+      ++starts;
+      const IcpResult v = RegisterIcp(kfs[static_cast<size_t>(k)].samples, main_tree,
+                                      keyframes_.world_from_keyframe(j), start);
+      if (!v.ok) continue;
+      ++views_held;
+      const Rigid3d guess = v.target_from_source * segment_from_cam.inverse();
+      // A start that lands where an earlier one was refined adds nothing.
+      bool known = false;
+      for (const Held& h : held)
+        known = known || (TranslationDistanceMm(h.join.main_from_segment, guess) < 0.5 &&
+                          RotationAngleRad(h.join.main_from_segment, guess) < 1.0 * M_PI / 180);
+      if (known) continue;
+      SegmentJoinResult r = RefineSegmentJoin(seg, join_target_, guess, o_.join);
+      if (r.ok) held.push_back({std::move(r), k});
+    }
+  }
+  char counts[96];
+  std::snprintf(counts, sizeof counts, "%d starts, %d views held, %zu joins", starts, views_held,
+                held.size());
+  if (held.empty()) {
+    *why = counts;
+    return none;
+  }
+  // The best refined join, and no other far from it.
+  size_t best = 0;
+  for (size_t i = 1; i < held.size(); ++i)
+    if (held[i].join.icp.correspondences > held[best].join.icp.correspondences) best = i;
+  const Rigid3d& T = held[best].join.main_from_segment;
+  for (const Held& h : held) {
+    const double mm = TranslationDistanceMm(h.join.main_from_segment, T);
+    const double deg = RotationAngleRad(h.join.main_from_segment, T) * 180 / M_PI;
+    if (mm > o_.join.fpfh.ambiguity_mm || deg > o_.join.fpfh.ambiguity_deg) {
+      char amb[160];
+      std::snprintf(amb, sizeof amb, "%s: ambiguous (two joins %.1f mm / %.1f deg apart)", counts,
+                    mm, deg);
+      *why = amb;
+      return none;
+    }
+  }
+  *anchor = held[best].anchor;
+  *why = counts;
+  return std::move(held[best].join);
 }
 
 SegmentJoinResult Segments::JoinByFeatures(int s, int newest, const SegmentJoinTarget& seg,

@@ -5,10 +5,11 @@
 // searches or the pose graph), and the track goes on there. Every join_every new keyframes of a
 // segment not joined yet, it is registered onto the main model (segment_join.h: FPFH + RANSAC +
 // ICP; when FPFH finds nothing, keyframe features against join_feature_keyframes main keyframes per
-// attempt, in turn); the Tracker verifies the join like a re-entry (relocaliser.h), and then the
-// segment's keyframes and model samples move into the main frame and a loop edge joins it to the
-// main keyframes (Merge). Undo (Tracker::UndoFrom) does not reach back past a segment's start or
-// join.
+// attempt, in turn; at the end of the scan also from the segment's first keyframes put at every
+// main keyframe's camera, join_starts_at_end); the Tracker verifies the join like a re-entry
+// (relocaliser.h), and then the segment's keyframes and model samples move into the main frame and
+// a loop edge joins it to the main keyframes (Merge). Undo (Tracker::UndoFrom) does not reach back
+// past a segment's start or join.
 //
 // Owns: the segment list (first view, joined, join-attempt bookkeeping), the active segment, the
 // count of views refused in a row, the undo barrier and the main model's join features (made when a
@@ -35,6 +36,15 @@ struct SegmentOptions {
   int join_every = 1;     // new keyframes of a segment apart between join attempts
   int join_feature_keyframes =
       8;  // main keyframes the feature join tries per attempt; 0: FPFH only
+  // The end of the scan's last try for a segment still apart (JoinApartSegments), when FPFH and the
+  // features found nothing: the probe may have come back over ground scanned long before, far from
+  // where the track was lost (a quadrant started again from the incisors the scan began on). Each
+  // of the segment's first join_starts_at_end keyframes is put where each main keyframe's camera
+  // was, ICP (a wide first gate, join_start_gate_mm) holds it there or not, and the segment is
+  // refined from every start that held (RefineSegmentJoin); two refined joins apart (the FPFH
+  // ambiguity distances) refuse. 0 = off.
+  int join_starts_at_end = 3;
+  double join_start_gate_mm = 3.0;
   SegmentJoinOptions join;
   void Check() const;  // throws std::invalid_argument
 };
@@ -74,8 +84,10 @@ class Segments {
   // set.
   void Start(int64_t view, const Rigid3d& last_pose, Rigid3d* pose, TrackResult* out);
   // Registers segment s onto the main model: true with the join (*join, main_from_segment), the
-  // segment's newest keyframe and *how it was found; false with *why.
-  bool FindJoin(int s, SegmentJoinResult* join, int* newest, std::string* how, std::string* why);
+  // segment keyframe it rests on (*anchor: the newest, or the one the start held) and *how it was
+  // found; false with *why. at_end: also the end of the scan's starts (join_starts_at_end).
+  bool FindJoin(int s, bool at_end, SegmentJoinResult* join, int* anchor, std::string* how,
+                std::string* why);
   // Merges a verified join of segment s (main_from_segment T, newest keyframe `newest`) before
   // view `view`: its keyframes and model samples move into the main frame, edges join it to the
   // main keyframes, and undo starts again after the view.
@@ -89,6 +101,9 @@ class Segments {
   // keyframes in turn, refined by RefineSegmentJoin on `seg`.
   SegmentJoinResult JoinByFeatures(int s, int newest, const SegmentJoinTarget& seg,
                                    std::string* why);
+  // The join's third way, at the end of the scan (SegmentOptions::join_starts_at_end).
+  SegmentJoinResult JoinFromKeyframeStarts(int s, const SegmentJoinTarget& seg, int* anchor,
+                                           std::string* why);
 
   SegmentOptions o_;
   Odometry& odometry_;

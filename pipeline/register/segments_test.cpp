@@ -119,7 +119,7 @@ TEST_F(SegmentsTest, FindsAndMergesASegmentThatOverlapsTheMainModel) {
   SegmentJoinResult join;
   int newest = -1;
   std::string how, why;
-  ASSERT_TRUE(segments.FindJoin(1, &join, &newest, &how, &why)) << why;
+  ASSERT_TRUE(segments.FindJoin(1, false, &join, &newest, &how, &why)) << why;
   EXPECT_EQ(how, "fpfh");
   EXPECT_EQ(newest, keyframes_.size() - 1);
   // Judged where the surface is (the transform's own origin lies 2 m away, in the main frame).
@@ -158,13 +158,14 @@ TEST_F(SegmentsTest, ASegmentApartFromTheModelIsNotJoined) {
   SegmentJoinResult join;
   int newest = -1;
   std::string how, why;
-  EXPECT_FALSE(segments.FindJoin(1, &join, &newest, &how, &why));  // no such segment yet: empty
+  EXPECT_FALSE(
+      segments.FindJoin(1, false, &join, &newest, &how, &why));  // no such segment yet: empty
   EXPECT_EQ(why, "the segment is empty");
   segments.Start(view, LookDown(-15, 0, 30), &pose, &out);
   const Rigid3d segment_from_main = segments.MainFromSegmentFrame(1).inverse();
   for (double x = 14; x <= 19.01; x += 0.5, ++view)
     Place(LookDown(x, 0, 30), segment_from_main * LookDown(x, 0, 30), view, 1);
-  EXPECT_FALSE(segments.FindJoin(1, &join, &newest, &how, &why));
+  EXPECT_FALSE(segments.FindJoin(1, false, &join, &newest, &how, &why));
   EXPECT_FALSE(why.empty());
   EXPECT_FALSE(segments.InMain(1));
 }

@@ -304,10 +304,10 @@ void Tracker::StartSegment(Rigid3d* pose, TrackResult* out) {
   odometry_.ForgetResiduals();
 }
 
-bool Tracker::TryJoinSegment(int s, std::string* why, Rigid3d* main_from_segment) {
+bool Tracker::TryJoinSegment(int s, std::string* why, Rigid3d* main_from_segment, bool at_end) {
   const auto t0 = std::chrono::steady_clock::now();
   Rigid3d t;
-  const bool joined = JoinSegmentNow(s, why, &t);
+  const bool joined = JoinSegmentNow(s, at_end, why, &t);
   if (joined && main_from_segment != nullptr) *main_from_segment = t;
   char ms[32];
   std::snprintf(ms, sizeof ms, " (%.0f ms)", Ms(t0));
@@ -315,28 +315,38 @@ bool Tracker::TryJoinSegment(int s, std::string* why, Rigid3d* main_from_segment
   return joined;
 }
 
-bool Tracker::JoinSegmentNow(int s, std::string* why, Rigid3d* main_from_segment) {
+bool Tracker::JoinSegmentNow(int s, bool at_end, std::string* why, Rigid3d* main_from_segment) {
   SegmentJoinResult r;
-  int newest = -1;
+  int anchor = -1;
   std::string how;
-  if (!segments_.FindJoin(s, &r, &newest, &how, why)) return false;
+  if (!segments_.FindJoin(s, at_end, &r, &anchor, &how, why)) return false;
   const Rigid3d& T = r.main_from_segment;
   *main_from_segment = T;
-  // Verified like a re-entry: the newest keyframe at its joined pose does not contradict what the
-  // main keyframes near it saw.
-  const Keyframe& kn = keyframe_graph_.keyframes()[static_cast<size_t>(newest)];
-  const ReentryEvidence evidence =
-      relocaliser_.CheckReentry(kn.samples, T * keyframe_graph_.world_from_keyframe(newest));
-  if (!evidence.ok) {
-    *why = "join: " + evidence.reason;
-    return false;
+  // Verified like a re-entry: the keyframe the join rests on, and the segment's newest, at their
+  // joined poses do not contradict what the main keyframes near them saw.
+  const std::vector<Keyframe>& kfs = keyframe_graph_.keyframes();
+  int newest = anchor;
+  for (int k = static_cast<int>(kfs.size()) - 1; k > anchor; --k)
+    if (kfs[static_cast<size_t>(k)].segment == s) {
+      newest = k;
+      break;
+    }
+  std::vector<int> checked = {anchor};
+  if (newest != anchor) checked.push_back(newest);
+  for (const int k : checked) {
+    const ReentryEvidence evidence = relocaliser_.CheckReentry(
+        kfs[static_cast<size_t>(k)].samples, T * keyframe_graph_.world_from_keyframe(k));
+    if (!evidence.ok) {
+      *why = "join: " + evidence.reason;
+      return false;
+    }
   }
   // Merge: the segment's keyframes, model samples (segments.h), views' logged poses and motion
   // state into the main frame.
   for (int64_t v = 0; v < views(); ++v)
     if (ViewSegment(v) == s)
       view_log_[static_cast<size_t>(v)].pose = T * view_log_[static_cast<size_t>(v)].pose;
-  segments_.Merge(s, T, newest, index_);
+  segments_.Merge(s, T, anchor, index_);
   if (segments_.active() == s) {
     motion_.MoveFrame(T);
     relocaliser_.DropCandidate();
@@ -375,14 +385,15 @@ int Tracker::ViewSegment(int64_t view) const {
   return keyframes()[static_cast<size_t>(anchor_[static_cast<size_t>(view)])].segment;
 }
 
-int Tracker::JoinApartSegments() {
+int Tracker::JoinApartSegments(std::vector<std::string>* attempts) {
   CommitView();
   int joined = 0;
   for (int seg = 1; seg < segments_.size(); ++seg) {
     if (segments_.InMain(seg)) continue;
     segments_.RefreshJoinTarget();  // the main model as it is now
     std::string why;
-    joined += TryJoinSegment(seg, &why);
+    joined += TryJoinSegment(seg, &why, nullptr, true);
+    if (attempts != nullptr) attempts->push_back("segment " + std::to_string(seg) + ": " + why);
   }
   return joined;
 }

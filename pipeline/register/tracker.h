@@ -141,9 +141,10 @@ class Tracker {
   Rigid3d MainFromSegmentFrame(int segment) const {
     return segments_.MainFromSegmentFrame(segment);
   }
-  // A last join attempt for every segment not joined yet (at the end of a scan, before Optimize):
-  // returns how many joined.
-  int JoinApartSegments();
+  // A last join attempt for every segment not joined yet (at the end of a scan, before Optimize),
+  // wider than during the scan (SegmentOptions::join_starts_at_end): returns how many joined;
+  // *attempts (optional) gets one line per segment tried: "segment S: " and what the attempt found.
+  int JoinApartSegments(std::vector<std::string>* attempts = nullptr);
   // Takes back what the last view did to the tracking state when it was refused right after the
   // track was held (kTracking or kRelocalised): the state, the refused-in-a-row count, the count of
   // views without points and any re-entry candidate are put back as before it; the view stays
@@ -172,8 +173,11 @@ class Tracker {
   void StartSegment(Rigid3d* pose, TrackResult* out);
   // Tries to join segment s to the main model; true when it did (then merged). *why: what it
   // found, and its time. *main_from_segment (optional): the join's transform, when it joined.
-  bool TryJoinSegment(int s, std::string* why, Rigid3d* main_from_segment = nullptr);
-  bool JoinSegmentNow(int s, std::string* why, Rigid3d* main_from_segment);  // the same, untimed
+  // at_end: the end of the scan's wider try (SegmentOptions::join_starts_at_end).
+  bool TryJoinSegment(int s, std::string* why, Rigid3d* main_from_segment = nullptr,
+                      bool at_end = false);
+  bool JoinSegmentNow(int s, bool at_end, std::string* why,
+                      Rigid3d* main_from_segment);  // the same, untimed
 
   PinholeBrownConrady camera_;
   TrackerOptions o_;

@@ -31,6 +31,16 @@ class TrackerScan : public ::testing::Test {
   HeightField hf_;
   PinholeBrownConrady cam_;
   PinholeBrownConrady small_cam_ = TestCamera(160, 120, 500);
+  // Feed at Truth(x, 0) with *seed (then incremented); an accepted view's index and true pose go
+  // to *accepted.
+  TrackResult FeedAndKeep(Tracker* t, double x, uint32_t* seed,
+                          std::vector<std::pair<int64_t, Rigid3d>>* accepted) {
+    const Rigid3d pose = Truth(x, 0);
+    const int64_t view = t->views();
+    const TrackResult r = Feed(t, pose, (*seed)++);
+    if (r.accepted) accepted->emplace_back(view, pose);
+    return r;
+  }
   void LostScanStartsASegmentThatJoins(const TrackerOptions& o, const std::string& joined_by);
 };
 
@@ -477,13 +487,7 @@ void TrackerScan::LostScanStartsASegmentThatJoins(const TrackerOptions& o,
   Tracker tracker(cam_, o);
   std::vector<std::pair<int64_t, Rigid3d>> truth;  // accepted views
   uint32_t seed = 1;
-  auto feed = [&](double x) {
-    const Rigid3d pose = Truth(x, 0);
-    const int64_t view = tracker.views();
-    const TrackResult r = Feed(&tracker, pose, seed++);
-    if (r.accepted) truth.emplace_back(view, pose);
-    return r;
-  };
+  auto feed = [&](double x) { return FeedAndKeep(&tracker, x, &seed, &truth); };
   for (double x = -20; x <= -12.99; x += 1.0) ASSERT_TRUE(feed(x).accepted);
   // Put down 17 mm further on: no view there overlaps the model.
   int refused = 0, started = 0;
@@ -581,6 +585,42 @@ TEST_F(TrackerScan, UndoneRefusedViewsDoNotCountTowardASegment) {
   const TrackResult third = Feed(&tracker, Truth(14, 0), seed++);
   EXPECT_TRUE(third.new_segment);
   EXPECT_EQ(tracker.segments(), 2);
+}
+
+// The probe put back over the ground the scan began on, far from where it was lifted, and moved
+// on from there over new ground (a quadrant started again from the incisors): the relocaliser looks
+// near the lift, FPFH and the features find nothing here, so the segment grows apart. At the end of
+// the scan its first keyframe, put where each main keyframe's camera was, is held by ICP and the
+// segment joins, at the true poses.
+TEST_F(TrackerScan, ASegmentBackOnTheScansFirstGroundJoinsAtTheEndFromAKeyframeStart) {
+  TrackerOptions o = SegmentTestOptions();
+  o.segments.join.fpfh.min_overlap = 1.0;  // FPFH's verification never passes
+  o.segments.join_feature_keyframes = 0;
+  o.relocaliser.by_features = false;
+  Tracker tracker(cam_, o);
+  std::vector<std::pair<int64_t, Rigid3d>> truth;  // accepted views
+  uint32_t seed = 1;
+  auto feed = [&](double x) { return FeedAndKeep(&tracker, x, &seed, &truth); };
+  for (double x = -20; x <= -12.99; x += 1.0) ASSERT_TRUE(feed(x).accepted);
+  // Lifted at -13, put back at -20 and moved away from the model.
+  for (double x = -20; x >= -30.01; x -= 1.0) feed(x);
+  ASSERT_EQ(tracker.segments(), 2);
+  ASSERT_FALSE(tracker.SegmentInMain(1));
+  EXPECT_EQ(tracker.JoinApartSegments(), 1);
+  ASSERT_TRUE(tracker.SegmentInMain(1));
+  PoseGraphSummary summary;
+  ASSERT_TRUE(tracker.Optimize({}, &summary).ok());
+  const Rigid3d first_inv = truth.front().second.inverse();
+  int segment_views = 0;
+  for (const auto& [view, pose] : truth) {
+    Rigid3d p;
+    ASSERT_TRUE(tracker.ViewPose(view, &p));
+    segment_views += tracker.ViewSegment(view) == 1;
+    const Rigid3d want = first_inv * pose;
+    EXPECT_LT(TranslationDistanceMm(p, want), 0.05) << "view " << view;
+    EXPECT_LT(RotationAngleRad(p, want) * 180 / M_PI, 0.1) << "view " << view;
+  }
+  EXPECT_GE(segment_views, 5);
 }
 
 TEST_F(TrackerScan, ASegmentThatNeverOverlapsStaysApart) {
