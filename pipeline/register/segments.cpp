@@ -102,6 +102,13 @@ void Segments::Start(int64_t view, const Rigid3d& last_pose, Rigid3d* pose, Trac
   undo_barrier_view_ = view + 1;  // undo does not reach back before it
 }
 
+int Segments::NewestKeyframe(int s) const {
+  const std::vector<Keyframe>& kfs = keyframes_.keyframes();
+  for (int k = static_cast<int>(kfs.size()) - 1; k >= 0; --k)
+    if (kfs[static_cast<size_t>(k)].segment == s) return k;
+  return -1;
+}
+
 bool Segments::FindJoin(int s, bool at_end, SegmentJoinResult* join, int* anchor, std::string* how,
                         std::string* why) {
   // The segment's model samples (they lie around its offset) and its newest keyframe.
@@ -112,10 +119,7 @@ bool Segments::FindJoin(int s, bool at_end, SegmentJoinResult* join, int* anchor
     seg.points.push_back(map.points()[i]);
     seg.normals.push_back(map.normals()[i]);
   }
-  const std::vector<Keyframe>& kfs = keyframes_.keyframes();
-  int newest = -1;
-  for (int k = static_cast<int>(kfs.size()) - 1; k >= 0 && newest < 0; --k)
-    if (kfs[static_cast<size_t>(k)].segment == s) newest = k;
+  const int newest = NewestKeyframe(s);
   if (seg.empty() || newest < 0) {
     *why = "the segment is empty";
     return false;
@@ -168,12 +172,11 @@ SegmentJoinResult Segments::JoinFromKeyframeStarts(int s, const SegmentJoinTarge
     if (g != s && InMain(g)) main.push_back(k);
   }
   // One view held at a main keyframe's camera: a wide first gate brings it in from the few
-  // millimetres between two passes' cameras; the whole segment's refinement decides (a single view
-  // of a smooth crown may be degenerate on its own).
-  // Capped samples: a start only has to show that the view lies on the model there (most of it,
-  // closely); the segment's refinement measures the join. No eigenvalue limit on one view: a
-  // smooth crown may be degenerate alone, the whole segment is not. (A cheaper screen, 500 samples
-  // and an acceptance at 1 mm, held none of incisors-first's right starts: docs/decisions/0005.)
+  // millimetres between two passes' cameras, and capped samples suffice to show that the view lies
+  // on the model there; the whole segment's refinement measures the join. No eigenvalue limit on
+  // one view: a smooth crown may be degenerate alone, the whole segment is not. (A cheaper screen,
+  // 500 samples and an acceptance at 1 mm, held none of incisors-first's right starts:
+  // docs/decisions/0005.)
   IcpOptions start = o_.join.icp;
   start.levels = {IcpLevel{1, 20, o_.join_start_gate_mm, 0.5, 1500},
                   IcpLevel{1, 10, 1.0, 0.7, 1500}, IcpLevel{1, 8, 0.3, 0.9, 3000}};
@@ -271,7 +274,7 @@ SegmentJoinResult Segments::JoinByFeatures(int s, int newest, const SegmentJoinT
   return none;
 }
 
-void Segments::Merge(int s, const Rigid3d& T, int newest, int64_t view) {
+void Segments::Merge(int s, const Rigid3d& T, int anchor, int64_t view) {
   // The segment's keyframes and model samples into the main frame.
   keyframes_.MoveSegment(s, T);
   const PointMap& map = odometry_.model();
@@ -289,10 +292,10 @@ void Segments::Merge(int s, const Rigid3d& T, int newest, int64_t view) {
   merged.Insert(all, Rigid3d::Identity());
   odometry_.ReplaceModel(std::move(merged));
   segments_[static_cast<size_t>(s)].joined = true;
-  // A loop edge between the newest keyframe and the nearest main keyframes that overlap it.
+  // A loop edge between the anchor keyframe and the nearest main keyframes that overlap it.
   const std::vector<Keyframe>& kfs = keyframes_.keyframes();
-  const Keyframe& kn = kfs[static_cast<size_t>(newest)];
-  const Eigen::Vector3d c = keyframes_.CentreInWorld(newest);
+  const Keyframe& kn = kfs[static_cast<size_t>(anchor)];
+  const Eigen::Vector3d c = keyframes_.CentreInWorld(anchor);
   std::vector<std::pair<double, int>> near;
   for (int j = 0; j < static_cast<int>(kfs.size()); ++j) {
     const Keyframe& kf = kfs[static_cast<size_t>(j)];
@@ -304,7 +307,7 @@ void Segments::Merge(int s, const Rigid3d& T, int newest, int64_t view) {
   for (size_t i = 0; i < near.size() && i < 6 && edges < 2; ++i) {
     PoseGraphEdge e;
     const int j = near[i].second;
-    if (!keyframes_.MeasureEdge(std::min(j, newest), std::max(j, newest), &e)) continue;
+    if (!keyframes_.MeasureEdge(std::min(j, anchor), std::max(j, anchor), &e)) continue;
     e.loop = true;
     keyframes_.AddEdge(e);
     ++edges;

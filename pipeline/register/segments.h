@@ -88,10 +88,12 @@ class Segments {
   // found; false with *why. at_end: also the end of the scan's starts (join_starts_at_end).
   bool FindJoin(int s, bool at_end, SegmentJoinResult* join, int* anchor, std::string* how,
                 std::string* why);
-  // Merges a verified join of segment s (main_from_segment T, newest keyframe `newest`) before
-  // view `view`: its keyframes and model samples move into the main frame, edges join it to the
-  // main keyframes, and undo starts again after the view.
-  void Merge(int s, const Rigid3d& T, int newest, int64_t view);
+  // The newest keyframe made in segment s, −1 when it has none.
+  int NewestKeyframe(int s) const;
+  // Merges a verified join of segment s (main_from_segment T, resting on segment keyframe
+  // `anchor`) before view `view`: its keyframes and model samples move into the main frame, edges
+  // join the anchor to the main keyframes, and undo starts again after the view.
+  void Merge(int s, const Rigid3d& T, int anchor, int64_t view);
   // The main model's join features made again from the model as it is now (JoinApartSegments).
   void RefreshJoinTarget();
 

@@ -325,12 +325,7 @@ bool Tracker::JoinSegmentNow(int s, bool at_end, std::string* why, Rigid3d* main
   // Verified like a re-entry: the keyframe the join rests on, and the segment's newest, at their
   // joined poses do not contradict what the main keyframes near them saw.
   const std::vector<Keyframe>& kfs = keyframe_graph_.keyframes();
-  int newest = anchor;
-  for (int k = static_cast<int>(kfs.size()) - 1; k > anchor; --k)
-    if (kfs[static_cast<size_t>(k)].segment == s) {
-      newest = k;
-      break;
-    }
+  const int newest = segments_.NewestKeyframe(s);
   std::vector<int> checked = {anchor};
   if (newest != anchor) checked.push_back(newest);
   for (const int k : checked) {
