@@ -3,7 +3,8 @@
 // exits 2 and is never called "newer". The recording is laid out as d3d-record writes one
 // (ProbeInfo first, then bursts with a ProbeStatus every 5), 20 small bursts of seeded pixels, 7
 // bursts a chunk, so that the figures of the issue come out: a file cut at the first chunk boundary
-// keeps 7 of 20.
+// keeps 7 of 20. The recording editor (d3d-record trim | merge | recover | export) is tried on the
+// same file, intact and damaged.
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -14,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "common/burst/burst_io.h"
 #include "common/recording/recording.h"
 #include "protocol/codec.h"
 #include "protocol/protocol.h"
@@ -245,6 +247,136 @@ TEST_F(RecordingDamage, RandomBytesAfterTheMagicAreNotANewerFormat) {
     EXPECT_TRUE(Has(out, "random.d3drec")) << out;
     EXPECT_TRUE(Has(out, "header")) << out;
   }
+}
+
+// The recording editor (d3d-record trim | merge | recover | export, issue 55) as a process.
+class RecordingEdit : public RecordingDamage {
+ protected:
+  // d3d-record with `args`; its exit code, its output in *out.
+  int Edit(const std::vector<std::string>& args, std::string* out) {
+    std::vector<std::string> argv = {kBin + "/d3d-record"};
+    argv.insert(argv.end(), args.begin(), args.end());
+    const fs::path log = dir_ / ("edit" + std::to_string(++runs_) + ".log");
+    const int code = Wait(Spawn(argv, log.string()), 60);
+    *out = ReadFile(log.string());
+    return code;
+  }
+  // The burst sequence numbers of a recording, in file order (and whether it is damaged).
+  std::vector<uint64_t> Bursts(const fs::path& p, bool* damaged = nullptr) {
+    std::unique_ptr<RecordingReader> r;
+    EXPECT_TRUE(RecordingReader::OpenFile(p.string(), &r).ok()) << p;
+    std::vector<uint64_t> seq;
+    if (!r) return seq;
+    r->ForEach([&](const RecordedMessage& m) {
+      proto::BurstMsg b;
+      if (m.channel == 0 && proto::Decode(m.data, &b).ok()) seq.push_back(b.burst_seq);
+      return true;
+    });
+    if (damaged != nullptr) *damaged = r->diagnostics().damaged();
+    return seq;
+  }
+  std::string intact() const { return (dir_ / "intact.d3drec").string(); }
+  int runs_ = 0;
+};
+
+std::vector<uint64_t> Range(uint64_t from, uint64_t to) {
+  std::vector<uint64_t> v;
+  for (uint64_t i = from; i < to; ++i) v.push_back(i);
+  return v;
+}
+
+// Trimmed by bursts, then the two halves merged back: the same 20 bursts in order.
+TEST_F(RecordingEdit, TrimmedHalvesMergeBackIntoTheWholeRecording) {
+  std::string out;
+  const std::string a = (dir_ / "a.d3drec").string(), b = (dir_ / "b.d3drec").string();
+  ASSERT_EQ(Edit({"trim", intact(), "--bursts", "0:9", "--out", a}, &out), 0) << out;
+  ASSERT_EQ(Edit({"trim", intact(), "--bursts", "9:20", "--out", b}, &out), 0) << out;
+  EXPECT_EQ(Bursts(a), Range(0, 9));
+  EXPECT_EQ(Bursts(b), Range(9, 20));
+  const std::string m = (dir_ / "merged.d3drec").string();
+  ASSERT_EQ(Edit({"merge", b, a, "--out", m}, &out), 0) << out;
+  bool damaged = true;
+  EXPECT_EQ(Bursts(m, &damaged), Range(0, 20));
+  EXPECT_FALSE(damaged);
+  // By time: the first 0.2 s after the ProbeInfo (bursts 33 ms apart) holds bursts 0..5.
+  const std::string t = (dir_ / "t.d3drec").string();
+  ASSERT_EQ(Edit({"trim", intact(), "--from", "0", "--to", "0.2", "--out", t}, &out), 0) << out;
+  EXPECT_EQ(Bursts(t), Range(0, 6));
+}
+
+// A damaged middle chunk: recover writes the intact bursts into a clean file and exits 3, saying
+// what was lost; export writes the same bursts as folders d3d-recon reads.
+TEST_F(RecordingEdit, RecoverAndExportUseEveryIntactChunkOfADamagedFile) {
+  std::string bytes = made_.bytes;
+  bytes[chunk(1).offset + 40 + chunk(1).compressed_size / 2] ^= 0x10;
+  const fs::path damaged = dir_ / "damaged.d3drec";
+  std::ofstream(damaged, std::ios::binary) << bytes;
+  std::string out;
+  const std::string clean = (dir_ / "clean.d3drec").string();
+  EXPECT_EQ(Edit({"recover", damaged.string(), "--out", clean}, &out), 3) << out;
+  EXPECT_TRUE(Has(out, "lost: 1 chunk, 8 messages")) << out;
+  bool is_damaged = true;
+  std::vector<uint64_t> want = Range(0, 7);
+  for (uint64_t i = 14; i < 20; ++i) want.push_back(i);
+  EXPECT_EQ(Bursts(clean, &is_damaged), want);
+  EXPECT_FALSE(is_damaged);
+  EXPECT_EQ(Edit({"recover", intact(), "--out", (dir_ / "copy.d3drec").string()}, &out), 0) << out;
+
+  const fs::path folders = dir_ / "folders";
+  EXPECT_EQ(Edit({"export", damaged.string(), "--bursts-dir", folders.string()}, &out), 3) << out;
+  EXPECT_TRUE(Has(out, "13 bursts written")) << out;
+  Burst b;
+  ASSERT_TRUE(ReadBurstDir((folders / "bursts" / "000007").string(), false, &b).ok());
+  EXPECT_EQ(b.sequence, 14u);
+  ASSERT_EQ(b.frames.size(), 4u);
+  EXPECT_EQ(b.frames[2].pattern, "phase4-marker/2");
+  EXPECT_FALSE(b.poses_known);
+  std::mt19937 rng(55);
+  EncodedBurst(0, &rng);  // MakeRecording's size probe
+  proto::BurstMsg m;
+  for (uint64_t i = 0; i <= 14; ++i) {  // the seeded pixels of burst 14
+    m = proto::BurstMsg{};
+    ASSERT_TRUE(proto::Decode(EncodedBurst(i, &rng), &m).ok());
+  }
+  EXPECT_EQ(std::memcmp(b.frames[2].image.data, m.frames[2].pixels.data(), m.BytesPerFrame()), 0);
+  EXPECT_EQ(ReadFile((folders / "calibration.json").string()), std::string(2000, 'c'));
+}
+
+// What a hostile user tries: the output over the input, recordings of two probes merged, a range
+// the file does not hold, a file that is no recording. Clear errors, exit 2, the input intact.
+TEST_F(RecordingEdit, BadRequestsAreRefusedAndTheInputIsLeftIntact) {
+  std::string out;
+  EXPECT_EQ(Edit({"trim", intact(), "--bursts", "0:5", "--out", intact()}, &out), 2) << out;
+  EXPECT_TRUE(Has(out, "is the input")) << out;
+  EXPECT_EQ(ReadFile(intact()), made_.bytes);
+  EXPECT_EQ(Edit({"trim", intact(), "--bursts", "30:40", "--out", (dir_ / "x").string()}, &out), 2)
+      << out;
+  EXPECT_TRUE(Has(out, "holds 20 bursts")) << out;
+  EXPECT_EQ(Edit({"trim", intact(), "--bursts", "5:2", "--out", (dir_ / "x").string()}, &out), 2)
+      << out;
+  EXPECT_EQ(Edit({"trim", intact(), "--bursts", "0:5", "--to", "1", "--out", (dir_ / "x").string()},
+                 &out),
+            2)
+      << out;
+  const fs::path other = dir_ / "other.d3drec";
+  {
+    std::unique_ptr<RecordingReader> r;
+    ASSERT_TRUE(RecordingReader::OpenFile(intact(), &r).ok());
+    RecordingHeader h = r->header();
+    h.probe_serial = "SIM-OTHER";
+    RecordingWriter w;
+    ASSERT_TRUE(w.Open(other.string(), h).ok());
+    ASSERT_TRUE(w.Add(0, 1, "x").ok());
+    ASSERT_TRUE(w.Close().ok());
+  }
+  EXPECT_EQ(Edit({"merge", intact(), other.string(), "--out", (dir_ / "m").string()}, &out), 2)
+      << out;
+  EXPECT_TRUE(Has(out, "SIM-OTHER")) << out;
+  const fs::path text = dir_ / "notes.txt";
+  std::ofstream(text) << "not a recording\n";
+  EXPECT_EQ(Edit({"export", text.string(), "--bursts-dir", (dir_ / "f").string()}, &out), 2) << out;
+  EXPECT_TRUE(Has(out, "notes.txt")) << out;
+  EXPECT_EQ(Edit({"trim", "--out", (dir_ / "x").string()}, &out), 2) << out;  // no input
 }
 
 }  // namespace

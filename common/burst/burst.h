@@ -37,6 +37,9 @@ struct Burst {
   // last exposure, which is what a reconstruction of the whole burst measures when the probe moves.
   int64_t reference_ns = 0;
   FrameTruth reference_truth;  // maps empty unless rendered with truth
+  // false: no frame's truth pose is known (a burst exported from a recording): burst.json leaves
+  // world_from_probe out rather than write the identity.
+  bool poses_known = true;
 };
 
 }  // namespace d3d

@@ -107,10 +107,9 @@ Status WriteBurstDir(const std::string& dir, const Burst& burst,
     const std::string file = "frame_" + std::to_string(i) + ".png";
     if (!cv::imwrite((fs::path(dir) / file).string(), f.image))
       return IoError("cannot write " + dir + "/" + file);
-    frames.push_back({{"file", file},
-                      {"pattern", f.pattern},
-                      {"timestamp_ns", f.timestamp_ns},
-                      {"world_from_probe", PoseToJson(f.truth.world_from_probe)}});
+    json frame{{"file", file}, {"pattern", f.pattern}, {"timestamp_ns", f.timestamp_ns}};
+    if (burst.poses_known) frame["world_from_probe"] = PoseToJson(f.truth.world_from_probe);
+    frames.push_back(std::move(frame));
   }
   for (int k : truth_frames) {
     if (k < 0 || k >= static_cast<int>(burst.frames.size()) ||
@@ -156,6 +155,7 @@ Status ReadBurstDir(const std::string& dir, bool read_truth, Burst* out) {
       frame.timestamp_ns = f.at("timestamp_ns").get<int64_t>();
       if (read_truth && f.contains("world_from_probe"))
         frame.truth.world_from_probe = PoseFromJson(f.at("world_from_probe"));
+      if (!f.contains("world_from_probe")) burst.poses_known = false;
       const std::string file = f.at("file").get<std::string>();
       if (file.find('/') != std::string::npos || file.find("..") != std::string::npos) {
         return ParseError(dir + "/burst.json names a frame outside its folder: '" + file + "'");

@@ -73,6 +73,29 @@ TEST(BurstIo, RoundTripWithTruth) {
   EXPECT_EQ(back.reference_truth.depth_mm.at<float>(3, 3), 49.5f);
 }
 
+// A burst whose poses are not known (exported from a recording) says so: no world_from_probe in
+// burst.json, read back as unknown; a simulated burst's poses still are.
+TEST(BurstIo, UnknownPosesAreLeftOutNotWrittenAsIdentity) {
+  Burst b = MakeBurst();
+  b.reference_truth = FrameTruth{};
+  for (BurstFrame& f : b.frames) f.truth = FrameTruth{};
+  b.poses_known = false;
+  const fs::path dir = TempDir("no_poses");
+  ASSERT_TRUE(WriteBurstDir(dir.string(), b, {}).ok());
+  std::ifstream f(dir / "burst.json");
+  const std::string json((std::istreambuf_iterator<char>(f)), {});
+  EXPECT_EQ(json.find("world_from_probe"), std::string::npos) << json;
+  Burst back;
+  ASSERT_TRUE(ReadBurstDir(dir.string(), true, &back).ok());
+  EXPECT_FALSE(back.poses_known);
+  ASSERT_EQ(back.frames.size(), 5u);
+  EXPECT_EQ(back.frames[4].pattern, "texture");
+  const fs::path with = TempDir("with_poses");
+  ASSERT_TRUE(WriteBurstDir(with.string(), MakeBurst(), {}).ok());
+  ASSERT_TRUE(ReadBurstDir(with.string(), true, &back).ok());
+  EXPECT_TRUE(back.poses_known);
+}
+
 TEST(BurstIo, ClearErrorsForBrokenFolders) {
   Burst out;
   EXPECT_EQ(ReadBurstDir(TempDir("none").string(), false, &out).code(), StatusCode::kNotFound);

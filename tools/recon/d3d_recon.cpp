@@ -112,8 +112,13 @@ Status WriteMaps(const std::string& dir, const ReconstructedView& v, const cv::M
   order_f.setTo(std::nanf(""), v.unwrap.order < 0);
   double kmin = 0, kmax = 1;
   cv::minMaxIdx(v.unwrap.order, nullptr, &kmax);
+  // The unwrapper's regions (UnwrapResult::region) as 16-bit grey, index + 1 (0: in none): which
+  // pixels one region joined, e.g. across a depth step that hides a whole fringe.
+  cv::Mat region16;
+  v.unwrap.region.convertTo(region16, CV_16U, 1.0, 1.0);
   const bool ok =
       cv::imwrite(dir + "/phase.png", Colourise(v.phase.phi, 0, 2 * M_PI)) &&
+      cv::imwrite(dir + "/region.png", region16) &&
       cv::imwrite(dir + "/modulation.png", Colourise(v.phase.modulation, 0, 120)) &&
       cv::imwrite(dir + "/quality.png", Colourise(v.quality, 0, 1)) &&
       cv::imwrite(dir + "/order.png", Colourise(order_f, kmin, std::max(kmax, 1.0))) &&
@@ -164,9 +169,9 @@ void DeclareOptions(OptionRegistry* options, ToolOptions* o) {
   options->Add("--out", &o->out_ply,
                "write the cloud as binary PLY (x y z nx ny nz intensity quality)");
   options->Add("--maps", &o->maps_dir,
-               "write PNG maps: phase, modulation, quality, order, marker, texture, dropped (why a "
-               "pixel has no point), kappa "
-               "(harmonic attenuation), error (PNG, and TIFF in µm)");
+               "write PNG maps: phase, modulation, quality, order, region (16-bit: the "
+               "unwrapper's region index + 1, 0 in none), marker, texture, dropped (why a pixel "
+               "has no point), kappa (harmonic attenuation), error (PNG, and TIFF in µm)");
   options->Flag("--motion-compensation", &o->motion_compensation,
                 "compensate the hand's motion within the burst "
                 "(PhaseOptions::motion_compensation), as d3d-fuse and\n"
@@ -413,7 +418,8 @@ int main(int argc, char** argv) {
   OptionRegistry options(
       "d3d-recon: reconstructs one phase-shift burst into an organised point cloud (camera frame, "
       "mm).\n"
-      "Input: a burst folder (--images, as written by d3d-sim or a recorder; calibration.json in "
+      "Input: a burst folder (--images, as written by d3d-sim or d3d-record export; "
+      "calibration.json in "
       "it or\n"
       "in a parent folder) or the virtual probe (--sim). With truth, prints accuracy figures.");
   ToolOptions o;
