@@ -36,6 +36,7 @@ void ScanOptions::Check() const {
   tracker.Check();
   anchor.Check();
   tsdf.Check();
+  mesh_clean.Check();
   eval.Check();
 }
 
@@ -527,9 +528,14 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   const TsdfVolume& model = fuser->volume();
   const auto tm0 = Clock::now();
   out->mesh = model.ExtractMesh();
-  const double ms_mesh = MsSince(tm0);
   if (out->mesh.faces.empty())
     return Status(StatusCode::kInternal, "the fused model is empty (no view was accepted)");
+  const MeshCleanReport cleaned = CleanMesh(options.mesh_clean, &out->mesh);
+  const double ms_mesh = MsSince(tm0);
+  if (out->mesh.faces.empty())
+    return Status(StatusCode::kInternal,
+                  "the fused model is empty after its specks were removed (no piece of " +
+                      std::to_string(options.mesh_clean.min_piece_area_mm2) + " mm2)");
   out->mesh.ComputeVertexNormals();
   std::vector<Rigid3d> acc_truth;
   bool have_truth_poses = static_cast<bool>(truth.true_pose);
@@ -563,6 +569,7 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
     m.segment = s;
     m.views = static_cast<int64_t>(todo.size());
     m.mesh = apart.volume().ExtractMesh();
+    if (!m.mesh.faces.empty()) CleanMesh(options.mesh_clean, &m.mesh);
     m.mesh.ComputeVertexNormals();
     out->apart.push_back(std::move(m));
   }
@@ -619,6 +626,11 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   j["tsdf_memory_mib"] = tsdf_memory_mib;  // both volumes at the end of a refusion
   j["mesh_vertices"] = out->mesh.vertices.size();
   j["mesh_faces"] = out->mesh.faces.size();
+  // What the lab's cleaning did (MeshCleanOptions): specks removed, bow-tie vertices split.
+  j["mesh_pieces"] = cleaned.pieces_kept;
+  j["mesh_specks_removed"] = cleaned.pieces_removed;
+  j["mesh_speck_faces_removed"] = cleaned.faces_removed;
+  j["mesh_vertices_split"] = cleaned.vertices_split;
   j["events"] = registrar->events();
   if (truth.reference != nullptr && !truth.reference->faces.empty() && !out->poses.empty())
     EvaluateScanAgainstScene(out->mesh, *truth.reference, out->poses,

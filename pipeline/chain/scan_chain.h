@@ -33,6 +33,7 @@
 #include "common/core/rigid.h"
 #include "common/core/status.h"
 #include "common/mesh/mesh.h"
+#include "common/mesh/mesh_clean.h"
 #include "pipeline/chain/model_anchor.h"
 #include "pipeline/chain/view_archive.h"
 #include "pipeline/eval/evaluate_scan.h"
@@ -96,6 +97,8 @@ struct ScanOptions {
   // than this (mm) and FinishScan is given a view provider; < 0 never (unless views were undone, or
   // the live volume's voxel is not tsdf.voxel_mm: then always).
   double refuse_min_correction_mm = 0.01;
+  // The model's mesh cleaned for the lab: bow-tie vertices split, specks removed (mesh_clean.h).
+  MeshCleanOptions mesh_clean;
   EvaluateOptions eval;
   void Check() const;  // throws std::invalid_argument
 };

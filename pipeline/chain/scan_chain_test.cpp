@@ -86,7 +86,8 @@ void RunShortScan(SimSession& session, int bin, ShortScan* s, ViewArchive* kept 
 }
 
 // The kept views of `scan` (all accepted ones but `skip`), one thread, in order, at their final
-// poses, fused at the scan's options: what a refusion must give.
+// poses, fused at the scan's options and cleaned as FinishScan cleans its model: what a refusion
+// must give.
 TriangleMesh FusedAtFinalPoses(const ShortScan& scan, const ViewArchive& kept, int64_t skip = -1) {
   ScanReconstructor again(scan.view_calibration, scan.o.recon, 1);
   ScanFuser reference(scan.view_calibration.camera, scan.o.tsdf, scan.o.free_space);
@@ -99,7 +100,9 @@ TriangleMesh FusedAtFinalPoses(const ShortScan& scan, const ViewArchive& kept, i
     EXPECT_TRUE(again.Reconstruct(frames, &view).ok());
     EXPECT_TRUE(reference.Fuse(view, pose).ok());
   }
-  return reference.volume().ExtractMesh();
+  TriangleMesh mesh = reference.volume().ExtractMesh();
+  CleanMesh(scan.o.mesh_clean, &mesh);
+  return mesh;
 }
 
 ScanTruth TruthOf(SimSession* session) {
