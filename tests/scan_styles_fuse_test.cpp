@@ -99,6 +99,11 @@ TEST_P(ScanStylesFuse, NoViewIsFusedAtAWrongPose) {
   const nlohmann::json j = RunFuse(c.style, kSeed, first, bursts, dir);
   ASSERT_TRUE(j.contains("wrong_fusions")) << "no evaluation in " << (dir / "report.json");
   EXPECT_EQ(j["wrong_fusions"].get<int>(), 0) << j.dump(2);
+  // The report's head: what made it and what it was measured against (issue 55).
+  EXPECT_EQ(j["schema"], "d3dscan.scan_report");
+  EXPECT_EQ(j["tool"], "d3d-fuse");
+  EXPECT_EQ(j["reference"], "the virtual probe's scene: typodont");
+  EXPECT_GE(j["mesh_pieces"].get<int>(), 1);  // the model after its specks were removed
   const int views = j["bursts"].get<int>();
   EXPECT_EQ(views, bursts / 2);
   const int placed = j["fused"].get<int>() + j["views_apart"].get<int>();

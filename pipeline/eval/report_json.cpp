@@ -1,8 +1,27 @@
 #include "pipeline/eval/report_json.h"
 
 #include <cmath>
+#include <ctime>
 
 namespace d3d {
+
+void AddReportHead(const ReportHead& h, nlohmann::json* j) {
+  nlohmann::json& r = *j;
+  r["schema"] = "d3dscan.scan_report";
+  r["schema_version"] = kScanReportSchemaVersion;
+  r["tool"] = h.tool;
+  r["tool_version"] = h.tool_version;
+  r["git_commit"] = h.git_commit;
+  r["build_type"] = h.build_type;
+  const std::time_t t = static_cast<std::time_t>(h.created_unix_s);
+  std::tm utc{};
+  gmtime_r(&t, &utc);
+  char stamp[32];
+  std::strftime(stamp, sizeof stamp, "%Y-%m-%dT%H:%M:%SZ", &utc);
+  r["created_utc"] = stamp;
+  r["probe_serial"] = h.probe_serial.empty() ? nlohmann::json() : nlohmann::json(h.probe_serial);
+  r["reference"] = h.reference.empty() ? nlohmann::json() : nlohmann::json(h.reference);
+}
 
 void AddCoverageFields(const TruenessReport& t, nlohmann::json* j) {
   (*j)["coverage_pct"] = t.coverage_pct;

@@ -9,7 +9,7 @@
 #include <string>
 #include <vector>
 
-#include "d3d_version.h"
+#include "tools/d3d/build_info.h"
 #include "tools/d3d/subcommands.h"
 
 namespace {
@@ -31,7 +31,7 @@ int main(int argc, char** argv) {
     return first.empty() ? 2 : 0;
   }
   if (first == "--version") {
-    std::cout << d3d::VersionText(D3D_VERSION, D3D_GIT_HASH, D3D_BUILD_TYPE);
+    std::cout << d3d::VersionText(d3d::BuildVersion(), d3d::BuildGitCommit(), d3d::BuildType());
     return 0;
   }
   if (first == "completion") {

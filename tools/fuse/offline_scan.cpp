@@ -19,6 +19,7 @@
 #include "common/mesh/mesh_io.h"
 #include "common/pack/frame_pack.h"
 #include "pipeline/recon/evaluate.h"
+#include "tools/d3d/report_head.h"
 
 namespace fs = std::filesystem;
 
@@ -332,6 +333,13 @@ Status RunOfflineScan(const OfflineScanArgs& args, const OfflineSource& source,
   bar2.Update(1);
   bar2.Finish();
   nlohmann::json& j = result->report;
+  ReportHead head = ToolReportHead("d3d-fuse");
+  // What trueness and coverage were measured against: the virtual probe's scene, or the burst
+  // folder's scene.ply (d3d-sim writes it).
+  if (!scene.faces.empty())
+    head.reference = source.session ? "the virtual probe's scene: " + args.sim_model
+                                    : (fs::path(args.bursts_dir) / "scene.ply").string();
+  AddReportHead(head, &j);
   j["input"] = source.session ? args.sim_model : args.bursts_dir;
   j["trajectory"] = args.trajectory;
   j["seed"] = args.seed;

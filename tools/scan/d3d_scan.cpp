@@ -19,6 +19,7 @@
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "tools/d3d/report_head.h"
 #include "tools/scan/scan_input.h"
 
 namespace fs = std::filesystem;
@@ -81,6 +82,10 @@ int main(int argc, char** argv) {
     }
     ScanResult result;  // with --refuse, the app's kept views fused again
     const Status finished = app.Finish(truth.truth, ScanViewProvider(), &result);
+    ReportHead head = ToolReportHead("d3d-scan");
+    head.probe_serial = input.probe_serial;
+    if (truth.truth.reference != nullptr) head.reference = args.reference;
+    AddReportHead(head, &result.report);
     session.Report(&result.report);
     ReportInput(args, flags, input, &result.report);
     if (!finished.ok()) {

@@ -184,6 +184,7 @@ int OpenRecording(const ScanToolArgs& a, ScanInput* in) {
     return 2;
   }
   in->calibration = in->recording->calibration();
+  in->probe_serial = in->recording->header().probe_serial;
   in->source = in->recording.get();
   return 0;
 }
@@ -232,6 +233,7 @@ int OpenDds(const ScanToolArgs& a, const ScanAppOptions& app, Viewer* viewer,
     std::fprintf(stderr, "d3d-scan: %s\n", s.ToString().c_str());
     return 3;
   }
+  in->probe_serial = info.serial;
   std::fprintf(stderr, "d3d-scan: probe %s (%s, %ux%u)\n", info.serial.c_str(),
                info.sensor_model.c_str(), info.width, info.height);
   in->source = in->dds.get();

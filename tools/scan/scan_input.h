@@ -72,6 +72,7 @@ struct ScanInput {
   std::unique_ptr<DdsBurstSource> dds;
   BurstSource* source = nullptr;
   ProbeCalibration calibration;
+  std::string probe_serial;  // the probe's (its ProbeInfo, or the recording's header)
 };
 // Opens the recording, or joins DDS and waits for a probe's calibration (the preview, when there
 // is one, shows "waiting" meanwhile; closing it sets *stop). 0, or the exit code after printing
