@@ -237,7 +237,7 @@ nlohmann::json ScanApp::HostReport() const {
   j["catch_up_thinned"] =
       graph_->catch_up_thinned();  // ... the graph fell behind and kept 1 burst of 3 meanwhile
   j["warm_up_items"] = o_.policy == EdgePolicy::kLive ? graph_->pool_size() : 0;
-  j["peak_rss_mb"] = PeakRssMiB();
+  j["peak_rss_mib"] = PeakRssMiB();
   return j;
 }
 

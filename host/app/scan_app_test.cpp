@@ -193,7 +193,7 @@ TEST(ScanAppUndo, UndoneViewsLeaveThePreviewTheSavedModelAndTheReport) {
   EXPECT_EQ(j["undo_requests"], 1);
   EXPECT_EQ(j["undos_applied"], 1);
   EXPECT_EQ(j["views_undone"], 3);
-  EXPECT_TRUE(j["refused_at_optimised_poses"].get<bool>());
+  EXPECT_TRUE(j["fused_again_at_optimised_poses"].get<bool>());
   // The saves above wrote the coarse live volume; the final model is at the scan's voxel.
   EXPECT_DOUBLE_EQ(j["live_voxel_mm"].get<double>(), LiveVolumeOptions{}.voxel_mm);
   EXPECT_DOUBLE_EQ(j["voxel_mm"].get<double>(), ScanAppOptions{}.scan.tsdf.voxel_mm);

@@ -164,8 +164,8 @@ void ScanSession::Report(nlohmann::json* report) const {
   r["preview_draws_per_s"] =
       viewer_ && preview_s_ > 0 ? static_cast<double>(viewer_->frames_drawn()) / preview_s_ : 0.0;
   r["preview"] = viewer_ ? (viewer_->headless() ? "offscreen" : "window") : "none";
-  r["rss_mb_per_s"] = rss_timeline_;
-  nlohmann::json mem;  // one array per figure, aligned with rss_mb_per_s
+  r["rss_mib_per_s"] = rss_timeline_;
+  nlohmann::json mem;  // one array per figure, aligned with rss_mib_per_s
   const auto column = [&](const char* name, auto field) {
     nlohmann::json a = nlohmann::json::array();
     for (const ScanMemory& m : memory_timeline_) a.push_back(field(m));

@@ -52,7 +52,7 @@ class ScanSession {
   // Starts the app and runs the loop until the end, then stops the app (RequestStop, Join).
   void Run();
   // The session's figures for report.json: preview_fps, preview_draws_per_s, preview,
-  // rss_mb_per_s (the resident set, MiB, once a second) and memory_per_s (ScanMemory's parts and
+  // rss_mib_per_s (the resident set, MiB, once a second) and memory_per_s (ScanMemory's parts and
   // heap_in_use_mib at the same seconds).
   void Report(nlohmann::json* report) const;
   // The final preview picture (the whole model, "scan finished"), BGR; empty without a viewer.

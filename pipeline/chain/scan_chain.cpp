@@ -615,8 +615,8 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   j["ms_fuse_per_burst"] = times.ms_fuse / n;
   j["ms_mesh"] = ms_mesh;
   j["voxel_mm"] = model.options().voxel_mm;
-  j["refused_at_optimised_poses"] = refused_at_optimised_poses;
-  j["ms_refuse_total"] = ms_refuse;
+  j["fused_again_at_optimised_poses"] = refused_at_optimised_poses;
+  j["ms_fuse_again_total"] = ms_refuse;
   j["tsdf_active_voxels"] = model.ActiveVoxels();
   j["tsdf_secondary_leaves"] =
       model.SecondaryLeaves();  // where edge-filled points still shape the surface (tsdf.h)

@@ -279,7 +279,7 @@ TEST(ScanChain, RefusionFusesTheKeptViewsAtTheFinalPosesInOrder) {
   ScanResult result;
   ASSERT_TRUE(
       FinishScan(scan.o, scan.times, scan.reg.get(), scan.fuser.get(), provider, {}, &result).ok());
-  ASSERT_TRUE(result.report["refused_at_optimised_poses"].get<bool>())
+  ASSERT_TRUE(result.report["fused_again_at_optimised_poses"].get<bool>())
       << "pose graph correction " << result.report["pose_graph_max_correction_mm"];
   EXPECT_EQ(asked, scan.reg->accepted());
   // The same views, one thread, in order, at the final poses.
@@ -353,7 +353,7 @@ TEST(ScanChain, UndoneViewsLeaveTheSavedModel) {
   ASSERT_TRUE(FinishScan(scan.o, scan.times, scan.reg.get(), scan.fuser.get(), provider,
                          TruthOf(session.get()), &result)
                   .ok());
-  EXPECT_TRUE(result.report["refused_at_optimised_poses"].get<bool>());
+  EXPECT_TRUE(result.report["fused_again_at_optimised_poses"].get<bool>());
   EXPECT_EQ(result.report["views_undone"], 3);
   for (const uint64_t seq : {44u, 46u, 48u})
     EXPECT_EQ(std::count(asked.begin(), asked.end(), seq), 0) << "burst " << seq;
@@ -398,7 +398,7 @@ TEST(ScanChain, ACoarseLiveVolumeIsAlwaysFusedAgainAtTheScansVoxel) {
   ASSERT_TRUE(FinishScan(scan.o, scan.times, scan.reg.get(), scan.fuser.get(), provider,
                          TruthOf(session.get()), &result)
                   .ok());
-  EXPECT_TRUE(result.report["refused_at_optimised_poses"].get<bool>());
+  EXPECT_TRUE(result.report["fused_again_at_optimised_poses"].get<bool>());
   EXPECT_DOUBLE_EQ(result.report["voxel_mm"].get<double>(), scan.o.tsdf.voxel_mm);
   EXPECT_DOUBLE_EQ(scan.fuser->volume().options().voxel_mm,
                    scan.o.tsdf.voxel_mm);  // the fuser adopted the refused volume

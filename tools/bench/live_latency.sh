@@ -107,7 +107,7 @@ out, runs = sys.argv[1], int(sys.argv[2])
 cols = [("bursts/s", "bursts_per_s", "%.2f"), ("p50 ms", "latency_ms_p50", "%.1f"), ("p95 ms", "latency_ms_p95", "%.1f"),
         ("max ms", "latency_ms_max", "%.0f"), ("preview fps", "preview_fps", "%.2f"),
         ("draws/s", "preview_draws_per_s", "%.2f"), ("dropped", "bursts_dropped", "%d"),
-        ("peak RSS MB", "peak_rss_mb", "%.0f"), ("trueness µm", "trueness_rms_um", "%.2f"),
+        ("peak RSS MiB", "peak_rss_mib", "%.0f"), ("trueness µm", "trueness_rms_um", "%.2f"),
         ("in model", "views_in_model", "%d"), ("processed", "bursts_processed", "%d"),
         ("lost", "tracking_lost", "%d"), ("segments", "segments_started", "%d"),
         ("apart", "segments_apart", "%d"), ("wrong", "wrong_fusions", "%d")]
