@@ -354,6 +354,10 @@ TEST_F(RecordingEdit, BadRequestsAreRefusedAndTheInputIsLeftIntact) {
   EXPECT_TRUE(Has(out, "holds 20 bursts")) << out;
   EXPECT_EQ(Edit({"trim", intact(), "--bursts", "5:2", "--out", (dir_ / "x").string()}, &out), 2)
       << out;
+  EXPECT_EQ(Edit({"trim", intact(), "--from", "30", "--out", (dir_ / "x").string()}, &out), 2)
+      << out;  // the 20 bursts span 0.7 s
+  EXPECT_TRUE(Has(out, "no burst in that stretch")) << out;
+  EXPECT_EQ(Edit({"trim", intact(), "--to", "-5", "--out", (dir_ / "x").string()}, &out), 2) << out;
   EXPECT_EQ(Edit({"trim", intact(), "--bursts", "0:5", "--to", "1", "--out", (dir_ / "x").string()},
                  &out),
             2)

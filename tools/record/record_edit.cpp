@@ -1,5 +1,6 @@
 #include "tools/record/record_edit.h"
 
+#include <algorithm>
 #include <cinttypes>
 #include <cstdio>
 #include <cstring>
@@ -102,7 +103,8 @@ int Trim(int argc, char** argv) {
   r.Add("input", &in, "the recording to trim").Required();
   r.Add("--out", &out, "the recording to write").Required();
   r.Add("--from", &from_s, "start, seconds after the first message (default 0)").NonNegative();
-  r.Add("--to", &to_s, "end (excluded), seconds after the first message (default: the end)");
+  r.Add("--to", &to_s, "end (excluded), seconds after the first message (default: the end)")
+      .NonNegative();
   r.Add("--bursts", &bursts, "A:B: bursts A to B − 1, counted from 0 in file order");
   if (int code = 0; !r.Parse(a.argc(), a.argv.data(), &code)) return code;
   if (!bursts.empty() && (from_s != 0 || to_s >= 0))
@@ -140,6 +142,16 @@ int Trim(int argc, char** argv) {
   } else {
     range.from_ns = first_ns + static_cast<int64_t>(from_s * 1e9);
     if (to_s >= 0) range.to_ns = first_ns + static_cast<int64_t>(to_s * 1e9);
+    if (std::none_of(burst_ns.begin(), burst_ns.end(),
+                     [&](int64_t t) { return range.Contains(t); }))
+      return Fail(
+          "trim",
+          in + " has no burst in that stretch (its bursts span " +
+              (burst_ns.empty() ? std::string("nothing")
+                                : std::to_string((burst_ns.front() - first_ns) * 1e-9) + " to " +
+                                      std::to_string((burst_ns.back() - first_ns) * 1e-9) + " s") +
+              ")",
+          2);
   }
   // Bursts by their order (an equal log time is no reason to keep a burst outside A:B).
   int64_t burst_index = -1;
