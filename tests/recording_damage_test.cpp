@@ -322,6 +322,15 @@ TEST_F(RecordingEdit, RecoverAndExportUseEveryIntactChunkOfADamagedFile) {
   EXPECT_FALSE(is_damaged);
   EXPECT_EQ(Edit({"recover", intact(), "--out", (dir_ / "copy.d3drec").string()}, &out), 0) << out;
 
+  // cat: a line per message of every intact chunk (ProbeInfo, 13 bursts, 3 statuses), exit 3.
+  EXPECT_EQ(Edit({"cat", damaged.string()}, &out), 3) << out;
+  EXPECT_TRUE(Has(out, "d3d/ProbeInfo 2")) << out;
+  EXPECT_TRUE(Has(out, "burst 14, 64x48x8 bit, 4 frames")) << out;
+  EXPECT_FALSE(Has(out, "burst 7,")) << out;  // in the damaged chunk
+  EXPECT_EQ(Edit({"cat", intact()}, &out), 0) << out;
+  EXPECT_TRUE(Has(out, "burst 7, 64x48x8 bit, 4 frames")) << out;
+  EXPECT_TRUE(Has(out, "d3d/ProbeStatus")) << out;
+
   const fs::path folders = dir_ / "folders";
   EXPECT_EQ(Edit({"export", damaged.string(), "--bursts-dir", folders.string()}, &out), 3) << out;
   EXPECT_TRUE(Has(out, "13 bursts written")) << out;

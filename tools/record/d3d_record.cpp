@@ -2,8 +2,8 @@
 // (common/recording: chunked, zstd, CRC per chunk, index). The header carries the protocol version
 // and the probe's calibration from its ProbeInfo, so recording waits (up to --info-timeout,
 // buffering samples) for a ProbeInfo before it opens the file. Killed at any moment, the file is
-// readable up to its last complete chunk. `d3d-record trim | merge | recover | export ...` edits
-// recordings instead (record_edit.h).
+// readable up to its last complete chunk. `d3d-record trim | merge | recover | cat | export ...`
+// edits recordings instead (record_edit.h).
 //
 // Threads: the receiver's DDS listener copies samples into its queue; this tool's main thread pops,
 // encodes (protocol/codec.h) and writes them.
@@ -212,7 +212,8 @@ int main(int argc, char** argv) {
   if (argc >= 2 && IsRecordEditVerb(argv[1])) return RunRecordEdit(argc, argv);
   OptionRegistry options(
       "d3d-record: record PhaseBurst, ProbeInfo and ProbeStatus samples to a chunked, compressed, "
-      "indexed file.\nEdit recordings: d3d-record trim | merge | recover | export ... (each with "
+      "indexed file.\nEdit recordings: d3d-record trim | merge | recover | cat | export ... (each "
+      "with "
       "--help)");
   RecordOptions o;
   DeclareOptions(&options, &o);

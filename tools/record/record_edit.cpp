@@ -47,6 +47,15 @@ int OpenInput(const std::string& verb, const std::string& path,
   return 0;
 }
 
+// A verb's options parsed (the help or a usage error end it: *exit gets the code), then its input
+// opened (or *exit gets 2). True to go on.
+bool ParseAndOpen(OptionRegistry* r, VerbArgs* a, const std::string& verb, const std::string& in,
+                  std::unique_ptr<RecordingReader>* reader, int* exit) {
+  if (!r->Parse(a->argc(), a->argv.data(), exit)) return false;
+  *exit = OpenInput(verb, in, reader);
+  return *exit == 0;
+}
+
 // An output must not be an input: opening it would truncate what is about to be read.
 int CheckOutput(const std::string& verb, const std::string& out,
                 const std::vector<std::string>& inputs) {
@@ -182,10 +191,9 @@ int Recover(int argc, char** argv) {
   std::string in, out;
   r.Add("input", &in, "the damaged recording").Required();
   r.Add("--out", &out, "the clean recording to write").Required();
-  if (int code = 0; !r.Parse(a.argc(), a.argv.data(), &code)) return code;
-  if (const int c = CheckOutput("recover", out, {in})) return c;
   std::unique_ptr<RecordingReader> reader;
-  if (const int c = OpenInput("recover", in, &reader)) return c;
+  if (int exit = 0; !ParseAndOpen(&r, &a, "recover", in, &reader, &exit)) return exit;
+  if (const int c = CheckOutput("recover", out, {in})) return c;
   return CopyInto("recover", in, reader.get(), out, "recover",
                   [](const RecordedMessage&) { return true; });
 }
@@ -260,9 +268,8 @@ int Export(int argc, char** argv) {
   std::string in, dir;
   r.Add("input", &in, "the recording").Required();
   r.Add("--bursts-dir", &dir, "the folder to write (created)").Required();
-  if (int code = 0; !r.Parse(a.argc(), a.argv.data(), &code)) return code;
   std::unique_ptr<RecordingReader> reader;
-  if (const int c = OpenInput("export", in, &reader)) return c;
+  if (int exit = 0; !ParseAndOpen(&r, &a, "export", in, &reader, &exit)) return exit;
   const RecordingChannel* burst_ch = reader->header().FindTopic(proto::kTopicPhaseBurst);
   if (burst_ch == nullptr)
     return Fail("export", in + " has no " + proto::kTopicPhaseBurst + " channel", 2);
@@ -314,10 +321,64 @@ int Export(int argc, char** argv) {
   return damaged || undecodable > 0 ? kDamaged : 0;
 }
 
+// One line per message of `in`, in file order: seconds from the first message, topic, bytes, and
+// what it says (a burst's sequence number and size; a status's state and counters; the probe).
+int Cat(int argc, char** argv) {
+  VerbArgs a(argc, argv);
+  OptionRegistry r(
+      "d3d-record cat: every message of a recording, one line each in file order: seconds from "
+      "the first message, topic, bytes, and what it holds (a burst's sequence number, size and "
+      "frames; a ProbeStatus's state and counters; a ProbeInfo's probe).");
+  std::string in;
+  r.Add("input", &in, "the recording").Required();
+  std::unique_ptr<RecordingReader> reader;
+  if (int exit = 0; !ParseAndOpen(&r, &a, "cat", in, &reader, &exit)) return exit;
+  const RecordingHeader& h = reader->header();
+  const RecordingChannel* burst_ch = h.FindTopic(proto::kTopicPhaseBurst);
+  const RecordingChannel* info_ch = h.FindTopic(proto::kTopicProbeInfo);
+  const RecordingChannel* status_ch = h.FindTopic(proto::kTopicProbeStatus);
+  int64_t first_ns = 0;
+  bool have_first = false;
+  proto::BurstMsg burst;
+  reader->ForEach([&](const RecordedMessage& m) {
+    if (!have_first) first_ns = m.log_time_ns, have_first = true;
+    std::string topic = "channel " + std::to_string(m.channel);
+    for (const RecordingChannel& c : h.channels)
+      if (c.id == m.channel) topic = c.topic;
+    std::string what;
+    if (burst_ch != nullptr && m.channel == burst_ch->id) {
+      what = proto::Decode(m.data, &burst).ok()
+                 ? "burst " + std::to_string(burst.burst_seq) + ", " + std::to_string(burst.width) +
+                       "x" + std::to_string(burst.height) + "x" + std::to_string(burst.bit_depth) +
+                       " bit, " + std::to_string(burst.frames.size()) + " frames"
+                 : "undecodable";
+    } else if (status_ch != nullptr && m.channel == status_ch->id) {
+      proto::StatusMsg st;
+      what = proto::Decode(m.data, &st).ok()
+                 ? std::string("state ") + proto::ProbeStateName(st.state) + ", bursts published " +
+                       std::to_string(st.bursts_published) + ", dropped " +
+                       std::to_string(st.bursts_dropped_sync) +
+                       (st.last_error.empty() ? "" : ", error: " + st.last_error)
+                 : "undecodable";
+    } else if (info_ch != nullptr && m.channel == info_ch->id) {
+      proto::InfoMsg info;
+      what = proto::Decode(m.data, &info).ok()
+                 ? "probe " + info.serial + ", firmware " + info.firmware_version + ", " +
+                       (info.calibration_json.empty() ? "no calibration" : "calibration")
+                 : "undecodable";
+    }
+    std::printf("%.6f %s %zu %s\n", static_cast<double>(m.log_time_ns - first_ns) * 1e-9,
+                topic.c_str(), m.data.size(), what.c_str());
+    return true;
+  });
+  return ReportDamage("cat", in, *reader) ? kDamaged : 0;
+}
+
 }  // namespace
 
 bool IsRecordEditVerb(const std::string& word) {
-  return word == "trim" || word == "merge" || word == "recover" || word == "export";
+  return word == "trim" || word == "merge" || word == "recover" || word == "export" ||
+         word == "cat";
 }
 
 int RunRecordEdit(int argc, char** argv) {
@@ -325,6 +386,7 @@ int RunRecordEdit(int argc, char** argv) {
   if (verb == "trim") return Trim(argc, argv);
   if (verb == "merge") return Merge(argc, argv);
   if (verb == "recover") return Recover(argc, argv);
+  if (verb == "cat") return Cat(argc, argv);
   return Export(argc, argv);
 }
 

@@ -1,4 +1,4 @@
-// The recording editor behind `d3d-record VERB` (`d3d record VERB`): trim, merge, recover and
+// The recording editor behind `d3d-record VERB` (`d3d record VERB`): trim, merge, recover, cat and
 // export a recording (common/recording), as `ros2 bag` and `mcap` users expect of theirs.
 //
 //   trim IN --out OUT (--from S --to S | --bursts A:B)   a stretch, by seconds from the first
@@ -7,6 +7,8 @@
 //                                                       log-time order
 //   recover IN --out OUT                                the intact chunks of a damaged recording
 //                                                       rewritten into a clean one
+//   cat IN                                              one line per message: time, topic,
+//                                                       bytes, what it holds
 //   export IN --bursts-dir DIR                          burst folders (calibration.json,
 //                                                       bursts/NNNNNN/frame_K.png + burst.json)
 //                                                       that d3d-recon --images reads
