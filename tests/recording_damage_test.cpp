@@ -385,6 +385,13 @@ TEST_F(RecordingEdit, BadRequestsAreRefusedAndTheInputIsLeftIntact) {
   EXPECT_EQ(Edit({"merge", intact(), other.string(), "--out", (dir_ / "m").string()}, &out), 2)
       << out;
   EXPECT_TRUE(Has(out, "SIM-OTHER")) << out;
+  // The refusal names the file that differs, wherever it stands.
+  const std::string copy = (dir_ / "copy.d3drec").string();
+  std::ofstream(copy, std::ios::binary) << made_.bytes;
+  EXPECT_EQ(Edit({"merge", intact(), copy, other.string(), "--out", (dir_ / "m").string()}, &out),
+            2)
+      << out;
+  EXPECT_TRUE(Has(out, "input 3") && Has(out, "(" + other.string() + ")")) << out;
   const fs::path text = dir_ / "notes.txt";
   std::ofstream(text) << "not a recording\n";
   EXPECT_EQ(Edit({"export", text.string(), "--bursts-dir", (dir_ / "f").string()}, &out), 2) << out;

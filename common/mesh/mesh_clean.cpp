@@ -1,5 +1,6 @@
 #include "common/mesh/mesh_clean.h"
 
+#include <algorithm>
 #include <cmath>
 #include <numeric>
 #include <stdexcept>

@@ -19,12 +19,14 @@ Status CopyMessages(RecordingReader* in, const std::function<bool(const Recorded
   return failure;
 }
 
-bool SameStream(const std::vector<const RecordingHeader*>& headers, std::string* why) {
+bool SameStream(const std::vector<const RecordingHeader*>& headers, std::string* why,
+                size_t* differs) {
   if (headers.empty()) return true;
   const RecordingHeader& a = *headers.front();
   for (size_t i = 1; i < headers.size(); ++i) {
     const RecordingHeader& b = *headers[i];
     const std::string which = "input " + std::to_string(i + 1);
+    if (differs != nullptr) *differs = i;
     if (b.protocol_version != a.protocol_version) {
       *why = which + " has protocol version " + std::to_string(b.protocol_version) +
              ", the first " + std::to_string(a.protocol_version);

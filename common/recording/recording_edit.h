@@ -39,8 +39,9 @@ struct RecordingCopyCounts {
 
 // Whether recordings can be merged into one: the same channels (id, topic, schema), protocol
 // version, probe serial and calibration. False with *why naming the first input (by index) that
-// differs from the first and in what.
-bool SameStream(const std::vector<const RecordingHeader*>& headers, std::string* why);
+// differs from the first and in what, and *differs (when given) its index in `headers`.
+bool SameStream(const std::vector<const RecordingHeader*>& headers, std::string* why,
+                size_t* differs = nullptr);
 
 // Merges the messages of `in` (intact chunks) into `out` in log-time order; equal times keep the
 // inputs' order. Messages are read a chunk at a time per input (memory: one chunk per input).

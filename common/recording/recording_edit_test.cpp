@@ -125,8 +125,10 @@ TEST(RecordingEdit, RecordingsOfAnotherProbeOrCalibrationAreNotMerged) {
   EXPECT_TRUE(SameStream({&base, &base}, &why));
   EXPECT_FALSE(SameStream({&base, &other_probe}, &why));
   EXPECT_NE(why.find("SIM-OTHER"), std::string::npos) << why;
-  EXPECT_FALSE(SameStream({&base, &base, &other_cal}, &why));
+  size_t differs = 0;
+  EXPECT_FALSE(SameStream({&base, &base, &other_cal}, &why, &differs));
   EXPECT_NE(why.find("input 3"), std::string::npos) << why;
+  EXPECT_EQ(differs, 2u);
   EXPECT_FALSE(SameStream({&base, &other_channels}, &why));
 
   const fs::path a = Write("d3d_edit_refuse_a.d3drec", Times(3, 1'000, 100));

@@ -83,18 +83,29 @@ RecordingHeader EditedHeader(const RecordingHeader& in, const std::string& edit)
   return h;
 }
 
+// Writes `out_path` with `header` (the input's, marked with `edit`) and the messages `fill` adds,
+// then closes it; 0, or 1 after saying why it could not be written.
+int WriteRecording(const std::string& verb, const std::string& out_path,
+                   const RecordingHeader& header, const std::string& edit,
+                   const std::function<Status(RecordingWriter*)>& fill) {
+  RecordingWriter w;
+  if (const Status s = w.Open(out_path, EditedHeader(header, edit)); !s.ok())
+    return Fail(verb, out_path + ": " + s.message(), 1);
+  Status s = fill(&w);
+  const Status closed = w.Close();
+  if (s.ok()) s = closed;
+  return s.ok() ? 0 : Fail(verb, out_path + ": " + s.message(), 1);
+}
+
 // Copies `in` into `out_path` keeping what `keep` keeps; the exit code.
 int CopyInto(const std::string& verb, const std::string& in_path, RecordingReader* in,
              const std::string& out_path, const std::string& edit,
              const std::function<bool(const RecordedMessage&)>& keep) {
-  RecordingWriter w;
-  if (const Status s = w.Open(out_path, EditedHeader(in->header(), edit)); !s.ok())
-    return Fail(verb, out_path + ": " + s.message(), 1);
   RecordingCopyCounts counts;
-  Status s = CopyMessages(in, keep, &w, &counts);
-  const Status closed = w.Close();
-  if (s.ok()) s = closed;
-  if (!s.ok()) return Fail(verb, out_path + ": " + s.message(), 1);
+  if (const int c = WriteRecording(verb, out_path, in->header(), edit, [&](RecordingWriter* w) {
+        return CopyMessages(in, keep, w, &counts);
+      }))
+    return c;
   std::fprintf(stderr, "d3d-record %s: %s: %" PRIu64 " of %" PRIu64 " messages written\n",
                verb.c_str(), out_path.c_str(), counts.messages_written, counts.messages_read);
   return ReportDamage(verb, in_path, *in) ? kDamaged : 0;
@@ -216,18 +227,17 @@ int Merge(int argc, char** argv) {
     if (const int c = OpenInput("merge", in[i], &readers[i])) return c;
     raw.push_back(readers[i].get());
   }
+  // Refused before the output is created (MergeRecordings checks the same).
   std::vector<const RecordingHeader*> headers;
   for (const auto& rd : readers) headers.push_back(&rd->header());
-  if (std::string why; !SameStream(headers, &why))
-    return Fail("merge", "cannot merge: " + why + " (" + in[headers.size() > 1 ? 1 : 0] + ")", 2);
-  RecordingWriter w;
-  if (const Status s = w.Open(out, EditedHeader(readers.front()->header(), "merge")); !s.ok())
-    return Fail("merge", out + ": " + s.message(), 1);
+  size_t differs = 0;
+  if (std::string why; !SameStream(headers, &why, &differs))
+    return Fail("merge", "cannot merge: " + why + " (" + in[differs] + ")", 2);
   RecordingCopyCounts counts;
-  Status s = MergeRecordings(raw, &w, &counts);
-  const Status closed = w.Close();
-  if (s.ok()) s = closed;
-  if (!s.ok()) return Fail("merge", out + ": " + s.message(), 1);
+  if (const int c =
+          WriteRecording("merge", out, readers.front()->header(), "merge",
+                         [&](RecordingWriter* w) { return MergeRecordings(raw, w, &counts); }))
+    return c;
   std::fprintf(stderr, "d3d-record merge: %s: %" PRIu64 " messages from %zu recordings\n",
                out.c_str(), counts.messages_written, in.size());
   bool damaged = false;
