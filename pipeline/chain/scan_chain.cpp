@@ -494,7 +494,12 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   if (joined && !provider)
     return Status(StatusCode::kInvalidArgument,
                   "segments were joined but there is no view provider to fuse their views");
-  const bool must_refuse = undone || other_voxel || joined || model_group != 0;
+  // A loop corrected during the scan moved the views after it into another frame than the ones
+  // fused before it: fused again when they can be had (without a provider the live volume stays
+  // the model, its views up to loop_correction_max_shift_mm apart; fused_again_at_optimised_poses
+  // says which).
+  const bool corrected = tracker.loop_corrections() > 0;
+  const bool must_refuse = undone || other_voxel || joined || corrected || model_group != 0;
   if (provider && (must_refuse || (loops && options.refuse_min_correction_mm >= 0 &&
                                    max_correction_mm > options.refuse_min_correction_mm))) {
     const auto t0 = Clock::now();
@@ -607,6 +612,10 @@ Status FinishScan(const ScanOptions& options, const ScanTimes& times, ScanRegist
   j["keyframes_reused"] =
       tracker.keyframes_reused();  // times an older keyframe became current again
   j["loop_edges"] = tracker.loop_edges();
+  j["loop_corrections"] = tracker.loop_corrections();
+  j["loop_correction_max_shift_mm"] = tracker.max_loop_shift_mm();
+  j["loop_correction_solves"] = tracker.loop_optimisations();
+  j["ms_loop_correction_total"] = tracker.ms_loop_correction();
   j["pose_graph_max_correction_mm"] = max_correction_mm;
   j["pose_graph_disagreeing_edges"] = pg.disagreeing_edges.size();
   j["ms_per_burst"] = (times.ms_recon + times.ms_register + times.ms_fuse) / n;

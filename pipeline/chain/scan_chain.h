@@ -87,8 +87,14 @@ struct ScanOptions {
   // of the tracker and the fusion. 1 = full resolution.
   int bin = 1;
   ReconstructOptions recon = HandHeldReconstructOptions();
-  TrackerOptions tracker;     // tracker.keyframes.detect_loops: keyframe loop closures and the pose
-                              // graph at the end
+  // tracker.keyframes.detect_loops: keyframe loop closures and the pose graph at the end; a scan
+  // corrects loops as they close (tracker.loop_correction on: its views are fused again at the end
+  // when it did, FinishScan).
+  TrackerOptions tracker = [] {
+    TrackerOptions t;
+    t.loop_correction.enabled = true;
+    return t;
+  }();
   ModelAnchorOptions anchor;  // model-guided anchoring in the register stage (model_anchor.h)
   TsdfOptions tsdf;
   FreeSpaceOptions

@@ -40,6 +40,11 @@ void DeclareScanFlags(OptionRegistry* r, ScanFlags* flags, ScanOptions* o) {
       .Range(0.0, 1.0);
   r->Flag("--loops,!--no-loops", &t.keyframes.detect_loops,
           "loop-closure detection and the pose graph (--no-loops: none)");
+  r->Flag("--loop-correction,!--no-loop-correction", &t.loop_correction.enabled,
+          "tracking: optimise the pose graph when a new keyframe closes a loop and move the "
+          "tracking model with it\n"
+          "(LoopCorrectionOptions, pipeline/register/tracker.h); the views are fused again at the "
+          "end");
   r->Add("--tracked-edge-factor", &t.keyframes.tracked_edge_information_factor,
          "pose graph: each keyframe also gets the tracked relative pose to its parent as an edge, "
          "with the keyframe ICP "

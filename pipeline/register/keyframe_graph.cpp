@@ -325,8 +325,9 @@ int KeyframeGraph::AddKeyframeEdges(int k) {
     e.loop = false;
     graph_.AddEdge(e);
     if (measured && o_.tracked_edge_information_factor > 0) {
-      // The tracked relative pose: the graph's poses are still the tracked ones (nothing but
-      // Optimize moves them, and deferred edges are added before it does).
+      // The tracked relative pose: the graph's poses are still the tracked ones (only Optimize
+      // moves them, and deferred edges are added before it does), or a loop correction's
+      // (OptimizeNow) spread of the drift over the keyframes since.
       e.from_from_to = graph_.pose(e.from).inverse() * graph_.pose(e.to);
       ScaleInformation(o_.tracked_edge_information_factor, &e);
       graph_.AddEdge(e);
@@ -412,6 +413,54 @@ int KeyframeGraph::DetectLoops(int k) {
   return added;
 }
 
+double KeyframeGraph::LoopDiscrepancyMm(int k, int candidates, std::vector<PoseGraphEdge>* loops,
+                                        int* tested) const {
+  loops->clear();
+  *tested = 0;
+  if (!o_.detect_loops) return -1;
+  const Keyframe& a = keyframes_[static_cast<size_t>(k)];
+  const Rigid3d& wa = graph_.pose(a.node);
+  const Eigen::Vector3d ca = wa * a.centre_in_cam;
+  std::vector<std::pair<double, int>> far;
+  for (int j = 0; j + o_.loop_min_separation <= k; ++j) {
+    if (j == a.parent) continue;
+    const Keyframe& b = keyframes_[static_cast<size_t>(j)];
+    const double d = (graph_.pose(b.node) * b.centre_in_cam - ca).norm();
+    if (d < o_.loop_radius_mm) far.emplace_back(d, j);
+  }
+  if (far.empty()) return -1;
+  std::sort(far.begin(), far.end());
+  // k's samples for the overlap test, every 4th: the test looks up 27 voxels per sample.
+  SurfacePoints& few = check_samples_;
+  few.clear();
+  for (size_t s = 0; s < a.samples.size(); s += 4) {
+    few.points.push_back(a.samples.points[s]);
+    few.normals.push_back(a.samples.normals[s]);
+  }
+  // The nearest few: a candidate that overlaps is nearly always among them.
+  const size_t tried =
+      std::min<size_t>(o_.max_loop_candidates, static_cast<size_t>(candidates) + 2);
+  double worst = -1;
+  int measured = 0;
+  for (size_t i = 0; i < far.size() && i < tried && measured < candidates; ++i) {
+    ++*tested;
+    const int j = far[i].second;
+    const Keyframe& b = keyframes_[static_cast<size_t>(j)];
+    const Rigid3d b_from_a = graph_.pose(b.node).inverse() * wa;
+    if (OccupancyMap(b.samples, kOverlapVoxelMm)->Overlap(few, b_from_a) < o_.loop_min_overlap)
+      continue;
+    PoseGraphEdge e;
+    if (!MeasureEdge(j, k, &e)) continue;
+    ++measured;
+    e.loop = true;
+    loops->push_back(e);
+    // k's centre where the graph has it and where the loop puts it, both in b's frame.
+    const Eigen::Vector3d c = a.centre_in_cam;
+    worst = std::max(worst, (b_from_a * c - e.from_from_to * c).norm());
+  }
+  return worst;
+}
+
 int KeyframeGraph::loop_edges() const {
   int n = 0;
   for (const auto& e : graph_.edges()) n += e.loop;
@@ -431,7 +480,8 @@ void KeyframeGraph::ForgetCurrent() {
 
 Status KeyframeGraph::Optimize(const PoseGraphOptions& options, PoseGraphSummary* summary) {
   // Deferred edges first, in keyframe order: the graph's poses have not moved since the keyframes
-  // were made (nothing but Optimize moves them), so these are the edges Track() would have added.
+  // were made (nothing but Optimize moves them), so these are the edges Track() would have added;
+  // or a loop correction moved them (OptimizeNow), and ICP starts from the corrected poses.
   for (const DeferredEdge& d : deferred_edges_) {
     if (d.from < 0)
       AddKeyframeEdges(d.to);
@@ -440,6 +490,30 @@ Status KeyframeGraph::Optimize(const PoseGraphOptions& options, PoseGraphSummary
   }
   deferred_edges_.clear();
   return graph_.Optimize(options, summary);
+}
+
+Status KeyframeGraph::OptimizeNow(const PoseGraphOptions& options,
+                                  const std::vector<PoseGraphEdge>& loops,
+                                  PoseGraphSummary* summary) {
+  if (!o_.defer_edges) return Optimize(options, summary);
+  PoseGraph provisional = graph_;
+  for (const DeferredEdge& d : deferred_edges_) {
+    if (d.from >= 0) continue;  // a reuse's loop edge: the chain holds without it
+    const Keyframe& kf = keyframes_[static_cast<size_t>(d.to)];
+    if (kf.parent < 0) continue;
+    PoseGraphEdge e;
+    e.from = keyframes_[static_cast<size_t>(kf.parent)].node;
+    e.to = kf.node;
+    e.from_from_to = graph_.pose(e.from).inverse() * graph_.pose(e.to);
+    e.sigma_translation_mm = o_.odometry_sigma_mm;
+    e.sigma_rotation_rad = o_.odometry_sigma_rad;
+    provisional.AddEdge(e);
+  }
+  for (const PoseGraphEdge& e : loops) provisional.AddEdge(e);
+  D3D_RETURN_IF_ERROR(provisional.Optimize(options, summary));
+  for (int node = 0; node < graph_.num_nodes(); ++node)
+    graph_.set_pose(node, provisional.pose(node));
+  return Status();
 }
 
 int KeyframeGraph::DropFrom(int64_t first_view, bool truncate_edges, size_t edges_before,

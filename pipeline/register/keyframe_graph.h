@@ -66,8 +66,9 @@ struct KeyframeGraphOptions {
   enum class FeatureTiming { kInTrack, kWorker, kOnDemand };
   FeatureTiming feature_timing = FeatureTiming::kInTrack;
   // A new keyframe's edges (odometry ICP and loop search, up to 10 ICPs) are measured in Optimize()
-  // instead of in Track(): the same edges (the graph's poses do not move before), only
-  // TrackResult::loops_added stays 0. For a live host, whose Track() is on the critical path.
+  // instead of in Track(): the same edges (the graph's poses do not move before, but for a loop
+  // correction: OptimizeNow), only TrackResult::loops_added stays 0. For a live host, whose Track()
+  // is on the critical path.
   bool defer_edges = false;
   bool detect_loops = true;       // search loop closures for each new keyframe
   double loop_radius_mm = 10.0;   // keyframe centres closer than this are loop candidates
@@ -167,6 +168,25 @@ class KeyframeGraph {
   void Update(const cv::Mat& points, const cv::Mat& normals, const cv::Mat& texture,
               const Rigid3d& pose, int64_t view, int segment, TrackResult* out);
 
+  // How far the drift since an older keyframe has put keyframe k: of k's loop candidates (at least
+  // loop_min_separation before it, centre within loop_radius_mm: DetectLoops' candidates), the
+  // nearest candidates + 2 are tested, and up to `candidates` that overlap k by loop_min_overlap at
+  // the graph's poses get k's samples registered onto theirs (keyframe ICP from the graph's
+  // relative pose); returns the largest distance (mm) by which that moves k's surface centre. −1
+  // when no candidate overlaps or every ICP failed; detect_loops off: −1. The edges measured go to
+  // *loops (loop edges, on the loop σs), not into the graph; *tested gets the candidates tested.
+  double LoopDiscrepancyMm(int k, int candidates, std::vector<PoseGraphEdge>* loops,
+                           int* tested) const;
+  // Optimises the pose graph now, from what is measured: without defer_edges, Optimize. With it,
+  // the deferred edges stay deferred (Optimize measures them later, from the poses this leaves): a
+  // copy of the graph gets, for each keyframe whose edges wait, its tracked relative pose to its
+  // parent (the odometry σs), and `loops`; the copy is solved and its poses taken. Why: measuring
+  // every deferred edge at the first loop closure stalled Track() for seconds
+  // (docs/decisions/0020).
+  [[nodiscard]] Status OptimizeNow(const PoseGraphOptions& options,
+                                   const std::vector<PoseGraphEdge>& loops,
+                                   PoseGraphSummary* summary);
+
   // Keyframe k's features, extracted first when kOnDemand left them pending.
   const ViewFeatures& Features(int k);
   // Waits for the feature worker's pending keyframes and moves their features into the keyframes.
@@ -176,6 +196,10 @@ class KeyframeGraph {
   // pose, on the loop σs (false when the ICP fails).
   bool MeasureEdge(int from, int to, PoseGraphEdge* edge) const;
   void AddEdge(const PoseGraphEdge& edge) { graph_.AddEdge(edge); }
+  // Sets keyframe k's graph pose (world_from_keyframe).
+  void SetPose(int k, const Rigid3d& world_from_keyframe) {
+    graph_.set_pose(keyframes_[static_cast<size_t>(k)].node, world_from_keyframe);
+  }
   // Moves the graph poses of segment s's keyframes by T (a join: main_from_segment).
   void MoveSegment(int s, const Rigid3d& T);
   // A segment starts: no keyframe is current.
@@ -228,6 +252,7 @@ class KeyframeGraph {
   int current_kf_ = -1;
   int64_t current_since_ = -1;
   std::unique_ptr<PointMap> current_occupancy_;
+  mutable SurfacePoints check_samples_;  // LoopDiscrepancyMm: every 4th of the keyframe's samples
   int keyframes_reused_ = 0;
 };
 

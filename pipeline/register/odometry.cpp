@@ -117,10 +117,12 @@ IcpResult Odometry::Register(const SurfacePoints& source, const Rigid3d& initial
   return r;
 }
 
-void Odometry::Insert(const cv::Mat& points, const cv::Mat& normals, const Rigid3d& pose) {
+void Odometry::Insert(const cv::Mat& points, const cv::Mat& normals, const Rigid3d& pose,
+                      int32_t tag) {
   SampleOrganised(points, normals, cv::Mat(), o_.map_stride, &map_samples_);
   insert_pending_ = true;
   pending_pose_ = pose;
+  pending_tag_ = tag;
   if (!o_.defer_model_insert) Commit();
 }
 
@@ -128,7 +130,7 @@ double Odometry::Commit() {
   if (!insert_pending_) return 0;
   const auto t0 = std::chrono::steady_clock::now();
   insert_pending_ = false;
-  map_.Insert(map_samples_, pending_pose_);
+  map_.Insert(map_samples_, pending_pose_, pending_tag_);
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }
 

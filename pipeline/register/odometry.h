@@ -100,8 +100,8 @@ class Odometry {
 
   const PointMap& model() const { return map_; }  // without a pending insert (see Commit)
   // The view's samples (map_stride) into the model at `pose` (world_from_cam): now, or left pending
-  // for Commit (defer_model_insert).
-  void Insert(const cv::Mat& points, const cv::Mat& normals, const Rigid3d& pose);
+  // for Commit (defer_model_insert). `tag`: the view's anchor keyframe (PointMap::Insert).
+  void Insert(const cv::Mat& points, const cv::Mat& normals, const Rigid3d& pose, int32_t tag = -1);
   // Runs a pending insert; nothing when none is. Returns its time (ms).
   double Commit();
   bool insert_pending() const { return insert_pending_; }
@@ -110,6 +110,12 @@ class Odometry {
   bool RollBackTo(int64_t inserts) { return map_.RollBackTo(inserts); }
   // Replaces the model (a segment joined: its samples moved into the main frame). No undo journal.
   void ReplaceModel(PointMap model) { map_ = std::move(model); }
+  // Moves the model's samples with the keyframes they were tagged with (PointMap::MoveByTag), a
+  // pending insert first. No undo journal.
+  void MoveModel(const std::vector<Rigid3d>& new_from_old_by_tag) {
+    Commit();
+    map_.MoveByTag(new_from_old_by_tag);
+  }
 
   // The map gate of an accepted view with ICP result `icp`: whether it enters the model. Its
   // residual joins the history when ICP ran (*rmse_pushed_mm gets it; untouched otherwise).
@@ -136,6 +142,7 @@ class Odometry {
   PointMap map_;
   bool insert_pending_ = false;  // map_samples_ go into map_ at pending_pose_ (Commit)
   Rigid3d pending_pose_ = Rigid3d::Identity();
+  int32_t pending_tag_ = -1;
   SurfacePoints map_samples_;
   // Register's model samples near the view and its association grids, refilled for every ICP.
   mutable SurfacePoints gathered_;

@@ -1,5 +1,6 @@
 #include "pipeline/register/point_map.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -16,8 +17,11 @@ void PointMapOptions::Check() const {
 
 PointMap::PointMap(const PointMapOptions& options) : o_(options) { o_.Check(); }
 
-void PointMap::Insert(const SurfacePoints& s, const Rigid3d& world_from_source) {
+void PointMap::Insert(const SurfacePoints& s, const Rigid3d& world_from_source, int32_t tag,
+                      const std::vector<int32_t>* sample_tags) {
   D3D_CHECK_MSG(s.normals.size() == s.points.size(), "PointMap::Insert needs normals");
+  D3D_CHECK_MSG(sample_tags == nullptr || sample_tags->size() == s.size(),
+                "PointMap::Insert: one tag per sample");
   const Eigen::Matrix3f R = world_from_source.linear().cast<float>();
   const Eigen::Vector3f t = world_from_source.translation().cast<float>();
   const float inv = static_cast<float>(1.0 / o_.voxel_mm),
@@ -50,6 +54,7 @@ void PointMap::Insert(const SurfacePoints& s, const Rigid3d& world_from_source) 
       points_.push_back(p);
       normals_.push_back(n);
       weights_.push_back(1.0f);
+      tags_.push_back(sample_tags ? (*sample_tags)[i] : tag);
       const uint64_t b = VoxelKeyOf(p, binv);
       blocks_[b].push_back(it->second);
       if (entry) entry->created.push_back({k, b});
@@ -86,11 +91,77 @@ bool PointMap::RollBackTo(int64_t insert) {
     points_.resize(e.samples_before);
     normals_.resize(e.samples_before);
     weights_.resize(e.samples_before);
+    tags_.resize(e.samples_before);
     spare_.push_back(std::move(e));
     journal_.pop_back();
     --inserts_;
   }
   return true;
+}
+
+void PointMap::MoveByTag(const std::vector<Rigid3d>& new_from_old) {
+  std::vector<Eigen::Matrix3f> R(new_from_old.size());
+  std::vector<Eigen::Vector3f> t(new_from_old.size());
+  for (size_t i = 0; i < new_from_old.size(); ++i) {
+    R[i] = new_from_old[i].linear().cast<float>();
+    t[i] = new_from_old[i].translation().cast<float>();
+  }
+  const float inv = static_cast<float>(1.0 / o_.voxel_mm),
+              binv = static_cast<float>(1.0 / o_.block_mm);
+  std::vector<Eigen::Vector3f> points, normals;
+  std::vector<float> weights;
+  std::vector<int32_t> tags;
+  points.reserve(points_.size());
+  normals.reserve(points_.size());
+  weights.reserve(points_.size());
+  tags.reserve(points_.size());
+  voxel_.clear();
+  voxel_.reserve(points_.size());
+  blocks_.clear();
+  for (size_t i = 0; i < points_.size(); ++i) {
+    Eigen::Vector3f p = points_[i], n = normals_[i];
+    const int32_t tag = tags_[i];
+    if (tag >= 0 && static_cast<size_t>(tag) < R.size()) {
+      const size_t k = static_cast<size_t>(tag);
+      p = R[k] * p + t[k];
+      n = R[k] * n;
+    }
+    auto [it, fresh] = voxel_.try_emplace(VoxelKeyOf(p, inv), static_cast<uint32_t>(points.size()));
+    if (fresh) {
+      points.push_back(p);
+      normals.push_back(n);
+      weights.push_back(weights_[i]);
+      tags.push_back(tag);
+      continue;
+    }
+    // Two samples in one voxel after the move: their weighted mean, as Insert makes; one facing
+    // the other way (the other side of a thin wall) is dropped, as Insert drops it.
+    const uint32_t j = it->second;
+    if (normals[j].dot(n) < 0.5f) continue;
+    const float wa = weights[j], wb = weights_[i];
+    points[j] = (points[j] * wa + p * wb) / (wa + wb);
+    normals[j] = (normals[j] * wa + n * wb).normalized();
+    weights[j] = std::min(wa + wb, o_.max_weight);
+  }
+  points_ = std::move(points);
+  normals_ = std::move(normals);
+  weights_ = std::move(weights);
+  tags_ = std::move(tags);
+  // The block lists in index order, as Insert makes them: (block, index) sorted, then one list per
+  // block sized at once (a push_back per sample into the block table took most of the time).
+  std::vector<std::pair<uint64_t, uint32_t>> by_block(points_.size());
+  for (size_t i = 0; i < points_.size(); ++i)
+    by_block[i] = {VoxelKeyOf(points_[i], binv), static_cast<uint32_t>(i)};
+  std::sort(by_block.begin(), by_block.end());
+  for (size_t i = 0; i < by_block.size();) {
+    size_t e = i;
+    while (e < by_block.size() && by_block[e].first == by_block[i].first) ++e;
+    std::vector<uint32_t>& list = blocks_[by_block[i].first];
+    list.reserve(e - i);
+    for (; i < e; ++i) list.push_back(by_block[i].second);
+  }
+  for (Entry& e : journal_) spare_.push_back(std::move(e));
+  journal_.clear();
 }
 
 int64_t PointMap::journal_bytes() const {
@@ -108,9 +179,9 @@ int64_t PointMap::memory_bytes() const {
   const auto chunk = [](size_t bytes) {
     return static_cast<int64_t>((bytes + 8 + 15) / 16 * 16);
   };  // + malloc's header
-  int64_t bytes =
-      static_cast<int64_t>((points_.capacity() + normals_.capacity()) * sizeof(Eigen::Vector3f) +
-                           weights_.capacity() * sizeof(float));
+  int64_t bytes = static_cast<int64_t>(
+      (points_.capacity() + normals_.capacity()) * sizeof(Eigen::Vector3f) +
+      weights_.capacity() * sizeof(float) + tags_.capacity() * sizeof(int32_t));
   // The voxel table: one slot (key, index) and one control byte per slot of its capacity.
   bytes +=
       static_cast<int64_t>(voxel_.capacity() * (sizeof(std::pair<const uint64_t, uint32_t>) + 1));

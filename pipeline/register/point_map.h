@@ -37,8 +37,12 @@ struct PointMapOptions {
 class PointMap {
  public:
   explicit PointMap(const PointMapOptions& options = {});
-  // Adds samples given in their own frame, moved by world_from_source. Normals required.
-  void Insert(const SurfacePoints& samples_in_source, const Rigid3d& world_from_source);
+  // Adds samples given in their own frame, moved by world_from_source. Normals required. The
+  // samples this Insert creates carry `tag` (the tracker's anchor keyframe: MoveByTag moves them
+  // with it), or sample i sample_tags[i] when given (one per sample); samples it only updates keep
+  // theirs.
+  void Insert(const SurfacePoints& samples_in_source, const Rigid3d& world_from_source,
+              int32_t tag = -1, const std::vector<int32_t>* sample_tags = nullptr);
   size_t size() const { return points_.size(); }
   bool empty() const { return points_.empty(); }
   // Samples whose block intersects the axis-aligned box [lo, hi] (world, mm), into *out (points and
@@ -63,6 +67,14 @@ class PointMap {
   const std::vector<Eigen::Vector3f>& points() const { return points_; }
   const std::vector<Eigen::Vector3f>& normals() const { return normals_; }
   const std::vector<float>& weights() const { return weights_; }
+  const std::vector<int32_t>& tags() const { return tags_; }  // the creating Insert's tag
+
+  // Moves each sample by new_from_old[tag] (its tag's; a tag outside the list, or −1, stays) and
+  // rebuilds the voxel and block tables: a loop closure moved the keyframes the samples were seen
+  // from (Tracker, TrackerOptions::loop_correction). Samples that land in one voxel merge (means
+  // weighted by their weights, weights summed up to max_weight, the first sample's tag). The undo
+  // journal is emptied: no Insert before is undoable (inserts() goes on counting).
+  void MoveByTag(const std::vector<Rigid3d>& new_from_old);
 
   // Undo journal. inserts(): Insert calls so far. oldest_undoable_insert(): the first Insert that
   // RollBackTo can still undo (inserts() when there is none: no journal, or none yet).
@@ -103,6 +115,7 @@ class PointMap {
   int64_t inserts_ = 0;
   std::vector<Eigen::Vector3f> points_, normals_;
   std::vector<float> weights_;
+  std::vector<int32_t> tags_;
   // Voxel key → sample index: an open-addressing table (abseil's SwissTable), looked up for every
   // sample of every Insert and Overlap. std::unordered_map's node per key cost a cache miss more a
   // look-up: Insert + Overlap were ~15 % of the live register thread's CPU. Only looked up, never

@@ -206,6 +206,83 @@ TEST(PointMapJournal, RollingBackInsertsGivesTheMapThatNeverHadThem) {
   EXPECT_TRUE(plain.RollBackTo(plain.inserts()));
 }
 
+// A loop correction moves each sample with the keyframe it was tagged with: the samples of tag 1
+// move by their transform and land where that view now lies, those of tag 0 stay bit for bit,
+// samples moved onto one voxel merge with their weights, and nothing before can be undone.
+TEST(PointMap, MoveByTagMovesEachSampleWithItsKeyframe) {
+  PointMapOptions o;
+  o.undo_inserts = 4;
+  std::mt19937 rng(11);
+  const SurfacePoints a = Patch(&rng, Eigen::Vector3f(0, 0, 0), 3000);
+  const SurfacePoints b = Patch(&rng, Eigen::Vector3f(5, 0, 0), 3000);
+  PointMap map(o);
+  map.Insert(a, Pose(0.01, 0), 0);
+  map.Insert(b, Pose(0.01, 0), 1);
+  ASSERT_EQ(map.tags().size(), map.size());
+  const std::vector<Eigen::Vector3f> old_points = map.points();
+  const std::vector<int32_t> old_tags = map.tags();
+  size_t zeros = 0;
+  while (zeros < old_tags.size() && old_tags[zeros] == 0) ++zeros;
+  Rigid3d moved = Rigid3d::Identity();  // tag 1's new_from_old: off the patch's plane
+  moved.linear() =
+      Eigen::AngleAxisd(0.01, Eigen::Vector3d(1, 0.5, 0).normalized()).toRotationMatrix();
+  moved.translation() = Eigen::Vector3d(0.2, 0, 0.5);
+  map.MoveByTag({Rigid3d::Identity(), moved});
+  ASSERT_EQ(map.tags().size(), map.size());
+  // Tag 0's samples come first and stay as they were.
+  for (size_t i = 0; i < zeros; ++i) {
+    ASSERT_EQ(map.tags()[i], 0);
+    ASSERT_EQ(map.points()[i], old_points[i]);
+  }
+  // Tag 1's samples lie at their old places moved (a few merged where two fell in one voxel).
+  size_t ones = 0;
+  for (size_t i = zeros; i < map.size(); ++i) ones += map.tags()[i] == 1;
+  EXPECT_LE(ones, old_points.size() - zeros);
+  EXPECT_GT(ones, (old_points.size() - zeros) * 3 / 4);
+  EXPECT_GT(map.Overlap(b, moved * Pose(0.01, 0)), 0.99);
+  EXPECT_LT(map.Overlap(b, Pose(0.01, 0)), 0.05);
+  const Eigen::Vector3f lo(-10, -10, -10), hi(10, 10, 10);
+  EXPECT_EQ(map.Gather(lo, hi).size(), map.size());  // the block table was rebuilt
+  // The journal is gone: nothing before the move can be undone.
+  EXPECT_EQ(map.oldest_undoable_insert(), map.inserts());
+  EXPECT_FALSE(map.RollBackTo(map.inserts() - 1));
+
+  // The same surface seen twice, 0.3 mm apart along its normal (drift): moved back onto the
+  // first, they merge.
+  PointMap twice(o);
+  Rigid3d off = Rigid3d::Identity();
+  off.translation() = Eigen::Vector3d(0, 0, 0.3);
+  twice.Insert(a, Rigid3d::Identity(), 0);
+  const size_t single = twice.size();
+  twice.Insert(a, off, 1);
+  ASSERT_GT(twice.size(), single * 3 / 2);  // a second layer
+  twice.MoveByTag({Rigid3d::Identity(), off.inverse()});
+  EXPECT_LT(twice.size(), single + single / 50);
+  double weight = 0;  // every sample seen counts once: the two Inserts' samples
+  for (const float w : twice.weights()) weight += w;
+  EXPECT_NEAR(weight, 2.0 * static_cast<double>(a.size()), 1e-3 * static_cast<double>(a.size()));
+}
+
+// Tags follow their samples: given per sample, rolled back with them.
+TEST(PointMap, TagsFollowTheirSamples) {
+  PointMapOptions o;
+  o.undo_inserts = 2;
+  std::mt19937 rng(12);
+  const SurfacePoints a = Patch(&rng, Eigen::Vector3f(0, 0, 0), 500);
+  std::vector<int32_t> per_sample(a.size());
+  for (size_t i = 0; i < per_sample.size(); ++i) per_sample[i] = static_cast<int32_t>(i % 3);
+  PointMap map(o);
+  map.Insert(a, Rigid3d::Identity(), -1, &per_sample);
+  for (size_t i = 0; i < map.size(); ++i) EXPECT_GE(map.tags()[i], 0);
+  const size_t n = map.size();
+  map.Insert(Patch(&rng, Eigen::Vector3f(4, 0, 0), 500), Rigid3d::Identity(), 7);
+  EXPECT_EQ(map.tags().back(), 7);
+  ASSERT_TRUE(map.RollBackTo(1));
+  EXPECT_EQ(map.tags().size(), n);
+  const std::vector<int32_t> too_few(3, 0);
+  EXPECT_THROW(map.Insert(a, Rigid3d::Identity(), -1, &too_few), std::invalid_argument);
+}
+
 // memory_bytes counts at least the samples' arrays and one hash slot per sample, grows with new
 // surface and stays put when the same surface is inserted again (a probe dwelling over a tooth).
 TEST(PointMap, MemoryGrowsWithNewSurfaceOnly) {

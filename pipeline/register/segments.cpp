@@ -289,7 +289,7 @@ void Segments::Merge(int s, const Rigid3d& T, int anchor, int64_t view) {
     all.points.push_back(moves ? Eigen::Vector3f(R * p + t) : p);
     all.normals.push_back(moves ? Eigen::Vector3f(R * n) : n);
   }
-  merged.Insert(all, Rigid3d::Identity());
+  merged.Insert(all, Rigid3d::Identity(), -1, &map.tags());
   odometry_.ReplaceModel(std::move(merged));
   segments_[static_cast<size_t>(s)].joined = true;
   // A loop edge between the anchor keyframe and the nearest main keyframes that overlap it.

@@ -43,6 +43,11 @@ struct TrackResult {
   // main model only then.
   bool in_main = true;
   int loops_added = 0;
+  // A loop correction optimised the pose graph at this view (TrackerOptions::loop_correction): the
+  // largest shift of a keyframe's surface centre (mm); the model moved when above its
+  // min_shift_mm. 0: none ran.
+  double loop_shift_mm = 0;
+  bool loop_corrected = false;
   // Accepted views: how far (camera centre, mm) the pose lies from the motion model's prediction;
   // NaN when there was none (the first views, a re-entry, a new segment).
   double prediction_offset_mm = std::numeric_limits<double>::quiet_NaN();

@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <stdexcept>
 #include <utility>
 
 #include "common/core/status.h"
@@ -24,7 +25,18 @@ const char* TrackingStateName(TrackingState s) {
   return "?";
 }
 
+void LoopCorrectionOptions::Check() const {
+  if (!(min_shift_mm >= 0))
+    throw std::invalid_argument("LoopCorrectionOptions: min_shift_mm must be >= 0");
+  if (every_keyframes < 1)
+    throw std::invalid_argument("LoopCorrectionOptions: every_keyframes must be >= 1");
+  if (check_candidates < 1)
+    throw std::invalid_argument("LoopCorrectionOptions: check_candidates must be >= 1");
+  graph.Check();
+}
+
 void TrackerOptions::Check() const {
+  loop_correction.Check();
   odometry.Check();
   motion.Check();
   relocaliser.Check();
@@ -254,13 +266,19 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   log.in_model = out.in_model;
   log.motion_restart = motion_restart;
   log.pose = pose;
-  if (out.in_model) odometry_.Insert(points, normals, pose);
   keyframe_graph_.Update(points, normals, texture, pose, index_, segments_.active(),
                          &out);  // does not read the model
+  // Tagged with the keyframe the view anchors to: a loop correction moves its samples with it.
+  if (out.in_model) odometry_.Insert(points, normals, pose, keyframe_graph_.current());
   log.current_since = keyframe_graph_.current_since();
   anchor_.back() = keyframe_graph_.current();
   kf_from_cam_.back() =
       keyframe_graph_.world_from_keyframe(keyframe_graph_.current()).inverse() * pose;
+  if (o_.loop_correction.enabled && out.new_keyframe) CorrectOnLoop(&out);
+  if (out.loop_corrected) {
+    out.world_from_cam = keyframe_graph_.world_from_keyframe(anchor_.back()) * kf_from_cam_.back();
+    pose = out.world_from_cam;
+  }
   out.segment = segments_.active();
   out.in_main = segments_.InMain(segments_.active());
   out.segment_joined = joined_now;
@@ -286,12 +304,69 @@ bool Tracker::Coast(const SurfacePoints& samples, const cv::Mat& points, const c
   log.pose = pose;
   // Into the tracking model (not the fused one): the next view overlaps the stretch it slides
   // along.
-  odometry_.Insert(points, normals, pose);
+  odometry_.Insert(points, normals, pose, keyframe_graph_.current());
   out->state = state_;
   out->reason += "; coasting: tracked along its constrained directions, not fused (" +
                  std::to_string(odometry_.coast_run()) + " of " +
                  std::to_string(o_.odometry.max_coast_views) + " in a row)";
   return true;
+}
+
+void Tracker::CorrectOnLoop(TrackResult* out) {
+  const LoopCorrectionOptions& lc = o_.loop_correction;
+  const int n = keyframe_graph_.size();
+  if (n - last_check_keyframes_ < lc.every_keyframes) return;
+  // Every segment in the main frame: a segment apart keeps the main model it set out to join.
+  if (segments_.joined() + 1 < segments_.size()) return;
+  const auto t0 = std::chrono::steady_clock::now();
+  std::vector<PoseGraphEdge> loops;
+  int tested = 0;
+  const double drift_mm =
+      keyframe_graph_.LoopDiscrepancyMm(n - 1, lc.check_candidates, &loops, &tested);
+  ms_loop_correction_ += Ms(t0);
+  if (tested == 0) return;  // no loop candidate: nothing ran, the next keyframe may check
+  last_check_keyframes_ = n;
+  if (drift_mm < 0) return;  // none overlaps, or the ICP failed
+  if (drift_mm <= lc.min_shift_mm) return;
+  ++loop_optimisations_;
+  std::vector<Rigid3d> before(static_cast<size_t>(n));
+  for (int k = 0; k < n; ++k)
+    before[static_cast<size_t>(k)] = keyframe_graph_.world_from_keyframe(k);
+  const auto t1 = std::chrono::steady_clock::now();
+  PoseGraphSummary summary;
+  const bool solved = keyframe_graph_.OptimizeNow(lc.graph, loops, &summary).ok();
+  ms_loop_correction_ += Ms(t1);
+  if (!solved) return;
+  std::vector<Rigid3d> new_from_old(static_cast<size_t>(n));
+  double shift = 0;
+  for (int k = 0; k < n; ++k) {
+    const size_t i = static_cast<size_t>(k);
+    new_from_old[i] = keyframe_graph_.world_from_keyframe(k) * before[i].inverse();
+    const Eigen::Vector3d c = before[i] * keyframe_graph_.keyframes()[i].centre_in_cam;
+    shift = std::max(shift, (new_from_old[i] * c - c).norm());
+  }
+  out->loop_shift_mm = shift;
+  if (shift <= lc.min_shift_mm) {
+    // Too small to move the model: the graph keeps the poses the model was built at.
+    for (int k = 0; k < n; ++k) keyframe_graph_.SetPose(k, before[static_cast<size_t>(k)]);
+    return;
+  }
+  const auto t2 = std::chrono::steady_clock::now();
+  odometry_.MoveModel(new_from_old);
+  const int current = keyframe_graph_.current();
+  motion_.MoveFrame(new_from_old[static_cast<size_t>(current)]);
+  // The logged poses (UndoFrom's replay) in the corrected frame; the moved model has no undo
+  // journal, so no view before this one can be undone.
+  // (A coasted view has no anchor: it moves with the current keyframe.)
+  for (size_t v = 0; v < view_log_.size(); ++v) {
+    const int a = anchor_[v] >= 0 ? anchor_[v] : view_log_[v].coasted ? current : -1;
+    if (a >= 0) view_log_[v].pose = new_from_old[static_cast<size_t>(a)] * view_log_[v].pose;
+  }
+  relocaliser_.DropCandidate();
+  ++loop_corrections_;
+  max_loop_shift_mm_ = std::max(max_loop_shift_mm_, shift);
+  out->loop_corrected = true;
+  ms_loop_correction_ += Ms(t2);
 }
 
 void Tracker::StartSegment(Rigid3d* pose, TrackResult* out) {

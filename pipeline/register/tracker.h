@@ -22,6 +22,8 @@
 //     the main model once they overlap it.
 //  5. Keyframes and loop closure: the view becomes a keyframe (or reuses one) when it leaves the
 //     current keyframe; a new keyframe gets its odometry and loop edges.
+//  6. Loop correction (LoopCorrectionOptions): a new keyframe that finds the drift since an older
+//     one it overlaps has the pose graph solved at once, and the tracking model moves with it.
 // Optimize() solves the pose graph and re-expresses every accepted view through its anchor
 // keyframe: world_from_cam = world_from_keyframe (optimised) · keyframe_from_cam (tracked).
 // UndoFrom() takes the newest views back out (the host's "undo last seconds"): they become refused
@@ -50,13 +52,36 @@
 
 namespace d3d {
 
+// Loop correction during the scan: when a new keyframe closes a loop whose ICP puts it more than
+// min_shift_mm from where the track has it (KeyframeGraph::LoopDiscrepancyMm: the drift since),
+// the pose graph is optimised then (KeyframeGraph::OptimizeNow) instead of only at the end, and
+// the tracking model's samples move with the keyframes they were seen from (PointMap::MoveByTag),
+// the motion model with the current keyframe. The track then goes on in the corrected frame: a
+// pass that comes back over ground scanned long before meets it where the loop says it is, not
+// where the drift since put it (docs/decisions/0020). The views already fused live were fused at
+// their poses before the correction; the scan fuses them again at the end (scan_chain.h).
+struct LoopCorrectionOptions {
+  bool enabled = false;
+  // The drift (mm) a loop must show to be corrected, and that the optimised graph must move some
+  // keyframe's surface centre by for the model to move (below it the graph keeps its tracked
+  // poses; the loop edges stay).
+  double min_shift_mm = 0.1;
+  int check_candidates = 1;  // loop candidates registered for a check (one ICP each)
+  // At most one check per this many new keyframes (a keyframe without a loop candidate is no
+  // check): drift grows slowly, and each check costs keyframe ICPs on Track()'s thread.
+  int every_keyframes = 3;
+  PoseGraphOptions graph;
+  void Check() const;  // throws std::invalid_argument
+};
+
 struct TrackerOptions {
   OdometryOptions odometry;        // frame-to-model ICP and the tracking model
   MotionModelOptions motion;       // prediction and the motion check
   RelocaliserOptions relocaliser;  // finding the model again, and the re-entry standard
   KeyframeGraphOptions keyframes;  // keyframes, pose-graph edges, loop closures
   SegmentOptions segments;         // segments apart and their joins
-  void Check() const;              // throws std::invalid_argument
+  LoopCorrectionOptions loop_correction;
+  void Check() const;  // throws std::invalid_argument
 };
 
 class Tracker {
@@ -130,6 +155,12 @@ class Tracker {
   // Pose of view i after Optimize (its tracked pose before): false if the view was refused.
   bool ViewPose(int64_t view, Rigid3d* world_from_cam) const;
   int loop_edges() const { return keyframe_graph_.loop_edges(); }
+  // Loop corrections made during the scan (LoopCorrectionOptions) and the largest keyframe shift
+  // of any of them (mm).
+  int loop_corrections() const { return loop_corrections_; }
+  double max_loop_shift_mm() const { return max_loop_shift_mm_; }
+  int loop_optimisations() const { return loop_optimisations_; }     // pose-graph solves they ran
+  double ms_loop_correction() const { return ms_loop_correction_; }  // their time, checks included
   // Segments (TrackerOptions::segments): how many, whether segment s lies in the main frame (the
   // first, or joined to it), and the segment of view i (−1: refused).
   int segments() const { return segments_.size(); }
@@ -169,6 +200,9 @@ class Tracker {
   // true and *out filled (refused, the state kept), false when it does not apply.
   bool Coast(const SurfacePoints& samples, const cv::Mat& points, const cv::Mat& normals,
              const Rigid3d& prediction, TrackResult* out);
+  // The loop correction of a new keyframe (LoopCorrectionOptions), when it is due; *out gets the
+  // shift (TrackResult::loop_shift_mm).
+  void CorrectOnLoop(TrackResult* out);
   // Starts a new segment with this view (accepted at *pose, in the segment's frame).
   void StartSegment(Rigid3d* pose, TrackResult* out);
   // Tries to join segment s to the main model; true when it did (then merged). *why: what it
@@ -188,7 +222,10 @@ class Tracker {
   Segments segments_;
   Relocaliser relocaliser_;
   TrackingState state_ = TrackingState::kInitialising;
-  int64_t index_ = -1;            // current view index
+  int64_t index_ = -1;  // current view index
+  int loop_corrections_ = 0, loop_optimisations_ = 0;
+  double max_loop_shift_mm_ = 0, ms_loop_correction_ = 0;
+  int last_check_keyframes_ = 0;  // keyframes there were at the last loop check
   int views_without_points_ = 0;  // views with too few points since the last placed view
   // The last view's loss, for RetractLoss: whether it may be taken back, and the state and
   // refused-in-a-row count before it.

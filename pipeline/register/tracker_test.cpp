@@ -746,6 +746,95 @@ TEST_F(TrackerScan, NearLoopsCarryTheirFactorOfTheInformation) {
       std::invalid_argument);
 }
 
+// Loop correction (TrackerOptions::loop_correction) with every optimisation moving the model
+// (min_shift_mm 0): a strip there and back closes loops on the way back, each moves the tracking
+// model's samples with their keyframes, and the scan goes on as without it: every view placed, the
+// final poses as true, and the model's samples still on the surface in the frame of the poses.
+// With the keyframes' edges measured as they come and deferred to Optimize (the live profile).
+TEST_F(TrackerScan, ALoopCorrectedDuringTheScanMovesTheModelWithItsKeyframes) {
+  TrackerOptions o;
+  o.odometry.min_view_samples /= 4;
+  o.keyframes.overlap = 0.85;
+  o.keyframes.loop_min_separation = 3;
+  std::vector<Rigid3d> path;
+  for (double x = -4; x <= 4.01; x += 0.5) path.push_back(Truth(x, 0));
+  for (double x = 4; x >= -4.01; x -= 0.5) path.push_back(Truth(x, 1.5));
+  // The worst final pose error (camera centre, mm) after Optimize, the first view's pose as
+  // truth's.
+  const auto worst_pose_mm = [&](Tracker* t) {
+    EXPECT_TRUE(t->Optimize({}, nullptr).ok());
+    double worst = 0;
+    Rigid3d e0, e;
+    if (!t->ViewPose(0, &e0)) return 1e9;
+    for (size_t i = 0; i < path.size(); ++i) {
+      if (!t->ViewPose(static_cast<int64_t>(i), &e)) return 1e9;
+      worst = std::max(worst, TranslationDistanceMm(path[0] * e0.inverse() * e, path[i]));
+    }
+    return worst;
+  };
+  Tracker plain(small_cam_, o);
+  for (size_t i = 0; i < path.size(); ++i) {
+    const auto v = RenderHeightField(hf_, small_cam_, path[i], 0.004, static_cast<uint32_t>(i + 1));
+    ASSERT_TRUE(plain.Track(v.points, v.normals, v.quality, v.texture).accepted) << "view " << i;
+  }
+  EXPECT_EQ(plain.loop_corrections(), 0);
+  const double worst_plain = worst_pose_mm(&plain);
+  for (const bool defer : {false, true}) {
+    SCOPED_TRACE(defer ? "edges deferred" : "edges as they come");
+    TrackerOptions oc = o;
+    oc.keyframes.defer_edges = defer;
+    oc.loop_correction.enabled = true;
+    oc.loop_correction.min_shift_mm = 0;
+    oc.loop_correction.every_keyframes = 1;
+    Tracker corrected(small_cam_, oc);
+    int shifted = 0;
+    for (size_t i = 0; i < path.size(); ++i) {
+      const auto v =
+          RenderHeightField(hf_, small_cam_, path[i], 0.004, static_cast<uint32_t>(i + 1));
+      const TrackResult r = corrected.Track(v.points, v.normals, v.quality, v.texture);
+      ASSERT_TRUE(r.accepted) << "view " << i << ": " << r.reason;
+      shifted += r.loop_corrected;
+      if (r.loop_corrected) {
+        EXPECT_GT(r.loop_shift_mm, 0) << "view " << i;
+      }
+    }
+    EXPECT_GT(corrected.loop_corrections(), 0);
+    EXPECT_EQ(corrected.loop_corrections(), shifted);
+    EXPECT_GE(corrected.loop_optimisations(), corrected.loop_corrections());
+    // The model: every sample on the height field, in the frame the first view's pose defines.
+    Rigid3d est0;
+    ASSERT_TRUE(corrected.ViewPose(0, &est0));
+    const Rigid3d truth_from_est = path[0] * est0.inverse();
+    double worst_model_mm = 0;
+    const PointMap& model = corrected.model();
+    ASSERT_EQ(model.tags().size(), model.size());
+    for (size_t i = 0; i < model.size(); ++i) {
+      EXPECT_GE(model.tags()[i], 0);
+      const Eigen::Vector3d p = truth_from_est * model.points()[i].cast<double>();
+      worst_model_mm = std::max(worst_model_mm, std::abs(p.z() - hf_.Height(p.x(), p.y())));
+    }
+    EXPECT_LT(worst_model_mm, 0.05);
+    // The model was rebuilt: no view before the last correction can be undone.
+    EXPECT_GT(corrected.first_undoable_view(), 0);
+    // The final poses, after the whole graph: as true as without the correction.
+    const double worst_corrected = worst_pose_mm(&corrected);
+    std::printf(
+        "[ loops    ] %s: %d corrections (largest %.1f um); worst model sample %.1f um; worst "
+        "pose %.1f um (without: %.1f um)\n",
+        defer ? "deferred" : "as they come", corrected.loop_corrections(),
+        corrected.max_loop_shift_mm() * 1000, worst_model_mm * 1000, worst_corrected * 1000,
+        worst_plain * 1000);
+    EXPECT_LT(worst_corrected, std::max(0.015, 1.5 * worst_plain));
+  }
+  EXPECT_THROW(
+      [] {
+        TrackerOptions bad;
+        bad.loop_correction.every_keyframes = 0;
+        bad.Check();
+      }(),
+      std::invalid_argument);
+}
+
 // Each keyframe whose ICP odometry edge was measured gets a second odometry edge right after it:
 // the relative pose the tracker gave the two, with that ICP edge's information times
 // tracked_edge_information_factor. Nothing else in the graph changes.

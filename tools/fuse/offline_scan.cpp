@@ -127,7 +127,7 @@ class BurstTrace {
             "err_mm err_deg"
             " view_rms_um view_order_error_pct tooth_valid_pct in_model reentry_keyframes "
             "reentry_agreeing"
-            " reentry_seen_through prediction_offset_mm prediction_offset_deg\n";
+            " reentry_seen_through prediction_offset_mm prediction_offset_deg loop_shift_mm\n";
   }
   bool open() const { return out_.is_open(); }
   bool with_truth() const { return open() && with_truth_; }
@@ -154,15 +154,16 @@ class BurstTrace {
                          bin > 1 ? BinnedTruth(b.reference_truth, bin) : b.reference_truth, scene,
                          calib.pattern);
     char line[640];
-    std::snprintf(
-        line, sizeof line,
-        "%lld %d %s %.2f %.3f %.5f %d %d %d %.4f %.4f %.2f %.4f %.1f %d %d %lld %lld %.4f %.4f\n",
-        static_cast<long long>(index), r.accepted ? 1 : 0, TrackingStateName(r.state),
-        r.icp.rmse_mm * 1000, r.icp.overlap, r.icp.eigen_ratio, r.icp.correspondences,
-        r.new_keyframe ? 1 : 0, r.loops_added, err_mm, err_deg, ve.rms_um, ve.order_error_pct,
-        ve.tooth_valid_pct, r.in_model ? 1 : 0, r.reentry.keyframes,
-        static_cast<long long>(r.reentry.agreeing), static_cast<long long>(r.reentry.seen_through),
-        r.prediction_offset_mm, r.prediction_offset_deg);
+    std::snprintf(line, sizeof line,
+                  "%lld %d %s %.2f %.3f %.5f %d %d %d %.4f %.4f %.2f %.4f %.1f %d %d %lld %lld "
+                  "%.4f %.4f %.4f\n",
+                  static_cast<long long>(index), r.accepted ? 1 : 0, TrackingStateName(r.state),
+                  r.icp.rmse_mm * 1000, r.icp.overlap, r.icp.eigen_ratio, r.icp.correspondences,
+                  r.new_keyframe ? 1 : 0, r.loops_added, err_mm, err_deg, ve.rms_um,
+                  ve.order_error_pct, ve.tooth_valid_pct, r.in_model ? 1 : 0, r.reentry.keyframes,
+                  static_cast<long long>(r.reentry.agreeing),
+                  static_cast<long long>(r.reentry.seen_through), r.prediction_offset_mm,
+                  r.prediction_offset_deg, r.loop_shift_mm);
     out_ << line;
   }
 
