@@ -60,8 +60,14 @@ fi
 [[ "$jobs" =~ ^[1-9][0-9]*$ ]] || { echo "scan_zoo: --jobs must be a positive whole number" >&2; exit 2; }
 mkdir -p "$out"
 
-# One line per run: ARCH STYLE SEED.
-list="$out/runs.txt"
+# One line per run: ARCH STYLE SEED. A --table of the same folder while runs go writes its own list
+# (a shared one was read by the runs after the table had rewritten it with other styles).
+if ((table_only)); then
+  list=$(mktemp)
+  trap 'rm -f "$list"' EXIT
+else
+  list="$out/runs.txt"
+fi
 : >"$list"
 IFS=, read -ra arch_list <<<"$arches"
 IFS=, read -ra style_list <<<"$styles"
