@@ -314,14 +314,7 @@ int KeyframeGraph::AddKeyframeEdges(int k) {
   if (const int parent = keyframes_[static_cast<size_t>(k)].parent; parent >= 0) {
     PoseGraphEdge e;
     const bool measured = o_.icp_edges && MeasureEdge(parent, k, &e);
-    if (!measured) {
-      e = PoseGraphEdge{};
-      e.from = keyframes_[static_cast<size_t>(parent)].node;
-      e.to = keyframes_[static_cast<size_t>(k)].node;
-      e.from_from_to = graph_.pose(e.from).inverse() * graph_.pose(e.to);
-      e.sigma_translation_mm = o_.odometry_sigma_mm;
-      e.sigma_rotation_rad = o_.odometry_sigma_rad;
-    }
+    if (!measured) e = TrackedOdometryEdge(parent, k);
     e.loop = false;
     graph_.AddEdge(e);
     if (measured && o_.tracked_edge_information_factor > 0) {
@@ -377,21 +370,41 @@ bool KeyframeGraph::MeasureEdge(int from, int to, PoseGraphEdge* e) const {
   return true;
 }
 
-int KeyframeGraph::DetectLoops(int k) {
+PoseGraphEdge KeyframeGraph::TrackedOdometryEdge(int parent, int k) const {
+  PoseGraphEdge e;
+  e.from = keyframes_[static_cast<size_t>(parent)].node;
+  e.to = keyframes_[static_cast<size_t>(k)].node;
+  e.from_from_to = graph_.pose(e.from).inverse() * graph_.pose(e.to);
+  e.sigma_translation_mm = o_.odometry_sigma_mm;
+  e.sigma_rotation_rad = o_.odometry_sigma_rad;
+  return e;
+}
+
+void KeyframeGraph::LoopCandidates(int k, std::vector<std::pair<double, int>>* far,
+                                   std::vector<std::pair<double, int>>* near) const {
   const Keyframe& a = keyframes_[static_cast<size_t>(k)];
-  const Rigid3d wa = graph_.pose(a.node);
-  const Eigen::Vector3d ca = wa * a.centre_in_cam;
-  std::vector<std::pair<double, int>> far, near;
+  const Eigen::Vector3d ca = graph_.pose(a.node) * a.centre_in_cam;
+  far->clear();
+  if (near) near->clear();
   for (int j = 0; j + 2 <= k; ++j) {
     if (j == a.parent)
       continue;  // joined by the odometry edge (a reused keyframe: older than k − 1)
+    const bool is_far = j + o_.loop_min_separation <= k;
+    if (!is_far && !near) continue;
     const Keyframe& b = keyframes_[static_cast<size_t>(j)];
     const double d = (graph_.pose(b.node) * b.centre_in_cam - ca).norm();
     if (d >= o_.loop_radius_mm) continue;
-    (j + o_.loop_min_separation <= k ? far : near).emplace_back(d, j);
+    (is_far ? far : near)->emplace_back(d, j);
   }
-  std::sort(far.begin(), far.end());
-  std::sort(near.begin(), near.end());
+  std::sort(far->begin(), far->end());
+  if (near) std::sort(near->begin(), near->end());
+}
+
+int KeyframeGraph::DetectLoops(int k) {
+  const Keyframe& a = keyframes_[static_cast<size_t>(k)];
+  const Rigid3d wa = graph_.pose(a.node);
+  std::vector<std::pair<double, int>> far, near;
+  LoopCandidates(k, &far, &near);
   int added = 0;
   for (const auto& [cand, budget] :
        {std::pair{&far, o_.max_loop_candidates}, std::pair{&near, o_.near_loop_candidates}}) {
@@ -420,16 +433,9 @@ double KeyframeGraph::LoopDiscrepancyMm(int k, int candidates, std::vector<PoseG
   if (!o_.detect_loops) return -1;
   const Keyframe& a = keyframes_[static_cast<size_t>(k)];
   const Rigid3d& wa = graph_.pose(a.node);
-  const Eigen::Vector3d ca = wa * a.centre_in_cam;
   std::vector<std::pair<double, int>> far;
-  for (int j = 0; j + o_.loop_min_separation <= k; ++j) {
-    if (j == a.parent) continue;
-    const Keyframe& b = keyframes_[static_cast<size_t>(j)];
-    const double d = (graph_.pose(b.node) * b.centre_in_cam - ca).norm();
-    if (d < o_.loop_radius_mm) far.emplace_back(d, j);
-  }
+  LoopCandidates(k, &far, nullptr);
   if (far.empty()) return -1;
-  std::sort(far.begin(), far.end());
   // k's samples for the overlap test, every 4th: the test looks up 27 voxels per sample.
   SurfacePoints& few = check_samples_;
   few.clear();
@@ -447,8 +453,7 @@ double KeyframeGraph::LoopDiscrepancyMm(int k, int candidates, std::vector<PoseG
     const int j = far[i].second;
     const Keyframe& b = keyframes_[static_cast<size_t>(j)];
     const Rigid3d b_from_a = graph_.pose(b.node).inverse() * wa;
-    if (OccupancyMap(b.samples, kOverlapVoxelMm)->Overlap(few, b_from_a) < o_.loop_min_overlap)
-      continue;
+    if (OverlapIndex(few, b.samples, b_from_a, kOverlapVoxelMm) < o_.loop_min_overlap) continue;
     PoseGraphEdge e;
     if (!MeasureEdge(j, k, &e)) continue;
     ++measured;
@@ -499,15 +504,8 @@ Status KeyframeGraph::OptimizeNow(const PoseGraphOptions& options,
   PoseGraph provisional = graph_;
   for (const DeferredEdge& d : deferred_edges_) {
     if (d.from >= 0) continue;  // a reuse's loop edge: the chain holds without it
-    const Keyframe& kf = keyframes_[static_cast<size_t>(d.to)];
-    if (kf.parent < 0) continue;
-    PoseGraphEdge e;
-    e.from = keyframes_[static_cast<size_t>(kf.parent)].node;
-    e.to = kf.node;
-    e.from_from_to = graph_.pose(e.from).inverse() * graph_.pose(e.to);
-    e.sigma_translation_mm = o_.odometry_sigma_mm;
-    e.sigma_rotation_rad = o_.odometry_sigma_rad;
-    provisional.AddEdge(e);
+    const int parent = keyframes_[static_cast<size_t>(d.to)].parent;
+    if (parent >= 0) provisional.AddEdge(TrackedOdometryEdge(parent, d.to));
   }
   for (const PoseGraphEdge& e : loops) provisional.AddEdge(e);
   D3D_RETURN_IF_ERROR(provisional.Optimize(options, summary));

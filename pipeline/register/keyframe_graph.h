@@ -229,6 +229,13 @@ class KeyframeGraph {
   // The pose-graph edges of keyframe k (to its parent, and loop closures): returns the loops added.
   int AddKeyframeEdges(int k);
   int DetectLoops(int k);
+  // Keyframe k's loop candidates, nearest first as (distance mm, keyframe): older keyframes but its
+  // parent whose centres lie within loop_radius_mm of k's at the graph's poses; *far those at least
+  // loop_min_separation before k, *near (optional) the others from k − 2 back.
+  void LoopCandidates(int k, std::vector<std::pair<double, int>>* far,
+                      std::vector<std::pair<double, int>>* near) const;
+  // The edge parent → k on the odometry σs, at the graph's relative pose (the tracked one).
+  PoseGraphEdge TrackedOdometryEdge(int parent, int k) const;
 
   class FeatureWorker;  // feature_timing kWorker (keyframe_graph.cpp)
 

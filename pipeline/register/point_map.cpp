@@ -17,6 +17,17 @@ void PointMapOptions::Check() const {
 
 PointMap::PointMap(const PointMapOptions& options) : o_(options) { o_.Check(); }
 
+namespace {
+// A sample (point p, normal n, weight w) and another seen in its voxel (q, m, weight wq): the
+// running mean of both (a moving average beyond max_weight).
+void Blend(const Eigen::Vector3f& q, const Eigen::Vector3f& m, float wq, float max_weight,
+           Eigen::Vector3f* p, Eigen::Vector3f* n, float* w) {
+  *p = (*p * *w + q * wq) / (*w + wq);
+  *n = (*n * *w + m * wq).normalized();
+  *w = std::min(*w + wq, max_weight);
+}
+}  // namespace
+
 void PointMap::Insert(const SurfacePoints& s, const Rigid3d& world_from_source, int32_t tag,
                       const std::vector<int32_t>* sample_tags) {
   D3D_CHECK_MSG(s.normals.size() == s.points.size(), "PointMap::Insert needs normals");
@@ -63,9 +74,7 @@ void PointMap::Insert(const SurfacePoints& s, const Rigid3d& world_from_source, 
       if (normals_[j].dot(n) < 0.5f) continue;  // the other side of a thin wall
       const float w = weights_[j];
       if (entry) entry->updates.push_back({j, w, points_[j], normals_[j]});
-      points_[j] = (points_[j] * w + p) / (w + 1);
-      normals_[j] = (normals_[j] * w + n).normalized();
-      weights_[j] = std::min(w + 1, o_.max_weight);
+      Blend(p, n, 1.0f, o_.max_weight, &points_[j], &normals_[j], &weights_[j]);
     }
   }
 }
@@ -138,10 +147,7 @@ void PointMap::MoveByTag(const std::vector<Rigid3d>& new_from_old) {
     // the other way (the other side of a thin wall) is dropped, as Insert drops it.
     const uint32_t j = it->second;
     if (normals[j].dot(n) < 0.5f) continue;
-    const float wa = weights[j], wb = weights_[i];
-    points[j] = (points[j] * wa + p * wb) / (wa + wb);
-    normals[j] = (normals[j] * wa + n * wb).normalized();
-    weights[j] = std::min(wa + wb, o_.max_weight);
+    Blend(p, n, weights_[i], o_.max_weight, &points[j], &normals[j], &weights[j]);
   }
   points_ = std::move(points);
   normals_ = std::move(normals);

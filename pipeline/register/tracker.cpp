@@ -275,10 +275,8 @@ TrackResult Tracker::Track(const cv::Mat& points, const cv::Mat& normals, const 
   kf_from_cam_.back() =
       keyframe_graph_.world_from_keyframe(keyframe_graph_.current()).inverse() * pose;
   if (o_.loop_correction.enabled && out.new_keyframe) CorrectOnLoop(&out);
-  if (out.loop_corrected) {
+  if (out.loop_corrected)
     out.world_from_cam = keyframe_graph_.world_from_keyframe(anchor_.back()) * kf_from_cam_.back();
-    pose = out.world_from_cam;
-  }
   out.segment = segments_.active();
   out.in_main = segments_.InMain(segments_.active());
   out.segment_joined = joined_now;
