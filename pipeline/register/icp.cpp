@@ -9,6 +9,7 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 
 #include "calib/model/camera_model.h"
 #include "common/core/status.h"
@@ -106,6 +107,8 @@ void IcpOptions::Check() const {
                   "(0 = IcpOptions')");
     D3D_CHECK_MSG(l.point_to_plane_weight >= 0 && l.point_to_plane_weight <= 1,
                   "point_to_plane_weight must be in [0, 1]");
+    D3D_CHECK_MSG(l.min_overlap >= 0 && l.min_overlap <= 1,
+                  "IcpOptions: a level's min_overlap must be in [0, 1] (0 = none)");
   }
   D3D_CHECK_MSG(max_normal_angle_deg > 0 && max_normal_angle_deg <= 180,
                 "max_normal_angle_deg must be in (0, 180]");
@@ -451,6 +454,18 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
           prev_err > 0 && std::abs(prev_err - err) <= o.min_relative_error_change * prev_err;
       prev_err = err;
       if (small || flat) break;
+    }
+    const double level_overlap =
+        samples_last ? static_cast<double>(associated_last) / samples_last : 0;
+    if (L.min_overlap > 0 && level_overlap < L.min_overlap) {
+      char why[96];
+      std::snprintf(why, sizeof why, "left the target at level %zu (overlap %.2f < %.2f)", li,
+                    level_overlap, L.min_overlap);
+      res.reason = why;
+      res.target_from_source = T;
+      res.correspondences = associated_last;
+      res.overlap = level_overlap;
+      return res;
     }
   }
   res.target_from_source = T;

@@ -141,6 +141,10 @@ struct IcpLevel {
   // well inside the next level's gate; its own last micrometres are found again by the next level.
   double min_delta_rotation_rad = 0;
   double min_delta_translation_mm = 0;
+  // > 0: the registration gives up after this level (not ok) when fewer of its samples than this
+  // share found a match within its gate: a start that has left the target does not pay for the
+  // finer levels, whose narrower gates would match fewer still. 0: every level runs.
+  double min_overlap = 0;
 };
 
 struct IcpOptions {

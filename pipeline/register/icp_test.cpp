@@ -312,5 +312,28 @@ TEST(Icp, LowOverlapFailsCleanly) {
       << r.reason;
 }
 
+// A level's min_overlap ends a registration whose coarse level has left the target: the finer
+// levels do not run (fewer iterations), and the same pair with it off runs them all.
+TEST(Icp, ALevelsMinOverlapEndsAStartThatLeftTheTarget) {
+  const HeightField hf(14);
+  const Pair p = MakePair(hf, 6.0, 0.003);  // 9.6 mm wide views, 6 mm apart: ~35 % overlap
+  KdTreeTarget kd(p.target);
+  IcpOptions o;
+  o.min_overlap = 0.5;
+  const IcpResult all = RegisterIcp(p.source, kd, p.target_from_source, o);
+  EXPECT_FALSE(all.ok);
+  o.levels[0].min_overlap = 0.5;
+  const IcpResult early = RegisterIcp(p.source, kd, p.target_from_source, o);
+  EXPECT_FALSE(early.ok);
+  EXPECT_NE(early.reason.find("left the target at level 0"), std::string::npos) << early.reason;
+  EXPECT_LT(early.iterations, all.iterations);
+  EXPECT_LT(early.overlap, 0.5);
+  // A start on the target passes the same limit.
+  const StartedPair c = StandardPair();
+  IcpOptions good;
+  good.levels[0].min_overlap = 0.5;
+  EXPECT_TRUE(RegisterIcp(c.p.source, KdTreeTarget(c.p.target), c.init, good).ok);
+}
+
 }  // namespace
 }  // namespace d3d

@@ -54,6 +54,10 @@ IcpOptions SegmentJoinIcp() {
 void SegmentJoinOptions::Check() const {
   D3D_CHECK_MSG(sample_voxel_mm > 0, "SegmentJoinOptions: sample_voxel_mm must be > 0");
   D3D_CHECK_MSG(min_correspondences >= 1, "SegmentJoinOptions: min_correspondences must be >= 1");
+  D3D_CHECK_MSG(min_contained_fraction >= 0 && min_contained_fraction <= 1 &&
+                    min_contained_correspondences >= 1,
+                "SegmentJoinOptions: min_contained_fraction in [0, 1] (0 = off), "
+                "min_contained_correspondences >= 1");
   D3D_CHECK_MSG(min_eigen_ratio >= 0 && min_eigen_ratio < 1,
                 "SegmentJoinOptions: min_eigen_ratio in [0, 1)");
   fpfh.Check();
@@ -122,10 +126,18 @@ SegmentJoinResult RefineSegmentJoin(const SegmentJoinTarget& segment,
     r.reason = "icp: " + r.icp.reason;
     return r;
   }
-  if (r.icp.correspondences < options.min_correspondences) {
-    r.reason = "too little overlap (" + std::to_string(r.icp.correspondences) + " of " +
-               std::to_string(source.size()) + " samples on the main model, need " +
-               std::to_string(options.min_correspondences) + ")";
+  const int on_main = r.icp.correspondences;
+  const bool contained =
+      options.min_contained_fraction > 0 && on_main >= options.min_contained_correspondences &&
+      on_main >= options.min_contained_fraction * static_cast<double>(source.size());
+  if (on_main < options.min_correspondences && !contained) {
+    char need[160];
+    std::snprintf(need, sizeof need,
+                  "too little overlap (%d of %zu samples on the main model, need %d, or %.0f %% of "
+                  "the segment and %d)",
+                  on_main, source.size(), options.min_correspondences,
+                  options.min_contained_fraction * 100, options.min_contained_correspondences);
+    r.reason = need;
     return r;
   }
   if (r.icp.eigen_ratio < options.min_eigen_ratio) {

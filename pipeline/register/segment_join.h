@@ -7,7 +7,8 @@
 //  2. ICP of the segment's samples onto the main model's (k-d tree association, gates 1.0 → 0.15
 //     mm) from that pose: residual at most icp.max_rmse_mm, at least min_correspondences samples of
 //     the segment on the main model (a segment grows over new ground, so a fraction would say
-//     little), and well constrained (eigen ratio at least min_eigen_ratio).
+//     little; a small segment lying almost whole on it joins by min_contained_fraction), and well
+//     constrained (eigen ratio at least min_eigen_ratio).
 // The caller adds its own checks (the tracker: its keyframes' visibility, reentry_check.h).
 // Units: mm. Transforms target_from_source: main_from_segment.
 #pragma once
@@ -36,6 +37,12 @@ struct SegmentJoinOptions {
   IcpOptions icp = SegmentJoinIcp();
   int min_correspondences =
       1500;  // of the segment's thinned samples (~135 mm² at 0.3 mm: a molar's crown)
+  // A segment that lies almost whole on the main model (a few views over ground scanned before,
+  // cut off by a loss at a pass's turn) has fewer samples than min_correspondences in all: it
+  // joins when at least this share of its samples, and min_contained_correspondences of them
+  // (~45 mm² at 0.3 mm: about one view's field), lie on the main model. 0 = off.
+  double min_contained_fraction = 0.8;
+  int min_contained_correspondences = 500;
   // The whole segment is ICP's source: a long strip of a segment is less well conditioned by its
   // length alone than one view (IcpOptions::min_eigen_ratio scales rotation by the source radius).
   double min_eigen_ratio = 0.005;

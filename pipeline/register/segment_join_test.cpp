@@ -69,5 +69,40 @@ TEST(JoinSegment, RefusesASegmentWithoutOverlapOrOnAPlane) {
   EXPECT_FALSE(JoinSegment(Strip(hf, -4, 6, 100), SegmentJoinTarget{}, SmallViews()).ok);
 }
 
+// A segment of two views over ground the main model holds has fewer samples than
+// min_correspondences in all: it joins because it lies whole on the model; one of the same size
+// only half on it does not.
+TEST(RefineSegmentJoin, ASmallSegmentLyingWholeOnTheModelJoins) {
+  const HeightField hf(11);
+  SegmentJoinOptions o = SmallViews();
+  o.min_contained_correspondences = 100;
+  const SegmentJoinTarget target = MakeSegmentJoinTarget(Strip(hf, -10, 0, 1), o);
+  const Rigid3d g = SegmentFrame();
+  Rigid3d off_by = Rigid3d::Identity();  // 0.2 mm and 0.3° about the segment's middle
+  off_by.linear() = Eigen::AngleAxisd(0.005, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  const Eigen::Vector3d mid(-5.5, 0, 0);
+  off_by.translation() = mid - off_by.linear() * mid + Eigen::Vector3d(0.15, -0.1, 0.08);
+  const Rigid3d near = off_by * g.inverse();  // main_from_segment
+  const SegmentJoinTarget inside = MakeSegmentJoinTarget(Strip(hf, -6, -5, 100).Transformed(g), o);
+  o.min_correspondences = static_cast<int>(inside.samples.size()) + 1;  // more than it has
+  const SegmentJoinResult r = RefineSegmentJoin(inside, target, near, o);
+  ASSERT_TRUE(r.ok) << r.reason;
+  const Rigid3d error = r.main_from_segment * g;
+  const Eigen::Vector3d c(-5.5, 0, 0);
+  EXPECT_LT((error * c - c).norm(), 0.02);
+  SegmentJoinOptions off = o;
+  off.min_contained_fraction = 0;
+  const SegmentJoinResult refused = RefineSegmentJoin(inside, target, near, off);
+  EXPECT_FALSE(refused.ok);
+  EXPECT_NE(refused.reason.find("too little overlap"), std::string::npos) << refused.reason;
+  // Half of it over ground the model has not seen (views at x = 4, 5: the model ends at 4.8).
+  const SegmentJoinTarget half = MakeSegmentJoinTarget(Strip(hf, 4, 5, 100).Transformed(g), o);
+  SegmentJoinOptions big = o;
+  big.min_correspondences = static_cast<int>(half.samples.size()) + 1;
+  const SegmentJoinResult out = RefineSegmentJoin(half, target, near, big);
+  EXPECT_FALSE(out.ok);
+  EXPECT_NE(out.reason.find("too little overlap"), std::string::npos) << out.reason;
+}
+
 }  // namespace
 }  // namespace d3d

@@ -181,6 +181,9 @@ SegmentJoinResult Segments::JoinFromKeyframeStarts(int s, const SegmentJoinTarge
   start.levels = {IcpLevel{1, 20, o_.join_start_gate_mm, 0.5, 1500},
                   IcpLevel{1, 10, 1.0, 0.7, 1500}, IcpLevel{1, 8, 0.3, 0.9, 3000}};
   start.min_overlap = 0.3;
+  // A start whose coarse levels leave the model (fewer matches than the last level needs, at
+  // gates 10× and 3× wider) ends there.
+  start.levels[0].min_overlap = start.levels[1].min_overlap = start.min_overlap;
   start.max_rmse_mm = 0.06;
   start.min_eigen_ratio = 0;
   const KdTreeTarget main_tree(join_target_.samples);
@@ -190,6 +193,7 @@ SegmentJoinResult Segments::JoinFromKeyframeStarts(int s, const SegmentJoinTarge
   };
   std::vector<Held> held;
   int starts = 0, views_held = 0;
+  std::string refused;  // why the last refinement of a held start failed
   for (const int k : first) {
     const Rigid3d segment_from_cam = keyframes_.world_from_keyframe(k);
     for (const int j : main) {
@@ -206,7 +210,10 @@ SegmentJoinResult Segments::JoinFromKeyframeStarts(int s, const SegmentJoinTarge
                           RotationAngleRad(h.join.main_from_segment, guess) < 1.0 * M_PI / 180);
       if (known) continue;
       SegmentJoinResult r = RefineSegmentJoin(seg, join_target_, guess, o_.join);
-      if (r.ok) held.push_back({std::move(r), k});
+      if (r.ok)
+        held.push_back({std::move(r), k});
+      else
+        refused = r.reason;
     }
   }
   char counts[96];
@@ -214,6 +221,7 @@ SegmentJoinResult Segments::JoinFromKeyframeStarts(int s, const SegmentJoinTarge
                 held.size());
   if (held.empty()) {
     *why = counts;
+    if (!refused.empty()) *why += " (the refinement: " + refused + ")";
     return none;
   }
   // The best refined join, and no other far from it.
