@@ -233,9 +233,12 @@ SegmentJoinResult Segments::JoinFromKeyframeStarts(int s, const SegmentJoinTarge
     const double mm = TranslationDistanceMm(h.join.main_from_segment, T);
     const double deg = RotationAngleRad(h.join.main_from_segment, T) * 180 / M_PI;
     if (mm > o_.join.fpfh.ambiguity_mm || deg > o_.join.fpfh.ambiguity_deg) {
-      char amb[160];
-      std::snprintf(amb, sizeof amb, "%s: ambiguous (two joins %.1f mm / %.1f deg apart)", counts,
-                    mm, deg);
+      char amb[200];
+      std::snprintf(amb, sizeof amb,
+                    "%s: ambiguous (two joins %.1f mm / %.1f deg apart, %d and %d samples on the "
+                    "model)",
+                    counts, mm, deg, held[best].join.icp.correspondences,
+                    h.join.icp.correspondences);
       *why = amb;
       return none;
     }
