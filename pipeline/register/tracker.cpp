@@ -4,7 +4,6 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <stdexcept>
 #include <utility>
 
 #include "common/core/status.h"
@@ -26,12 +25,9 @@ const char* TrackingStateName(TrackingState s) {
 }
 
 void LoopCorrectionOptions::Check() const {
-  if (!(min_shift_mm >= 0))
-    throw std::invalid_argument("LoopCorrectionOptions: min_shift_mm must be >= 0");
-  if (every_keyframes < 1)
-    throw std::invalid_argument("LoopCorrectionOptions: every_keyframes must be >= 1");
-  if (check_candidates < 1)
-    throw std::invalid_argument("LoopCorrectionOptions: check_candidates must be >= 1");
+  D3D_CHECK_MSG(min_shift_mm >= 0, "LoopCorrectionOptions: min_shift_mm must be >= 0");
+  D3D_CHECK_MSG(every_keyframes >= 1, "LoopCorrectionOptions: every_keyframes must be >= 1");
+  D3D_CHECK_MSG(check_candidates >= 1, "LoopCorrectionOptions: check_candidates must be >= 1");
   graph.Check();
 }
 
