@@ -5,7 +5,7 @@
 namespace d3d::fw {
 namespace {
 
-FlashGeometry Small() {
+FlashGeometry TwoBlockFlash() {
   FlashGeometry g;
   g.erase_block_bytes = 4096;
   g.page_bytes = 256;
@@ -43,7 +43,7 @@ TEST(BootRecord, RoundTripsAndTheCrcCatchesEveryFlippedBit) {
 }
 
 TEST(BootControlStore, AlternatesCopiesAndATornWriteKeepsThePreviousRecord) {
-  auto f = Flash::InMemory(Small());
+  auto f = Flash::InMemory(TwoBlockFlash());
   BootControlStore store(f.get());
   std::optional<BootRecord> got;
   ASSERT_TRUE(store.Load(&got).ok());

@@ -34,7 +34,7 @@ TrackResult Accepted(const Rigid3d& world_from_cam, int segment, bool in_main) {
   return t;
 }
 
-PreviewModelOptions Options() {
+PreviewModelOptions PreviewOptions() {
   PreviewModelOptions o;
   o.cell_mm = 0.4;
   o.stride_px = 1;
@@ -43,7 +43,7 @@ PreviewModelOptions Options() {
 
 TEST(PreviewModel, ASegmentApartIsDrawnBesideTheModelAndJoinsIt) {
   const PlaneView v;
-  PreviewModel m(Options());
+  PreviewModel m(PreviewOptions());
   m.AddView(0, Accepted(At(0), 0, true), v.points, v.normals);
   const size_t model = m.model_points();
   EXPECT_GT(model, 100u);
@@ -83,7 +83,7 @@ TEST(PreviewModel, ASegmentApartIsDrawnBesideTheModelAndJoinsIt) {
 
 TEST(PreviewModel, UndoTakesTheViewsTailOutAndASnapshotCopiesAnew) {
   const PlaneView v;
-  PreviewModel m(Options());
+  PreviewModel m(PreviewOptions());
   m.AddView(0, Accepted(At(0), 0, true), v.points, v.normals);
   const size_t first = m.model_points();
   m.AddView(1, Accepted(At(20), 0, true), v.points, v.normals);
@@ -107,7 +107,7 @@ TEST(PreviewModel, UndoTakesTheViewsTailOutAndASnapshotCopiesAnew) {
 
 TEST(PreviewModel, ModelAndSegmentShareThePointBudget) {
   const PlaneView v;
-  PreviewModelOptions o = Options();
+  PreviewModelOptions o = PreviewOptions();
   o.max_points = 500;
   PreviewModel m(o);
   m.AddView(0, Accepted(At(0), 0, true), v.points, v.normals);

@@ -10,7 +10,7 @@ namespace d3d::flash {
 
 namespace {
 
-constexpr unsigned kControlTimeoutMs = 10000;
+constexpr unsigned kUsbControlTimeoutMs = 10000;
 
 std::string UsbError(int rc) { return libusb_error_name(rc); }
 
@@ -167,7 +167,7 @@ ControlResult UsbTransport::Control(const dfu::SetupPacket& s, std::span<uint8_t
     return r;
   }
   const int rc = libusb_control_transfer(handle_, s.request_type, s.request, s.value, s.index,
-                                         data.data(), s.length, kControlTimeoutMs);
+                                         data.data(), s.length, kUsbControlTimeoutMs);
   if (rc == LIBUSB_ERROR_PIPE) {
     r.stalled = true;
   } else if (rc < 0) {

@@ -94,11 +94,18 @@ void TouchLeaves(const LeafRange& range, std::unordered_set<openvdb::Coord, Coor
 // kLeafDim voxel centres x0 + k·step (camera frame, mm): the row-major index of the nearest pixel
 // (round half up), or −1 outside the image or behind the camera. Eight lanes at once (GCC/Clang
 // vector extension); on x86-64 also built for AVX2 and chosen at run time (function
-// multiversioning), else SSE2's two halves.
+// multiversioning), else SSE2's two halves. (ProjectionF is named outside the anonymous namespace:
+// VoxelPass holds one, and a unity build that includes this file warns of a member of internal
+// linkage.)
+}  // namespace
+namespace tsdf_detail {
 struct ProjectionF {
   float fx, fy, cx, cy, k1, k2, k3, p1, p2, u_max, v_max;
   int cols;
 };
+}  // namespace tsdf_detail
+using tsdf_detail::ProjectionF;
+namespace {
 
 using Float8 = float __attribute__((vector_size(32)));
 using Int8 = int32_t __attribute__((vector_size(32)));

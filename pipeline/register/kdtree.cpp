@@ -4,21 +4,22 @@
 
 namespace d3d {
 
-namespace {
-struct Adaptor {
-  const std::vector<Eigen::Vector3f>* pts;
-  size_t kdtree_get_point_count() const { return pts->size(); }
-  float kdtree_get_pt(size_t i, size_t d) const { return (*pts)[i][static_cast<Eigen::Index>(d)]; }
-  template <class BBOX>
-  bool kdtree_get_bbox(BBOX&) const {
-    return false;
-  }
-};
-using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, Adaptor>,
-                                                 Adaptor, 3, uint32_t>;
-}  // namespace
-
+// The adaptor and tree are Impl's own types (not in an anonymous namespace: a unity build
+// includes this file into another, where GCC warns of a member of internal linkage).
 struct PointKdTree::Impl {
+  struct Adaptor {
+    const std::vector<Eigen::Vector3f>* pts;
+    size_t kdtree_get_point_count() const { return pts->size(); }
+    float kdtree_get_pt(size_t i, size_t d) const {
+      return (*pts)[i][static_cast<Eigen::Index>(d)];
+    }
+    template <class BBOX>
+    bool kdtree_get_bbox(BBOX&) const {
+      return false;
+    }
+  };
+  using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, Adaptor>,
+                                                   Adaptor, 3, uint32_t>;
   Adaptor adaptor;
   Tree tree;
   Impl(const std::vector<Eigen::Vector3f>* p, int leaf)

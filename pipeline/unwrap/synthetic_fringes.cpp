@@ -8,7 +8,7 @@
 namespace d3d {
 
 namespace {
-constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+constexpr float kNoValue = std::numeric_limits<float>::quiet_NaN();  // no surface, no phase
 constexpr double kTwoPi = 2.0 * M_PI;
 }  // namespace
 
@@ -46,7 +46,7 @@ SyntheticScene MakeFringeScene(const cv::Mat& depth, const SyntheticProbe& probe
   s.phase_max.create(h, w, CV_32FC1);
   cv::RNG rng(noise.seed);
   auto z_at = [&](int x, int y) -> float {
-    if (x < 0 || y < 0 || x >= w || y >= h) return kNaN;
+    if (x < 0 || y < 0 || x >= w || y >= h) return kNoValue;
     return depth.at<float>(y, x);
   };
   for (int y = 0; y < h; ++y) {
@@ -54,7 +54,7 @@ SyntheticScene MakeFringeScene(const cv::Mat& depth, const SyntheticProbe& probe
       s.phase_min.at<float>(y, x) = static_cast<float>(probe.PhaseAt(x, probe.z_min));
       s.phase_max.at<float>(y, x) = static_cast<float>(probe.PhaseAt(x, probe.z_max));
       const float z = depth.at<float>(y, x);
-      float Phi = kNaN, phi = kNaN, b = 0.0f;
+      float Phi = kNoValue, phi = kNoValue, b = 0.0f;
       int32_t k = -1;
       uint8_t lit = 0, mk = 0;
       if (std::isfinite(z) && z > 0) {
@@ -116,7 +116,7 @@ cv::Mat PlaneDepth(const SyntheticProbe& probe, double z0, double gx, double gy)
 }
 
 cv::Mat SphereDepth(const SyntheticProbe& probe, double px, double py, double r_mm, double z_apex) {
-  cv::Mat d(probe.height, probe.width, CV_32FC1, cv::Scalar(kNaN));
+  cv::Mat d(probe.height, probe.width, CV_32FC1, cv::Scalar(kNoValue));
   const double mm_per_px = z_apex / probe.fc;
   for (int y = 0; y < d.rows; ++y) {
     for (int x = 0; x < d.cols; ++x) {
@@ -132,7 +132,7 @@ cv::Mat SphereDepth(const SyntheticProbe& probe, double px, double py, double r_
 cv::Mat TeethDepth(const SyntheticProbe& probe, int count, double gap_px, uint64_t seed) {
   CV_Assert(count >= 1);
   const int w = probe.width, h = probe.height;
-  cv::Mat d(h, w, CV_32FC1, cv::Scalar(kNaN));
+  cv::Mat d(h, w, CV_32FC1, cv::Scalar(kNoValue));
   cv::RNG rng(seed);
   const double pitch = (w - gap_px) / count;
   const double base[] = {49.0, 52.5, 47.5, 51.0, 53.5, 48.5};

@@ -15,7 +15,7 @@
 namespace d3d {
 namespace {
 
-constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+constexpr float kInvalid = std::numeric_limits<float>::quiet_NaN();
 
 struct Eval {
   int64_t lit = 0;           // pixels with a phase (truth order ≥ 0)
@@ -301,7 +301,7 @@ TEST(Unwrap, NarrowLeakIntoAnUnverifiedPartIsPruned) {
   invalid(cv::Rect(0, 240, 640, 240)).setTo(255);
   invalid(cv::Rect(x0, 250, 150, 230)).setTo(0);    // the patch
   invalid(cv::Rect(x0 + 74, 240, 2, 10)).setTo(0);  // the 2 px gap
-  s.phi.setTo(kNaN, invalid);
+  s.phi.setTo(kInvalid, invalid);
   s.valid.setTo(0, invalid);
   s.marker.setTo(0, invalid);
   cv::Mat patch = cv::Mat::zeros(480, 640, CV_8UC1), top = patch.clone();
@@ -349,7 +349,7 @@ HiddenStepScene MakeHiddenStepIntoAFarPatch(const SyntheticProbe& probe, int row
     if (k >= 11 && k <= 14) h.patch(cv::Rect(x, 240, 1, rows)).setTo(255);
   }
   const cv::Mat unlit = ~(h.patch | h.top);
-  s.phi.setTo(kNaN, unlit);
+  s.phi.setTo(kInvalid, unlit);
   s.valid.setTo(0, unlit);
   s.marker.setTo(0, unlit);
   s.order_true.setTo(-1, unlit);
@@ -419,7 +419,7 @@ TEST(Unwrap, FalseStripeHitsJustNearerThanTheVolumeDoNotVote) {
     if (past_stripe(s.order_true.at<int32_t>(300, x))) cut(cv::Rect(x, 0, 1, 480)).setTo(255);
   cut(cv::Rect(0, 200, 640, 4)).setTo(0);
   ASSERT_GT(cv::countNonZero(cut), 10000);
-  s.phi.setTo(kNaN, cut);
+  s.phi.setTo(kInvalid, cut);
   s.valid.setTo(0, cut);
   s.marker.setTo(0, cut);
   s.order_true.setTo(-1, cut);
@@ -499,9 +499,9 @@ TEST(Unwrap, DepthConstraintAnchorsWhenTheWindowIsNarrow) {
     for (int x = 0; x < s.phi.cols; ++x) {
       const float t = s.Phi_true.at<float>(y, x);
       s.phase_min.at<float>(y, x) =
-          std::isfinite(t) ? t - 0.45f * 2 * static_cast<float>(M_PI) : kNaN;
+          std::isfinite(t) ? t - 0.45f * 2 * static_cast<float>(M_PI) : kInvalid;
       s.phase_max.at<float>(y, x) =
-          std::isfinite(t) ? t + 0.45f * 2 * static_cast<float>(M_PI) : kNaN;
+          std::isfinite(t) ? t + 0.45f * 2 * static_cast<float>(M_PI) : kInvalid;
     }
   }
   const UnwrapResult r = RunAll(s, {}, /*use_marker=*/false);
@@ -618,7 +618,7 @@ TEST(Unwrap, ReusedUnwrapperMatchesFreshRuns) {
 }
 
 TEST(Unwrap, AllInvalidIsOkAndEmpty) {
-  cv::Mat phi(30, 40, CV_32FC1, cv::Scalar(kNaN));
+  cv::Mat phi(30, 40, CV_32FC1, cv::Scalar(kInvalid));
   cv::Mat q(30, 40, CV_32FC1, cv::Scalar(0.0f));
   UnwrapResult r;
   ASSERT_TRUE(UnwrapPhase(phi, q, cv::Mat(), cv::Mat(), cv::Mat(), {}, &r).ok());
@@ -631,7 +631,7 @@ TEST(Unwrap, AllInvalidIsOkAndEmpty) {
   ASSERT_TRUE(UnwrapPhase(phi, q, cv::Mat(), cv::Mat(), cv::Mat(), {}, &r).ok());
   EXPECT_EQ(r.stats.pixels_usable, 0);
   cv::Mat phi0(30, 40, CV_32FC1, cv::Scalar(1.0f));
-  q.setTo(kNaN);
+  q.setTo(kInvalid);
   ASSERT_TRUE(UnwrapPhase(phi0, q, cv::Mat(), cv::Mat(), cv::Mat(), {}, &r).ok());
   EXPECT_EQ(r.stats.pixels_usable, 0);
 }
@@ -669,7 +669,7 @@ TEST(Unwrap, BadInputs) {
   alias.Phi = phi;
   EXPECT_EQ(code(UnwrapPhase(phi, q, none, none, none, {}, &alias)), bad);
   // NaN and reversed bounds are "unknown", not errors.
-  cv::Mat pmin(20, 30, CV_32FC1, cv::Scalar(kNaN)), pmax(20, 30, CV_32FC1, cv::Scalar(-5.0f));
+  cv::Mat pmin(20, 30, CV_32FC1, cv::Scalar(kInvalid)), pmax(20, 30, CV_32FC1, cv::Scalar(-5.0f));
   EXPECT_TRUE(UnwrapPhase(phi, q, none, pmin, pmax, {}, &r).ok());
   pmin.setTo(10.0f);
   EXPECT_TRUE(UnwrapPhase(phi, q, none, pmin, pmax, {}, &r).ok());

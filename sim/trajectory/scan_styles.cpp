@@ -9,7 +9,7 @@ namespace {
 
 constexpr double kLiftMm =
     30.0;  // backed off this far along the axis: 80 mm from the teeth, beyond the 58 mm volume
-constexpr int64_t kNsPerS = 1'000'000'000;
+constexpr int64_t kNsPerSecond = 1'000'000'000;
 
 double SmoothStep(double x) {
   x = std::clamp(x, 0.0, 1.0);
@@ -30,7 +30,7 @@ void AppendSegments(const std::vector<ScanSegment>& segments, int64_t from_ns, i
 ScanPathResult WithLifts(ScanPathResult base, uint32_t seed) {
   std::mt19937 rng(seed ^ 0x5eed11f7u);
   const int64_t t0 = base.trajectory.StartNs(), t1 = base.trajectory.EndNs();
-  const double duration_s = static_cast<double>(t1 - t0) / kNsPerS;
+  const double duration_s = static_cast<double>(t1 - t0) / kNsPerSecond;
   constexpr int kLifts = 3;
   // Cut k at a seeded time within the k-th of kLifts + 1 equal parts, past the first 8 s (the model
   // must hold more than the put-back point) and before the last 4 s.
@@ -41,7 +41,7 @@ ScanPathResult WithLifts(ScanPathResult base, uint32_t seed) {
                  hi = std::min(duration_s - 4, part * k + 0.3 * part);
     if (lo >= hi) continue;  // a path too short for this lift
     std::uniform_real_distribution<double> at(lo, hi);
-    cuts.push_back(t0 + static_cast<int64_t>(at(rng) * kNsPerS));
+    cuts.push_back(t0 + static_cast<int64_t>(at(rng) * kNsPerSecond));
   }
   std::uniform_real_distribution<double> lift_s(1.0, 3.0), back_s(2.0, 6.0);
   ScanPathResult out;
@@ -52,9 +52,9 @@ ScanPathResult WithLifts(ScanPathResult base, uint32_t seed) {
   int64_t piece_start = t0;  // in base time
   int64_t shift = 0;         // output time − base time of the current piece
   for (int64_t cut : cuts) {
-    if (cut <= piece_start + 2 * kNsPerS) continue;  // too close to the last put-back
-    const int64_t lift = static_cast<int64_t>(lift_s(rng) * kNsPerS);
-    const int64_t resume = std::max(t0, cut - static_cast<int64_t>(back_s(rng) * kNsPerS));
+    if (cut <= piece_start + 2 * kNsPerSecond) continue;  // too close to the last put-back
+    const int64_t lift = static_cast<int64_t>(lift_s(rng) * kNsPerSecond);
+    const int64_t resume = std::max(t0, cut - static_cast<int64_t>(back_s(rng) * kNsPerSecond));
     AppendSegments(base.segments, piece_start, cut, shift, &out.segments);
     out.segments.push_back({ScanPhase::kLift, cut + shift, cut + shift + lift});
     joined = JoinWithLift(joined, cut + shift, base.trajectory, resume, lift, kLiftMm);
@@ -186,7 +186,7 @@ ScanPathResult MakeStyledScan(const TriangleMesh& mesh, const std::string& style
   }
   ScanPathOptions o = base;
   if (style == "tooth") return MakeScanTrajectory(arch, ScanKind::kTooth, o);
-  if (style == "quadrants") return TwoQuadrants(arch, o, false, 2 * kNsPerS);
+  if (style == "quadrants") return TwoQuadrants(arch, o, false, 2 * kNsPerSecond);
   if (style == "incisors-first") return TwoQuadrants(arch, o, true, 1'500'000'000);
   if (style == "buccal-first")
     o.passes = {ScanPhase::kBuccal, ScanPhase::kOcclusal, ScanPhase::kLingual};
