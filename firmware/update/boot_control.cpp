@@ -4,23 +4,12 @@
 
 #include <algorithm>
 
+#include "firmware/update/little_endian.h"
+
 namespace d3d::fw {
 
 namespace {
 constexpr uint32_t kBootMagic = 0x43423344;  // "D3BC"
-void Put16(uint8_t* p, uint16_t x) {
-  p[0] = static_cast<uint8_t>(x);
-  p[1] = static_cast<uint8_t>(x >> 8);
-}
-void Put32(uint8_t* p, uint32_t x) {
-  for (int i = 0; i < 4; ++i) p[i] = static_cast<uint8_t>(x >> (8 * i));
-}
-uint16_t Get16(const uint8_t* p) { return static_cast<uint16_t>(p[0] | (p[1] << 8)); }
-uint32_t Get32(const uint8_t* p) {
-  uint32_t x = 0;
-  for (int i = 0; i < 4; ++i) x |= static_cast<uint32_t>(p[i]) << (8 * i);
-  return x;
-}
 uint32_t Crc(const uint8_t* p, size_t n) {
   return static_cast<uint32_t>(crc32(crc32(0L, Z_NULL, 0), p, static_cast<uInt>(n)));
 }
@@ -40,47 +29,47 @@ const char* SlotStateName(SlotState s) {
 
 std::array<uint8_t, kBootRecordBytes> BootRecord::Serialize() const {
   std::array<uint8_t, kBootRecordBytes> b{};
-  Put32(&b[0], kBootMagic);
-  Put16(&b[4], 1);
-  Put16(&b[6], kBootRecordBytes);
-  Put32(&b[8], sequence);
+  PutLe32(&b[0], kBootMagic);
+  PutLe16(&b[4], 1);
+  PutLe16(&b[6], kBootRecordBytes);
+  PutLe32(&b[8], sequence);
   b[12] = active_slot;
   b[13] = trial_slot;
   b[14] = trial_boots_left;
   b[15] = static_cast<uint8_t>(last_event);
-  Put32(&b[16], security_floor);
+  PutLe32(&b[16], security_floor);
   for (int s = 0; s < 2; ++s) {
     uint8_t* p = &b[20 + 12 * s];
     p[0] = static_cast<uint8_t>(slots[s].state);
-    Put16(p + 2, slots[s].version.major);
-    Put16(p + 4, slots[s].version.minor);
-    Put16(p + 6, slots[s].version.patch);
-    Put32(p + 8, slots[s].security_counter);
+    PutLe16(p + 2, slots[s].version.major);
+    PutLe16(p + 4, slots[s].version.minor);
+    PutLe16(p + 6, slots[s].version.patch);
+    PutLe32(p + 8, slots[s].security_counter);
   }
-  Put32(&b[60], Crc(b.data(), 60));
+  PutLe32(&b[60], Crc(b.data(), 60));
   return b;
 }
 
 std::optional<BootRecord> BootRecord::Parse(std::span<const uint8_t> b) {
   if (b.size() < kBootRecordBytes) return std::nullopt;
-  if (Get32(&b[0]) != kBootMagic || Get16(&b[4]) != 1 || Get16(&b[6]) != kBootRecordBytes)
+  if (GetLe32(&b[0]) != kBootMagic || GetLe16(&b[4]) != 1 || GetLe16(&b[6]) != kBootRecordBytes)
     return std::nullopt;
-  if (Get32(&b[60]) != Crc(b.data(), 60)) return std::nullopt;
+  if (GetLe32(&b[60]) != Crc(b.data(), 60)) return std::nullopt;
   BootRecord r;
-  r.sequence = Get32(&b[8]);
+  r.sequence = GetLe32(&b[8]);
   r.active_slot = b[12];
   r.trial_slot = b[13];
   r.trial_boots_left = b[14];
   if (r.active_slot > 1 || (r.trial_slot > 1 && r.trial_slot != kNoSlot) || b[15] > 4)
     return std::nullopt;
   r.last_event = static_cast<BootEvent>(b[15]);
-  r.security_floor = Get32(&b[16]);
+  r.security_floor = GetLe32(&b[16]);
   for (int s = 0; s < 2; ++s) {
     const uint8_t* p = &b[20 + 12 * s];
     if (p[0] > 2) return std::nullopt;
     r.slots[s].state = static_cast<SlotState>(p[0]);
-    r.slots[s].version = SemVer{Get16(p + 2), Get16(p + 4), Get16(p + 6)};
-    r.slots[s].security_counter = Get32(p + 8);
+    r.slots[s].version = SemVer{GetLe16(p + 2), GetLe16(p + 4), GetLe16(p + 6)};
+    r.slots[s].security_counter = GetLe32(p + 8);
   }
   return r;
 }

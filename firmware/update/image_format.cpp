@@ -13,31 +13,11 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "firmware/update/little_endian.h"
+
 namespace d3d::fw {
 
 namespace {
-
-void Put16(uint8_t* p, uint16_t x) {
-  p[0] = static_cast<uint8_t>(x);
-  p[1] = static_cast<uint8_t>(x >> 8);
-}
-void Put32(uint8_t* p, uint32_t x) {
-  for (int i = 0; i < 4; ++i) p[i] = static_cast<uint8_t>(x >> (8 * i));
-}
-void Put64(uint8_t* p, uint64_t x) {
-  for (int i = 0; i < 8; ++i) p[i] = static_cast<uint8_t>(x >> (8 * i));
-}
-uint16_t Get16(const uint8_t* p) { return static_cast<uint16_t>(p[0] | (p[1] << 8)); }
-uint32_t Get32(const uint8_t* p) {
-  uint32_t x = 0;
-  for (int i = 0; i < 4; ++i) x |= static_cast<uint32_t>(p[i]) << (8 * i);
-  return x;
-}
-uint64_t Get64(const uint8_t* p) {
-  uint64_t x = 0;
-  for (int i = 0; i < 8; ++i) x |= static_cast<uint64_t>(p[i]) << (8 * i);
-  return x;
-}
 
 bool AllZero(const uint8_t* p, size_t n) {
   return std::all_of(p, p + n, [](uint8_t b) { return b == 0; });
@@ -85,14 +65,14 @@ bool SemVer::Parse(std::string_view text, SemVer* out) {
 std::array<uint8_t, kHeaderBytes> ImageHeader::Serialize() const {
   std::array<uint8_t, kHeaderBytes> h{};
   std::copy(kImageMagic.begin(), kImageMagic.end(), h.begin());
-  Put16(&h[8], format_version);
-  Put16(&h[10], static_cast<uint16_t>(kHeaderBytes));
-  Put32(&h[12], hw_id);
-  Put16(&h[16], version.major);
-  Put16(&h[18], version.minor);
-  Put16(&h[20], version.patch);
-  Put32(&h[24], security_counter);
-  Put64(&h[32], payload_size);
+  PutLe16(&h[8], format_version);
+  PutLe16(&h[10], static_cast<uint16_t>(kHeaderBytes));
+  PutLe32(&h[12], hw_id);
+  PutLe16(&h[16], version.major);
+  PutLe16(&h[18], version.minor);
+  PutLe16(&h[20], version.patch);
+  PutLe32(&h[24], security_counter);
+  PutLe64(&h[32], payload_size);
   std::copy(payload_sha256.begin(), payload_sha256.end(), h.begin() + 40);
   std::copy(key_id.begin(), key_id.end(), h.begin() + 72);
   return h;
@@ -189,21 +169,21 @@ Verdict ParseHeader(std::span<const uint8_t> b, ImageHeader* out) {
     return Verdict::Fail(Reject::kBadMagic, "not a d3dscan firmware image (no D3DFWIMG magic)");
   }
   ImageHeader h;
-  h.format_version = Get16(&b[8]);
+  h.format_version = GetLe16(&b[8]);
   if (h.format_version != kImageFormatVersion) {
     return Verdict::Fail(
         Reject::kUnsupportedFormat,
         "format version " + std::to_string(h.format_version) + ", this probe reads 1");
   }
-  if (Get16(&b[10]) != kHeaderBytes || !AllZero(&b[22], 2) || !AllZero(&b[28], 4) ||
+  if (GetLe16(&b[10]) != kHeaderBytes || !AllZero(&b[22], 2) || !AllZero(&b[28], 4) ||
       !AllZero(&b[80], 48)) {
     return Verdict::Fail(Reject::kBadHeader,
                          "header size field or reserved bytes are not as format 1 defines");
   }
-  h.hw_id = Get32(&b[12]);
-  h.version = SemVer{Get16(&b[16]), Get16(&b[18]), Get16(&b[20])};
-  h.security_counter = Get32(&b[24]);
-  h.payload_size = Get64(&b[32]);
+  h.hw_id = GetLe32(&b[12]);
+  h.version = SemVer{GetLe16(&b[16]), GetLe16(&b[18]), GetLe16(&b[20])};
+  h.security_counter = GetLe32(&b[24]);
+  h.payload_size = GetLe64(&b[32]);
   std::copy(b.begin() + 40, b.begin() + 72, h.payload_sha256.begin());
   std::copy(b.begin() + 72, b.begin() + 80, h.key_id.begin());
   if (out) *out = h;

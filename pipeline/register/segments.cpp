@@ -194,13 +194,21 @@ SegmentJoinResult Segments::JoinFromKeyframeStarts(int s, const SegmentJoinTarge
   std::vector<Held> held;
   int starts = 0, views_held = 0;
   std::string refused;  // why the last refinement of a held start failed
+  std::string closest;  // why the start that kept the most overlap was not held
+  double closest_overlap = -1;
   for (const int k : first) {
     const Rigid3d segment_from_cam = keyframes_.world_from_keyframe(k);
     for (const int j : main) {
       ++starts;
       const IcpResult v = RegisterIcp(kfs[static_cast<size_t>(k)].samples, main_tree,
                                       keyframes_.world_from_keyframe(j), start);
-      if (!v.ok) continue;
+      if (!v.ok) {
+        if (v.overlap > closest_overlap) {
+          closest_overlap = v.overlap;
+          closest = v.reason;
+        }
+        continue;
+      }
       ++views_held;
       const Rigid3d guess = v.target_from_source * segment_from_cam.inverse();
       // A start that lands where an earlier one was refined adds nothing.
@@ -222,6 +230,7 @@ SegmentJoinResult Segments::JoinFromKeyframeStarts(int s, const SegmentJoinTarge
   if (held.empty()) {
     *why = counts;
     if (!refused.empty()) *why += " (the refinement: " + refused + ")";
+    if (views_held == 0 && !closest.empty()) *why += " (the closest start: " + closest + ")";
     return none;
   }
   // The best refined join, and no other far from it.
@@ -233,12 +242,13 @@ SegmentJoinResult Segments::JoinFromKeyframeStarts(int s, const SegmentJoinTarge
     const double mm = TranslationDistanceMm(h.join.main_from_segment, T);
     const double deg = RotationAngleRad(h.join.main_from_segment, T) * 180 / M_PI;
     if (mm > o_.join.fpfh.ambiguity_mm || deg > o_.join.fpfh.ambiguity_deg) {
-      char amb[200];
+      char amb[240];
       std::snprintf(amb, sizeof amb,
                     "%s: ambiguous (two joins %.1f mm / %.1f deg apart, %d and %d samples on the "
-                    "model)",
+                    "model, rmse %.1f and %.1f um)",
                     counts, mm, deg, held[best].join.icp.correspondences,
-                    h.join.icp.correspondences);
+                    h.join.icp.correspondences, held[best].join.icp.rmse_mm * 1000,
+                    h.join.icp.rmse_mm * 1000);
       *why = amb;
       return none;
     }
