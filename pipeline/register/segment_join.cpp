@@ -43,6 +43,14 @@ FpfhOptions DentalFpfh() {
   return o;
 }
 
+FpfhOptions FineDentalFpfh() {
+  FpfhOptions o = DentalFpfh();
+  o.voxel_mm = 0.5;
+  o.normal_radius_mm = 1.0;
+  o.feature_radius_mm = 3.0;
+  return o;
+}
+
 IcpOptions SegmentJoinIcp() {
   IcpOptions o;
   o.levels = {{2, 15, 1.0, 0.7}, {1, 10, 0.3, 0.9}, {1, 8, 0.15, 1.0}};

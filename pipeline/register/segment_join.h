@@ -27,6 +27,11 @@ namespace d3d {
 // decides; docs/decisions/0005); a verified rival consensus 2 mm or 5° away at 0.6 × the inliers
 // refuses.
 FpfhOptions DentalFpfh();
+// The same at half the scale: 0.5 mm keypoints, 1 mm normals, 3 mm features (four times the
+// keypoints). Ground seen from directions no main view had (a lingual pass resumed as a segment
+// after a loss at the turn) shares too few 1 mm keypoints' descriptors with the model; the finer
+// ones describe the cusps and fissures themselves (docs/decisions/0022).
+FpfhOptions FineDentalFpfh();
 // Levels 1.0 → 0.3 → 0.15 mm, residual ≤ 0.04 mm, overlap floor 0.02 (min_correspondences decides).
 IcpOptions SegmentJoinIcp();
 

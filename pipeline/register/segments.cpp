@@ -15,6 +15,7 @@ void SegmentOptions::Check() const {
                 "SegmentOptions: after_views >= 0 (0 = off), max_segments >= 1, join_every >= 1, "
                 "join_feature_keyframes >= 0, join_starts_at_end >= 0, join_start_gate_mm > 0");
   join.Check();
+  join_fine_fpfh.Check();
 }
 
 Segments::Segments(const SegmentOptions& options, Odometry* odometry, KeyframeGraph* keyframes,
@@ -76,7 +77,10 @@ SurfacePoints Segments::MainSamples() const {
   return main;
 }
 
-void Segments::RefreshJoinTarget() { join_target_ = MakeSegmentJoinTarget(MainSamples(), o_.join); }
+void Segments::RefreshJoinTarget() {
+  join_target_ = MakeSegmentJoinTarget(MainSamples(), o_.join);
+  fine_join_target_stale_ = true;
+}
 
 void Segments::Start(int64_t view, const Rigid3d& last_pose, Rigid3d* pose, TrackResult* out) {
   const int s = static_cast<int>(segments_.size());
@@ -142,6 +146,21 @@ bool Segments::FindJoin(int s, bool at_end, SegmentJoinResult* join, int* anchor
     }
   }
   *anchor = newest;
+  if (!r.ok && at_end && o_.join_fine_at_end) {
+    SegmentJoinOptions fine = o_.join;
+    fine.fpfh = o_.join_fine_fpfh;
+    if (fine_join_target_stale_) {
+      fine_join_target_ = MakeSegmentJoinTarget(MainSamples(), fine);
+      fine_join_target_stale_ = false;
+    }
+    SegmentJoinResult f = JoinSegment(MakeSegmentJoinTarget(seg, fine), fine_join_target_, fine);
+    if (f.ok) {
+      r = std::move(f);
+      *how = "fine fpfh";
+    } else {
+      *why += "; fine fpfh: " + f.reason;
+    }
+  }
   if (!r.ok && at_end && o_.join_starts_at_end > 0) {
     std::string starts_why;
     SegmentJoinResult f = JoinFromKeyframeStarts(s, source, anchor, &starts_why);

@@ -5,8 +5,9 @@
 // searches or the pose graph), and the track goes on there. Every join_every new keyframes of a
 // segment not joined yet, it is registered onto the main model (segment_join.h: FPFH + RANSAC +
 // ICP; when FPFH finds nothing, keyframe features against join_feature_keyframes main keyframes per
-// attempt, in turn; at the end of the scan also from the segment's first keyframes put at every
-// main keyframe's camera, join_starts_at_end); the Tracker verifies the join like a re-entry
+// attempt, in turn; at the end of the scan also FPFH on finer keypoints, join_fine_at_end, and
+// from the segment's first keyframes put at every main keyframe's camera, join_starts_at_end); the
+// Tracker verifies the join like a re-entry
 // (relocaliser.h), and then the segment's keyframes and model samples move into the main frame and
 // a loop edge joins it to the main keyframes (Merge). Undo (Tracker::UndoFrom) does not reach back
 // past a segment's start or join.
@@ -45,6 +46,11 @@ struct SegmentOptions {
   // ambiguity distances) refuse. 0 = off.
   int join_starts_at_end = 3;
   double join_start_gate_mm = 3.0;
+  // The end of the scan's last try, before the starts: FPFH once more on finer keypoints of both
+  // models (join_fine_fpfh; the main model's are made once per last try, ~0.4 s for a full arch),
+  // refined and verified like every join. false = off.
+  bool join_fine_at_end = true;
+  FpfhOptions join_fine_fpfh = FineDentalFpfh();
   SegmentJoinOptions join;
   void Check() const;  // throws std::invalid_argument
 };
@@ -94,7 +100,8 @@ class Segments {
   // `anchor`) before view `view`: its keyframes and model samples move into the main frame, edges
   // join the anchor to the main keyframes, and undo starts again after the view.
   void Merge(int s, const Rigid3d& T, int anchor, int64_t view);
-  // The main model's join features made again from the model as it is now (JoinApartSegments).
+  // The main model's join features made again from the model as it is now (JoinApartSegments);
+  // the finer ones (join_fine_at_end) when next needed.
   void RefreshJoinTarget();
 
  private:
@@ -124,6 +131,8 @@ class Segments {
   int refused_in_row_ = 0;
   int64_t undo_barrier_view_ = 0;  // UndoFrom does not reach before this view
   SegmentJoinTarget join_target_;  // the main model's join features
+  SegmentJoinTarget fine_join_target_;  // and the finer ones (join_fine_at_end), made when needed
+  bool fine_join_target_stale_ = true;
 };
 
 }  // namespace d3d

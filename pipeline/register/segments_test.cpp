@@ -31,6 +31,29 @@ class SegmentsTest : public ::testing::Test {
     TrackResult out;
     keyframes_.Update(v.points, v.normals, v.texture, pose, view, segment, &out);
   }
+  // Main views looking down at x = −8 … 0 mm, then a segment started, with views at x = −4 … 4 mm
+  // (y = 0.5) placed at their true poses moved by an error the join must find (1.2 mm, 4°) in the
+  // segment's frame; `step_mm` apart. Returns segment_from_main; *view: the next view's number,
+  // *first_segment_view and *main_keyframes (optional) what their names say.
+  Rigid3d PlaceMainAndSegment(Segments* segments, double step_mm, int64_t* view,
+                              int64_t* first_segment_view = nullptr,
+                              int* main_keyframes = nullptr) {
+    for (double x = -8; x <= 0.01; x += step_mm, ++*view)
+      Place(LookDown(x, 0, 30), LookDown(x, 0, 30), *view, 0);
+    if (main_keyframes) *main_keyframes = keyframes_.size();
+    Rigid3d pose;
+    TrackResult out;
+    segments->Start(*view, LookDown(0, 0, 30), &pose, &out);
+    Rigid3d error = Rigid3d::Identity();
+    error.linear() = Eigen::AngleAxisd(4 * M_PI / 180, Eigen::Vector3d(0.2, 0.3, 1).normalized())
+                         .toRotationMatrix();
+    error.translation() = Eigen::Vector3d(1.0, -0.6, 0.3);
+    const Rigid3d segment_from_main = segments->MainFromSegmentFrame(1).inverse() * error;
+    if (first_segment_view) *first_segment_view = *view;
+    for (double x = -4; x <= 4.01; x += step_mm, ++*view)
+      Place(LookDown(x, 0.5, 30), segment_from_main * LookDown(x, 0.5, 30), *view, 1);
+    return segment_from_main;
+  }
   HeightField hf_;
   PinholeBrownConrady cam_;
   Odometry odometry_;
@@ -99,23 +122,10 @@ TEST_F(SegmentsTest, FindsAndMergesASegmentThatOverlapsTheMainModel) {
   SegmentOptions o;
   o.join.min_correspondences = 300;  // the test's views are 9.6 × 7.2 mm
   Segments segments(o, &odometry_, &keyframes_, false);
-  int64_t view = 0;
-  for (double x = -8; x <= 0.01; x += 0.5, ++view)
-    Place(LookDown(x, 0, 30), LookDown(x, 0, 30), view, 0);
-  const int main_keyframes = keyframes_.size();
-  Rigid3d pose;
-  TrackResult out;
-  segments.Start(view, LookDown(0, 0, 30), &pose, &out);
-  // The segment's poses: the true ones moved by an error the join must find (1.2 mm, 4°), in the
-  // segment's frame.
-  Rigid3d error = Rigid3d::Identity();
-  error.linear() = Eigen::AngleAxisd(4 * M_PI / 180, Eigen::Vector3d(0.2, 0.3, 1).normalized())
-                       .toRotationMatrix();
-  error.translation() = Eigen::Vector3d(1.0, -0.6, 0.3);
-  const Rigid3d segment_from_main = segments.MainFromSegmentFrame(1).inverse() * error;
-  const int64_t first_segment_view = view;
-  for (double x = -4; x <= 4.01; x += 0.5, ++view)
-    Place(LookDown(x, 0.5, 30), segment_from_main * LookDown(x, 0.5, 30), view, 1);
+  int64_t view = 0, first_segment_view = 0;
+  int main_keyframes = 0;
+  const Rigid3d segment_from_main =
+      PlaceMainAndSegment(&segments, 0.5, &view, &first_segment_view, &main_keyframes);
   SegmentJoinResult join;
   int newest = -1;
   std::string how, why;
@@ -144,6 +154,40 @@ TEST_F(SegmentsTest, FindsAndMergesASegmentThatOverlapsTheMainModel) {
   for (size_t e = edges; e < keyframes_.edges(); ++e)
     EXPECT_TRUE(keyframes_.graph().edges()[e].loop);
 }
+
+// The end of the scan's last try describes both models again on finer keypoints: a segment whose
+// coarse FPFH join cannot hold (here: its verification is made impossible) joins that way, at the
+// placed transform, only at the end, and not with join_fine_at_end off.
+class FineJoinAtTheEnd : public SegmentsTest, public ::testing::WithParamInterface<bool> {};
+
+TEST_P(FineJoinAtTheEnd, JoinsWhatTheCoarseKeypointsDoNot) {
+  const bool fine = GetParam();
+  SegmentOptions o;
+  o.join.min_correspondences = 300;
+  o.join.fpfh.min_overlap = 1.0;  // the coarse FPFH's verification never passes
+  o.join_starts_at_end = 0;
+  o.join_fine_at_end = fine;
+  Segments segments(o, &odometry_, &keyframes_, false);
+  int64_t view = 0;
+  const Rigid3d segment_from_main = PlaceMainAndSegment(&segments, 1.0, &view);
+  SegmentJoinResult join;
+  int newest = -1;
+  std::string how, why;
+  EXPECT_FALSE(segments.FindJoin(1, false, &join, &newest, &how, &why));
+  EXPECT_EQ(why.find("fine fpfh"), std::string::npos) << why;  // not during the scan
+  const bool joined = segments.FindJoin(1, true, &join, &newest, &how, &why);
+  if (!fine) {
+    EXPECT_FALSE(joined) << how;
+    return;
+  }
+  ASSERT_TRUE(joined) << why;
+  EXPECT_EQ(how, "fine fpfh");
+  const Eigen::Vector3d on_surface = segment_from_main * Eigen::Vector3d(0, 0.5, 0);
+  EXPECT_LT((join.main_from_segment * on_surface - Eigen::Vector3d(0, 0.5, 0)).norm(), 0.02);
+  EXPECT_LT(RotationAngleRad(join.main_from_segment, segment_from_main.inverse()) * 180 / M_PI,
+            0.05);
+}
+INSTANTIATE_TEST_SUITE_P(OnAndOff, FineJoinAtTheEnd, ::testing::Bool());
 
 // A segment with nothing in common with the main model is not joined, and says why.
 TEST_F(SegmentsTest, ASegmentApartFromTheModelIsNotJoined) {
