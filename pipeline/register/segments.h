@@ -7,10 +7,9 @@
 // ICP; when FPFH finds nothing, keyframe features against join_feature_keyframes main keyframes per
 // attempt, in turn; at the end of the scan also FPFH on finer keypoints, join_fine_at_end, and
 // from the segment's first keyframes put at every main keyframe's camera, join_starts_at_end); the
-// Tracker verifies the join like a re-entry
-// (relocaliser.h), and then the segment's keyframes and model samples move into the main frame and
-// a loop edge joins it to the main keyframes (Merge). Undo (Tracker::UndoFrom) does not reach back
-// past a segment's start or join.
+// Tracker verifies the join like a re-entry (relocaliser.h), and then the segment's keyframes and
+// model samples move into the main frame and a loop edge joins it to the main keyframes (Merge).
+// Undo (Tracker::UndoFrom) does not reach back past a segment's start or join.
 //
 // Owns: the segment list (first view, joined, join-attempt bookkeeping), the active segment, the
 // count of views refused in a row, the undo barrier and the main model's join features (made when a
@@ -47,8 +46,8 @@ struct SegmentOptions {
   int join_starts_at_end = 3;
   double join_start_gate_mm = 3.0;
   // The end of the scan's last try, before the starts: FPFH once more on finer keypoints of both
-  // models (join_fine_fpfh; the main model's are made once per last try, ~0.4 s for a full arch),
-  // refined and verified like every join. false = off.
+  // models (join_fine_fpfh; the main model's are made for each segment's last try, ~0.4 s for a
+  // full arch), refined and verified like every join. false = off.
   bool join_fine_at_end = true;
   FpfhOptions join_fine_fpfh = FineDentalFpfh();
   SegmentJoinOptions join;
