@@ -128,8 +128,8 @@ class Segments {
   std::vector<Segment> segments_ = {Segment{}};
   int active_ = 0;
   int refused_in_row_ = 0;
-  int64_t undo_barrier_view_ = 0;  // UndoFrom does not reach before this view
-  SegmentJoinTarget join_target_;  // the main model's join features
+  int64_t undo_barrier_view_ = 0;       // UndoFrom does not reach before this view
+  SegmentJoinTarget join_target_;       // the main model's join features
   SegmentJoinTarget fine_join_target_;  // and the finer ones (join_fine_at_end), made when needed
   bool fine_join_target_stale_ = true;
 };
