@@ -2,6 +2,8 @@
 
 #include <cstring>
 
+#include "firmware/update/little_endian.h"
+
 namespace d3d::dfu {
 
 const char* StateName(uint8_t state) {
@@ -164,24 +166,6 @@ StatusReport StatusReport::Decode(std::span<const uint8_t, 6> b) {
   return r;
 }
 
-namespace {
-void Put16(std::vector<uint8_t>& v, size_t at, uint16_t x) {
-  v[at] = static_cast<uint8_t>(x);
-  v[at + 1] = static_cast<uint8_t>(x >> 8);
-}
-void Put32(std::vector<uint8_t>& v, size_t at, uint32_t x) {
-  for (int i = 0; i < 4; ++i) v[at + i] = static_cast<uint8_t>(x >> (8 * i));
-}
-uint16_t Get16(std::span<const uint8_t> v, size_t at) {
-  return static_cast<uint16_t>(v[at] | (v[at + 1] << 8));
-}
-uint32_t Get32(std::span<const uint8_t> v, size_t at) {
-  uint32_t x = 0;
-  for (int i = 0; i < 4; ++i) x |= static_cast<uint32_t>(v[at + i]) << (8 * i);
-  return x;
-}
-}  // namespace
-
 std::string FirmwareInfo::VersionString() const {
   std::string s = std::to_string(major);
   s.append(".").append(std::to_string(minor)).append(".").append(std::to_string(patch));
@@ -197,13 +181,13 @@ std::vector<uint8_t> FirmwareInfo::Encode() const {
   v[1] = running_slot;
   v[2] = static_cast<uint8_t>(boot_state);
   v[3] = static_cast<uint8_t>((streaming ? 1 : 0) | (dfu_mode ? 2 : 0));
-  Put16(v, 4, major);
-  Put16(v, 6, minor);
-  Put16(v, 8, patch);
-  Put32(v, 12, hw_id);
-  Put32(v, 16, security_counter);
-  Put32(v, 20, security_floor);
-  Put32(v, 24, static_cast<uint32_t>(slot_capacity_bytes / 4096));
+  fw::PutLe16(&v[4], major);
+  fw::PutLe16(&v[6], minor);
+  fw::PutLe16(&v[8], patch);
+  fw::PutLe32(&v[12], hw_id);
+  fw::PutLe32(&v[16], security_counter);
+  fw::PutLe32(&v[20], security_floor);
+  fw::PutLe32(&v[24], static_cast<uint32_t>(slot_capacity_bytes / 4096));
   return v;
 }
 
@@ -214,13 +198,13 @@ bool FirmwareInfo::Decode(std::span<const uint8_t> v, FirmwareInfo* out) {
   f.boot_state = static_cast<BootState>(v[2]);
   f.streaming = (v[3] & 1) != 0;
   f.dfu_mode = (v[3] & 2) != 0;
-  f.major = Get16(v, 4);
-  f.minor = Get16(v, 6);
-  f.patch = Get16(v, 8);
-  f.hw_id = Get32(v, 12);
-  f.security_counter = Get32(v, 16);
-  f.security_floor = Get32(v, 20);
-  f.slot_capacity_bytes = static_cast<uint64_t>(Get32(v, 24)) * 4096;
+  f.major = fw::GetLe16(&v[4]);
+  f.minor = fw::GetLe16(&v[6]);
+  f.patch = fw::GetLe16(&v[8]);
+  f.hw_id = fw::GetLe32(&v[12]);
+  f.security_counter = fw::GetLe32(&v[16]);
+  f.security_floor = fw::GetLe32(&v[20]);
+  f.slot_capacity_bytes = static_cast<uint64_t>(fw::GetLe32(&v[24])) * 4096;
   *out = f;
   return true;
 }

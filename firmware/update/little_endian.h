@@ -1,6 +1,7 @@
 #pragma once
 // Little-endian fields of the firmware's on-flash and on-wire records (image headers, the boot
-// control block): p points at the field's first byte, which the caller has bounds-checked.
+// control block, the DFU firmware-info record): p points at the field's first byte, which the
+// caller has bounds-checked.
 
 #include <cstdint>
 

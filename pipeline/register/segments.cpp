@@ -77,10 +77,7 @@ SurfacePoints Segments::MainSamples() const {
   return main;
 }
 
-void Segments::RefreshJoinTarget() {
-  join_target_ = MakeSegmentJoinTarget(MainSamples(), o_.join);
-  fine_join_target_stale_ = true;
-}
+void Segments::RefreshJoinTarget() { join_target_ = MakeSegmentJoinTarget(MainSamples(), o_.join); }
 
 void Segments::Start(int64_t view, const Rigid3d& last_pose, Rigid3d* pose, TrackResult* out) {
   const int s = static_cast<int>(segments_.size());
@@ -147,13 +144,12 @@ bool Segments::FindJoin(int s, bool at_end, SegmentJoinResult* join, int* anchor
   }
   *anchor = newest;
   if (!r.ok && at_end && o_.join_fine_at_end) {
+    // The main model's fine keypoints, made here: only a segment still apart at the end needs them
+    // (JoinApartSegments refreshes the main model for each segment's try).
     SegmentJoinOptions fine = o_.join;
     fine.fpfh = o_.join_fine_fpfh;
-    if (fine_join_target_stale_) {
-      fine_join_target_ = MakeSegmentJoinTarget(MainSamples(), fine);
-      fine_join_target_stale_ = false;
-    }
-    SegmentJoinResult f = JoinSegment(MakeSegmentJoinTarget(seg, fine), fine_join_target_, fine);
+    SegmentJoinResult f = JoinSegment(MakeSegmentJoinTarget(seg, fine),
+                                      MakeSegmentJoinTarget(MainSamples(), fine), fine);
     if (f.ok) {
       r = std::move(f);
       *how = "fine fpfh";

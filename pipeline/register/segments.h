@@ -99,8 +99,7 @@ class Segments {
   // `anchor`) before view `view`: its keyframes and model samples move into the main frame, edges
   // join the anchor to the main keyframes, and undo starts again after the view.
   void Merge(int s, const Rigid3d& T, int anchor, int64_t view);
-  // The main model's join features made again from the model as it is now (JoinApartSegments);
-  // the finer ones (join_fine_at_end) when next needed.
+  // The main model's join features made again from the model as it is now (JoinApartSegments).
   void RefreshJoinTarget();
 
  private:
@@ -128,10 +127,8 @@ class Segments {
   std::vector<Segment> segments_ = {Segment{}};
   int active_ = 0;
   int refused_in_row_ = 0;
-  int64_t undo_barrier_view_ = 0;       // UndoFrom does not reach before this view
-  SegmentJoinTarget join_target_;       // the main model's join features
-  SegmentJoinTarget fine_join_target_;  // and the finer ones (join_fine_at_end), made when needed
-  bool fine_join_target_stale_ = true;
+  int64_t undo_barrier_view_ = 0;  // UndoFrom does not reach before this view
+  SegmentJoinTarget join_target_;  // the main model's join features
 };
 
 }  // namespace d3d
