@@ -297,6 +297,7 @@ FpfhAlignResult AlignByFpfh(const FpfhFeatures& s, const FpfhFeatures& t, const 
   icp.max_rmse_mm = o.ransac.inlier_threshold_mm;
   icp.min_overlap = o.min_overlap;
   icp.min_eigen_ratio = o.min_eigen_ratio;
+  icp.conditioning_on_overlap = o.verify_conditioning_on_overlap;
   icp.min_correspondences = std::max(6, o.ransac.min_inliers);
   const IcpResult v = RegisterIcp(src, target, best.target_from_source, icp);
   r.overlap = v.overlap;
@@ -329,11 +330,13 @@ FpfhAlignResult AlignByFpfh(const FpfhFeatures& s, const FpfhFeatures& t, const 
         // Verified, and still elsewhere once refined (not the winner reached from a worse start).
         const IcpResult rv = RegisterIcp(src, target, rival.target_from_source, icp);
         r.rival_verified = rv.ok && elsewhere(rv.target_from_source, v.target_from_source);
-        if (r.rival_verified)
+        if (r.rival_verified) {
+          r.rival_target_from_source = rv.target_from_source;
           return fail("ambiguous (a second consensus of " + std::to_string(r.rival_inliers) +
                       " vs " + std::to_string(r.inliers) + " inliers, " +
                       std::to_string(r.rival_deg) + " deg / " + std::to_string(r.rival_mm) +
                       " mm away)");
+        }
       }
     }
   }

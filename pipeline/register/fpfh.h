@@ -50,6 +50,9 @@ struct FpfhOptions {
   int verify_iterations = 15;
   double min_overlap = 0.1;
   double min_eigen_ratio = 2e-3;
+  // The verification's degeneracy judged on the associated keypoints alone
+  // (IcpOptions::conditioning_on_overlap): for a source much larger than its overlap.
+  bool verify_conditioning_on_overlap = false;
   // Ambiguity: RANSAC is run again on the correspondences outside the winner's inliers; a second
   // consensus with ≥ ambiguity_ratio × the winner's inliers whose pose differs by more than
   // ambiguity_deg or ambiguity_mm, and that the verification below holds as well, fails the
@@ -99,6 +102,10 @@ struct FpfhAlignResult : FeatureAlignResult {  // matches: correspondences offer
   double rival_deg = 0, rival_mm = 0;  // its pose difference to the winner
   bool rival_verified =
       false;  // it passed the verification too, elsewhere (and so refused the alignment)
+  // When rival_verified: the rival's pose after the verification ICP, so that a caller with more
+  // evidence than the keypoints (a whole segment, its views' free space) may settle between the
+  // two (target_from_source then holds the winner's).
+  Rigid3d rival_target_from_source = Rigid3d::Identity();
 };
 
 // Correspondences by descriptor, RANSAC, verification (see FpfhOptions). target_from_source is the

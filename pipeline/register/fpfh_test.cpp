@@ -239,6 +239,11 @@ TEST(AlignByFpfh, ARivalConsensusCountsOnlyIfTheVerificationHoldsIt) {
   EXPECT_FALSE(symmetric.ok);
   EXPECT_NE(symmetric.reason.find("ambiguous"), std::string::npos) << symmetric.reason;
   EXPECT_TRUE(symmetric.rival_verified);
+  // Both poses come back, for a caller with more evidence to settle between them.
+  const Rigid3d copy = truth * Pose(180, {1, 0, 0.2}, {60, 0, 0});
+  EXPECT_LT(TranslationDistanceMm(symmetric.target_from_source, truth), 0.05);
+  EXPECT_LT(TranslationDistanceMm(symmetric.rival_target_from_source, copy), 0.05);
+  EXPECT_LT(RotationAngleRad(symmetric.rival_target_from_source, copy) * 180 / M_PI, 0.1);
   const FpfhAlignResult inside_out = AlignWithARivalCopy(true, &truth);
   ASSERT_TRUE(inside_out.ok) << inside_out.reason;
   EXPECT_GE(inside_out.rival_inliers,

@@ -163,6 +163,12 @@ struct IcpOptions {
   // source radius so that all six are in mm²). Below: a direction slides freely (plane, sphere,
   // cylinder, extrusion): not ok.
   double min_eigen_ratio = 2e-3;
+  // true: the degeneracy is judged with the radius and centroid of the source samples associated in
+  // the last iteration instead of the whole source's. For a source much larger than its overlap (a
+  // scan segment that meets the model at one end): the whole length would make a well-held overlap
+  // look degenerate (rotations scaled by a radius the matches do not span), where the question is
+  // whether the overlap's surface lets the pose slide.
+  bool conditioning_on_overlap = false;
   // > 0: solution remapping (Zhang, Kaess & Singh, "On degeneracy of optimization-based state
   // estimation problems", ICRA 2016): each Gauss–Newton step is taken only along the directions
   // whose eigenvalue (as for min_eigen_ratio) is at least this × the largest; along the others the

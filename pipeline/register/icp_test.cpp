@@ -283,6 +283,48 @@ TEST(Icp, RemappedOnAPlaneOnlyTheConstrainedMotionIsTaken) {
   EXPECT_THROW(remap.Check(), std::invalid_argument);
 }
 
+// A source much larger than its overlap (the view plus a copy of it 60 mm away, where the target
+// has nothing: a scan segment that meets the model at one end). Judged on the whole source, the
+// rotations scaled by its radius make the well-held overlap look degenerate; judged on the
+// associated samples (conditioning_on_overlap) the ratio is at least the view's own, and a plane's
+// overlap stays degenerate.
+TEST(Icp, ConditioningOnTheOverlapJudgesWhereTheSourceMeetsTheTarget) {
+  const auto with_tail = [](const SurfacePoints& s) {
+    SurfacePoints out = s;
+    for (size_t i = 0; i < s.size(); ++i) {
+      out.points.push_back(s.points[i] + Eigen::Vector3f(60, 0, 0));
+      out.normals.push_back(s.normals[i]);
+    }
+    return out;
+  };
+  IcpOptions on;
+  on.conditioning_on_overlap = true;
+  on.min_overlap = 0.2;  // half the long source lies on the target
+  IcpOptions whole = on;
+  whole.conditioning_on_overlap = false;
+  const auto [p, init] = StandardPair();
+  KdTreeTarget kd(p.target);
+  const IcpResult view = RegisterIcp(p.source, kd, init, IcpOptions{});
+  const IcpResult long_whole = RegisterIcp(with_tail(p.source), kd, init, whole);
+  const IcpResult long_on = RegisterIcp(with_tail(p.source), kd, init, on);
+  ASSERT_TRUE(view.ok) << view.reason;
+  ASSERT_TRUE(long_on.ok) << long_on.reason;
+  EXPECT_FALSE(long_whole.ok);
+  EXPECT_NE(long_whole.reason.find("degenerate"), std::string::npos) << long_whole.reason;
+  EXPECT_LT(long_whole.eigen_ratio, 0.2 * view.eigen_ratio);
+  EXPECT_GE(long_on.eigen_ratio,
+            view.eigen_ratio);  // the overlap is a little smaller than the view
+  EXPECT_LT(RotationAngleRad(long_on.target_from_source, p.target_from_source) * 180 / M_PI, 0.01);
+
+  HeightField flat(13);
+  flat.flat = 1;
+  const Pair plane = MakePair(flat, 1.0, 0.002);
+  KdTreeTarget kp(plane.target);
+  const IcpResult on_plane = RegisterIcp(with_tail(plane.source), kp, plane.target_from_source, on);
+  EXPECT_FALSE(on_plane.ok);
+  EXPECT_NE(on_plane.reason.find("degenerate"), std::string::npos) << on_plane.reason;
+}
+
 TEST(Icp, SphereIsSymmetric) {
   // Samples of a sphere cap: rotations about its centre slide freely.
   SurfacePoints s;

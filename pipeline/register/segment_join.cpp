@@ -22,6 +22,75 @@ SurfacePoints MakeSegmentJoinSamples(const SurfacePoints& points,
   return clean;
 }
 
+// Samples of the segment at main_from_segment that contradict the main model: its nearest sample
+// lies within conflict_radius_mm, and the segment's sample is off that surface along its normal by
+// more than conflict_depth_mm while beside it within conflict_depth_mm (a surface where the main
+// views saw another one, in front of or behind it).
+int CountConflicts(const SurfacePoints& segment, const KdTreeTarget& main,
+                   const Rigid3d& main_from_segment, const SegmentJoinOptions& o) {
+  const Eigen::Matrix3f R = main_from_segment.linear().cast<float>();
+  const Eigen::Vector3f t = main_from_segment.translation().cast<float>();
+  const float depth = static_cast<float>(o.conflict_depth_mm);
+  int conflicts = 0;
+  for (const Eigen::Vector3f& p : segment.points) {
+    const Eigen::Vector3f q = R * p + t;
+    Eigen::Vector3f m, n;
+    if (!main.Find(q, static_cast<float>(o.conflict_radius_mm), &m, &n)) continue;
+    const Eigen::Vector3f d = q - m;
+    const float along = n.dot(d);
+    conflicts += std::abs(along) > depth && (d - along * n).norm() < depth;
+  }
+  return conflicts;
+}
+
+// An FPFH ambiguity (fpfh: two verified consensuses elsewhere) settled by the whole segment: each
+// pose refined by RefineSegmentJoin; one that holds where the other does not is the join; when
+// both hold, the one whose samples contradict the main model (CountConflicts) at most
+// max_conflict_share as often as the other's, which must have min_conflicts.
+SegmentJoinResult SettleAmbiguity(const SegmentJoinTarget& segment, const SegmentJoinTarget& target,
+                                  const FpfhAlignResult& fpfh, const SegmentJoinOptions& options) {
+  SegmentJoinResult a = RefineSegmentJoin(segment, target, fpfh.target_from_source, options);
+  SegmentJoinResult b = RefineSegmentJoin(segment, target, fpfh.rival_target_from_source, options);
+  const auto why = [](const SegmentJoinResult& j) {
+    return j.ok ? std::to_string(j.icp.correspondences) + " samples, rmse " +
+                      std::to_string(static_cast<int>(std::lround(j.icp.rmse_mm * 1000))) + " um"
+                : j.reason;
+  };
+  // Both refined onto one pose (the segment's centroid within ambiguity_mm, its turn within
+  // ambiguity_deg): the rival was the winner reached from elsewhere.
+  const Eigen::Vector3d c = segment.samples.Centroid();
+  const bool same =
+      a.ok && b.ok &&
+      (a.main_from_segment * c - b.main_from_segment * c).norm() <= options.fpfh.ambiguity_mm &&
+      RotationAngleRad(a.main_from_segment, b.main_from_segment) * 180 / M_PI <=
+          options.fpfh.ambiguity_deg;
+  bool take_a = a.ok && (!b.ok || same), take_b = b.ok && !a.ok;
+  std::string both = "the consensus: " + why(a) + "; the rival: " + why(b);
+  if (a.ok && b.ok && !same) {
+    const KdTreeTarget main(target.samples);
+    const int ca = CountConflicts(segment.samples, main, a.main_from_segment, options);
+    const int cb = CountConflicts(segment.samples, main, b.main_from_segment, options);
+    const auto clear = [&](int winner, int loser) {
+      return loser >= options.min_conflicts && winner <= options.max_conflict_share * loser;
+    };
+    take_a = clear(ca, cb);
+    take_b = clear(cb, ca);
+    both +=
+        "; samples off the model's surface: " + std::to_string(ca) + " and " + std::to_string(cb);
+  }
+  SegmentJoinResult r = take_b ? b : a;
+  r.fpfh = fpfh;
+  if (!take_a && !take_b) {
+    r.ok = false;
+    r.reason = fpfh.reason + (a.ok && b.ok ? "; the segment holds both (" : "; neither holds (") +
+               both + ")";
+    return r;
+  }
+  r.settled = true;
+  r.reason = fpfh.reason + "; settled by the whole segment (" + both + ")";
+  return r;
+}
+
 }  // namespace
 
 FpfhOptions DentalFpfh() {
@@ -40,6 +109,7 @@ FpfhOptions DentalFpfh() {
                            .seed = 1};
   o.ambiguity_mm = 2.0;
   o.ambiguity_deg = 5.0;
+  o.verify_conditioning_on_overlap = true;  // a segment is larger than where it meets the model
   return o;
 }
 
@@ -56,6 +126,7 @@ IcpOptions SegmentJoinIcp() {
   o.levels = {{2, 15, 1.0, 0.7}, {1, 10, 0.3, 0.9}, {1, 8, 0.15, 1.0}};
   o.max_rmse_mm = 0.04;
   o.min_overlap = 0.02;
+  o.conditioning_on_overlap = true;
   return o;
 }
 
@@ -68,6 +139,10 @@ void SegmentJoinOptions::Check() const {
                 "min_contained_correspondences >= 1");
   D3D_CHECK_MSG(min_eigen_ratio >= 0 && min_eigen_ratio < 1,
                 "SegmentJoinOptions: min_eigen_ratio in [0, 1)");
+  D3D_CHECK_MSG(conflict_radius_mm > conflict_depth_mm && conflict_depth_mm > 0 &&
+                    min_conflicts >= 1 && max_conflict_share >= 0 && max_conflict_share < 1,
+                "SegmentJoinOptions: conflict_radius_mm > conflict_depth_mm > 0, min_conflicts >= "
+                "1, max_conflict_share in [0, 1)");
   fpfh.Check();
   icp.Check();
 }
@@ -99,6 +174,8 @@ SegmentJoinResult JoinSegment(const SegmentJoinTarget& segment, const SegmentJoi
     return r;
   }
   r.fpfh = AlignByFpfh(segment.features, target.features, options.fpfh);
+  if (!r.fpfh.ok && r.fpfh.rival_verified && options.settle_ambiguity)
+    return SettleAmbiguity(segment, target, r.fpfh, options);
   if (!r.fpfh.ok) {
     r.reason = r.fpfh.reason;
     return r;

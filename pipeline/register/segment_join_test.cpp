@@ -103,5 +103,67 @@ TEST(RefineSegmentJoin, ASmallSegmentLyingWholeOnTheModelJoins) {
   EXPECT_NE(out.reason.find("too little overlap"), std::string::npos) << out.reason;
 }
 
+// Samples of the height field over [x0, x1] × [y0, y1] on a 0.25 mm grid, moved by `pose`.
+SurfacePoints Patch(const HeightField& hf, double x0, double x1, double y0, double y1,
+                    const Rigid3d& pose = Rigid3d::Identity()) {
+  SurfacePoints s;
+  for (double x = x0; x <= x1 + 1e-9; x += 0.25)
+    for (double y = y0; y <= y1 + 1e-9; y += 0.25) {
+      double gx = 0, gy = 0;
+      const double z = hf.HeightAndGradient(x, y, &gx, &gy);
+      s.points.push_back((pose * Eigen::Vector3d(x, y, z)).cast<float>());
+      s.normals.push_back(
+          (pose.linear() * Eigen::Vector3d(-gx, -gy, 1).normalized()).cast<float>());
+    }
+  return s;
+}
+
+void Append(const SurfacePoints& a, SurfacePoints* to) {
+  to->points.insert(to->points.end(), a.points.begin(), a.points.end());
+  to->normals.insert(to->normals.end(), a.normals.begin(), a.normals.end());
+}
+
+// The main model holds the ground x ∈ [−14, 0] and, elsewhere (turned 180° about z, 40 mm away), a
+// copy of its part x ∈ [−10, 0] beside other ground, 0.8 mm higher: the left and right quadrants
+// of an arch that look alike. A segment over x ∈ [−10, 8] has two verified FPFH consensuses; both
+// hold when refined with the whole segment, but the copy's puts the segment's new ground x ∈ [0, 8]
+// through the other ground. A segment over the common part alone holds both: refused.
+TEST(JoinSegment, AnAmbiguityIsSettledByTheWholeSegment) {
+  const HeightField hf(11), other(29);
+  Rigid3d copy = Rigid3d::Identity();
+  copy.linear() = Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  copy.translation() = Eigen::Vector3d(0, 40, 0);
+  SurfacePoints main = Patch(hf, -14, 0, -5, 5);
+  Append(Patch(hf, -10, 0, -5, 5, copy), &main);
+  Rigid3d beside = Rigid3d::Identity();  // where the copy's continuation would be: other ground
+  beside.translation() = Eigen::Vector3d(0, 40, 0.8);
+  Append(Patch(other, -8, 0, -5, 5, beside), &main);
+  const SegmentJoinOptions o = SmallViews();
+  const SegmentJoinTarget target = MakeSegmentJoinTarget(main, o);
+  const Rigid3d g = SegmentFrame();
+  const SegmentJoinTarget segment = MakeSegmentJoinTarget(Patch(hf, -10, 8, -5, 5, g), o);
+
+  SegmentJoinOptions refuse = o;
+  refuse.settle_ambiguity = false;
+  const SegmentJoinResult ambiguous = JoinSegment(segment, target, refuse);
+  ASSERT_FALSE(ambiguous.ok);
+  ASSERT_TRUE(ambiguous.fpfh.rival_verified) << ambiguous.reason;
+
+  const SegmentJoinResult r = JoinSegment(segment, target, o);
+  ASSERT_TRUE(r.ok) << r.reason;
+  EXPECT_TRUE(r.settled);
+  EXPECT_NE(r.reason.find("settled by the whole segment"), std::string::npos) << r.reason;
+  const Rigid3d error = r.main_from_segment * g;  // identity when exact
+  const Eigen::Vector3d c(-5, 0, 0);              // the overlap's middle
+  EXPECT_LT((error * c - c).norm(), 0.02);
+  EXPECT_LT(Eigen::AngleAxisd(error.linear()).angle() * 180 / M_PI, 0.05);
+
+  const SegmentJoinTarget common = MakeSegmentJoinTarget(Patch(hf, -10, 0, -5, 5, g), o);
+  const SegmentJoinResult both = JoinSegment(common, target, o);
+  EXPECT_FALSE(both.ok);
+  EXPECT_FALSE(both.settled);
+  EXPECT_NE(both.reason.find("holds both"), std::string::npos) << both.reason;
+}
+
 }  // namespace
 }  // namespace d3d

@@ -128,7 +128,7 @@ bool Segments::FindJoin(int s, bool at_end, SegmentJoinResult* join, int* anchor
   // Thinned and described once for both ways of joining.
   const SegmentJoinTarget source = MakeSegmentJoinTarget(seg, o_.join);
   SegmentJoinResult r = JoinSegment(source, join_target_, o_.join);
-  *how = "fpfh";
+  *how = r.settled ? "fpfh (" + r.reason + ")" : "fpfh";
   if (!r.ok) {
     *why = r.reason;
     if (by_features_ && o_.join_feature_keyframes > 0) {
@@ -151,8 +151,8 @@ bool Segments::FindJoin(int s, bool at_end, SegmentJoinResult* join, int* anchor
     SegmentJoinResult f = JoinSegment(MakeSegmentJoinTarget(seg, fine),
                                       MakeSegmentJoinTarget(MainSamples(), fine), fine);
     if (f.ok) {
+      *how = f.settled ? "fine fpfh (" + f.reason + ")" : "fine fpfh";
       r = std::move(f);
-      *how = "fine fpfh";
     } else {
       *why += "; fine fpfh: " + f.reason;
     }

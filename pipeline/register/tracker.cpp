@@ -452,12 +452,18 @@ int Tracker::ViewSegment(int64_t view) const {
 int Tracker::JoinApartSegments(std::vector<std::string>* attempts) {
   CommitView();
   int joined = 0;
-  for (int seg = 1; seg < segments_.size(); ++seg) {
-    if (segments_.InMain(seg)) continue;
-    segments_.RefreshJoinTarget();  // the main model as it is now
-    std::string why;
-    joined += TryJoinSegment(seg, &why, nullptr, true);
-    if (attempts != nullptr) attempts->push_back("segment " + std::to_string(seg) + ": " + why);
+  for (int round = 0, joined_in_round = 1; joined_in_round > 0; ++round) {
+    joined_in_round = 0;
+    for (int seg = 1; seg < segments_.size(); ++seg) {
+      if (segments_.InMain(seg)) continue;
+      segments_.RefreshJoinTarget();  // the main model as it is now
+      std::string why;
+      joined_in_round += TryJoinSegment(seg, &why, nullptr, true);
+      if (attempts != nullptr)
+        attempts->push_back("segment " + std::to_string(seg) + (round > 0 ? ", again: " : ": ") +
+                            why);
+    }
+    joined += joined_in_round;
   }
   return joined;
 }

@@ -175,6 +175,8 @@ class Tracker {
   // A last join attempt for every segment not joined yet (at the end of a scan, before Optimize),
   // wider than during the scan (SegmentOptions::join_starts_at_end): returns how many joined;
   // *attempts (optional) gets one line per segment tried: "segment S: " and what the attempt found.
+  // A segment that joins brings new ground into the main model: the others still apart are tried
+  // again ("segment S, again: "), until a round joins none.
   int JoinApartSegments(std::vector<std::string>* attempts = nullptr);
   // Takes back what the last view did to the tracking state when it was refused right after the
   // track was held (kTracking or kRelocalised): the state, the refused-in-a-row count, the count of
