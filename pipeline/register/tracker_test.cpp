@@ -624,6 +624,43 @@ TEST_F(TrackerScan, ASegmentBackOnTheScansFirstGroundJoinsAtTheEndFromAKeyframeS
   EXPECT_GE(segment_views, 5);
 }
 
+// Two segments apart at the end (no join tried while scanning): the first, put down 17 mm beyond
+// the model, meets only the second, put back on the model and moved on over the first's ground.
+// The last try joins the second, then tries the first again, which now meets ground in the main
+// model and joins: every view at its true pose.
+TEST_F(TrackerScan, ASegmentThatMeetsOnlyAnotherJoinsOnTheEndsNextRound) {
+  TrackerOptions o = SegmentTestOptions();
+  o.segments.join_every = 1000;  // no join while scanning
+  o.segments.join_feature_keyframes = 0;
+  o.relocaliser.by_features = false;
+  Tracker tracker(cam_, o);
+  std::vector<std::pair<int64_t, Rigid3d>> truth;  // accepted views
+  uint32_t seed = 1;
+  auto feed = [&](double x) { return FeedAndKeep(&tracker, x, &seed, &truth); };
+  for (double x = -20; x <= -12.99; x += 1.0) ASSERT_TRUE(feed(x).accepted);
+  for (double x = 10; x <= 16.01; x += 1.0) feed(x);   // segment 1
+  for (double x = -16; x <= 13.01; x += 1.0) feed(x);  // segment 2
+  ASSERT_EQ(tracker.segments(), 3);
+  ASSERT_FALSE(tracker.SegmentInMain(1));
+  ASSERT_FALSE(tracker.SegmentInMain(2));
+  std::vector<std::string> attempts;
+  EXPECT_EQ(tracker.JoinApartSegments(&attempts), 2) << ::testing::PrintToString(attempts);
+  ASSERT_TRUE(tracker.SegmentInMain(1) && tracker.SegmentInMain(2))
+      << ::testing::PrintToString(attempts);
+  ASSERT_EQ(attempts.size(), 3u) << ::testing::PrintToString(attempts);
+  EXPECT_EQ(attempts[2].rfind("segment 1, again: joined", 0), 0u) << attempts[2];
+  PoseGraphSummary summary;
+  ASSERT_TRUE(tracker.Optimize({}, &summary).ok());
+  const Rigid3d first_inv = truth.front().second.inverse();
+  for (const auto& [view, pose] : truth) {
+    Rigid3d p;
+    ASSERT_TRUE(tracker.ViewPose(view, &p));
+    const Rigid3d want = first_inv * pose;
+    EXPECT_LT(TranslationDistanceMm(p, want), 0.05) << "view " << view;
+    EXPECT_LT(RotationAngleRad(p, want) * 180 / M_PI, 0.1) << "view " << view;
+  }
+}
+
 TEST_F(TrackerScan, ASegmentThatNeverOverlapsStaysApart) {
   Tracker tracker(cam_, QuickSegmentOptions());
   uint32_t seed = 1;
