@@ -42,6 +42,20 @@ class TrackerScan : public ::testing::Test {
     return r;
   }
   void LostScanStartsASegmentThatJoins(const TrackerOptions& o, const std::string& joined_by);
+  // Every accepted view in the main frame, at its true pose (the first view's camera as the
+  // model's frame) within 0.05 mm / 0.1°.
+  static void ExpectViewsAtTheirTruePoses(const Tracker& tracker,
+                                          const std::vector<std::pair<int64_t, Rigid3d>>& truth) {
+    const Rigid3d first_inv = truth.front().second.inverse();
+    for (const auto& [view, pose] : truth) {
+      Rigid3d p;
+      ASSERT_TRUE(tracker.ViewPose(view, &p));
+      EXPECT_TRUE(tracker.SegmentInMain(tracker.ViewSegment(view))) << "view " << view;
+      const Rigid3d want = first_inv * pose;
+      EXPECT_LT(TranslationDistanceMm(p, want), 0.05) << "view " << view;
+      EXPECT_LT(RotationAngleRad(p, want) * 180 / M_PI, 0.1) << "view " << view;
+    }
+  }
 };
 
 TEST_F(TrackerScan, TracksAStripRefusesABadViewAndRelocalises) {
@@ -527,15 +541,7 @@ void TrackerScan::LostScanStartsASegmentThatJoins(const TrackerOptions& o,
   EXPECT_EQ(tracker.segments_joined(), 1);
   PoseGraphSummary summary;
   ASSERT_TRUE(tracker.Optimize({}, &summary).ok());
-  const Rigid3d first_inv = truth.front().second.inverse();
-  for (const auto& [view, pose] : truth) {
-    Rigid3d p;
-    ASSERT_TRUE(tracker.ViewPose(view, &p));
-    EXPECT_TRUE(tracker.SegmentInMain(tracker.ViewSegment(view)));
-    const Rigid3d want = first_inv * pose;
-    EXPECT_LT(TranslationDistanceMm(p, want), 0.05) << "view " << view;
-    EXPECT_LT(RotationAngleRad(p, want) * 180 / M_PI, 0.1) << "view " << view;
-  }
+  ExpectViewsAtTheirTruePoses(tracker, truth);
 }
 
 TrackerOptions SegmentTestOptions() {
@@ -611,16 +617,9 @@ TEST_F(TrackerScan, ASegmentBackOnTheScansFirstGroundJoinsAtTheEndFromAKeyframeS
   ASSERT_TRUE(tracker.SegmentInMain(1)) << ::testing::PrintToString(attempts);
   PoseGraphSummary summary;
   ASSERT_TRUE(tracker.Optimize({}, &summary).ok());
-  const Rigid3d first_inv = truth.front().second.inverse();
+  ExpectViewsAtTheirTruePoses(tracker, truth);
   int segment_views = 0;
-  for (const auto& [view, pose] : truth) {
-    Rigid3d p;
-    ASSERT_TRUE(tracker.ViewPose(view, &p));
-    segment_views += tracker.ViewSegment(view) == 1;
-    const Rigid3d want = first_inv * pose;
-    EXPECT_LT(TranslationDistanceMm(p, want), 0.05) << "view " << view;
-    EXPECT_LT(RotationAngleRad(p, want) * 180 / M_PI, 0.1) << "view " << view;
-  }
+  for (const auto& [view, pose] : truth) segment_views += tracker.ViewSegment(view) == 1;
   EXPECT_GE(segment_views, 5);
 }
 
@@ -651,14 +650,7 @@ TEST_F(TrackerScan, ASegmentThatMeetsOnlyAnotherJoinsOnTheEndsNextRound) {
   EXPECT_EQ(attempts[2].rfind("segment 1, again: joined", 0), 0u) << attempts[2];
   PoseGraphSummary summary;
   ASSERT_TRUE(tracker.Optimize({}, &summary).ok());
-  const Rigid3d first_inv = truth.front().second.inverse();
-  for (const auto& [view, pose] : truth) {
-    Rigid3d p;
-    ASSERT_TRUE(tracker.ViewPose(view, &p));
-    const Rigid3d want = first_inv * pose;
-    EXPECT_LT(TranslationDistanceMm(p, want), 0.05) << "view " << view;
-    EXPECT_LT(RotationAngleRad(p, want) * 180 / M_PI, 0.1) << "view " << view;
-  }
+  ExpectViewsAtTheirTruePoses(tracker, truth);
 }
 
 TEST_F(TrackerScan, ASegmentThatNeverOverlapsStaysApart) {
