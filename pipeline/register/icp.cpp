@@ -481,12 +481,11 @@ IcpResult RegisterIcp(const SurfacePoints& source, const IcpTarget& target, cons
     if (o.conditioning_on_overlap && !matches.empty()) {
       // The associated samples' centroid and RMS radius (moved by the pose before the last step:
       // a difference far below the radius).
-      Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-      for (const Match& m : matches) sum += m.p.cast<double>();
-      c = sum / static_cast<double>(matches.size());
-      double s2 = 0;
-      for (const Match& m : matches) s2 += (m.p.cast<double>() - c).squaredNorm();
-      r = std::max(std::sqrt(s2 / static_cast<double>(matches.size())), 1e-3);
+      SurfacePoints matched;
+      matched.points.reserve(matches.size());
+      for (const Match& m : matches) matched.points.push_back(m.p);
+      c = matched.Centroid();
+      r = std::max(matched.RadiusMm(), 1e-3);
     }
     const NormalisedInformation n(H_plane_last, c, r);
     const double lmax = n.eigen.eigenvalues()(5);

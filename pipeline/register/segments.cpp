@@ -145,7 +145,7 @@ bool Segments::FindJoin(int s, bool at_end, SegmentJoinResult* join, int* anchor
   *anchor = newest;
   if (!r.ok && at_end && o_.join_fine_at_end) {
     // The main model's fine keypoints, made here: only a segment still apart at the end needs them
-    // (JoinApartSegments refreshes the main model for each segment's try).
+    // (made for each segment's try; the coarse ones are made again only after a join).
     SegmentJoinOptions fine = o_.join;
     fine.fpfh = o_.join_fine_fpfh;
     SegmentJoinResult f = JoinSegment(MakeSegmentJoinTarget(seg, fine),

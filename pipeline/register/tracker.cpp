@@ -452,13 +452,15 @@ int Tracker::ViewSegment(int64_t view) const {
 int Tracker::JoinApartSegments(std::vector<std::string>* attempts) {
   CommitView();
   int joined = 0;
+  bool model_changed = true;  // since the join features were made (a join rebuilds the model)
   for (int round = 0, joined_in_round = 1; joined_in_round > 0; ++round) {
     joined_in_round = 0;
     for (int seg = 1; seg < segments_.size(); ++seg) {
       if (segments_.InMain(seg)) continue;
-      segments_.RefreshJoinTarget();  // the main model as it is now
+      if (model_changed) segments_.RefreshJoinTarget();  // the main model as it is now
       std::string why;
-      joined_in_round += TryJoinSegment(seg, &why, nullptr, true);
+      model_changed = TryJoinSegment(seg, &why, nullptr, true);
+      joined_in_round += model_changed;
       if (attempts != nullptr)
         attempts->push_back("segment " + std::to_string(seg) + (round > 0 ? ", again: " : ": ") +
                             why);
